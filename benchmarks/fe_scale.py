@@ -1,0 +1,101 @@
+"""FE scale benchmark: assembly + 100 lowest modes for 10-, 87- and 300-bay masts.
+
+Each size runs in a fresh subprocess so that its peak resident memory is its own. The
+baseline, run side by side on the 10-bay model, is a dense LAPACK solve (scipy.linalg.eigh,
+subset of 100) of the same K, M: the ratio says what the sparse shift-invert path buys; for
+87 bays and more the dense matrices alone would not fit comfortably (36 000² doubles ≈ 10 GB).
+
+    python benchmarks/fe_scale.py [--bays 10 87 300] [--json benchmarks/fe_scale.json]
+
+Target (issue 2): 87 bays in ≤ 10 s on the 2-core reference machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+MODES = 100
+
+
+def mast(bays: int) -> dict:
+    """The reference design stretched to ``bays`` bays (tip masses moved to the new free end)."""
+    from smartjoint.design import REFERENCE_DESIGN
+
+    data = tomllib.loads(REFERENCE_DESIGN.read_text())
+    data["truss"]["bays"] = bays
+    data.pop("updating", None)
+    for point_mass in data["point_masses"]:
+        if point_mass["node"].startswith("N"):
+            point_mass["node"] = f"N{bays}_{point_mass['node'].split('_')[1]}"
+    return data
+
+
+def measure(bays: int, dense: bool) -> dict:
+    import scipy.linalg
+
+    from smartjoint.design import build_model, parse_design
+    from smartjoint.design.modal import eigensolve
+
+    design = parse_design(mast(bays), source=f"<{bays}-bay mast>")
+    start = time.perf_counter()
+    model = build_model(design, joints="locked")
+    assembled = time.perf_counter()
+    values, _ = eigensolve(model.stiffness, model.mass, MODES)
+    solved = time.perf_counter()
+    result = {"bays": bays, "n_dof": model.n_dof, "assembly_s": assembled - start, "eigen_s": solved - assembled,
+              "total_s": solved - start, "f1_hz": float(values[0] ** 0.5 / 6.283185307179586),
+              "f100_hz": float(values[-1] ** 0.5 / 6.283185307179586)}
+    if dense:
+        begin = time.perf_counter()
+        reference = scipy.linalg.eigh(model.stiffness.toarray(), model.mass.toarray(), subset_by_index=[0, MODES - 1],
+                                      eigvals_only=True)
+        result["dense_eigen_s"] = time.perf_counter() - begin
+        result["dense_max_rel_diff"] = float(abs(reference / values - 1).max())
+    result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return result
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--bays", type=int, nargs="+", default=[10, 87, 300])
+    parser.add_argument("--json", default=str(Path(__file__).with_name("fe_scale.json")))
+    parser.add_argument("--child", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--dense", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(measure(args.child, args.dense)))
+        return 0
+    rows = []
+    for bays in args.bays:
+        command = [sys.executable, __file__, "--child", str(bays)] + (["--dense"] if bays <= 10 else [])
+        done = subprocess.run(command, capture_output=True, text=True, check=True)
+        rows.append(json.loads(done.stdout))
+        row = rows[-1]
+        print(f"{bays:4d} bays  {row['n_dof']:7d} DOFs  assembly {row['assembly_s']:6.2f} s  "
+              f"100 modes {row['eigen_s']:6.2f} s  total {row['total_s']:6.2f} s  peak RSS {row['peak_rss_mb']:7.0f} MB"
+              f"  f1 {row['f1_hz']:.4g} Hz", flush=True)
+        if "dense_eigen_s" in row:
+            print(f"      baseline dense LAPACK eigh (same K, M): {row['dense_eigen_s']:.2f} s → sparse is "
+                  f"{row['dense_eigen_s'] / row['eigen_s']:.1f}× faster; max rel. eigenvalue difference "
+                  f"{row['dense_max_rel_diff']:.1e}")
+    target = next((r for r in rows if r["bays"] == 87), None)
+    if target:
+        print(f"target 87 bays ≤ 10 s: {target['total_s']:.2f} s → {'met' if target['total_s'] <= 10 else 'MISSED'}")
+    machine = {"python": platform.python_version(), "machine": platform.machine(), "cpus": os.cpu_count(),
+               "processor": platform.processor() or platform.machine()}
+    Path(args.json).write_text(json.dumps({"benchmark": "fe_scale", "modes": MODES, "machine": machine, "rows": rows},
+                                          indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

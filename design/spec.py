@@ -1,0 +1,664 @@
+"""The design file: a TOML description of a truss with friction joints, loaded into dataclasses.
+
+The format is documented in ``docs/design-file.md``. Every check here fails with a
+:class:`~smartjoint.design.errors.DesignError` that names the key path (``joints[2].type``),
+the value found and what is allowed, so a user never meets a traceback from numpy.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import MISSING, DesignError
+
+SCHEMA = "smartjoint-design/1"
+DOF_NAMES = ("ux", "uy", "uz", "rx", "ry", "rz")
+JOINT_TYPES = ("A", "B")
+SENSOR_QUANTITIES = ("displacement", "velocity")
+DIAGONAL_PATTERNS = ("alternating", "parallel")
+TIP_NODES = ("none", "cross", "diagonal")
+
+REFERENCE_DESIGN = Path(__file__).parent / "data" / "meroform_10bay.toml"
+
+
+# --------------------------------------------------------------------------- dataclasses
+@dataclass(frozen=True)
+class Material:
+    name: str
+    youngs_modulus: float  # E [Pa]
+    shear_modulus: float  # G [Pa]
+    density: float  # ρ [kg/m³]
+
+
+@dataclass(frozen=True)
+class TubeSection:
+    """Thin- or thick-walled circular tube."""
+
+    name: str
+    material: str
+    outer_diameter: float  # [m]
+    wall_thickness: float  # [m]
+
+    @property
+    def area(self) -> float:
+        inner = self.outer_diameter - 2.0 * self.wall_thickness
+        return math.pi / 4.0 * (self.outer_diameter**2 - inner**2)
+
+    @property
+    def second_moment(self) -> float:
+        """I_y = I_z [m⁴]."""
+        inner = self.outer_diameter - 2.0 * self.wall_thickness
+        return math.pi / 64.0 * (self.outer_diameter**4 - inner**4)
+
+    @property
+    def polar_moment(self) -> float:
+        """I_p = J = 2I for a circular tube [m⁴]."""
+        return 2.0 * self.second_moment
+
+
+@dataclass(frozen=True)
+class Connector:
+    """Screw end connector between a node and a tube: its own beam element.
+
+    Its stiffnesses are given directly (they are what model updating identifies); its mass is
+    spread along its length, with the rotary inertia of a solid cylinder of ``diameter``.
+    """
+
+    name: str
+    length: float  # [m]
+    mass: float  # [kg]
+    diameter: float  # [m]
+    axial_stiffness: float  # EA [N]
+    bending_stiffness: float  # EI [N·m²]
+    torsional_stiffness: float  # GJ [N·m²]
+
+
+@dataclass(frozen=True)
+class NodeType:
+    """A perfectly rigid truss node (Meroform ball) with lumped mass and inertia."""
+
+    name: str
+    mass: float  # [kg]
+    seat_radius: float  # centre to connector seat [m]
+    inertia: float  # about any axis through the centre [kg·m²]
+
+
+@dataclass(frozen=True)
+class Node:
+    name: str
+    position: tuple[float, float, float]
+    type: str | None  # None: a plain point without mass or offset
+
+
+@dataclass(frozen=True)
+class Member:
+    name: str
+    start: str
+    end: str
+    section: str
+    connector: str | None
+    elements: int  # tube elements
+
+
+@dataclass(frozen=True)
+class PointMass:
+    node: str
+    mass: float
+    inertia: float
+
+
+@dataclass(frozen=True)
+class Support:
+    node: str
+    dofs: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Joint:
+    """A friction joint at one end of a member (paper Fig. 3).
+
+    Type A releases the axial slip of the member end against the node; type B releases the
+    rotation of the member end about ``axis`` (perpendicular to the member).
+    """
+
+    name: str
+    member: str
+    end: str  # "start" | "end"
+    type: str  # "A" | "B"
+    axis: tuple[float, float, float] | None
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """One measured output y (Eq. 10): a node's displacement or velocity along a direction."""
+
+    name: str
+    node: str
+    direction: tuple[float, ...]  # 6-vector over DOF_NAMES
+    quantity: str
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """One disturbance input w (Eq. 5): a force/moment at a node along a direction."""
+
+    name: str
+    node: str
+    direction: tuple[float, ...]  # 6-vector over DOF_NAMES
+
+
+@dataclass(frozen=True)
+class MeasuredMode:
+    mode: int  # 1-based index in the ascending FE spectrum
+    frequency_hz: float
+    mac: float | None
+
+
+@dataclass(frozen=True)
+class Updating:
+    parameters: tuple[str, ...]  # e.g. "connectors.m12.axial_stiffness"
+    measured: tuple[MeasuredMode, ...]
+    max_factors: tuple[float, ...]  # per parameter: bounds initial/max_factor .. initial·max_factor
+
+
+@dataclass(frozen=True)
+class Design:
+    name: str
+    description: str
+    materials: dict[str, Material]
+    sections: dict[str, TubeSection]
+    connectors: dict[str, Connector]
+    node_types: dict[str, NodeType]
+    nodes: dict[str, Node]
+    members: dict[str, Member]
+    point_masses: tuple[PointMass, ...]
+    supports: tuple[Support, ...]
+    joints: tuple[Joint, ...]
+    sensors: tuple[Sensor, ...]
+    disturbances: tuple[Disturbance, ...]
+    modal_damping: float
+    updating: Updating | None
+    source: str = "<memory>"
+    sha256: str = ""
+    truss: dict[str, Any] = field(default_factory=dict)
+
+    def parameter(self, key: str) -> float:
+        """Value of an updatable parameter ``table.name.field`` (see :data:`UPDATABLE`)."""
+        table, name, attribute = _split_parameter(key)
+        return float(getattr(getattr(self, table)[name], attribute))
+
+    def with_parameters(self, values: dict[str, float]) -> "Design":
+        """A copy with updatable parameters replaced (used by model updating)."""
+        import dataclasses
+
+        tables = {t: dict(getattr(self, t)) for t in ("materials", "connectors")}
+        for key, value in values.items():
+            table, name, attribute = _split_parameter(key)
+            tables[table][name] = dataclasses.replace(tables[table][name], **{attribute: float(value)})
+        return dataclasses.replace(self, **tables)
+
+
+UPDATABLE = {
+    "materials": ("youngs_modulus", "shear_modulus"),
+    "connectors": ("axial_stiffness", "bending_stiffness", "torsional_stiffness"),
+}
+
+
+def _split_parameter(key: str) -> tuple[str, str, str]:
+    parts = key.split(".")
+    if len(parts) != 3 or parts[0] not in UPDATABLE or parts[2] not in UPDATABLE[parts[0]]:
+        allowed = ", ".join(f"{t}.<name>.{a}" for t, attrs in UPDATABLE.items() for a in attrs)
+        raise DesignError("updating.parameters", key, f"allowed: {allowed}")
+    return parts[0], parts[1], parts[2]
+
+
+# --------------------------------------------------------------------------- reading helpers
+class _Table:
+    """A TOML table with its key path, for reading values with precise error messages."""
+
+    def __init__(self, data: Any, path: str, source: str):
+        if not isinstance(data, dict):
+            raise DesignError(path or "<root>", data, "expected a table", source)
+        self.data = data
+        self.path = path
+        self.source = source
+        self.used: set[str] = set()
+
+    def key(self, name: str) -> str:
+        return f"{self.path}.{name}" if self.path else name
+
+    def error(self, name: str, value: object, allowed: str) -> DesignError:
+        return DesignError(self.key(name), value, allowed, self.source)
+
+    def get(self, name: str, default: object = MISSING) -> Any:
+        self.used.add(name)
+        if name not in self.data:
+            if default is MISSING:
+                raise self.error(name, MISSING, "required key")
+            return default
+        return self.data[name]
+
+    def string(self, name: str, default: object = MISSING, choices: tuple[str, ...] | None = None) -> str:
+        value = self.get(name, default)
+        if value is None and default is None:
+            return None  # type: ignore[return-value]
+        if not isinstance(value, str) or not value:
+            raise self.error(name, value, "expected a non-empty string")
+        if choices is not None and value not in choices:
+            raise self.error(name, value, "allowed: " + ", ".join(repr(c) for c in choices))
+        return value
+
+    def number(self, name: str, default: object = MISSING, *, positive: bool = False,
+               non_negative: bool = False, maximum: float | None = None) -> float:
+        value = self.get(name, default)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(name, value, "expected a number")
+        value = float(value)
+        if not math.isfinite(value):
+            raise self.error(name, value, "expected a finite number")
+        if positive and value <= 0.0:
+            raise self.error(name, value, "must be > 0")
+        if non_negative and value < 0.0:
+            raise self.error(name, value, "must be >= 0")
+        if maximum is not None and value > maximum:
+            raise self.error(name, value, f"must be <= {maximum}")
+        return value
+
+    def integer(self, name: str, default: object = MISSING, *, minimum: int = 1) -> int:
+        value = self.get(name, default)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(name, value, "expected an integer")
+        if value < minimum:
+            raise self.error(name, value, f"must be >= {minimum}")
+        return value
+
+    def boolean(self, name: str, default: object = MISSING) -> bool:
+        value = self.get(name, default)
+        if not isinstance(value, bool):
+            raise self.error(name, value, "expected true or false")
+        return value
+
+    def vector(self, name: str, size: int, default: object = MISSING) -> tuple[float, ...]:
+        value = self.get(name, default)
+        if value is None:
+            return None  # type: ignore[return-value]
+        if (not isinstance(value, list) or len(value) != size
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+                or not all(math.isfinite(float(v)) for v in value)):
+            raise self.error(name, value, f"expected a list of {size} finite numbers")
+        return tuple(float(v) for v in value)
+
+    def table(self, name: str, default: object = MISSING) -> "_Table":
+        value = self.get(name, default)
+        return _Table(value, self.key(name), self.source)
+
+    def tables(self, name: str) -> list["_Table"]:
+        value = self.get(name, [])
+        if not isinstance(value, list):
+            raise self.error(name, value, "expected an array of tables ([[" + name + "]])")
+        return [_Table(item, f"{self.key(name)}[{i}]", self.source) for i, item in enumerate(value)]
+
+    def named_tables(self, name: str) -> list[tuple[str, "_Table"]]:
+        value = self.get(name, {})
+        if not isinstance(value, dict):
+            raise self.error(name, value, f"expected a table of named entries ([{name}.<name>])")
+        return [(key, _Table(item, f"{self.key(name)}.{key}", self.source)) for key, item in value.items()]
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            raise self.error(unknown[0], self.data[unknown[0]], "unknown key; allowed: "
+                             + ", ".join(sorted(self.used)))
+
+
+def _reference(table: _Table, key: str, name: str, known: dict[str, Any], what: str) -> str:
+    if name not in known:
+        shown = ", ".join(sorted(known)[:8]) + (" …" if len(known) > 8 else "")
+        raise table.error(key, name, f"no {what} of that name; known: {shown or 'none'}")
+    return name
+
+
+def _direction(table: _Table, key: str) -> tuple[float, ...]:
+    """A direction: a DOF name (``"uy"``) or a 3-vector of a translation (normalised)."""
+    value = table.get(key)
+    if isinstance(value, str):
+        if value not in DOF_NAMES:
+            raise table.error(key, value, "allowed: " + ", ".join(DOF_NAMES) + " or [x, y, z]")
+        vector = [0.0] * 6
+        vector[DOF_NAMES.index(value)] = 1.0
+        return tuple(vector)
+    vector3 = table.vector(key, 3)
+    norm = math.sqrt(sum(v * v for v in vector3))
+    if norm == 0.0:
+        raise table.error(key, value, "direction must not be the zero vector")
+    return tuple(v / norm for v in vector3) + (0.0, 0.0, 0.0)
+
+
+# --------------------------------------------------------------------------- loading
+def load_design(path: str | Path | None = None) -> Design:
+    """Load and validate a design file; ``None`` loads the bundled reference truss."""
+    path = Path(path) if path is not None else REFERENCE_DESIGN
+    source = str(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as error:
+        raise DesignError("<file>", source, f"cannot read design file ({error.strerror})") from None
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        raise DesignError("<file>", source, f"not valid TOML: {error}") from None
+    design = parse_design(data, source=source)
+    import dataclasses
+
+    return dataclasses.replace(design, sha256=hashlib.sha256(raw).hexdigest())
+
+
+def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
+    """Validate a design given as a (TOML-like) dictionary."""
+    root = _Table(data, "", source)
+    schema = root.string("schema", SCHEMA)
+    if schema != SCHEMA:
+        raise root.error("schema", schema, f"this version reads {SCHEMA!r}")
+    name = root.string("name")
+    description = root.get("description", "")
+    if not isinstance(description, str):
+        raise root.error("description", description, "expected a string")
+
+    materials = {}
+    for key, t in root.named_tables("materials"):
+        youngs = t.number("youngs_modulus", positive=True)
+        if "shear_modulus" in t.data and "poisson_ratio" in t.data:
+            raise t.error("poisson_ratio", t.data["poisson_ratio"], "give shear_modulus or poisson_ratio, not both")
+        if "poisson_ratio" in t.data:
+            nu = t.number("poisson_ratio", non_negative=True, maximum=0.4999)
+            shear = youngs / (2.0 * (1.0 + nu))
+        else:
+            shear = t.number("shear_modulus", positive=True)
+        materials[key] = Material(key, youngs, shear, t.number("density", positive=True))
+        t.finish()
+
+    sections = {}
+    for key, t in root.named_tables("sections"):
+        material = _reference(t, "material", t.string("material"), materials, "material")
+        outer = t.number("outer_diameter", positive=True)
+        wall = t.number("wall_thickness", positive=True)
+        if 2.0 * wall > outer:
+            raise t.error("wall_thickness", wall, f"must be <= outer_diameter/2 = {outer / 2}")
+        sections[key] = TubeSection(key, material, outer, wall)
+        t.finish()
+
+    connectors = {}
+    for key, t in root.named_tables("connectors"):
+        connectors[key] = Connector(
+            key,
+            length=t.number("length", positive=True),
+            mass=t.number("mass", non_negative=True),
+            diameter=t.number("diameter", positive=True),
+            axial_stiffness=t.number("axial_stiffness", positive=True),
+            bending_stiffness=t.number("bending_stiffness", positive=True),
+            torsional_stiffness=t.number("torsional_stiffness", positive=True),
+        )
+        t.finish()
+
+    node_types = {}
+    for key, t in root.named_tables("node_types"):
+        mass = t.number("mass", non_negative=True)
+        radius = t.number("seat_radius", non_negative=True)
+        inertia = t.number("inertia", 0.4 * mass * radius**2, non_negative=True)
+        node_types[key] = NodeType(key, mass, radius, inertia)
+        t.finish()
+
+    mesh = root.table("mesh", {})
+    default_elements = mesh.integer("tube_elements", 4)
+    mesh.finish()
+
+    nodes: dict[str, Node] = {}
+    members: dict[str, Member] = {}
+    truss_settings: dict[str, Any] = {}
+    if "truss" in root.data:
+        truss = root.table("truss")
+        truss_settings = dict(truss.data)
+        _generate_mast(truss, nodes, members, node_types, sections, connectors, default_elements)
+        truss.finish()
+
+    for t in root.tables("nodes"):
+        node_name = t.string("name")
+        if node_name in nodes:
+            raise t.error("name", node_name, "duplicate node name")
+        node_type = t.string("type", None)
+        if node_type is not None:
+            _reference(t, "type", node_type, node_types, "node type")
+        nodes[node_name] = Node(node_name, t.vector("position", 3), node_type)
+        t.finish()
+
+    for t in root.tables("members"):
+        member_name = t.string("name")
+        if member_name in members:
+            raise t.error("name", member_name, "duplicate member name")
+        start = _reference(t, "start", t.string("start"), nodes, "node")
+        end = _reference(t, "end", t.string("end"), nodes, "node")
+        section = _reference(t, "section", t.string("section"), sections, "section")
+        connector = t.string("connector", None)
+        if connector is not None:
+            _reference(t, "connector", connector, connectors, "connector")
+        members[member_name] = Member(member_name, start, end, section, connector,
+                                      t.integer("elements", default_elements))
+        t.finish()
+    if not members:
+        raise root.error("members", [], "the design has no members (give [truss] or [[members]])")
+    _check_member_lengths(members, nodes, node_types, connectors)
+
+    point_masses = []
+    for t in root.tables("point_masses"):
+        node = _reference(t, "node", t.string("node"), nodes, "node")
+        point_masses.append(PointMass(node, t.number("mass", non_negative=True),
+                                      t.number("inertia", 0.0, non_negative=True)))
+        t.finish()
+
+    supports = []
+    for t in root.tables("supports"):
+        node = _reference(t, "node", t.string("node"), nodes, "node")
+        supports.append(Support(node, _dof_list(t, "dofs")))
+        t.finish()
+    if "truss" in root.data and truss_settings.get("clamp_root", True):
+        generated = {s.node for s in supports}
+        supports.extend(Support(f"N0_{c}", DOF_NAMES) for c in range(4) if f"N0_{c}" not in generated)
+
+    joints = []
+    names: set[str] = set()
+    for t in root.tables("joints"):
+        joint_name = t.string("name")
+        if joint_name in names:
+            raise t.error("name", joint_name, "duplicate joint name")
+        names.add(joint_name)
+        member = _reference(t, "member", t.string("member"), members, "member")
+        end = t.string("end", choices=("start", "end"))
+        joint_type = t.string("type", choices=JOINT_TYPES)
+        axis = None
+        if joint_type == "B":
+            axis = _joint_axis(t, members[member], nodes)
+        elif "axis" in t.data:
+            t.get("axis")
+            raise t.error("axis", t.data["axis"], "type A slips along the member axis; axis is only for type B")
+        joints.append(Joint(joint_name, member, end, joint_type, axis))
+        t.finish()
+    ends = [(j.member, j.end) for j in joints]
+    for i, joint_end in enumerate(ends):
+        if ends.index(joint_end) != i:
+            raise DesignError(f"joints[{i}].end", joint_end[1], f"member {joint_end[0]!r} already has a joint at that end", source)
+
+    sensors = []
+    for t in root.tables("sensors"):
+        node = _reference(t, "node", t.string("node"), nodes, "node")
+        sensors.append(Sensor(t.string("name"), node, _direction(t, "direction"),
+                              t.string("quantity", "displacement", choices=SENSOR_QUANTITIES)))
+        t.finish()
+    _unique([s.name for s in sensors], "sensors", source)
+
+    disturbances = []
+    for t in root.tables("disturbances"):
+        node = _reference(t, "node", t.string("node"), nodes, "node")
+        disturbances.append(Disturbance(t.string("name"), node, _direction(t, "direction")))
+        t.finish()
+    _unique([d.name for d in disturbances], "disturbances", source)
+
+    damping = root.table("damping", {})
+    modal_damping = damping.number("modal_ratio", 0.001, positive=True, maximum=0.99)
+    damping.finish()
+
+    updating = None
+    if "updating" in root.data:
+        updating = _parse_updating(root.table("updating"), materials, connectors)
+
+    root.finish()
+    return Design(name, description, materials, sections, connectors, node_types, nodes, members,
+                  tuple(point_masses), tuple(supports), tuple(joints), tuple(sensors),
+                  tuple(disturbances), modal_damping, updating, source=source, truss=truss_settings)
+
+
+def _unique(names: list[str], table: str, source: str) -> None:
+    for i, name in enumerate(names):
+        if names.index(name) != i:
+            raise DesignError(f"{table}[{i}].name", name, "duplicate name", source)
+
+
+def _dof_list(t: _Table, key: str) -> tuple[str, ...]:
+    value = t.get(key)
+    if value == "all":
+        return DOF_NAMES
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
+        raise t.error(key, value, "expected \"all\" or a list of " + ", ".join(DOF_NAMES))
+    for v in value:
+        if v not in DOF_NAMES:
+            raise t.error(key, v, "allowed: " + ", ".join(DOF_NAMES))
+    return tuple(dict.fromkeys(value))
+
+
+def _joint_axis(t: _Table, member: Member, nodes: dict[str, Node]) -> tuple[float, float, float]:
+    axis = np.array(t.vector("axis", 3), dtype=float)
+    rod = np.subtract(nodes[member.end].position, nodes[member.start].position)
+    rod /= np.linalg.norm(rod)
+    if np.linalg.norm(axis) == 0.0:
+        raise t.error("axis", list(axis), "must not be the zero vector")
+    axis /= np.linalg.norm(axis)
+    if abs(float(axis @ rod)) > 1e-6:
+        raise t.error("axis", [float(a) for a in axis],
+                      f"type B rotates about an axis perpendicular to the member (member direction {np.round(rod, 4).tolist()})")
+    return tuple(float(a) for a in axis)
+
+
+def _check_member_lengths(members, nodes, node_types, connectors) -> None:
+    for member in members.values():
+        length = float(np.linalg.norm(np.subtract(nodes[member.end].position, nodes[member.start].position)))
+        rigid = sum(node_types[nodes[n].type].seat_radius if nodes[n].type else 0.0 for n in (member.start, member.end))
+        flexible = 2.0 * connectors[member.connector].length if member.connector else 0.0
+        if length - rigid - flexible <= 1e-9:
+            raise DesignError(f"members.{member.name}", length,
+                              f"member length must exceed node seats + connectors ({rigid + flexible:.4g} m)")
+
+
+def _parse_updating(t: _Table, materials, connectors) -> Updating:
+    default_factor = t.number("max_factor", 10.0, positive=True)
+    if default_factor <= 1.0:
+        raise t.error("max_factor", default_factor, "must be > 1")
+    entries = t.get("parameters")
+    if not isinstance(entries, list) or not entries:
+        raise t.error("parameters", entries, "expected a non-empty list of parameter keys or {name, max_factor} tables")
+    parameters, factors = [], []
+    for i, entry in enumerate(entries):
+        if isinstance(entry, str):
+            key, factor = entry, default_factor
+        else:
+            item = _Table(entry, t.key(f"parameters[{i}]"), t.source)
+            key = item.string("name")
+            factor = item.number("max_factor", default_factor, positive=True)
+            if factor <= 1.0:
+                raise item.error("max_factor", factor, "must be > 1")
+            item.finish()
+        if key in parameters:
+            raise t.error(f"parameters[{i}]", key, "duplicate parameter")
+        parameters.append(key)
+        factors.append(factor)
+    for i, key in enumerate(parameters):
+        try:
+            table, name, _ = _split_parameter(key)
+        except DesignError:
+            allowed = ", ".join(f"{tb}.<name>.{a}" for tb, attrs in UPDATABLE.items() for a in attrs)
+            raise t.error(f"parameters[{i}]", key, f"allowed: {allowed}") from None
+        known = materials if table == "materials" else connectors
+        if name not in known:
+            raise t.error(f"parameters[{i}]", key, f"no {table[:-1]} named {name!r}")
+    measured = []
+    for m in t.tables("measured"):
+        measured.append(MeasuredMode(m.integer("mode"), m.number("frequency_hz", positive=True),
+                                     m.number("mac", None) if m.data.get("mac") is not None else None))
+        m.finish()
+    if len(measured) < 1:
+        raise t.error("measured", [], "give at least one [[updating.measured]] mode")
+    modes = [m.mode for m in measured]
+    if sorted(set(modes)) != modes:
+        raise t.error("measured", modes, "mode numbers must be strictly increasing")
+    t.finish()
+    return Updating(tuple(parameters), tuple(measured), tuple(factors))
+
+
+# --------------------------------------------------------------------------- generator
+def _generate_mast(t: _Table, nodes, members, node_types, sections, connectors, default_elements) -> None:
+    """A regular square mast along x (paper Fig. 1/8): ``bays`` bays, corners N<i>_<c>.
+
+    Stations i = 0..bays sit at x = i·bay_length; corners c = 0..3 at (y, z) = (∓w/2, ∓w/2)
+    counter-clockwise. Members: longerons L<i>_<c>, battens B<i>_<c> (frame edges), face
+    diagonals D<i>_<f> (one per side face and bay, ``diagonals`` = alternating | parallel),
+    optional frame diagonals F<i>, and a centre node TIP in the last frame tied to the four
+    corners (``tip_node = "cross"``) or splitting that frame's diagonal (``"diagonal"``) by T<c>.
+    """
+    bays = t.integer("bays")
+    bay_length = t.number("bay_length", positive=True)
+    width = t.number("width", positive=True)
+    pattern = t.string("diagonals", "alternating", choices=DIAGONAL_PATTERNS)
+    frame_diagonals = t.boolean("frame_diagonals", False)
+    root_battens = t.boolean("root_battens", False)
+    tip_node = t.string("tip_node", "cross", choices=TIP_NODES)
+    t.boolean("clamp_root", True)
+    node_type = _reference(t, "node_type", t.string("node_type"), node_types, "node type")
+    section = _reference(t, "section", t.string("section"), sections, "section")
+    connector = t.string("connector", None)
+    if connector is not None:
+        _reference(t, "connector", connector, connectors, "connector")
+    elements = t.integer("tube_elements", default_elements)
+
+    corners = [(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)]
+    for i in range(bays + 1):
+        for c, (y, z) in enumerate(corners):
+            nodes[f"N{i}_{c}"] = Node(f"N{i}_{c}", (i * bay_length, y * width, z * width), node_type)
+
+    def add(name: str, a: str, b: str) -> None:
+        members[name] = Member(name, a, b, section, connector, elements)
+
+    for i in range(bays + 1):
+        if i > 0 or root_battens:
+            for c in range(4):
+                add(f"B{i}_{c}", f"N{i}_{c}", f"N{i}_{(c + 1) % 4}")
+        if i > 0 and frame_diagonals and not (i == bays and tip_node == "diagonal"):
+            add(f"F{i}", f"N{i}_{i % 2}", f"N{i}_{i % 2 + 2}")
+    for i in range(1, bays + 1):
+        for c in range(4):
+            add(f"L{i}_{c}", f"N{i - 1}_{c}", f"N{i}_{c}")
+        for f in range(4):
+            rising = pattern == "parallel" or (i + f) % 2 == 0
+            if rising:
+                add(f"D{i}_{f}", f"N{i - 1}_{f}", f"N{i}_{(f + 1) % 4}")
+            else:
+                add(f"D{i}_{f}", f"N{i - 1}_{(f + 1) % 4}", f"N{i}_{f}")
+    if tip_node != "none":
+        nodes["TIP"] = Node("TIP", (bays * bay_length, 0.0, 0.0), node_type)
+        spokes = range(4) if tip_node == "cross" else (bays % 2, bays % 2 + 2)
+        for c in spokes:
+            add(f"T{c}", f"N{bays}_{c}", "TIP")

@@ -1,0 +1,121 @@
+"""Plots (PNG, matplotlib Agg) and Markdown tables for the report of ``smartjoint run``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .design.fem import FEModel  # noqa: E402
+from .design.modal import Modes  # noqa: E402
+from .design.updating import UpdatingResult  # noqa: E402
+
+
+def updating_table(result: UpdatingResult) -> str:
+    """Markdown tables: per mode EMA / FEM / error, per parameter initial / updated / sensitivity."""
+    lines = ["| mode | EMA [Hz] | FEM initial [Hz] | FEM updated [Hz] | error [%] | EMA MAC |",
+             "|---:|---:|---:|---:|---:|---:|"]
+    for i, mode in enumerate(result.modes):
+        mac = "" if np.isnan(result.mac[i]) else f"{result.mac[i]:.2f}"
+        lines.append(f"| {mode} | {result.measured_hz[i]:.2f} | {result.initial_hz[i]:.3f} | "
+                     f"{result.updated_hz[i]:.3f} | {result.error_pct[i]:+.2f} | {mac} |")
+    lines += ["", "| parameter | initial | updated | ratio | sensitivity ‖∂ln f/∂ln p‖ |",
+              "|---|---:|---:|---:|---:|"]
+    for k, name in enumerate(result.parameter_names):
+        lines.append(f"| `{name}` | {result.initial[k]:.4g} | {result.updated[k]:.4g} | "
+                     f"{result.updated[k] / result.initial[k]:.3f} | {np.linalg.norm(result.sensitivity[:, k]):.3f} |")
+    lines += ["", f"Worst error {np.max(np.abs(result.error_pct)):.2f} % "
+              f"({result.evaluations} eigen solutions, {result.starts} polished starts)."]
+    return "\n".join(lines)
+
+
+def sensitivity_table(result: UpdatingResult) -> str:
+    """Normalised sensitivities ∂ln f_i / ∂ln p_k at the updated parameters."""
+    short = [name.split(".", 1)[1] for name in result.parameter_names]
+    lines = ["| mode | " + " | ".join(short) + " |", "|---:|" + "---:|" * len(short)]
+    for i, mode in enumerate(result.modes):
+        lines.append(f"| {mode} | " + " | ".join(f"{v:+.3f}" for v in result.sensitivity[i]) + " |")
+    return "\n".join(lines)
+
+
+def plot_updating(result: UpdatingResult, path: Path) -> None:
+    x = np.arange(len(result.modes))
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    width = 0.27
+    top.bar(x - width, result.measured_hz, width, label="EMA (paper Fig. 7)")
+    top.bar(x, result.initial_hz, width, label="FEM nominal")
+    top.bar(x + width, result.updated_hz, width, label="FEM updated")
+    top.set_ylabel("frequency [Hz]")
+    top.legend(loc="upper left")
+    bottom.axhspan(-2, 2, color="0.9", label="±2 % target")
+    bottom.plot(x, result.initial_error_pct, "o--", label="nominal")
+    bottom.plot(x, result.error_pct, "s-", label="updated")
+    bottom.axhline(0.0, color="k", lw=0.6)
+    bottom.set_ylabel("error vs EMA [%]")
+    bottom.set_xticks(x, [str(m) for m in result.modes])
+    bottom.set_xlabel("mode number")
+    bottom.legend(loc="lower left")
+    fig.suptitle("Model updating to the measured eigenfrequencies")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def member_polylines(model: FEModel) -> dict[str, list[int]]:
+    """Point indices of each member from node centre to node centre, for drawing."""
+    by_member: dict[str, list[int]] = {}
+    for e, member in enumerate(model.element_member):
+        a, b = (int(v) for v in model.element_points[e])
+        chain = by_member.setdefault(member, [a])
+        chain.append(b)
+    node_index = {name: i for i, name in enumerate(model.design.nodes)}
+    for name, chain in by_member.items():
+        member = model.design.members[name]
+        chain.insert(0, node_index[member.start])
+        chain.append(node_index[member.end])
+    return by_member
+
+
+def plot_mode_shapes(model: FEModel, modes: Modes, path: Path, count: int = 6) -> None:
+    """The first ``count`` mode shapes, undeformed truss in grey."""
+    count = min(count, len(modes))
+    chains = member_polylines(model)
+    points = model.points
+    span = float(np.ptp(points, axis=0).max())
+    columns = 3
+    rows = int(np.ceil(count / columns))
+    fig = plt.figure(figsize=(4.2 * columns, 3.6 * rows))
+    for k in range(count):
+        displacement = (model.S @ modes.shapes[:, k]).reshape(-1, 6)[:, :3]
+        scale = 0.08 * span / max(np.abs(displacement).max(), 1e-300)
+        deformed = points + scale * displacement
+        ax = fig.add_subplot(rows, columns, k + 1, projection="3d")
+        for chain in chains.values():
+            ax.plot(*points[chain].T, color="0.8", lw=0.6)
+            ax.plot(*deformed[chain].T, color="C0", lw=0.9)
+        ax.set_title(f"mode {k + 1}: {modes.frequencies_hz[k]:.2f} Hz", fontsize=10)
+        ax.set_box_aspect(np.ptp(np.vstack([points, deformed]), axis=0) + 1e-9)
+        ax.view_init(elev=22, azim=-58)
+        ax.set_axis_off()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_spectrum(modes: Modes, measured: list[tuple[int, float]], path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    index = np.arange(1, len(modes) + 1)
+    ax.plot(index, modes.frequencies_hz, ".-", label="FEM (updated)")
+    if measured:
+        ax.plot([m for m, _ in measured], [f for _, f in measured], "rx", ms=9, label="EMA")
+    ax.set_xlabel("mode number")
+    ax.set_ylabel("frequency [Hz]")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

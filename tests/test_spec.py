@@ -1,0 +1,107 @@
+"""Malformed design files get one clear line naming the key, the value and what is allowed."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from smartjoint.design import DesignError, ModelError, build_model, load_design, parse_design
+
+from conftest import small_truss
+
+
+def _error(data) -> str:
+    with pytest.raises(DesignError) as info:
+        parse_design(data)
+    return str(info.value)
+
+
+def test_reference_design_loads():
+    design = load_design()
+    assert design.name == "meroform-10bay"
+    assert len(design.nodes) == 45  # 11 frames of 4 corners + the tip node: five free-end nodes
+    assert sum(p.mass for p in design.point_masses) == pytest.approx(2.5)
+    assert len(design.sha256) == 64
+
+
+def test_missing_key():
+    data = small_truss()
+    del data["materials"]["aluminium"]["density"]
+    assert "materials.aluminium.density: missing — required key" in _error(data)
+
+
+def test_wrong_type():
+    data = small_truss()
+    data["truss"]["bays"] = "ten"
+    message = _error(data)
+    assert "truss.bays: 'ten'" in message and "integer" in message
+
+
+def test_unknown_joint_type():
+    data = small_truss()
+    data["joints"][0]["type"] = "C"
+    message = _error(data)
+    assert "joints[0].type: 'C'" in message and "'A', 'B'" in message
+
+
+def test_member_to_missing_node():
+    data = small_truss()
+    data["nodes"] = [{"name": "X", "position": [5.0, 0.0, 0.0], "type": "ball"}]
+    data["members"] = [{"name": "extra", "start": "X", "end": "NOPE", "section": "tube"}]
+    message = _error(data)
+    assert "members[0].end: 'NOPE'" in message and "no node of that name" in message
+
+
+def test_zero_length_member():
+    data = small_truss()
+    data["nodes"] = [{"name": "X", "position": [0.0, -0.5, -0.5], "type": "ball"}]
+    data["members"] = [{"name": "short", "start": "X", "end": "N0_0", "section": "tube", "connector": "c"}]
+    message = _error(data)
+    assert "members.short: 0.0" in message and "must exceed" in message
+
+
+def test_unknown_key_is_named():
+    data = small_truss()
+    data["truss"]["bay_lenght"] = 1.0
+    message = _error(data)
+    assert "truss.bay_lenght" in message and "unknown key" in message
+
+
+def test_type_b_axis_must_be_perpendicular():
+    data = small_truss()
+    data["joints"][1]["axis"] = [1.0, 0.0, 1.0]
+    assert "joints[1].axis" in _error(data)
+
+
+def test_negative_and_non_finite_numbers():
+    data = small_truss()
+    data["connectors"]["c"]["axial_stiffness"] = -1.0
+    assert "connectors.c.axial_stiffness: -1.0 — must be > 0" in _error(data)
+    data = small_truss()
+    data["materials"]["aluminium"]["youngs_modulus"] = float("nan")
+    assert "finite" in _error(data)
+
+
+def test_unsupported_structure_is_refused():
+    data = small_truss()
+    data["truss"]["clamp_root"] = False
+    with pytest.raises(ModelError, match="zero-energy"):
+        build_model(parse_design(data))
+
+
+def test_not_toml(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text("name = [unclosed\n")
+    with pytest.raises(DesignError, match="not valid TOML"):
+        load_design(path)
+
+
+def test_command_line_reports_one_line(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text('schema = "smartjoint-design/1"\nname = "x"\n[truss]\nbays = 0\n')
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "modes", str(path)], capture_output=True, text=True)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "truss.bays: 0" in lines[0] and "Traceback" not in done.stderr
