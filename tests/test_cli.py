@@ -1,0 +1,56 @@
+"""Command line contracts: --help, --json shapes, exit codes, the run report."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from smartjoint.cli import main
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "smartjoint.cli", *args], capture_output=True, text=True)
+
+
+def test_help_lists_commands():
+    done = _cli("--help")
+    assert done.returncode == 0
+    for command in ("run", "modes", "update", "export-model"):
+        assert command in done.stdout
+
+
+def test_modes_json_has_the_documented_shape():
+    done = _cli("modes", "--no-update", "-n", "5", "--json")
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert [m["index"] for m in out["modes"]] == [1, 2, 3, 4, 5]
+    frequencies = [m["frequency_hz"] for m in out["modes"]]
+    assert frequencies == sorted(frequencies) and frequencies[0] > 1.0
+    comparison = out["ema_comparison"]
+    assert comparison[0] == {"index": 1, "ema_hz": 4.49, "fem_hz": comparison[0]["fem_hz"],
+                             "error_pct": pytest.approx(100 * (comparison[0]["fem_hz"] - 4.49) / 4.49)}
+    assert [c["index"] for c in comparison] == [1, 2, 3, 4, 5, 7, 8, 12, 17]
+
+
+def test_missing_design_file_is_one_line(tmp_path):
+    done = _cli("modes", str(tmp_path / "nope.toml"))
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "cannot read design file" in done.stderr
+
+
+def test_run_writes_a_complete_report(tmp_path, capsys):
+    from conftest import small_truss
+    import tomli_w
+
+    design = tmp_path / "small.toml"
+    design.write_text(tomli_w.dumps(small_truss()))
+    out = tmp_path / "report"
+    assert main(["run", str(design), "-o", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    for name in ("report.md", "mode_shapes.png", "spectrum.png", "summary.json"):
+        assert (out / name).stat().st_size > 0
+    assert summary["modes_released_hz"][0] < summary["modes_hz"][0]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".report-")]  # no staging left

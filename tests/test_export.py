@@ -1,0 +1,82 @@
+"""The neutral model format rebuilds the same model, independently of smartjoint's assembly."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+from smartjoint.design import beam, build_model, parse_design
+from smartjoint.design.export import export_model
+from smartjoint.design.modal import eigensolve
+
+from conftest import small_truss
+
+
+def _rebuild(document: dict) -> tuple[np.ndarray, np.ndarray]:
+    """A minimal FE code reading only the JSON: assemble, tie rigid links, drop supports."""
+    points = np.array([p["position"] for p in document["points"]])
+    names = [p["name"] for p in document["points"]]
+    n_bar = 6 * len(points)
+    K = np.zeros((n_bar, n_bar))
+    M = np.zeros((n_bar, n_bar))
+    for element in document["elements"]:
+        a, b = element["points"]
+        length, rotation = beam.element_frames(points[[a]], points[[b]], np.array([element["local_y"]]))
+        k = beam.local_stiffness_terms(length)
+        m = beam.local_mass_terms(length)
+        ke = beam.to_global(element["EA"] * k["axial"] + element["GJ"] * k["torsion"]
+                            + element["EIy"] * k["bending_y"] + element["EIz"] * k["bending_z"], rotation)[0]
+        me = beam.to_global(element["mass_per_length"] * m["translation"]
+                            + element["polar_inertia_per_length"] * m["torsion"], rotation)[0]
+        dofs = np.r_[6 * a:6 * a + 6, 6 * b:6 * b + 6]
+        K[np.ix_(dofs, dofs)] += ke
+        M[np.ix_(dofs, dofs)] += me
+    for lumped in document["lumped_masses"]:
+        i = names.index(lumped["node"])
+        M[6 * i:6 * i + 3, 6 * i:6 * i + 3] += lumped["mass"] * np.eye(3)
+        M[6 * i + 3:6 * i + 6, 6 * i + 3:6 * i + 6] += lumped["inertia"] * np.eye(3)
+    # Constraint matrix: every rigid link's point follows its node; a release adds a DOF.
+    dependent = {names.index(link["point"]) for link in document["rigid_links"]}
+    fixed = {6 * names.index(s["node"]) + document["dof_order"].index(d) for s in document["supports"] for d in s["dofs"]}
+    columns = [d for p in range(len(points)) if p not in dependent for d in range(6 * p, 6 * p + 6) if d not in fixed]
+    releases = [link for link in document["rigid_links"] if link["release"]]
+    S = np.zeros((n_bar, len(columns) + len(releases)))
+    S[columns, np.arange(len(columns))] = 1.0
+    for link in document["rigid_links"]:
+        p, n = names.index(link["point"]), names.index(link["node"])
+        r = np.array(link["offset"])
+        S[6 * p:6 * p + 6] = S[6 * n:6 * n + 6]
+        S[6 * p:6 * p + 3] += np.cross(S[6 * n + 3:6 * n + 6].T, r).T  # u_p = u_n + θ_n × r
+    for k, link in enumerate(releases):
+        p = names.index(link["point"])
+        block = 0 if link["release"]["type"] == "A" else 3
+        S[6 * p + block:6 * p + block + 3, len(columns) + k] = link["release"]["direction"]
+    return S.T @ K @ S, S.T @ M @ S
+
+
+def test_export_rebuilds_the_same_frequencies():
+    for joints in ("locked", "released"):
+        model = build_model(parse_design(small_truss()), joints=joints)
+        document = json.loads(json.dumps(export_model(model)))
+        K, M = _rebuild(document)
+        assert K.shape[0] == model.n_dof
+        rebuilt = scipy.linalg.eigh(K, M, eigvals_only=True, subset_by_index=[0, 19])
+        ours, _ = eigensolve(model.stiffness, model.mass, 20)
+        np.testing.assert_allclose(rebuilt, ours, rtol=1e-9)
+
+
+def test_export_model_command(tmp_path):
+    target = tmp_path / "model.json"
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "export-model", "--no-update", "-o", str(target),
+                           "--json"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    document = json.loads(target.read_text())
+    assert document["schema"] == "smartjoint-model/1"
+    assert summary["elements"] == len(document["elements"]) == 744
+    assert not list(tmp_path.glob("*.partial"))
