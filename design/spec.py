@@ -7,6 +7,7 @@ the value found and what is allowed, so a user never meets a traceback from nump
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import tomllib
@@ -196,8 +197,6 @@ class Design:
 
     def with_parameters(self, values: dict[str, float]) -> "Design":
         """A copy with updatable parameters replaced (used by model updating)."""
-        import dataclasses
-
         tables = {t: dict(getattr(self, t)) for t in ("materials", "connectors")}
         for key, value in values.items():
             table, name, attribute = _split_parameter(key)
@@ -355,8 +354,6 @@ def load_design(path: str | Path | None = None) -> Design:
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise DesignError("<file>", source, f"not valid TOML: {error}") from None
     design = parse_design(data, source=source)
-    import dataclasses
-
     return dataclasses.replace(design, sha256=hashlib.sha256(raw).hexdigest())
 
 

@@ -19,6 +19,16 @@ def _progress(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} — must be a whole number >= 1")
+    return value
+
+
 def _add_design(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("design", nargs="?", default=None,
                         help="design file (TOML); default: the bundled 10-bay reference truss")
@@ -123,7 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("modes", help="eigenfrequencies, and the EMA comparison where the design has one")
     _add_design(p)
-    p.add_argument("-n", "--count", type=int, default=20, help="number of modes (default: %(default)s)")
+    p.add_argument("-n", "--count", type=_positive_int, default=20, help="number of modes (default: %(default)s)")
     p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=cmd_modes)
@@ -147,8 +157,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if getattr(args, "count", 1) is not None and getattr(args, "count", 1) < 1:
-        parser.error(f"--count: {args.count} — must be >= 1")
     try:
         out = args.func(args)
     except SmartjointError as error:

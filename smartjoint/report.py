@@ -58,7 +58,7 @@ def plot_updating(result: UpdatingResult, path: Path) -> None:
     bottom.set_ylabel("error vs EMA [%]")
     bottom.set_xticks(x, [str(m) for m in result.modes])
     bottom.set_xlabel("mode number")
-    bottom.legend(loc="lower left")
+    bottom.legend(loc="upper right")
     fig.suptitle("Model updating to the measured eigenfrequencies")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
