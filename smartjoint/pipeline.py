@@ -60,7 +60,7 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
             plots.plot_updating(result, staging / "updating.png")
         summary = {
             "smartjoint_version": __version__,
-            "design": {"name": design.name, "source": design.source, "sha256": load_design(design_path).sha256},
+            "design": {"name": design.name, "source": design.source, "sha256": design.sha256},
             "fe_model": {"n_dof": model.n_dof, "elements": len(model.element_kind), "mass_kg": model.total_mass},
             "updating": result.as_dict() if result is not None else None,
             "modes_hz": [float(f) for f in modes.frequencies_hz],
