@@ -33,7 +33,7 @@ class RigTest:
     frequency: float  # [Hz]
     cycles: float = 4.0
     inertia: float = 0.5  # [kg] or [kg·m²]
-    sample_rate: float = 10_000.0  # [Hz]
+    sample_rate: float = 20_000.0  # [Hz]: well above the bristle resonance sqrt(σ0·F_N·r²/m)
     noise: float = 0.0  # relative to the RMS of each measured signal
     seed: int = 0
 
@@ -63,7 +63,8 @@ def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None) -> 
 
     duration = test.cycles / test.frequency
     time = np.arange(0.0, duration, 1.0 / test.sample_rate)
-    velocity, deflection = _integrate(p, gain, test.inertia, test.amplitude, omega, time, SUBSTEPS)
+    fine = np.linspace(0.0, time[-1], (time.size - 1) * SUBSTEPS + 1)
+    velocity, deflection = integrate(p, gain, test.inertia, test.amplitude * np.sin(omega * fine), time, SUBSTEPS)
     force = excitation(time)
     true_friction = gain * lugre.friction_coefficient(p, velocity, deflection)
     rng = np.random.default_rng(test.seed)
@@ -82,30 +83,38 @@ def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None) -> 
 SUBSTEPS = 8
 
 
-def _integrate(p, gain, inertia, amplitude, omega, time, substeps):
-    """Implicit trapezoidal rule for (v, φ); x is not needed by the records."""
+def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, deflection0: float = 0.0):
+    """Implicit trapezoidal rule for (v, φ) of the rig under an excitation ``force``.
+
+    ``force`` holds the excitation at every substep node: (len(time) − 1)·substeps + 1 values.
+    Returns velocity and bristle deflection at the sample times (x is not needed).
+    """
     import math
+
+    force = np.asarray(force, dtype=float).tolist()
 
     s0, s1, s2 = p.sigma0, p.sigma1, p.sigma2
     fc, fd, vs = p.coulomb, p.stribeck, p.stribeck_velocity
 
-    def rates(t, v, phi):
+    def rates(excitation, v, phi):
         level = fc + fd * math.exp(-(v / vs) ** 2)
         phidot = v - s0 * abs(v) / level * phi
         mu = s0 * phi + s1 * phidot + s2 * v
-        return (amplitude * math.sin(omega * t) - gain * mu) / inertia, phidot, level
+        return (excitation - gain * mu) / inertia, phidot, level
 
     velocity = np.zeros(time.size)
     deflection = np.zeros(time.size)
-    v = phi = t = 0.0
-    h = float(time[1] - time[0]) / substeps
+    v, phi = float(velocity0), float(deflection0)
+    velocity[0], deflection[0] = v, phi
+    node = 0
     for k in range(1, time.size):
+        h = float(time[k] - time[k - 1]) / substeps
         for _ in range(substeps):
-            a0, d0, _ = rates(t, v, phi)
-            t1 = t + h
+            a0, d0, _ = rates(force[node], v, phi)
+            node += 1
             v1, phi1 = v + h * a0, phi + h * d0  # explicit predictor, then Newton
             for _ in range(20):
-                a1, d1, level = rates(t1, v1, phi1)
+                a1, d1, level = rates(force[node], v1, phi1)
                 r_v = v1 - v - 0.5 * h * (a0 + a1)
                 r_p = phi1 - phi - 0.5 * h * (d0 + d1)
                 # ∂φ̇/∂φ, ∂φ̇/∂v (sign(v) kink handled one-sidedly) and ∂a/∂·
@@ -124,7 +133,7 @@ def _integrate(p, gain, inertia, amplitude, omega, time, substeps):
                 phi1 -= dp
                 if abs(dv) <= 1e-13 * (1.0 + abs(v1)) and abs(dp) <= 1e-12 * p.max_deflection:
                     break
-            v, phi, t = v1, phi1, t1
+            v, phi = v1, phi1
         velocity[k] = v
         deflection[k] = phi
     return velocity, deflection

@@ -112,6 +112,70 @@ def cmd_run(args) -> dict:
     return result
 
 
+def _rig_test(args, joint_type, normal_force, amplitude, frequency, seed):
+    from .design.rig import RigTest
+
+    inertia = args.inertia if args.inertia is not None else (1.0 if joint_type == "A" else 2e-3)
+    return RigTest(joint_type, normal_force, amplitude, frequency, cycles=args.cycles, inertia=inertia,
+                   noise=args.noise, seed=seed)
+
+
+def cmd_rig(args) -> dict:
+    from .design import lugre, rig
+    from .design.records import write_record
+
+    output = Path(args.output)
+    parameters = lugre.TABLE_1[args.type]
+    if args.campaign:
+        # The two regimes of Section 3.2 at two normal forces: micro-slip below, stick-slip
+        # just above the break-away level.
+        tests = []
+        for k, normal_force in enumerate((200.0, 400.0)):
+            level = rig.breakaway(parameters, normal_force)
+            tests += [_rig_test(args, args.type, normal_force, 0.5 * level, 10.0, args.seed + 3 * k),
+                      _rig_test(args, args.type, normal_force, 1.03 * level, 5.0, args.seed + 3 * k + 1),
+                      _rig_test(args, args.type, normal_force, 1.1 * level, 5.0, args.seed + 3 * k + 2)]
+        output.mkdir(parents=True, exist_ok=True)
+        paths = [output / f"{t.name}.csv" for t in tests]
+    else:
+        missing = [n for n in ("normal_force", "amplitude", "frequency") if getattr(args, n) is None]
+        if missing:
+            raise SmartjointError(f"rig: give --{missing[0].replace('_', '-')} (or --campaign)")
+        tests = [_rig_test(args, args.type, args.normal_force, args.amplitude, args.frequency, args.seed)]
+        paths = [output]
+    written = []
+    for test, path in zip(tests, paths):
+        try:
+            record = rig.simulate(test, parameters)
+        except ValueError as error:
+            raise SmartjointError(f"rig: {error}") from None
+        write_record(record, path)
+        written.append({"file": str(path), "regime": record.metadata["regime"], "samples": int(record.time.size),
+                        "max_velocity": float(abs(record.sliding_velocity).max())})
+        if not args.json:
+            print(f"wrote {path} ({record.metadata['regime']}, {record.time.size} samples)")
+    return {"records": written}
+
+
+def cmd_identify(args) -> dict:
+    from .design.identify import classify, identify
+    from .design.records import read_record
+    from .report import identification_table, plot_hysteresis
+
+    records = [read_record(path) for path in args.records]
+    micro = [r for r in records if classify(r, args.radius) == "micro-slip"]
+    stick = [r for r in records if classify(r, args.radius) == "stick-slip"]
+    result = identify(micro, stick, radius=args.radius, progress=_progress)
+    out = result.as_dict()
+    if args.plots:
+        folder = Path(args.plots)
+        folder.mkdir(parents=True, exist_ok=True)
+        out["plots"] = [str(p) for p in plot_hysteresis(result, folder)]
+    if not args.json:
+        print(identification_table(result))
+    return out
+
+
 def _write_atomic(path: Path, text: str) -> None:
     """Write through a temporary file so that a failure never leaves half a file behind."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -151,6 +215,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-update", action="store_true", help="export the nominal (not updated) model")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_export_model)
+
+    p = sub.add_parser("rig", help="simulate the isolated-joint test rig (Section 3.2) and write friction records")
+    p.add_argument("--type", choices=("A", "B"), default="A", help="joint type (Table 1 parameters)")
+    p.add_argument("--normal-force", type=float, help="F_N [N]")
+    p.add_argument("--amplitude", type=float, help="shaker force [N] (type B: moment [N·m])")
+    p.add_argument("--frequency", type=float, help="excitation frequency [Hz]")
+    p.add_argument("--cycles", type=float, default=2.0, help="excitation cycles (default: %(default)s)")
+    p.add_argument("--inertia", type=float, help="friction element inertia [kg] or [kg·m²] (default 1 / 2e-3)")
+    p.add_argument("--noise", type=float, default=0.0, help="measurement noise, relative to RMS (e.g. 0.01)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--campaign", action="store_true", help="write the standard micro-/stick-slip set into -o DIR")
+    p.add_argument("-o", "--output", required=True, help="record file (CSV), or folder with --campaign")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=cmd_rig)
+
+    p = sub.add_parser("identify", help="two-step LuGre identification (Eq. 3) from friction records")
+    p.add_argument("records", nargs="+", help="record files (CSV, see design/records.py)")
+    p.add_argument("--radius", type=float, help="joint radius r [m] for type B records (default: Table 1)")
+    p.add_argument("--plots", help="folder for hysteresis plots (PNG)")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.set_defaults(func=cmd_identify)
     return parser
 
 

@@ -119,3 +119,44 @@ def plot_spectrum(modes: Modes, measured: list[tuple[int, float]], path: Path) -
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def identification_table(result) -> str:
+    """Markdown: identified LuGre parameters with 95 % intervals, NRMSE per record."""
+    data = result.as_dict()
+    lines = ["| parameter | value | 95 % interval | step |", "|---|---:|---|---|"]
+    for name, entry in data["parameters"].items():
+        interval = "given" if entry["ci95"] is None else f"[{entry['ci95'][0]:.4g}, {entry['ci95'][1]:.4g}]"
+        weak = " (weakly identifiable)" if name in data["weakly_identifiable"] else ""
+        lines.append(f"| {name} | {entry['value']:.4g} | {interval}{weak} | {entry['step']} |")
+    lines += ["", "| record | NRMSE |", "|---|---:|"]
+    lines += [f"| {name} | {value:.4f} |" for name, value in data["nrmse"].items()]
+    return "\n".join(lines)
+
+
+def plot_hysteresis(result, folder: Path) -> list[Path]:
+    """Measured vs model friction over displacement (micro-slip) or velocity (stick-slip)."""
+    from .design.identify import model_friction
+
+    paths = []
+    stick_names = set(result.stick.nrmse)  # record names of step 2
+    for name, record in result.records.items():
+        stick = name in stick_names
+        output_error = stick and record.excitation_force is not None and record.inertia is not None
+        model, _ = model_friction(result.parameters, record, result.filtered[name], output_error)
+        displacement = np.concatenate([[0.0], np.cumsum(0.5 * (record.sliding_velocity[1:] + record.sliding_velocity[:-1])
+                                                        * np.diff(record.time))])
+        x = record.sliding_velocity if stick else (displacement - displacement.mean()) * 1e6
+        fig, ax = plt.subplots(figsize=(5.5, 4))
+        ax.plot(x, record.friction_force, color="0.6", lw=0.8, label="measured")
+        ax.plot(x, model, color="C3", lw=1.0, label="LuGre model")
+        ax.set_xlabel("sliding velocity" if stick else "displacement [µm or µrad]")
+        ax.set_ylabel("friction force u_R")
+        ax.set_title(f"{name}: NRMSE {({**result.micro.nrmse, **result.stick.nrmse})[name]:.3f}", fontsize=9)
+        ax.legend()
+        fig.tight_layout()
+        path = folder / f"hysteresis_{name}.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+    return paths
