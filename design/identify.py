@@ -41,6 +41,26 @@ from .records import Record, RecordError
 from .rig import integrate as rig_integrate
 
 OUTPUT_ERROR_SUBSTEPS = 2
+ROUNDS = 2
+OUTPUT_ERROR_RATE = 5000.0  # [Hz] samples compared in the output-error step (2 substeps each)
+
+
+SMOOTHING_HZ = OUTPUT_ERROR_RATE / 20.0  # low-pass of the force compared in output error
+
+
+def _smooth(signal, record: Record):
+    sos = butter(2, SMOOTHING_HZ, fs=1.0 / record.sample_time, output="sos")
+    return sosfiltfilt(sos, signal)
+
+
+def _decimated(record: Record, rate: float) -> Record:
+    factor = max(1, int(round(1.0 / (record.sample_time * rate))))
+    if factor == 1:
+        return record
+    pick = slice(None, None, factor)
+    return replace(record, time=record.time[pick], sliding_velocity=record.sliding_velocity[pick],
+                   friction_force=record.friction_force[pick], normal_force=record.normal_force[pick],
+                   excitation_force=record.excitation_force[pick])
 
 P1 = ("sigma0", "sigma1")
 P2 = ("coulomb", "stribeck", "stribeck_velocity", "sigma2")
@@ -178,6 +198,7 @@ def model_friction(p: lugre.LuGreParameters, record: Record, velocity, output_er
 def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]], radius, velocities, progress, label,
          output_error: bool = False):
     count = [np.sqrt(r.time.size) for r in records]
+    smoothed = {r.name: _smooth(r.friction_force, r) for r in records} if output_error else {}
 
     def parameters(theta):
         values = dict(fixed)
@@ -189,9 +210,14 @@ def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]]
         parts = []
         for r, n in zip(records, count):
             friction, velocity = model_friction(p, r, velocities[r.name], output_error)
-            parts.append((friction - r.friction_force) / (_rms(r.friction_force) * n))
             if output_error:
+                # Velocity and low-passed friction force: the Stribeck drop shows in the force;
+                # the low-pass removes the fast bristle ringing the coarse step cannot resolve.
                 parts.append((velocity - r.sliding_velocity) / (_rms(r.sliding_velocity) * n))
+                measured = smoothed[r.name]
+                parts.append((_smooth(friction, r) - measured) / (_rms(measured) * n))
+            else:
+                parts.append((friction - r.friction_force) / (_rms(r.friction_force) * n))
         return np.concatenate(parts)
 
     best = None
@@ -208,7 +234,12 @@ def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]]
             progress(f"{label}: start {k + 1}/{len(starts)}, cost {best.cost:.4g}")
     J = best.jac
     dof = max(best.fun.size - len(names), 1)
-    variance = 2.0 * best.cost / dof
+    # Residuals of neighbouring samples are correlated (smooth signals, filtered inputs):
+    # inflate the variance by (1 + ρ)/(1 − ρ), ρ the lag-1 autocorrelation, i.e. count
+    # effective rather than nominal samples.
+    e = best.fun - best.fun.mean()
+    rho = float(np.clip(np.dot(e[1:], e[:-1]) / max(np.dot(e, e), 1e-300), 0.0, 0.999))
+    variance = 2.0 * best.cost / dof * (1.0 + rho) / (1.0 - rho)
     covariance = variance * np.linalg.pinv(J.T @ J)
     sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     correlation = covariance / np.outer(np.maximum(sigma, 1e-300), np.maximum(sigma, 1e-300))
@@ -216,7 +247,8 @@ def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]]
     values = np.exp(best.x)
     errors = {r.name: nrmse(r.friction_force, model_friction(p, r, velocities[r.name], output_error)[0])
               for r in records}
-    result = StepResult(tuple(names), values, np.exp(best.x - 1.96 * sigma), np.exp(best.x + 1.96 * sigma),
+    result = StepResult(tuple(names), values, np.exp(np.clip(best.x - 1.96 * sigma, -700, 700)),
+                        np.exp(np.clip(best.x + 1.96 * sigma, -700, 700)),
                         correlation, errors, float(best.cost), evaluations)
     return result, p
 
@@ -246,17 +278,24 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
                 and np.abs(r.sliding_velocity).max() < 1e-6:
             raise RecordError(f"{r.name}: column 'sliding_velocity' shows no slip at all — not a stick-slip record")
     guess = _initial_guess(micro, stick, radius, velocities)
-    p1_starts = [guess, {**guess, "sigma1": guess["sigma1"] * 100.0}, {**guess, "sigma0": guess["sigma0"] * 3.0}]
-    micro_result, _ = _fit(micro, P1, {n: guess[n] for n in P2}, p1_starts, radius, velocities, progress,
-                           "step 1 (σ0, σ1, micro-slip)")
-    fixed = dict(zip(P1, micro_result.values))
-    p2_starts = [guess, {**guess, "stribeck_velocity": guess["stribeck_velocity"] * 10.0},
-                 {**guess, "stribeck_velocity": guess["stribeck_velocity"] * 0.1}]
     output_error = all(r.excitation_force is not None and r.inertia is not None for r in stick)
-    stick_result, parameters = _fit(stick, P2, fixed, p2_starts, radius, velocities, progress,
-                                    "step 2 (Fc, Fd, vs, σ2, stick-slip)", output_error)
-    micro_result.nrmse = {r.name: nrmse(r.friction_force, simulate_friction(parameters, r.time, velocities[r.name],
-                                                                             r.normal_force, r.friction_force[0]))
+    fit_stick = [_decimated(r, OUTPUT_ERROR_RATE) for r in stick] if output_error else stick
+    stick_inputs = {r.name: r.sliding_velocity for r in fit_stick} if output_error else velocities
+    p2 = {n: guess[n] for n in P2}
+    p1_starts = [guess, {**guess, "sigma1": guess["sigma1"] * 100.0}, {**guess, "sigma0": guess["sigma0"] * 3.0}]
+    # Each step holds the other step's parameters fixed; a second round repeats both with
+    # the first round's results, so step 1 no longer depends on the rough start of p2.
+    for round_number in range(1, ROUNDS + 1):
+        micro_result, _ = _fit(micro, P1, p2, p1_starts, radius, velocities, progress,
+                               f"round {round_number}, step 1 (σ0, σ1, micro-slip)")
+        p1 = dict(zip(P1, micro_result.values.tolist()))
+        stick_result, parameters = _fit(fit_stick, P2, p1, [p2], radius, stick_inputs, progress,
+                                        f"round {round_number}, step 2 (Fc, Fd, vs, σ2, stick-slip)", output_error)
+        p2 = dict(zip(P2, stick_result.values.tolist()))
+        p1_starts = [p1, {**p1, "sigma1": p1["sigma1"] * 1e-3}]
+    stick_result.nrmse = {r.name: nrmse(r.friction_force, model_friction(parameters, r, velocities[r.name],
+                                                                         output_error)[0]) for r in stick}
+    micro_result.nrmse = {r.name: nrmse(r.friction_force, model_friction(parameters, r, velocities[r.name], False)[0])
                           for r in micro}
     return Identification(parameters, joint_type, micro_result, stick_result,
                           {r.name: r for r in micro + stick}, velocities)

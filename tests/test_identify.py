@@ -53,3 +53,4 @@ def test_identify_refuses_missing_regime(tmp_path):
     done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "identify", str(target)], capture_output=True,
                           text=True)
     assert done.returncode == 2 and "no stick-slip records" in done.stderr
+
