@@ -9,28 +9,29 @@ velocity) and compared with the measured friction force::
 Each record is normalised by its RMS force and length so that every record counts alike.
 As in the paper the problem is split in two:
 
-1. p1 = [σ0, σ1] from micro-slip records (p2 held at a data-driven start),
-2. p2 = [F_c, F_d, v_s, σ2] from stick-slip records (p1 fixed at the step-1 result).
+1. p1 = [σ0, σ1] from micro-slip records (p2 held fixed),
+2. p2 = [F_c, F_d, v_s, σ2] from stick-slip records (p1 held fixed),
 
-Step 1 uses Eq. 3 as written, with the measured velocity as input. Step 2 does so only for
-records without excitation force; with the excitation force and the known inertia it uses the
-output-error form instead: the rig (``rig.integrate``) is simulated from the measured
-excitation, and both the friction force and the velocity are compared. The reason is
-measurement noise: LuGre's g(v) treats any |v| as sliding, so velocity noise of the order of
-v_s (1 % of the RMS velocity of a stick-slip record already is) drives the bristle state to
-saturation during every stick phase when the noisy velocity is the model input; the rig
-simulation is driven by the force and is immune to that.
-Each step solves in log parameters with bounds by ``scipy.optimize.least_squares`` from a few
-starts. Uncertainty: the covariance s²·(JᵀJ)⁻¹ at the optimum (s² = residual variance), 95 %
-intervals exp(θ ± 1.96σ_θ) and the correlation matrix. The residual samples are correlated
-(the velocity is low-pass filtered), so the intervals are indicative, not exact.
-Optionally (``cutoff_hz``) the measured velocity is low-pass filtered (zero-phase Butterworth).
+and — because step 1 depends on the rough start of p2 — both steps run a second round from
+the first round's results. Each fit is in log parameters with bounds
+(``scipy.optimize.least_squares``); the starts are a small grid screened by cost, the best
+few polished.
+
+Uncertainty: the covariance s²·(JᵀJ)⁻¹ at the optimum with the residual variance s² inflated
+by (1 + ρ)/(1 − ρ), ρ the lag-1 autocorrelation of the residuals (effective instead of nominal
+sample count); 95 % intervals exp(θ ± 1.96σ_θ) and the correlation matrix. A parameter whose
+interval is wider than ±50 % of its value is reported weakly identifiable.
+
+Experiment design matters more than the solver. LuGre's g(v) treats any |v| as sliding, so
+the Stribeck parameters are only seen in samples that slide at velocities of a few v_s, and
+velocity noise comparable to v_s hides them. ``rig`` campaigns therefore choose the moving
+inertia so that stick-slip records slide at about 5·v_s (docs/identification.md).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.optimize
@@ -38,32 +39,10 @@ from scipy.signal import butter, sosfiltfilt
 
 from . import lugre
 from .records import Record, RecordError
-from .rig import integrate as rig_integrate
-
-OUTPUT_ERROR_SUBSTEPS = 2
-ROUNDS = 2
-OUTPUT_ERROR_RATE = 5000.0  # [Hz] samples compared in the output-error step (2 substeps each)
-
-
-SMOOTHING_HZ = OUTPUT_ERROR_RATE / 20.0  # low-pass of the force compared in output error
-
-
-def _smooth(signal, record: Record):
-    sos = butter(2, SMOOTHING_HZ, fs=1.0 / record.sample_time, output="sos")
-    return sosfiltfilt(sos, signal)
-
-
-def _decimated(record: Record, rate: float) -> Record:
-    factor = max(1, int(round(1.0 / (record.sample_time * rate))))
-    if factor == 1:
-        return record
-    pick = slice(None, None, factor)
-    return replace(record, time=record.time[pick], sliding_velocity=record.sliding_velocity[pick],
-                   friction_force=record.friction_force[pick], normal_force=record.normal_force[pick],
-                   excitation_force=record.excitation_force[pick])
 
 P1 = ("sigma0", "sigma1")
 P2 = ("coulomb", "stribeck", "stribeck_velocity", "sigma2")
+ROUNDS = 2
 WEAK_RELATIVE_WIDTH = 0.5  # 95 % interval wider than ±50 % of the value: weakly identifiable
 
 
@@ -182,23 +161,14 @@ def _rms(x) -> float:
     return float(np.sqrt(np.mean(np.asarray(x) ** 2)))
 
 
-def model_friction(p: lugre.LuGreParameters, record: Record, velocity, output_error: bool):
-    """(û_R, v̂): equation error uses the measured velocity (Eq. 3 as written, v̂ = v);
-    output error simulates the rig from the measured excitation force and known inertia."""
-    if not output_error:
-        return simulate_friction(p, record.time, velocity, record.normal_force, record.friction_force[0]), velocity
-    fine = np.linspace(record.time[0], record.time[-1], (record.time.size - 1) * OUTPUT_ERROR_SUBSTEPS + 1)
-    fine = np.interp(fine, record.time, record.time)  # exact sample times at the sample nodes
-    force = np.interp(fine, record.time, record.excitation_force)
-    gain = p.moment_arm * float(record.normal_force[0])
-    v, phi = rig_integrate(p, gain, record.inertia, force, record.time, OUTPUT_ERROR_SUBSTEPS)
-    return gain * lugre.friction_coefficient(p, v, phi), v
+def model_friction(p: lugre.LuGreParameters, record: Record, velocity) -> np.ndarray:
+    """û_R of Eq. 3 for a record, from the (possibly filtered) measured ``velocity``."""
+    return simulate_friction(p, record.time, velocity, record.normal_force, record.friction_force[0])
 
 
 def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]], radius, velocities, progress, label,
-         output_error: bool = False):
+         polish: int = 2):
     count = [np.sqrt(r.time.size) for r in records]
-    smoothed = {r.name: _smooth(r.friction_force, r) for r in records} if output_error else {}
 
     def parameters(theta):
         values = dict(fixed)
@@ -209,19 +179,20 @@ def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]]
         p = parameters(theta)
         parts = []
         for r, n in zip(records, count):
-            friction, velocity = model_friction(p, r, velocities[r.name], output_error)
-            if output_error:
-                # Velocity and low-passed friction force: the Stribeck drop shows in the force;
-                # the low-pass removes the fast bristle ringing the coarse step cannot resolve.
-                parts.append((velocity - r.sliding_velocity) / (_rms(r.sliding_velocity) * n))
-                measured = smoothed[r.name]
-                parts.append((_smooth(friction, r) - measured) / (_rms(measured) * n))
-            else:
-                parts.append((friction - r.friction_force) / (_rms(r.friction_force) * n))
+            friction = model_friction(p, r, velocities[r.name])
+            parts.append((friction - r.friction_force) / (_rms(r.friction_force) * n))
         return np.concatenate(parts)
 
-    best = None
     evaluations = 0
+    if len(starts) > polish:
+        # The objective has local minima (mostly in v_s): screen all candidate starts by their
+        # cost and polish only the best few.
+        costs = []
+        for start in starts:
+            costs.append(float(np.sum(residual(np.log([start[n] for n in names])) ** 2)))
+            evaluations += 1
+        starts = [starts[i] for i in np.argsort(costs)[:polish]]
+    best = None
     for k, start in enumerate(starts):
         theta0 = np.log([start[n] for n in names])
         bounds = (theta0 - math.log(1e3), theta0 + math.log(1e3))
@@ -245,8 +216,7 @@ def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]]
     correlation = covariance / np.outer(np.maximum(sigma, 1e-300), np.maximum(sigma, 1e-300))
     p = parameters(best.x)
     values = np.exp(best.x)
-    errors = {r.name: nrmse(r.friction_force, model_friction(p, r, velocities[r.name], output_error)[0])
-              for r in records}
+    errors = {r.name: nrmse(r.friction_force, model_friction(p, r, velocities[r.name])) for r in records}
     result = StepResult(tuple(names), values, np.exp(np.clip(best.x - 1.96 * sigma, -700, 700)),
                         np.exp(np.clip(best.x + 1.96 * sigma, -700, 700)),
                         correlation, errors, float(best.cost), evaluations)
@@ -269,33 +239,35 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
     names = [r.name for r in micro + stick]
     if len(set(names)) != len(names):
         raise RecordError("identify: two records share a name; rename the files")
-    # Step 1 runs on the raw velocity unless a cutoff is given: presliding velocities are
-    # smooth and their noise small in absolute terms, and a low-pass would cut the bristle
-    # resonance the micro-slip force contains.
+    # The raw velocity unless a cutoff is given: a low-pass also cuts the bristle resonance
+    # that the measured force contains, which biases the fit more than the noise does.
     velocities = {r.name: (filtered_velocity(r, cutoff_hz) if cutoff_hz else r.sliding_velocity) for r in micro + stick}
     for r in stick:
         if np.abs(velocities[r.name]).max() < 10.0 * np.abs(velocities[r.name][: max(3, r.time.size // 50)]).std() \
                 and np.abs(r.sliding_velocity).max() < 1e-6:
             raise RecordError(f"{r.name}: column 'sliding_velocity' shows no slip at all — not a stick-slip record")
     guess = _initial_guess(micro, stick, radius, velocities)
-    output_error = all(r.excitation_force is not None and r.inertia is not None for r in stick)
-    fit_stick = [_decimated(r, OUTPUT_ERROR_RATE) for r in stick] if output_error else stick
-    stick_inputs = {r.name: r.sliding_velocity for r in fit_stick} if output_error else velocities
+    velocity_scale = max(float(np.abs(r.sliding_velocity).max()) for r in stick)
     p2 = {n: guess[n] for n in P2}
-    p1_starts = [guess, {**guess, "sigma1": guess["sigma1"] * 100.0}, {**guess, "sigma0": guess["sigma0"] * 3.0}]
-    # Each step holds the other step's parameters fixed; a second round repeats both with
-    # the first round's results, so step 1 no longer depends on the rough start of p2.
+    p1_starts = [{**guess, "sigma0": guess["sigma0"] * a, "sigma1": guess["sigma1"] * b}
+                 for a in (0.5, 1.0, 2.0) for b in (1e-2, 1.0, 1e2)]
+    p2_starts = [{**p2, "stribeck": fraction * p2["coulomb"], "stribeck_velocity": factor * velocity_scale}
+                 for fraction in (0.1, 0.25, 0.5) for factor in (1e-2, 3e-2, 0.1, 0.3)]
     for round_number in range(1, ROUNDS + 1):
         micro_result, _ = _fit(micro, P1, p2, p1_starts, radius, velocities, progress,
                                f"round {round_number}, step 1 (σ0, σ1, micro-slip)")
         p1 = dict(zip(P1, micro_result.values.tolist()))
-        stick_result, parameters = _fit(fit_stick, P2, p1, [p2], radius, stick_inputs, progress,
-                                        f"round {round_number}, step 2 (Fc, Fd, vs, σ2, stick-slip)", output_error)
-        p2 = dict(zip(P2, stick_result.values.tolist()))
-        p1_starts = [p1, {**p1, "sigma1": p1["sigma1"] * 1e-3}]
-    stick_result.nrmse = {r.name: nrmse(r.friction_force, model_friction(parameters, r, velocities[r.name],
-                                                                         output_error)[0]) for r in stick}
-    micro_result.nrmse = {r.name: nrmse(r.friction_force, model_friction(parameters, r, velocities[r.name], False)[0])
+        # The last round lets σ1 float in step 2 too: stick-slip onsets (large φ̇) constrain it
+        # better than presliding does, and a σ1 left wrong by step 1 biases v_s.
+        names = P2 + ("sigma1",) if round_number == ROUNDS else P2
+        fixed = {n: v for n, v in p1.items() if n not in names}
+        starts = [{**start, "sigma1": p1["sigma1"]} for start in p2_starts]
+        stick_result, parameters = _fit(stick, names, fixed, starts, radius, velocities, progress,
+                                        f"round {round_number}, step 2 ({', '.join(names)}, stick-slip)")
+        p2 = {n: v for n, v in zip(names, stick_result.values.tolist()) if n in P2}
+        p1_starts = [p1] + [{**p1, "sigma1": p1["sigma1"] * b} for b in (1e-3, 1e-1, 10.0)]
+        p2_starts = [p2]
+    micro_result.nrmse = {r.name: nrmse(r.friction_force, model_friction(parameters, r, velocities[r.name]))
                           for r in micro}
     return Identification(parameters, joint_type, micro_result, stick_result,
                           {r.name: r for r in micro + stick}, velocities)
@@ -312,4 +284,4 @@ def classify(record: Record, radius: float | None = None) -> str:
     return "stick-slip" if displacement * 1e4 > mu.max() and displacement > 1e-4 else "micro-slip"
 
 
-__all__ = ["Identification", "classify", "identify", "nrmse", "simulate_friction", "replace"]
+__all__ = ["Identification", "classify", "identify", "model_friction", "nrmse", "simulate_friction"]

@@ -137,3 +137,27 @@ def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, d
         velocity[k] = v
         deflection[k] = phi
     return velocity, deflection
+
+
+def campaign(joint_type: str, parameters: lugre.LuGreParameters | None = None, noise: float = 0.0, seed: int = 0,
+             cycles: float = 4.0) -> list[RigTest]:
+    """The standard two-regime test set of Section 3.2 at two normal forces.
+
+    Micro-slip: half the break-away amplitude at 10 Hz. Stick-slip: 1.1× and 1.3× the
+    break-away amplitude at 10 and 20 Hz, with the moving inertia chosen so that the joint
+    slides at about 5·v_s — the velocities where the Stribeck parameters show (a heavier or a
+    faster-sliding element hides F_d and v_s under the velocity noise).
+    """
+    p = parameters or lugre.TABLE_1[joint_type]
+    micro_inertia = 1.0 if joint_type == "A" else 2e-3
+    tests = []
+    for normal_force in (200.0, 400.0):
+        level = breakaway(p, normal_force)
+        seed += 1
+        tests.append(RigTest(joint_type, normal_force, 0.5 * level, 10.0, cycles, micro_inertia, noise=noise, seed=seed))
+        for factor, frequency in ((1.1, 10.0), (1.3, 20.0)):
+            inertia = p.moment_arm * normal_force * p.stribeck / (2.0 * np.pi * frequency * 5.0 * p.stribeck_velocity)
+            seed += 1
+            tests.append(RigTest(joint_type, normal_force, factor * level, frequency, cycles, inertia, noise=noise,
+                                 seed=seed))
+    return tests

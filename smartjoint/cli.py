@@ -127,14 +127,7 @@ def cmd_rig(args) -> dict:
     output = Path(args.output)
     parameters = lugre.TABLE_1[args.type]
     if args.campaign:
-        # The two regimes of Section 3.2 at two normal forces: micro-slip below, stick-slip
-        # just above the break-away level.
-        tests = []
-        for k, normal_force in enumerate((200.0, 400.0)):
-            level = rig.breakaway(parameters, normal_force)
-            tests += [_rig_test(args, args.type, normal_force, 0.5 * level, 10.0, args.seed + 3 * k),
-                      _rig_test(args, args.type, normal_force, 1.03 * level, 5.0, args.seed + 3 * k + 1),
-                      _rig_test(args, args.type, normal_force, 1.1 * level, 5.0, args.seed + 3 * k + 2)]
+        tests = rig.campaign(args.type, parameters, noise=args.noise, seed=args.seed, cycles=args.cycles)
         output.mkdir(parents=True, exist_ok=True)
         paths = [output / f"{t.name}.csv" for t in tests]
     else:
@@ -221,7 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--normal-force", type=float, help="F_N [N]")
     p.add_argument("--amplitude", type=float, help="shaker force [N] (type B: moment [N·m])")
     p.add_argument("--frequency", type=float, help="excitation frequency [Hz]")
-    p.add_argument("--cycles", type=float, default=2.0, help="excitation cycles (default: %(default)s)")
+    p.add_argument("--cycles", type=float, default=4.0, help="excitation cycles (default: %(default)s)")
     p.add_argument("--inertia", type=float, help="friction element inertia [kg] or [kg·m²] (default 1 / 2e-3)")
     p.add_argument("--noise", type=float, default=0.0, help="measurement noise, relative to RMS (e.g. 0.01)")
     p.add_argument("--seed", type=int, default=0)

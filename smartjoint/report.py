@@ -142,8 +142,7 @@ def plot_hysteresis(result, folder: Path) -> list[Path]:
     stick_names = set(result.stick.nrmse)  # record names of step 2
     for name, record in result.records.items():
         stick = name in stick_names
-        output_error = stick and record.excitation_force is not None and record.inertia is not None
-        model, _ = model_friction(result.parameters, record, result.filtered[name], output_error)
+        model = model_friction(result.parameters, record, result.filtered[name])
         displacement = np.concatenate([[0.0], np.cumsum(0.5 * (record.sliding_velocity[1:] + record.sliding_velocity[:-1])
                                                         * np.diff(record.time))])
         x = record.sliding_velocity if stick else (displacement - displacement.mean()) * 1e6
