@@ -243,9 +243,9 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
     # that the measured force contains, which biases the fit more than the noise does.
     velocities = {r.name: (filtered_velocity(r, cutoff_hz) if cutoff_hz else r.sliding_velocity) for r in micro + stick}
     for r in stick:
-        if np.abs(velocities[r.name]).max() < 10.0 * np.abs(velocities[r.name][: max(3, r.time.size // 50)]).std() \
-                and np.abs(r.sliding_velocity).max() < 1e-6:
-            raise RecordError(f"{r.name}: column 'sliding_velocity' shows no slip at all — not a stick-slip record")
+        if not slides(r, radius):
+            raise RecordError(f"{r.name}: column 'sliding_velocity' shows no gross slip — a stick-slip record must "
+                              "slide (step 2 identifies F_c, F_d, v_s, σ2 from sliding)")
     guess = _initial_guess(micro, stick, radius, velocities)
     velocity_scale = max(float(np.abs(r.sliding_velocity).max()) for r in stick)
     p2 = {n: guess[n] for n in P2}
@@ -273,15 +273,19 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
                           {r.name: r for r in micro + stick}, velocities)
 
 
-def classify(record: Record, radius: float | None = None) -> str:
-    """'stick-slip' when the friction saturates (gross sliding), else 'micro-slip'."""
-    if "regime" in record.metadata:
-        return record.metadata["regime"]
+def slides(record: Record, radius: float | None = None) -> bool:
+    """Gross sliding: the element moves by far more than any bristle deflection μ/σ0 could."""
     arm = radius if radius is not None else (lugre.TYPE_B.radius if record.joint_type == "B" else 1.0)
     mu = np.abs(record.friction_force / (arm * record.normal_force))
     displacement = np.ptp(np.cumsum(record.sliding_velocity) * record.sample_time)
-    # Gross sliding moves the element by far more than any bristle deflection μ/σ0 could.
-    return "stick-slip" if displacement * 1e4 > mu.max() and displacement > 1e-4 else "micro-slip"
+    return bool(displacement * 1e4 > mu.max() and displacement > 1e-4)
 
 
-__all__ = ["Identification", "classify", "identify", "model_friction", "nrmse", "simulate_friction"]
+def classify(record: Record, radius: float | None = None) -> str:
+    """'stick-slip' or 'micro-slip': the record's ``regime`` metadata, else whether it slides."""
+    if "regime" in record.metadata:
+        return record.metadata["regime"]
+    return "stick-slip" if slides(record, radius) else "micro-slip"
+
+
+__all__ = ["Identification", "classify", "slides", "identify", "model_friction", "nrmse", "simulate_friction"]

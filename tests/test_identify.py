@@ -78,3 +78,13 @@ def test_identification_recovers_table_1_from_noisy_rig_records(joint_type):
     for record in micro + stick:
         truth = nrmse(record.friction_force, model_friction(p, record, record.sliding_velocity))
         assert fitted[record.name] <= 1.15 * truth, record.name
+
+
+def test_stick_slip_step_refuses_a_record_without_slip():
+    from smartjoint.design.identify import identify
+    from smartjoint.design.records import RecordError
+
+    micro = rig.simulate(rig.RigTest("A", 400.0, 150.0, 10.0, cycles=1.0))
+    still = rig.simulate(rig.RigTest("A", 400.0, 100.0, 8.0, cycles=1.0))
+    with pytest.raises(RecordError, match="rig_A_FN400_A100_f8: column 'sliding_velocity' shows no gross slip"):
+        identify([micro], [still])
