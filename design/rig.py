@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import lugre
-from .records import Record
+from .records import Record, friction_from_excitation
 
 
 @dataclass(frozen=True)
@@ -57,22 +57,16 @@ def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None) -> 
             raise ValueError(f"{name}: {getattr(test, name)!r} — must be > 0")
     gain = p.moment_arm * test.normal_force
     omega = 2.0 * np.pi * test.frequency
-
-    def excitation(t):
-        return test.amplitude * np.sin(omega * t)
-
     duration = test.cycles / test.frequency
     time = np.arange(0.0, duration, 1.0 / test.sample_rate)
     fine = np.linspace(0.0, time[-1], (time.size - 1) * SUBSTEPS + 1)
     velocity, deflection = integrate(p, gain, test.inertia, test.amplitude * np.sin(omega * fine), time, SUBSTEPS)
-    force = excitation(time)
+    force = test.amplitude * np.sin(omega * time)
     true_friction = gain * lugre.friction_coefficient(p, velocity, deflection)
     rng = np.random.default_rng(test.seed)
     if test.noise > 0:
         velocity = velocity + test.noise * np.sqrt(np.mean(velocity**2)) * rng.standard_normal(time.size)
         force = force + test.noise * np.sqrt(np.mean(force**2)) * rng.standard_normal(time.size)
-    from .records import friction_from_excitation
-
     friction = friction_from_excitation(time, velocity, force, test.inertia)
     return Record(test.name, time, velocity, friction, np.full(time.size, test.normal_force), test.joint_type,
                   test.inertia, force, {"regime": "micro-slip" if test.amplitude < breakaway(p, test.normal_force)
