@@ -55,6 +55,13 @@ def coulomb_viscous(force, velocity, acceleration):
     return dict(zip(("mass", "viscous", "coulomb", "offset"), coefficients.tolist())), model
 
 
+def initial_guess(baseline: dict) -> dict:
+    """LuGre start from the Coulomb + viscous fit: stiff bristles, a modest Stribeck bump."""
+    coulomb = max(baseline["coulomb"], 1.0)
+    return {"sigma0": 1e6, "sigma1": 1e3, "sigma2": max(baseline["viscous"], 1.0), "coulomb": coulomb,
+            "stribeck": 0.2 * coulomb, "stribeck_velocity": 0.01}
+
+
 def lugre_fit(t, force, velocity, acceleration, start):
     """Nonlinear least squares over [σ0, σ1, σ2, F_c, F_d, v_s] (log) plus M and offset (linear)."""
     names = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")
@@ -88,10 +95,7 @@ def main() -> int:
     args = parser.parse_args()
     t, force, velocity, acceleration = load(Path(args.mat))
     baseline, baseline_model = coulomb_viscous(force, velocity, acceleration)
-    start = {"sigma0": 1e6, "sigma1": 1e3, "sigma2": max(baseline["viscous"], 1.0),
-             "coulomb": max(baseline["coulomb"], 1.0), "stribeck": 0.2 * max(baseline["coulomb"], 1.0),
-             "stribeck_velocity": 0.01}
-    p, mass, offset, model = lugre_fit(t, force, velocity, acceleration, start)
+    p, mass, offset, model = lugre_fit(t, force, velocity, acceleration, initial_guess(baseline))
     result = {
         "samples": int(t.size),
         "coulomb_viscous": {**baseline, "nrmse": nrmse(force, baseline_model)},
