@@ -8,9 +8,9 @@ from .errors import DesignError, ModelError, SmartjointError
 from .fem import FEModel, build_model
 from .modal import Modes, solve_modes
 from .spec import REFERENCE_DESIGN, Design, load_design, parse_design
-from .updating import UpdatingResult, update_model
+from .updating import UpdatingResult, update_model, updated_design
 
 __all__ = [
     "Design", "DesignError", "FEModel", "ModelError", "Modes", "REFERENCE_DESIGN", "SmartjointError",
-    "UpdatingResult", "build_model", "load_design", "parse_design", "solve_modes", "update_model",
+    "UpdatingResult", "build_model", "updated_design", "load_design", "parse_design", "solve_modes", "update_model",
 ]

@@ -62,7 +62,12 @@ def filtered_velocity(record: Record, cutoff_hz: float | None = None) -> np.ndar
 
 
 def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, initial_force: float = 0.0):
-    """û_R at the sample times for a measured velocity (midpoint exact-exponential step)."""
+    """û_R at the sample times for a measured velocity (midpoint exact-exponential step).
+
+    The same step as ``lugre.step`` and ``lugre.friction_coefficient``, written out on Python
+    floats: the fit calls this for every sample thousands of times, and numpy's per-call
+    overhead on scalars would cost about 10×.
+    """
     s0, s1, s2 = p.sigma0, p.sigma1, p.sigma2
     fc, fd, vs = p.coulomb, p.stribeck, p.stribeck_velocity
     arm = p.moment_arm

@@ -153,3 +153,17 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
     return UpdatingResult(names, initial, updated, modes, measured, initial_hz[index], updated_hz[index],
                           sensitivity, calls["n"], k + 1,
                           np.array([m.mac if m.mac is not None else np.nan for m in spec.measured]))
+
+
+def updated_design(design, progress=None):
+    """The design with its ``[updating]`` parameters fitted, and the result (None without one).
+
+    Updating always runs on the conventional truss (joints locked): that is what the modal
+    survey measured, whatever joint setting the caller then builds its model with.
+    """
+    from .fem import build_model
+
+    if design.updating is None:
+        return design, None
+    result = update_model(build_model(design, joints="locked"), progress=progress)
+    return design.with_parameters(result.parameters), result

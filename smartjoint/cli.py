@@ -36,17 +36,14 @@ def _add_design(parser: argparse.ArgumentParser) -> None:
 
 def _model(args, *, joints: str = "locked"):
     """Load the design, build the FE model and, unless --no-update, update it to the EMA."""
-    from .design import build_model, load_design, update_model
+    from .design import build_model, load_design, updated_design
 
     design = load_design(args.design)
-    model = build_model(design, joints=joints)
     result = None
     if design.updating is not None and not getattr(args, "no_update", False):
         _progress(f"updating {len(design.updating.parameters)} parameters to {len(design.updating.measured)} measured modes …")
-        result = update_model(model, progress=lambda k, n, err: _progress(f"  start {k}/{n}: worst error {err:.2f} %"))
-        design = design.with_parameters(result.parameters)
-        model = build_model(design, joints=joints)
-    return model, result
+        design, result = updated_design(design, lambda k, n, err: _progress(f"  start {k}/{n}: worst error {err:.2f} %"))
+    return build_model(design, joints=joints), result
 
 
 def cmd_modes(args) -> dict:

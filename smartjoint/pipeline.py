@@ -20,7 +20,7 @@ from pathlib import Path
 
 from . import __version__
 from . import report as plots
-from .design import build_model, load_design, lugre, rig, solve_modes, update_model
+from .design import build_model, load_design, lugre, rig, solve_modes, updated_design
 from .design.identify import classify, identify
 
 REPORT_MODES = 30
@@ -30,21 +30,20 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
     started = time.perf_counter()
     output = Path(output)
     design = load_design(design_path)
-    progress(f"[1/4] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
+    progress(f"[1/5] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
              f"{len(design.members)} members, {len(design.joints)} joints")
     model = build_model(design, joints="locked")
-    progress(f"[2/4] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, "
+    progress(f"[2/5] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, "
              f"mass {model.total_mass:.2f} kg")
 
     result = None
     if design.updating is not None:
-        progress(f"[3/4] model updating: {len(design.updating.parameters)} parameters, "
+        progress(f"[3/5] model updating: {len(design.updating.parameters)} parameters, "
                  f"{len(design.updating.measured)} measured modes")
-        result = update_model(model, progress=lambda k, n, err: progress(f"      start {k}/{n}: worst error {err:.2f} %"))
-        design = design.with_parameters(result.parameters)
+        design, result = updated_design(design, lambda k, n, err: progress(f"      start {k}/{n}: worst error {err:.2f} %"))
         model = build_model(design, joints="locked")
     else:
-        progress("[3/4] model updating: skipped (no [updating] section)")
+        progress("[3/5] model updating: skipped (no [updating] section)")
     modes = solve_modes(model, min(REPORT_MODES, model.n_dof))
     released = None
     if design.joints:
