@@ -46,7 +46,11 @@ def eigensolve(stiffness: sp.spmatrix, mass: sp.spmatrix, n_modes: int) -> tuple
         raise ModelError(f"n_modes: {n_modes} — must be between 1 and the number of DOFs ({n_dof})")
     try:
         if n_dof <= DENSE_LIMIT or n_modes >= n_dof - 1:
-            values, vectors = scipy.linalg.eigh(stiffness.toarray(), mass.toarray(), subset_by_index=[0, n_modes - 1])
+            if n_modes == n_dof:  # the whole spectrum: divide and conquer is several times faster
+                values, vectors = scipy.linalg.eigh(stiffness.toarray(), mass.toarray(), driver="gvd")
+            else:
+                values, vectors = scipy.linalg.eigh(stiffness.toarray(), mass.toarray(),
+                                                    subset_by_index=[0, n_modes - 1])
         else:
             values, vectors = spla.eigsh(sp.csc_matrix(stiffness), k=n_modes, M=sp.csc_matrix(mass),
                                          sigma=SHIFT, which="LM", mode="normal")
@@ -87,3 +91,68 @@ def count_zero_energy_modes(model, probe: int = 8) -> tuple[int, str]:
     top = np.argsort(-np.abs(shape))[:1]
     where = ", ".join(f"{model.dof_labels[i][0]}.{model.dof_labels[i][1]}" for i in top)
     return int(zero.size), where
+
+
+@dataclass
+class ModalModel:
+    """The linear subsystem of Eq. 8–12 in (generalised) modal coordinates.
+
+    Each coordinate i obeys η̈_i + 2ξ_iω_i η̇_i + ω_i² η_i = e_iᵀ(−u_R) + h_iᵀ w with the state
+    x_i = [η̇_i, ω_i·η_i] (Eq. 11). The coordinates are the eigenmodes of the frictionless
+    truss (F_N = 0, Eq. 6–7), possibly followed by Krylov correction vectors (Eq. 27–28),
+    which are M-orthonormal and K-diagonal too, so the same form holds for the reduced model.
+    Sign: the joints act on the structure with −E·u_R (friction opposes sliding), so
+    v = Eᵀż = Bᵀx and the energy ½xᵀx can only fall through u_Rᵀv ≥ 0.
+    """
+
+    omega: np.ndarray  # ω_i [rad/s]
+    damping: np.ndarray  # ξ_i
+    joint_input: np.ndarray  # (n, l): rows e_i of basisᵀ E (Eq. 9, 18)
+    disturbance_input: np.ndarray  # (n, m): rows h_i of basisᵀ F
+    displacement_output: np.ndarray  # (n_y, n): V·basis (Eq. 10)
+    velocity_output: np.ndarray  # (n_y, n): W·basis
+    labels: list[str]  # "mode 12" or "krylov B1.1" per coordinate
+    joint_names: list[str]
+    sensor_names: list[str]
+    disturbance_names: list[str]
+    basis: np.ndarray | None = None  # (N, n) shapes in z, kept for the reduction and plots
+
+    @property
+    def n_coordinates(self) -> int:
+        return self.omega.size
+
+    @property
+    def n_states(self) -> int:
+        return 2 * self.omega.size
+
+    def state_space(self):
+        """A, B, H, C_v, C_y of Eq. 12 with v = Bᵀx (Eq. 9) and y = C_y x (Eq. 10).
+
+        States ordered [η̇_1, ω_1η_1, η̇_2, …]; the friction enters as ẋ = Ax − B·u_R + H·w.
+        """
+        n = self.n_coordinates
+        A = np.zeros((2 * n, 2 * n))
+        idx = 2 * np.arange(n)
+        A[idx, idx] = -2.0 * self.damping * self.omega
+        A[idx, idx + 1] = -self.omega
+        A[idx + 1, idx] = self.omega
+        B = np.zeros((2 * n, self.joint_input.shape[1]))
+        B[idx] = self.joint_input
+        H = np.zeros((2 * n, self.disturbance_input.shape[1]))
+        H[idx] = self.disturbance_input
+        Cy = np.zeros((self.displacement_output.shape[0], 2 * n))
+        Cy[:, idx] = self.velocity_output
+        Cy[:, idx + 1] = self.displacement_output / self.omega
+        return A, B, H, B.T.copy(), Cy
+
+
+def modal_model(model, modes: Modes, indices=None) -> ModalModel:
+    """The modal model of an FE model's (released-joint) modes, optionally a subset ``indices``."""
+    indices = np.arange(len(modes)) if indices is None else np.asarray(indices, dtype=int)
+    shapes = modes.shapes[:, indices]
+    return ModalModel(
+        omega=modes.omega[indices].copy(), damping=modes.damping[indices].copy(),
+        joint_input=shapes.T @ model.E, disturbance_input=shapes.T @ model.F,
+        displacement_output=model.V @ shapes, velocity_output=model.W @ shapes,
+        labels=[f"mode {i + 1}" for i in indices], joint_names=list(model.joint_names),
+        sensor_names=list(model.sensor_names), disturbance_names=list(model.disturbance_names), basis=shapes)

@@ -349,12 +349,32 @@ def load_design(path: str | Path | None = None) -> Design:
         raw = path.read_bytes()
     except OSError as error:
         raise DesignError("<file>", source, f"cannot read design file ({error.strerror})") from None
+    data, raw = _read_toml(path, source, raw)
+    design = parse_design(data, source=source)
+    return dataclasses.replace(design, sha256=hashlib.sha256(raw).hexdigest())
+
+
+def _read_toml(path: Path, source: str, raw: bytes, depth: int = 0) -> tuple[dict[str, Any], bytes]:
+    """Parse a design file; ``base = "other.toml"`` (relative to the file) supplies every
+    top-level key the file does not set itself. The hash covers the whole chain of bytes."""
     try:
         data = tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise DesignError("<file>", source, f"not valid TOML: {error}") from None
-    design = parse_design(data, source=source)
-    return dataclasses.replace(design, sha256=hashlib.sha256(raw).hexdigest())
+    if "base" not in data:
+        return data, raw
+    base = data.pop("base")
+    if not isinstance(base, str):
+        raise DesignError("base", base, "expected a path (string) to the design file this one extends", source)
+    if depth >= 4:
+        raise DesignError("base", base, "at most 4 levels of base files", source)
+    base_path = (path.parent / base) if not Path(base).is_absolute() else Path(base)
+    try:
+        base_raw = base_path.read_bytes()
+    except OSError as error:
+        raise DesignError("base", base, f"cannot read base design file {base_path} ({error.strerror})", source) from None
+    base_data, base_chain = _read_toml(base_path, str(base_path), base_raw, depth + 1)
+    return {**base_data, **data}, base_chain + b"\0" + raw
 
 
 def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
