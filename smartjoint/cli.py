@@ -166,6 +166,83 @@ def cmd_identify(args) -> dict:
     return out
 
 
+def _design(args):
+    """The design, updated to its EMA unless --no-update (the updated parameters also hold for
+    a design that adds joints to an updated base)."""
+    from .design import load_design, updated_design
+
+    design = load_design(args.design)
+    if design.updating is not None and not args.no_update:
+        _progress(f"updating {len(design.updating.parameters)} parameters to {len(design.updating.measured)} measured modes …")
+        design, _ = updated_design(design, lambda k, n, err: _progress(f"  start {k}/{n}: worst error {err:.2f} %"))
+    return design
+
+
+def cmd_reduce(args) -> dict:
+    import numpy as np
+
+    from .studies import parse_normal_forces, plot_study, reduction_study, study_summary
+
+    design = _design(args)
+    forces = parse_normal_forces(args.normal_force, design) if args.normal_force else \
+        np.array([400.0 if j.type == "B" else 0.0 for j in design.joints]) if design.joints else None
+    if forces is not None and not forces.any():
+        forces[0] = 400.0
+    joints = None
+    if args.krylov_joints:
+        names = [j.name for j in design.joints]
+        unknown = [n for n in args.krylov_joints.split(",") if n not in names]
+        if unknown:
+            from .design.errors import ModelError
+            raise ModelError(f"--krylov-joints: {unknown[0]!r} — joints are {', '.join(names)}")
+        joints = [names.index(n) for n in args.krylov_joints.split(",")]
+    elif forces is not None:
+        joints = [int(np.argmax(forces))]
+    study = reduction_study(design, forces if forces is not None else np.zeros(0), args.considered, args.modes,
+                            tuple(sorted({0, args.krylov})), joints, args.duration, args.step, _progress)
+    out = study_summary(study)
+    if args.plots:
+        folder = Path(args.plots)
+        folder.mkdir(parents=True, exist_ok=True)
+        out["plots"] = [str(p) for p in plot_study(study, folder)]
+    if not args.json:
+        from .studies import study_markdown
+        print(study_markdown(study))
+    return out
+
+
+def cmd_simulate(args) -> dict:
+    import numpy as np
+
+    from .design import build_model, modal, reduction, simulate
+    from .studies import joint_laws, parse_normal_forces
+
+    design = _design(args)
+    forces = parse_normal_forces(args.normal_force, design)
+    fe = build_model(design, joints="released")
+    if args.reduced:
+        keep, krylov = (int(v) for v in args.reduced.split(":"))
+        model = reduction.reduce(fe, modal.solve_modes(fe, min(args.considered, fe.n_dof)), keep, krylov).model
+    else:
+        model = modal.modal_model(fe, modal.solve_modes(fe, fe.n_dof))
+    _progress(f"simulating {model.n_states} states for {args.duration:g} s at {args.step:g} s …")
+    result = simulate.simulate(model, joint_laws(design), simulate.ConstantNormalForce(forces, args.sample_time),
+                               simulate.triangular_pulse(), args.duration, args.step, progress=_progress)
+    after = result.time >= 0.04
+    out = {"design": design.name, "states": model.n_states, "normal_forces": forces.tolist(),
+           "energy_measure_eq32": result.energy_measure(), "final_energy": float(result.energy[-1]),
+           "peak_energy": float(result.energy.max()), "energy_balance_error": result.balance_error(),
+           "dissipated_by_joints": float(result.work_joints[-1]), "input_work": float(result.work_in[-1]),
+           "tip_rms_after_pulse": dict(zip(result.sensor_names, np.sqrt(np.mean(result.sensors[after] ** 2, axis=0)).tolist())),
+           "joints": {name: {"peak_friction": float(np.abs(result.friction_force[:, j]).max()),
+                             "peak_sliding_velocity": float(np.abs(result.sliding_velocity[:, j]).max())}
+                      for j, name in enumerate(result.joint_names)}}
+    if not args.json:
+        for key, value in out.items():
+            print(f"{key}: {value}")
+    return out
+
+
 def _write_atomic(path: Path, text: str) -> None:
     """Write through a temporary file so that a failure never leaves half a file behind."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -226,6 +303,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", help="folder for hysteresis plots (PNG)")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("reduce", help="balanced mode selection + Krylov vectors (Section 4), checked against the full model")
+    _add_design(p)
+    p.add_argument("--modes", type=_positive_int, default=60, help="modes to keep (default: %(default)s)")
+    p.add_argument("--considered", type=_positive_int, default=100, help="modes to choose from (default: %(default)s)")
+    p.add_argument("--krylov", type=int, default=2, help="Krylov vectors per joint (default: %(default)s)")
+    p.add_argument("--krylov-joints", help="comma-separated joint names that get vectors (default: the active joint)")
+    p.add_argument("--normal-force", help="F_N per joint, comma-separated [N] (default: 400 for type B, else 0)")
+    p.add_argument("--duration", type=float, default=0.5, help="simulated time [s] (default: %(default)s)")
+    p.add_argument("--step", type=float, default=5e-5, help="plant step [s] (default: %(default)s)")
+    p.add_argument("--plots", help="folder for hankel.png, friction_moment.png, energy.png")
+    p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.set_defaults(func=cmd_reduce)
+
+    p = sub.add_parser("simulate", help="passive closed-loop run under the paper's tip pulse")
+    _add_design(p)
+    p.add_argument("--normal-force", required=True, help="F_N per joint, comma-separated [N]")
+    p.add_argument("--duration", type=float, default=1.0, help="simulated time [s] (default: %(default)s)")
+    p.add_argument("--step", type=float, default=5e-5, help="plant step [s] (default: %(default)s)")
+    p.add_argument("--sample-time", type=float, default=1e-3, help="controller sample time [s] (default: %(default)s)")
+    p.add_argument("--reduced", help="KEEP:KRYLOV, e.g. 9:1, for a reduced model (default: the full model)")
+    p.add_argument("--considered", type=_positive_int, default=100, help="modes to choose from with --reduced")
+    p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.set_defaults(func=cmd_simulate)
     return parser
 
 

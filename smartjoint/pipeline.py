@@ -18,10 +18,16 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from . import __version__
 from . import report as plots
 from .design import build_model, load_design, lugre, rig, solve_modes, updated_design
 from .design.identify import classify, identify
+from .design.spec import REFERENCE_DESIGN
+from .studies import plot_study, reduction_study, study_markdown, study_summary
+
+FIG10_DESIGN = REFERENCE_DESIGN.parent / "fig10_three_joints.toml"
 
 REPORT_MODES = 30
 
@@ -30,33 +36,46 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
     started = time.perf_counter()
     output = Path(output)
     design = load_design(design_path)
-    progress(f"[1/5] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
+    progress(f"[1/6] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
              f"{len(design.members)} members, {len(design.joints)} joints")
     model = build_model(design, joints="locked")
-    progress(f"[2/5] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, "
+    progress(f"[2/6] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, "
              f"mass {model.total_mass:.2f} kg")
 
     result = None
     if design.updating is not None:
-        progress(f"[3/5] model updating: {len(design.updating.parameters)} parameters, "
+        progress(f"[3/6] model updating: {len(design.updating.parameters)} parameters, "
                  f"{len(design.updating.measured)} measured modes")
         design, result = updated_design(design, lambda k, n, err: progress(f"      start {k}/{n}: worst error {err:.2f} %"))
         model = build_model(design, joints="locked")
     else:
-        progress("[3/5] model updating: skipped (no [updating] section)")
+        progress("[3/6] model updating: skipped (no [updating] section)")
     modes = solve_modes(model, min(REPORT_MODES, model.n_dof))
     released = None
     if design.joints:
         released_model = build_model(design, joints="released")
         released = solve_modes(released_model, min(REPORT_MODES, released_model.n_dof))
 
-    progress("[4/5] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3)")
+    progress("[4/6] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3)")
     records = [rig.simulate(test) for test in rig.campaign("B", noise=0.01, cycles=8)]
     micro = [r for r in records if classify(r) == "micro-slip"]
     stick = [r for r in records if classify(r) == "stick-slip"]
     identification = identify(micro, stick, progress=lambda message: progress(f"      {message}"))
 
-    progress("[5/5] report")
+    # Reduction (Section 4.3): on the design's own joints, or — for a design without joints such
+    # as the bundled reference — on the Fig. 10 example (the same truss plus joints B1, A2, A3).
+    example = design if design.joints else load_design(FIG10_DESIGN)
+    if result is not None and not design.joints:
+        example = example.with_parameters(result.parameters)
+    progress(f"[5/6] model reduction (Section 4, Fig. 10) on {example.name!r}: joints "
+             f"{', '.join(j.name + ' (' + j.type + ')' for j in example.joints)}")
+    forces = np.array([400.0 if j.type == "B" else 0.0 for j in example.joints])
+    if not forces.any():
+        forces[0] = 400.0
+    study = reduction_study(example, forces, krylov_joints=[int(np.argmax(forces))],
+                            progress=lambda message: progress(message))
+
+    progress("[6/6] report")
     output.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{output.name}-", dir=output.parent))
     try:
@@ -66,6 +85,7 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
         if result is not None:
             plots.plot_updating(result, staging / "updating.png")
         hysteresis = [p.name for p in plots.plot_hysteresis(identification, staging)]
+        plot_study(study, staging)
         summary = {
             "smartjoint_version": __version__,
             "design": {"name": design.name, "source": design.source, "sha256": design.sha256},
@@ -74,11 +94,13 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
             "modes_hz": [float(f) for f in modes.frequencies_hz],
             "modes_released_hz": [float(f) for f in released.frequencies_hz] if released is not None else None,
             "friction_identification": identification.as_dict(),
+            "reduction": study_summary(study),
             "seconds": time.perf_counter() - started,
         }
         (staging / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
         (staging / "report.md").write_text(_markdown(design, model, modes, released, result, summary)
-                                           + _friction_markdown(identification, hysteresis))
+                                           + _friction_markdown(identification, hysteresis) + "\n"
+                                           + study_markdown(study))
         if output.exists():
             shutil.rmtree(output)
         staging.replace(output)

@@ -83,3 +83,15 @@ def test_bad_inputs_are_named(model):
         simulate.simulate(model, JOINTS[:1], simulate.ConstantNormalForce(np.zeros(1), 1e-3), None, 0.1, 1e-4)
     with pytest.raises(Exception, match="normal forces"):
         simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(np.array([-1.0, 0.0]), 1e-3), None, 0.1, 1e-4)
+
+
+def test_simulate_command_names_a_wrong_normal_force_list():
+    import subprocess
+    import sys
+
+    from smartjoint.pipeline import FIG10_DESIGN
+
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "simulate", str(FIG10_DESIGN), "--no-update",
+                           "--normal-force", "400,0"], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert "--normal-force: '400,0' — need 3 finite values >= 0 (joints B1, A2, A3)" in done.stderr
