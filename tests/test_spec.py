@@ -105,3 +105,17 @@ def test_command_line_reports_one_line(tmp_path):
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "truss.bays: 0" in lines[0] and "Traceback" not in done.stderr
+
+
+def test_base_file_supplies_the_keys_a_design_does_not_set(tmp_path):
+    from smartjoint.design.errors import DesignError
+    from smartjoint.design.spec import REFERENCE_DESIGN, load_design
+
+    child = tmp_path / "child.toml"
+    child.write_text(f'base = "{REFERENCE_DESIGN}"\nname = "child"\n')
+    design = load_design(child)
+    reference = load_design()
+    assert design.name == "child" and design.members == reference.members and design.sha256 != reference.sha256
+    child.write_text('base = "missing.toml"\nname = "child"\n')
+    with pytest.raises(DesignError, match="base"):
+        load_design(child)
