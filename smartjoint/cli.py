@@ -227,7 +227,7 @@ def cmd_simulate(args) -> dict:
         model = modal.modal_model(fe, modal.solve_modes(fe, fe.n_dof))
     _progress(f"simulating {model.n_states} states for {args.duration:g} s at {args.step:g} s …")
     result = simulate.simulate(model, joint_laws(design), simulate.ConstantNormalForce(forces, args.sample_time),
-                               simulate.triangular_pulse(), args.duration, args.step, progress=_progress)
+                               simulate.triangular_pulse(directions=np.ones(len(design.disturbances))), args.duration, args.step, progress=_progress)
     after = result.time >= 0.04
     out = {"design": design.name, "states": model.n_states, "normal_forces": forces.tolist(),
            "energy_measure_eq32": result.energy_measure(), "final_energy": float(result.energy[-1]),

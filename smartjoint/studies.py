@@ -43,7 +43,9 @@ def reduction_study(design, normal_forces: np.ndarray, considered: int = 100, ke
                         everything.damping[:considered])
     laws = joint_laws(design)
     controller = simulate.ConstantNormalForce(normal_forces, 1e-3)
-    pulse = simulate.triangular_pulse()
+    pulse = simulate.triangular_pulse(directions=np.ones(len(design.disturbances)))  # 200 N along every input
+    considered = min(considered, fe.n_dof)
+    keep = min(keep, considered)
     progress(f"      full model: {full.n_states} states, {duration:g} s at {step:g} s")
     reference = simulate.simulate(full, laws, controller, pulse, duration, step)
     active = int(np.argmax(normal_forces))
