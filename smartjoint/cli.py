@@ -36,14 +36,22 @@ def _add_design(parser: argparse.ArgumentParser) -> None:
 
 def _model(args, *, joints: str = "locked"):
     """Load the design, build the FE model and, unless --no-update, update it to the EMA."""
-    from .design import build_model, load_design, updated_design
+    from .design import build_model
+
+    design, result = _updated(args)
+    return build_model(design, joints=joints), result
+
+
+def _updated(args):
+    """The design, updated to its EMA unless --no-update, and the updating result (or None).
+    The updated parameters also hold for a design that adds joints to an updated base."""
+    from .design import load_design, updated_design
 
     design = load_design(args.design)
-    result = None
-    if design.updating is not None and not getattr(args, "no_update", False):
-        _progress(f"updating {len(design.updating.parameters)} parameters to {len(design.updating.measured)} measured modes …")
-        design, result = updated_design(design, lambda k, n, err: _progress(f"  start {k}/{n}: worst error {err:.2f} %"))
-    return build_model(design, joints=joints), result
+    if design.updating is None or getattr(args, "no_update", False):
+        return design, None
+    _progress(f"updating {len(design.updating.parameters)} parameters to {len(design.updating.measured)} measured modes …")
+    return updated_design(design, lambda k, n, err: _progress(f"  start {k}/{n}: worst error {err:.2f} %"))
 
 
 def cmd_modes(args) -> dict:
@@ -166,24 +174,12 @@ def cmd_identify(args) -> dict:
     return out
 
 
-def _design(args):
-    """The design, updated to its EMA unless --no-update (the updated parameters also hold for
-    a design that adds joints to an updated base)."""
-    from .design import load_design, updated_design
-
-    design = load_design(args.design)
-    if design.updating is not None and not args.no_update:
-        _progress(f"updating {len(design.updating.parameters)} parameters to {len(design.updating.measured)} measured modes …")
-        design, _ = updated_design(design, lambda k, n, err: _progress(f"  start {k}/{n}: worst error {err:.2f} %"))
-    return design
-
-
 def cmd_reduce(args) -> dict:
     import numpy as np
 
     from .studies import parse_normal_forces, plot_study, reduction_study, study_summary
 
-    design = _design(args)
+    design, _ = _updated(args)
     forces = parse_normal_forces(args.normal_force, design) if args.normal_force else \
         np.array([400.0 if j.type == "B" else 0.0 for j in design.joints]) if design.joints else None
     if forces is not None and not forces.any():
@@ -217,7 +213,7 @@ def cmd_simulate(args) -> dict:
     from .design import build_model, modal, reduction, simulate
     from .studies import joint_laws, parse_normal_forces
 
-    design = _design(args)
+    design, _ = _updated(args)
     forces = parse_normal_forces(args.normal_force, design)
     fe = build_model(design, joints="released")
     if args.reduced:

@@ -106,14 +106,7 @@ def plot_study(study: dict, folder) -> list:
     kept = study["runs"][0]["reduction"].kept_modes
     ax.semilogy(kept + 1, reduction.hankel_values(considered)["uv"][kept], "o", mfc="none", color="k",
                 label=f"kept ({kept.size})")
-    ax.set_xlabel("mode")
-    ax.set_ylabel("w_i^c (Eq. 17)")
-    ax.set_title("Controllability of the modes by each joint (Fig. 9)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(folder / "hankel.png", dpi=110)
-    plt.close(fig)
-    written.append(folder / "hankel.png")
+    written.append(_save(fig, ax, folder / "hankel.png", "mode", "w_i^c (Eq. 17)", "Controllability of the modes by each joint (Fig. 9)"))
 
     ref = study["reference"]
     a = study["active"]
@@ -122,29 +115,28 @@ def plot_study(study: dict, folder) -> list:
     for r in study["runs"]:
         ax.plot(r["result"].time, r["result"].friction_force[:, a], lw=0.9,
                 label=f"{study['keep']} modes + {r['krylov_per_joint']} Krylov ({r['states']} states)")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel(f"u_R of {study['joint_names'][a]}")
-    ax.set_title("Friction moment: full vs reduced (Fig. 10)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(folder / "friction_moment.png", dpi=110)
-    plt.close(fig)
-    written.append(folder / "friction_moment.png")
+    written.append(_save(fig, ax, folder / "friction_moment.png", "t [s]", f"u_R of {study['joint_names'][a]}", "Friction moment: full vs reduced (Fig. 10)"))
 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.semilogy(ref.time, np.maximum(ref.energy, 1e-12), "k", label="full")
     for r in study["runs"]:
         ax.semilogy(r["result"].time, np.maximum(r["result"].energy, 1e-12), lw=0.9,
                     label=f"{study['keep']} modes + {r['krylov_per_joint']} Krylov")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("½xᵀx [J]")
-    ax.set_title("Structural energy after the tip pulse")
+    written.append(_save(fig, ax, folder / "energy.png", "t [s]", "½xᵀx [J]", "Structural energy after the tip pulse"))
+    return written
+
+
+def _save(fig, ax, path, xlabel: str, ylabel: str, title: str):
+    import matplotlib.pyplot as plt
+
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(folder / "energy.png", dpi=110)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
-    written.append(folder / "energy.png")
-    return written
+    return path
 
 
 def study_markdown(study: dict) -> str:
