@@ -38,7 +38,9 @@ The run also books the energy balance e(t) − e(0) = W_in − W_joints − W_da
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Protocol
 
 import numpy as np
@@ -74,6 +76,7 @@ class ConstantNormalForce:
 
     normal_forces: np.ndarray
     sample_time: float = 1e-3
+    holds_constant = True  # simulate() asks once and runs the whole span in one kernel call
 
     def reset(self) -> None:
         pass
@@ -82,20 +85,30 @@ class ConstantNormalForce:
         return np.asarray(self.normal_forces, dtype=float)
 
 
-def triangular_pulse(amplitude: float = 200.0, duration: float = 0.04, directions=(1.0, 1.0)) -> Callable:
+class TriangularPulse:
     """The paper's tip disturbance (Section 4.3): a triangular force pulse, peak ``amplitude``
     at duration/2, zero after ``duration``, applied along each disturbance input with the
-    given factors (y and z: both 1)."""
-    directions = np.asarray(directions, dtype=float)
-    if not (amplitude >= 0 and duration > 0):
-        raise ModelError(f"pulse: amplitude {amplitude!r} must be >= 0 and duration {duration!r} > 0")
+    given factors (y and z: both 1). ``w(t)`` for one time, ``sample(times)`` for many."""
 
-    def w(t: float) -> np.ndarray:
-        shape = max(0.0, 1.0 - abs(2.0 * t / duration - 1.0)) if 0.0 <= t <= duration else 0.0
-        return amplitude * shape * directions
+    def __init__(self, amplitude: float = 200.0, duration: float = 0.04, directions=(1.0, 1.0)):
+        if not (math.isfinite(amplitude) and amplitude >= 0 and math.isfinite(duration) and duration > 0):
+            raise ModelError(f"pulse: amplitude {amplitude!r} must be >= 0 and duration {duration!r} > 0")
+        self.amplitude, self.duration = float(amplitude), float(duration)
+        self.directions = np.asarray(directions, dtype=float).reshape(-1)
+        self.breakpoints = (0.0, 0.5 * duration, duration)
 
-    w.breakpoints = (0.0, 0.5 * duration, duration)
-    return w
+    def sample(self, times) -> np.ndarray:
+        t = np.asarray(times, dtype=float).reshape(-1)
+        shape = np.where((t >= 0) & (t <= self.duration), np.maximum(0.0, 1.0 - np.abs(2.0 * t / self.duration - 1.0)),
+                         0.0)
+        return self.amplitude * shape[:, None] * self.directions[None, :]
+
+    def __call__(self, t: float) -> np.ndarray:
+        return self.sample([t])[0]
+
+
+def triangular_pulse(amplitude: float = 200.0, duration: float = 0.04, directions=(1.0, 1.0)) -> TriangularPulse:
+    return TriangularPulse(amplitude, duration, directions)
 
 
 @dataclass
@@ -157,9 +170,9 @@ class _Joints:
         self.bound = np.array([p.max_deflection for p in parameters])
 
     def level(self, v):
-        return self.fc + self.fd * np.exp(-(v / self.vs) ** 2)
+        return self.fc + self.fd * np.exp(-(v / self.vs) * (v / self.vs))
 
-    def advance(self, phi, v_start, v_end, h):
+    def advance(self, phi, v_start, v_end, h, derivative=False):
         """φ⁺ of Eq. 1, φ̇ = v − ρφ with ρ = σ0|v|/(F_c + F_d·e^{−(v/v_s)²}) frozen at the
         midpoint velocity and v linear over the step — solved exactly (exponential integrator
         with first-order hold):
@@ -170,15 +183,26 @@ class _Joints:
         Unlike the midpoint-velocity step of ``lugre.step`` it keeps second order when ρh ≫ 1
         (fast sliding: φ follows φ_ss(v(t)), not φ_ss of the midpoint), and it is the
         trapezoidal rule for ρh → 0. |φ| is clipped to φ_max, the bound of the exact solution.
+        With ``derivative`` also returns ∂φ⁺/∂v_{k+1} (for the Newton solve).
         """
         mid = 0.5 * (v_start + v_end)
-        x = self.s0 * np.abs(mid) / self.level(mid) * h
-        small = x < 1e-4
+        g = self.level(mid)
+        x = self.s0 * np.abs(mid) / g * h
+        small = x < SERIES
         xs = np.where(small, 1.0, x)
+        decay = np.exp(-x)
         phi1 = np.where(small, 1.0 - x / 2.0 + x * x / 6.0, -np.expm1(-xs) / xs)
         phi2 = np.where(small, 0.5 - x / 6.0 + x * x / 24.0, (1.0 - phi1) / xs)
-        out = np.exp(-x) * phi + h * ((phi1 - phi2) * v_start + phi2 * v_end)
-        return np.clip(out, -self.bound, self.bound)
+        raw = decay * phi + h * ((phi1 - phi2) * v_start + phi2 * v_end)
+        out = np.clip(raw, -self.bound, self.bound)
+        if not derivative:
+            return out
+        dg = -2.0 * mid / self.vs**2 * (g - self.fc)
+        dx = 0.5 * self.s0 * h * (np.sign(mid) * g - np.abs(mid) * dg) / (g * g)
+        dphi1 = np.where(small, -0.5 + x / 3.0, (decay - phi1) / xs)
+        dphi2 = np.where(small, -1.0 / 6.0 + x / 12.0, (-dphi1 - phi2) / xs)
+        d_out = (-decay * phi + h * ((dphi1 - dphi2) * v_start + dphi2 * v_end)) * dx + h * phi2
+        return out, np.where(np.abs(raw) > self.bound, 0.0, d_out)
 
     def mu(self, v, phi):
         phidot = v - self.s0 * np.abs(v) / self.level(v) * phi
@@ -187,8 +211,267 @@ class _Joints:
     def force(self, v, phi, normal_force):
         return self.arm * normal_force * self.mu(v, phi)
 
+    def force_derivatives(self, v, phi, normal_force):
+        """u_R of Eq. 2 with ∂u_R/∂v and ∂u_R/∂φ."""
+        g = self.level(v)
+        dg = -2.0 * v / self.vs**2 * (g - self.fc)
+        scale = self.arm * normal_force
+        dphidot_dv = 1.0 - self.s0 * phi * (np.sign(v) * g - np.abs(v) * dg) / (g * g)
+        d_v = scale * (self.s1 * dphidot_dv + self.s2)
+        d_phi = scale * (self.s0 - self.s1 * self.s0 * np.abs(v) / g)
+        return self.force(v, phi, normal_force), d_v, d_phi
 
-def _check(model: ModalModel, joints, duration, step, controller):
+
+SERIES = 1e-4  # ρh below which φ1, φ2 use their Taylor series
+MAX_HALVINGS = 8  # a plant step may split into up to 2^8 substeps where the joints demand it
+TOLERANCE = 1e-12  # Newton: |residual| ≤ TOLERANCE·(max(|v_free|, v_s) + |v_k|)
+ITERATIONS = 30
+MAX_DISTURBANCES = 64  # the C kernel keeps the halving's midpoint disturbance on its stack
+
+
+class _SolveFailed(Exception):
+    def __init__(self, residual):
+        self.residual = residual
+
+
+def _solve_joints(law: _Joints, G, v_free, v_start, phi, normal_force, h):
+    """Newton on R(v) = v − v_free + G·u_R(v) with the analytic Jacobian I + G·diag(du_R/dv).
+
+    R is monotone (a unique root) unless a falling Stribeck branch is steeper than the step's
+    compliance G; then det J ≤ 0 or Newton stalls, and the caller halves the step.
+    """
+    v = v_free.copy()
+    scale = np.maximum(np.abs(v_free), law.vs) + np.abs(v_start)
+    residual = np.zeros_like(v)
+    for _ in range(ITERATIONS):
+        phi_new, dphi = law.advance(phi, v_start, v, h, derivative=True)
+        u, du_dv, du_dphi = law.force_derivatives(v, phi_new, normal_force)
+        residual = v - v_free + G @ u
+        if np.all(np.abs(residual) <= TOLERANCE * scale):
+            return v, phi_new, u
+        jacobian = np.eye(v.size) + G * (du_dv + du_dphi * dphi)[None, :]
+        if not np.linalg.det(jacobian) > 0.0:
+            break  # a falling branch: no unique root at this step size
+        correction = np.linalg.solve(jacobian, residual)
+        # Damped near the |v| kink: never move by more than the current scale in one go.
+        limit = np.max(np.abs(correction) / scale)
+        v = v - (correction if limit <= 1.0 else correction / limit)
+    raise _SolveFailed(float(np.max(np.abs(residual))))
+
+
+class _Plant:
+    """Everything a run needs that does not change during it: discretisation at step/2^d for
+    d = 0…MAX_HALVINGS, the input/output matrices and the joint laws."""
+
+    def __init__(self, model: ModalModel, joints, step: float):
+        self.n, self.l = model.n_coordinates, model.joint_input.shape[1]
+        self.m, self.ny = model.disturbance_input.shape[1], model.velocity_output.shape[0]
+        self.step = step
+        self.E = np.ascontiguousarray(model.joint_input, dtype=float)
+        self.H = np.ascontiguousarray(model.disturbance_input, dtype=float)
+        self.Vy = np.ascontiguousarray(model.velocity_output, dtype=float)
+        self.Dy = np.ascontiguousarray(model.displacement_output / model.omega, dtype=float)
+        self.two_xi_w = 2.0 * model.damping * model.omega
+        self.law = _Joints(joints)
+        levels = [discretise(model, step / 2**d) for d in range(MAX_HALVINGS + 1)]
+        self.phi = np.ascontiguousarray([lv[0] for lv in levels])  # (levels, n, 2, 2)
+        self.g0 = np.ascontiguousarray([lv[1] for lv in levels])
+        self.g1 = np.ascontiguousarray([lv[2] for lv in levels])
+        self.G = np.zeros((MAX_HALVINGS + 1, self.l, self.l))
+        for d, lv in enumerate(levels):
+            self.G[d] = (self.E * lv[2][:, 0:1]).T @ self.E
+
+
+class _State:
+    """The plant state a kernel advances in place."""
+
+    def __init__(self, plant: _Plant, initial_state):
+        n, l = plant.n, plant.l
+        self.X = np.zeros((n, 2)) if initial_state is None else np.array(initial_state, dtype=float).reshape(n, 2)
+        self.v = plant.E.T @ self.X[:, 0]
+        self.phi, self.u, self.fn = np.zeros(l), np.zeros(l), np.zeros(l)
+        self.works = np.zeros(3)  # W_in, W_joints, W_damping
+        self.powers = np.zeros(3)  # the same powers at the last step end
+
+
+class _Recorder:
+    def __init__(self, plant: _Plant, rows: int):
+        l = plant.l
+        self.v, self.u, self.fn, self.phi = (np.zeros((rows, l)) for _ in range(4))
+        self.sensors = np.zeros((rows, plant.ny))
+        self.energy = np.zeros(rows)
+        self.works = np.zeros((rows, 3))
+
+
+class _PythonKernel:
+    """The fixed-step scheme in numpy: the readable mirror of ``plant_kernel.c``."""
+
+    name = "python"
+
+    def __init__(self, plant: _Plant, state: _State, recorder: _Recorder):
+        self.p, self.s, self.r = plant, state, recorder
+
+    def set_normal_force(self, normal_force):
+        s = self.s
+        s.fn = np.array(normal_force, dtype=float)
+        s.u = self.p.law.force(s.v, s.phi, s.fn)  # F_N acts at once (piezo taken as instantaneous)
+        s.powers[1] = float(s.u @ s.v)
+
+    def _powers(self, w):
+        X = self.s.X
+        return np.array([X[:, 0] @ (self.p.H @ w), self.s.u @ self.s.v, np.sum(self.p.two_xi_w * X[:, 0] ** 2)])
+
+    def start(self, w0):
+        self.s.powers = self._powers(w0)
+        self.s.works = np.zeros(3)
+
+    def record_row(self, row):
+        s, r, p = self.s, self.r, self.p
+        r.v[row], r.u[row], r.fn[row], r.phi[row] = s.v, s.u, s.fn, s.phi
+        r.sensors[row] = p.Vy @ s.X[:, 0] + p.Dy @ s.X[:, 1]
+        r.energy[row] = 0.5 * float(np.sum(s.X * s.X))
+        r.works[row] = s.works
+
+    def _advance(self, w_a, w_b, depth):
+        p, s = self.p, self.s
+        Phi, a, b, G = p.phi[depth], p.g0[depth], p.g1[depth], p.G[depth]
+        h = p.step / 2**depth
+        f_a = p.H @ w_a - p.E @ s.u
+        X_free = np.einsum("nij,nj->ni", Phi, s.X) + a * f_a[:, None] + b * (p.H @ w_b)[:, None]
+        if not p.l:
+            s.X = X_free
+            return
+        try:
+            v_new, phi_new, u_new = _solve_joints(p.law, G, p.E.T @ X_free[:, 0], s.v, s.phi, s.fn, h)
+        except _SolveFailed as failure:
+            if depth >= MAX_HALVINGS:
+                raise ModelError(f"joint solve did not converge at step {h:.3g} s (residual {failure.residual:.3g}); "
+                                 "reduce the step") from None
+            w_mid = 0.5 * (w_a + w_b)  # linear in the step, as the first-order hold assumes
+            self._advance(w_a, w_mid, depth + 1)
+            self._advance(w_mid, w_b, depth + 1)
+            return
+        s.phi, s.u = phi_new, u_new
+        s.X = X_free - b * (p.E @ u_new)[:, None]
+        s.v = p.E.T @ s.X[:, 0]
+
+    def run(self, w, steps, k0, record_every):
+        s, h = self.s, self.p.step
+        for k in range(steps):
+            if (k0 + k) % record_every == 0:
+                self.record_row((k0 + k) // record_every)
+            self._advance(w[k], w[k + 1], 0)
+            powers = self._powers(w[k + 1])
+            s.works += 0.5 * h * (s.powers + powers)  # trapezoidal in time: consistent to O(h²)
+            s.powers = powers
+
+
+class _CKernel:
+    """``plant_kernel.c`` through cffi; the state arrays are shared with numpy."""
+
+    name = "c"
+    DECLARATIONS = """
+    typedef struct {
+        int n, l, m, ny, levels;
+        double step;
+        const double *phi, *g0, *g1, *G;
+        const double *E, *H, *Vy, *Dy, *two_xi_w;
+        const double *s0, *s1, *s2, *fc, *fd, *vs, *arm, *bound;
+        double *work;
+    } sj_plant;
+    typedef struct {
+        double *X, *v, *phi, *u, *fn;
+        double work_in, work_joints, work_damping;
+        double power_in, power_joints, power_damping;
+        double failed_step, failed_residual;
+    } sj_state;
+    typedef struct { double *v, *u, *fn, *phi, *sensors, *energy, *works; } sj_record;
+    void sj_set_normal_force(const sj_plant *p, sj_state *s, const double *normal_force);
+    void sj_start(const sj_plant *p, sj_state *s, const double *w0);
+    void sj_record_row(const sj_plant *p, const sj_state *s, const sj_record *r, long row);
+    long sj_run(const sj_plant *p, sj_state *s, const double *w, long steps, long k0, long record_every,
+                const sj_record *r);
+    """
+
+    def __init__(self, plant: _Plant, state: _State, recorder: _Recorder):
+        from . import native
+
+        module = native.load("plant", self.DECLARATIONS, Path(__file__).with_name("plant_kernel.c"))
+        self.ffi, self.lib = ffi, lib = module.ffi, module.lib
+        self.p, self.s, self.r = plant, state, recorder
+        self._keep = []  # arrays whose memory the C structs point into
+
+        def ptr(array):
+            array = np.ascontiguousarray(array, dtype=float)
+            self._keep.append(array)
+            return ffi.cast("double *", ffi.from_buffer(array))
+
+        law = plant.law
+        self.work = np.zeros(2 * plant.n + 7 * plant.l + plant.l**2 + 1)
+        self.cp = ffi.new("sj_plant *", dict(
+            n=plant.n, l=plant.l, m=plant.m, ny=plant.ny, levels=MAX_HALVINGS + 1, step=plant.step,
+            phi=ptr(plant.phi), g0=ptr(plant.g0), g1=ptr(plant.g1), G=ptr(plant.G), E=ptr(plant.E), H=ptr(plant.H),
+            Vy=ptr(plant.Vy), Dy=ptr(plant.Dy), two_xi_w=ptr(plant.two_xi_w), s0=ptr(law.s0), s1=ptr(law.s1),
+            s2=ptr(law.s2), fc=ptr(law.fc), fd=ptr(law.fd), vs=ptr(law.vs), arm=ptr(law.arm), bound=ptr(law.bound),
+            work=ptr(self.work)))
+        for name in ("phi", "u", "fn"):
+            setattr(state, name, np.ascontiguousarray(getattr(state, name), dtype=float))
+        state.X = np.ascontiguousarray(state.X, dtype=float)
+        state.v = np.ascontiguousarray(state.v, dtype=float)
+        self.cs = ffi.new("sj_state *", dict(X=ptr(state.X), v=ptr(state.v), phi=ptr(state.phi), u=ptr(state.u),
+                                             fn=ptr(state.fn)))
+        self.cr = ffi.new("sj_record *", dict(v=ptr(recorder.v), u=ptr(recorder.u), fn=ptr(recorder.fn),
+                                              phi=ptr(recorder.phi), sensors=ptr(recorder.sensors),
+                                              energy=ptr(recorder.energy), works=ptr(recorder.works)))
+
+    def _pull(self):
+        cs = self.cs
+        self.s.works[:] = (cs.work_in, cs.work_joints, cs.work_damping)
+        self.s.powers[:] = (cs.power_in, cs.power_joints, cs.power_damping)
+
+    def set_normal_force(self, normal_force):
+        fn = np.ascontiguousarray(normal_force, dtype=float)
+        self.lib.sj_set_normal_force(self.cp, self.cs, self.ffi.cast("double *", self.ffi.from_buffer(fn)))
+        self._pull()
+
+    def start(self, w0):
+        w0 = np.ascontiguousarray(w0, dtype=float)
+        self.lib.sj_start(self.cp, self.cs, self.ffi.cast("double *", self.ffi.from_buffer(w0)))
+        self._pull()
+
+    def record_row(self, row):
+        self.lib.sj_record_row(self.cp, self.cs, self.cr, row)
+
+    def run(self, w, steps, k0, record_every):
+        w = np.ascontiguousarray(w, dtype=float)
+        done = self.lib.sj_run(self.cp, self.cs, self.ffi.cast("double *", self.ffi.from_buffer(w)), steps, k0,
+                               record_every, self.cr)
+        self._pull()
+        if done < steps:
+            raise ModelError(f"joint solve did not converge at step {self.cs.failed_step:.3g} s (residual "
+                             f"{self.cs.failed_residual:.3g}); reduce the step")
+
+
+_C_FAILURE: list[str] = []  # why the C kernel is unavailable on this machine (reported once)
+
+
+def _kernel(backend: str, plant: _Plant, state: _State, recorder: _Recorder):
+    if backend not in ("auto", "c", "python"):
+        raise ModelError(f"backend: {backend!r} — must be 'auto', 'c' or 'python'")
+    if backend == "python" or (backend == "auto" and _C_FAILURE):
+        return _PythonKernel(plant, state, recorder)
+    try:
+        return _CKernel(plant, state, recorder)
+    except ModelError as error:
+        if backend == "c":
+            raise
+        _C_FAILURE.append(str(error))
+        warnings.warn(f"plant simulation falls back to numpy (about 100x slower): {error}", RuntimeWarning,
+                      stacklevel=3)
+        return _PythonKernel(plant, state, recorder)
+
+
+def _check(model: ModalModel, joints, duration, step, controller, initial_state):
     l = model.joint_input.shape[1]
     if len(joints) != l:
         raise ModelError(f"joints: {len(joints)} LuGre parameter sets for {l} joints in the model")
@@ -196,151 +479,95 @@ def _check(model: ModalModel, joints, duration, step, controller):
         raise ModelError(f"duration: {duration!r} — must be a positive number of seconds")
     if not (math.isfinite(step) and 0 < step <= duration):
         raise ModelError(f"step: {step!r} — must be > 0 and <= the duration")
-    ratio = controller.sample_time / step
+    sample_time = getattr(controller, "sample_time", None)
+    if not (isinstance(sample_time, (int, float)) and math.isfinite(sample_time) and sample_time > 0):
+        raise ModelError(f"controller sample_time: {sample_time!r} — must be a positive number of seconds")
+    ratio = sample_time / step
     if not (ratio >= 1 and abs(ratio - round(ratio)) < 1e-9 * ratio):
-        raise ModelError(f"controller sample time {controller.sample_time!r} s must be a whole multiple of the "
+        raise ModelError(f"controller sample time {sample_time!r} s must be a whole multiple of the "
                          f"plant step {step!r} s")
+    unstable = np.flatnonzero(~(np.isfinite(model.damping) & (model.damping >= 0) & np.isfinite(model.omega)
+                                & (model.omega > 0)))
+    if unstable.size:
+        i = unstable[0]
+        raise ModelError(f"modal model: coordinate {model.labels[i]!r} has ω = {model.omega[i]!r} rad/s, "
+                         f"ξ = {model.damping[i]!r} — need ω > 0 and ξ >= 0 (a stable structure)")
+    if model.disturbance_input.shape[1] > MAX_DISTURBANCES:
+        raise ModelError(f"disturbances: {model.disturbance_input.shape[1]} inputs — at most {MAX_DISTURBANCES}")
+    if initial_state is not None:
+        x0 = np.asarray(initial_state, dtype=float)
+        if x0.size != 2 * model.n_coordinates or not np.all(np.isfinite(x0)):
+            raise ModelError(f"initial_state: {x0.size} values — need {2 * model.n_coordinates} finite values "
+                             "([η̇_i, ω_iη_i] per coordinate)")
     return l, int(round(ratio))
+
+
+def _disturbance_samples(disturbance, times: np.ndarray, m: int) -> np.ndarray:
+    """w at every step end, (n_t, m): one vectorised call where the function offers it."""
+    if disturbance is None:
+        return np.zeros((times.size, m))
+    sample = getattr(disturbance, "sample", None)
+    values = sample(times) if sample else np.array([np.asarray(disturbance(t), dtype=float).reshape(-1)
+                                                     for t in times])
+    values = np.asarray(values, dtype=float)
+    if values.shape != (times.size, m):
+        raise ModelError(f"disturbance: returned {values.shape[1:] if values.ndim == 2 else values.shape} values per "
+                         f"time — need {m} (one per disturbance input)")
+    if not np.all(np.isfinite(values)):
+        bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))[0]
+        raise ModelError(f"disturbance: non-finite value {values[bad].tolist()} at t = {times[bad]:.6g} s")
+    return values
 
 
 def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller: Controller,
              disturbance: Callable[[float], np.ndarray] | None = None, duration: float = 1.0, step: float = 1e-4,
              initial_state: np.ndarray | None = None, progress: Callable[[str], None] | None = None,
-             record_every: int = 1) -> SimulationResult:
-    """Run the closed loop for ``duration`` seconds at plant step ``step`` (see module docstring)."""
-    l, ratio = _check(model, joints, duration, step, controller)
-    n = model.n_coordinates
-    m = model.disturbance_input.shape[1]
-    law = _Joints(joints) if l else None
-    phi_d, g0, g1 = discretise(model, step)
-    Em = model.joint_input  # (n, l)
-    Hm = model.disturbance_input  # (n, m)
-    two_xi_w = 2.0 * model.damping * model.omega
-    G = (Em * g1[:, 0:1]).T @ Em  # (l, l): end-of-step velocity per end-of-step joint force
-    A, B, H, Cv, Cy = model.state_space()
-    Vy = model.velocity_output
-    Dy = model.displacement_output / model.omega
+             record_every: int = 1, backend: str = "auto") -> SimulationResult:
+    """Run the closed loop for ``duration`` seconds at plant step ``step`` (see module docstring).
 
-    levels = {0: (phi_d, g0, g1, G)}
-
-    def level(depth):
-        """Discretisation at step/2^depth (computed when first needed)."""
-        if depth not in levels:
-            p, a, b = discretise(model, step / 2**depth)
-            levels[depth] = (p, a, b, (Em * b[:, 0:1]).T @ Em)
-        return levels[depth]
-
-    def advance(X, v, phi, u, w_a, w_b, t, depth):
-        """One step of length step/2^depth; halves itself where the joint solve has no unique
-        root (a Stribeck slope steeper than the step's compliance allows) and recurses."""
-        p, a, b, Gd = level(depth)
-        h = step / 2**depth
-        X_free = np.einsum("nij,nj->ni", p, X) + a * (Hm @ w_a - Em @ u)[:, None] + b * (Hm @ w_b)[:, None]
-        if not l:
-            return X_free, v, phi, u
-        try:
-            v_new, phi_new, u_new = _solve_joints(law, Gd, Em.T @ X_free[:, 0], v, phi, normal_force, h)
-        except ModelError:
-            if depth >= MAX_HALVINGS:
-                raise
-            w_mid = np.asarray(w_fun(t + 0.5 * h), dtype=float).reshape(m)
-            X, v, phi, u = advance(X, v, phi, u, w_a, w_mid, t, depth + 1)
-            return advance(X, v, phi, u, w_mid, w_b, t + 0.5 * h, depth + 1)
-        X = X_free - b * (Em @ u_new)[:, None]
-        return X, Em.T @ X[:, 0], phi_new, u_new
-
-    steps = int(round(duration / step))
-    X = np.zeros((n, 2)) if initial_state is None else np.asarray(initial_state, dtype=float).reshape(n, 2).copy()
-    phi = np.zeros(l)
-    w_fun = disturbance or (lambda t: np.zeros(m))
-    w_now = np.asarray(w_fun(0.0), dtype=float).reshape(m)
-    v = Em.T @ X[:, 0]
-    controller.reset()
-    normal_force = np.zeros(l)
-    u = np.zeros(l)
-
-    n_rec = steps // record_every + 1
-    rec = {k: np.zeros((n_rec, l)) for k in ("v", "u", "fn", "phi")}
-    sensors = np.zeros((n_rec, Vy.shape[0]))
-    energy = np.zeros(n_rec)
-    works = np.zeros((n_rec, 3))
-    time = np.zeros(n_rec)
-    w_in = w_joint = w_damp = 0.0
-    power_in_prev = float(X[:, 0] @ (Hm @ w_now))
-    power_joint_prev = 0.0
-    power_damp_prev = float(np.sum(two_xi_w * X[:, 0] ** 2))
-
-    def record(k, t):
-        r = k // record_every
-        time[r] = t
-        rec["v"][r], rec["u"][r], rec["fn"][r], rec["phi"][r] = v, u, normal_force, phi
-        sensors[r] = Vy @ X[:, 0] + Dy @ X[:, 1]
-        energy[r] = 0.5 * float(np.sum(X * X))
-        works[r] = (w_in, w_joint, w_damp)
-
-    report_every = max(steps // 10, 1)
-    for k in range(steps + 1):
-        t = k * step
-        if k % ratio == 0 and k < steps:
-            measured = Measurements(t, Vy @ X[:, 0] + Dy @ X[:, 1], v.copy(), u.copy(), normal_force.copy())
-            new = np.asarray(controller.step(measured), dtype=float).reshape(l) if l else np.zeros(0)
-            if not np.all(np.isfinite(new)) or np.any(new < 0):
-                raise ModelError(f"controller returned normal forces {new.tolist()} at t = {t:.6g} s — must be finite "
-                                 "and >= 0")
-            normal_force = new
-            if l:
-                u = law.force(v, phi, normal_force)  # F_N acts at once (piezo taken as instantaneous)
-                power_joint_prev = float(u @ v)
-        if k % record_every == 0:
-            record(k, t)
-        if k == steps:
-            break
-        w_next = np.asarray(w_fun(t + step), dtype=float).reshape(m)
-        X, v, phi, u = advance(X, v, phi, u, w_now, w_next, t, 0)
-        # Energy bookkeeping (trapezoidal in time: consistent to O(h²)).
-        power_in = float(X[:, 0] @ (Hm @ w_next))
-        power_joint = float(u @ v)
-        power_damp = float(np.sum(two_xi_w * X[:, 0] ** 2))
-        w_in += 0.5 * step * (power_in_prev + power_in)
-        w_joint += 0.5 * step * (power_joint_prev + power_joint)
-        w_damp += 0.5 * step * (power_damp_prev + power_damp)
-        power_in_prev, power_joint_prev, power_damp_prev = power_in, power_joint, power_damp
-        w_now = w_next
-        if progress and (k + 1) % report_every == 0:
-            progress(f"t = {t + step:.3f} s of {duration:g} s")
-
-    return SimulationResult(time, sensors, rec["v"], rec["u"], rec["fn"], rec["phi"], energy, works[:, 0],
-                            works[:, 1], works[:, 2], list(model.joint_names), list(model.sensor_names))
-
-
-MAX_HALVINGS = 8  # a plant step may split into up to 2^8 substeps where the joints demand it
-
-
-def _solve_joints(law: _Joints, G, v_free, v_start, phi, normal_force, h, tolerance=1e-12, iterations=30):
-    """Newton on R(v) = v − v_free + G·u_R(v) with a diagonal ∂u_R/∂v (finite difference).
-
-    R is monotone (a unique root) unless a falling Stribeck branch is steeper than the step's
-    compliance G; then Newton fails, the caller halves the step.
+    The controller is called every ``controller.sample_time`` (a whole multiple of ``step``); a
+    controller with ``holds_constant = True`` is asked once, and the whole run is one kernel
+    call. ``backend``: "c" (``plant_kernel.c``, compiled on first use), "python" (its numpy
+    mirror) or "auto" (C where a compiler is available).
     """
-    v = v_free.copy()
-    scale = np.maximum(np.abs(v_free), law.vs) + np.abs(v_start)
-    for _ in range(iterations):
-        phi_new = law.advance(phi, v_start, v, h)
-        u = law.force(v, phi_new, normal_force)
-        residual = v - v_free + G @ u
-        if np.all(np.abs(residual) <= tolerance * scale):
-            return v, phi_new, u
-        delta = 1e-7 * np.maximum(np.abs(v), law.vs)
-        u_d = law.force(v + delta, law.advance(phi, v_start, v + delta, h), normal_force)
-        jacobian = np.eye(v.size) + G * ((u_d - u) / delta)[None, :]
-        if np.linalg.det(jacobian) <= 0.0:
-            break  # a falling branch: no unique root at this step size
-        correction = np.linalg.solve(jacobian, residual)
-        # Damped near the |v| kink: never move by more than the current scale in one go.
-        limit = np.max(np.abs(correction) / scale)
-        v = v - (correction if limit <= 1.0 else correction / limit)
-    raise ModelError(f"joint solve did not converge at step {h:.3g} s (residual {np.max(np.abs(residual)):.3g}); "
-                     "reduce the step")
+    l, ratio = _check(model, joints, duration, step, controller, initial_state)
+    if not (isinstance(record_every, int) and record_every >= 1):
+        raise ModelError(f"record_every: {record_every!r} — must be a whole number >= 1")
+    plant = _Plant(model, joints, step)
+    steps = int(round(duration / step))
+    state = _State(plant, initial_state)
+    recorder = _Recorder(plant, steps // record_every + 1)
+    kernel = _kernel(backend, plant, state, recorder)
+    w = _disturbance_samples(disturbance, np.arange(steps + 1) * step, plant.m)
+    controller.reset()
+    kernel.start(w[0])
+    chunk = steps if getattr(controller, "holds_constant", False) else ratio
+    report_every = max(steps // 10, 1)
+    next_report = report_every
+    for k0 in range(0, steps, chunk):
+        t = k0 * step
+        sensors = plant.Vy @ state.X[:, 0] + plant.Dy @ state.X[:, 1]
+        measured = Measurements(t, sensors, state.v.copy(), state.u.copy(), state.fn.copy())
+        new = controller.step(measured)
+        try:
+            new = np.asarray(new, dtype=float)
+        except (TypeError, ValueError):
+            new = np.array([np.nan])
+        if new.shape not in ((l,), (1, l), (l, 1)) or not np.all(np.isfinite(new)) or np.any(new < 0):
+            raise ModelError(f"controller returned normal forces {np.asarray(new).tolist()!r} at t = {t:.6g} s — "
+                             f"need {l} finite values >= 0 (joints {', '.join(model.joint_names)})")
+        kernel.set_normal_force(new.reshape(l))
+        n = min(chunk, steps - k0)
+        kernel.run(w[k0:k0 + n + 1], n, k0, record_every)
+        if progress and k0 + n >= next_report:
+            progress(f"t = {(k0 + n) * step:.3f} s of {duration:g} s")
+            next_report = (k0 + n) // report_every * report_every + report_every
+    if steps % record_every == 0:
+        kernel.record_row(steps // record_every)
+    r = recorder
+    time = np.arange(r.energy.size) * step * record_every
+    return SimulationResult(time, r.sensors, r.v, r.u, r.fn, r.phi, r.energy, r.works[:, 0], r.works[:, 1],
+                            r.works[:, 2], list(model.joint_names), list(model.sensor_names))
 
 
 def reference_simulation(model: ModalModel, joints: list[lugre.LuGreParameters], normal_forces,
@@ -404,5 +631,5 @@ def reference_simulation(model: ModalModel, joints: list[lugre.LuGreParameters],
     return v, u, 0.5 * np.sum(x * x, axis=1)
 
 
-__all__ = ["ConstantNormalForce", "Controller", "Measurements", "SimulationResult", "discretise",
+__all__ = ["ConstantNormalForce", "Controller", "Measurements", "SimulationResult", "TriangularPulse", "discretise",
            "reference_simulation", "simulate", "triangular_pulse"]

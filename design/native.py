@@ -1,0 +1,57 @@
+"""Compile a C source of this package with cffi on first use and load it (cached per machine).
+
+The compiled module lands in ``$SMARTJOINT_CACHE`` (default ``~/.cache/smartjoint``) under a
+name that carries a hash of the source, the declarations, the flags and the Python ABI, so an
+edited source recompiles and a stale build is never loaded. Builds go to a private temporary
+folder first and are moved into place atomically: two processes compiling at once both win.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import shutil
+import sys
+import sysconfig
+import tempfile
+from pathlib import Path
+
+from .errors import ModelError
+
+# No -ffast-math and no FMA contraction: the kernels must round like their numpy mirrors.
+FLAGS = ["-O2", "-std=c99", "-ffp-contract=off"]
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("SMARTJOINT_CACHE") or Path.home() / ".cache" / "smartjoint")
+
+
+def load(stem: str, declarations: str, source: Path):
+    """The cffi module (``.ffi``, ``.lib``) of ``source`` with the C ``declarations``."""
+    text = source.read_text()
+    key = hashlib.sha256("\0".join([declarations, text, " ".join(FLAGS), sys.version,
+                                    sysconfig.get_platform()]).encode()).hexdigest()[:16]
+    name = f"_sj_{stem}_{key}"
+    target_dir = cache_dir()
+    suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"
+    target = target_dir / f"{name}{suffix}"
+    if not target.exists():
+        import cffi
+
+        ffi = cffi.FFI()
+        ffi.cdef(declarations)
+        ffi.set_source(name, text, extra_compile_args=FLAGS, libraries=["m"])
+        target_dir.mkdir(parents=True, exist_ok=True)
+        build = Path(tempfile.mkdtemp(prefix=f"{name}-", dir=target_dir))
+        try:
+            built = Path(ffi.compile(tmpdir=str(build), verbose=False))
+            os.replace(built, target)
+        except Exception as error:  # no compiler, headers missing, …
+            raise ModelError(f"compiling {source.name} failed: {error}") from None
+        finally:
+            shutil.rmtree(build, ignore_errors=True)
+    spec = importlib.util.spec_from_file_location(name, target)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

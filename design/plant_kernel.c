@@ -1,0 +1,285 @@
+/* Fixed-step plant kernel of smartjoint.design.simulate (compiled on first use through cffi).
+ *
+ * The same algorithm as simulate._PythonKernel, statement for statement, so that the two agree
+ * to round-off (tests/test_simulate.py): exact first-order-hold modal step, implicit Newton
+ * solve in the joint velocities with an analytic Jacobian, exponential bristle integrator,
+ * recursive step halving where a falling Stribeck branch leaves no unique root, trapezoidal
+ * energy bookkeeping and recording.  The module docstring of simulate.py documents the scheme.
+ *
+ * Layout: X is (n, 2) row-major [eta_dot_i, omega_i eta_i]; E (n, l), H (n, m), Vy and Dy
+ * (ny, n) row-major; discretisation level d (step / 2^d) at offsets d*n*4, d*n*2, d*l*l.
+ */
+#include <math.h>
+#include <string.h>
+
+#define SJ_TOLERANCE 1e-12
+#define SJ_ITERATIONS 30
+#define SJ_SERIES 1e-4
+#define SJ_MAX_DISTURBANCES 64
+
+typedef struct {
+    int n, l, m, ny, levels;
+    double step;
+    const double *phi, *g0, *g1, *G;   /* discretisation per level */
+    const double *E, *H, *Vy, *Dy, *two_xi_w;
+    const double *s0, *s1, *s2, *fc, *fd, *vs, *arm, *bound;
+    double *work;                      /* scratch: 2n + 7l + l*l doubles */
+} sj_plant;
+
+typedef struct {
+    double *X, *v, *phi, *u, *fn;
+    double work_in, work_joints, work_damping;
+    double power_in, power_joints, power_damping;  /* at the last step end */
+    double failed_step, failed_residual;            /* set when a solve fails */
+} sj_state;
+
+typedef struct {
+    double *v, *u, *fn, *phi, *sensors, *energy, *works;
+} sj_record;
+
+static double level_of(const sj_plant *p, int j, double v)
+{
+    return p->fc[j] + p->fd[j] * exp(-(v / p->vs[j]) * (v / p->vs[j]));
+}
+
+static double sign_of(double v) { return v > 0.0 ? 1.0 : (v < 0.0 ? -1.0 : 0.0); }
+
+/* Bristle step of joint j (simulate._Joints.advance) and d phi+ / d v_end. */
+static double advance_bristle(const sj_plant *p, int j, double phi, double v_start, double v_end, double h,
+                              double *derivative)
+{
+    double mid = 0.5 * (v_start + v_end);
+    double g = level_of(p, j, mid);
+    double dg = -2.0 * mid / (p->vs[j] * p->vs[j]) * (g - p->fc[j]);
+    double x = p->s0[j] * fabs(mid) / g * h;
+    double dx = 0.5 * p->s0[j] * h * (sign_of(mid) * g - fabs(mid) * dg) / (g * g);
+    double phi1, phi2, dphi1, dphi2;
+    double decay = exp(-x);
+    if (x < SJ_SERIES) {
+        phi1 = 1.0 - x / 2.0 + x * x / 6.0;
+        phi2 = 0.5 - x / 6.0 + x * x / 24.0;
+        dphi1 = -0.5 + x / 3.0;
+        dphi2 = -1.0 / 6.0 + x / 12.0;
+    } else {
+        phi1 = -expm1(-x) / x;
+        phi2 = (1.0 - phi1) / x;
+        dphi1 = (decay - phi1) / x;
+        dphi2 = (-dphi1 - phi2) / x;
+    }
+    double out = decay * phi + h * ((phi1 - phi2) * v_start + phi2 * v_end);
+    if (out > p->bound[j]) { *derivative = 0.0; return p->bound[j]; }
+    if (out < -p->bound[j]) { *derivative = 0.0; return -p->bound[j]; }
+    *derivative = (-decay * phi + h * ((dphi1 - dphi2) * v_start + dphi2 * v_end)) * dx + h * phi2;
+    return out;
+}
+
+/* Friction force u_R (Eq. 2) of joint j and its partial derivatives in v and phi. */
+static double friction(const sj_plant *p, int j, double v, double phi, double normal_force,
+                       double *d_v, double *d_phi)
+{
+    double g = level_of(p, j, v);
+    double dg = -2.0 * v / (p->vs[j] * p->vs[j]) * (g - p->fc[j]);
+    double phidot = v - p->s0[j] * fabs(v) / g * phi;
+    double scale = p->arm[j] * normal_force;
+    double dphidot_dv = 1.0 - p->s0[j] * phi * (sign_of(v) * g - fabs(v) * dg) / (g * g);
+    *d_v = scale * (p->s1[j] * dphidot_dv + p->s2[j]);
+    *d_phi = scale * (p->s0[j] - p->s1[j] * p->s0[j] * fabs(v) / g);
+    return scale * (p->s0[j] * phi + p->s1[j] * phidot + p->s2[j] * v);
+}
+
+/* Solve the l x l system J c = r in place (partial pivoting); returns det(J). */
+static double solve_small(int l, double *J, double *r)
+{
+    double det = 1.0;
+    for (int c = 0; c < l; ++c) {
+        int pivot = c;
+        for (int i = c + 1; i < l; ++i)
+            if (fabs(J[i * l + c]) > fabs(J[pivot * l + c])) pivot = i;
+        if (pivot != c) {
+            for (int k = 0; k < l; ++k) {
+                double t = J[c * l + k]; J[c * l + k] = J[pivot * l + k]; J[pivot * l + k] = t;
+            }
+            double t = r[c]; r[c] = r[pivot]; r[pivot] = t;
+            det = -det;
+        }
+        det *= J[c * l + c];
+        if (J[c * l + c] == 0.0) return 0.0;
+        for (int i = c + 1; i < l; ++i) {
+            double f = J[i * l + c] / J[c * l + c];
+            for (int k = c; k < l; ++k) J[i * l + k] -= f * J[c * l + k];
+            r[i] -= f * r[c];
+        }
+    }
+    for (int c = l - 1; c >= 0; --c) {
+        double s = r[c];
+        for (int k = c + 1; k < l; ++k) s -= J[c * l + k] * r[k];
+        r[c] = s / J[c * l + c];
+    }
+    return det;
+}
+
+/* Newton on R(v) = v - v_free + G u_R(v) (simulate._solve_joints). 0 on success. */
+static int solve_joints(const sj_plant *p, sj_state *s, const double *G, const double *v_free, double h,
+                        double *v_new, double *phi_new, double *u_new, double *residual_out)
+{
+    int l = p->l;
+    double *w = p->work + 2 * p->n;
+    double *scale = w, *du = w + l, *residual = w + 2 * l, *J = w + 3 * l;
+    double worst = 0.0;
+    for (int j = 0; j < l; ++j) {
+        v_new[j] = v_free[j];
+        scale[j] = fmax(fabs(v_free[j]), p->vs[j]) + fabs(s->v[j]);
+    }
+    for (int it = 0; it < SJ_ITERATIONS; ++it) {
+        for (int j = 0; j < l; ++j) {
+            double dphi, du_dv, du_dphi;
+            phi_new[j] = advance_bristle(p, j, s->phi[j], s->v[j], v_new[j], h, &dphi);
+            u_new[j] = friction(p, j, v_new[j], phi_new[j], s->fn[j], &du_dv, &du_dphi);
+            du[j] = du_dv + du_dphi * dphi;
+        }
+        int converged = 1;
+        worst = 0.0;
+        for (int i = 0; i < l; ++i) {
+            double r = v_new[i] - v_free[i];
+            for (int j = 0; j < l; ++j) r += G[i * l + j] * u_new[j];
+            residual[i] = r;
+            if (!(fabs(r) <= SJ_TOLERANCE * scale[i])) converged = 0;
+            worst = fmax(worst, fabs(r));
+        }
+        if (converged) return 0;
+        for (int i = 0; i < l; ++i)
+            for (int j = 0; j < l; ++j) J[i * l + j] = (i == j ? 1.0 : 0.0) + G[i * l + j] * du[j];
+        if (!(solve_small(l, J, residual) > 0.0)) break;  /* a falling branch: no unique root */
+        double limit = 0.0;
+        for (int j = 0; j < l; ++j) limit = fmax(limit, fabs(residual[j]) / scale[j]);
+        for (int j = 0; j < l; ++j) v_new[j] -= limit <= 1.0 ? residual[j] : residual[j] / limit;
+    }
+    *residual_out = worst;
+    return -1;
+}
+
+/* One step of length step/2^depth from w_a to w_b; halves itself where the solve fails. */
+static int advance(const sj_plant *p, sj_state *s, const double *w_a, const double *w_b, int depth)
+{
+    int n = p->n, l = p->l, m = p->m;
+    const double *Phi = p->phi + (size_t)depth * n * 4, *a = p->g0 + (size_t)depth * n * 2;
+    const double *b = p->g1 + (size_t)depth * n * 2, *G = p->G + (size_t)depth * l * l;
+    double h = p->step / (double)(1L << depth);
+    double *X_free = p->work;
+    double *w = p->work + 2 * n + 3 * l + l * l;
+    double *v_free = w, *v_new = w + l, *phi_new = w + 2 * l, *u_new = w + 3 * l;
+    for (int j = 0; j < l; ++j) v_free[j] = 0.0;
+    for (int i = 0; i < n; ++i) {
+        double f_a = 0.0, f_b = 0.0;
+        for (int k = 0; k < m; ++k) {
+            f_a += p->H[i * m + k] * w_a[k];
+            f_b += p->H[i * m + k] * w_b[k];
+        }
+        for (int j = 0; j < l; ++j) f_a -= p->E[i * l + j] * s->u[j];
+        double x0 = s->X[2 * i], x1 = s->X[2 * i + 1];
+        X_free[2 * i] = Phi[4 * i] * x0 + Phi[4 * i + 1] * x1 + a[2 * i] * f_a + b[2 * i] * f_b;
+        X_free[2 * i + 1] = Phi[4 * i + 2] * x0 + Phi[4 * i + 3] * x1 + a[2 * i + 1] * f_a + b[2 * i + 1] * f_b;
+        for (int j = 0; j < l; ++j) v_free[j] += p->E[i * l + j] * X_free[2 * i];
+    }
+    if (l == 0) {
+        memcpy(s->X, X_free, sizeof(double) * 2 * (size_t)n);
+        return 0;
+    }
+    double residual = 0.0;
+    if (solve_joints(p, s, G, v_free, h, v_new, phi_new, u_new, &residual) != 0) {
+        if (depth >= p->levels - 1) {
+            s->failed_step = h;
+            s->failed_residual = residual;
+            return -1;
+        }
+        double w_mid[SJ_MAX_DISTURBANCES];  /* linear in the step, as the first-order hold assumes */
+        for (int k = 0; k < m; ++k) w_mid[k] = 0.5 * (w_a[k] + w_b[k]);
+        if (advance(p, s, w_a, w_mid, depth + 1) != 0) return -1;
+        return advance(p, s, w_mid, w_b, depth + 1);
+    }
+    for (int j = 0; j < l; ++j) {
+        s->v[j] = 0.0;
+        s->phi[j] = phi_new[j];
+        s->u[j] = u_new[j];
+    }
+    for (int i = 0; i < n; ++i) {
+        double f = 0.0;
+        for (int j = 0; j < l; ++j) f += p->E[i * l + j] * u_new[j];
+        s->X[2 * i] = X_free[2 * i] - b[2 * i] * f;
+        s->X[2 * i + 1] = X_free[2 * i + 1] - b[2 * i + 1] * f;
+        for (int j = 0; j < l; ++j) s->v[j] += p->E[i * l + j] * s->X[2 * i];
+    }
+    return 0;
+}
+
+static void powers(const sj_plant *p, const sj_state *s, const double *w, double *in, double *joints, double *damping)
+{
+    double pin = 0.0, pd = 0.0, pj = 0.0;
+    for (int i = 0; i < p->n; ++i) {
+        double f = 0.0;
+        for (int k = 0; k < p->m; ++k) f += p->H[i * p->m + k] * w[k];
+        pin += s->X[2 * i] * f;
+        pd += p->two_xi_w[i] * s->X[2 * i] * s->X[2 * i];
+    }
+    for (int j = 0; j < p->l; ++j) pj += s->u[j] * s->v[j];
+    *in = pin; *joints = pj; *damping = pd;
+}
+
+/* New normal forces act at once: u_R at the step start is recomputed (piezo instantaneous). */
+void sj_set_normal_force(const sj_plant *p, sj_state *s, const double *normal_force)
+{
+    double d_v, d_phi;
+    s->power_joints = 0.0;
+    for (int j = 0; j < p->l; ++j) {
+        s->fn[j] = normal_force[j];
+        s->u[j] = friction(p, j, s->v[j], s->phi[j], s->fn[j], &d_v, &d_phi);
+        s->power_joints += s->u[j] * s->v[j];
+    }
+}
+
+/* Start of a run: powers at t = 0 for the energy bookkeeping. */
+void sj_start(const sj_plant *p, sj_state *s, const double *w0)
+{
+    powers(p, s, w0, &s->power_in, &s->power_joints, &s->power_damping);
+    s->work_in = s->work_joints = s->work_damping = 0.0;
+}
+
+void sj_record_row(const sj_plant *p, const sj_state *s, const sj_record *r, long row)
+{
+    double e = 0.0;
+    for (int j = 0; j < p->l; ++j) {
+        r->v[row * p->l + j] = s->v[j];
+        r->u[row * p->l + j] = s->u[j];
+        r->fn[row * p->l + j] = s->fn[j];
+        r->phi[row * p->l + j] = s->phi[j];
+    }
+    for (int q = 0; q < p->ny; ++q) {
+        double y = 0.0;
+        for (int i = 0; i < p->n; ++i) y += p->Vy[q * p->n + i] * s->X[2 * i] + p->Dy[q * p->n + i] * s->X[2 * i + 1];
+        r->sensors[row * p->ny + q] = y;
+    }
+    for (int i = 0; i < 2 * p->n; ++i) e += s->X[i] * s->X[i];
+    r->energy[row] = 0.5 * e;
+    r->works[3 * row] = s->work_in;
+    r->works[3 * row + 1] = s->work_joints;
+    r->works[3 * row + 2] = s->work_damping;
+}
+
+/* Advance `steps` plant steps with disturbance samples w ((steps+1) x m, at the step ends);
+ * global step index of the first is k0; rows are recorded before each step whose global index
+ * is a multiple of record_every.  Returns the number of steps done (< steps on a failure). */
+long sj_run(const sj_plant *p, sj_state *s, const double *w, long steps, long k0, long record_every,
+            const sj_record *r)
+{
+    for (long k = 0; k < steps; ++k) {
+        if ((k0 + k) % record_every == 0) sj_record_row(p, s, r, (k0 + k) / record_every);
+        if (advance(p, s, w + k * p->m, w + (k + 1) * p->m, 0) != 0) return k;
+        double pin, pj, pd;
+        powers(p, s, w + (k + 1) * p->m, &pin, &pj, &pd);
+        s->work_in += 0.5 * p->step * (s->power_in + pin);
+        s->work_joints += 0.5 * p->step * (s->power_joints + pj);
+        s->work_damping += 0.5 * p->step * (s->power_damping + pd);
+        s->power_in = pin; s->power_joints = pj; s->power_damping = pd;
+    }
+    return steps;
+}
