@@ -20,7 +20,7 @@ from pathlib import Path
 from .errors import ModelError
 
 # No -ffast-math and no FMA contraction: the kernels must round like their numpy mirrors.
-FLAGS = ["-O2", "-std=c99", "-ffp-contract=off"]
+FLAGS = ["-O3", "-march=native", "-std=c99", "-ffp-contract=off"]
 
 
 def cache_dir() -> Path:

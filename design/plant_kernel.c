@@ -6,8 +6,11 @@
  * recursive step halving where a falling Stribeck branch leaves no unique root, trapezoidal
  * energy bookkeeping and recording.  The module docstring of simulate.py documents the scheme.
  *
- * Layout: X is (n, 2) row-major [eta_dot_i, omega_i eta_i]; E (n, l), H (n, m), Vy and Dy
- * (ny, n) row-major; discretisation level d (step / 2^d) at offsets d*n*4, d*n*2, d*l*l.
+ * Layout (structure of arrays, so the per-mode loops vectorise): the state is x (2, n) with rows
+ * eta_dot and omega*eta; ET (l, n) and HT (m, n) are the transposed input matrices; Vy and Dy
+ * (ny, n); discretisation level d (step / 2^d): Phi (4, n) rows p00 p01 p10 p11, gamma0 and
+ * gamma1 (2, n), G (l, l), at offsets d*4n, d*2n, d*l*l.  q = E u_R (n) is the modal joint
+ * force of the current u_R, kept so that a step needs E only twice per mode.
  */
 #include <math.h>
 #include <string.h>
@@ -21,13 +24,13 @@ typedef struct {
     int n, l, m, ny, levels;
     double step;
     const double *phi, *g0, *g1, *G;   /* discretisation per level */
-    const double *E, *H, *Vy, *Dy, *two_xi_w;
+    const double *ET, *HT, *Vy, *Dy, *two_xi_w;
     const double *s0, *s1, *s2, *fc, *fd, *vs, *arm, *bound;
-    double *work;                      /* scratch: 2n + 7l + l*l doubles */
+    double *work;                      /* scratch: 3n + 7l + l*l doubles */
 } sj_plant;
 
 typedef struct {
-    double *X, *v, *phi, *u, *fn;
+    double *x, *q, *v, *phi, *u, *fn;
     double work_in, work_joints, work_damping;
     double power_in, power_joints, power_damping;  /* at the last step end */
     double failed_step, failed_residual;            /* set when a solve fails */
@@ -43,6 +46,48 @@ static double level_of(const sj_plant *p, int j, double v)
 }
 
 static double sign_of(double v) { return v > 0.0 ? 1.0 : (v < 0.0 ? -1.0 : 0.0); }
+
+/* sum_i a_i b_i with four partial sums (independent chains; BLAS-like round-off). */
+static double dot(const double *a, const double *b, int n)
+{
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    int i = 0;
+    for (; i + 4 <= n; i += 4) {
+        s0 += a[i] * b[i]; s1 += a[i + 1] * b[i + 1]; s2 += a[i + 2] * b[i + 2]; s3 += a[i + 3] * b[i + 3];
+    }
+    for (; i < n; ++i) s0 += a[i] * b[i];
+    return (s0 + s1) + (s2 + s3);
+}
+
+/* sum_i c_i a_i^2 */
+static double weighted_squares(const double *c, const double *a, int n)
+{
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    int i = 0;
+    for (; i + 4 <= n; i += 4) {
+        s0 += c[i] * a[i] * a[i]; s1 += c[i + 1] * a[i + 1] * a[i + 1];
+        s2 += c[i + 2] * a[i + 2] * a[i + 2]; s3 += c[i + 3] * a[i + 3] * a[i + 3];
+    }
+    for (; i < n; ++i) s0 += c[i] * a[i] * a[i];
+    return (s0 + s1) + (s2 + s3);
+}
+
+/* out = M^T y for M (k, n): out_i = sum_j M[j, i] y_j (vectorises over i). */
+static void combine(const double *M, const double *y, int k, int n, double *out)
+{
+    for (int i = 0; i < n; ++i) out[i] = 0.0;
+    for (int j = 0; j < k; ++j) {
+        const double *row = M + (size_t)j * n;
+        double c = y[j];
+        for (int i = 0; i < n; ++i) out[i] += row[i] * c;
+    }
+}
+
+static int all_zero(const double *a, int n)
+{
+    for (int i = 0; i < n; ++i) if (a[i] != 0.0) return 0;
+    return 1;
+}
 
 /* Bristle step of joint j (simulate._Joints.advance) and d phi+ / d v_end. */
 static double advance_bristle(const sj_plant *p, int j, double phi, double v_start, double v_end, double h,
@@ -123,7 +168,7 @@ static int solve_joints(const sj_plant *p, sj_state *s, const double *G, const d
                         double *v_new, double *phi_new, double *u_new, double *residual_out)
 {
     int l = p->l;
-    double *w = p->work + 2 * p->n;
+    double *w = p->work + 3 * p->n;
     double *scale = w, *du = w + l, *residual = w + 2 * l, *J = w + 3 * l;
     double worst = 0.0;
     for (int j = 0; j < l; ++j) {
@@ -158,31 +203,68 @@ static int solve_joints(const sj_plant *p, sj_state *s, const double *G, const d
     return -1;
 }
 
+/* Free response x_free = Phi x + gamma0 f_a + gamma1 f_b (f_a = H w_a - q, f_b = H w_b), and
+ * v_free = E^T x_free[0] accumulated in the same pass, four joints at a time (ET is padded
+ * with zero rows to a multiple of four) with four partial sums per joint. */
+static void free_response(const sj_plant *p, const sj_state *s, const double *Phi, const double *a,
+                          const double *b, const double *w_a, const double *w_b, double *v_free)
+{
+    int n = p->n, m = p->m, groups = (p->l + 3) / 4;
+    double *free0 = p->work, *free1 = p->work + n, *force = p->work + 2 * n;
+    const double *x0 = s->x, *x1 = s->x + n;
+    if (all_zero(w_a, m) && all_zero(w_b, m)) {  /* after the pulse: the common case */
+        for (int i = 0; i < n; ++i) {
+            free0[i] = Phi[i] * x0[i] + Phi[n + i] * x1[i] - a[i] * s->q[i];
+            free1[i] = Phi[2 * n + i] * x0[i] + Phi[3 * n + i] * x1[i] - a[n + i] * s->q[i];
+        }
+    } else {
+        combine(p->HT, w_a, m, n, force);
+        for (int i = 0; i < n; ++i) {
+            double f_a = force[i] - s->q[i];
+            free0[i] = Phi[i] * x0[i] + Phi[n + i] * x1[i] + a[i] * f_a;
+            free1[i] = Phi[2 * n + i] * x0[i] + Phi[3 * n + i] * x1[i] + a[n + i] * f_a;
+        }
+        combine(p->HT, w_b, m, n, force);
+        for (int i = 0; i < n; ++i) {
+            free0[i] += b[i] * force[i];
+            free1[i] += b[n + i] * force[i];
+        }
+    }
+    for (int g = 0; g < groups; ++g) {
+        const double *e0 = p->ET + (size_t)(4 * g) * n, *e1 = e0 + n, *e2 = e1 + n, *e3 = e2 + n;
+        double s0[4] = {0.0, 0.0, 0.0, 0.0}, s1[4] = {0.0, 0.0, 0.0, 0.0};
+        double s2[4] = {0.0, 0.0, 0.0, 0.0}, s3[4] = {0.0, 0.0, 0.0, 0.0};
+        int i = 0;
+        for (; i + 4 <= n; i += 4)
+            for (int k = 0; k < 4; ++k) {
+                double f = free0[i + k];
+                s0[k] += e0[i + k] * f; s1[k] += e1[i + k] * f; s2[k] += e2[i + k] * f; s3[k] += e3[i + k] * f;
+            }
+        for (; i < n; ++i) {
+            double f = free0[i];
+            s0[0] += e0[i] * f; s1[0] += e1[i] * f; s2[0] += e2[i] * f; s3[0] += e3[i] * f;
+        }
+        double sums[4] = {(s0[0] + s0[1]) + (s0[2] + s0[3]), (s1[0] + s1[1]) + (s1[2] + s1[3]),
+                          (s2[0] + s2[1]) + (s2[2] + s2[3]), (s3[0] + s3[1]) + (s3[2] + s3[3])};
+        for (int k = 0; k < 4 && 4 * g + k < p->l; ++k) v_free[4 * g + k] = sums[k];
+    }
+}
+
 /* One step of length step/2^depth from w_a to w_b; halves itself where the solve fails. */
 static int advance(const sj_plant *p, sj_state *s, const double *w_a, const double *w_b, int depth)
 {
-    int n = p->n, l = p->l, m = p->m;
+    int n = p->n, l = p->l, m = p->m, groups = (l + 3) / 4;
     const double *Phi = p->phi + (size_t)depth * n * 4, *a = p->g0 + (size_t)depth * n * 2;
     const double *b = p->g1 + (size_t)depth * n * 2, *G = p->G + (size_t)depth * l * l;
     double h = p->step / (double)(1L << depth);
-    double *X_free = p->work;
-    double *w = p->work + 2 * n + 3 * l + l * l;
+    double *free0 = p->work, *free1 = p->work + n;
+    double *w = p->work + 3 * n + 3 * l + l * l;
     double *v_free = w, *v_new = w + l, *phi_new = w + 2 * l, *u_new = w + 3 * l;
-    for (int j = 0; j < l; ++j) v_free[j] = 0.0;
-    for (int i = 0; i < n; ++i) {
-        double f_a = 0.0, f_b = 0.0;
-        for (int k = 0; k < m; ++k) {
-            f_a += p->H[i * m + k] * w_a[k];
-            f_b += p->H[i * m + k] * w_b[k];
-        }
-        for (int j = 0; j < l; ++j) f_a -= p->E[i * l + j] * s->u[j];
-        double x0 = s->X[2 * i], x1 = s->X[2 * i + 1];
-        X_free[2 * i] = Phi[4 * i] * x0 + Phi[4 * i + 1] * x1 + a[2 * i] * f_a + b[2 * i] * f_b;
-        X_free[2 * i + 1] = Phi[4 * i + 2] * x0 + Phi[4 * i + 3] * x1 + a[2 * i + 1] * f_a + b[2 * i + 1] * f_b;
-        for (int j = 0; j < l; ++j) v_free[j] += p->E[i * l + j] * X_free[2 * i];
-    }
+    double *x0 = s->x, *x1 = s->x + n;
+    free_response(p, s, Phi, a, b, w_a, w_b, v_free);
     if (l == 0) {
-        memcpy(s->X, X_free, sizeof(double) * 2 * (size_t)n);
+        memcpy(x0, free0, sizeof(double) * (size_t)n);
+        memcpy(x1, free1, sizeof(double) * (size_t)n);
         return 0;
     }
     double residual = 0.0;
@@ -197,32 +279,46 @@ static int advance(const sj_plant *p, sj_state *s, const double *w_a, const doub
         if (advance(p, s, w_a, w_mid, depth + 1) != 0) return -1;
         return advance(p, s, w_mid, w_b, depth + 1);
     }
+    double u4[4];
     for (int j = 0; j < l; ++j) {
-        s->v[j] = 0.0;
         s->phi[j] = phi_new[j];
         s->u[j] = u_new[j];
     }
+    /* q = E u_R, four joints per pass, then x = x_free - gamma1 q in the last pass. */
+    for (int g = 0; g < groups; ++g) {
+        const double *e0 = p->ET + (size_t)(4 * g) * n, *e1 = e0 + n, *e2 = e1 + n, *e3 = e2 + n;
+        for (int k = 0; k < 4; ++k) u4[k] = 4 * g + k < l ? s->u[4 * g + k] : 0.0;
+        if (g == 0)
+            for (int i = 0; i < n; ++i) s->q[i] = e0[i] * u4[0] + e1[i] * u4[1] + e2[i] * u4[2] + e3[i] * u4[3];
+        else
+            for (int i = 0; i < n; ++i) s->q[i] += e0[i] * u4[0] + e1[i] * u4[1] + e2[i] * u4[2] + e3[i] * u4[3];
+    }
     for (int i = 0; i < n; ++i) {
-        double f = 0.0;
-        for (int j = 0; j < l; ++j) f += p->E[i * l + j] * u_new[j];
-        s->X[2 * i] = X_free[2 * i] - b[2 * i] * f;
-        s->X[2 * i + 1] = X_free[2 * i + 1] - b[2 * i + 1] * f;
-        for (int j = 0; j < l; ++j) s->v[j] += p->E[i * l + j] * s->X[2 * i];
+        x0[i] = free0[i] - b[i] * s->q[i];
+        x1[i] = free1[i] - b[n + i] * s->q[i];
+    }
+    /* v = E^T x0 = v_free - G u_R exactly in exact arithmetic; v_free is recomputed from x
+     * every step, so the two never drift apart. Saves a pass over E. */
+    for (int i = 0; i < l; ++i) {
+        double g = 0.0;
+        for (int j = 0; j < l; ++j) g += G[i * l + j] * s->u[j];
+        s->v[i] = v_free[i] - g;
     }
     return 0;
 }
 
 static void powers(const sj_plant *p, const sj_state *s, const double *w, double *in, double *joints, double *damping)
 {
-    double pin = 0.0, pd = 0.0, pj = 0.0;
-    for (int i = 0; i < p->n; ++i) {
-        double f = 0.0;
-        for (int k = 0; k < p->m; ++k) f += p->H[i * p->m + k] * w[k];
-        pin += s->X[2 * i] * f;
-        pd += p->two_xi_w[i] * s->X[2 * i] * s->X[2 * i];
+    double pj = 0.0;
+    *in = 0.0;
+    if (!all_zero(w, p->m)) {
+        double *force = p->work + 2 * p->n;
+        combine(p->HT, w, p->m, p->n, force);
+        *in = dot(s->x, force, p->n);
     }
+    *damping = weighted_squares(p->two_xi_w, s->x, p->n);
     for (int j = 0; j < p->l; ++j) pj += s->u[j] * s->v[j];
-    *in = pin; *joints = pj; *damping = pd;
+    *joints = pj;
 }
 
 /* New normal forces act at once: u_R at the step start is recomputed (piezo instantaneous). */
@@ -235,6 +331,7 @@ void sj_set_normal_force(const sj_plant *p, sj_state *s, const double *normal_fo
         s->u[j] = friction(p, j, s->v[j], s->phi[j], s->fn[j], &d_v, &d_phi);
         s->power_joints += s->u[j] * s->v[j];
     }
+    combine(p->ET, s->u, p->l, p->n, s->q);
 }
 
 /* Start of a run: powers at t = 0 for the energy bookkeeping. */
@@ -253,12 +350,10 @@ void sj_record_row(const sj_plant *p, const sj_state *s, const sj_record *r, lon
         r->fn[row * p->l + j] = s->fn[j];
         r->phi[row * p->l + j] = s->phi[j];
     }
-    for (int q = 0; q < p->ny; ++q) {
-        double y = 0.0;
-        for (int i = 0; i < p->n; ++i) y += p->Vy[q * p->n + i] * s->X[2 * i] + p->Dy[q * p->n + i] * s->X[2 * i + 1];
-        r->sensors[row * p->ny + q] = y;
-    }
-    for (int i = 0; i < 2 * p->n; ++i) e += s->X[i] * s->X[i];
+    for (int k = 0; k < p->ny; ++k)
+        r->sensors[row * p->ny + k] = dot(p->Vy + (size_t)k * p->n, s->x, p->n)
+                                      + dot(p->Dy + (size_t)k * p->n, s->x + p->n, p->n);
+    e = dot(s->x, s->x, 2 * p->n);
     r->energy[row] = 0.5 * e;
     r->works[3 * row] = s->work_in;
     r->works[3 * row + 1] = s->work_joints;

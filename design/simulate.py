@@ -260,35 +260,43 @@ def _solve_joints(law: _Joints, G, v_free, v_start, phi, normal_force, h):
 
 
 class _Plant:
-    """Everything a run needs that does not change during it: discretisation at step/2^d for
-    d = 0…MAX_HALVINGS, the input/output matrices and the joint laws."""
+    """Everything a run needs that does not change during it, laid out as structure of arrays
+    (rows of length n) like ``plant_kernel.c``: discretisation at step/2^d for
+    d = 0…MAX_HALVINGS, the transposed input matrices, the outputs and the joint laws."""
 
     def __init__(self, model: ModalModel, joints, step: float):
         self.n, self.l = model.n_coordinates, model.joint_input.shape[1]
         self.m, self.ny = model.disturbance_input.shape[1], model.velocity_output.shape[0]
         self.step = step
-        self.E = np.ascontiguousarray(model.joint_input, dtype=float)
-        self.H = np.ascontiguousarray(model.disturbance_input, dtype=float)
+        # (l, n), padded with zero rows to a multiple of 4: the C kernel takes four joints per pass
+        self.ET_padded = np.zeros((-(-self.l // 4) * 4, self.n))
+        self.ET_padded[:self.l] = model.joint_input.T
+        self.ET = self.ET_padded[:self.l]
+        self.HT = np.ascontiguousarray(model.disturbance_input.T, dtype=float)  # (m, n)
         self.Vy = np.ascontiguousarray(model.velocity_output, dtype=float)
         self.Dy = np.ascontiguousarray(model.displacement_output / model.omega, dtype=float)
         self.two_xi_w = 2.0 * model.damping * model.omega
         self.law = _Joints(joints)
-        levels = [discretise(model, step / 2**d) for d in range(MAX_HALVINGS + 1)]
-        self.phi = np.ascontiguousarray([lv[0] for lv in levels])  # (levels, n, 2, 2)
-        self.g0 = np.ascontiguousarray([lv[1] for lv in levels])
-        self.g1 = np.ascontiguousarray([lv[2] for lv in levels])
-        self.G = np.zeros((MAX_HALVINGS + 1, self.l, self.l))
-        for d, lv in enumerate(levels):
-            self.G[d] = (self.E * lv[2][:, 0:1]).T @ self.E
+        levels = MAX_HALVINGS + 1
+        self.phi, self.g0, self.g1 = np.zeros((levels, 4, self.n)), np.zeros((levels, 2, self.n)), np.zeros((levels, 2, self.n))
+        self.G = np.zeros((levels, self.l, self.l))
+        for d in range(levels):
+            phi, g0, g1 = discretise(model, step / 2**d)
+            self.phi[d] = phi.reshape(self.n, 4).T
+            self.g0[d], self.g1[d] = g0.T, g1.T
+            self.G[d] = (self.ET * g1[:, 0]) @ self.ET.T
 
 
 class _State:
-    """The plant state a kernel advances in place."""
+    """The plant state a kernel advances in place: x (2, n) = [η̇; ωη], q = E·u_R (n), and per joint
+    v, φ, u_R, F_N."""
 
     def __init__(self, plant: _Plant, initial_state):
         n, l = plant.n, plant.l
-        self.X = np.zeros((n, 2)) if initial_state is None else np.array(initial_state, dtype=float).reshape(n, 2)
-        self.v = plant.E.T @ self.X[:, 0]
+        self.x = np.zeros((2, n)) if initial_state is None else \
+            np.ascontiguousarray(np.array(initial_state, dtype=float).reshape(n, 2).T)
+        self.q = np.zeros(n)
+        self.v = plant.ET @ self.x[0]
         self.phi, self.u, self.fn = np.zeros(l), np.zeros(l), np.zeros(l)
         self.works = np.zeros(3)  # W_in, W_joints, W_damping
         self.powers = np.zeros(3)  # the same powers at the last step end
@@ -313,36 +321,41 @@ class _PythonKernel:
 
     def set_normal_force(self, normal_force):
         s = self.s
-        s.fn = np.array(normal_force, dtype=float)
-        s.u = self.p.law.force(s.v, s.phi, s.fn)  # F_N acts at once (piezo taken as instantaneous)
+        s.fn[:] = normal_force
+        s.u[:] = self.p.law.force(s.v, s.phi, s.fn)  # F_N acts at once (piezo taken as instantaneous)
         s.powers[1] = float(s.u @ s.v)
+        s.q[:] = self.p.ET.T @ s.u
 
     def _powers(self, w):
-        X = self.s.X
-        return np.array([X[:, 0] @ (self.p.H @ w), self.s.u @ self.s.v, np.sum(self.p.two_xi_w * X[:, 0] ** 2)])
+        x = self.s.x
+        return np.array([x[0] @ (self.p.HT.T @ w), self.s.u @ self.s.v, np.sum(self.p.two_xi_w * x[0] * x[0])])
 
     def start(self, w0):
-        self.s.powers = self._powers(w0)
-        self.s.works = np.zeros(3)
+        self.s.powers[:] = self._powers(w0)
+        self.s.works[:] = 0.0
 
     def record_row(self, row):
         s, r, p = self.s, self.r, self.p
         r.v[row], r.u[row], r.fn[row], r.phi[row] = s.v, s.u, s.fn, s.phi
-        r.sensors[row] = p.Vy @ s.X[:, 0] + p.Dy @ s.X[:, 1]
-        r.energy[row] = 0.5 * float(np.sum(s.X * s.X))
+        r.sensors[row] = p.Vy @ s.x[0] + p.Dy @ s.x[1]
+        r.energy[row] = 0.5 * float(np.sum(s.x * s.x))
         r.works[row] = s.works
 
     def _advance(self, w_a, w_b, depth):
         p, s = self.p, self.s
         Phi, a, b, G = p.phi[depth], p.g0[depth], p.g1[depth], p.G[depth]
         h = p.step / 2**depth
-        f_a = p.H @ w_a - p.E @ s.u
-        X_free = np.einsum("nij,nj->ni", Phi, s.X) + a * f_a[:, None] + b * (p.H @ w_b)[:, None]
+        x0, x1 = s.x
+        f_a = p.HT.T @ w_a - s.q
+        f_b = p.HT.T @ w_b
+        free0 = Phi[0] * x0 + Phi[1] * x1 + a[0] * f_a + b[0] * f_b
+        free1 = Phi[2] * x0 + Phi[3] * x1 + a[1] * f_a + b[1] * f_b
         if not p.l:
-            s.X = X_free
+            s.x[:] = free0, free1
             return
         try:
-            v_new, phi_new, u_new = _solve_joints(p.law, G, p.E.T @ X_free[:, 0], s.v, s.phi, s.fn, h)
+            v_free = p.ET @ free0
+            v_new, phi_new, u_new = _solve_joints(p.law, G, v_free, s.v, s.phi, s.fn, h)
         except _SolveFailed as failure:
             if depth >= MAX_HALVINGS:
                 raise ModelError(f"joint solve did not converge at step {h:.3g} s (residual {failure.residual:.3g}); "
@@ -351,9 +364,10 @@ class _PythonKernel:
             self._advance(w_a, w_mid, depth + 1)
             self._advance(w_mid, w_b, depth + 1)
             return
-        s.phi, s.u = phi_new, u_new
-        s.X = X_free - b * (p.E @ u_new)[:, None]
-        s.v = p.E.T @ s.X[:, 0]
+        s.phi[:], s.u[:] = phi_new, u_new
+        s.q[:] = p.ET.T @ u_new
+        s.x[:] = free0 - b[0] * s.q, free1 - b[1] * s.q
+        s.v[:] = v_free - G @ u_new  # = Eᵀx0 exactly; v_free is recomputed from x every step
 
     def run(self, w, steps, k0, record_every):
         s, h = self.s, self.p.step
@@ -363,7 +377,7 @@ class _PythonKernel:
             self._advance(w[k], w[k + 1], 0)
             powers = self._powers(w[k + 1])
             s.works += 0.5 * h * (s.powers + powers)  # trapezoidal in time: consistent to O(h²)
-            s.powers = powers
+            s.powers[:] = powers
 
 
 class _CKernel:
@@ -375,12 +389,12 @@ class _CKernel:
         int n, l, m, ny, levels;
         double step;
         const double *phi, *g0, *g1, *G;
-        const double *E, *H, *Vy, *Dy, *two_xi_w;
+        const double *ET, *HT, *Vy, *Dy, *two_xi_w;
         const double *s0, *s1, *s2, *fc, *fd, *vs, *arm, *bound;
         double *work;
     } sj_plant;
     typedef struct {
-        double *X, *v, *phi, *u, *fn;
+        double *x, *q, *v, *phi, *u, *fn;
         double work_in, work_joints, work_damping;
         double power_in, power_joints, power_damping;
         double failed_step, failed_residual;
@@ -407,19 +421,16 @@ class _CKernel:
             return ffi.cast("double *", ffi.from_buffer(array))
 
         law = plant.law
-        self.work = np.zeros(2 * plant.n + 7 * plant.l + plant.l**2 + 1)
+        self.work = np.zeros(3 * plant.n + 7 * plant.l + plant.l**2 + 1)
         self.cp = ffi.new("sj_plant *", dict(
             n=plant.n, l=plant.l, m=plant.m, ny=plant.ny, levels=MAX_HALVINGS + 1, step=plant.step,
-            phi=ptr(plant.phi), g0=ptr(plant.g0), g1=ptr(plant.g1), G=ptr(plant.G), E=ptr(plant.E), H=ptr(plant.H),
+            phi=ptr(plant.phi), g0=ptr(plant.g0), g1=ptr(plant.g1), G=ptr(plant.G), ET=ptr(plant.ET_padded), HT=ptr(plant.HT),
             Vy=ptr(plant.Vy), Dy=ptr(plant.Dy), two_xi_w=ptr(plant.two_xi_w), s0=ptr(law.s0), s1=ptr(law.s1),
             s2=ptr(law.s2), fc=ptr(law.fc), fd=ptr(law.fd), vs=ptr(law.vs), arm=ptr(law.arm), bound=ptr(law.bound),
             work=ptr(self.work)))
-        for name in ("phi", "u", "fn"):
+        for name in ("x", "q", "v", "phi", "u", "fn"):  # shared memory: C writes, numpy reads
             setattr(state, name, np.ascontiguousarray(getattr(state, name), dtype=float))
-        state.X = np.ascontiguousarray(state.X, dtype=float)
-        state.v = np.ascontiguousarray(state.v, dtype=float)
-        self.cs = ffi.new("sj_state *", dict(X=ptr(state.X), v=ptr(state.v), phi=ptr(state.phi), u=ptr(state.u),
-                                             fn=ptr(state.fn)))
+        self.cs = ffi.new("sj_state *", {name: ptr(getattr(state, name)) for name in ("x", "q", "v", "phi", "u", "fn")})
         self.cr = ffi.new("sj_record *", dict(v=ptr(recorder.v), u=ptr(recorder.u), fn=ptr(recorder.fn),
                                               phi=ptr(recorder.phi), sensors=ptr(recorder.sensors),
                                               energy=ptr(recorder.energy), works=ptr(recorder.works)))
@@ -546,7 +557,7 @@ def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller:
     next_report = report_every
     for k0 in range(0, steps, chunk):
         t = k0 * step
-        sensors = plant.Vy @ state.X[:, 0] + plant.Dy @ state.X[:, 1]
+        sensors = plant.Vy @ state.x[0] + plant.Dy @ state.x[1]
         measured = Measurements(t, sensors, state.v.copy(), state.u.copy(), state.fn.copy())
         new = controller.step(measured)
         try:

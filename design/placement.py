@@ -1,0 +1,72 @@
+"""Friction joint placement by modal strain energy in the end connectors (paper Section 6, ref. 21).
+
+A type A joint releases the axial slip of a member end against its node, so it can only
+dissipate where the modes to be damped strain that end connector axially. For every end
+connector c and mode i the fraction of the modal strain energy stored there is
+
+    s_ci = (EA_c / L_c)·Δ_ci² / ω_i²,   Δ_ci = a_cᵀ(u_b − u_a) of the mass-normalised shape ψ_i
+
+(½ψᵀKψ = ½ω² for a mass-normalised mode). A candidate's score is Σ_i s_ci over the target
+modes; the joints go to the best-scoring connectors, one per member.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ModelError
+
+
+@dataclass(frozen=True)
+class Candidate:
+    member: str
+    end: str  # "start" | "end"
+    fractions: tuple[float, ...]  # s_ci per target mode
+
+    @property
+    def score(self) -> float:
+        return float(sum(self.fractions))
+
+
+def connector_energy(fe, modes, targets) -> list[Candidate]:
+    """Axial strain-energy fraction of every end connector of the locked truss ``fe`` for the
+    target mode indices (0-based) of ``modes`` (from ``modal.solve_modes(fe, …)``)."""
+    targets = [int(i) for i in targets]
+    if not targets or min(targets) < 0 or max(targets) >= len(modes):
+        raise ModelError(f"target modes: {[i + 1 for i in targets]} — must be between 1 and {len(modes)}")
+    connectors = [e for e, kind in enumerate(fe.element_kind) if kind == "connector"]
+    if not connectors:
+        raise ModelError(f"design {fe.design.name!r}: no member has end connectors — nowhere to place a joint")
+    shapes = fe.S @ modes.shapes[:, targets]  # (6·points, n_targets) in unconstrained DOFs
+    first_of_member: dict[str, int] = {}
+    candidates = []
+    for e in connectors:
+        member = fe.element_member[e]
+        end = "start" if first_of_member.setdefault(member, e) == e else "end"
+        a, b = fe.element_points[e]
+        axis = fe.element_rotation[e, 0]
+        length = float(np.linalg.norm(fe.points[b] - fe.points[a]))
+        elongation = axis @ (shapes[6 * b:6 * b + 3] - shapes[6 * a:6 * a + 3])
+        fractions = fe.element_properties[e, 0] / length * elongation**2 / modes.omega[targets] ** 2
+        candidates.append(Candidate(member, end, tuple(float(f) for f in fractions)))
+    return candidates
+
+
+def rank(candidates: list[Candidate]) -> list[Candidate]:
+    """Best first; ties (symmetric positions) in member/end order, so the choice is reproducible."""
+    return sorted(candidates, key=lambda c: (-round(c.score, 12), c.member, c.end))
+
+
+def choose(candidates: list[Candidate], count: int) -> list[Candidate]:
+    """The ``count`` best connectors, at most one joint per member."""
+    chosen, members = [], set()
+    for candidate in rank(candidates):
+        if candidate.member in members:
+            continue
+        chosen.append(candidate)
+        members.add(candidate.member)
+        if len(chosen) == count:
+            return chosen
+    raise ModelError(f"joints: {count} requested, only {len(chosen)} members with end connectors")
