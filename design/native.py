@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import os
+import platform
 import shutil
 import sys
 import sysconfig
@@ -20,7 +21,17 @@ from pathlib import Path
 from .errors import ModelError
 
 # No -ffast-math and no FMA contraction: the kernels must round like their numpy mirrors.
+# -march=native: the build is per machine anyway, and the key below names the CPU.
 FLAGS = ["-O3", "-march=native", "-std=c99", "-ffp-contract=off"]
+
+
+def _cpu() -> str:
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return platform.processor()
+    lines = [line for line in text.splitlines() if line.startswith(("model name", "flags", "Features"))]
+    return "\n".join(sorted(set(lines)))
 
 
 def cache_dir() -> Path:
@@ -31,7 +42,7 @@ def load(stem: str, declarations: str, source: Path):
     """The cffi module (``.ffi``, ``.lib``) of ``source`` with the C ``declarations``."""
     text = source.read_text()
     key = hashlib.sha256("\0".join([declarations, text, " ".join(FLAGS), sys.version,
-                                    sysconfig.get_platform()]).encode()).hexdigest()[:16]
+                                    sysconfig.get_platform(), _cpu()]).encode()).hexdigest()[:16]
     name = f"_sj_{stem}_{key}"
     target_dir = cache_dir()
     suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"

@@ -76,6 +76,10 @@ def krylov_vectors(stiffness: sp.spmatrix, mass: sp.spmatrix, E: np.ndarray, ret
     count = per_joint * len(joints)
     if count == 0:
         return np.zeros((E.shape[0], 0)), np.zeros(0), []
+    if retained.shape[1] + count > E.shape[0]:
+        raise ModelError(f"Krylov vectors: {per_joint} per joint × {len(joints)} joints + {retained.shape[1]} kept modes "
+                         f"= {retained.shape[1] + count} > {E.shape[0]} DOFs — the space allows at most "
+                         f"{(E.shape[0] - retained.shape[1]) // max(len(joints), 1)} per joint")
     factor = spla.splu(sp.csc_matrix(stiffness))
     basis = [retained]
     vectors, labels = [], []

@@ -501,8 +501,12 @@ def _check(model: ModalModel, joints, duration, step, controller, initial_state)
                                 & (model.omega > 0)))
     if unstable.size:
         i = unstable[0]
-        raise ModelError(f"modal model: coordinate {model.labels[i]!r} has ω = {model.omega[i]!r} rad/s, "
-                         f"ξ = {model.damping[i]!r} — need ω > 0 and ξ >= 0 (a stable structure)")
+        raise ModelError(f"modal model: coordinate {model.labels[i]!r} has ω = {float(model.omega[i])!r} rad/s, "
+                         f"ξ = {float(model.damping[i])!r} — need ω > 0 and ξ >= 0 (a stable structure)")
+    still = np.flatnonzero(~np.any(model.joint_input != 0.0, axis=0)) if l else []
+    if len(still):
+        raise ModelError(f"joint {model.joint_names[still[0]]!r}: no coordinate of the model moves it (its column of "
+                         "E is zero) — a joint on a rigid DOF cannot slide; move it or add its Krylov vector")
     if model.disturbance_input.shape[1] > MAX_DISTURBANCES:
         raise ModelError(f"disturbances: {model.disturbance_input.shape[1]} inputs — at most {MAX_DISTURBANCES}")
     if initial_state is not None:
@@ -559,14 +563,15 @@ def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller:
         t = k0 * step
         sensors = plant.Vy @ state.x[0] + plant.Dy @ state.x[1]
         measured = Measurements(t, sensors, state.v.copy(), state.u.copy(), state.fn.copy())
-        new = controller.step(measured)
+        raw = controller.step(measured)
         try:
-            new = np.asarray(new, dtype=float)
+            new = np.asarray(raw, dtype=float)
         except (TypeError, ValueError):
             new = np.array([np.nan])
         if new.shape not in ((l,), (1, l), (l, 1)) or not np.all(np.isfinite(new)) or np.any(new < 0):
-            raise ModelError(f"controller returned normal forces {np.asarray(new).tolist()!r} at t = {t:.6g} s — "
-                             f"need {l} finite values >= 0 (joints {', '.join(model.joint_names)})")
+            shown = raw.tolist() if isinstance(raw, np.ndarray) else raw
+            raise ModelError(f"controller returned normal forces {shown!r} at t = {t:.6g} s — need {l} finite values "
+                             f">= 0 (joints {', '.join(model.joint_names)})")
         kernel.set_normal_force(new.reshape(l))
         n = min(chunk, steps - k0)
         kernel.run(w[k0:k0 + n + 1], n, k0, record_every)
@@ -581,13 +586,10 @@ def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller:
                             r.works[:, 2], list(model.joint_names), list(model.sensor_names))
 
 
-def reference_simulation(model: ModalModel, joints: list[lugre.LuGreParameters], normal_forces,
-                         disturbance: Callable[[float], np.ndarray] | None, duration: float, times: np.ndarray,
-                         rtol: float = 1e-10, atol: float = 1e-13, method: str = "Radau"):
-    """Eq. 12 for constant normal forces through scipy.integrate.solve_ivp with an analytic
-    Jacobian: the accuracy reference for :func:`simulate`. Returns (v, u_R, ½xᵀx) at ``times``."""
-    from scipy.integrate import solve_ivp
-
+def reference_system(model: ModalModel, joints: list[lugre.LuGreParameters], normal_forces,
+                     disturbance: Callable[[float], np.ndarray] | None):
+    """Eq. 12 with constant normal forces as an ODE z' = f(t, z), z = [x; φ], with its analytic
+    Jacobian, for scipy.integrate.solve_ivp. Returns (rhs, jac, n_states, friction(z) -> u_R)."""
     l = model.joint_input.shape[1]
     law = _Joints(joints)
     fn = np.asarray(normal_forces, dtype=float)
@@ -625,6 +627,24 @@ def reference_simulation(model: ModalModel, joints: list[lugre.LuGreParameters],
         J[ns:, ns:] = np.diag(dpd_phi)
         return J
 
+    def friction(Z):
+        Z = np.atleast_2d(Z)
+        x, phi = Z[:, :ns], Z[:, ns:]
+        return law.arm * fn * law.mu(x @ Cv.T, phi)
+
+    return rhs, jac, ns, friction
+
+
+def reference_simulation(model: ModalModel, joints: list[lugre.LuGreParameters], normal_forces,
+                         disturbance: Callable[[float], np.ndarray] | None, duration: float, times: np.ndarray,
+                         rtol: float = 1e-10, atol: float = 1e-13, method: str = "Radau"):
+    """Eq. 12 for constant normal forces through scipy.integrate.solve_ivp with an analytic
+    Jacobian: the accuracy reference for :func:`simulate`. Returns (v, u_R, ½xᵀx) at ``times``."""
+    from scipy.integrate import solve_ivp
+
+    rhs, jac, ns, friction = reference_system(model, joints, normal_forces, disturbance)
+    l = model.joint_input.shape[1]
+    _, _, _, Cv, _ = model.state_space()
     breaks = sorted({0.0, duration, *[b for b in getattr(disturbance, "breakpoints", ()) if 0 < b < duration]})
     z = np.zeros(ns + l)
     out_z = []
@@ -636,11 +656,9 @@ def reference_simulation(model: ModalModel, joints: list[lugre.LuGreParameters],
         out_z.append(sol.sol(inside).T if inside.size else np.zeros((0, ns + l)))
         z = sol.y[:, -1]
     Z = np.concatenate(out_z)
-    x, phi = Z[:, :ns], Z[:, ns:]
-    v = x @ Cv.T
-    u = law.arm * fn * law.mu(v, phi)
-    return v, u, 0.5 * np.sum(x * x, axis=1)
+    x = Z[:, :ns]
+    return x @ Cv.T, friction(Z), 0.5 * np.sum(x * x, axis=1)
 
 
 __all__ = ["ConstantNormalForce", "Controller", "Measurements", "SimulationResult", "TriangularPulse", "discretise",
-           "reference_simulation", "simulate", "triangular_pulse"]
+           "reference_simulation", "reference_system", "simulate", "triangular_pulse"]

@@ -95,3 +95,92 @@ def test_simulate_command_names_a_wrong_normal_force_list():
                            "--normal-force", "400,0"], capture_output=True, text=True)
     assert done.returncode == 2
     assert "--normal-force: '400,0' — need 3 finite values >= 0 (joints B1, A2, A3)" in done.stderr
+
+
+class _Switching:
+    """A controller that switches the normal forces every sample (deterministic pseudo-random
+    levels in [0, F_max]): exercises F_N jumps and the energy books under them."""
+
+    def __init__(self, count, sample_time, maximum=800.0, seed=3):
+        self.count, self.sample_time, self.maximum, self.seed = count, sample_time, maximum, seed
+
+    def reset(self):
+        self.rng = np.random.default_rng(self.seed)
+
+    def step(self, measurements):
+        return self.maximum * (self.rng.random(self.count) < 0.5) * self.rng.random(self.count)
+
+
+def test_c_kernel_matches_numpy_mirror_with_switching_forces(model):
+    """plant_kernel.c and its numpy mirror take the same steps (halvings included) to round-off."""
+    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    runs = [simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.08, 1e-4, backend=b)
+            for b in ("python", "c")]
+    for name in ("friction_force", "sliding_velocity", "deflection", "energy", "sensors", "work_joints",
+                 "work_damping", "work_in"):
+        a, b = getattr(runs[0], name), getattr(runs[1], name)
+        assert np.max(np.abs(a - b)) <= 1e-9 * np.max(np.abs(a)), name
+
+
+def test_energy_balance_with_switching_normal_forces(model):
+    """e(T) − e(0) = W_in − W_joints − W_damping while F_N jumps every millisecond in [0, 800 N].
+
+    Measured: the residual falls at second order (8.2e-3, 2.2e-3, 4.6e-4, 1.0e-4 J at 100, 50,
+    25, 12.5 µs) but is still 1.1 % of the peak energy at 12.5 µs: the trapezoidal books of u_R·v
+    miss the Nyquist ringing of the stiff stick phase after each jump. Issue 4's 1e-3 target is
+    not met yet (see the issue note); this test pins the order and the level reached.
+    """
+    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    residuals = []
+    for step in (2.5e-5, 1.25e-5):
+        result = simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.3, step)
+        assert np.any(np.diff(result.normal_force[:, 0]) != 0)
+        residuals.append(abs(result.energy[-1] - result.energy[0] - (result.work_in[-1] - result.work_joints[-1]
+                                                                     - result.work_damping[-1])) / result.energy.max())
+    assert residuals[1] < 0.3 * residuals[0]
+    assert residuals[1] < 0.02
+
+
+def test_stable_at_the_controller_sample_time_for_any_normal_force(model):
+    """Plant step = controller sample time (1 ms) with F_N jumping anywhere in [0, 800 N]: no
+    blow-up — the energy never exceeds what the pulse put in, and the joints never feed energy."""
+    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    for seed in range(3):
+        result = simulate.simulate(model, JOINTS, _Switching(2, 1e-3, seed=seed), pulse, 1.0, 1e-3)
+        assert np.all(np.isfinite(result.energy))
+        assert np.max(result.energy) <= 1.01 * np.max(result.work_in)
+        assert result.energy[-1] < result.energy.max()
+
+
+class _Bad:
+    sample_time = 1e-3
+
+    def __init__(self, value):
+        self.value = value
+
+    def reset(self):
+        pass
+
+    def step(self, measurements):
+        return self.value
+
+
+@pytest.mark.parametrize("value, text", [(np.array([np.nan, 1.0]), "nan"), (np.array([1.0, 2.0, 3.0]), r"\[1.0, 2.0, 3.0\]"),
+                                         ("many", "many"), (None, "None")])
+def test_controller_output_is_checked(model, value, text):
+    with pytest.raises(simulate.ModelError, match=f"controller returned normal forces .*{text}.* need 2 finite"):
+        simulate.simulate(model, JOINTS, _Bad(value), None, 0.01, 1e-4)
+
+
+def test_unstable_damping_and_rigid_joint_are_named(model):
+    import dataclasses
+
+    unstable = dataclasses.replace(model, damping=np.where(np.arange(model.n_coordinates) == 3, -0.01, model.damping))
+    with pytest.raises(simulate.ModelError, match=r"coordinate 'mode 4' has .* ξ = -0.01 — need ω > 0 and ξ >= 0"):
+        simulate.simulate(unstable, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
+    rigid = dataclasses.replace(model, joint_input=np.column_stack([model.joint_input[:, 0], np.zeros(model.n_coordinates)]))
+    with pytest.raises(simulate.ModelError, match="joint .* no coordinate of the model moves it"):
+        simulate.simulate(rigid, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
+    with pytest.raises(simulate.ModelError, match="initial_state: 3 values"):
+        simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4,
+                          initial_state=np.zeros(3))

@@ -1,0 +1,46 @@
+"""Joint placement by the axial modal strain energy of the end connectors (Section 6, Fig. 11)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from smartjoint.design import fem, modal, placement, spec
+from smartjoint.design.errors import ModelError
+
+
+
+@pytest.fixture(scope="module")
+def reference():
+    fe = fem.build_model(spec.load_design(), joints="locked")
+    return fe, modal.solve_modes(fe, 6)
+
+
+def test_fractions_are_bounded_and_follow_the_mode_shapes(reference):
+    """Each fraction is a share of ½ω² (0 < s < 1); the bending mode in one diagonal plane strains
+    the two longerons in that plane equally (symmetry) and the other two not at all."""
+    fe, modes = reference
+    candidates = {(c.member, c.end): c for c in placement.connector_energy(fe, modes, [0, 1])}
+    total = sum(c.fractions[0] for c in candidates.values())
+    assert 0 < total < 1
+    first = candidates[("L1_0", "start")].fractions
+    assert first[0] == pytest.approx(candidates[("L1_2", "start")].fractions[0], rel=1e-6)
+    assert first[1] < 1e-12 * first[0]
+    assert candidates[("L1_1", "start")].fractions[1] > 0.5 * first[0]
+
+
+def test_bundled_three_joint_design_is_the_placement_result(reference):
+    fe, modes = reference
+    chosen = placement.choose(placement.connector_energy(fe, modes, [0, 1]), 3)
+    design = spec.load_design(Path(fem.__file__).with_name("data") / "three_type_a.toml")
+    assert [(c.member, c.end) for c in chosen] == [(j.member, j.end) for j in design.joints]
+    assert all(j.type == "A" for j in design.joints)
+
+
+def test_bad_targets_are_named(reference):
+    fe, modes = reference
+    with pytest.raises(ModelError, match=r"target modes: \[7\] — must be between 1 and 6"):
+        placement.connector_energy(fe, modes, [6])
+    with pytest.raises(ModelError, match="joints: 500 requested"):
+        placement.choose(placement.connector_energy(fe, modes, [0]), 500)
