@@ -165,13 +165,18 @@ def cmd_identify(args) -> dict:
     stick = [r for r in records if classify(r, args.radius) == "stick-slip"]
     result = identify(micro, stick, radius=args.radius, progress=_progress)
     out = result.as_dict()
-    if args.plots:
-        folder = Path(args.plots)
-        folder.mkdir(parents=True, exist_ok=True)
-        out["plots"] = [str(p) for p in plot_hysteresis(result, folder)]
+    _plots(args, out, lambda folder: plot_hysteresis(result, folder))
     if not args.json:
         print(identification_table(result))
     return out
+
+
+def _plots(args, out: dict, draw) -> None:
+    """With --plots DIR: create DIR, let ``draw(folder)`` write its PNGs, list them in ``out``."""
+    if args.plots:
+        folder = Path(args.plots)
+        folder.mkdir(parents=True, exist_ok=True)
+        out["plots"] = [str(p) for p in draw(folder)]
 
 
 def cmd_reduce(args) -> dict:
@@ -197,10 +202,7 @@ def cmd_reduce(args) -> dict:
     study = reduction_study(design, forces if forces is not None else np.zeros(0), args.considered, args.modes,
                             tuple(sorted({0, args.krylov})), joints, args.duration, args.step, _progress)
     out = study_summary(study)
-    if args.plots:
-        folder = Path(args.plots)
-        folder.mkdir(parents=True, exist_ok=True)
-        out["plots"] = [str(p) for p in plot_study(study, folder)]
+    _plots(args, out, lambda folder: plot_study(study, folder))
     if not args.json:
         from .studies import study_markdown
         print(study_markdown(study))
