@@ -41,11 +41,12 @@ def friction_error(u, u_ref) -> float:
     return float(np.sqrt(np.mean((u - u_ref) ** 2, axis=0)).max() / np.sqrt(np.mean(u_ref**2, axis=0)).max())
 
 
-def ours(model, laws, pulse, duration, step, record=1e-3):
+def ours(model, laws, pulse, duration, step, record=1e-3, books=True):
     controller = simulate.ConstantNormalForce(np.full(len(laws), NORMAL_FORCE), 1e-3)
     every = int(round(record / step))
     start = time.perf_counter()
-    result = simulate.simulate(model, laws, controller, pulse, duration, step, record_every=every, backend="c")
+    result = simulate.simulate(model, laws, controller, pulse, duration, step, record_every=every, backend="c",
+                                 energy_books=books)
     return result, time.perf_counter() - start
 
 

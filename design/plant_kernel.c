@@ -3,13 +3,13 @@
  * The same algorithm as simulate._PythonKernel, statement for statement, so that the two agree
  * to round-off (tests/test_simulate.py): exact first-order-hold modal step, implicit Newton
  * solve in the joint velocities with an analytic Jacobian, exponential bristle integrator,
- * recursive step halving where a falling Stribeck branch leaves no unique root, trapezoidal
- * energy bookkeeping and recording.  The module docstring of simulate.py documents the scheme.
+ * recursive step halving where a falling Stribeck branch leaves no unique root, exact energy
+ * books per step (simulate.work_coefficients) and recording.  The module docstring of simulate.py documents the scheme.
  *
  * Layout (structure of arrays, so the per-mode loops vectorise): the state is x (2, n) with rows
  * eta_dot and omega*eta; ET (l, n) and HT (m, n) are the transposed input matrices; Vy and Dy
  * (ny, n); discretisation level d (step / 2^d): Phi (4, n) rows p00 p01 p10 p11, gamma0 and
- * gamma1 (2, n), G (l, l), at offsets d*4n, d*2n, d*l*l.  q = E u_R (n) is the modal joint
+ * gamma1 (2, n), G (l, l), book (18, n) at offsets d*4n, d*2n, d*l*l, d*18n.  q = E u_R (n) is the modal joint
  * force of the current u_R, kept so that a step needs E only twice per mode.
  */
 #include <math.h>
@@ -21,18 +21,17 @@
 #define SJ_MAX_DISTURBANCES 64
 
 typedef struct {
-    int n, l, m, ny, levels;
+    int n, l, m, ny, levels, books;    /* books: 0 leaves the work integrals alone (NaN) */
     double step;
-    const double *phi, *g0, *g1, *G;   /* discretisation per level */
+    const double *phi, *g0, *g1, *G, *book;   /* discretisation and work integrals per level */
     const double *ET, *HT, *Vy, *Dy, *two_xi_w;
     const double *s0, *s1, *s2, *fc, *fd, *vs, *arm, *bound;
-    double *work;                      /* scratch: 3n + 7l + l*l doubles */
+    double *work;                      /* scratch: 5n + 7l + l*l doubles */
 } sj_plant;
 
 typedef struct {
     double *x, *q, *v, *phi, *u, *fn;
     double work_in, work_joints, work_damping;
-    double power_in, power_joints, power_damping;  /* at the last step end */
     double failed_step, failed_residual;            /* set when a solve fails */
 } sj_state;
 
@@ -56,19 +55,6 @@ static double dot(const double *a, const double *b, int n)
         s0 += a[i] * b[i]; s1 += a[i + 1] * b[i + 1]; s2 += a[i + 2] * b[i + 2]; s3 += a[i + 3] * b[i + 3];
     }
     for (; i < n; ++i) s0 += a[i] * b[i];
-    return (s0 + s1) + (s2 + s3);
-}
-
-/* sum_i c_i a_i^2 */
-static double weighted_squares(const double *c, const double *a, int n)
-{
-    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
-    int i = 0;
-    for (; i + 4 <= n; i += 4) {
-        s0 += c[i] * a[i] * a[i]; s1 += c[i + 1] * a[i + 1] * a[i + 1];
-        s2 += c[i + 2] * a[i + 2] * a[i + 2]; s3 += c[i + 3] * a[i + 3] * a[i + 3];
-    }
-    for (; i < n; ++i) s0 += c[i] * a[i] * a[i];
     return (s0 + s1) + (s2 + s3);
 }
 
@@ -168,7 +154,7 @@ static int solve_joints(const sj_plant *p, sj_state *s, const double *G, const d
                         double *v_new, double *phi_new, double *u_new, double *residual_out)
 {
     int l = p->l;
-    double *w = p->work + 3 * p->n;
+    double *w = p->work + 5 * p->n;
     double *scale = w, *du = w + l, *residual = w + 2 * l, *J = w + 3 * l;
     double worst = 0.0;
     for (int j = 0; j < l; ++j) {
@@ -203,31 +189,27 @@ static int solve_joints(const sj_plant *p, sj_state *s, const double *G, const d
     return -1;
 }
 
-/* Free response x_free = Phi x + gamma0 f_a + gamma1 f_b (f_a = H w_a - q, f_b = H w_b), and
+/* Free response x_free = Phi x + gamma0 f_a + gamma1 f_b (f_a = p_a - q, f_b = p_b, p = H w), and
  * v_free = E^T x_free[0] accumulated in the same pass, four joints at a time (ET is padded
  * with zero rows to a multiple of four) with four partial sums per joint. */
 static void free_response(const sj_plant *p, const sj_state *s, const double *Phi, const double *a,
-                          const double *b, const double *w_a, const double *w_b, double *v_free)
+                          const double *b, const double *w_a, const double *w_b, int disturbed, double *v_free)
 {
     int n = p->n, m = p->m, groups = (p->l + 3) / 4;
-    double *free0 = p->work, *free1 = p->work + n, *force = p->work + 2 * n;
+    double *free0 = p->work, *free1 = p->work + n, *p_a = p->work + 2 * n, *p_b = p->work + 3 * n;
     const double *x0 = s->x, *x1 = s->x + n;
-    if (all_zero(w_a, m) && all_zero(w_b, m)) {  /* after the pulse: the common case */
+    if (!disturbed) {  /* after the pulse: the common case */
         for (int i = 0; i < n; ++i) {
             free0[i] = Phi[i] * x0[i] + Phi[n + i] * x1[i] - a[i] * s->q[i];
             free1[i] = Phi[2 * n + i] * x0[i] + Phi[3 * n + i] * x1[i] - a[n + i] * s->q[i];
         }
     } else {
-        combine(p->HT, w_a, m, n, force);
+        combine(p->HT, w_a, m, n, p_a);
+        combine(p->HT, w_b, m, n, p_b);
         for (int i = 0; i < n; ++i) {
-            double f_a = force[i] - s->q[i];
-            free0[i] = Phi[i] * x0[i] + Phi[n + i] * x1[i] + a[i] * f_a;
-            free1[i] = Phi[2 * n + i] * x0[i] + Phi[3 * n + i] * x1[i] + a[n + i] * f_a;
-        }
-        combine(p->HT, w_b, m, n, force);
-        for (int i = 0; i < n; ++i) {
-            free0[i] += b[i] * force[i];
-            free1[i] += b[n + i] * force[i];
+            double f_a = p_a[i] - s->q[i];
+            free0[i] = Phi[i] * x0[i] + Phi[n + i] * x1[i] + a[i] * f_a + b[i] * p_b[i];
+            free1[i] = Phi[2 * n + i] * x0[i] + Phi[3 * n + i] * x1[i] + a[n + i] * f_a + b[n + i] * p_b[i];
         }
     }
     for (int g = 0; g < groups; ++g) {
@@ -250,21 +232,88 @@ static void free_response(const sj_plant *p, const sj_state *s, const double *Ph
     }
 }
 
+/* Books the exact work of the step (simulate.work_coefficients, _book) from the start state
+ * x, the modal joint force q (start) and q_new (end) and, if disturbed, p = H w at both ends;
+ * then x = x_free - gamma1 q_new and q = q_new.  Four partial sums per work (vectorisable). */
+static void book_and_update(const sj_plant *p, sj_state *s, const double *c, const double *b, const double *q_new_in,
+                            int disturbed)
+{
+    int n = p->n, i = 0;
+    const double *restrict free0 = p->work, *restrict free1 = p->work + n;
+    const double *restrict p_a = p->work + 2 * n, *restrict p_b = p->work + 3 * n, *restrict q_new = q_new_in;
+    const double *restrict b0 = b, *restrict b1 = b + n;
+    double *restrict x0 = s->x, *restrict x1 = s->x + n, *restrict q = s->q;
+    double w_in[4] = {0.0, 0.0, 0.0, 0.0}, w_joints[4] = {0.0, 0.0, 0.0, 0.0}, w_damping[4] = {0.0, 0.0, 0.0, 0.0};
+    const double *restrict c0 = c, *restrict c1 = c + n, *restrict c2 = c + 2 * n, *restrict c3 = c + 3 * n;
+    const double *restrict c4 = c + 4 * n, *restrict c5 = c + 5 * n, *restrict c6 = c + 6 * n;
+    const double *restrict c7 = c + 7 * n, *restrict c8 = c + 8 * n, *restrict c9 = c + 9 * n;
+    const double *restrict c10 = c + 10 * n, *restrict c11 = c + 11 * n, *restrict c12 = c + 12 * n;
+    const double *restrict c13 = c + 13 * n, *restrict c14 = c + 14 * n, *restrict c15 = c + 15 * n;
+    const double *restrict c16 = c + 16 * n, *restrict c17 = c + 17 * n;
+#define SJ_BOOK(k, pa, pb)                                                                                      \
+    do {                                                                                                        \
+        int j = i + (k);                                                                                        \
+        double y0 = x0[j], y1 = x1[j], fa = (pa) - q[j], fb = (pb) - q_new[j];                                  \
+        double m0 = c0[j] * y0 + c1[j] * y1 + c2[j] * fa + c3[j] * fb;                                          \
+        double m1 = c4[j] * y0 + c5[j] * y1 + c6[j] * fa + c7[j] * fb;                                          \
+        w_damping[k] += y0 * (c8[j] * y0 + c12[j] * y1 + c13[j] * fa + c14[j] * fb)                             \
+                        + y1 * (c9[j] * y1 + c15[j] * fa + c16[j] * fb) + fa * (c10[j] * fa + c17[j] * fb)       \
+                        + c11[j] * fb * fb;                                                                     \
+        w_in[k] += (pa) * m0 + ((pb) - (pa)) * m1;                                                              \
+        w_joints[k] += q[j] * m0 + (q_new[j] - q[j]) * m1;                                                      \
+        x0[j] = free0[j] - b0[j] * q_new[j];                                                                    \
+        x1[j] = free1[j] - b1[j] * q_new[j];                                                                    \
+        q[j] = q_new[j];                                                                                        \
+    } while (0)
+    if (disturbed) {
+        for (; i + 4 <= n; i += 4) {
+            SJ_BOOK(0, p_a[j], p_b[j]); SJ_BOOK(1, p_a[j], p_b[j]); SJ_BOOK(2, p_a[j], p_b[j]); SJ_BOOK(3, p_a[j], p_b[j]);
+        }
+        for (; i < n; ++i) SJ_BOOK(0, p_a[j], p_b[j]);
+    } else {  /* after the pulse: no input work */
+        for (; i + 4 <= n; i += 4) {
+            SJ_BOOK(0, 0.0, 0.0); SJ_BOOK(1, 0.0, 0.0); SJ_BOOK(2, 0.0, 0.0); SJ_BOOK(3, 0.0, 0.0);
+        }
+        for (; i < n; ++i) SJ_BOOK(0, 0.0, 0.0);
+    }
+#undef SJ_BOOK
+    s->work_in += (w_in[0] + w_in[1]) + (w_in[2] + w_in[3]);
+    s->work_joints += (w_joints[0] + w_joints[1]) + (w_joints[2] + w_joints[3]);
+    s->work_damping += (w_damping[0] + w_damping[1]) + (w_damping[2] + w_damping[3]);
+}
+
+/* x = x_free - gamma1 q_new and q = q_new, with the books if they are kept. */
+static void update(const sj_plant *p, sj_state *s, const double *c, const double *b, const double *q_new,
+                   int disturbed)
+{
+    int n = p->n;
+    if (p->books) {
+        book_and_update(p, s, c, b, q_new, disturbed);
+        return;
+    }
+    for (int i = 0; i < n; ++i) {
+        s->x[i] = p->work[i] - b[i] * q_new[i];
+        s->x[n + i] = p->work[n + i] - b[n + i] * q_new[i];
+    }
+    memcpy(s->q, q_new, sizeof(double) * (size_t)n);
+}
+
 /* One step of length step/2^depth from w_a to w_b; halves itself where the solve fails. */
 static int advance(const sj_plant *p, sj_state *s, const double *w_a, const double *w_b, int depth)
 {
     int n = p->n, l = p->l, m = p->m, groups = (l + 3) / 4;
     const double *Phi = p->phi + (size_t)depth * n * 4, *a = p->g0 + (size_t)depth * n * 2;
     const double *b = p->g1 + (size_t)depth * n * 2, *G = p->G + (size_t)depth * l * l;
+    const double *c = p->book + (size_t)depth * n * 18;
     double h = p->step / (double)(1L << depth);
-    double *free0 = p->work, *free1 = p->work + n;
-    double *w = p->work + 3 * n + 3 * l + l * l;
+    double *q_new = p->work + 4 * n;
+    double *w = p->work + 5 * n + 3 * l + l * l;
     double *v_free = w, *v_new = w + l, *phi_new = w + 2 * l, *u_new = w + 3 * l;
-    double *x0 = s->x, *x1 = s->x + n;
-    free_response(p, s, Phi, a, b, w_a, w_b, v_free);
+    int disturbed = !(all_zero(w_a, m) && all_zero(w_b, m));
+    free_response(p, s, Phi, a, b, w_a, w_b, disturbed, v_free);
     if (l == 0) {
-        memcpy(x0, free0, sizeof(double) * (size_t)n);
-        memcpy(x1, free1, sizeof(double) * (size_t)n);
+        memset(q_new, 0, sizeof(double) * (size_t)n);
+        update(p, s, c, b, q_new, disturbed);
         return 0;
     }
     double residual = 0.0;
@@ -284,19 +333,16 @@ static int advance(const sj_plant *p, sj_state *s, const double *w_a, const doub
         s->phi[j] = phi_new[j];
         s->u[j] = u_new[j];
     }
-    /* q = E u_R, four joints per pass, then x = x_free - gamma1 q in the last pass. */
+    /* q_new = E u_R, four joints per pass, then the books and x = x_free - gamma1 q_new. */
     for (int g = 0; g < groups; ++g) {
         const double *e0 = p->ET + (size_t)(4 * g) * n, *e1 = e0 + n, *e2 = e1 + n, *e3 = e2 + n;
         for (int k = 0; k < 4; ++k) u4[k] = 4 * g + k < l ? s->u[4 * g + k] : 0.0;
         if (g == 0)
-            for (int i = 0; i < n; ++i) s->q[i] = e0[i] * u4[0] + e1[i] * u4[1] + e2[i] * u4[2] + e3[i] * u4[3];
+            for (int i = 0; i < n; ++i) q_new[i] = e0[i] * u4[0] + e1[i] * u4[1] + e2[i] * u4[2] + e3[i] * u4[3];
         else
-            for (int i = 0; i < n; ++i) s->q[i] += e0[i] * u4[0] + e1[i] * u4[1] + e2[i] * u4[2] + e3[i] * u4[3];
+            for (int i = 0; i < n; ++i) q_new[i] += e0[i] * u4[0] + e1[i] * u4[1] + e2[i] * u4[2] + e3[i] * u4[3];
     }
-    for (int i = 0; i < n; ++i) {
-        x0[i] = free0[i] - b[i] * s->q[i];
-        x1[i] = free1[i] - b[n + i] * s->q[i];
-    }
+    update(p, s, c, b, q_new, disturbed);
     /* v = E^T x0 = v_free - G u_R exactly in exact arithmetic; v_free is recomputed from x
      * every step, so the two never drift apart. Saves a pass over E. */
     for (int i = 0; i < l; ++i) {
@@ -307,38 +353,22 @@ static int advance(const sj_plant *p, sj_state *s, const double *w_a, const doub
     return 0;
 }
 
-static void powers(const sj_plant *p, const sj_state *s, const double *w, double *in, double *joints, double *damping)
-{
-    double pj = 0.0;
-    *in = 0.0;
-    if (!all_zero(w, p->m)) {
-        double *force = p->work + 2 * p->n;
-        combine(p->HT, w, p->m, p->n, force);
-        *in = dot(s->x, force, p->n);
-    }
-    *damping = weighted_squares(p->two_xi_w, s->x, p->n);
-    for (int j = 0; j < p->l; ++j) pj += s->u[j] * s->v[j];
-    *joints = pj;
-}
-
 /* New normal forces act at once: u_R at the step start is recomputed (piezo instantaneous). */
 void sj_set_normal_force(const sj_plant *p, sj_state *s, const double *normal_force)
 {
     double d_v, d_phi;
-    s->power_joints = 0.0;
     for (int j = 0; j < p->l; ++j) {
         s->fn[j] = normal_force[j];
         s->u[j] = friction(p, j, s->v[j], s->phi[j], s->fn[j], &d_v, &d_phi);
-        s->power_joints += s->u[j] * s->v[j];
     }
     combine(p->ET, s->u, p->l, p->n, s->q);
 }
 
-/* Start of a run: powers at t = 0 for the energy bookkeeping. */
+/* Start of a run: the energy books at zero. */
 void sj_start(const sj_plant *p, sj_state *s, const double *w0)
 {
-    powers(p, s, w0, &s->power_in, &s->power_joints, &s->power_damping);
-    s->work_in = s->work_joints = s->work_damping = 0.0;
+    (void)w0;
+    s->work_in = s->work_joints = s->work_damping = p->books ? 0.0 : NAN;
 }
 
 void sj_record_row(const sj_plant *p, const sj_state *s, const sj_record *r, long row)
@@ -369,12 +399,6 @@ long sj_run(const sj_plant *p, sj_state *s, const double *w, long steps, long k0
     for (long k = 0; k < steps; ++k) {
         if ((k0 + k) % record_every == 0) sj_record_row(p, s, r, (k0 + k) / record_every);
         if (advance(p, s, w + k * p->m, w + (k + 1) * p->m, 0) != 0) return k;
-        double pin, pj, pd;
-        powers(p, s, w + (k + 1) * p->m, &pin, &pj, &pd);
-        s->work_in += 0.5 * p->step * (s->power_in + pin);
-        s->work_joints += 0.5 * p->step * (s->power_joints + pj);
-        s->work_damping += 0.5 * p->step * (s->power_damping + pd);
-        s->power_in = pin; s->power_joints = pj; s->power_damping = pd;
     }
     return steps;
 }

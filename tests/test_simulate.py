@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.linalg
 
 from smartjoint.design import lugre, modal, simulate
 from smartjoint.design.fem import build_model
@@ -44,7 +45,7 @@ def _velocity(w, xi, t):
 
 
 def test_energy_balance_and_dissipation(model):
-    """e(t) − e(0) = W_in − W_joints − W_damping to O(h²); the joints dissipate net."""
+    """e(t) − e(0) = W_in − W_joints − W_damping to round-off at any step; the joints dissipate net."""
     pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
     errors = []
     for step in (2e-4, 1e-4):
@@ -54,7 +55,7 @@ def test_energy_balance_and_dissipation(model):
         # Net dissipation in the joints (u_R·v itself may dip below zero while the bristles unload).
         assert result.work_joints[-1] > 0.05 * result.work_in[-1]
         assert result.energy[-1] < result.work_in[-1] - result.work_joints[-1]
-    assert errors[1] < 1e-3 and errors[1] < 0.35 * errors[0]  # second order
+    assert max(errors) < 1e-12
 
 
 def test_agrees_with_radau_reference(model):
@@ -123,22 +124,53 @@ def test_c_kernel_matches_numpy_mirror_with_switching_forces(model):
 
 
 def test_energy_balance_with_switching_normal_forces(model):
-    """e(T) − e(0) = W_in − W_joints − W_damping while F_N jumps every millisecond in [0, 800 N].
-
-    Measured: the residual falls at second order (8.2e-3, 2.2e-3, 4.6e-4, 1.0e-4 J at 100, 50,
-    25, 12.5 µs) but is still 1.1 % of the peak energy at 12.5 µs: the trapezoidal books of u_R·v
-    miss the Nyquist ringing of the stiff stick phase after each jump. Issue 4's 1e-3 target is
-    not met yet (see the issue note); this test pins the order and the level reached.
-    """
+    """e(t) − e(0) = W_in − W_joints − W_damping while F_N jumps every millisecond in [0, 800 N]
+    (issue 4: 1e-3 of the input work). The three works are integrated exactly per step,
+    independently of e(t), so the balance closes to round-off at any step — measured 2e-13 at
+    100, 50 and 25 µs — including the halved steps and the F_N jumps."""
     pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
-    residuals = []
-    for step in (2.5e-5, 1.25e-5):
+    for step in (1e-4, 2.5e-5):
         result = simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.3, step)
         assert np.any(np.diff(result.normal_force[:, 0]) != 0)
-        residuals.append(abs(result.energy[-1] - result.energy[0] - (result.work_in[-1] - result.work_joints[-1]
-                                                                     - result.work_damping[-1])) / result.energy.max())
-    assert residuals[1] < 0.3 * residuals[0]
-    assert residuals[1] < 0.02
+        residual = result.energy - result.energy[0] - (result.work_in - result.work_joints - result.work_damping)
+        assert np.max(np.abs(residual)) < 1e-9 * result.work_in[-1]
+        assert result.work_damping[-1] > 0 and np.all(np.diff(result.work_damping) >= 0)
+
+
+def test_work_coefficients_match_quadrature_of_the_exact_motion(model):
+    """The per-step work integrals (Van Loan) against Gauss–Legendre quadrature of the exact
+    modal motion under a linear force, for a slow, a mid and the fastest mode and ω·h up to 30."""
+    for step in (1e-4, 2e-3):
+        c = simulate.work_coefficients(model, step)
+        nodes, weights = np.polynomial.legendre.leggauss(60)
+        for i in (0, model.n_coordinates // 2, model.n_coordinates - 1):
+            w, xi = model.omega[i], model.damping[i]
+            y = np.array([0.3, -0.7, 1.1, -0.4])  # η̇, ωη, f_a, f_b
+            a = np.array([[-2 * xi * w, -w, 1.0, 0.0], [w, 0, 0, 0], [0, 0, 0, 1.0], [0, 0, 0, 0]])
+            z0 = np.array([y[0], y[1], y[2], (y[3] - y[2]) / step])
+            # composite rule: 40 panels of 60 points each
+            edges = np.linspace(0.0, step, 41)
+            t = np.concatenate([0.5 * (b - a_) * nodes + 0.5 * (b + a_) for a_, b in zip(edges[:-1], edges[1:])])
+            weight = np.concatenate([0.5 * (b - a_) * weights for a_, b in zip(edges[:-1], edges[1:])])
+            velocity = np.array([(scipy.linalg.expm(a * tk) @ z0)[0] for tk in t])
+            m0, m1, damping = simulate._book(c[:, i], *y)
+            scale = np.sum(weight * np.abs(velocity))
+            assert abs(m0 - np.sum(weight * velocity)) < 1e-10 * scale
+            assert abs(m1 - np.sum(weight * t / step * velocity)) < 1e-10 * scale
+            exact_damping = 2 * xi * w * np.sum(weight * velocity**2)
+            assert abs(damping - exact_damping) < 1e-9 * exact_damping
+
+
+def test_energy_books_can_be_left_out(model):
+    """energy_books=False: the same trajectory, the works NaN (not zeros that look like data)."""
+    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    runs = [simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books=books)
+            for books in (True, False)]
+    assert np.array_equal(runs[0].friction_force, runs[1].friction_force)
+    assert np.array_equal(runs[0].energy, runs[1].energy)
+    assert np.all(np.isnan(runs[1].work_joints))
+    with pytest.raises(simulate.ModelError, match="energy_books"):
+        simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books="yes")
 
 
 def test_stable_at_the_controller_sample_time_for_any_normal_force(model):
