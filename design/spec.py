@@ -170,6 +170,39 @@ class Updating:
 
 
 @dataclass(frozen=True)
+class Control:
+    """Controller design inputs (paper Section 5; ``[control]``, all optional with defaults).
+
+    Limits F_N^min..F_N^max per joint (a number applies to every joint), the controller sample
+    time Δt, the reduced model the controllers are designed on (Section 4: ``modes`` of the
+    first ``considered`` plus ``krylov`` correction vectors per joint), LQR weights
+    (xᵀQx + uᵀRu with Q = state_weight·I — xᵀx is the energy of Eq. 32 — and R =
+    control_weight·I), Kalman noise intensities (process: on the disturbance inputs w, N²;
+    measurement: per sensor, m²), the boundary layers (SISO ε_j of Eq. 30 in m/s — optimised
+    by ``smartjoint design`` when absent; cLQG in N), the piezo calibration used for the
+    control power (F_N = force_per_volt·V + preload, capacitance per stack) and the study
+    length t_e of Eq. 32."""
+
+    joints: tuple[str, ...] | None = None  # controlled joints; None: all
+    sample_time: float = 1e-3
+    normal_force_min: tuple[float, ...] | float = 40.0
+    normal_force_max: tuple[float, ...] | float = 400.0
+    considered_modes: int = 100
+    modes: int = 9
+    krylov: int = 1
+    state_weight: float = 1.0
+    control_weight: float = 1e-6
+    process_noise: float = 1e4
+    measurement_noise: float = 1e-10
+    siso_boundary_layer: tuple[float, ...] | float | None = None
+    clqg_boundary_layer: float = 5.0
+    piezo_capacitance: float = 1.8e-6
+    piezo_force_per_volt: float = 8.0
+    piezo_preload: float = 0.0
+    study_duration: float = 1.0
+
+
+@dataclass(frozen=True)
 class Design:
     name: str
     description: str
@@ -186,6 +219,7 @@ class Design:
     disturbances: tuple[Disturbance, ...]
     modal_damping: float
     updating: Updating | None
+    control: Control = field(default_factory=Control)
     source: str = "<memory>"
     sha256: str = ""
     truss: dict[str, Any] = field(default_factory=dict)
@@ -534,10 +568,75 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
     if "updating" in root.data:
         updating = _parse_updating(root.table("updating"), materials, connectors)
 
+    control = _parse_control(root.table("control", {}), joints)
+
     root.finish()
     return Design(name, description, materials, sections, connectors, node_types, nodes, members,
                   tuple(point_masses), tuple(supports), tuple(joints), tuple(sensors),
-                  tuple(disturbances), modal_damping, updating, source=source, truss=truss_settings)
+                  tuple(disturbances), modal_damping, updating, control, source=source, truss=truss_settings)
+
+
+def _per_joint(t: _Table, name: str, default, count: int, **checks):
+    """A number for every joint, or a list with one number per controlled joint."""
+    value = t.data.get(name, default)
+    if isinstance(value, list):
+        values = t.vector(name, count)
+        for i, v in enumerate(values):
+            if checks.get("positive") and v <= 0:
+                raise t.error(name, value, f"entry {i} must be > 0")
+            if v < 0:
+                raise t.error(name, value, f"entry {i} must be >= 0")
+        return values
+    if value is None:
+        t.get(name, None)
+        return None
+    return t.number(name, default, **checks)
+
+
+def _parse_control(t: _Table, joints) -> Control:
+    names = [j.name for j in joints]
+    controlled = None
+    if "joints" in t.data:
+        value = t.get("joints")
+        if not (isinstance(value, list) and value and all(isinstance(v, str) for v in value)):
+            raise t.error("joints", value, "expected a non-empty list of joint names")
+        for v in value:
+            if v not in names:
+                raise t.error("joints", v, "a joint of [[joints]]: " + (", ".join(names) or "(the design has none)"))
+        if len(set(value)) != len(value):
+            raise t.error("joints", value, "each joint once")
+        controlled = tuple(value)
+    count = len(controlled) if controlled is not None else len(joints)
+    d = Control()
+    control = Control(
+        joints=controlled,
+        sample_time=t.number("sample_time", d.sample_time, positive=True),
+        normal_force_min=_per_joint(t, "normal_force_min", d.normal_force_min, count, non_negative=True),
+        normal_force_max=_per_joint(t, "normal_force_max", d.normal_force_max, count, positive=True),
+        considered_modes=t.integer("considered_modes", d.considered_modes),
+        modes=t.integer("modes", d.modes),
+        krylov=t.integer("krylov", d.krylov, minimum=0),
+        state_weight=t.number("state_weight", d.state_weight, positive=True),
+        control_weight=t.number("control_weight", d.control_weight, positive=True),
+        process_noise=t.number("process_noise", d.process_noise, positive=True),
+        measurement_noise=t.number("measurement_noise", d.measurement_noise, positive=True),
+        siso_boundary_layer=_per_joint(t, "siso_boundary_layer", None, count, positive=True),
+        clqg_boundary_layer=t.number("clqg_boundary_layer", d.clqg_boundary_layer, positive=True),
+        piezo_capacitance=t.number("piezo_capacitance", d.piezo_capacitance, positive=True),
+        piezo_force_per_volt=t.number("piezo_force_per_volt", d.piezo_force_per_volt, positive=True),
+        piezo_preload=t.number("piezo_preload", d.piezo_preload, non_negative=True),
+        study_duration=t.number("study_duration", d.study_duration, positive=True),
+    )
+    low = np.broadcast_to(np.asarray(control.normal_force_min, dtype=float), (count,))
+    high = np.broadcast_to(np.asarray(control.normal_force_max, dtype=float), (count,))
+    for i in range(count):
+        if low[i] > high[i]:
+            raise t.error("normal_force_min", control.normal_force_min,
+                          f"F_N^min must not exceed F_N^max ({high[i]:g} N){f' (joint {i})' if count > 1 else ''}")
+    if control.modes > control.considered_modes:
+        raise t.error("modes", control.modes, f"must be <= considered_modes ({control.considered_modes})")
+    t.finish()
+    return control
 
 
 def _unique(names: list[str], table: str, source: str) -> None:
