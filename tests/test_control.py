@@ -1,0 +1,132 @@
+"""Semi-active controllers (paper Section 5): Eq. 30–31 and Eq. 33–34 reference laws, LQG design."""
+
+from __future__ import annotations
+
+import control as ct
+import numpy as np
+import pytest
+import scipy.linalg
+
+from smartjoint.design import control, lugre, modal, simulate
+from smartjoint.design.errors import DesignError, ModelError
+from smartjoint.design.fem import build_model
+from smartjoint.design.spec import parse_design
+
+
+@pytest.fixture(scope="module")
+def model():
+    from conftest import small_truss
+
+    fe = build_model(parse_design(small_truss()), joints="released")
+    return modal.modal_model(fe, modal.solve_modes(fe, 8))
+
+
+def _measure(t, v, u, fn, y=(0.0,)):
+    return simulate.Measurements(t, np.array(y, float), np.array(v, float), np.array(u, float), np.array(fn, float))
+
+
+def test_siso_law_follows_eq_30_with_mu_of_the_previous_sample():
+    law = control.SisoLaw(1e-3, [10.0, 10.0], [110.0, 110.0], [1e-3, 1e-3])
+    law.reset()
+    # First sample: no previous μ → F_N^min.
+    assert np.allclose(law.step(_measure(0.0, [0.1, 0.1], [30.0, -30.0], [100.0, 100.0])), [10.0, 10.0])
+    # μ = u_R/F_N of the previous sample = ±0.3; μ·v = 0.3·0.1 ≥ ε → F^max; −0.3·0.1 ≤ 0 → F^min.
+    out = law.step(_measure(1e-3, [0.1, 0.1], [5.0, 5.0], [50.0, 50.0]))
+    assert np.allclose(out, [110.0, 10.0])
+    # Now μ = 5/50 = 0.1; v = 5e-3 → μv = 5e-4 = ε/2: half way (continuous boundary layer).
+    out = law.step(_measure(2e-3, [5e-3, -5e-3], [0.0, 0.0], [1.0, 1.0]))
+    assert np.allclose(out, [60.0, 10.0])
+    law.reset()
+    assert np.allclose(law.step(_measure(0.0, [1.0, 1.0], [30.0, 30.0], [100.0, 100.0])), [10.0, 10.0])
+
+
+def test_clipped_law_reads_eq_34_with_a_force_boundary_layer(model):
+    design = control.design_lqg(model, 1e-3)
+    law = control.ClippedLqg(design, np.full(2, 20.0), np.full(2, 220.0), 10.0)
+    law.reset()
+    m = _measure(0.0, [0.0, 0.0], [50.0, -50.0], [100.0, 100.0], y=np.zeros(model.velocity_output.shape[0]))
+    out = law.step(m)
+    e = law.desired_force - np.array([50.0, -50.0])
+    expected = 20.0 + 200.0 * np.clip(e * np.sign([50.0, -50.0]) / 10.0, 0, 1)
+    assert np.allclose(out, expected)
+    assert np.all((out >= 20.0) & (out <= 220.0))
+
+
+def test_lqg_gains_equal_python_control_and_the_loop_is_stable(model):
+    """K from dlqr on the exactly discretised model; the current-form Kalman gain M is consistent
+    with dlqe's predictor gain (L = Φ·M) and P solves the filter Riccati equation."""
+    d = control.design_lqg(model, 1e-3, 1.0, 1e-6, 1e4, 1e-10)
+    a = d.state_matrix
+    g0, g1 = d.input_matrices()
+    b = -(g0 + g1)
+    k, _, _ = ct.dlqr(a, b, np.eye(a.shape[0]), 1e-6 * np.eye(b.shape[1]))
+    assert np.max(np.abs(d.feedback_gain - k)) < 1e-9 * np.abs(k).max()  # measured 4e-11
+    h = model.disturbance_input
+    gz = d.gamma0 + d.gamma1
+    g = (gz[:, :, None] * h[:, None, :]).reshape(a.shape[0], -1)
+    c = d.output
+    qn, rn = 1e4 * np.eye(g.shape[1]), 1e-10 * np.eye(c.shape[0])
+    l_pred, p, _ = ct.dlqe(a, g, c, qn, rn)
+    assert np.allclose(a @ d.estimator_gain, l_pred, rtol=1e-7, atol=1e-9 * np.abs(l_pred).max())
+    p_ref = scipy.linalg.solve_discrete_are(a.T, c.T, g @ qn @ g.T, rn)
+    assert np.allclose(d.riccati_estimator, p_ref, rtol=1e-6, atol=1e-9 * np.abs(p_ref).max())
+    poles = d.closed_loop_poles()
+    assert np.max(np.abs(poles)) < 1.0
+    # The sensors see the tip; the state estimate converges on the linear model without noise.
+    assert np.max(np.abs(np.linalg.eigvals(a - a @ d.estimator_gain @ c))) < 1.0
+
+
+def test_active_lqg_damps_the_linear_model_far_more_than_structural_damping(model):
+    d = control.design_lqg(model, 1e-3)
+    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    active = control.simulate_active(model, control.ActiveLqg(d), pulse, 0.5, excitation_end=0.04)
+    free = control.simulate_active(model, control.ActiveLqg(d), pulse, 0.5, excitation_end=10.0)  # never acts
+    assert np.allclose(free.force, 0.0)
+    assert active.energy[-1] < 1e-2 * free.energy[-1]  # measured 1.9e-3
+
+
+def test_study_runs_are_deterministic(model):
+    d = control.design_lqg(model, 1e-3)
+    laws = [lugre.TYPE_A, lugre.TYPE_B]
+    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    runs = [simulate.simulate(model, laws, control.HoldDuringExcitation(
+        control.ClippedLqg(d, np.full(2, 20.0), np.full(2, 300.0), 5.0), 0.04, np.full(2, 300.0)), pulse, 0.1, 1e-4)
+        for _ in range(2)]
+    assert np.array_equal(runs[0].friction_force, runs[1].friction_force)
+    assert np.array_equal(runs[0].normal_force, runs[1].normal_force)
+    assert np.all(runs[0].normal_force[runs[0].time < 0.04 - 1e-9] == 300.0)
+
+
+def test_bad_controller_inputs_are_named(model):
+    with pytest.raises(ModelError, match="F_N\\^min > 0"):
+        control.SisoLaw(1e-3, [0.0, 0.0], [100.0, 100.0], [1e-3, 1e-3])
+    with pytest.raises(ModelError, match="F_N\\^min <= F_N\\^max"):
+        control.SisoLaw(1e-3, [200.0, 10.0], [100.0, 100.0], [1e-3, 1e-3])
+    with pytest.raises(ModelError, match="too coarse.*Nyquist"):
+        control.design_lqg(model, 1.0 / model.omega.max() * 2 * np.pi)
+    with pytest.raises(ModelError, match="control_weight"):
+        control.design_lqg(model, 1e-3, control_weight=-1.0)
+    blind = modal.ModalModel(**{**model.__dict__, "displacement_output": np.zeros_like(model.displacement_output),
+                                "velocity_output": np.zeros_like(model.velocity_output)}) \
+        if hasattr(model, "__dict__") else None
+    if blind is not None:
+        with pytest.raises(ModelError, match="not detectable"):
+            control.design_lqg(blind, 1e-3)
+
+
+def test_design_file_control_table_errors_name_the_key():
+    from conftest import small_truss
+
+    data = small_truss()
+    data["control"] = {"normal_force_min": 500.0, "normal_force_max": 400.0}
+    with pytest.raises(DesignError, match="control.normal_force_min"):
+        parse_design(data)
+    data["control"] = {"joints": ["NOPE"]}
+    with pytest.raises(DesignError, match="control.joints"):
+        parse_design(data)
+    data["control"] = {"sample_time": -1.0}
+    with pytest.raises(DesignError, match="control.sample_time"):
+        parse_design(data)
+    data["control"] = {"normal_force_max": [100.0]}
+    with pytest.raises(DesignError, match="control.normal_force_max"):
+        parse_design(data)
