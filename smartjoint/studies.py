@@ -47,14 +47,14 @@ def reduction_study(design, normal_forces: np.ndarray, considered: int = 100, ke
     considered = min(considered, fe.n_dof)
     keep = min(keep, considered)
     progress(f"      full model: {full.n_states} states, {duration:g} s at {step:g} s")
-    reference = simulate.simulate(full, laws, controller, pulse, duration, step)
+    reference = simulate.simulate(full, laws, controller, pulse, duration, step, energy_books=False)
     active = int(np.argmax(normal_forces))
     ref_u = reference.friction_force[:, active]
     band = float(first.omega[-1])
     runs = []
     for count in krylov:
         reduced = reduction.reduce(fe, first, keep, count, krylov_joints=krylov_joints)
-        result = simulate.simulate(reduced.model, laws, controller, pulse, duration, step)
+        result = simulate.simulate(reduced.model, laws, controller, pulse, duration, step, energy_books=False)
         diff = result.friction_force[:, active] - ref_u
         errors = {f"{w:g}": float(np.sqrt(np.mean(diff[reference.time <= w] ** 2))
                                  / np.sqrt(np.mean(ref_u[reference.time <= w] ** 2))) for w in WINDOWS if w <= duration}
