@@ -52,8 +52,11 @@ def eigensolve(stiffness: sp.spmatrix, mass: sp.spmatrix, n_modes: int) -> tuple
                 values, vectors = scipy.linalg.eigh(stiffness.toarray(), mass.toarray(),
                                                     subset_by_index=[0, n_modes - 1])
         else:
+            # A fixed start vector: ARPACK's default is random, which changes the last bits of
+            # every result from run to run (artefacts and firmware must be byte-identical).
+            start = np.random.default_rng(0).standard_normal(n_dof)
             values, vectors = spla.eigsh(sp.csc_matrix(stiffness), k=n_modes, M=sp.csc_matrix(mass),
-                                         sigma=SHIFT, which="LM", mode="normal")
+                                         sigma=SHIFT, which="LM", mode="normal", v0=start)
     except (np.linalg.LinAlgError, RuntimeError) as error:
         raise ModelError(f"eigen solution failed ({error}); a DOF without mass (a massless node with a "
                          "released joint?) or a singular stiffness matrix") from None

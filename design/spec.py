@@ -185,7 +185,7 @@ class Control:
 
     joints: tuple[str, ...] | None = None  # controlled joints; None: all
     sample_time: float = 1e-3
-    normal_force_min: tuple[float, ...] | float = 40.0
+    normal_force_min: tuple[float, ...] | float = 10.0
     normal_force_max: tuple[float, ...] | float = 400.0
     considered_modes: int = 100
     modes: int = 9
@@ -195,11 +195,11 @@ class Control:
     process_noise: float = 1e4
     measurement_noise: float = 1e-10
     siso_boundary_layer: tuple[float, ...] | float | None = None
-    clqg_boundary_layer: float = 5.0
+    clqg_boundary_layer: float = 100.0
     piezo_capacitance: float = 1.8e-6
     piezo_force_per_volt: float = 8.0
     piezo_preload: float = 0.0
-    study_duration: float = 1.0
+    study_duration: float = 4.0
 
 
 @dataclass(frozen=True)

@@ -241,6 +241,70 @@ def cmd_simulate(args) -> dict:
     return out
 
 
+def _control_design(args):
+    """The (updated) design the controllers are built for: the given one, or for the bundled
+    reference truss (no joints) the paper's three type A joint design of Fig. 11."""
+    from .design import load_design, spec
+
+    if args.design is None:
+        args.design = str(spec.REFERENCE_DESIGN.parent / "three_type_a.toml")
+    design, _ = _updated(args)
+    if args.duration is not None:
+        import dataclasses
+
+        if not (args.duration > 0):
+            from .design.errors import ModelError
+            raise ModelError(f"--duration: {args.duration!r} — must be > 0 [s]")
+        design = dataclasses.replace(design, control=dataclasses.replace(design.control, study_duration=args.duration))
+    return design
+
+
+def cmd_study(args) -> dict:
+    from .control_study import control_markdown, plot_control_study
+    from .design import study as closed_loop
+
+    design = _control_design(args)
+    _progress(f"closed-loop study (Section 6) on {design.name!r}, t_e = {design.control.study_duration:g} s …")
+    study = closed_loop.run_study(design, progress=_progress)
+    out = closed_loop.summary(study)
+    out["design"] = {"name": design.name, "source": design.source, "sha256": design.sha256}
+    _plots(args, out, lambda folder: plot_control_study(study, folder))
+    if not args.json:
+        print(control_markdown(study))
+    return out
+
+
+def cmd_design(args) -> dict:
+    from .design import artifact
+    from .design import study as closed_loop
+
+    design = _control_design(args)
+    model = closed_loop.design_model(design, _progress)
+    s = closed_loop.setup(design, model)
+    lqg = closed_loop.lqg_for(design, model)
+    width = design.control.siso_boundary_layer
+    optimum = None
+    if width is None:
+        _progress("SISO boundary layer ε: optimising E(t_e) of Eq. 32 …")
+        optimum = closed_loop.optimise_boundary_layer(s, lambda m: _progress(m))
+        width = optimum.boundary_layer
+    result = artifact.from_design(design, model, lqg, width)
+    artifact.save(result, Path(args.output))
+    poles = lqg.closed_loop_poles()
+    out = {"artifact": args.output, "artifact_sha256": result.artifact_sha256, "design_sha256": design.sha256,
+           "states": model.n_states, "joints": list(result.joint_names), "sensors": list(result.sensor_names),
+           "sample_time": result.sample_time, "siso_boundary_layer": result.siso_boundary_layer.tolist(),
+           "clqg_boundary_layer": result.clqg_boundary_layer,
+           "lqg_max_pole_magnitude": float(abs(poles).max()), "lqg_stability_margin": float(1 - abs(poles).max()),
+           "boundary_layer_optimisation": None if optimum is None else {
+               "optimum": optimum.boundary_layer, "energy_measure": optimum.energy_measure,
+               "energy_measure_tenth": optimum.tenth, "energy_measure_tenfold": optimum.tenfold}}
+    if not args.json:
+        for key, value in out.items():
+            print(f"{key}: {value}")
+    return out
+
+
 def _write_atomic(path: Path, text: str) -> None:
     """Write through a temporary file so that a failure never leaves half a file behind."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -327,6 +391,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("design", help="design the controllers (Section 5) and write the artefact codegen consumes")
+    _add_design(p)
+    p.add_argument("-o", "--output", default="controller.json", help="artefact file (default: %(default)s)")
+    p.add_argument("--duration", type=float, help="t_e of Eq. 32 for the ε optimisation [s] (default: design file)")
+    p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser("study", help="the paper's closed-loop study (Section 6): passive, SISO, cLQG, active LQG")
+    _add_design(p)
+    p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
+    p.add_argument("--plots", help="folder for control_energy.png, control_tip.png, … (PNG)")
+    p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.set_defaults(func=cmd_study)
     return parser
 
 

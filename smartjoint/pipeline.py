@@ -4,7 +4,9 @@ Stages so far: load the design → build the FE model (joints locked, the conven
 of the modal survey) → update it to the measured eigenfrequencies → eigen solution of the
 updated model, also with the joints released (the frictionless linear subsystem of Eq. 12)
 → friction joint: isolated-rig records (Table 1 type B, 1 % noise) and the two-step LuGre
-identification of Eq. 3 with hysteresis loops like Fig. 5 → report (Markdown + PNG). Each later stage of the design card joins here.
+identification of Eq. 3 with hysteresis loops like Fig. 5 → model reduction (Section 4, Fig. 10)
+→ semi-active control: the controller design artefact and the closed-loop study of Section 6
+(Figs. 12–14) → report (Markdown + PNG). Each later stage of the design card joins here.
 
 The report folder is written to a temporary sibling and renamed into place at the end, so a
 failed run never leaves half a report behind.
@@ -22,12 +24,15 @@ import numpy as np
 
 from . import __version__
 from . import report as plots
-from .design import build_model, load_design, lugre, rig, solve_modes, updated_design
+from .control_study import control_markdown, plot_control_study
+from .design import artifact, build_model, load_design, lugre, rig, solve_modes, updated_design
+from .design import study as closed_loop
 from .design.identify import classify, identify
 from .design.spec import REFERENCE_DESIGN
 from .studies import plot_study, reduction_study, study_markdown, study_summary
 
 FIG10_DESIGN = REFERENCE_DESIGN.parent / "fig10_three_joints.toml"
+CONTROL_DESIGN = REFERENCE_DESIGN.parent / "three_type_a.toml"  # Fig. 11: three type A joints
 
 REPORT_MODES = 30
 
@@ -36,27 +41,27 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
     started = time.perf_counter()
     output = Path(output)
     design = load_design(design_path)
-    progress(f"[1/6] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
+    progress(f"[1/7] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
              f"{len(design.members)} members, {len(design.joints)} joints")
     model = build_model(design, joints="locked")
-    progress(f"[2/6] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, "
+    progress(f"[2/7] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, "
              f"mass {model.total_mass:.2f} kg")
 
     result = None
     if design.updating is not None:
-        progress(f"[3/6] model updating: {len(design.updating.parameters)} parameters, "
+        progress(f"[3/7] model updating: {len(design.updating.parameters)} parameters, "
                  f"{len(design.updating.measured)} measured modes")
         design, result = updated_design(design, lambda k, n, err: progress(f"      start {k}/{n}: worst error {err:.2f} %"))
         model = build_model(design, joints="locked")
     else:
-        progress("[3/6] model updating: skipped (no [updating] section)")
+        progress("[3/7] model updating: skipped (no [updating] section)")
     modes = solve_modes(model, min(REPORT_MODES, model.n_dof))
     released = None
     if design.joints:
         released_model = build_model(design, joints="released")
         released = solve_modes(released_model, min(REPORT_MODES, released_model.n_dof))
 
-    progress("[4/6] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3)")
+    progress("[4/7] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3)")
     records = [rig.simulate(test) for test in rig.campaign("B", noise=0.01, cycles=8)]
     micro = [r for r in records if classify(r) == "micro-slip"]
     stick = [r for r in records if classify(r) == "stick-slip"]
@@ -67,7 +72,7 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
     example = design if design.joints else load_design(FIG10_DESIGN)
     if result is not None and not design.joints:
         example = example.with_parameters(result.parameters)
-    progress(f"[5/6] model reduction (Section 4, Fig. 10) on {example.name!r}: joints "
+    progress(f"[5/7] model reduction (Section 4, Fig. 10) on {example.name!r}: joints "
              f"{', '.join(j.name + ' (' + j.type + ')' for j in example.joints)}")
     forces = np.array([400.0 if j.type == "B" else 0.0 for j in example.joints])
     if not forces.any():
@@ -75,7 +80,17 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
     study = reduction_study(example, forces, krylov_joints=[int(np.argmax(forces))],
                             progress=lambda message: progress(message))
 
-    progress("[6/6] report")
+    # Control (Sections 5–6): on the design's joints, or for the reference truss on Fig. 11's.
+    controlled = design if design.joints else load_design(CONTROL_DESIGN)
+    if result is not None and not design.joints:
+        controlled = controlled.with_parameters(result.parameters)
+    progress(f"[6/7] semi-active control (Sections 5–6) on {controlled.name!r}: joints "
+             f"{', '.join(j.name for j in controlled.joints)}, t_e = {controlled.control.study_duration:g} s")
+    control_study = closed_loop.run_study(controlled, progress=lambda message: progress(message))
+    controller = artifact.from_design(controlled, control_study.setup.model, control_study.lqg,
+                                      control_study.boundary_layer)
+
+    progress("[7/7] report")
     output.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{output.name}-", dir=output.parent))
     try:
@@ -86,6 +101,8 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
             plots.plot_updating(result, staging / "updating.png")
         hysteresis = [p.name for p in plots.plot_hysteresis(identification, staging)]
         plot_study(study, staging)
+        plot_control_study(control_study, staging)
+        artifact.save(controller, staging / "controller.json")
         summary = {
             "smartjoint_version": __version__,
             "design": {"name": design.name, "source": design.source, "sha256": design.sha256},
@@ -95,12 +112,14 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
             "modes_released_hz": [float(f) for f in released.frequencies_hz] if released is not None else None,
             "friction_identification": identification.as_dict(),
             "reduction": study_summary(study),
+            "control": {**closed_loop.summary(control_study), "design": controlled.name,
+                        "artifact": "controller.json", "artifact_sha256": controller.artifact_sha256},
             "seconds": time.perf_counter() - started,
         }
         (staging / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
         (staging / "report.md").write_text(_markdown(design, model, modes, released, result, summary)
                                            + _friction_markdown(identification, hysteresis) + "\n"
-                                           + study_markdown(study))
+                                           + study_markdown(study) + "\n" + _control_section(control_study, controller))
         if output.exists():
             shutil.rmtree(output)
         staging.replace(output)
@@ -157,3 +176,12 @@ def _friction_markdown(identification, hysteresis: list[str]) -> str:
               + " — as the paper found for σ1 and σ2.", ""]
     lines += [f"![{name}]({name})" for name in hysteresis]
     return "\n".join(lines) + "\n"
+
+
+def _control_section(study, controller) -> str:
+    return (control_markdown(study) + "\n![energy](control_energy.png)\n\n![tip](control_tip.png)\n\n"
+            + ("![ε optimisation](siso_boundary_layer.png)\n\n" if study.optimum is not None else "")
+            + "![normal forces](control_normal_force.png)\n\n"
+            f"Controller design artefact: `controller.json` (schema {controller.schema_version}, "
+            f"sha256 `{controller.artifact_sha256[:16]}…`, docs/controller-artifact.md) — the input of the "
+            "firmware generator.\n")

@@ -1,0 +1,431 @@
+"""The controller design artefact: one JSON file with everything the firmware generator needs.
+
+The artefact freezes a controller design — limits, boundary layers, the discrete LQG of
+``control.design_lqg`` and the piezo calibration — together with where it came from (design
+file, its SHA-256, package version). The C generator reads only this file, and
+``siso_law``/``clipped_lqg``/``active_lqg`` rebuild the Python reference controllers from it
+alone, so firmware and reference are checked against the same numbers.
+
+Schema (``schema_version`` 1, documented in ``docs/controller-artifact.md``): a flat JSON
+object whose keys are the fields of :data:`SCHEMA`, SI units. Sizes: l controlled joints
+(``joint_names``: the column order of E and K and the order of every per-joint vector),
+n_y sensors (``sensor_names``: the rows of C), n retained coordinates, state
+x = [η̇_1, ω_1η_1, η̇_2, ω_2η_2, …] (2n, mode-interleaved). Arrays are nested lists, row-major.
+
+The text is canonical (``dumps``): sorted keys, two-space indent, innermost arrays on one
+line, floats written with ``repr`` (float64 round-trips exactly), ASCII, newline at the end,
+and nothing that depends on the time of writing — the same inputs give the same bytes and
+``artifact_sha256`` is the SHA-256 of those bytes (= ``sha256sum`` of a saved file).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import json
+import math
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .control import ActiveLqg, ClippedLqg, LqgDesign, SisoLaw
+from .errors import ModelError
+
+SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """One key of the artefact: its kind, shape (symbols n, 2n, l, n_y), unit and meaning."""
+
+    name: str
+    kind: str  # "integer" | "string" | "names" | "number" | "array"
+    shape: tuple = ()
+    unit: str = ""
+    meaning: str = ""
+
+
+SCHEMA: tuple[FieldSpec, ...] = (
+    FieldSpec("schema_version", "integer", meaning="format version of this file (1)"),
+    FieldSpec("name", "string", meaning="design name"),
+    FieldSpec("sample_time", "number", unit="s", meaning="controller sample time Δt (> 0)"),
+    FieldSpec("joint_names", "names", ("l",), meaning="controlled joints: order of E/K columns and per-joint vectors"),
+    FieldSpec("sensor_names", "names", ("ny",), meaning="sensors: order of the rows of C and of y"),
+    FieldSpec("normal_force_min", "array", ("l",), "N", "F_N^min per joint, Eq. 30/34 (> 0)"),
+    FieldSpec("normal_force_max", "array", ("l",), "N", "F_N^max per joint, Eq. 30/34 (>= F_N^min)"),
+    FieldSpec("siso_boundary_layer", "array", ("l",), "m/s", "ε_j of the SISO law, Eq. 30 (> 0)"),
+    FieldSpec("clqg_boundary_layer", "number", unit="N", meaning="ε of the clipped LQG, Eq. 34 (> 0)"),
+    FieldSpec("blocks", "array", ("n", 2, 2), meaning="Φ_i: 2×2 diagonal blocks of the discrete state matrix"),
+    FieldSpec("gamma0", "array", ("n", 2), meaning="γ0_i: first-order-hold input weight of u_k"),
+    FieldSpec("gamma1", "array", ("n", 2), meaning="γ1_i: first-order-hold input weight of u_k+1"),
+    FieldSpec("joint_input", "array", ("n", "l"), meaning="E: modal joint input, friction acts as −E·u_R"),
+    FieldSpec("output", "array", ("ny", "2n"), meaning="C: y = C·x, Eq. 10"),
+    FieldSpec("feedback_gain", "array", ("l", "2n"), meaning="K: LQR gain, u_d = −K·x̂, Eq. 33"),
+    FieldSpec("estimator_gain", "array", ("2n", "ny"), meaning="M: current-form Kalman gain, Eq. 33"),
+    FieldSpec("modal_frequencies", "array", ("n",), "Hz", "ω_i/2π of the retained coordinates (information)"),
+    FieldSpec("piezo_capacitance", "number", unit="F", meaning="capacitance of one piezo stack"),
+    FieldSpec("piezo_force_per_volt", "number", unit="N/V", meaning="F_N = force_per_volt·V + preload"),
+    FieldSpec("piezo_preload", "number", unit="N", meaning="normal force at 0 V (>= 0)"),
+    FieldSpec("design_source", "string", meaning="file name of the design (no folder: the text must not depend on where it lies)"),
+    FieldSpec("design_sha256", "string", meaning="SHA-256 of the design file bytes (\"\" for in-memory designs)"),
+    FieldSpec("package_version", "string", meaning="smartjoint version that wrote the artefact"),
+)
+FIELDS = {spec.name: spec for spec in SCHEMA}
+_HEX64 = re.compile(r"[0-9a-f]{64}")
+
+
+def _shown(value) -> str:
+    text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _error(field: str, value, allowed: str) -> ModelError:
+    return ModelError(f"{field}: {_shown(value)} — {allowed}")
+
+
+def installed_version() -> str:
+    """The installed smartjoint version, "unknown" when running from an uninstalled tree."""
+    try:
+        return importlib.metadata.version("smartjoint")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+@dataclass(frozen=True, eq=False)
+class ControllerArtifact:
+    """A validated controller design (fields: see :data:`SCHEMA`). Arrays are read-only float64;
+    ``==`` compares them exactly. Built by :func:`from_design` or :func:`loads`."""
+
+    schema_version: int
+    name: str
+    sample_time: float
+    joint_names: tuple[str, ...]
+    sensor_names: tuple[str, ...]
+    normal_force_min: np.ndarray
+    normal_force_max: np.ndarray
+    siso_boundary_layer: np.ndarray
+    clqg_boundary_layer: float
+    blocks: np.ndarray
+    gamma0: np.ndarray
+    gamma1: np.ndarray
+    joint_input: np.ndarray
+    output: np.ndarray
+    feedback_gain: np.ndarray
+    estimator_gain: np.ndarray
+    modal_frequencies: np.ndarray
+    piezo_capacitance: float
+    piezo_force_per_volt: float
+    piezo_preload: float
+    design_source: str
+    design_sha256: str
+    package_version: str
+
+    def __post_init__(self):
+        for field, value in _validated(self.__dict__).items():
+            object.__setattr__(self, field, value)
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, ControllerArtifact):
+            return NotImplemented
+        for spec in SCHEMA:
+            a, b = getattr(self, spec.name), getattr(other, spec.name)
+            if not (np.array_equal(a, b) if spec.kind == "array" else a == b):
+                return False
+        return True
+
+    __hash__ = None  # arrays: equal artefacts need not share a hash
+
+    @property
+    def artifact_sha256(self) -> str:
+        """SHA-256 of the canonical text ``dumps(self)``: the identity of this exact design."""
+        return hashlib.sha256(dumps(self).encode("ascii")).hexdigest()
+
+
+# --------------------------------------------------------------------------- validation
+def _validated(values: dict) -> dict:
+    """Check every field (kind, shape, finiteness, limits); return them in stored form."""
+    out = {"schema_version": _version(values["schema_version"])}
+    for spec in SCHEMA:
+        value = values[spec.name]
+        if spec.kind == "string":
+            if not isinstance(value, str):
+                raise _error(spec.name, value, "expected a string")
+            out[spec.name] = value
+        elif spec.kind == "number":
+            out[spec.name] = _number(spec.name, value)
+        elif spec.kind == "names":
+            out[spec.name] = _names(spec.name, value)
+        elif spec.kind == "array":
+            out[spec.name] = _array(spec.name, value)
+    for field in ("name", "package_version"):
+        if not out[field]:
+            raise _error(field, out[field], "expected a non-empty string")
+    if out["design_sha256"] and not _HEX64.fullmatch(out["design_sha256"]):
+        raise _error("design_sha256", out["design_sha256"], "expected 64 lowercase hex digits or \"\"")
+    for field in ("sample_time", "clqg_boundary_layer", "piezo_capacitance", "piezo_force_per_volt"):
+        if out[field] <= 0:
+            raise _error(field, out[field], f"must be > 0 [{FIELDS[field].unit}]")
+    if out["piezo_preload"] < 0:
+        raise _error("piezo_preload", out["piezo_preload"], "must be >= 0 [N]")
+
+    blocks = out["blocks"]
+    if blocks.ndim != 3 or blocks.shape[0] < 1 or blocks.shape[1:] != (2, 2):
+        raise ModelError(f"blocks: shape {blocks.shape} — expected (n, 2, 2) with n >= 1 retained coordinates")
+    n, l, ny = blocks.shape[0], len(out["joint_names"]), len(out["sensor_names"])
+    sizes = {"n": n, "2n": 2 * n, "l": l, "ny": ny}
+    for spec in SCHEMA:
+        if spec.kind == "array":
+            expected = tuple(sizes.get(s, s) for s in spec.shape)
+            if out[spec.name].shape != expected:
+                symbols = ", ".join(str(s) for s in spec.shape) + ("," if len(spec.shape) == 1 else "")
+                raise ModelError(f"{spec.name}: shape {out[spec.name].shape} — expected {expected} = ({symbols}) "
+                                 f"with n = {n} coordinates, l = {l} joints, n_y = {ny} sensors")
+
+    low, high = out["normal_force_min"], out["normal_force_max"]
+    for j, joint in enumerate(out["joint_names"]):
+        if not 0 < low[j] <= high[j]:
+            raise ModelError(f"normal_force_min/normal_force_max: {float(low[j])!r}/{float(high[j])!r} N for joint "
+                             f"{joint!r} — need 0 < F_N^min <= F_N^max")
+        if out["siso_boundary_layer"][j] <= 0:
+            raise ModelError(f"siso_boundary_layer: {float(out['siso_boundary_layer'][j])!r} for joint {joint!r} "
+                             "— ε must be > 0 [m/s] (Eq. 30)")
+    if np.any(out["modal_frequencies"] <= 0):
+        raise _error("modal_frequencies", out["modal_frequencies"], "must be > 0 [Hz]")
+    return out
+
+
+def _version(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value != SCHEMA_VERSION:
+        raise _error("schema_version", value, f"unknown; this version reads schema_version {SCHEMA_VERSION}")
+    return value
+
+
+def _number(field: str, value) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise _error(field, value, "expected a number")
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
+    if not math.isfinite(number):
+        raise _error(field, value, "expected a finite number")
+    return number
+
+
+def _names(field: str, value) -> tuple[str, ...]:
+    if not isinstance(value, (list, tuple)) or not value:
+        raise _error(field, value, "expected a non-empty list of names")
+    for i, name in enumerate(value):
+        if not isinstance(name, str) or not name:
+            raise _error(f"{field}[{i}]", name, "expected a non-empty string")
+        if value.index(name) != i:
+            raise _error(f"{field}[{i}]", name, f"duplicate name (also {field}[{value.index(name)}])")
+    return tuple(value)
+
+
+def _array(field: str, value) -> np.ndarray:
+    """A finite float64 array from an ndarray or nested lists of numbers; read-only."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "fiu":
+            raise _error(field, value, "expected numbers")
+    else:
+        def check(item):
+            if isinstance(item, list):
+                for element in item:
+                    check(element)
+            elif isinstance(item, bool) or not isinstance(item, (int, float)):
+                raise _error(field, item, "expected a (nested) list of numbers")
+        if isinstance(value, tuple):
+            value = list(value)
+        check(value)
+    try:
+        array = np.array(value, dtype=np.float64, order="C")
+    except OverflowError:
+        raise _error(field, value, "every entry must be a finite number") from None
+    except ValueError:
+        raise _error(field, value, "expected a rectangular (nested) list of numbers") from None
+    if not np.all(np.isfinite(array)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(array))[0])
+        raise ModelError(f"{field}: {float(array[bad])!r} at index {bad} — every entry must be a finite number")
+    array.setflags(write=False)
+    return array
+
+
+# --------------------------------------------------------------------------- building
+def _per_joint(field: str, value, joints: tuple[str, ...]) -> np.ndarray:
+    """A number for every joint or one per joint (broadcast)."""
+    array = np.array(value, dtype=float)
+    if array.ndim == 0:
+        return np.full(len(joints), float(array))
+    if array.shape != (len(joints),):
+        raise _error(field, value, f"expected a number or {len(joints)} numbers, one per joint ({', '.join(joints)})")
+    return array
+
+
+def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> ControllerArtifact:
+    """The artefact of ``design`` with the LQG ``lqg`` designed on the reduced modal ``model``.
+
+    Controlled joints: ``design.control.joints`` in that order, else every joint of the design;
+    the model's joint/sensor order must be that order. ``siso_boundary_layer`` (ε of Eq. 30,
+    m/s, a number or one per joint) defaults to ``design.control.siso_boundary_layer``.
+    """
+    control = design.control
+    joints = tuple(control.joints) if control.joints is not None else tuple(j.name for j in design.joints)
+    sensors = tuple(s.name for s in design.sensors)
+    n = lqg.blocks.shape[0]
+    if lqg.joint_input.shape[1:] != (len(joints),):
+        raise ModelError(f"lqg.joint_input: shape {lqg.joint_input.shape} — expected {len(joints)} columns, "
+                         f"one per controlled joint ({', '.join(joints) or 'none'})")
+    if lqg.output.shape[:1] != (len(sensors),):
+        raise ModelError(f"lqg.output: shape {lqg.output.shape} — expected {len(sensors)} rows, "
+                         f"one per sensor ({', '.join(sensors) or 'none'})")
+    if tuple(model.joint_names) != joints or tuple(model.sensor_names) != sensors:
+        raise ModelError(f"model: joints {list(model.joint_names)}, sensors {list(model.sensor_names)} — the design "
+                         f"controls joints {list(joints)} with sensors {list(sensors)}, in this order")
+    if model.n_coordinates != n or not np.array_equal(model.joint_input, lqg.joint_input):
+        raise ModelError(f"lqg: {n} coordinates — not designed on this model ({model.n_coordinates} coordinates, "
+                         "joint_input must be equal)")
+    if lqg.sample_time != control.sample_time:
+        raise ModelError(f"lqg.sample_time: {lqg.sample_time!r} s — the design's [control] sample_time is "
+                         f"{control.sample_time!r} s")
+    if siso_boundary_layer is None:
+        siso_boundary_layer = control.siso_boundary_layer
+        if siso_boundary_layer is None:
+            raise ModelError("siso_boundary_layer: missing — give ε of Eq. 30 [m/s] (optimised by "
+                             "`smartjoint design`, or [control] siso_boundary_layer)")
+    return ControllerArtifact(
+        schema_version=SCHEMA_VERSION, name=design.name, sample_time=lqg.sample_time,
+        joint_names=joints, sensor_names=sensors,
+        normal_force_min=_per_joint("normal_force_min", control.normal_force_min, joints),
+        normal_force_max=_per_joint("normal_force_max", control.normal_force_max, joints),
+        siso_boundary_layer=_per_joint("siso_boundary_layer", siso_boundary_layer, joints),
+        clqg_boundary_layer=control.clqg_boundary_layer,
+        blocks=lqg.blocks, gamma0=lqg.gamma0, gamma1=lqg.gamma1, joint_input=lqg.joint_input, output=lqg.output,
+        feedback_gain=lqg.feedback_gain, estimator_gain=lqg.estimator_gain,
+        modal_frequencies=np.asarray(model.omega, dtype=float) / (2.0 * math.pi),
+        piezo_capacitance=control.piezo_capacitance, piezo_force_per_volt=control.piezo_force_per_volt,
+        piezo_preload=control.piezo_preload, design_source=Path(str(design.source)).name, design_sha256=design.sha256,
+        package_version=installed_version())
+
+
+# --------------------------------------------------------------------------- text
+def _encode(value, indent: str) -> str:
+    if isinstance(value, dict):
+        inner = indent + "  "
+        items = [f"{inner}{json.dumps(key)}: {_encode(value[key], inner)}" for key in sorted(value)]
+        return "{\n" + ",\n".join(items) + "\n" + indent + "}"
+    if isinstance(value, list):
+        if value and isinstance(value[0], list):  # rows on their own lines
+            inner = indent + "  "
+            return "[\n" + ",\n".join(inner + _encode(v, inner) for v in value) + "\n" + indent + "]"
+        return "[" + ", ".join(_encode(v, indent) for v in value) + "]"
+    if isinstance(value, float):
+        return repr(value)  # shortest text that parses back to the same float64
+    return json.dumps(value)  # int, str (ASCII, escaped)
+
+
+def dumps(artifact: ControllerArtifact) -> str:
+    """Canonical JSON text (see the module docstring): same artefact, same bytes."""
+    data = {}
+    for spec in SCHEMA:
+        value = getattr(artifact, spec.name)
+        data[spec.name] = value.tolist() if spec.kind == "array" else list(value) if spec.kind == "names" else value
+    return _encode(data, "") + "\n"
+
+
+def save(artifact: ControllerArtifact, path) -> Path:
+    """Write ``dumps(artifact)`` atomically: a temporary file in the same folder, then
+    ``os.replace`` — ``path`` holds either the old or the new complete text, never a part."""
+    path = Path(path)
+    text = dumps(artifact)
+    temporary = None
+    try:
+        with tempfile.NamedTemporaryFile("w", encoding="ascii", dir=path.parent, prefix=f".{path.name}.",
+                                         suffix=".tmp", delete=False) as handle:
+            temporary = handle.name
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(temporary, path)
+    except OSError as error:
+        raise ModelError(f"{path}: cannot write controller artefact ({error.strerror or error})") from None
+    finally:
+        if temporary is not None and os.path.exists(temporary):
+            os.unlink(temporary)
+    return path
+
+
+def _object(pairs):
+    keys = [key for key, _ in pairs]
+    for i, key in enumerate(keys):
+        if keys.index(key) != i:
+            raise _error(key, pairs[i][1], "duplicate key")
+    return dict(pairs)
+
+
+def loads(text: str) -> ControllerArtifact:
+    """Parse and validate an artefact; every problem is a ModelError naming the field."""
+    try:
+        data = json.loads(text, object_pairs_hook=_object)
+    except json.JSONDecodeError as error:
+        raise ModelError(f"<artefact>: not valid JSON ({error})") from None
+    except RecursionError:
+        raise ModelError("<artefact>: not valid JSON (nested too deeply)") from None
+    if not isinstance(data, dict):
+        raise _error("<artefact>", data, "expected a JSON object")
+    if "schema_version" not in data:
+        raise ModelError(f"schema_version: missing — required field; this version reads {SCHEMA_VERSION}")
+    _version(data["schema_version"])  # first: another version may have other fields
+    missing = [spec.name for spec in SCHEMA if spec.name not in data]
+    if missing:
+        raise ModelError(f"{missing[0]}: missing — required field" + (
+            f" (also missing: {', '.join(missing[1:])})" if len(missing) > 1 else ""))
+    unknown = sorted(set(data) - set(FIELDS))
+    if unknown:
+        raise _error(unknown[0], data[unknown[0]], f"unknown field in schema_version {SCHEMA_VERSION}")
+    return ControllerArtifact(**data)
+
+
+def load(path) -> ControllerArtifact:
+    """Read and validate an artefact file; errors are prefixed with the path."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise ModelError(f"{path}: cannot read controller artefact ({getattr(error, 'strerror', None) or error})") \
+            from None
+    try:
+        return loads(text)
+    except ModelError as error:
+        raise ModelError(f"{path}: {error}") from None
+
+
+# --------------------------------------------------------------------------- reference controllers
+def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
+    """The ``LqgDesign`` of the artefact. The Riccati solutions are not stored: they are NaN
+    arrays of the right shape (the controllers and ``closed_loop_poles`` never read them)."""
+    n2 = artifact.output.shape[1]
+    unknown = np.full((n2, n2), np.nan)
+    return LqgDesign(artifact.sample_time, artifact.blocks, artifact.gamma0, artifact.gamma1, artifact.joint_input,
+                     artifact.output, artifact.feedback_gain, artifact.estimator_gain, unknown, unknown.copy())
+
+
+def siso_law(artifact: ControllerArtifact) -> SisoLaw:
+    """The local Lyapunov law of Eq. 30 with μ of Eq. 31, per joint."""
+    return SisoLaw(artifact.sample_time, artifact.normal_force_min, artifact.normal_force_max,
+                   artifact.siso_boundary_layer)
+
+
+def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
+    """The clipped-optimal LQG of Eq. 33–34."""
+    return ClippedLqg(lqg_design(artifact), artifact.normal_force_min, artifact.normal_force_max,
+                      artifact.clqg_boundary_layer)
+
+
+def active_lqg(artifact: ControllerArtifact) -> ActiveLqg:
+    """The fully active LQG reference (u_d = −K·x̂ of Eq. 33 applied as forces)."""
+    return ActiveLqg(lqg_design(artifact))

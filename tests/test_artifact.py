@@ -1,0 +1,174 @@
+"""Controller design artefact: exact round trip, canonical text, provenance hashes, validation."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smartjoint.design import artifact, control, modal, simulate
+from smartjoint.design.errors import ModelError
+from smartjoint.design.fem import build_model
+from smartjoint.design.spec import load_design, parse_design
+
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "controller-artifact.md"
+
+
+@pytest.fixture(scope="module")
+def setup():
+    from conftest import small_truss
+
+    design = parse_design(small_truss())
+    fe = build_model(design, joints="released")
+    model = modal.modal_model(fe, modal.solve_modes(fe, 8))
+    lqg = control.design_lqg(model, design.control.sample_time)
+    return design, model, lqg, artifact.from_design(design, model, lqg, [1e-3, 2e-3])
+
+
+def _mutated(built, change) -> str:
+    data = json.loads(artifact.dumps(built))
+    change(data)
+    return json.dumps(data)
+
+
+def test_round_trip_is_exact_and_the_text_canonical(setup, tmp_path):
+    _, model, lqg, built = setup
+    path = artifact.save(built, tmp_path / "controller.json")
+    loaded = artifact.load(path)
+    assert loaded == built and loaded is not built
+    assert artifact.dumps(loaded) == artifact.dumps(built) == path.read_text()
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == built.artifact_sha256 == loaded.artifact_sha256
+    assert np.array_equal(loaded.feedback_gain, lqg.feedback_gain) and not loaded.feedback_gain.flags.writeable
+    assert loaded.joint_names == ("JA", "JB") and loaded.sensor_names == ("tip_y", "tip_vz")
+    assert np.array_equal(loaded.modal_frequencies, model.omega / (2 * np.pi))
+    assert loaded.schema_version == artifact.SCHEMA_VERSION and loaded.package_version
+    assert artifact.dumps(built).endswith("}\n")
+    assert loaded != dataclasses.replace(built, clqg_boundary_layer=6.0)
+
+
+def test_rebuilt_controllers_match_the_originals_bit_for_bit(setup, tmp_path):
+    design, _, lqg, built = setup
+    loaded = artifact.load(artifact.save(built, tmp_path / "c.json"))
+    low, high = np.full(2, design.control.normal_force_min), np.full(2, design.control.normal_force_max)
+    pairs = [(control.SisoLaw(lqg.sample_time, low, high, [1e-3, 2e-3]), artifact.siso_law(loaded)),
+             (control.ClippedLqg(lqg, low, high, design.control.clqg_boundary_layer), artifact.clipped_lqg(loaded)),
+             (control.ActiveLqg(lqg), artifact.active_lqg(loaded))]
+    rng = np.random.default_rng(7)
+    steps = [simulate.Measurements(k * 1e-3, 1e-3 * rng.standard_normal(2), 1e-2 * rng.standard_normal(2),
+                                   50.0 * rng.standard_normal(2), rng.uniform(40.0, 400.0, 2)) for k in range(200)]
+    for original, rebuilt in pairs:
+        original.reset(), rebuilt.reset()
+        for m in steps:
+            assert original.step(m).tobytes() == rebuilt.step(m).tobytes()
+    assert np.all(np.isnan(artifact.lqg_design(loaded).riccati_control))  # not stored, never read
+    assert np.array_equal(artifact.lqg_design(loaded).closed_loop_poles(), lqg.closed_loop_poles())
+
+
+def test_design_file_changes_reach_both_hashes(setup, tmp_path):
+    import tomli_w
+    from conftest import small_truss
+
+    _, model, lqg, _ = setup
+    path = tmp_path / "small.toml"
+
+    def build(data):
+        path.write_text(tomli_w.dumps(data))
+        return artifact.from_design(load_design(path), model, lqg, 1e-3)
+
+    data = small_truss()
+    first, again = build(data), build(data)
+    assert artifact.dumps(first) == artifact.dumps(again) and first.design_source == path.name
+    data["point_masses"][0]["mass"] = 0.51
+    changed = build(data)
+    assert changed.design_sha256 != first.design_sha256 and len(changed.design_sha256) == 64
+    assert changed.artifact_sha256 != first.artifact_sha256
+
+
+def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
+    from conftest import small_truss
+
+    design, model, lqg, _ = setup
+    data = small_truss()
+    data["control"] = {"joints": ["JB", "JA"], "normal_force_min": [10.0, 20.0], "normal_force_max": 300.0,
+                       "siso_boundary_layer": 4e-3}
+    swapped = parse_design(data)
+    with pytest.raises(ModelError, match="model: joints.*'JB', 'JA'"):
+        artifact.from_design(swapped, model, lqg)
+    order = [1, 0]
+    reordered = dataclasses.replace(model, joint_input=model.joint_input[:, order], joint_names=["JB", "JA"])
+    built = artifact.from_design(swapped, reordered, control.design_lqg(reordered, 1e-3))
+    assert built.joint_names == ("JB", "JA")
+    assert built.normal_force_min.tolist() == [10.0, 20.0] and built.normal_force_max.tolist() == [300.0, 300.0]
+    assert built.siso_boundary_layer.tolist() == [4e-3, 4e-3]
+    with pytest.raises(ModelError, match="siso_boundary_layer: missing"):
+        artifact.from_design(design, model, lqg)
+    with pytest.raises(ModelError, match="siso_boundary_layer.*one per joint"):
+        artifact.from_design(design, model, lqg, [1e-3, 1e-3, 1e-3])
+    with pytest.raises(ModelError, match="lqg.sample_time"):
+        artifact.from_design(design, model, control.design_lqg(model, 5e-4), 1e-3)
+    with pytest.raises(ModelError, match="lqg.output.*one per sensor"):
+        artifact.from_design(dataclasses.replace(design, sensors=design.sensors[:1]), model, lqg, 1e-3)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.update(schema_version=2), r"schema_version: 2 — unknown; this version reads schema_version 1"),
+    (lambda d: d.pop("schema_version"), r"schema_version: missing"),
+    (lambda d: d.pop("feedback_gain"), r"feedback_gain: missing — required field"),
+    (lambda d: d.update(feedback_gain=[row[:-1] for row in d["feedback_gain"]]),
+     r"feedback_gain: shape \(2, 15\) — expected \(2, 16\) = \(l, 2n\)"),
+    (lambda d: d["estimator_gain"][3].__setitem__(1, float("nan")), r"estimator_gain: nan at index \(3, 1\)"),
+    (lambda d: d.update(normal_force_min=[500.0, 40.0]), r"normal_force_min/normal_force_max: 500.0/400.0 N .*'JA'"),
+    (lambda d: d.update(joint_names=["JA", "JA"]), r"joint_names\[1\]: 'JA' — duplicate"),
+    (lambda d: d.update(sensor_names=["tip_y", ""]), r"sensor_names\[1\]: '' — expected a non-empty string"),
+    (lambda d: d.update(sample_time=0.0), r"sample_time: 0.0 — must be > 0 \[s\]"),
+    (lambda d: d.update(sample_time="1e-3"), r"sample_time: '1e-3' — expected a number"),
+    (lambda d: d.update(siso_boundary_layer=[1e-3, -1.0]), r"siso_boundary_layer: -1.0 for joint 'JB'"),
+    (lambda d: d.update(gamma0=[[1.0, 2.0], [3.0]]), r"gamma0: .* rectangular"),
+    (lambda d: d["blocks"][0][0].__setitem__(0, True), r"blocks: True — expected a \(nested\) list of numbers"),
+    (lambda d: d.update(extra=1), r"extra: 1 — unknown field"),
+    (lambda d: d.update(design_sha256="abc"), r"design_sha256: 'abc'"),
+])
+def test_invalid_artefacts_are_named(setup, change, message):
+    with pytest.raises(ModelError, match=message):
+        artifact.loads(_mutated(setup[3], change))
+
+
+def test_bad_text_and_files_raise_model_errors(setup, tmp_path, monkeypatch):
+    built = setup[3]
+    for text, message in (("{\"schema_version\": 1,", "not valid JSON"), ("[1, 2]", "expected a JSON object"),
+                          ("{\"schema_version\": 1, \"schema_version\": 1}", "schema_version: 1 — duplicate key")):
+        with pytest.raises(ModelError, match=message):
+            artifact.loads(text)
+    with pytest.raises(ModelError, match="missing.json: cannot read"):
+        artifact.load(tmp_path / "missing.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text(_mutated(built, lambda d: d.update(piezo_preload=-1.0)))
+    with pytest.raises(ModelError, match=r"bad.json: piezo_preload: -1.0 — must be >= 0"):
+        artifact.load(bad)
+
+    folder = tmp_path / "out"
+    folder.mkdir()
+    path = artifact.save(built, folder / "controller.json")
+
+    def failing_replace(*args):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(artifact.os, "replace", failing_replace)
+    with pytest.raises(ModelError, match="controller.json: cannot write controller artefact"):
+        artifact.save(dataclasses.replace(built, clqg_boundary_layer=9.0), path)
+    monkeypatch.undo()
+    assert os.listdir(folder) == ["controller.json"] and path.read_text() == artifact.dumps(built)
+    with pytest.raises(ModelError, match="cannot write"):
+        artifact.save(built, tmp_path / "absent" / "controller.json")
+    assert not (tmp_path / "absent").exists()
+
+
+def test_the_documentation_lists_every_field():
+    text = DOCS.read_text(encoding="utf-8")
+    for spec in artifact.SCHEMA:
+        assert f"| `{spec.name}` |" in text, spec.name

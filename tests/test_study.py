@@ -1,0 +1,157 @@
+"""The closed-loop study of paper Section 6 (design/study.py) and the design/study commands."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from smartjoint.design import artifact, load_design, parse_design, spec, study, updated_design
+from smartjoint.design.errors import ModelError
+
+
+def _small(duration=0.3, **control):
+    from conftest import small_truss
+
+    data = small_truss()
+    data["control"] = {"considered_modes": 12, "modes": 4, "krylov": 1, "normal_force_min": 5.0,
+                       "normal_force_max": 100.0, "study_duration": duration, **control}
+    return parse_design(data)
+
+
+@pytest.fixture(scope="module")
+def small_study():
+    design = _small(siso_boundary_layer=1e-4)
+    return design, study.run_study(design, progress=lambda message: None)
+
+
+def test_the_study_is_bit_identical_when_repeated(small_study):
+    design, first = small_study
+    again = study.run_study(design, progress=lambda message: None)
+    for a, b in zip(first.runs, again.runs):
+        for name in ("time", "energy", "sensors", "normal_force", "joint_force", "sliding_velocity"):
+            assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (a.name, name)
+    assert json.dumps(study.summary(first)) == json.dumps(study.summary(again))
+
+
+def test_metrics_follow_their_definitions(small_study):
+    design, result = small_study
+    s = result.setup
+    passive = result.run("passive F_max")
+    # Passive: the stacks are charged once, from 0 V to V_max, and held.
+    volts = (s.normal_force_max - s.piezo_preload) / s.piezo_force_per_volt
+    assert passive.control_power == pytest.approx(np.sum(0.5 * s.piezo_capacitance * volts**2) / s.duration,
+                                                  rel=1e-12)
+    for r in result.runs:
+        m = r.metrics
+        after = r.time > study.PULSE_DURATION
+        assert m["tip_peak"] == pytest.approx(np.max(np.abs(r.sensors[after]), axis=0).tolist())
+        assert m["energy_measure"] == pytest.approx(np.trapezoid(2 * r.energy, r.time))
+        if m["settling_time"] is not None:
+            later = r.time >= m["settling_time"]
+            start = np.searchsorted(r.time, study.PULSE_DURATION - 1e-12)
+            assert np.all(r.energy[later] <= 0.1 * r.energy[start])
+            assert r.energy[np.flatnonzero(later)[0] - 1] > 0.1 * r.energy[start]
+    assert result.run("passive F_max").metrics["energy_end_relative"] == 1.0
+    # Semi-active normal forces stay in [F^min, F^max]; during the pulse they are F^max.
+    for name in ("SISO", "cLQG"):
+        force = result.run(name).normal_force
+        assert np.all(force >= s.normal_force_min - 1e-12) and np.all(force <= s.normal_force_max + 1e-12)
+        assert np.all(force[result.run(name).time < study.PULSE_DURATION - 1e-12] == s.normal_force_max)
+
+
+def test_piezo_power_counts_charging_only():
+    s = dataclasses.replace(study.setup(_small(siso_boundary_layer=1e-4), study.design_model(
+        _small(siso_boundary_layer=1e-4), lambda m: None)), duration=1.0)
+    low, high = 10.0, 90.0
+    forces = np.tile([[high], [low]], (50, 1))  # 50 charges to 90 N, discharges are free
+    expected = 50 * 0.5 * s.piezo_capacitance * ((high / s.piezo_force_per_volt) ** 2
+                                                 - (low / s.piezo_force_per_volt) ** 2) \
+        + 0.5 * s.piezo_capacitance * (low / s.piezo_force_per_volt) ** 2  # the very first charge from 0 V
+    assert study._piezo_power(s, forces) == pytest.approx(expected, rel=1e-12)
+
+
+def test_boundary_layer_optimum_beats_its_neighbours():
+    design = _small(duration=0.3)
+    model = study.design_model(design, lambda m: None)
+    s = study.setup(design, model)
+    messages = []
+    found = study.optimise_boundary_layer(s, messages.append, grid=(1e-5, 1e-4, 1e-3, 1e-2))
+    values = dict(found.evaluations)
+    assert found.energy_measure == min(values.values())
+    assert found.energy_measure <= found.tenth and found.energy_measure <= found.tenfold
+    assert len(messages) == len(values)
+
+
+def test_the_controllers_need_every_joint_in_design_order():
+    from conftest import small_truss
+
+    data = small_truss()
+    data["control"] = {"joints": ["JA"]}
+    with pytest.raises(ModelError, match="control.joints.*every friction joint"):
+        study.design_model(parse_design(data), lambda m: None)
+    data["control"] = {"joints": ["JB", "JA"]}
+    with pytest.raises(ModelError, match="control.joints.*design order"):
+        study.design_model(parse_design(data), lambda m: None)
+    bad = _small(duration=0.01)
+    with pytest.raises(ModelError, match="study_duration"):
+        study.setup(bad, study.design_model(bad, lambda m: None))
+
+
+@pytest.fixture(scope="module")
+def bundled():
+    """The paper's configuration: the reference truss with three type A joints (Fig. 11)."""
+    design, _ = updated_design(load_design(spec.REFERENCE_DESIGN.parent / "three_type_a.toml"))
+    return study.run_study(design, progress=lambda message: None)
+
+
+def test_the_papers_orderings_hold_on_the_bundled_truss(bundled):
+    m = {r.name: r.metrics for r in bundled.runs}
+    passive = min(m["passive F_min"]["energy_end"], m["passive F_max"]["energy_end"])
+    assert m["SISO"]["energy_end"] < passive
+    assert m["cLQG"]["energy_end"] < passive
+    assert m["cLQG"]["tip_rms_total"] < m["SISO"]["tip_rms_total"]
+    assert m["active LQG"]["tip_rms_total"] < m["cLQG"]["tip_rms_total"]
+    assert m["active LQG"]["energy_end"] < m["cLQG"]["energy_end"]
+    assert m["active LQG"]["control_power"] > m["cLQG"]["control_power"]
+    assert bundled.stability_margin > 0
+
+
+def test_the_optimised_boundary_layer_beats_a_decade_either_side(bundled):
+    o = bundled.optimum
+    assert o is not None
+    assert o.energy_measure < o.tenth and o.energy_measure < o.tenfold
+
+
+def test_design_and_study_commands(tmp_path):
+    from conftest import small_truss
+    import tomli_w
+
+    data = small_truss()
+    data["control"] = {"considered_modes": 12, "modes": 4, "normal_force_min": 5.0, "normal_force_max": 100.0,
+                       "study_duration": 0.2, "siso_boundary_layer": 1e-4}
+    path = tmp_path / "small.toml"
+    path.write_text(tomli_w.dumps(data))
+    out = tmp_path / "controller.json"
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(out), "--json"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    loaded = artifact.load(out)
+    assert loaded.artifact_sha256 == summary["artifact_sha256"] and loaded.joint_names == ("JA", "JB")
+    assert summary["lqg_stability_margin"] > 0
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "study", str(path), "--json", "--plots",
+                           str(tmp_path / "plots")], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout)
+    assert set(result["runs"]) == {"passive F_min", "passive F_max", "SISO", "cLQG", "active LQG"}
+    assert (tmp_path / "plots" / "control_energy.png").stat().st_size > 0
+    data["control"]["normal_force_min"] = 500.0
+    path.write_text(tomli_w.dumps(data))
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(tmp_path / "x.json")],
+                          capture_output=True, text=True)
+    assert done.returncode == 2 and "normal_force_min" in done.stderr and not (tmp_path / "x.json").exists()
