@@ -27,9 +27,18 @@ from .modal import ModalModel
 from .simulate import Measurements, discretise
 
 
+# Status bits of a controller step (the generated C returns the same values).
+STATUS_OK = 0
+STATUS_INPUT_INVALID = 1  # a measurement was NaN or ±Inf: that joint (SISO) / every joint (cLQG) at F_N^min
+STATUS_ESTIMATE_RESET = 2  # the cLQG estimate or force left the finite numbers: filter restarted, F_N^min
+
+
 def boundary_layer(value, width):
-    """The smoothed Heaviside H_ε(s) = clip(s/ε, 0, 1) of Eq. 30 and Eq. 34."""
-    return np.clip(np.asarray(value, dtype=float) / width, 0.0, 1.0)
+    """The smoothed Heaviside H_ε(s) = clip(s/ε, 0, 1) of Eq. 30 and Eq. 34, with NaN → 0
+    (written as s > 0 ? min(s, 1) : 0 so that C and numpy agree on every input)."""
+    with np.errstate(all="ignore"):
+        ratio = np.asarray(value, dtype=float) / width
+    return np.where(ratio > 0.0, np.minimum(ratio, 1.0), 0.0)
 
 
 class SisoLaw:
@@ -39,6 +48,9 @@ class SisoLaw:
 
         μ_k   = u_R,k−1 / F_N,k−1                               (Eq. 31; 0 at the first sample)
         F_N,k = F_N^min + (F_N^max − F_N^min)·clip(μ_k·v_k / ε, 0, 1)     (Eq. 30)
+
+    A joint whose v, u_R or F_N is NaN or ±Inf gets F_N^min and forgets its memory (μ = 0 at
+    the next sample); ``status`` then has ``STATUS_INPUT_INVALID``.
 
     u_R,k−1 and F_N,k−1 are the friction force and the applied normal force *measured* at the
     previous sample, so μ is always a ratio of quantities of one instant. Reading of Eq. 30:
@@ -53,6 +65,7 @@ class SisoLaw:
         self.normal_force_max = np.array(normal_force_max, dtype=float)
         self.boundary_layer = np.array(boundary_layer_width, dtype=float)
         _check_limits(self.normal_force_min, self.normal_force_max)
+        self.normal_force_range = self.normal_force_max - self.normal_force_min
         if np.any(self.normal_force_min <= 0):
             raise ModelError(f"normal_force_min: {self.normal_force_min.tolist()} — the SISO law needs F_N^min > 0: "
                              "μ = u_R/F_N (Eq. 31) is undefined at F_N = 0")
@@ -64,16 +77,23 @@ class SisoLaw:
         count = self.normal_force_min.size
         self.previous_friction = np.zeros(count)
         self.previous_normal_force = np.zeros(count)
+        self.status = STATUS_OK
 
     def step(self, measurements: Measurements) -> np.ndarray:
+        velocity = np.asarray(measurements.sliding_velocity, dtype=float)
+        friction = np.asarray(measurements.friction_force, dtype=float)
+        applied = np.asarray(measurements.normal_force, dtype=float)
+        valid = np.isfinite(velocity) & np.isfinite(friction) & np.isfinite(applied)
         previous_force, previous_normal = self.previous_friction, self.previous_normal_force
-        safe = np.where(previous_normal > 0.0, previous_normal, 1.0)
-        mu = np.where(previous_normal > 0.0, previous_force / safe, 0.0)  # Eq. 31
-        power = mu * measurements.sliding_velocity
-        normal_force = self.normal_force_min + (self.normal_force_max - self.normal_force_min) * boundary_layer(
-            power, self.boundary_layer)
-        self.previous_friction = np.array(measurements.friction_force, dtype=float)
-        self.previous_normal_force = np.array(measurements.normal_force, dtype=float)
+        with np.errstate(all="ignore"):
+            known = valid & (previous_normal > 0.0)
+            mu = np.where(known, previous_force / np.where(known, previous_normal, 1.0), 0.0)  # Eq. 31
+            power = mu * np.where(valid, velocity, 0.0)
+        normal_force = np.where(valid, self.normal_force_min + self.normal_force_range * boundary_layer(
+            power, self.boundary_layer), self.normal_force_min)
+        self.previous_friction = np.where(valid, friction, 0.0)
+        self.previous_normal_force = np.where(valid, applied, 0.0)
+        self.status = STATUS_OK if valid.all() else STATUS_INPUT_INVALID
         return normal_force
 
 
@@ -246,16 +266,30 @@ class _Lqg:
         x = self.estimate.reshape(n, 2)
         if not self.started:
             return np.zeros(2 * n)
-        q0, q1 = d.joint_input @ self.previous_force, d.joint_input @ force
-        out = np.einsum("nij,nj->ni", d.blocks, x) - d.gamma0 * q0[:, None] - d.gamma1 * q1[:, None]
+        start, end = ordered_product(d.joint_input, self.previous_force), ordered_product(d.joint_input, force)
+        b = d.blocks
+        out = np.empty((n, 2))
+        out[:, 0] = (b[:, 0, 0] * x[:, 0] + b[:, 0, 1] * x[:, 1]) - d.gamma0[:, 0] * start - d.gamma1[:, 0] * end
+        out[:, 1] = (b[:, 1, 0] * x[:, 0] + b[:, 1, 1] * x[:, 1]) - d.gamma0[:, 1] * start - d.gamma1[:, 1] * end
         return out.reshape(2 * n)
 
     def _estimate(self, sensors: np.ndarray, force: np.ndarray) -> np.ndarray:
         d = self.design
         prior = self._time_update(force)
-        self.estimate = prior + d.estimator_gain @ (np.asarray(sensors, dtype=float) - d.output @ prior)
+        innovation = np.asarray(sensors, dtype=float) - ordered_product(d.output, prior)
+        self.estimate = prior + ordered_product(d.estimator_gain, innovation)
         self.started = True
-        return -d.feedback_gain @ self.estimate
+        return -ordered_product(d.feedback_gain, self.estimate)
+
+
+def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """matrix @ vector summed strictly left to right over the columns, from 0.0 — the order of
+    the generated C loops, so the double build reproduces this reference bit for bit (BLAS
+    sums in blocks and with FMA, which differs in the last bits)."""
+    total = np.zeros(matrix.shape[0])
+    for k in range(matrix.shape[1]):
+        total = total + matrix[:, k] * vector[k]
+    return total
 
 
 class ClippedLqg(_Lqg):
@@ -268,6 +302,10 @@ class ClippedLqg(_Lqg):
     boundary layer is laid over that quantity and ε is a force [N]: the normal force rises when
     the friction force is smaller than the desired force in the same direction and falls to
     F^min when it is larger or opposes it. u_R,j = 0 counts as sgn = 0 (F^min: nothing to steer).
+
+    Faults (``status``): any NaN/±Inf measurement → every joint at F_N^min and the filter
+    restarts (``STATUS_INPUT_INVALID``); an estimate or desired force that is no longer finite
+    (e.g. after absurdly large sensor values) → the same with ``STATUS_ESTIMATE_RESET``.
     """
 
     def __init__(self, design: LqgDesign, normal_force_min, normal_force_max, boundary_layer_width: float):
@@ -281,18 +319,32 @@ class ClippedLqg(_Lqg):
         if not (math.isfinite(boundary_layer_width) and boundary_layer_width > 0):
             raise ModelError(f"clqg_boundary_layer: {boundary_layer_width!r} — must be finite and > 0 [N]")
         self.boundary_layer = float(boundary_layer_width)
+        self.normal_force_range = self.normal_force_max - self.normal_force_min
         self.desired_force = np.zeros(self.normal_force_min.size)
 
     def reset(self) -> None:
         super().reset()
         self.desired_force = np.zeros(self.design.joint_input.shape[1])
+        self.status = STATUS_OK
+
+    def _fault(self, status: int) -> np.ndarray:
+        self.reset()
+        self.status = status
+        return self.normal_force_min.copy()
 
     def step(self, measurements: Measurements) -> np.ndarray:
+        sensors = np.asarray(measurements.sensors, dtype=float)
         friction = np.asarray(measurements.friction_force, dtype=float)
         applied = np.asarray(measurements.normal_force, dtype=float)
-        self.desired_force = self._estimate(measurements.sensors, friction)
+        if not (np.all(np.isfinite(sensors)) and np.all(np.isfinite(friction)) and np.all(np.isfinite(applied))):
+            return self._fault(STATUS_INPUT_INVALID)
+        with np.errstate(all="ignore"):
+            self.desired_force = self._estimate(sensors, friction)
+        if not (np.all(np.isfinite(self.estimate)) and np.all(np.isfinite(self.desired_force))):
+            return self._fault(STATUS_ESTIMATE_RESET)
+        self.status = STATUS_OK
         error = self.desired_force - friction
-        normal_force = self.normal_force_min + (self.normal_force_max - self.normal_force_min) * boundary_layer(
+        normal_force = self.normal_force_min + self.normal_force_range * boundary_layer(
             error * np.sign(friction), self.boundary_layer)
         # The friction force just after this sample: u_R = F_N·μ with μ continuous, so it scales
         # with the new normal force — the start value of the next time update's first-order hold.

@@ -38,10 +38,13 @@ def cache_dir() -> Path:
     return Path(os.environ.get("SMARTJOINT_CACHE") or Path.home() / ".cache" / "smartjoint")
 
 
-def load(stem: str, declarations: str, source: Path):
-    """The cffi module (``.ffi``, ``.lib``) of ``source`` with the C ``declarations``."""
+def load(stem: str, declarations: str, source: Path, *, objects: tuple[Path, ...] = (), includes: tuple[Path, ...] = ()):
+    """The cffi module (``.ffi``, ``.lib``) of ``source`` with the C ``declarations``; ``objects``:
+    compiled object files linked into it, ``includes``: header folders."""
     text = source.read_text()
-    key = hashlib.sha256("\0".join([declarations, text, " ".join(FLAGS), sys.version,
+    flags = FLAGS
+    extra = [f"{p.name}\0{p.read_bytes().hex()}" for p in objects]
+    key = hashlib.sha256("\0".join([declarations, text, " ".join(flags), sys.version, *extra,
                                     sysconfig.get_platform(), _cpu()]).encode()).hexdigest()[:16]
     name = f"_sj_{stem}_{key}"
     target_dir = cache_dir()
@@ -52,7 +55,8 @@ def load(stem: str, declarations: str, source: Path):
 
         ffi = cffi.FFI()
         ffi.cdef(declarations)
-        ffi.set_source(name, text, extra_compile_args=FLAGS, libraries=["m"])
+        ffi.set_source(name, text, extra_objects=[str(p) for p in objects], include_dirs=[str(p) for p in includes],
+                       extra_compile_args=flags, libraries=["m"])
         target_dir.mkdir(parents=True, exist_ok=True)
         build = Path(tempfile.mkdtemp(prefix=f"{name}-", dir=target_dir))
         try:

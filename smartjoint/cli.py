@@ -279,6 +279,7 @@ def cmd_design(args) -> dict:
     from .design import study as closed_loop
 
     design = _control_design(args)
+    Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # fail early, not after the optimisation
     model = closed_loop.design_model(design, _progress)
     s = closed_loop.setup(design, model)
     lqg = closed_loop.lqg_for(design, model)
@@ -302,6 +303,27 @@ def cmd_design(args) -> dict:
     if not args.json:
         for key, value in out.items():
             print(f"{key}: {value}")
+    return out
+
+
+def cmd_codegen(args) -> dict:
+    from .codegen import generate
+    from .design import artifact
+
+    loaded = artifact.load(Path(args.artifact))
+    written = generate.generate(loaded, Path(args.output), args.real, args.prefix)
+    out = {"artifact": args.artifact, "artifact_sha256": loaded.artifact_sha256, "real": args.real,
+           "prefix": args.prefix, "files": [str(p) for p in written]}
+    if args.check:
+        from .codegen import build
+
+        _progress(f"compiling with {' '.join(build.FLAGS)} …")
+        build.compile_controllers(loaded, args.real, args.prefix)
+        out["compiled"] = True
+    if not args.json:
+        print(f"{len(written)} files in {args.output} ({args.real}, artefact {loaded.artifact_sha256[:16]}…)")
+        for path in written:
+            print(f"  {path}")
     return out
 
 
@@ -399,6 +421,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser("codegen", help="generate the C99 controllers (SISO, clipped LQG) from a controller artefact")
+    p.add_argument("artifact", help="controller design artefact (JSON, from `smartjoint design`)")
+    p.add_argument("-o", "--output", required=True, help="folder for the generated files")
+    p.add_argument("--real", choices=("float", "double"), default="float", help="scalar type (default: %(default)s)")
+    p.add_argument("--prefix", default="smartjoint", help="C name prefix of the modules (default: %(default)s)")
+    p.add_argument("--check", action="store_true", help="also compile them with the strict warning set (cffi)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=cmd_codegen)
 
     p = sub.add_parser("study", help="the paper's closed-loop study (Section 6): passive, SISO, cLQG, active LQG")
     _add_design(p)

@@ -48,3 +48,12 @@ def small_truss() -> dict:
 @pytest.fixture
 def truss_dict():
     return copy.deepcopy(small_truss())
+
+
+@pytest.fixture(scope="session")
+def three_type_a():
+    """The paper's configuration (Fig. 11), updated to the EMA, and its 24-state design model."""
+    from smartjoint.design import load_design, spec, study, updated_design
+
+    design, _ = updated_design(load_design(spec.REFERENCE_DESIGN.parent / "three_type_a.toml"))
+    return design, study.design_model(design, lambda message: None)

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from smartjoint.design import artifact, load_design, parse_design, spec, study, updated_design
+from smartjoint.design import artifact, parse_design, study
 from smartjoint.design.errors import ModelError
 
 
@@ -103,10 +103,10 @@ def test_the_controllers_need_every_joint_in_design_order():
 
 
 @pytest.fixture(scope="module")
-def bundled():
+def bundled(three_type_a):
     """The paper's configuration: the reference truss with three type A joints (Fig. 11)."""
-    design, _ = updated_design(load_design(spec.REFERENCE_DESIGN.parent / "three_type_a.toml"))
-    return study.run_study(design, progress=lambda message: None)
+    design, model = three_type_a
+    return study.run_study(design, model, progress=lambda message: None)
 
 
 def test_the_papers_orderings_hold_on_the_bundled_truss(bundled):

@@ -1,0 +1,286 @@
+"""Generated C (codegen/) against the Python reference controllers: exact equivalence of the
+double build, a bound for the float build, fault handling, determinism, strict compilers,
+sanitizers, cppcheck, the Cortex-M4F cross build and the committed reference firmware."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smartjoint.codegen import build, generate
+from smartjoint.design import artifact, control, load_design, simulate, spec, study
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = ROOT / "firmware" / "generated"
+FLOAT_BOUND = 1e-3  # documented: |ΔF_N| of the float build ≤ 1e-3·(F^max − F^min) per sample
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return artifact.load(REFERENCE / "controller.json")
+
+
+@pytest.fixture(scope="module")
+def builds(reference):
+    return {real: build.compile_controllers(reference, real) for real in ("double", "float")}
+
+
+def _sequence(a, count=3000, seed=7, faults=True):
+    """Random measurements at several scales; with ``faults`` every 250th sample carries NaN,
+    ±Inf or absurd magnitudes in one field."""
+    rng = np.random.default_rng(seed)
+    l, ny = len(a.joint_names), len(a.sensor_names)
+    out = []
+    for k in range(count):
+        scale = 10.0 ** rng.uniform(-3, 1)
+        m = simulate.Measurements(k * a.sample_time, rng.normal(0, 1e-2 * scale, ny), rng.normal(0, 1e-3 * scale, l),
+                                  rng.normal(0, 50 * scale, l), rng.uniform(0, 400, l))
+        if faults and k % 250 == 249:
+            bad = [np.nan, np.inf, -np.inf, 1e30, -1e300, 0.0][(k // 250) % 6]
+            field = ["sensors", "sliding_velocity", "friction_force", "normal_force"][(k // 250) % 4]
+            getattr(m, field)[rng.integers(getattr(m, field).size)] = bad
+        out.append(m)
+    return out
+
+
+def _check_pair(reference_controller, compiled, sequence, exact):
+    reference_controller.reset()
+    compiled.reset()
+    worst = 0.0
+    for m in sequence:
+        expected = reference_controller.step(m)
+        got = compiled.step(m)
+        if exact:
+            assert got.tobytes() == expected.tobytes(), m.time
+            assert compiled.status == reference_controller.status, m.time
+            if hasattr(compiled, "desired_force"):
+                assert compiled.desired_force.tobytes() == reference_controller.desired_force.tobytes()
+        worst = max(worst, float(np.max(np.abs(got - expected))))
+    return worst
+
+
+def test_double_build_is_bit_identical_to_the_python_reference(reference, builds):
+    c = builds["double"]
+    sequence = _sequence(reference)
+    assert _check_pair(artifact.siso_law(reference), c.siso(), sequence, exact=True) == 0.0
+    assert _check_pair(artifact.clipped_lqg(reference), c.clipped_lqg(), sequence, exact=True) == 0.0
+
+
+def test_float_build_stays_within_its_documented_bound(reference, builds):
+    """Float build (docs/codegen.md): SISO |ΔF_N| ≤ 1e-4·(F^max − F^min); cLQG |Δu_d| ≤
+    2e-5·max|u_d| over the run, hence |ΔF_N| ≤ (F^max − F^min)/ε · 2e-5·max|u_d| (the
+    boundary layer's slope; clipping only shrinks it)."""
+    c = builds["float"]
+    span = float(np.min(reference.normal_force_max - reference.normal_force_min))
+    for seed in (7, 8):
+        sequence = _sequence(reference, faults=False, seed=seed)
+        assert _check_pair(artifact.siso_law(reference), c.siso(), sequence, exact=False) <= 1e-4 * span
+        python, compiled = artifact.clipped_lqg(reference), c.clipped_lqg()
+        worst_force = worst_desired = largest = 0.0
+        for m in sequence:
+            difference = np.abs(python.step(m) - compiled.step(m))
+            worst_force = max(worst_force, float(difference.max()))
+            worst_desired = max(worst_desired, float(np.abs(python.desired_force - compiled.desired_force).max()))
+            largest = max(largest, float(np.abs(python.desired_force).max()))
+        assert worst_desired <= 2e-5 * largest
+        assert worst_force <= span / reference.clqg_boundary_layer * 2e-5 * largest
+
+
+@pytest.mark.parametrize("real", ["double", "float"])
+def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
+    low, high = reference.normal_force_min, reference.normal_force_max
+    for law in (builds[real].siso(), builds[real].clipped_lqg()):
+        statuses = set()
+        for m in _sequence(reference, count=1500, seed=3):
+            out = law.step(m)
+            statuses.add(law.status)
+            assert np.all(np.isfinite(out)) and np.all(out >= low) and np.all(out <= high), (real, law.law, m)
+            fields = [m.sensors, m.friction_force, m.normal_force] if law.law == "clqg" else \
+                [m.sliding_velocity, m.friction_force, m.normal_force]
+            if not all(np.all(np.isfinite(f)) for f in fields):
+                assert law.status & control.STATUS_INPUT_INVALID
+                if law.law == "clqg":
+                    assert np.array_equal(out, low)
+        assert control.STATUS_INPUT_INVALID in statuses
+    # Absurd but finite sensor values drive the estimate out of range: the filter restarts.
+    law = builds[real].clipped_lqg()
+    m = simulate.Measurements(0.0, np.full(len(reference.sensor_names), float(np.finfo(np.float64 if real == "double" else np.float32).max)),
+                              np.zeros(len(reference.joint_names)), np.ones(len(reference.joint_names)),
+                              np.full(len(reference.joint_names), 100.0))
+    statuses = []
+    for _ in range(5):
+        out = law.step(m)
+        statuses.append(law.status)
+        assert np.all(np.isfinite(out)) and np.all(out >= low) and np.all(out <= high)
+    assert control.STATUS_ESTIMATE_RESET in statuses
+
+
+def test_study_back_to_back(reference, builds, three_type_a):
+    """On the paper's study: the C controllers see the inputs the Python reference saw (replay)
+    — double bit-identical, float within its bound; in the loop, the float build gives the
+    same E(t_e) within 1 %."""
+    design, model = three_type_a
+    s = study.setup(design, model)
+
+    class Recorder:
+        def __init__(self, inner):
+            self.inner, self.sample_time, self.log = inner, inner.sample_time, []
+
+        def reset(self):
+            self.inner.reset()
+            self.log = []
+
+        def step(self, m):
+            out = self.inner.step(m)
+            self.log.append((m, out.copy()))
+            return out
+
+    span = float(np.min(reference.normal_force_max - reference.normal_force_min))
+    for name, python, compiled in (("SISO", artifact.siso_law, "siso"), ("cLQG", artifact.clipped_lqg, "clipped_lqg")):
+        recorder = Recorder(python(reference))
+        run = study.run_semi_active(s, name, recorder)
+        for real, bound in (("double", 0.0), ("float", FLOAT_BOUND * span)):
+            law = getattr(builds[real], compiled)()
+            law.reset()
+            worst = max(float(np.max(np.abs(law.step(m) - out))) for m, out in recorder.log)
+            assert worst <= bound, (name, real, worst)
+        in_loop = study.run_semi_active(s, name, builds["float"].__getattribute__(compiled)())
+        assert abs(in_loop.energy_measure() / run.energy_measure() - 1) < 0.01, name
+        twin = study.run_semi_active(s, name, builds["double"].__getattribute__(compiled)())
+        assert twin.energy.tobytes() == run.energy.tobytes(), name
+
+
+def test_rendering_is_deterministic_and_dated_nowhere(reference):
+    first, again = generate.render(reference, "float"), generate.render(reference, "float")
+    assert first == again
+    double = generate.render(reference, "double")
+    assert double != first
+    for files in (first, double):
+        for name, text in files.items():
+            assert not re.search(r"\b20\d\d-\d\d-\d\d\b", text), name
+            assert reference.artifact_sha256 in text, name
+    assert "typedef float smartjoint_real;" in first["smartjoint_types.h"]
+    for name in ("smartjoint_clqg.c", "smartjoint_siso.c", "main.c"):
+        code = re.sub(r"/\*.*?\*/", "", first[name], flags=re.S)
+        for number, suffix in re.findall(r"(?<![\w.])(\d+\.\d*(?:e[-+]?\d+)?|\d+e[-+]?\d+)(f?)", code):
+            assert suffix == "f", (name, number)  # no double constant in the float build
+
+
+def test_literals_parse_back_to_the_rounded_value():
+    rng = np.random.default_rng(0)
+    values = np.concatenate([rng.normal(0, 1, 200) * 10.0 ** rng.uniform(-40, 38, 200), [0.0, 1.0, -400.0, 1e-45]])
+    for v in values:
+        text = generate.literal(v, "double")
+        assert float(text) == float(v) and ("." in text or "e" in text)
+        text = generate.literal(v, "float")
+        assert text.endswith("f") and np.float32(text[:-1]) == np.float32(v) and ("." in text or "e" in text)
+
+
+def test_committed_reference_firmware_is_what_the_generator_emits(reference):
+    assert reference.design_sha256 == load_design(spec.REFERENCE_DESIGN.parent / "three_type_a.toml").sha256, \
+        "the bundled design changed: regenerate firmware/generated (firmware/README.md)"
+    files = generate.render(reference, "float")
+    committed = {p.name for p in REFERENCE.iterdir()} - {"controller.json"}
+    assert committed == set(files)
+    for name, text in files.items():
+        assert (REFERENCE / name).read_bytes() == text.encode("ascii"), name
+
+
+def test_structure_no_dense_predictor_no_heap_no_recursion(reference):
+    files = generate.render(reference, "double")
+    text = files["smartjoint_clqg.c"] + files["smartjoint_siso.c"]
+    n2 = 2 * np.asarray(reference.blocks).shape[0]
+    assert f"[{n2}][{n2}]" not in text and "[STATES][STATES]" not in text
+    assert not re.search(r"\b(malloc|calloc|realloc|free)\s*\(", text)
+    for name in ("smartjoint_clqg_step", "smartjoint_siso_step", "fault"):
+        body = text.split(f"{name}(", 1)[1]
+        body = body[:body.find("\n}\n")]
+        assert f"{name}(" not in body  # no recursion
+    assert not re.search(r"^static (?!const)[^(]*;", text, flags=re.M)  # no mutable globals
+
+
+@pytest.mark.skipif(shutil.which("cc") is None, reason="needs a C compiler")
+def test_sanitizers_report_nothing_on_the_back_to_back_run(reference, tmp_path):
+    folder = tmp_path / "gen"
+    generate.write(generate.render(reference, "double"), folder)
+    exe = tmp_path / "replay"
+    done = subprocess.run(["cc", *build.FLAGS, "-O1", "-g", "-fsanitize=address,undefined",
+                           "-fno-sanitize-recover=all", "-I", str(folder), str(ROOT / "firmware" / "runtime" / "replay.c"),
+                           str(folder / "smartjoint_siso.c"), str(folder / "smartjoint_clqg.c"), "-o", str(exe), "-lm"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    sequence = _sequence(reference, count=1500)
+    l, ny = len(reference.joint_names), len(reference.sensor_names)
+    for law, python, fields, width in ((0, artifact.siso_law(reference), ("sliding_velocity", "friction_force",
+                                                                          "normal_force"), l),
+                                       (1, artifact.clipped_lqg(reference), ("sensors", "friction_force",
+                                                                             "normal_force"), 2 * l)):
+        rows = np.array([np.concatenate([getattr(m, f) for f in fields]) for m in sequence])
+        payload = np.array([law, len(sequence)], dtype=np.int32).tobytes() + rows.astype(np.float64).tobytes()
+        run = subprocess.run([str(exe)], input=payload, capture_output=True)
+        assert run.returncode == 0 and run.stderr == b"", run.stderr.decode()[-2000:]
+        record = np.dtype([("out", np.float64, width), ("status", np.uint32)], align=False)
+        got = np.frombuffer(run.stdout, dtype=record)
+        python.reset()
+        expected = np.array([python.step(m) for m in sequence])
+        assert got["out"][:, :l].tobytes() == expected.tobytes()
+
+
+@pytest.mark.skipif(shutil.which("cppcheck") is None, reason="cppcheck not installed (CI installs it)")
+@pytest.mark.parametrize("real", ["double", "float"])
+def test_cppcheck_reports_nothing(reference, tmp_path, real):
+    generate.write(generate.render(reference, real), tmp_path)
+    done = subprocess.run(["cppcheck", "--enable=all", "--std=c99", "--error-exitcode=1", "--inline-suppr",
+                           "--suppress=missingIncludeSystem", "--quiet", str(tmp_path)], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout.strip() == "" and done.stderr.strip() == "", done.stderr
+
+
+@pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="ARM cross compiler not installed (CI installs it)")
+def test_cortex_m4f_float_build_compiles_clean(tmp_path):
+    for name in ("smartjoint_siso.c", "smartjoint_clqg.c"):
+        done = subprocess.run(["arm-none-eabi-gcc", "-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16",
+                               "-mfloat-abi=hard", "-O2", *[f for f in build.FLAGS if f != "-O2"], "-c",
+                               str(REFERENCE / name), "-o", str(tmp_path / (name + ".o"))], capture_output=True,
+                              text=True)
+        assert done.returncode == 0, done.stderr
+
+
+def test_example_builds_and_runs(reference, tmp_path):
+    generate.write(generate.render(reference, "float"), tmp_path)
+    done = subprocess.run(["make", "-s", "-C", str(tmp_path)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    run = subprocess.run([str(tmp_path / "example")], capture_output=True, text=True)
+    assert run.returncode == 0 and "status 0" in run.stdout
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "smartjoint.cli", *args], capture_output=True, text=True)
+
+
+def test_bad_artefacts_and_options_write_nothing(reference, tmp_path):
+    good = json.loads(artifact.dumps(reference))
+    cases = {
+        "schema_version": dict(good, schema_version=99),
+        "feedback_gain": dict(good, feedback_gain=good["feedback_gain"][:-1]),
+        "estimator_gain": dict(good, estimator_gain=[[float("nan")] * len(r) for r in good["estimator_gain"]]),
+        "joint_names": dict(good, joint_names=["A-1", "A2", "A3"]),
+    }
+    for field, data in cases.items():
+        source = tmp_path / f"{field}.json"
+        source.write_text(json.dumps(data).replace("NaN", "NaN"))
+        out = tmp_path / f"out-{field}"
+        done = _cli("codegen", str(source), "-o", str(out))
+        assert done.returncode == 2 and field in done.stderr, (field, done.stderr)
+        assert not out.exists(), field
+    done = _cli("codegen", str(REFERENCE / "controller.json"), "-o", str(tmp_path / "p"), "--prefix", "Bad-Name")
+    assert done.returncode == 2 and "--prefix" in done.stderr and not (tmp_path / "p").exists()
+    done = _cli("codegen", str(REFERENCE / "controller.json"), "-o", str(tmp_path / "ok"), "--real", "double", "--json")
+    assert done.returncode == 0, done.stderr
+    assert len(json.loads(done.stdout)["files"]) == 8
