@@ -31,9 +31,11 @@ class Recorder:
         return out
 
 
-def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerArtifact, progress=print) -> dict:
+def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerArtifact, progress=print,
+                 study: closed_loop.Study | None = None) -> dict:
     """Figures per law: samples compared, max |ΔF_N| of the double and float replays, the
-    number of bit-identical double samples, and E(t_e) of the float build in the loop."""
+    number of bit-identical double samples, and E(t_e) of the float build in the loop. With the
+    ``study`` (its passive and active runs), also the paper's orderings with the float build."""
     compiled = {real: build.compile_controllers(artifact, real) for real in ("double", "float")}
     out = {}
     for name, python, wrapper in (("SISO", artifacts.siso_law, "siso"), ("cLQG", artifacts.clipped_lqg, "clipped_lqg")):
@@ -55,7 +57,16 @@ def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerAr
         in_loop = closed_loop.run_semi_active(setup, name, getattr(compiled["float"], wrapper)())
         figures["energy_measure_float"] = in_loop.energy_measure()
         figures["energy_measure_float_relative_error"] = in_loop.energy_measure() / reference.energy_measure() - 1.0
+        if study is not None:
+            in_loop.metrics = closed_loop.metrics(in_loop, study.run("passive F_max"))
+            figures["float_run"] = in_loop
         out[name] = figures
+    if study is not None:
+        runs = [study.run("passive F_min"), study.run("passive F_max"), out["SISO"].pop("float_run"),
+                out["cLQG"].pop("float_run"), study.run("active LQG")]
+        float_study = closed_loop.Study(study.setup, study.lqg, study.boundary_layer, None, study.clqg_boundary_layer,
+                                        runs, study.sensor_names, study.joint_names)
+        out["float_orderings"] = float_study.orderings()
     return out
 
 
@@ -68,7 +79,14 @@ def markdown(figures: dict, artifact: artifacts.ControllerArtifact) -> str:
              "(of the F_N span) | E(t_e) float in the loop vs reference |",
              "|---|---:|---:|---:|---:|---:|"]
     for name, f in figures.items():
+        if name == "float_orderings":
+            continue
         lines.append(f"| {name} | {f['samples']} | {f['double_identical_samples']} | {f['double_max_deviation']:.3g} | "
                      f"{f['float_max_deviation']:.3g} ({f['float_max_deviation'] / span:.1e}) | "
                      f"{100 * f['energy_measure_float_relative_error']:+.2f} % |")
+    orderings = figures.get("float_orderings")
+    if orderings is not None:
+        held = all(v for k, v in orderings.items() if k != "power_ratio_active_to_clqg")
+        lines += ["", f"The paper's orderings with the float build in the loop: {'all hold' if held else '**not all hold**'} "
+                  f"({', '.join(k for k, v in orderings.items() if v is True)})."]
     return "\n".join(lines) + "\n"

@@ -276,18 +276,20 @@ class _Lqg:
     def _estimate(self, sensors: np.ndarray, force: np.ndarray) -> np.ndarray:
         d = self.design
         prior = self._time_update(force)
-        innovation = np.asarray(sensors, dtype=float) - ordered_product(d.output, prior)
+        # Before the first sample the prediction is 0 (not C·0, whose zeros may carry a sign).
+        predicted = ordered_product(d.output, prior) if self.started else np.zeros(d.output.shape[0])
+        innovation = np.asarray(sensors, dtype=float) - predicted
         self.estimate = prior + ordered_product(d.estimator_gain, innovation)
         self.started = True
         return -ordered_product(d.feedback_gain, self.estimate)
 
 
 def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
-    """matrix @ vector summed strictly left to right over the columns, from 0.0 — the order of
-    the generated C loops, so the double build reproduces this reference bit for bit (BLAS
-    sums in blocks and with FMA, which differs in the last bits)."""
-    total = np.zeros(matrix.shape[0])
-    for k in range(matrix.shape[1]):
+    """matrix @ vector summed strictly left to right over the columns, starting with the first
+    product — the order of the generated C, so the double build reproduces this reference bit
+    for bit (BLAS sums in blocks and with FMA, which differs in the last bits)."""
+    total = matrix[:, 0] * vector[0]
+    for k in range(1, matrix.shape[1]):
         total = total + matrix[:, k] * vector[k]
     return total
 

@@ -70,3 +70,23 @@ def choose(candidates: list[Candidate], count: int) -> list[Candidate]:
         if len(chosen) == count:
             return chosen
     raise ModelError(f"joints: {count} requested, only {len(chosen)} members with end connectors")
+
+
+def design_text(base: str, name: str, chosen: list[Candidate], targets: list[int], prefix: str = "A") -> str:
+    """A design file that extends ``base`` (path relative to the new file) by type A joints at
+    the ``chosen`` connectors, named ``A1, A2, …`` in rank order, with the scores as comments."""
+    lines = [f"# Joint placement by modal strain energy (paper Section 6): modes "
+             f"{', '.join(str(i + 1) for i in targets)}; written by `smartjoint place`.",
+             f"base = {_quote(base)}", f"name = {_quote(name)}",
+             f"description = {_quote(f'{len(chosen)} type A joints placed for modes ' + ', '.join(str(i + 1) for i in targets))}"]
+    for k, c in enumerate(chosen, start=1):
+        lines += ["", f"# score {c.score:.4g} (strain-energy fraction per mode: "
+                  + ", ".join(f"{f:.3g}" for f in c.fractions) + ")",
+                  "[[joints]]", f"name = {_quote(f'{prefix}{k}')}", f"member = {_quote(c.member)}",
+                  f"end = {_quote(c.end)}", 'type = "A"']
+    return "\n".join(lines) + "\n"
+
+
+def _quote(text: str) -> str:
+    """A TOML basic string."""
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'

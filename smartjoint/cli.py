@@ -327,6 +327,48 @@ def cmd_codegen(args) -> dict:
     return out
 
 
+def cmd_place(args) -> dict:
+    import os
+
+    from .design import build_model, placement, solve_modes
+    from .design.errors import ModelError
+
+    design, _ = _updated(args)
+    if design.joints:
+        raise ModelError(f"design {design.name!r} already has joints ({', '.join(j.name for j in design.joints)}): "
+                         "place joints on the conventional truss (a design without [[joints]])")
+    try:
+        targets = sorted({int(v) - 1 for v in args.modes.split(",")})
+    except ValueError:
+        raise ModelError(f"--modes: {args.modes!r} — expected comma-separated mode numbers, e.g. 1,2") from None
+    fe = build_model(design, joints="locked")
+    modes = solve_modes(fe, max(targets) + 1 if targets and targets[0] >= 0 else 1)
+    candidates = placement.connector_energy(fe, modes, targets)
+    chosen = placement.choose(candidates, args.count)
+    ranking = placement.rank(candidates)[:args.top]
+    out = {"design": design.name, "target_modes": [i + 1 for i in targets],
+           "target_frequencies_hz": [float(modes.frequencies_hz[i]) for i in targets],
+           "chosen": [{"member": c.member, "end": c.end, "score": c.score, "fractions": list(c.fractions)}
+                      for c in chosen],
+           "ranking": [{"member": c.member, "end": c.end, "score": c.score} for c in ranking]}
+    if args.output:
+        target = Path(args.output)
+        source = Path(design.source)
+        base = os.path.relpath(source.resolve(), target.resolve().parent) if source.exists() else str(source)
+        _write_atomic(target, placement.design_text(base, f"{design.name}-placed", chosen, targets))
+        out["written"] = str(target)
+    if not args.json:
+        print(f"modes {', '.join(str(i + 1) for i in targets)} "
+              f"({', '.join(f'{f:.2f}' for f in out['target_frequencies_hz'])} Hz): best end connectors")
+        print("| rank | member | end | strain-energy fraction (sum over the modes) |\n|---:|---|---|---:|")
+        for k, c in enumerate(ranking, start=1):
+            mark = " ← joint" if any(c.member == j.member and c.end == j.end for j in chosen) else ""
+            print(f"| {k} | {c.member} | {c.end} | {c.score:.4g}{mark} |")
+        if args.output:
+            print(f"design with {len(chosen)} type A joints written to {args.output}")
+    return out
+
+
 def _write_atomic(path: Path, text: str) -> None:
     """Write through a temporary file so that a failure never leaves half a file behind."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -413,6 +455,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("place", help="rank end connectors by modal strain energy and place type A joints (Section 6)")
+    _add_design(p)
+    p.add_argument("--modes", default="1,2", help="modes to damp, comma-separated numbers (default: %(default)s)")
+    p.add_argument("--count", type=_positive_int, default=3, help="joints to place (default: %(default)s)")
+    p.add_argument("--top", type=_positive_int, default=10, help="ranking rows to show (default: %(default)s)")
+    p.add_argument("-o", "--output", help="write a design file with the joints (extends DESIGN via base = …)")
+    p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.set_defaults(func=cmd_place)
 
     p = sub.add_parser("design", help="design the controllers (Section 5) and write the artefact codegen consumes")
     _add_design(p)

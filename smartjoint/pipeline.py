@@ -93,7 +93,8 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
 
     progress("[7/8] firmware: generated C (float and double), back-to-back on the study")
     firmware_files = generate.render(controller, "float")
-    firmware_check = backtoback.back_to_back(control_study.setup, controller, progress=progress)
+    firmware_check = backtoback.back_to_back(control_study.setup, controller, progress=progress,
+                                            study=control_study)
 
     progress("[8/8] report")
     output.parent.mkdir(parents=True, exist_ok=True)

@@ -53,4 +53,14 @@ def test_run_writes_a_complete_report(tmp_path, capsys):
     for name in ("report.md", "mode_shapes.png", "spectrum.png", "summary.json"):
         assert (out / name).stat().st_size > 0
     assert summary["modes_released_hz"][0] < summary["modes_hz"][0]
+    # Control study, controller artefact and generated firmware join the report.
+    from smartjoint.design import artifact
+
+    assert artifact.load(out / "controller.json").artifact_sha256 == summary["control"]["artifact_sha256"]
+    assert set(summary["control"]["runs"]) == {"passive F_min", "passive F_max", "SISO", "cLQG", "active LQG"}
+    assert (out / "control_energy.png").stat().st_size > 0 and (out / "firmware" / "smartjoint_clqg.c").exists()
+    check = summary["firmware"]["back_to_back"]
+    assert check["cLQG"]["double_identical_samples"] == check["cLQG"]["samples"]
+    assert set(check["float_orderings"]) >= {"siso_below_both_passive", "clqg_tip_rms_below_siso"}
+    assert "back-to-back" in (out / "report.md").read_text()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".report-")]  # no staging left

@@ -136,7 +136,13 @@ static unsigned int fault(smartjoint_clqg_state *state, smartjoint_clqg_output *
 unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
 {
     smartjoint_real prior[STATES];
-    smartjoint_real innovation[SENSORS];
+    smartjoint_real predicted0;
+    smartjoint_real innovation0;
+    smartjoint_real predicted1;
+    smartjoint_real innovation1;
+    smartjoint_real force0;
+    smartjoint_real force1;
+    smartjoint_real force2;
     int i, j, r, k;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
@@ -151,54 +157,77 @@ unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint
             return fault(state, output, SMARTJOINT_STATUS_INPUT_INVALID);
         }
     }
-    /* Time update, block by block (never a dense STATES x STATES product); first-order hold
-     * on the friction forces between the previous sample and now. */
-    for (i = 0; i < COORDINATES; ++i) {
-        smartjoint_real start = 0.0f;
-        smartjoint_real end = 0.0f;
-        if (!state->started) {
-            prior[2 * i] = 0.0f;
-            prior[2 * i + 1] = 0.0f;
-            continue;
+    /* Time update, block by block (never a dense STATES x STATES product), with a first-order
+     * hold on the friction forces between the previous sample and now, fused with the
+     * prediction C x_prior of the sensors. Every sum runs left to right from its first term:
+     * the order of the Python reference (control.ordered_product), so the double build is
+     * bit-identical to it. */
+    if (state->started) {
+        {
+            const smartjoint_real start = joint_input[0][0] * state->previous_force[0] + joint_input[0][1] * state->previous_force[1] + joint_input[0][2] * state->previous_force[2];
+            const smartjoint_real end = joint_input[0][0] * input->friction_force[0] + joint_input[0][1] * input->friction_force[1] + joint_input[0][2] * input->friction_force[2];
+            const smartjoint_real x0 = state->estimate[0];
+            const smartjoint_real x1 = state->estimate[1];
+            const smartjoint_real p0 = (blocks[0][0] * x0 + blocks[0][1] * x1) - gamma0[0][0] * start - gamma1[0][0] * end;
+            const smartjoint_real p1 = (blocks[0][2] * x0 + blocks[0][3] * x1) - gamma0[0][1] * start - gamma1[0][1] * end;
+            prior[0] = p0;
+            prior[1] = p1;
+            predicted0 = output_matrix[0][0] * p0;
+            predicted0 += output_matrix[0][1] * p1;
+            predicted1 = output_matrix[1][0] * p0;
+            predicted1 += output_matrix[1][1] * p1;
         }
-        for (j = 0; j < JOINTS; ++j) {
-            start += joint_input[i][j] * state->previous_force[j];
-            end += joint_input[i][j] * input->friction_force[j];
+        for (i = 1; i < COORDINATES; ++i) {
+        {
+            const smartjoint_real start = joint_input[i][0] * state->previous_force[0] + joint_input[i][1] * state->previous_force[1] + joint_input[i][2] * state->previous_force[2];
+            const smartjoint_real end = joint_input[i][0] * input->friction_force[0] + joint_input[i][1] * input->friction_force[1] + joint_input[i][2] * input->friction_force[2];
+            const smartjoint_real x0 = state->estimate[2 * i];
+            const smartjoint_real x1 = state->estimate[2 * i + 1];
+            const smartjoint_real p0 = (blocks[i][0] * x0 + blocks[i][1] * x1) - gamma0[i][0] * start - gamma1[i][0] * end;
+            const smartjoint_real p1 = (blocks[i][2] * x0 + blocks[i][3] * x1) - gamma0[i][1] * start - gamma1[i][1] * end;
+            prior[2 * i] = p0;
+            prior[2 * i + 1] = p1;
+            predicted0 += output_matrix[0][2 * i] * p0;
+            predicted0 += output_matrix[0][2 * i + 1] * p1;
+            predicted1 += output_matrix[1][2 * i] * p0;
+            predicted1 += output_matrix[1][2 * i + 1] * p1;
         }
-        prior[2 * i] = (blocks[i][0] * state->estimate[2 * i] + blocks[i][1] * state->estimate[2 * i + 1])
-                       - gamma0[i][0] * start - gamma1[i][0] * end;
-        prior[2 * i + 1] = (blocks[i][2] * state->estimate[2 * i] + blocks[i][3] * state->estimate[2 * i + 1])
-                           - gamma0[i][1] * start - gamma1[i][1] * end;
-    }
-    /* Measurement update x_hat = prior + M (y - C prior). */
-    for (r = 0; r < SENSORS; ++r) {
-        smartjoint_real predicted = 0.0f;
+        }
+    } else {
         for (k = 0; k < STATES; ++k) {
-            predicted += output_matrix[r][k] * prior[k];
+            prior[k] = 0.0f;
         }
-        innovation[r] = input->sensors[r] - predicted;
+        predicted0 = 0.0f;
+        predicted1 = 0.0f;
     }
-    for (k = 0; k < STATES; ++k) {
-        smartjoint_real correction = 0.0f;
-        for (r = 0; r < SENSORS; ++r) {
-            correction += estimator_gain[k][r] * innovation[r];
+    innovation0 = input->sensors[0] - predicted0;
+    innovation1 = input->sensors[1] - predicted1;
+    /* Measurement update x_hat = prior + M (y - C prior), fused with u_d = -K x_hat (Eq. 33).
+     * A non-finite estimate makes every K x_hat non-finite (inf * 0 is NaN), so checking the
+     * forces covers it. */
+        {
+            const smartjoint_real estimate = prior[0] + (estimator_gain[0][0] * innovation0 + estimator_gain[0][1] * innovation1);
+            state->estimate[0] = estimate;
+            force0 = feedback_gain[0][0] * estimate;
+            force1 = feedback_gain[1][0] * estimate;
+            force2 = feedback_gain[2][0] * estimate;
         }
-        state->estimate[k] = prior[k] + correction;
-        if (!isfinite(state->estimate[k])) {
-            return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
+    for (k = 1; k < STATES; ++k) {
+        {
+            const smartjoint_real estimate = prior[k] + (estimator_gain[k][0] * innovation0 + estimator_gain[k][1] * innovation1);
+            state->estimate[k] = estimate;
+            force0 += feedback_gain[0][k] * estimate;
+            force1 += feedback_gain[1][k] * estimate;
+            force2 += feedback_gain[2][k] * estimate;
         }
     }
-    /* Eq. 33 and the clipped law of Eq. 34. */
-    for (j = 0; j < JOINTS; ++j) {
-        smartjoint_real force = 0.0f;
-        for (k = 0; k < STATES; ++k) {
-            force += feedback_gain[j][k] * state->estimate[k];
-        }
-        output->desired_force[j] = -force;
-        if (!isfinite(force)) {
-            return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
-        }
+    if (!(isfinite(force0) && isfinite(force1) && isfinite(force2))) {
+        return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
     }
+    output->desired_force[0] = -force0;
+    output->desired_force[1] = -force1;
+    output->desired_force[2] = -force2;
+    /* The clipped law of Eq. 34. */
     for (j = 0; j < JOINTS; ++j) {
         const smartjoint_real friction = input->friction_force[j];
         const smartjoint_real applied = input->normal_force[j];
