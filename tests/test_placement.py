@@ -44,3 +44,27 @@ def test_bad_targets_are_named(reference):
         placement.connector_energy(fe, modes, [6])
     with pytest.raises(ModelError, match="joints: 500 requested"):
         placement.choose(placement.connector_energy(fe, modes, [0]), 500)
+
+
+def test_place_command_writes_a_loadable_design_with_the_ranked_joints(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    target = tmp_path / "placed" / "three.toml"
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "place", "--no-update", "--modes", "1,2", "--count",
+                           "3", "-o", str(target), "--json"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    placed = spec.load_design(target)
+    bundled = spec.load_design(Path(fem.__file__).with_name("data") / "three_type_a.toml")
+    assert [(j.member, j.end, j.type) for j in placed.joints] == [(j.member, j.end, j.type) for j in bundled.joints]
+    assert [c["member"] for c in out["chosen"]] == [j.member for j in placed.joints]
+    scores = [c["score"] for c in out["ranking"]]
+    assert scores == sorted(scores, reverse=True)
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "place", str(target), "--no-update"],
+                          capture_output=True, text=True)
+    assert done.returncode == 2 and "already has joints" in done.stderr
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "place", "--no-update", "--modes", "x"],
+                          capture_output=True, text=True)
+    assert done.returncode == 2 and "--modes" in done.stderr
