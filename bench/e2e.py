@@ -1,0 +1,122 @@
+"""End-to-end protection of every frame: CRC-8 SAE J1850 and a 4-bit alive counter.
+
+CRC-8 SAE J1850: polynomial 0x1D, initial value 0xFF, final XOR 0xFF, no reflection; check value
+0x4B for the ASCII bytes "123456789". The CRC of a frame covers the two bytes of its
+identifier (low byte first, a "data ID" as in AUTOSAR E2E profiles, so a payload that arrives
+under the wrong identifier fails) and every payload byte except byte 0, which holds the CRC.
+The alive counter (bits 8–11, 0…15) advances by one per transmission and wraps; a receiver
+accepts a step of 1…``MAX_COUNTER_STEP`` (lost frames in between) and flags a repeat (0) or a
+larger jump. ``firmware/runtime/sj_e2e.c`` is the C twin; the tests hold both to the same vectors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+POLYNOMIAL = 0x1D
+INITIAL = 0xFF
+FINAL_XOR = 0xFF
+CHECK_VALUE = 0x4B  # CRC of b"123456789"
+COUNTER_MODULO = 16
+MAX_COUNTER_STEP = 3  # accept up to two lost frames between two received ones
+
+
+def _table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ POLYNOMIAL) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        table.append(crc)
+    return tuple(table)
+
+
+TABLE = _table()
+
+
+def crc8(data: bytes, initial: int = INITIAL, final_xor: int = FINAL_XOR) -> int:
+    """CRC-8 SAE J1850 of ``data``."""
+    crc = initial
+    for byte in bytes(data):
+        crc = TABLE[crc ^ byte]
+    return crc ^ final_xor
+
+
+def frame_crc(frame_id: int, payload: bytes) -> int:
+    """The CRC of byte 0 of a frame: over the identifier (2 bytes, low first) and payload[1:]."""
+    return crc8(bytes((frame_id & 0xFF, (frame_id >> 8) & 0xFF)) + bytes(payload[1:]))
+
+
+def protect(frame_id: int, payload: bytearray, counter: int) -> bytearray:
+    """Write the alive counter (low nibble of byte 1) and then the CRC (byte 0) into ``payload``."""
+    if len(payload) < 2:
+        raise ValueError(f"payload: {len(payload)} bytes — a protected frame needs at least 2 (CRC, counter)")
+    payload[1] = (payload[1] & 0xF0) | (counter % COUNTER_MODULO)
+    payload[0] = frame_crc(frame_id, payload)
+    return payload
+
+
+@dataclass(frozen=True)
+class Check:
+    """Result of checking one received frame."""
+
+    crc_ok: bool
+    counter: int
+    counter_step: int | None  # steps since the last accepted counter; None for the first frame
+
+    @property
+    def ok(self) -> bool:
+        return self.crc_ok and (self.counter_step is None or 1 <= self.counter_step <= MAX_COUNTER_STEP)
+
+    @property
+    def reason(self) -> str:
+        if not self.crc_ok:
+            return "crc"
+        if self.counter_step == 0:
+            return "counter repeated"
+        if self.counter_step is not None and self.counter_step > MAX_COUNTER_STEP:
+            return "counter jump"
+        return "ok"
+
+
+def check(frame_id: int, payload: bytes, last_counter: int | None) -> Check:
+    """Check CRC and alive counter of a received frame against the last accepted counter."""
+    payload = bytes(payload)
+    if len(payload) < 2:
+        return Check(False, 0, None)
+    counter = payload[1] & 0x0F
+    step = None if last_counter is None else (counter - last_counter) % COUNTER_MODULO
+    return Check(payload[0] == frame_crc(frame_id, payload), counter, step)
+
+
+RUNTIME = Path(__file__).resolve().parents[1] / "firmware" / "runtime"
+_DECLARATIONS = """
+typedef struct { uint8_t last_counter; uint8_t valid; } sj_e2e_receiver;
+uint8_t sj_crc8_j1850(const uint8_t *data, size_t length, uint8_t crc);
+uint8_t sj_e2e_frame_crc(uint16_t frame_id, const uint8_t *payload, size_t length);
+void sj_e2e_protect(uint16_t frame_id, uint8_t *payload, size_t length, uint8_t counter);
+unsigned int sj_e2e_check(sj_e2e_receiver *receiver, uint16_t frame_id, const uint8_t *payload, size_t length,
+                          size_t expected_length);
+"""
+
+
+def compiled():
+    """The C twin (``firmware/runtime/sj_e2e.c``, strict flags) loaded with cffi: ``.ffi``, ``.lib``."""
+    from ..codegen.build import FLAGS, compile_object
+    from ..design import native
+
+    source = RUNTIME / "sj_e2e.c"
+    if not source.exists():
+        raise FileNotFoundError(f"{source}: the firmware runtime is part of the source tree, not of an installed wheel")
+    build = native.cache_dir() / "runtime"
+    build.mkdir(parents=True, exist_ok=True)
+    copy = build / "sj_e2e.c"
+    for name in ("sj_e2e.c", "sj_e2e.h"):
+        text = (RUNTIME / name).read_text()
+        if not (build / name).exists() or (build / name).read_text() != text:
+            (build / name).write_text(text)
+    glue = build / "_e2e_glue.c"
+    if not glue.exists():
+        glue.write_text('#include "sj_e2e.h"\n')
+    return native.load("e2e", _DECLARATIONS, glue, objects=(compile_object(copy, FLAGS),), includes=(build,))

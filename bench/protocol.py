@@ -1,0 +1,145 @@
+"""The CAN protocol of a controller, generated from its design artefact as a cantools database.
+
+The DBC is the one source of truth of the bus: every frame, signal, scaling, range, sender and
+cycle time. Frames (11-bit identifiers, CAN FD where a payload exceeds 8 bytes; every frame
+starts with the E2E bytes of ``bench/e2e.py``: byte 0 CRC-8 J1850, bits 8–11 alive counter):
+
+| frame | id | sender | cycle | payload |
+|---|---|---|---|---|
+| ``JOINT_<j>`` | 0x100 + j | joint sensor node | Δt | sliding velocity v_j, friction force u_R,j, applied normal force F_N,j |
+| ``TIP_SENSORS`` | 0x180 | tip sensor node | Δt | the design's sensors y (m or m/s) |
+| ``SETPOINT_<j>`` | 0x200 + j | controller | Δt | piezo voltage setpoint V_j (F_N = k·V + preload) |
+| ``AMP_STATUS_<j>`` | 0x280 + j | amplifier j | 10·Δt | monitor voltage, current, temperature, fault bits |
+| ``CONTROLLER_STATUS`` | 0x080 | controller | 10·Δt | mode, status bits of the last step |
+
+Scalings are chosen so that quantisation stays far below what the controllers resolve (the
+SISO boundary layer ε ~ 1e-6 m/s: velocity step 1e-9 m/s).
+"""
+
+from __future__ import annotations
+
+import re
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import cantools
+from cantools.database import can, conversion
+from cantools.database.can.formats.dbc.dbc_attribute import DbcAttribute
+from cantools.database.can.formats.dbc.dbc_attribute_definition import DbcAttributeDefinition
+from cantools.database.can.formats.dbc.dbc_specifics import DbcSpecifics
+
+from ..design.artifact import ControllerArtifact
+from ..design.errors import ModelError
+
+JOINT_BASE, TIP_ID, SETPOINT_BASE, STATUS_BASE, CONTROLLER_ID = 0x100, 0x180, 0x200, 0x280, 0x080
+MAX_JOINTS = 0x80  # identifier blocks of 128
+MAX_SENSORS = 15  # 2 + 4·15 = 62 bytes ≤ 64 (CAN FD)
+FD_LENGTHS = (8, 12, 16, 20, 24, 32, 48, 64)
+SLOW_FACTOR = 10  # amplifier and controller status: every 10th sample
+
+CONTROLLER = "CONTROLLER"
+MODES = {0: "INIT", 1: "SISO", 2: "CLQG", 3: "SAFE"}
+AMPLIFIER_FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current")
+
+
+@dataclass(frozen=True)
+class Amplifier:
+    """Piezo amplifier range and calibration of the stacks: F_N = force_per_volt·V + preload."""
+
+    voltage_max: float = 150.0  # V
+    force_per_volt: float = 8.0  # N/V
+    preload: float = 0.0  # N
+
+
+def _e2e(frame_id: int) -> list[can.Signal]:
+    return [can.Signal("crc", 0, 8, comment="CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1"),
+            can.Signal("counter", 8, 4, minimum=0, maximum=15, comment="alive counter, +1 per frame, mod 16")]
+
+
+def _scaled(name, start, length, scale, signed, unit, minimum, maximum, comment) -> can.Signal:
+    return can.Signal(name, start, length, is_signed=signed, conversion=conversion.BaseConversion.factory(scale, 0.0),
+                      minimum=minimum, maximum=maximum, unit=unit, comment=comment)
+
+
+def _fd_length(payload_bytes: int) -> int:
+    return next(n for n in FD_LENGTHS if n >= payload_bytes) if payload_bytes > 8 else 8
+
+
+def _identifier(name: str, kind: str) -> str:
+    if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", name):
+        raise ModelError(f"{kind}_names: {name!r} is not a valid DBC/C identifier ([A-Za-z_][A-Za-z0-9_]*) — it names "
+                         f"a frame of the CAN protocol; rename the {kind} in the design file")
+    return name.upper()
+
+
+def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -> can.Database:
+    """The cantools database of ``artifact``'s controller bus (see the module docstring)."""
+    joints, sensors = list(artifact.joint_names), list(artifact.sensor_names)
+    if not 1 <= len(joints) <= MAX_JOINTS:
+        raise ModelError(f"joint_names: {len(joints)} joints — the protocol carries 1…{MAX_JOINTS}")
+    if not 1 <= len(sensors) <= MAX_SENSORS:
+        raise ModelError(f"sensor_names: {len(sensors)} sensors — one TIP_SENSORS frame carries 1…{MAX_SENSORS}")
+    cycle = artifact.sample_time * 1000.0
+    if abs(cycle - round(cycle)) > 1e-9 or round(cycle) < 1:
+        raise ModelError(f"sample_time: {artifact.sample_time!r} s — DBC cycle times are whole milliseconds; use a "
+                         "sample time of 1 ms, 2 ms, …")
+    cycle = int(round(cycle))
+    nodes = [can.Node(CONTROLLER, comment="semi-active controller (generated firmware)"),
+             can.Node("TIP_NODE", comment="tip deflection sensors")]
+    messages = []
+    for j, name in enumerate(joints):
+        tag = _identifier(name, "joint")
+        frame_id = JOINT_BASE + j
+        signals = _e2e(frame_id) + [
+            _scaled("sliding_velocity", 16, 32, 1e-9, True, "m/s", -2.0, 2.0, f"v of joint {name}"),
+            _scaled("friction_force", 48, 32, 1e-5, True, "N", -20000.0, 20000.0, f"u_R of joint {name}"),
+            _scaled("normal_force", 80, 16, 0.02, False, "N", 0.0, 1310.0, f"applied F_N of joint {name}")]
+        nodes.append(can.Node(f"JOINT_NODE_{tag}", comment=f"sensors of joint {name}"))
+        nodes.append(can.Node(f"AMPLIFIER_{tag}", comment=f"piezo amplifier of joint {name}"))
+        messages.append(can.Message(frame_id, f"JOINT_{tag}", 12, signals, senders=[f"JOINT_NODE_{tag}"],
+                                    cycle_time=cycle, is_fd=True, comment=f"joint {name}: v, u_R, F_N"))
+        volts = _scaled("voltage", 16, 16, 0.005, False, "V", 0.0, amplifier.voltage_max,
+                        f"piezo voltage setpoint of joint {name}: F_N = {amplifier.force_per_volt:g}·V + "
+                        f"{amplifier.preload:g} N")
+        messages.append(can.Message(SETPOINT_BASE + j, f"SETPOINT_{tag}", 4, _e2e(SETPOINT_BASE + j) + [volts],
+                                    senders=[CONTROLLER], cycle_time=cycle, comment=f"setpoint of amplifier {name}"))
+        status = _e2e(STATUS_BASE + j) + [
+            _scaled("monitor_voltage", 16, 16, 0.005, False, "V", 0.0, amplifier.voltage_max, "measured output"),
+            _scaled("current", 32, 16, 1e-4, True, "A", -3.0, 3.0, "output current"),
+            can.Signal("temperature", 48, 8, conversion=conversion.BaseConversion.factory(1.0, -40.0), minimum=-40.0,
+                       maximum=215.0, unit="degC", comment="amplifier temperature"),
+        ] + [can.Signal(fault, 12 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
+             for k, fault in enumerate(AMPLIFIER_FAULTS)]
+        messages.append(can.Message(STATUS_BASE + j, f"AMP_STATUS_{tag}", 8, status, senders=[f"AMPLIFIER_{tag}"],
+                                    cycle_time=cycle * SLOW_FACTOR, comment=f"amplifier {name} status"))
+    tip = _e2e(TIP_ID) + [
+        _scaled(_identifier(s, "sensor").lower(), 16 + 32 * k, 32, 1e-8, True, "m", -20.0, 20.0, f"sensor {s}")
+        for k, s in enumerate(sensors)]
+    messages.append(can.Message(TIP_ID, "TIP_SENSORS", _fd_length(2 + 4 * len(sensors)), tip, senders=["TIP_NODE"],
+                                cycle_time=cycle, is_fd=2 + 4 * len(sensors) > 8, comment="tip sensors y"))
+    mode = can.Signal("mode", 16, 4, minimum=0, maximum=3, comment="0 init, 1 SISO, 2 cLQG, 3 safe state",
+                      conversion=conversion.BaseConversion.factory(1, 0, dict(MODES)))
+    controller = _e2e(CONTROLLER_ID) + [mode, can.Signal("step_status", 24, 8, comment="status bits of the last step"),
+                                        can.Signal("missing_inputs", 20, 4, comment="inputs in timeout or invalid")]
+    messages.append(can.Message(CONTROLLER_ID, "CONTROLLER_STATUS", 4, controller, senders=[CONTROLLER],
+                                cycle_time=cycle * SLOW_FACTOR, comment="controller heartbeat"))
+    messages.sort(key=lambda m: m.frame_id)
+    # BusType "CAN FD" makes cantools write VFrameFormat per frame, so is_fd survives the DBC.
+    bus_type = DbcAttributeDefinition("BusType", default_value="CAN", kind=None, type_name="STRING")
+    specifics = DbcSpecifics(attributes=OrderedDict(BusType=DbcAttribute("CAN FD", bus_type)),
+                             attribute_definitions=OrderedDict(BusType=bus_type))
+    db = can.Database(messages, nodes, version=f"smartjoint artefact {artifact.artifact_sha256[:16]}",
+                      dbc_specifics=specifics)
+    db.refresh()
+    return db
+
+
+def dbc_text(db: can.Database) -> str:
+    return db.as_dbc_string()
+
+
+def load_dbc(text: str) -> can.Database:
+    try:
+        return cantools.database.load_string(text, database_format="dbc")
+    except Exception as error:  # cantools raises several parser errors
+        raise ModelError(f"DBC: cannot parse ({type(error).__name__}: {error})") from None

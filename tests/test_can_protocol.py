@@ -1,0 +1,133 @@
+"""CAN protocol pieces: E2E protection (CRC-8 SAE J1850, alive counter) in Python and C, the DBC
+generated from the controller artefact, and the worst-case bus load."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smartjoint.bench import busload, e2e, protocol
+from smartjoint.design import artifact
+from smartjoint.design.errors import ModelError
+
+REFERENCE = Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json"
+# AUTOSAR "Specification of CRC Routines", CRC8 SAE J1850 check table.
+VECTORS = [(b"\x00\x00\x00\x00", 0x59), (b"\xF2\x01\x83", 0x37), (b"\x0F\xAA\x00\x55", 0x79),
+           (b"\x00\xFF\x55\x11", 0xB8), (b"\x33\x22\x55\xAA\xBB\xCC\xDD\xEE\xFF", 0xCB), (b"\x92\x6B\x55", 0x8C),
+           (b"\xFF\xFF\xFF\xFF", 0x74), (b"123456789", 0x4B)]
+
+
+@pytest.fixture(scope="module")
+def runtime():
+    return e2e.compiled()
+
+
+@pytest.mark.parametrize("data, crc", VECTORS)
+def test_crc8_j1850_vectors_in_python_and_c(runtime, data, crc):
+    assert e2e.crc8(data) == crc
+    assert runtime.lib.sj_crc8_j1850(data, len(data), 0xFF) ^ 0xFF == crc
+
+
+def test_frame_crc_and_protection_agree_between_c_and_python(runtime):
+    ffi, lib = runtime.ffi, runtime.lib
+    rng = np.random.default_rng(5)
+    for _ in range(20000):
+        length = int(rng.integers(2, 65))
+        frame_id = int(rng.integers(0, 0x800))
+        payload = bytearray(rng.integers(0, 256, length, dtype=np.uint8).tobytes())
+        counter = int(rng.integers(0, 16))
+        expected = e2e.protect(frame_id, bytearray(payload), counter)
+        buffer = ffi.new("uint8_t[]", bytes(payload))
+        lib.sj_e2e_protect(frame_id, buffer, length, counter)
+        assert bytes(ffi.buffer(buffer, length)) == bytes(expected)
+        assert lib.sj_e2e_frame_crc(frame_id, bytes(expected), length) == expected[0]
+
+
+def test_every_single_bit_error_and_a_wrong_identifier_are_detected(runtime):
+    payload = e2e.protect(0x101, bytearray(range(12)), 5)
+    for bit in range(8 * len(payload)):
+        flipped = bytearray(payload)
+        flipped[bit // 8] ^= 1 << (bit % 8)
+        assert not e2e.check(0x101, flipped, None).crc_ok
+    assert not e2e.check(0x102, payload, None).crc_ok  # same bytes under another identifier
+
+
+def test_alive_counter_policy_is_the_same_in_c_and_python(runtime):
+    ffi, lib = runtime.ffi, runtime.lib
+    receiver = ffi.new("sj_e2e_receiver *")
+    last = None
+    rng = np.random.default_rng(2)
+    counter = 0
+    for k in range(3000):
+        counter = (counter + int(rng.choice([0, 1, 1, 1, 2, 3, 4, 9]))) % 16
+        payload = e2e.protect(0x180, bytearray(12), counter)
+        if k % 97 == 0:
+            payload[5] ^= 0x10  # corrupted on the wire
+        python = e2e.check(0x180, payload, last)
+        status = lib.sj_e2e_check(receiver, 0x180, bytes(payload), len(payload), 12)
+        assert (status == 0) == python.ok, (k, status, python)
+        if not python.crc_ok:
+            assert status == 2
+        elif python.counter_step == 0:
+            assert status == 4
+        elif python.counter_step is not None and python.counter_step > e2e.MAX_COUNTER_STEP:
+            assert status == 8
+        if python.crc_ok and python.counter_step != 0:
+            last = python.counter  # accepted or re-synchronised after a jump (the C policy)
+    assert lib.sj_e2e_check(receiver, 0x180, bytes(12), 8, 12) == 1  # wrong length
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return artifact.load(REFERENCE)
+
+
+def test_dbc_is_generated_from_the_artefact_and_round_trips(reference):
+    db = protocol.database(reference)
+    text = protocol.dbc_text(db)
+    again = protocol.load_dbc(text)
+    assert protocol.dbc_text(again) == text
+    names = {m.name: m for m in again.messages}
+    for j, joint in enumerate(reference.joint_names):
+        joint_frame = names[f"JOINT_{joint.upper()}"]
+        assert joint_frame.frame_id == 0x100 + j and joint_frame.is_fd and joint_frame.cycle_time == 1
+        assert names[f"SETPOINT_{joint.upper()}"].cycle_time == 1 and names[f"AMP_STATUS_{joint.upper()}"].cycle_time == 10
+    tip = names["TIP_SENSORS"]
+    assert [s.name for s in tip.signals][2:] == [s.lower() for s in reference.sensor_names]
+    for message in again.messages:  # every frame starts with the E2E bytes
+        assert message.get_signal_by_name("crc").start == 0 and message.get_signal_by_name("counter").start == 8
+    frame = names["JOINT_A1"]
+    decoded = frame.decode(frame.encode({"crc": 0, "counter": 3, "sliding_velocity": 1.234567891e-3,
+                                         "friction_force": -123.45678, "normal_force": 399.98}))
+    assert decoded["sliding_velocity"] == pytest.approx(1.234567891e-3, abs=1e-9)
+    assert decoded["friction_force"] == pytest.approx(-123.45678, abs=1e-5)
+
+
+def test_protocol_refuses_what_it_cannot_carry(reference):
+    import dataclasses
+
+    with pytest.raises(ModelError, match="joint_names.*not a valid"):
+        protocol.database(dataclasses.replace(reference, joint_names=("A 1", "A2", "A3")))
+    with pytest.raises(ModelError, match="sample_time.*whole milliseconds"):
+        protocol.database(dataclasses.replace(reference, sample_time=2.5e-4))
+
+
+def test_bus_load_worst_case_frames_and_the_limit(reference):
+    assert busload.classical_bits(8) == 135 and busload.classical_bits(0) == 55  # Davis et al. 2007
+    assert busload.fd_bits(12) == (34, 5 + 96 + 25 + 4 + 17 + 6)
+    db = protocol.database(reference)
+    fast = busload.bus_load(db, 1_000_000, 5_000_000)
+    slow = busload.bus_load(db, 1_000_000, 2_000_000)
+    assert 0 < fast.load < slow.load
+    by_hand = sum((34 / 1e6 + busload.fd_bits(m.length)[1] / 5e6 if m.is_fd else
+                   34 / 1e6 + busload.fd_bits(m.length)[1] / 5e6) / (m.cycle_time / 1e3) for m in db.messages)
+    assert fast.load == pytest.approx(by_hand, rel=1e-12)
+    assert busload.check(db, 1_000_000, 5_000_000).load == fast.load
+    with pytest.raises(ModelError, match=r"exceeds the limit 70 %; it fits at CAN FD 0.5/5"):
+        busload.check(db, 500_000, 2_000_000)
+    with pytest.raises(ModelError, match="classical CAN"):
+        busload.check(db, 1_000_000)
+    with pytest.raises(ModelError, match="bitrate"):
+        busload.bus_load(db, 12)
