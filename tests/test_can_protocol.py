@@ -93,7 +93,7 @@ def test_dbc_is_generated_from_the_artefact_and_round_trips(reference):
     for j, joint in enumerate(reference.joint_names):
         joint_frame = names[f"JOINT_{joint.upper()}"]
         assert joint_frame.frame_id == 0x100 + j and joint_frame.is_fd and joint_frame.cycle_time == 1
-        assert names[f"SETPOINT_{joint.upper()}"].cycle_time == 1 and names[f"AMP_STATUS_{joint.upper()}"].cycle_time == 10
+        assert names[f"SETPOINT_{joint.upper()}"].cycle_time == 1 and names[f"AMP_STATUS_{joint.upper()}"].cycle_time == 1
     tip = names["TIP_SENSORS"]
     assert [s.name for s in tip.signals][2:] == [s.lower() for s in reference.sensor_names]
     for message in again.messages:  # every frame starts with the E2E bytes
@@ -125,7 +125,9 @@ def test_bus_load_worst_case_frames_and_the_limit(reference):
                    34 / 1e6 + busload.fd_bits(m.length)[1] / 5e6) / (m.cycle_time / 1e3) for m in db.messages)
     assert fast.load == pytest.approx(by_hand, rel=1e-12)
     assert busload.check(db, 1_000_000, 5_000_000).load == fast.load
-    with pytest.raises(ModelError, match=r"exceeds the limit 70 %; it fits at CAN FD 0.5/5"):
+    with pytest.raises(ModelError, match=r"exceeds the limit 70 %; it fits at CAN FD 1/4 Mbit/s"):
+        busload.check(db, 1_000_000, 2_000_000)
+    with pytest.raises(ModelError, match=r"no standard bitrate carries it — lengthen the sample time"):
         busload.check(db, 500_000, 2_000_000)
     with pytest.raises(ModelError, match="classical CAN"):
         busload.check(db, 1_000_000)
