@@ -1,7 +1,7 @@
 """Piezo amplifier as a CAN bus node: voltage setpoint in, stack voltage out, status frames.
 
 Output dynamics per controller sample Δt (exact for a held setpoint): first-order lag with time
-constant τ towards the saturated setpoint V_set ∈ [0, V_max], the change over one sample limited
+constant τ (0: ideal) towards the saturated setpoint V_set ∈ [0, V_max], the change over one sample limited
 to slew·Δt. The normal force the stack applies over the sample is F_N = k·V̄ + preload with V̄
 the mean voltage over the sample (so the plant gets the right impulse). Status frames report the
 monitor voltage, the current C·dV/dt, the temperature and the fault bits. Injectable faults:
@@ -14,6 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..design.errors import ModelError
+
 FAULTS = ("over_temperature", "no_response", "stuck_output")
 
 
@@ -22,7 +24,7 @@ class AmplifierModel:
     force_per_volt: float  # k [N/V]
     preload: float = 0.0  # [N]
     voltage_max: float = 150.0  # [V]
-    time_constant: float = 2e-5  # τ [s]
+    time_constant: float = 0.0  # τ [s]; 0: ideal (the SIL check isolates firmware and bus)
     slew_rate: float = 2e6  # [V/s]
     capacitance: float = 1.8e-6  # [F]
     temperature: float = 35.0  # [°C]
@@ -32,10 +34,12 @@ class AmplifierModel:
     setpoints_received: int = 0
 
     def __post_init__(self):
-        for name in ("force_per_volt", "voltage_max", "time_constant", "slew_rate", "capacitance"):
+        for name in ("force_per_volt", "voltage_max", "slew_rate", "capacitance"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"amplifier {name}: {value!r} — must be a finite number > 0")
+                raise ModelError(f"amplifier {name}: {value!r} — must be a finite number > 0")
+        if not (math.isfinite(self.time_constant) and self.time_constant >= 0):
+            raise ModelError(f"amplifier time_constant: {self.time_constant!r} — must be >= 0 s (0: ideal)")
 
     def receive(self, voltage: float) -> None:
         """A decoded setpoint frame (already E2E-checked by the caller)."""
@@ -50,9 +54,12 @@ class AmplifierModel:
         if self.fault == "stuck_output" or self.fault == "no_response":
             return self.force_per_volt * start + self.preload
         target = 0.0 if self.fault == "over_temperature" else self.setpoint
-        decay = math.exp(-step / self.time_constant)
-        end = target + (start - target) * decay
-        mean = target + (start - target) * self.time_constant / step * (1.0 - decay)
+        if self.time_constant > 0:
+            decay = math.exp(-step / self.time_constant)
+            end = target + (start - target) * decay
+            mean = target + (start - target) * self.time_constant / step * (1.0 - decay)
+        else:  # ideal: the setpoint holds from the start of the sample
+            end = mean = target
         limit = self.slew_rate * step
         if abs(end - start) > limit:  # slew-limited: a ramp over the sample
             end = start + math.copysign(limit, end - start)

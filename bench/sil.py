@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -283,3 +284,93 @@ class SilLoop:
                 "e2e_errors": counters["crc_errors"] + counters["counter_errors"] + counters["length_errors"],
                 "amplifier_e2e_errors": self.amplifier_e2e_errors,
                 "safe_samples": int(sum(self.record.safe)), "injected": dict(self.stats)}
+
+
+def perturbed(controller, relative: float, seed: int):
+    """``controller`` with its normal-force commands multiplied by 1 + relative·N(0, 1): the
+    sensitivity reference of the SIL comparison (float rounding is ~6e-8 relative)."""
+
+    class Perturbed:
+        sample_time = controller.sample_time
+
+        def __init__(self):
+            self.rng = np.random.default_rng(seed)
+
+        def reset(self):
+            controller.reset()
+            self.rng = np.random.default_rng(seed)
+
+        def step(self, measurements):
+            out = np.asarray(controller.step(measurements), dtype=float)
+            return out * (1.0 + relative * self.rng.standard_normal(out.size))
+
+    return Perturbed()
+
+
+def sil_study(setup, artifact, laws=("siso", "clqg"), real: str = "float", faults=(), log_folder=None,
+              amplifier: dict | None = None, bitrate: int = 1_000_000, data_bitrate: int | None = 5_000_000,
+              spread_runs: int = 6, interface: str = "virtual", channel: str = "smartjoint-sil", progress=print) -> dict:
+    """The paper's study through the CAN loop, per law against the model-in-the-loop run of the
+    Python reference controllers: E(t_e) (Eq. 32) and e(t_e) differences, bus statistics, and the
+    spread of the MIL run itself under float-rounding-sized perturbations of its commands (the
+    stick–slip closed loop is chaotic: that spread bounds what any faithful re-implementation
+    can match)."""
+    from ..design import artifact as artifacts
+    from ..design import simulate
+    from ..design import study as closed_loop
+    from . import busload, firmware, protocol
+
+    python = {"siso": artifacts.siso_law, "clqg": artifacts.clipped_lqg}
+    db = protocol.database(artifact)
+    planned = busload.check(db, bitrate, data_bitrate)
+    out = {"bitrate": bitrate, "data_bitrate": data_bitrate, "planned_bus_load": planned.load, "real": real,
+           "amplifier": dict(amplifier or {}), "laws": {}}
+    for law in laws:
+        progress(f"      {law}: model in the loop (Python reference) …")
+        mil = closed_loop.run_semi_active(setup, law, python[law](artifact))
+        spread = []
+        for seed in range(spread_runs):
+            run = closed_loop.run_semi_active(setup, law, perturbed(python[law](artifact), 6e-8, seed))
+            spread.append(run.energy_measure() / mil.energy_measure() - 1.0)
+        progress(f"      {law}: software in the loop ({real} firmware, CAN {bitrate / 1e6:g}"
+                 f"{'' if data_bitrate is None else f'/{data_bitrate / 1e6:g}'} Mbit/s) …")
+        image = firmware.Firmware(artifact, law, real)
+        log_path = None if log_folder is None else Path(log_folder) / f"sil_{law}.blf"
+        if log_path is not None:
+            log_path.parent.mkdir(parents=True, exist_ok=True)
+        loop = SilLoop(image, closed_loop.PULSE_DURATION, faults=faults, interface=interface, channel=channel,
+                       log_path=log_path, amplifier=amplifier)
+        try:
+            result = simulate.simulate(setup.plant, setup.laws, loop, setup.pulse(), setup.duration, setup.plant_step,
+                                       record_every=closed_loop.PLANT_STEPS_PER_SAMPLE, energy_books=False)
+        finally:
+            loop.close()
+        energy_measure = float(np.trapezoid(2.0 * result.energy, result.time))
+        out["laws"][law] = {
+            "energy_measure_mil": mil.energy_measure(), "energy_measure_sil": energy_measure,
+            "energy_measure_difference": energy_measure / mil.energy_measure() - 1.0,
+            "energy_end_mil": float(mil.energy[-1]), "energy_end_sil": float(result.energy[-1]),
+            "mil_spread_under_float_rounding": [min(spread), max(spread)] if spread else None,
+            "max_energy_sil": float(result.energy.max()),
+            "bus": loop.statistics(setup.duration, bitrate, data_bitrate),
+            "log": None if log_path is None else str(log_path),
+            "record": loop.record, "result": result,
+        }
+    return out
+
+
+def sil_markdown(out: dict) -> str:
+    lines = ["## Software in the loop: the study through CAN (firmware + bus + amplifiers)", "",
+             f"{out['real']} firmware, CAN FD {out['bitrate'] / 1e6:g}/{(out['data_bitrate'] or 0) / 1e6:g} Mbit/s, "
+             f"planned worst-case bus load {100 * out['planned_bus_load']:.1f} %.", "",
+             "| law | E(t_e) MIL | E(t_e) SIL | difference | MIL spread under 6e-8 perturbations | e(t_e) MIL / SIL | "
+             "frames | bus load | E2E errors | timeouts | safe samples |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for law, f in out["laws"].items():
+        bus = f["bus"]
+        spread = f["mil_spread_under_float_rounding"]
+        band = "—" if spread is None else f"{100 * spread[0]:+.1f} … {100 * spread[1]:+.1f} %"
+        lines.append(f"| {law} | {f['energy_measure_mil']:.4g} | {f['energy_measure_sil']:.4g} | "
+                     f"{100 * f['energy_measure_difference']:+.2f} % | {band} | {f['energy_end_mil']:.3g} / "
+                     f"{f['energy_end_sil']:.3g} | {bus['frames_total']} | {100 * bus['bus_load']:.1f} % | "
+                     f"{bus['e2e_errors']} | {bus['firmware']['timeouts']} | {bus['safe_samples']} |")
+    return "\n".join(lines) + "\n"

@@ -369,6 +369,117 @@ def cmd_place(args) -> dict:
     return out
 
 
+def _controller_artifact(args, design, model):
+    """--artifact FILE (checked against the design), else designed now (ε optimised if absent)."""
+    from .design import artifact
+    from .design import study as closed_loop
+    from .design.errors import ModelError
+
+    if getattr(args, "artifact", None):
+        loaded = artifact.load(Path(args.artifact))
+        if loaded.design_sha256 != design.sha256:
+            raise ModelError(f"--artifact {args.artifact}: designed from design sha256 {loaded.design_sha256[:16]}…, "
+                             f"but {design.source} has {design.sha256[:16]}… — run `smartjoint design` again")
+        return loaded
+    s = closed_loop.setup(design, model)
+    width = design.control.siso_boundary_layer
+    if width is None:
+        _progress("SISO boundary layer ε: optimising E(t_e) of Eq. 32 …")
+        width = closed_loop.optimise_boundary_layer(s, _progress).boundary_layer
+    return artifact.from_design(design, model, closed_loop.lqg_for(design, model), width)
+
+
+def cmd_sil(args) -> dict:
+    from .bench import logs, sil
+    from .design import study as closed_loop
+
+    design = _control_design(args)
+    model = closed_loop.design_model(design, _progress)
+    controller = _controller_artifact(args, design, model)
+    faults = [logs.parse_fault(text) for text in args.fault or []]
+    laws = ("siso", "clqg") if args.law == "both" else (args.law,)
+    _progress(f"software in the loop on {design.name!r}: {', '.join(laws)}, t_e = {design.control.study_duration:g} s")
+    out = sil.sil_study(closed_loop.setup(design, model), controller, laws, args.real, faults, args.log_folder,
+                        {"time_constant": args.amplifier_lag}, args.bitrate, args.data_bitrate, args.spread,
+                        args.interface, args.channel, _progress)
+    if not args.json:
+        print(sil.sil_markdown(out))
+    for law in out["laws"].values():
+        law.pop("record")
+        law.pop("result")
+    out["design"] = {"name": design.name, "sha256": design.sha256}
+    out["artifact_sha256"] = controller.artifact_sha256
+    return out
+
+
+def _bench_database(args):
+    from .bench import protocol
+    from .design import artifact
+    from .design.errors import ModelError
+
+    if args.dbc:
+        try:
+            return protocol.load_dbc(Path(args.dbc).read_text())
+        except OSError as error:
+            raise ModelError(f"--dbc {args.dbc}: cannot read ({error.strerror})") from None
+    if args.artifact:
+        return protocol.database(artifact.load(Path(args.artifact)))
+    raise ModelError("give the protocol: --dbc FILE or --artifact controller.json")
+
+
+def cmd_bench(args) -> dict:
+    from .bench import logs, protocol, sil
+    from .design import artifact
+
+    if args.bench_command == "dbc":
+        loaded = artifact.load(Path(args.artifact))
+        db = protocol.database(loaded)
+        from .bench import busload
+
+        load = busload.check(db, args.bitrate, args.data_bitrate, args.max_load)
+        _write_atomic(Path(args.output), protocol.dbc_text(db))
+        out = {"dbc": args.output, "frames": len(db.messages), "bus_load": load.load}
+        if not args.json:
+            print(load.table())
+            print(f"DBC written to {args.output}")
+        return out
+    if args.bench_command == "log":
+        bus = sil.open_bus(args.interface, args.channel)
+        try:
+            _progress(f"recording {args.interface}:{args.channel} to {args.output} (Ctrl-C stops) …")
+            out = logs.record(bus, args.output, args.duration, args.rotate_bytes, progress=_progress)
+        finally:
+            bus.shutdown()
+        if not args.json:
+            print(f"{out['frames']} frames in {out['seconds']:.1f} s → {out['file']}")
+        return out
+    messages, problem = logs.read(args.log)
+    if problem:
+        _progress(f"warning: {args.log} ends early after {len(messages)} frames ({problem}); using what was read")
+    if args.bench_command == "decode":
+        decoded = logs.decode(messages, _bench_database(args), problem)
+        out = decoded.summary()
+        if args.output:
+            logs.write_csv(decoded, args.output)
+            out["csv"] = args.output
+        _plots(args, out, lambda folder: logs.plot(decoded, folder))
+        if not args.json:
+            for key, value in out.items():
+                print(f"{key}: {value}")
+        return out
+    from .bench import firmware
+
+    loaded = artifact.load(Path(args.artifact))
+    out = logs.replay(messages, firmware.Firmware(loaded, args.law, args.real), args.tolerance)
+    out["log_problem"] = problem
+    if not args.json:
+        print(f"{out['samples']} samples, {out['setpoints_compared']} setpoints compared, {out['differing']} differ "
+              f"(max {out['max_difference_V']:.3g} V)")
+        for d in out["first_differences"]:
+            print(f"  t = {d['time']:.4f} s {d['frame']}: recorded {d['recorded_V']:.6g} V, replayed {d['replayed_V']:.6g} V")
+    return out
+
+
 def _write_atomic(path: Path, text: str) -> None:
     """Write through a temporary file so that a failure never leaves half a file behind."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -482,6 +593,59 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--check", action="store_true", help="also compile them with the strict warning set (cffi)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_codegen)
+
+    p = sub.add_parser("sil", help="the paper's study through the CAN loop: firmware, bus, amplifiers (software in the loop)")
+    _add_design(p)
+    p.add_argument("--artifact", help="controller artefact (default: designed from DESIGN now)")
+    p.add_argument("--law", choices=("siso", "clqg", "both"), default="both")
+    p.add_argument("--real", choices=("float", "double"), default="float", help="firmware build (default: %(default)s)")
+    p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
+    p.add_argument("--fault", action="append", help="inject kind:target:start:end[:detail], repeatable")
+    p.add_argument("--log-folder", help="write the bus of each run as sil_<law>.blf here")
+    p.add_argument("--amplifier-lag", type=float, default=0.0, help="amplifier time constant [s] (default 0: ideal)")
+    p.add_argument("--bitrate", type=int, default=1_000_000)
+    p.add_argument("--data-bitrate", type=int, default=5_000_000, help="CAN FD data phase [bit/s]")
+    p.add_argument("--spread", type=int, default=6, help="perturbed MIL runs for the sensitivity band (default: %(default)s)")
+    p.add_argument("--interface", default="virtual", help="python-can interface (default: %(default)s)")
+    p.add_argument("--channel", default="smartjoint-sil")
+    p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.set_defaults(func=cmd_sil)
+
+    p = sub.add_parser("bench", help="CAN bench tools: dbc, log, decode, replay")
+    bench = p.add_subparsers(dest="bench_command", required=True, metavar="TOOL")
+    q = bench.add_parser("dbc", help="write the DBC of a controller artefact after the bus-load check")
+    q.add_argument("artifact")
+    q.add_argument("-o", "--output", required=True)
+    q.add_argument("--bitrate", type=int, default=1_000_000)
+    q.add_argument("--data-bitrate", type=int, default=5_000_000)
+    q.add_argument("--max-load", type=float, default=0.7, help="refuse above this load (default: %(default)s)")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_bench)
+    q = bench.add_parser("log", help="record a python-can bus to ASC/BLF/MF4 (by suffix)")
+    q.add_argument("-o", "--output", required=True)
+    q.add_argument("--interface", default="virtual")
+    q.add_argument("--channel", default="smartjoint-sil")
+    q.add_argument("--duration", type=float, help="seconds (default: until Ctrl-C)")
+    q.add_argument("--rotate-bytes", type=int, default=0, help="rotate the file at this size (0: never)")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_bench)
+    q = bench.add_parser("decode", help="decode a log to signals (CSV) and plots with the DBC")
+    q.add_argument("log")
+    q.add_argument("--dbc")
+    q.add_argument("--artifact")
+    q.add_argument("-o", "--output", help="CSV file (time_s, frame, signal, value)")
+    q.add_argument("--plots", help="folder for one PNG per frame")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_bench)
+    q = bench.add_parser("replay", help="feed a log's sensor frames through the firmware; compare its setpoints")
+    q.add_argument("log")
+    q.add_argument("--artifact", required=True)
+    q.add_argument("--law", choices=("siso", "clqg"), default="siso")
+    q.add_argument("--real", choices=("float", "double"), default="float")
+    q.add_argument("--tolerance", type=float, default=0.0, help="volts counted as equal (default 0: bit-exact)")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("study", help="the paper's closed-loop study (Section 6): passive, SISO, cLQG, active LQG")
     _add_design(p)
