@@ -100,7 +100,8 @@ class Firmware:
                  prefix: str = "smartjoint", **can_options):
         if law not in LAWS:
             raise ModelError(f"law: {law!r} — allowed: {', '.join(LAWS)}")
-        files = {**generate.render(artifact, real, prefix), **can_layer.render_can(artifact, prefix, **can_options)}
+        files = {**generate.render(artifact, real, prefix),
+                 **can_layer.render_can(artifact, prefix, full_codec=True, **can_options)}
         files[f"_{prefix}_can_driver.c"] = _driver(prefix)
         digest = hashlib.sha256("\0".join(f"{k}\0{v}" for k, v in sorted(files.items())).encode()).hexdigest()[:16]
         folder = native.cache_dir() / f"firmware-{prefix}-{real}-{digest}"
@@ -110,8 +111,9 @@ class Firmware:
                         (f"{prefix}_siso.c", f"{prefix}_clqg.c", f"{prefix}_can.c", "sj_e2e.c",
                          f"_{prefix}_can_driver.c"))
         glue = folder / "_glue.c"
-        if not glue.exists() or glue.read_text() != _prototypes(prefix):
-            generate.write({"_glue.c": _prototypes(prefix)}, folder)
+        glue_text = _prototypes(prefix)
+        if not glue.exists() or glue.read_text() != glue_text:
+            generate.write({"_glue.c": glue_text}, folder)
         self.db = protocol.load_dbc(files["bus.dbc"])
         module = native.load(f"firmware_{real}", _cdef(prefix, self.db.messages), glue, objects=objects,
                              includes=(folder,))

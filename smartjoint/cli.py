@@ -311,7 +311,12 @@ def cmd_codegen(args) -> dict:
     from .design import artifact
 
     loaded = artifact.load(Path(args.artifact))
-    written = generate.generate(loaded, Path(args.output), args.real, args.prefix)
+    files = generate.render(loaded, args.real, args.prefix)
+    if not args.no_can:
+        from .codegen import can_layer
+
+        files.update(can_layer.render_can(loaded, args.prefix, real=args.real))
+    written = generate.write(files, Path(args.output))
     out = {"artifact": args.artifact, "artifact_sha256": loaded.artifact_sha256, "real": args.real,
            "prefix": args.prefix, "files": [str(p) for p in written]}
     if args.check:
@@ -591,6 +596,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--real", choices=("float", "double"), default="float", help="scalar type (default: %(default)s)")
     p.add_argument("--prefix", default="smartjoint", help="C name prefix of the modules (default: %(default)s)")
     p.add_argument("--check", action="store_true", help="also compile them with the strict warning set (cffi)")
+    p.add_argument("--no-can", action="store_true", help="controllers only, without the CAN message layer and DBC")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_codegen)
 

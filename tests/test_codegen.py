@@ -186,7 +186,9 @@ def test_literals_parse_back_to_the_rounded_value():
 def test_committed_reference_firmware_is_what_the_generator_emits(reference):
     assert reference.design_sha256 == load_design(spec.REFERENCE_DESIGN.parent / "three_type_a.toml").sha256, \
         "the bundled design changed: regenerate firmware/generated (firmware/README.md)"
-    files = generate.render(reference, "float")
+    from smartjoint.codegen import can_layer
+
+    files = {**generate.render(reference, "float"), **can_layer.render_can(reference)}
     committed = {p.name for p in REFERENCE.iterdir()} - {"controller.json"}
     assert committed == set(files)
     for name, text in files.items():
@@ -236,7 +238,10 @@ def test_sanitizers_report_nothing_on_the_back_to_back_run(reference, tmp_path):
 @pytest.mark.skipif(shutil.which("cppcheck") is None, reason="cppcheck not installed (CI installs it)")
 @pytest.mark.parametrize("real", ["double", "float"])
 def test_cppcheck_reports_nothing(reference, tmp_path, real):
-    generate.write(generate.render(reference, real), tmp_path)
+    from smartjoint.codegen import can_layer
+
+    files = {**generate.render(reference, real), **can_layer.render_can(reference, real=real)}
+    generate.write({k: v for k, v in files.items() if not k.endswith(".dbc")}, tmp_path)
     done = subprocess.run(["cppcheck", "--enable=all", "--std=c99", "--error-exitcode=1", "--inline-suppr",
                            "--suppress=missingIncludeSystem", "--quiet", str(tmp_path)], capture_output=True, text=True)
     assert done.returncode == 0 and done.stdout.strip() == "" and done.stderr.strip() == "", done.stderr
@@ -244,7 +249,7 @@ def test_cppcheck_reports_nothing(reference, tmp_path, real):
 
 @pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="ARM cross compiler not installed (CI installs it)")
 def test_cortex_m4f_float_build_compiles_clean(tmp_path):
-    for name in ("smartjoint_siso.c", "smartjoint_clqg.c"):
+    for name in ("smartjoint_siso.c", "smartjoint_clqg.c", "smartjoint_can.c", "sj_e2e.c"):
         done = subprocess.run(["arm-none-eabi-gcc", "-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16",
                                "-mfloat-abi=hard", "-O2", *[f for f in build.FLAGS if f != "-O2"], "-c",
                                str(REFERENCE / name), "-o", str(tmp_path / (name + ".o"))], capture_output=True,
@@ -283,4 +288,4 @@ def test_bad_artefacts_and_options_write_nothing(reference, tmp_path):
     assert done.returncode == 2 and "--prefix" in done.stderr and not (tmp_path / "p").exists()
     done = _cli("codegen", str(REFERENCE / "controller.json"), "-o", str(tmp_path / "ok"), "--real", "double", "--json")
     assert done.returncode == 0, done.stderr
-    assert len(json.loads(done.stdout)["files"]) == 8
+    assert len(json.loads(done.stdout)["files"]) == 13  # controllers, example, build files, CAN layer, E2E, DBC
