@@ -65,7 +65,7 @@ class BusLoad:
 
     def table(self) -> str:
         kind = "classical CAN" if self.data_bitrate is None else f"CAN FD, data {self.data_bitrate / 1e6:g} Mbit/s"
-        lines = [f"bus load at {self.bitrate / 1e6:g} Mbit/s ({kind}), worst-case bit stuffing:",
+        lines = [f"bus load at {self.bitrate / 1e6:g} Mbit/s ({kind}), worst-case bit stuffing:", "",
                  "| frame | id | bytes | cycle [ms] | worst-case time [µs] | load |", "|---|---|---:|---:|---:|---:|"]
         for f in self.frames:
             lines.append(f"| {f.name} | 0x{f.frame_id:03X} | {f.length} | {1e3 * f.cycle_time:g} | "

@@ -346,6 +346,7 @@ def sil_study(setup, artifact, laws=("siso", "clqg"), real: str = "float", fault
         finally:
             loop.close()
         energy_measure = float(np.trapezoid(2.0 * result.energy, result.time))
+        out.setdefault("mil_runs", {})[law] = mil
         out["laws"][law] = {
             "energy_measure_mil": mil.energy_measure(), "energy_measure_sil": energy_measure,
             "energy_measure_difference": energy_measure / mil.energy_measure() - 1.0,
@@ -374,3 +375,37 @@ def sil_markdown(out: dict) -> str:
                      f"{f['energy_end_sil']:.3g} | {bus['frames_total']} | {100 * bus['bus_load']:.1f} % | "
                      f"{bus['e2e_errors']} | {bus['firmware']['timeouts']} | {bus['safe_samples']} |")
     return "\n".join(lines) + "\n"
+
+
+def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
+    """sil_energy.png: e(t) of the SIL run per law (the MIL run dashed, when given)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    colours = {"siso": "tab:blue", "clqg": "tab:red"}
+    for law, f in out["laws"].items():
+        r = f["result"]
+        ax.semilogy(r.time, np.maximum(r.energy, 1e-12), color=colours.get(law, "k"), lw=1.0,
+                    label=f"{law} SIL ({100 * f['energy_measure_difference']:+.2f} % E(t_e))")
+        if mil_runs and law in mil_runs:
+            m = mil_runs[law]
+            ax.semilogy(m.time, np.maximum(m.energy, 1e-12), "--", color=colours.get(law, "k"), lw=0.8,
+                        label=f"{law} MIL")
+        safe = np.array(f["record"].safe)
+        if safe.any():
+            t = np.array(f["record"].time)
+            ax.plot(t[safe], np.full(int(safe.sum()), ax.get_ylim()[0] * 2), "|", color="k", ms=4, label="safe state")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("½xᵀx [J]")
+    ax.set_title("Study through the CAN loop (software in the loop)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = folder / "sil_energy.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return [path]

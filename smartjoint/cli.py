@@ -409,6 +409,8 @@ def cmd_sil(args) -> dict:
                         args.interface, args.channel, _progress)
     if not args.json:
         print(sil.sil_markdown(out))
+    _plots(args, out, lambda folder: sil.plot_sil(out, folder, out.get("mil_runs")))
+    out.pop("mil_runs", None)
     for law in out["laws"].values():
         law.pop("record")
         law.pop("result")
@@ -608,6 +610,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
     p.add_argument("--fault", action="append", help="inject kind:target:start:end[:detail], repeatable")
     p.add_argument("--log-folder", help="write the bus of each run as sil_<law>.blf here")
+    p.add_argument("--plots", help="folder for sil_energy.png")
     p.add_argument("--amplifier-lag", type=float, default=0.0, help="amplifier time constant [s] (default 0: ideal)")
     p.add_argument("--bitrate", type=int, default=1_000_000)
     p.add_argument("--data-bitrate", type=int, default=5_000_000, help="CAN FD data phase [bit/s]")

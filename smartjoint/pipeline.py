@@ -6,7 +6,8 @@ updated model, also with the joints released (the frictionless linear subsystem 
 → friction joint: isolated-rig records (Table 1 type B, 1 % noise) and the two-step LuGre
 identification of Eq. 3 with hysteresis loops like Fig. 5 → model reduction (Section 4, Fig. 10)
 → semi-active control: the controller design artefact and the closed-loop study of Section 6
-(Figs. 12–14) → generated C firmware, checked back to back against the Python reference → report (Markdown + PNG). Each later stage of the design card joins here.
+(Figs. 12–14) → generated C firmware, checked back to back against the Python reference → the
+study through the CAN loop (software in the loop) → report (Markdown + PNG). Each later stage of the design card joins here.
 
 The report folder is written to a temporary sibling and renamed into place at the end, so a
 failed run never leaves half a report behind.
@@ -24,7 +25,8 @@ import numpy as np
 
 from . import __version__
 from . import report as plots
-from .codegen import backtoback, generate
+from .bench import busload, protocol, sil
+from .codegen import backtoback, can_layer, generate
 from .control_study import control_markdown, plot_control_study
 from .design import artifact, build_model, load_design, lugre, rig, solve_modes, updated_design
 from .design import study as closed_loop
@@ -42,27 +44,27 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
     started = time.perf_counter()
     output = Path(output)
     design = load_design(design_path)
-    progress(f"[1/8] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
+    progress(f"[1/9] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
              f"{len(design.members)} members, {len(design.joints)} joints")
     model = build_model(design, joints="locked")
-    progress(f"[2/8] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, "
+    progress(f"[2/9] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, "
              f"mass {model.total_mass:.2f} kg")
 
     result = None
     if design.updating is not None:
-        progress(f"[3/8] model updating: {len(design.updating.parameters)} parameters, "
+        progress(f"[3/9] model updating: {len(design.updating.parameters)} parameters, "
                  f"{len(design.updating.measured)} measured modes")
         design, result = updated_design(design, lambda k, n, err: progress(f"      start {k}/{n}: worst error {err:.2f} %"))
         model = build_model(design, joints="locked")
     else:
-        progress("[3/8] model updating: skipped (no [updating] section)")
+        progress("[3/9] model updating: skipped (no [updating] section)")
     modes = solve_modes(model, min(REPORT_MODES, model.n_dof))
     released = None
     if design.joints:
         released_model = build_model(design, joints="released")
         released = solve_modes(released_model, min(REPORT_MODES, released_model.n_dof))
 
-    progress("[4/8] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3)")
+    progress("[4/9] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3)")
     records = [rig.simulate(test) for test in rig.campaign("B", noise=0.01, cycles=8)]
     micro = [r for r in records if classify(r) == "micro-slip"]
     stick = [r for r in records if classify(r) == "stick-slip"]
@@ -73,7 +75,7 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
     example = design if design.joints else load_design(FIG10_DESIGN)
     if result is not None and not design.joints:
         example = example.with_parameters(result.parameters)
-    progress(f"[5/8] model reduction (Section 4, Fig. 10) on {example.name!r}: joints "
+    progress(f"[5/9] model reduction (Section 4, Fig. 10) on {example.name!r}: joints "
              f"{', '.join(j.name + ' (' + j.type + ')' for j in example.joints)}")
     forces = np.array([400.0 if j.type == "B" else 0.0 for j in example.joints])
     if not forces.any():
@@ -85,18 +87,28 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
     controlled = design if design.joints else load_design(CONTROL_DESIGN)
     if result is not None and not design.joints:
         controlled = controlled.with_parameters(result.parameters)
-    progress(f"[6/8] semi-active control (Sections 5–6) on {controlled.name!r}: joints "
+    progress(f"[6/9] semi-active control (Sections 5–6) on {controlled.name!r}: joints "
              f"{', '.join(j.name for j in controlled.joints)}, t_e = {controlled.control.study_duration:g} s")
     control_study = closed_loop.run_study(controlled, progress=lambda message: progress(message))
     controller = artifact.from_design(controlled, control_study.setup.model, control_study.lqg,
                                       control_study.boundary_layer)
 
-    progress("[7/8] firmware: generated C (float and double), back-to-back on the study")
+    progress("[7/9] firmware: generated C (float and double), back-to-back on the study")
     firmware_files = generate.render(controller, "float")
     firmware_check = backtoback.back_to_back(control_study.setup, controller, progress=progress,
                                             study=control_study)
 
-    progress("[8/8] report")
+    progress("[8/9] software in the loop: the study through CAN (firmware, bus, amplifier models)")
+    sil_folder = Path(tempfile.mkdtemp(prefix="smartjoint-sil-"))
+    try:
+        sil_check = sil.sil_study(control_study.setup, controller, spread_runs=4, log_folder=sil_folder,
+                                  progress=progress)
+        sil_logs = {p.name: p.read_bytes() for p in sil_folder.iterdir()}
+    finally:
+        shutil.rmtree(sil_folder, ignore_errors=True)
+    bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
+
+    progress("[9/9] report")
     output.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{output.name}-", dir=output.parent))
     try:
@@ -109,7 +121,11 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
         plot_study(study, staging)
         plot_control_study(control_study, staging)
         artifact.save(controller, staging / "controller.json")
-        generate.write(firmware_files, staging / "firmware")
+        generate.write({**firmware_files, **can_layer.render_can(controller)}, staging / "firmware")
+        sil.plot_sil(sil_check, staging, sil_check.get("mil_runs"))
+        (staging / "can").mkdir()
+        for name, data in sil_logs.items():
+            (staging / "can" / name).write_bytes(data)
         summary = {
             "smartjoint_version": __version__,
             "design": {"name": design.name, "source": design.source, "sha256": design.sha256},
@@ -123,6 +139,10 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
                         "artifact": "controller.json", "artifact_sha256": controller.artifact_sha256},
             "firmware": {"folder": "firmware", "real": "float", "files": sorted(firmware_files),
                          "back_to_back": firmware_check},
+            "sil": {**{k: v for k, v in sil_check.items() if k not in ("laws", "mil_runs")},
+                    "laws": {law: {k: v for k, v in f.items() if k not in ("record", "result")}
+                             for law, f in sil_check["laws"].items()},
+                    "logs": sorted(f"can/{name}" for name in sil_logs)},
             "seconds": time.perf_counter() - started,
         }
         (staging / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
@@ -131,7 +151,12 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
                                            + study_markdown(study) + "\n" + _control_section(control_study, controller) + "\n"
                                            + backtoback.markdown(firmware_check, controller)
                                            + "\nFiles (float build for the Cortex-M4F): `firmware/` — "
-                                           + ", ".join(f"`{name}`" for name in sorted(firmware_files)) + ".\n")
+                                           + ", ".join(f"`{name}`" for name in sorted(firmware_files)) + ".\n\n"
+                                           + sil.sil_markdown(sil_check) + "\n![SIL energy](sil_energy.png)\n\n"
+                                           + bus_load.table() + "\n\n"
+                                           + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
+                                           "`bench replay`): " + ", ".join(f"`can/{n}`" for n in sorted(sil_logs))
+                                           + "; protocol: `firmware/bus.dbc`.\n")
         if output.exists():
             shutil.rmtree(output)
         staging.replace(output)

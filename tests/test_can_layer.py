@@ -248,3 +248,45 @@ def test_bad_fault_specifications_are_named():
         sil.check_faults([sil.Fault("melt", 0.1, 0.2)], set(), [])
     with pytest.raises(ModelError, match="window"):
         sil.check_faults([sil.Fault("bus_off", 0.3, 0.2)], set(), [])
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc"])
+def test_bench_log_records_a_live_bus_that_reopens_and_converts(reference, tmp_path, suffix):
+    """``bench log`` (logs.record) on a python-can bus while a node sends: the file reopens with
+    python-can's reader, converts with can.logconvert, and a rotation limit splits it."""
+    import threading
+
+    import can
+
+    from smartjoint.bench import protocol
+
+    db = protocol.database(reference)
+    m = db.get_message_by_name("SETPOINT_A1")
+    listener = can.Bus(interface="virtual", channel=f"log-test{suffix}")
+    sender = can.Bus(interface="virtual", channel=f"log-test{suffix}")
+    sent = []
+
+    def send():
+        for k in range(300):
+            data = e2e.protect(m.frame_id, bytearray(m.encode({"crc": 0, "counter": 0, "voltage": 0.1 * k})), k)
+            sender.send(can.Message(arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False))
+            sent.append(0.1 * k)
+
+    thread = threading.Thread(target=send)
+    thread.start()
+    path = tmp_path / f"bench{suffix}"
+    out = logs.record(listener, path, duration=1.0)
+    thread.join()
+    listener.shutdown()
+    sender.shutdown()
+    assert out["frames"] == 300
+    messages, problem = logs.read(path)
+    assert problem is None and len(messages) == 300
+    decoded = logs.decode(messages, db)
+    assert [round(r[3], 6) for r in decoded.rows if r[2] == "voltage"] == [round(v, 6) for v in sent]
+    other = ".asc" if suffix == ".blf" else ".blf"
+    converted = tmp_path / f"converted{other}"
+    run = subprocess.run([sys.executable, "-m", "can.logconvert", str(path), str(converted)], capture_output=True,
+                         text=True)
+    assert run.returncode == 0, run.stderr
+    assert [r[1:] for r in logs.decode(logs.read(converted)[0], db).rows] == [r[1:] for r in decoded.rows]

@@ -63,4 +63,10 @@ def test_run_writes_a_complete_report(tmp_path, capsys):
     assert check["cLQG"]["double_identical_samples"] == check["cLQG"]["samples"]
     assert set(check["float_orderings"]) >= {"siso_below_both_passive", "clqg_tip_rms_below_siso"}
     assert "back-to-back" in (out / "report.md").read_text()
+    sil_summary = summary["sil"]
+    assert sil_summary["planned_bus_load"] < 0.7 and (out / "sil_energy.png").stat().st_size > 0
+    for law in ("siso", "clqg"):
+        assert sil_summary["laws"][law]["bus"]["e2e_errors"] == 0
+        assert (out / "can" / f"sil_{law}.blf").stat().st_size > 0
+    assert (out / "firmware" / "bus.dbc").exists() and "Software in the loop" in (out / "report.md").read_text()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".report-")]  # no staging left
