@@ -33,6 +33,9 @@ def record(bus, path, duration: float | None = None, max_bytes: int = 0, stop=No
     except ValueError as error:
         raise ModelError(f"log file {path}: {error} — use a suffix python-can writes (.blf, .asc, .mf4, .csv, .log, "
                          ".trc)") from None
+    except (ImportError, NotImplementedError) as error:  # .mf4 needs asammdf
+        raise ModelError(f"log file {path}: {error} — `pip install 'smartjoint[mf4]'` (asammdf) for MF4, or use "
+                         ".blf / .asc") from None
     count, started = 0, time.monotonic()
     try:
         while True:

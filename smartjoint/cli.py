@@ -290,6 +290,11 @@ def cmd_design(args) -> dict:
         optimum = closed_loop.optimise_boundary_layer(s, lambda m: _progress(m))
         width = optimum.boundary_layer
     result = artifact.from_design(design, model, lqg, width)
+    from .bench import busload, protocol
+
+    load = busload.check(protocol.database(result), args.bitrate, args.data_bitrate or None, args.max_load)
+    _progress(f"CAN bus load {100 * load.load:.1f} % at {args.bitrate / 1e6:g}"
+              f"{'' if not args.data_bitrate else f'/{args.data_bitrate / 1e6:g}'} Mbit/s (limit {100 * args.max_load:.0f} %)")
     artifact.save(result, Path(args.output))
     poles = lqg.closed_loop_poles()
     out = {"artifact": args.output, "artifact_sha256": result.artifact_sha256, "design_sha256": design.sha256,
@@ -297,6 +302,7 @@ def cmd_design(args) -> dict:
            "sample_time": result.sample_time, "siso_boundary_layer": result.siso_boundary_layer.tolist(),
            "clqg_boundary_layer": result.clqg_boundary_layer,
            "lqg_max_pole_magnitude": float(abs(poles).max()), "lqg_stability_margin": float(1 - abs(poles).max()),
+           "bus_load": load.load,
            "boundary_layer_optimisation": None if optimum is None else {
                "optimum": optimum.boundary_layer, "energy_measure": optimum.energy_measure,
                "energy_measure_tenth": optimum.tenth, "energy_measure_tenfold": optimum.tenfold}}
@@ -315,7 +321,18 @@ def cmd_codegen(args) -> dict:
     if not args.no_can:
         from .codegen import can_layer
 
-        files.update(can_layer.render_can(loaded, args.prefix, real=args.real))
+        safe = None
+        if args.safe_normal_force:
+            from .design.errors import ModelError
+
+            try:
+                safe = [float(v) for v in args.safe_normal_force.split(",")]
+            except ValueError:
+                raise ModelError(f"--safe-normal-force: {args.safe_normal_force!r} — numbers [N], one or one per joint") from None
+            if len(safe) not in (1, len(loaded.joint_names)):
+                raise ModelError(f"--safe-normal-force: {len(safe)} values for {len(loaded.joint_names)} joints")
+        files.update(can_layer.render_can(loaded, args.prefix, safe_normal_force=safe, timeout_cycles=args.timeout_cycles,
+                                          recovery_frames=args.recovery_frames, real=args.real))
     written = generate.write(files, Path(args.output))
     out = {"artifact": args.artifact, "artifact_sha256": loaded.artifact_sha256, "real": args.real,
            "prefix": args.prefix, "files": [str(p) for p in written]}
@@ -588,6 +605,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_design(p)
     p.add_argument("-o", "--output", default="controller.json", help="artefact file (default: %(default)s)")
     p.add_argument("--duration", type=float, help="t_e of Eq. 32 for the ε optimisation [s] (default: design file)")
+    p.add_argument("--bitrate", type=int, default=1_000_000, help="CAN (arbitration) bitrate (default: %(default)s)")
+    p.add_argument("--data-bitrate", type=int, default=5_000_000, help="CAN FD data bitrate, 0: classical CAN")
+    p.add_argument("--max-load", type=float, default=0.7, help="refuse a bus load above this (default: %(default)s)")
     p.add_argument("--no-update", action="store_true", help="use the design's nominal parameters")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_design)
@@ -599,6 +619,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--prefix", default="smartjoint", help="C name prefix of the modules (default: %(default)s)")
     p.add_argument("--check", action="store_true", help="also compile them with the strict warning set (cffi)")
     p.add_argument("--no-can", action="store_true", help="controllers only, without the CAN message layer and DBC")
+    p.add_argument("--safe-normal-force", help="F_N [N] held in the safe state, one or one per joint (default: F_N^max)")
+    p.add_argument("--timeout-cycles", type=int, default=3, help="an input older than this many cycles is missing")
+    p.add_argument("--recovery-frames", type=int, default=3, help="good frames before a failed input counts again")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_codegen)
 

@@ -290,3 +290,20 @@ def test_bench_log_records_a_live_bus_that_reopens_and_converts(reference, tmp_p
                          text=True)
     assert run.returncode == 0, run.stderr
     assert [r[1:] for r in logs.decode(logs.read(converted)[0], db).rows] == [r[1:] for r in decoded.rows]
+
+
+def test_mf4_without_asammdf_is_a_clear_message(tmp_path):
+    import can
+
+    pytest.importorskip("can")
+    try:
+        import asammdf  # noqa: F401
+    except ImportError:
+        bus = can.Bus(interface="virtual", channel="mf4-test")
+        try:
+            with pytest.raises(ModelError, match=r"smartjoint\[mf4\]"):
+                logs.record(bus, tmp_path / "x.mf4", duration=0.01)
+        finally:
+            bus.shutdown()
+    else:
+        pytest.skip("asammdf installed: MF4 logs work")

@@ -150,6 +150,11 @@ def test_design_and_study_commands(tmp_path):
     result = json.loads(done.stdout)
     assert set(result["runs"]) == {"passive F_min", "passive F_max", "SISO", "cLQG", "active LQG"}
     assert (tmp_path / "plots" / "control_energy.png").stat().st_size > 0
+    refused = tmp_path / "refused.json"
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(refused),
+                           "--max-load", "0.1"], capture_output=True, text=True)
+    assert done.returncode == 2 and "exceeds the limit 10 %" in done.stderr and not refused.exists()
+    assert summary["bus_load"] < 0.7
     data["control"]["normal_force_min"] = 500.0
     path.write_text(tomli_w.dumps(data))
     done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(tmp_path / "x.json")],
