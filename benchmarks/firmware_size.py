@@ -256,6 +256,47 @@ def measure(a, real: str, level: str, folder: Path, callgraph: bool, prefix: str
     return out
 
 
+def measure_image(a, folder: Path, callgraph: bool, prefix: str = "smartjoint") -> dict:
+    """The whole float firmware at -O2: both controllers, the CAN message layer and the E2E
+    runtime, linked from the CAN entry points (rx, step, tx, init). The layer packs and unpacks
+    in double (bit-exact with cantools), which pulls libgcc's soft-float routines on this FPU."""
+    from smartjoint.codegen import can_layer
+
+    folder.mkdir(parents=True)
+    files = {**generate.render(a, "float", prefix), **can_layer.render_can(a, prefix)}
+    generate.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, folder)
+    sources = [f"{prefix}_siso", f"{prefix}_clqg", f"{prefix}_can", "sj_e2e"]
+    extra = ["-fstack-usage"] + (["-fcallgraph-info=su"] if callgraph else [])
+    for name in sources:
+        run(["arm-none-eabi-gcc", *TARGET, "-O2", *extra, *BASE_FLAGS, "-c", f"{name}.c", "-o", f"{name}.o"],
+            cwd=folder)
+    entries = [f"{prefix}_can_{e}" for e in ("step", "rx", "tx", "init")]
+    run(["arm-none-eabi-gcc", *TARGET, "-nostartfiles", "-Wl,--gc-sections", f"-Wl,--entry={entries[0]}",
+         *[f"-Wl,--undefined={e}" for e in entries[1:]], *[f"{n}.o" for n in sources], "-lm", "-o", "image.elf"],
+        cwd=folder)
+    image = Disassembly(folder / "image.elf")
+    su: dict = {}
+    graph: dict = {}
+    for name in sources:
+        su.update(stack_usage(folder / f"{name}.su"))
+        graph.update(callgraph_ci(folder / f"{name}.ci") if callgraph else {})
+    if not callgraph:
+        graph = {f: image.callees(f) for f in su}
+    frames = {f: size for f, (size, _) in su.items()}
+    stacks = {e: worst_stack(e, frames, graph, image)[:2] for e in entries}
+    worst = max(stacks, key=lambda e: stacks[e][0])
+    (folder / "probe.c").write_text(f'#include "{prefix}_can.h"\nextern const unsigned long probe;\n'
+                                    f"const unsigned long probe = sizeof({prefix}_can_state);\n")
+    run(["arm-none-eabi-gcc", *TARGET, "-O2", *BASE_FLAGS, "-c", "probe.c", "-o", "probe.o"], cwd=folder)
+    run(["arm-none-eabi-objcopy", "-O", "binary", "-j", ".rodata", "probe.o", "probe.bin"], cwd=folder)
+    state = int.from_bytes((folder / "probe.bin").read_bytes()[:4], "little")
+    elf = berkeley(folder / "image.elf")
+    return {"flash": elf["text"] + elf["data"], "static_ram": elf["data"] + elf["bss"], "state": state,
+            "ram": elf["data"] + elf["bss"] + state + 64 + 64,  # + one rx and one tx frame buffer
+            "stack": stacks[worst][0], "stack_chain": stacks[worst][1],
+            "modules": {n: berkeley(folder / f"{n}.o")["text"] for n in sources}}
+
+
 def machine() -> dict:
     cpu = ""
     try:
@@ -322,7 +363,17 @@ def main() -> int:
             ratios = ", ".join(f"{what} {b[field]} B ({b[field] / r[field]:.2f}×)" for what, field in
                                (("flash", "flash_linked"), ("RAM", "ram"), ("stack", "stack")))
             print(f"  baseline {base}: {ratios}")
+    with tempfile.TemporaryDirectory(prefix="firmware_image-") as temporary:
+        whole = measure_image(a, Path(temporary) / "image", callgraph)
+    print("\nwhole firmware image (float -O2: SISO + clipped LQG + CAN layer + E2E, linked from the CAN entry points):")
+    print(f"  flash {whole['flash']:5d} B  (modules .text: "
+          + ", ".join(f"{k} {v}" for k, v in whole["modules"].items()) + "; the rest: libgcc soft-float for the "
+          "double codec, libm rint)")
+    print(f"  RAM   {whole['ram']:5d} B  (static {whole['static_ram']} B + state {whole['state']} B + two 64-byte "
+          "frame buffers)")
+    print(f"  stack {whole['stack']:5d} B  ({' → '.join(whole['stack_chain'])})")
     Path(args.json).write_text(json.dumps({
+        "whole_image": whole,
         "benchmark": "firmware_size", "machine": facts, "artifact": str(args.artifact),
         "artifact_sha256": a.artifact_sha256, "target_flags": TARGET + BASE_FLAGS, "limits_bytes": LIMITS,
         "call_graph_source": "gcc -fcallgraph-info" if callgraph else "objdump bl targets",
