@@ -52,6 +52,16 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
     messages = [{"name": m.name, "frame_id": m.frame_id, "length": m.length,
                  "received": protocol.CONTROLLER not in (m.senders or []),
                  "signals": [_signal(s) for s in sorted(m.signals, key=lambda s: s.start)]} for m in db.messages]
+    # Frames with identical signal rows share one layout table in the C.
+    layouts: list[dict] = []
+    keys: list = []
+    for m in messages:
+        fields = ("start", "length", "signed", "scale", "offset", "minimum", "maximum", "raw_min", "raw_max")
+        key = tuple(tuple(sig[f] for f in fields) for sig in m["signals"])
+        if key not in keys:
+            keys.append(key)
+            layouts.append({"signals": m["signals"]})
+        m["layout"] = keys.index(key)
     by_name = {m.name: m for m in db.messages}
     joints = [j.upper() for j in artifact.joint_names]
     cycle_us = int(round(artifact.sample_time * 1e6))
@@ -66,7 +76,7 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
               f"{digest}.\n * Do not edit: regenerate with `smartjoint codegen`. */")
     context = {"prefix": prefix, "PREFIX": prefix.upper(), "name": f"{prefix}_can", "NAME": f"{prefix}_can".upper(),
                "banner": banner, "joints": joints, "sensors": [s.upper() for s in artifact.sensor_names],
-               "messages": messages, "inputs": inputs, "cycle_us": cycle_us, "timeout_cycles": timeout_cycles,
+               "messages": messages, "layouts": layouts, "inputs": inputs, "cycle_us": cycle_us, "timeout_cycles": timeout_cycles,
                "recovery_frames": recovery_frames, "slow_factor": protocol.SLOW_FACTOR, "full_codec": full_codec,
                "safe_normal_force": ", ".join(generate.literal(v, "double") for v in safe),
                "force_per_volt": generate.literal(amplifier.force_per_volt, "double"),

@@ -56,129 +56,207 @@ static double decode(uint64_t raw, unsigned int length, int is_signed, double sc
     return value * scale + offset;
 }
 
-static double clamp(double value, double low, double high)
+/* One row per signal; frames with the same layout share a table (table-driven: small flash). */
+typedef struct {
+    unsigned int start;
+    unsigned int length;
+    int is_signed;
+    int has_range; /* clamp the physical value to [minimum, maximum] before packing */
+    double scale;
+    double offset;
+    double minimum;
+    double maximum;
+    double raw_min;
+    double raw_max;
+} signal_layout;
+
+static const signal_layout layout0[5] = {
+    {0u, 8u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 255.0},
+    {8u, 4u, 0, 1, 1.0, 0.0, 0.0, 15.0, 0.0, 15.0},
+    {16u, 4u, 0, 1, 1.0, 0.0, 0.0, 3.0, 0.0, 15.0},
+    {20u, 4u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 15.0},
+    {24u, 8u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 255.0},
+};
+static const signal_layout layout1[5] = {
+    {0u, 8u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 255.0},
+    {8u, 4u, 0, 1, 1.0, 0.0, 0.0, 15.0, 0.0, 15.0},
+    {16u, 32u, 1, 1, 1e-09, 0.0, -2.0, 2.0, -2147483648.0, 2147483647.0},
+    {48u, 32u, 1, 1, 1e-05, 0.0, -20000.0, 20000.0, -2147483648.0, 2147483647.0},
+    {80u, 16u, 0, 1, 0.02, 0.0, 0.0, 1310.0, 0.0, 65535.0},
+};
+static const signal_layout layout2[4] = {
+    {0u, 8u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 255.0},
+    {8u, 4u, 0, 1, 1.0, 0.0, 0.0, 15.0, 0.0, 15.0},
+    {16u, 32u, 1, 1, 1e-08, 0.0, -20.0, 20.0, -2147483648.0, 2147483647.0},
+    {48u, 32u, 1, 1, 1e-08, 0.0, -20.0, 20.0, -2147483648.0, 2147483647.0},
+};
+static const signal_layout layout3[3] = {
+    {0u, 8u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 255.0},
+    {8u, 4u, 0, 1, 1.0, 0.0, 0.0, 15.0, 0.0, 15.0},
+    {16u, 32u, 0, 1, 1e-07, 0.0, 0.0, 150.0, 0.0, 4294967295.0},
+};
+static const signal_layout layout4[9] = {
+    {0u, 8u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 255.0},
+    {8u, 4u, 0, 1, 1.0, 0.0, 0.0, 15.0, 0.0, 15.0},
+    {12u, 1u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0},
+    {13u, 1u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0},
+    {14u, 1u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0},
+    {15u, 1u, 0, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0},
+    {16u, 16u, 0, 1, 0.005, 0.0, 0.0, 150.0, 0.0, 65535.0},
+    {32u, 16u, 1, 1, 0.0001, 0.0, -3.0, 3.0, -32768.0, 32767.0},
+    {48u, 8u, 0, 1, 1.0, -40.0, -40.0, 215.0, 0.0, 255.0},
+};
+
+static void pack_signals(const signal_layout *layout, unsigned int count, const double *values, uint8_t *data,
+                         unsigned int length)
 {
-    return value < low ? low : (value > high ? high : value);
+    unsigned int k;
+    for (k = 0u; k < length; ++k) {
+        data[k] = 0u;
+    }
+    for (k = 0u; k < count; ++k) {
+        const signal_layout *s = &layout[k];
+        double value = values[k];
+        if (s->has_range) {
+            value = value < s->minimum ? s->minimum : (value > s->maximum ? s->maximum : value);
+        }
+        set_field(data, s->start, s->length, encode(value, s->scale, s->offset, s->raw_min, s->raw_max, s->length));
+    }
+}
+
+static void unpack_signals(const signal_layout *layout, unsigned int count, const uint8_t *data, double *values)
+{
+    unsigned int k;
+    for (k = 0u; k < count; ++k) {
+        const signal_layout *s = &layout[k];
+        values[k] = decode(get_field(data, s->start, s->length), s->length, s->is_signed, s->scale, s->offset);
+    }
 }
 
 void smartjoint_can_pack_controller_status(const smartjoint_can_controller_status_t *signals, uint8_t *data)
 {
-    unsigned int k;
-    for (k = 0u; k < SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH; ++k) {
-        data[k] = 0u;
-    }
-    set_field(data, 0u, 8u, encode(signals->crc, 1.0, 0.0, 0.0, 255.0, 8u));
-    set_field(data, 8u, 4u, encode(clamp(signals->counter, 0.0, 15.0), 1.0, 0.0, 0.0, 15.0, 4u));
-    set_field(data, 16u, 4u, encode(clamp(signals->mode, 0.0, 3.0), 1.0, 0.0, 0.0, 15.0, 4u));
-    set_field(data, 20u, 4u, encode(signals->missing_inputs, 1.0, 0.0, 0.0, 15.0, 4u));
-    set_field(data, 24u, 8u, encode(signals->step_status, 1.0, 0.0, 0.0, 255.0, 8u));
+    double values[5];
+    values[0] = signals->crc;
+    values[1] = signals->counter;
+    values[2] = signals->mode;
+    values[3] = signals->missing_inputs;
+    values[4] = signals->step_status;
+    pack_signals(layout0, 5u, values, data, SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH);
 }
 
 void smartjoint_can_unpack_joint_a1(const uint8_t *data, smartjoint_can_joint_a1_t *signals)
 {
-    signals->crc = decode(get_field(data, 0u, 8u), 8u, 0, 1.0, 0.0);
-    signals->counter = decode(get_field(data, 8u, 4u), 4u, 0, 1.0, 0.0);
-    signals->sliding_velocity = decode(get_field(data, 16u, 32u), 32u, 1, 1e-09, 0.0);
-    signals->friction_force = decode(get_field(data, 48u, 32u), 32u, 1, 1e-05, 0.0);
-    signals->normal_force = decode(get_field(data, 80u, 16u), 16u, 0, 0.02, 0.0);
+    double values[5];
+    unpack_signals(layout1, 5u, data, values);
+    signals->crc = values[0];
+    signals->counter = values[1];
+    signals->sliding_velocity = values[2];
+    signals->friction_force = values[3];
+    signals->normal_force = values[4];
 }
 
 void smartjoint_can_unpack_joint_a2(const uint8_t *data, smartjoint_can_joint_a2_t *signals)
 {
-    signals->crc = decode(get_field(data, 0u, 8u), 8u, 0, 1.0, 0.0);
-    signals->counter = decode(get_field(data, 8u, 4u), 4u, 0, 1.0, 0.0);
-    signals->sliding_velocity = decode(get_field(data, 16u, 32u), 32u, 1, 1e-09, 0.0);
-    signals->friction_force = decode(get_field(data, 48u, 32u), 32u, 1, 1e-05, 0.0);
-    signals->normal_force = decode(get_field(data, 80u, 16u), 16u, 0, 0.02, 0.0);
+    double values[5];
+    unpack_signals(layout1, 5u, data, values);
+    signals->crc = values[0];
+    signals->counter = values[1];
+    signals->sliding_velocity = values[2];
+    signals->friction_force = values[3];
+    signals->normal_force = values[4];
 }
 
 void smartjoint_can_unpack_joint_a3(const uint8_t *data, smartjoint_can_joint_a3_t *signals)
 {
-    signals->crc = decode(get_field(data, 0u, 8u), 8u, 0, 1.0, 0.0);
-    signals->counter = decode(get_field(data, 8u, 4u), 4u, 0, 1.0, 0.0);
-    signals->sliding_velocity = decode(get_field(data, 16u, 32u), 32u, 1, 1e-09, 0.0);
-    signals->friction_force = decode(get_field(data, 48u, 32u), 32u, 1, 1e-05, 0.0);
-    signals->normal_force = decode(get_field(data, 80u, 16u), 16u, 0, 0.02, 0.0);
+    double values[5];
+    unpack_signals(layout1, 5u, data, values);
+    signals->crc = values[0];
+    signals->counter = values[1];
+    signals->sliding_velocity = values[2];
+    signals->friction_force = values[3];
+    signals->normal_force = values[4];
 }
 
 void smartjoint_can_unpack_tip_sensors(const uint8_t *data, smartjoint_can_tip_sensors_t *signals)
 {
-    signals->crc = decode(get_field(data, 0u, 8u), 8u, 0, 1.0, 0.0);
-    signals->counter = decode(get_field(data, 8u, 4u), 4u, 0, 1.0, 0.0);
-    signals->tip_y = decode(get_field(data, 16u, 32u), 32u, 1, 1e-08, 0.0);
-    signals->tip_z = decode(get_field(data, 48u, 32u), 32u, 1, 1e-08, 0.0);
+    double values[4];
+    unpack_signals(layout2, 4u, data, values);
+    signals->crc = values[0];
+    signals->counter = values[1];
+    signals->tip_y = values[2];
+    signals->tip_z = values[3];
 }
 
 void smartjoint_can_pack_setpoint_a1(const smartjoint_can_setpoint_a1_t *signals, uint8_t *data)
 {
-    unsigned int k;
-    for (k = 0u; k < SMARTJOINT_CAN_SETPOINT_A1_LENGTH; ++k) {
-        data[k] = 0u;
-    }
-    set_field(data, 0u, 8u, encode(signals->crc, 1.0, 0.0, 0.0, 255.0, 8u));
-    set_field(data, 8u, 4u, encode(clamp(signals->counter, 0.0, 15.0), 1.0, 0.0, 0.0, 15.0, 4u));
-    set_field(data, 16u, 32u, encode(clamp(signals->voltage, 0.0, 150.0), 1e-07, 0.0, 0.0, 4294967295.0, 32u));
+    double values[3];
+    values[0] = signals->crc;
+    values[1] = signals->counter;
+    values[2] = signals->voltage;
+    pack_signals(layout3, 3u, values, data, SMARTJOINT_CAN_SETPOINT_A1_LENGTH);
 }
 
 void smartjoint_can_pack_setpoint_a2(const smartjoint_can_setpoint_a2_t *signals, uint8_t *data)
 {
-    unsigned int k;
-    for (k = 0u; k < SMARTJOINT_CAN_SETPOINT_A2_LENGTH; ++k) {
-        data[k] = 0u;
-    }
-    set_field(data, 0u, 8u, encode(signals->crc, 1.0, 0.0, 0.0, 255.0, 8u));
-    set_field(data, 8u, 4u, encode(clamp(signals->counter, 0.0, 15.0), 1.0, 0.0, 0.0, 15.0, 4u));
-    set_field(data, 16u, 32u, encode(clamp(signals->voltage, 0.0, 150.0), 1e-07, 0.0, 0.0, 4294967295.0, 32u));
+    double values[3];
+    values[0] = signals->crc;
+    values[1] = signals->counter;
+    values[2] = signals->voltage;
+    pack_signals(layout3, 3u, values, data, SMARTJOINT_CAN_SETPOINT_A2_LENGTH);
 }
 
 void smartjoint_can_pack_setpoint_a3(const smartjoint_can_setpoint_a3_t *signals, uint8_t *data)
 {
-    unsigned int k;
-    for (k = 0u; k < SMARTJOINT_CAN_SETPOINT_A3_LENGTH; ++k) {
-        data[k] = 0u;
-    }
-    set_field(data, 0u, 8u, encode(signals->crc, 1.0, 0.0, 0.0, 255.0, 8u));
-    set_field(data, 8u, 4u, encode(clamp(signals->counter, 0.0, 15.0), 1.0, 0.0, 0.0, 15.0, 4u));
-    set_field(data, 16u, 32u, encode(clamp(signals->voltage, 0.0, 150.0), 1e-07, 0.0, 0.0, 4294967295.0, 32u));
+    double values[3];
+    values[0] = signals->crc;
+    values[1] = signals->counter;
+    values[2] = signals->voltage;
+    pack_signals(layout3, 3u, values, data, SMARTJOINT_CAN_SETPOINT_A3_LENGTH);
 }
 
 void smartjoint_can_unpack_amp_status_a1(const uint8_t *data, smartjoint_can_amp_status_a1_t *signals)
 {
-    signals->crc = decode(get_field(data, 0u, 8u), 8u, 0, 1.0, 0.0);
-    signals->counter = decode(get_field(data, 8u, 4u), 4u, 0, 1.0, 0.0);
-    signals->over_temperature = decode(get_field(data, 12u, 1u), 1u, 0, 1.0, 0.0);
-    signals->no_response = decode(get_field(data, 13u, 1u), 1u, 0, 1.0, 0.0);
-    signals->stuck_output = decode(get_field(data, 14u, 1u), 1u, 0, 1.0, 0.0);
-    signals->over_current = decode(get_field(data, 15u, 1u), 1u, 0, 1.0, 0.0);
-    signals->monitor_voltage = decode(get_field(data, 16u, 16u), 16u, 0, 0.005, 0.0);
-    signals->current = decode(get_field(data, 32u, 16u), 16u, 1, 0.0001, 0.0);
-    signals->temperature = decode(get_field(data, 48u, 8u), 8u, 0, 1.0, -40.0);
+    double values[9];
+    unpack_signals(layout4, 9u, data, values);
+    signals->crc = values[0];
+    signals->counter = values[1];
+    signals->over_temperature = values[2];
+    signals->no_response = values[3];
+    signals->stuck_output = values[4];
+    signals->over_current = values[5];
+    signals->monitor_voltage = values[6];
+    signals->current = values[7];
+    signals->temperature = values[8];
 }
 
 void smartjoint_can_unpack_amp_status_a2(const uint8_t *data, smartjoint_can_amp_status_a2_t *signals)
 {
-    signals->crc = decode(get_field(data, 0u, 8u), 8u, 0, 1.0, 0.0);
-    signals->counter = decode(get_field(data, 8u, 4u), 4u, 0, 1.0, 0.0);
-    signals->over_temperature = decode(get_field(data, 12u, 1u), 1u, 0, 1.0, 0.0);
-    signals->no_response = decode(get_field(data, 13u, 1u), 1u, 0, 1.0, 0.0);
-    signals->stuck_output = decode(get_field(data, 14u, 1u), 1u, 0, 1.0, 0.0);
-    signals->over_current = decode(get_field(data, 15u, 1u), 1u, 0, 1.0, 0.0);
-    signals->monitor_voltage = decode(get_field(data, 16u, 16u), 16u, 0, 0.005, 0.0);
-    signals->current = decode(get_field(data, 32u, 16u), 16u, 1, 0.0001, 0.0);
-    signals->temperature = decode(get_field(data, 48u, 8u), 8u, 0, 1.0, -40.0);
+    double values[9];
+    unpack_signals(layout4, 9u, data, values);
+    signals->crc = values[0];
+    signals->counter = values[1];
+    signals->over_temperature = values[2];
+    signals->no_response = values[3];
+    signals->stuck_output = values[4];
+    signals->over_current = values[5];
+    signals->monitor_voltage = values[6];
+    signals->current = values[7];
+    signals->temperature = values[8];
 }
 
 void smartjoint_can_unpack_amp_status_a3(const uint8_t *data, smartjoint_can_amp_status_a3_t *signals)
 {
-    signals->crc = decode(get_field(data, 0u, 8u), 8u, 0, 1.0, 0.0);
-    signals->counter = decode(get_field(data, 8u, 4u), 4u, 0, 1.0, 0.0);
-    signals->over_temperature = decode(get_field(data, 12u, 1u), 1u, 0, 1.0, 0.0);
-    signals->no_response = decode(get_field(data, 13u, 1u), 1u, 0, 1.0, 0.0);
-    signals->stuck_output = decode(get_field(data, 14u, 1u), 1u, 0, 1.0, 0.0);
-    signals->over_current = decode(get_field(data, 15u, 1u), 1u, 0, 1.0, 0.0);
-    signals->monitor_voltage = decode(get_field(data, 16u, 16u), 16u, 0, 0.005, 0.0);
-    signals->current = decode(get_field(data, 32u, 16u), 16u, 1, 0.0001, 0.0);
-    signals->temperature = decode(get_field(data, 48u, 8u), 8u, 0, 1.0, -40.0);
+    double values[9];
+    unpack_signals(layout4, 9u, data, values);
+    signals->crc = values[0];
+    signals->counter = values[1];
+    signals->over_temperature = values[2];
+    signals->no_response = values[3];
+    signals->stuck_output = values[4];
+    signals->over_current = values[5];
+    signals->monitor_voltage = values[6];
+    signals->current = values[7];
+    signals->temperature = values[8];
 }
 
 static const uint32_t input_cycle_us[SMARTJOINT_CAN_INPUTS] = {1000u, 1000u, 1000u, 1000u, 1000u, 1000u, 1000u};
