@@ -79,6 +79,8 @@ def _frame_time(length: int, is_fd: bool, bitrate: int, data_bitrate: int | None
         if is_fd or length > 8:
             raise ModelError(f"a {length}-byte CAN FD frame cannot go on a classical CAN bus — give a data bitrate")
         return classical_bits(length) / bitrate
+    if not is_fd:  # a classical frame on an FD bus runs entirely at the nominal rate
+        return classical_bits(length) / bitrate
     nominal, data = fd_bits(length)
     return nominal / bitrate + data / data_bitrate
 

@@ -5,8 +5,9 @@ CRC-8 SAE J1850: polynomial 0x1D, initial value 0xFF, final XOR 0xFF, no reflect
 identifier (low byte first, a "data ID" as in AUTOSAR E2E profiles, so a payload that arrives
 under the wrong identifier fails) and every payload byte except byte 0, which holds the CRC.
 The alive counter (bits 8–11, 0…15) advances by one per transmission and wraps; a receiver
-accepts a step of 1…``MAX_COUNTER_STEP`` (lost frames in between) and flags a repeat (0) or a
-larger jump. ``firmware/runtime/sj_e2e.c`` is the C twin; the tests hold both to the same vectors.
+accepts a step of 1…``MAX_COUNTER_STEP`` (lost frames in between) and flags a repeat (0), a jump
+(4…7: frames lost, the sequence restarts there) or a stale frame (8…15: behind, a late frame —
+the receiver does not follow it). ``firmware/runtime/sj_e2e.c`` is the C twin; the tests hold both to the same vectors.
 """
 
 from __future__ import annotations
@@ -75,9 +76,16 @@ class Check:
             return "crc"
         if self.counter_step == 0:
             return "counter repeated"
+        if self.counter_step is not None and self.counter_step >= COUNTER_MODULO // 2:
+            return "counter stale"
         if self.counter_step is not None and self.counter_step > MAX_COUNTER_STEP:
             return "counter jump"
         return "ok"
+
+    @property
+    def resynchronises(self) -> bool:
+        """Whether a receiver follows this frame's counter (all but a bad CRC, a repeat, a stale frame)."""
+        return self.crc_ok and self.reason not in ("counter repeated", "counter stale")
 
 
 def check(frame_id: int, payload: bytes, last_counter: int | None) -> Check:

@@ -66,8 +66,8 @@ def read(path) -> tuple[list, str | None]:
     messages = []
     try:
         reader = can.LogReader(str(path))
-    except ValueError as error:
-        raise ModelError(f"log file {path}: {error}") from None
+    except Exception as error:  # unknown suffix, an empty or damaged header, a missing reader package …
+        raise ModelError(f"log file {path}: cannot open ({type(error).__name__}: {error})") from None
     problem = None
     try:
         for message in reader:

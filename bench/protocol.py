@@ -1,7 +1,8 @@
 """The CAN protocol of a controller, generated from its design artefact as a cantools database.
 
 The DBC is the one source of truth of the bus: every frame, signal, scaling, range, sender and
-cycle time. Frames (11-bit identifiers, CAN FD where a payload exceeds 8 bytes; every frame
+cycle time. Frames (11-bit identifiers, all CAN FD with bit-rate switch — at 1 ms a classical
+bus cannot carry them: 8-byte classical frames take 135 µs each; every frame
 starts with the E2E bytes of ``bench/e2e.py``: byte 0 CRC-8 J1850, bits 8–11 alive counter):
 
 | frame | id | sender | cycle | payload |
@@ -103,7 +104,8 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
                         f"piezo voltage setpoint of joint {name}: F_N = {amplifier.force_per_volt:g}*V + "
                         f"{amplifier.preload:g} N")
         messages.append(can.Message(SETPOINT_BASE + j, f"SETPOINT_{tag}", 6, _e2e(SETPOINT_BASE + j) + [volts],
-                                    senders=[CONTROLLER], cycle_time=cycle, comment=f"setpoint of amplifier {name}"))
+                                    senders=[CONTROLLER], cycle_time=cycle, is_fd=True,
+                                    comment=f"setpoint of amplifier {name}"))
         status = _e2e(STATUS_BASE + j) + [
             _scaled("monitor_voltage", 16, 16, 0.005, False, "V", 0.0, amplifier.voltage_max, "measured output"),
             _scaled("current", 32, 16, 1e-4, True, "A", -3.0, 3.0, "output current"),
@@ -112,18 +114,18 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
         ] + [can.Signal(fault, 12 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
              for k, fault in enumerate(AMPLIFIER_FAULTS)]
         messages.append(can.Message(STATUS_BASE + j, f"AMP_STATUS_{tag}", 8, status, senders=[f"AMPLIFIER_{tag}"],
-                                    cycle_time=cycle, comment=f"amplifier {name} status"))
+                                    cycle_time=cycle, is_fd=True, comment=f"amplifier {name} status"))
     tip = _e2e(TIP_ID) + [
         _scaled(_identifier(s, "sensor").lower(), 16 + 32 * k, 32, 1e-8, True, "m", -20.0, 20.0, f"sensor {s}")
         for k, s in enumerate(sensors)]
     messages.append(can.Message(TIP_ID, "TIP_SENSORS", _fd_length(2 + 4 * len(sensors)), tip, senders=["TIP_NODE"],
-                                cycle_time=cycle, is_fd=2 + 4 * len(sensors) > 8, comment="tip sensors y"))
+                                cycle_time=cycle, is_fd=True, comment="tip sensors y"))
     mode = can.Signal("mode", 16, 4, minimum=0, maximum=3, comment="0 init, 1 SISO, 2 cLQG, 3 safe state",
                       conversion=conversion.BaseConversion.factory(1, 0, dict(MODES)))
     controller = _e2e(CONTROLLER_ID) + [mode, can.Signal("step_status", 24, 8, comment="status bits of the last step"),
                                         can.Signal("missing_inputs", 20, 4, comment="inputs in timeout or invalid")]
     messages.append(can.Message(CONTROLLER_ID, "CONTROLLER_STATUS", 4, controller, senders=[CONTROLLER],
-                                cycle_time=cycle * SLOW_FACTOR, comment="controller heartbeat"))
+                                cycle_time=cycle * SLOW_FACTOR, is_fd=True, comment="controller heartbeat"))
     messages.sort(key=lambda m: m.frame_id)
     # BusType "CAN FD" makes cantools write VFrameFormat per frame, so is_fd survives the DBC.
     bus_type = DbcAttributeDefinition("BusType", default_value="CAN", kind=None, type_name="STRING")

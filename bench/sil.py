@@ -74,7 +74,7 @@ def open_bus(interface: str, channel: str, **kwargs):
     import can
 
     try:
-        return can.Bus(interface=interface, channel=channel, **kwargs)
+        return can.Bus(interface=interface, channel=channel, fd=True, **kwargs)  # the protocol is CAN FD
     except (ImportError, can.CanInterfaceNotImplementedError, can.CanInitializationError, ValueError, OSError) as error:
         known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
         raise ModelError(f"bench interface {interface!r} (channel {channel!r}) cannot be opened: {error} — "
@@ -114,14 +114,18 @@ class SilLoop:
                                       capacitance=a.piezo_capacitance, **(amplifier or {}))
         self.frames = {m.name: m for m in self.db.messages}
         self.buses = []
+        self.writer = None
 
     # ------------------------------------------------------------------ set-up and tear-down
     def reset(self) -> None:
         self.close()
-        self.node_bus = open_bus(self.interface, self.channel, preserve_timestamps=True)
-        self.firmware_bus = open_bus(self.interface, self.channel, preserve_timestamps=True)
-        self.log_bus = open_bus(self.interface, self.channel, preserve_timestamps=True)
-        self.buses = [self.node_bus, self.firmware_bus, self.log_bus]
+        try:
+            for _ in range(3):
+                self.buses.append(open_bus(self.interface, self.channel, preserve_timestamps=True))
+        except BaseException:
+            self.close()
+            raise
+        self.node_bus, self.firmware_bus, self.log_bus = self.buses
         self.writer = None
         if self.log_path is not None:
             import can
@@ -139,12 +143,17 @@ class SilLoop:
         self.amplifier_e2e_errors = 0
 
     def close(self) -> None:
-        for bus in self.buses:
-            bus.shutdown()
-        self.buses = []
-        if getattr(self, "writer", None) is not None:
-            self.writer.stop()
-            self.writer = None
+        buses, self.buses = self.buses, []
+        writer, self.writer = getattr(self, "writer", None), None
+        try:
+            for bus in buses:
+                try:
+                    bus.shutdown()
+                except Exception:  # keep closing the others
+                    pass
+        finally:
+            if writer is not None:
+                writer.stop()
 
     # ------------------------------------------------------------------------------ frames
     def _message(self, name: str, values: dict, t: float):
@@ -156,7 +165,9 @@ class SilLoop:
         signals = {s.name: 0 for s in m.signals}
         signals.update(values)
         for s in m.signals:  # clamp to the signal's range before packing, as the firmware does
-            if s.minimum is not None:
+            if signals[s.name] != signals[s.name]:  # NaN packs as raw 0
+                signals[s.name] = s.offset
+            elif s.minimum is not None:
                 signals[s.name] = min(max(signals[s.name], s.minimum), s.maximum)
         data = e2e.protect(m.frame_id, bytearray(m.encode(signals, strict=False)), counter)
         return can.Message(arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False, is_fd=m.is_fd,
@@ -180,6 +191,7 @@ class SilLoop:
                 return
             if f.kind == "duplicate":
                 self.node_bus.send(message)
+                self.frame_counts[name] += 1
             elif f.kind == "corrupt_crc":
                 data = bytearray(message.data)
                 data[-1] ^= 0x5A
@@ -190,9 +202,10 @@ class SilLoop:
                 data = e2e.protect(message.arbitration_id, data, (data[1] + 7) & 0x0F)  # valid CRC, wrong counter
                 message = can.Message(arbitration_id=message.arbitration_id, data=bytes(data), is_fd=message.is_fd,
                                       bitrate_switch=message.bitrate_switch, timestamp=t)
-            elif f.kind == "wrong_dlc":
-                message = can.Message(arbitration_id=message.arbitration_id, data=bytes(message.data[:8]),
-                                      is_fd=False, timestamp=t)
+            elif f.kind == "wrong_dlc":  # the next shorter length a CAN (FD) frame can have
+                shorter = max(n for n in (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48) if n < len(message.data))
+                message = can.Message(arbitration_id=message.arbitration_id, data=bytes(message.data[:shorter]),
+                                      is_fd=message.is_fd, bitrate_switch=message.bitrate_switch, timestamp=t)
         self.node_bus.send(message)
         self.frame_counts[name] += 1
 
@@ -224,13 +237,17 @@ class SilLoop:
             status = self.amplifiers[j].status()
             if status is not None:
                 self._send_from_nodes(self._message(f"AMP_STATUS_{joint}", status, t), t)
+        bus_off = any(f.kind == "bus_off" and f.active(t) for f in self.faults)
         due = [m for when, m in self.delayed if when <= t + 1e-12]
         self.delayed = [(when, m) for when, m in self.delayed if when > t + 1e-12]
-        for message in due:
+        for message in due:  # late frames go out at the first sample after their delay
+            if bus_off:
+                self.stats["frames_lost_bus_off"] += 1
+                continue
             message.timestamp = t
             self.node_bus.send(message)
+            self.frame_counts[self.db.get_message_by_frame_id(message.arbitration_id).name] += 1
 
-        bus_off = any(f.kind == "bus_off" and f.active(t) for f in self.faults)
         for message in self._drain(self.firmware_bus):
             self.fw.rx(message.arbitration_id, bytes(message.data), time_us)
         status = self.fw.step(time_us)
@@ -247,11 +264,15 @@ class SilLoop:
             if not name.startswith("SETPOINT_"):
                 continue
             j = self.joints.index(name[len("SETPOINT_"):])
-            checked = e2e.check(message.arbitration_id, message.data, self.setpoint_last[j])
-            if not checked.ok or len(message.data) != self.frames[name].length:
+            if len(message.data) != self.frames[name].length:
                 self.amplifier_e2e_errors += 1
                 continue
-            self.setpoint_last[j] = checked.counter
+            checked = e2e.check(message.arbitration_id, message.data, self.setpoint_last[j])
+            if checked.resynchronises:  # the receiver policy of sj_e2e.c
+                self.setpoint_last[j] = checked.counter
+            if not checked.ok:
+                self.amplifier_e2e_errors += 1
+                continue
             voltage = self.frames[name].decode(bytes(message.data), decode_choices=False)["voltage"]
             self.amplifiers[j].receive(voltage)
         applied = np.array([a.advance(self.sample_time) for a in self.amplifiers])

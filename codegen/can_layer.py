@@ -22,12 +22,15 @@ RECOVERY_FRAMES = 3
 def _signal(signal) -> dict:
     lit = lambda value: generate.literal(float(value), "double")  # noqa: E731
     length, signed = signal.length, signal.is_signed
+    if length > 32:  # raw limits must stay exact doubles and the int64 cast defined
+        raise ModelError(f"signal {signal.name}: {length} bits — the generated codec handles up to 32")
     raw_min = -(2 ** (length - 1)) if signed else 0
     raw_max = 2 ** (length - 1) - 1 if signed else 2 ** length - 1
     return {"name": signal.name, "start": signal.start, "length": length, "signed": signed,
             "scale": lit(signal.conversion.scale), "offset": lit(signal.conversion.offset),
-            "minimum": None if signal.minimum is None else lit(signal.minimum),
-            "maximum": None if signal.maximum is None else lit(signal.maximum),
+            # A range clamps only when both ends are given; else only the raw field limits apply.
+            "minimum": None if signal.minimum is None or signal.maximum is None else lit(signal.minimum),
+            "maximum": None if signal.minimum is None or signal.maximum is None else lit(signal.maximum),
             "raw_min": lit(raw_min), "raw_max": lit(raw_max), "unit": signal.unit or "",
             "comment": (signal.comment or signal.name).replace("*/", "* /")}
 

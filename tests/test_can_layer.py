@@ -150,6 +150,8 @@ def test_every_injected_fault_reaches_the_safe_state_within_three_cycles_and_rec
     assert np.all(commands[safe] == bench[1].normal_force_max)  # the safe normal force
     k1 = int(np.searchsorted(time, fault.end - 1e-9))
     assert not safe[k1 + 12:].any(), "no recovery after the fault ended"
+    applied = np.array(record.applied)  # the amplifiers follow the setpoints again (E2E re-synchronised)
+    assert np.allclose(applied[k1 + 15:], commands[k1 + 15:], atol=1e-5)
     after = result.time > closed_loop.PULSE_DURATION
     assert result.energy[after].max() <= result.energy.max() and np.all(np.isfinite(result.energy))
 

@@ -20,7 +20,8 @@ extern "C" {
 #define SJ_E2E_WRONG_LENGTH 1u
 #define SJ_E2E_BAD_CRC 2u
 #define SJ_E2E_COUNTER_REPEATED 4u
-#define SJ_E2E_COUNTER_JUMP 8u
+#define SJ_E2E_COUNTER_JUMP 8u   /* 4..7 ahead: frames lost; re-synchronises on this counter */
+#define SJ_E2E_COUNTER_STALE 32u /* 8..15 ahead, i.e. behind: a late frame; no re-synchronisation */
 
 /* Receiver memory of one frame identifier. */
 typedef struct {
@@ -32,7 +33,8 @@ uint8_t sj_crc8_j1850(const uint8_t *data, size_t length, uint8_t crc);
 uint8_t sj_e2e_frame_crc(uint16_t frame_id, const uint8_t *payload, size_t length);
 /* Writes counter (mod 16) into byte 1 and the CRC into byte 0; length >= 2. */
 void sj_e2e_protect(uint16_t frame_id, uint8_t *payload, size_t length, uint8_t counter);
-/* Checks a received frame of the expected length; updates the receiver on success only. */
+/* Checks a received frame of the expected length. The receiver follows every frame except a repeat
+ * or a stale one, so a late frame cannot make the next genuine frame fail. */
 unsigned int sj_e2e_check(sj_e2e_receiver *receiver, uint16_t frame_id, const uint8_t *payload, size_t length,
                           size_t expected_length);
 

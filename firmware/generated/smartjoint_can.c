@@ -440,12 +440,13 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
         return SMARTJOINT_STATUS_NULL_POINTER;
     }
     for (k = 0u; k < SMARTJOINT_CAN_INPUTS; ++k) {
-        if (state->seen[k] && (uint32_t)(time_us - state->last_time[k]) > SMARTJOINT_CAN_TIMEOUT_CYCLES * input_cycle_us[k]) {
+        if (state->seen[k] && (uint32_t)(time_us - state->last_time[k]) >= SMARTJOINT_CAN_TIMEOUT_CYCLES * input_cycle_us[k]) {
             if (state->healthy[k]) {
                 state->timeouts++;
             }
             state->healthy[k] = 0u;
             state->good_frames[k] = 0u;
+            state->receivers[k].valid = 0u; /* after a silence the counter starts afresh */
         }
         if (!state->healthy[k] && (state->law == SMARTJOINT_CAN_LAW_CLQG || !input_clqg_only[k])) {
             missing++;
@@ -549,7 +550,7 @@ int smartjoint_can_tx(smartjoint_can_state *state, uint32_t *id, uint8_t *data, 
         unsigned int missing = 0u;
         unsigned int i;
         for (i = 0u; i < SMARTJOINT_CAN_INPUTS; ++i) {
-            missing += state->healthy[i] ? 0u : 1u;
+            missing += (state->healthy[i] || (state->law != SMARTJOINT_CAN_LAW_CLQG && input_clqg_only[i])) ? 0u : 1u;
         }
         frame.crc = 0.0;
         frame.counter = 0.0;

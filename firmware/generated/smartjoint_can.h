@@ -22,7 +22,7 @@ extern "C" {
 #define SMARTJOINT_CAN_SENSORS 2
 #define SMARTJOINT_CAN_INPUTS 7
 #define SMARTJOINT_CAN_CYCLE_US 1000u
-#define SMARTJOINT_CAN_TIMEOUT_CYCLES 3u   /* an input older than this many of its cycles is missing */
+#define SMARTJOINT_CAN_TIMEOUT_CYCLES 3u   /* an input this many of its cycles old is missing */
 #define SMARTJOINT_CAN_RECOVERY_FRAMES 3u /* good frames in a row before a failed input counts again */
 
 /* Laws */
@@ -36,6 +36,7 @@ extern "C" {
 #define SMARTJOINT_CAN_RX_COUNTER_REPEATED 4u
 #define SMARTJOINT_CAN_RX_COUNTER_JUMP 8u
 #define SMARTJOINT_CAN_RX_UNKNOWN_ID 16u
+#define SMARTJOINT_CAN_RX_COUNTER_STALE 32u
 
 /* Extra status bit of smartjoint_can_step (besides the controller's) */
 #define SMARTJOINT_CAN_STATUS_SAFE_STATE 0x10u

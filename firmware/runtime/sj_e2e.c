@@ -80,15 +80,16 @@ unsigned int sj_e2e_check(sj_e2e_receiver *receiver, uint16_t frame_id, const ui
     if (receiver->valid) {
         const uint8_t step = (uint8_t)((uint8_t)(counter - receiver->last_counter) % SJ_E2E_COUNTER_MODULO);
         if (step == 0u) {
-            result |= SJ_E2E_COUNTER_REPEATED;
-        } else if (step > SJ_E2E_MAX_COUNTER_STEP) {
-            result |= SJ_E2E_COUNTER_JUMP;
+            return SJ_E2E_COUNTER_REPEATED;
+        }
+        if (step >= SJ_E2E_COUNTER_MODULO / 2u) {
+            return SJ_E2E_COUNTER_STALE;
+        }
+        if (step > SJ_E2E_MAX_COUNTER_STEP) {
+            result = SJ_E2E_COUNTER_JUMP; /* the frame is rejected; the sequence restarts here */
         }
     }
-    /* A jump re-synchronises on the new counter (the frame itself is rejected). */
-    if (result != SJ_E2E_COUNTER_REPEATED) {
-        receiver->last_counter = counter;
-        receiver->valid = 1u;
-    }
+    receiver->last_counter = counter;
+    receiver->valid = 1u;
     return result;
 }
