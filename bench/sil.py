@@ -430,3 +430,84 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return [path]
+
+
+DEMO_FAULTS = (Fault("drop", 0.5, 0.6, "JOINT_A1"), Fault("corrupt_crc", 1.0, 1.05, "TIP_SENSORS"),
+               Fault("amplifier", 1.5, 1.6, "A2", amplifier_fault="over_temperature"), Fault("bus_off", 2.0, 2.05))
+
+
+def fault_run(setup, artifact, law: str = "clqg", faults=DEMO_FAULTS, real: str = "float") -> dict:
+    """One SIL run with a sequence of faults: per fault the cycles until the safe state and until
+    recovery after it ended, and the largest energy after the pulse (bounded: the safe state is
+    passive)."""
+    from ..design import simulate
+    from ..design import study as closed_loop
+    from . import firmware
+
+    names = {m.name for m in firmware.Firmware(artifact, law, real).db.messages}
+    usable = [f for f in faults if f.kind in BUS_FAULTS or f.target in names or f.kind == "amplifier"
+              and f.target in artifact.joint_names]
+    loop = SilLoop(firmware.Firmware(artifact, law, real), closed_loop.PULSE_DURATION, faults=usable)
+    try:
+        result = simulate.simulate(setup.plant, setup.laws, loop, setup.pulse(), setup.duration, setup.plant_step,
+                                   record_every=closed_loop.PLANT_STEPS_PER_SAMPLE, energy_books=False)
+    finally:
+        loop.close()
+    time, safe = np.array(loop.record.time), np.array(loop.record.safe)
+    rows = []
+    for f in usable:
+        k0 = int(np.searchsorted(time, f.start - 1e-9))
+        k1 = int(np.searchsorted(time, f.end - 1e-9))
+        entered = np.flatnonzero(safe[k0:])
+        left = np.flatnonzero(~safe[k1:])
+        rows.append({"fault": f.kind, "target": f.target or "bus", "detail": f.amplifier_fault, "start": f.start,
+                     "end": f.end, "cycles_to_safe_state": int(entered[0]) if entered.size else None,
+                     "cycles_to_recover": int(left[0]) if left.size else None})
+    after = result.time > closed_loop.PULSE_DURATION
+    return {"law": law, "faults": rows, "max_energy_after_pulse": float(result.energy[after].max()),
+            "energy_end": float(result.energy[-1]), "safe_samples": int(safe.sum()), "result": result,
+            "record": loop.record, "statistics": loop.statistics(setup.duration, 1_000_000, 5_000_000)}
+
+
+def fault_markdown(run: dict) -> str:
+    lines = ["### Injected faults (SIL, cLQG): safe state and recovery", "",
+             "| fault | target | window [s] | cycles to the safe state | cycles to recover after it |",
+             "|---|---|---|---:|---:|"]
+    for r in run["faults"]:
+        lines.append(f"| {r['fault']}{' ' + r['detail'] if r['detail'] else ''} | {r['target']} | "
+                     f"{r['start']:g}–{r['end']:g} | {r['cycles_to_safe_state']} | {r['cycles_to_recover']} |")
+    s = run["statistics"]
+    lines += ["", f"Largest energy after the pulse {run['max_energy_after_pulse']:.3g} J (bounded; e(t_e) = "
+              f"{run['energy_end']:.3g} J); {run['safe_samples']} samples in the safe state; firmware counters: "
+              f"CRC errors {s['firmware']['crc_errors']}, counter errors {s['firmware']['counter_errors']}, "
+              f"timeouts {s['firmware']['timeouts']}.", ""]
+    return "\n".join(lines)
+
+
+def plot_faults(run: dict, path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    r, record = run["result"], run["record"]
+    time = np.array(record.time)
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 4.6), sharex=True)
+    top.semilogy(r.time, np.maximum(r.energy, 1e-12), lw=0.9)
+    top.set_ylabel("½xᵀx [J]")
+    top.set_title("SIL with injected faults (orange), safe state (grey)")
+    commands = np.array(record.command)
+    for j in range(commands.shape[1]):
+        bottom.plot(time, commands[:, j], lw=0.6, label=f"F_N joint {j + 1}")
+    safe = np.array(record.safe)
+    for ax in (top, bottom):
+        for f in run["faults"]:
+            ax.axvspan(f["start"], f["end"], color="tab:orange", alpha=0.25, lw=0)
+        ax.fill_between(time, 0, 1, where=safe, transform=ax.get_xaxis_transform(), color="k", alpha=0.12, lw=0)
+    bottom.set_xlabel("t [s]")
+    bottom.set_ylabel("F_N command [N]")
+    bottom.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)

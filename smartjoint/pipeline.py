@@ -107,6 +107,8 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
     finally:
         shutil.rmtree(sil_folder, ignore_errors=True)
     bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
+    progress("      injected faults: " + ", ".join(f"{f.kind} {f.target}".strip() for f in sil.DEMO_FAULTS))
+    fault_check = sil.fault_run(control_study.setup, controller)
 
     progress("[9/9] report")
     output.parent.mkdir(parents=True, exist_ok=True)
@@ -123,6 +125,7 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
         artifact.save(controller, staging / "controller.json")
         generate.write({**firmware_files, **can_layer.render_can(controller)}, staging / "firmware")
         sil.plot_sil(sil_check, staging, sil_check.get("mil_runs"))
+        sil.plot_faults(fault_check, staging / "sil_faults.png")
         (staging / "can").mkdir()
         for name, data in sil_logs.items():
             (staging / "can" / name).write_bytes(data)
@@ -142,7 +145,8 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
             "sil": {**{k: v for k, v in sil_check.items() if k not in ("laws", "mil_runs")},
                     "laws": {law: {k: v for k, v in f.items() if k not in ("record", "result")}
                              for law, f in sil_check["laws"].items()},
-                    "logs": sorted(f"can/{name}" for name in sil_logs)},
+                    "logs": sorted(f"can/{name}" for name in sil_logs),
+                    "faults": {k: v for k, v in fault_check.items() if k not in ("result", "record")}},
             "seconds": time.perf_counter() - started,
         }
         (staging / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
@@ -153,7 +157,8 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
                                            + "\nFiles (float build for the Cortex-M4F): `firmware/` — "
                                            + ", ".join(f"`{name}`" for name in sorted(firmware_files)) + ".\n\n"
                                            + sil.sil_markdown(sil_check) + "\n![SIL energy](sil_energy.png)\n\n"
-                                           + bus_load.table() + "\n\n"
+                                           + bus_load.table() + "\n\n" + sil.fault_markdown(fault_check)
+                                           + "\n![faults](sil_faults.png)\n\n"
                                            + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
                                            "`bench replay`): " + ", ".join(f"`can/{n}`" for n in sorted(sil_logs))
                                            + "; protocol: `firmware/bus.dbc`.\n")

@@ -69,4 +69,8 @@ def test_run_writes_a_complete_report(tmp_path, capsys):
         assert sil_summary["laws"][law]["bus"]["e2e_errors"] == 0
         assert (out / "can" / f"sil_{law}.blf").stat().st_size > 0
     assert (out / "firmware" / "bus.dbc").exists() and "Software in the loop" in (out / "report.md").read_text()
+    for fault in sil_summary["faults"]["faults"]:  # the demonstration faults: safe within 3 cycles, recovered
+        assert fault["cycles_to_safe_state"] is not None and fault["cycles_to_safe_state"] <= 3
+        assert fault["cycles_to_recover"] is not None
+    assert (out / "sil_faults.png").stat().st_size > 0
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".report-")]  # no staging left
