@@ -177,17 +177,19 @@ def plot(decoded: Decoded, folder, frames=None) -> list[Path]:
     return written
 
 
-def replay(messages, firmware, tolerance: float = 0.0) -> dict:
-    """Feed the recorded sensor and amplifier frames through ``firmware`` sample by sample
-    (grouped by time stamp, the firmware steps after each group) and compare its setpoints with
-    the recorded ``SETPOINT_*`` frames of the same sample."""
+def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None = None) -> dict:
+    """Feed the recorded sensor and amplifier frames through ``firmware`` sample by sample and
+    compare its setpoints with the recorded ``SETPOINT_*`` frames of the same sample. Frames are
+    grouped per controller sample (default: the artefact's sample time), counted from the first
+    frame: a rig's time stamps jitter within a sample, the SIL's sit on the grid."""
     db = firmware.db
     names = {m.frame_id: m.name for m in db.messages}
+    step = float(sample_time or firmware.artifact.sample_time)
+    usable = [m for m in messages if not (m.is_error_frame or m.is_remote_frame)]
+    start = min((float(m.timestamp) for m in usable), default=0.0)
     groups = defaultdict(list)
-    for message in messages:
-        if message.is_error_frame or message.is_remote_frame:
-            continue
-        groups[round(float(message.timestamp), 9)].append(message)
+    for message in usable:
+        groups[start + step * math.floor((float(message.timestamp) - start) / step + 0.5)].append(message)
     firmware.reset()
     compared, differences, worst = 0, [], 0.0
     for t in sorted(groups):
