@@ -29,24 +29,14 @@ def _cdef(prefix: str, messages) -> str:
         out.append(f"typedef struct {{ {fields} }} {name}_{lower}_t;")
         out.append(f"void {name}_pack_{lower}(const {name}_{lower}_t *signals, uint8_t *data);")
         out.append(f"void {name}_unpack_{lower}(const uint8_t *data, {name}_{lower}_t *signals);")
-    out.append(f"""
-size_t {name}_state_size(void);
-void {name}_init_opaque(uint8_t *state, int law);
-unsigned int {name}_rx_opaque(uint8_t *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us);
-unsigned int {name}_step_opaque(uint8_t *state, uint32_t time_us);
-int {name}_tx_opaque(uint8_t *state, uint32_t *id, uint8_t *data, uint8_t *length);
-int {name}_safe(const uint8_t *state);
-double {name}_command(const uint8_t *state, int joint);
-uint32_t {name}_counter(const uint8_t *state, int which);
-""")
+    out.append(_opaque(prefix))
     return "\n".join(out)
 
 
-def _prototypes(prefix: str) -> str:
+def _opaque(prefix: str) -> str:
+    """Prototypes of the opaque-state accessors (cffi declarations and C glue alike)."""
     n = f"{prefix}_can"
-    return f"""#include "{n}.h"
-
-size_t {n}_state_size(void);
+    return f"""size_t {n}_state_size(void);
 void {n}_init_opaque(uint8_t *state, int law);
 unsigned int {n}_rx_opaque(uint8_t *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us);
 unsigned int {n}_step_opaque(uint8_t *state, uint32_t time_us);
@@ -55,6 +45,10 @@ int {n}_safe(const uint8_t *state);
 double {n}_command(const uint8_t *state, int joint);
 uint32_t {n}_counter(const uint8_t *state, int which);
 """
+
+
+def _prototypes(prefix: str) -> str:
+    return f'#include "{prefix}_can.h"\n\n' + _opaque(prefix)
 
 
 def _driver(prefix: str) -> str:
