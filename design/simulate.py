@@ -243,8 +243,9 @@ class _Joints:
         x = self.s0 * np.abs(mid) / g * h
         small = x < SERIES
         xs = np.where(small, 1.0, x)
-        decay = np.exp(-x)
-        phi1 = np.where(small, 1.0 - x / 2.0 + x * x / 6.0, -np.expm1(-xs) / xs)
+        decay_minus_one = np.expm1(-x)  # one call serves both e^{−x} and φ1 (as the C kernel)
+        decay = 1.0 + decay_minus_one
+        phi1 = np.where(small, 1.0 - x / 2.0 + x * x / 6.0, -decay_minus_one / xs)
         phi2 = np.where(small, 0.5 - x / 6.0 + x * x / 24.0, (1.0 - phi1) / xs)
         raw = decay * phi + h * ((phi1 - phi2) * v_start + phi2 * v_end)
         out = np.clip(raw, -self.bound, self.bound)
@@ -287,13 +288,14 @@ class _SolveFailed(Exception):
         self.residual = residual
 
 
-def _solve_joints(law: _Joints, G, v_free, v_start, phi, normal_force, h):
+def _solve_joints(law: _Joints, G, v_free, v_start, phi, normal_force, h, u_start):
     """Newton on R(v) = v − v_free + G·u_R(v) with the analytic Jacobian I + G·diag(du_R/dv).
 
     R is monotone (a unique root) unless a falling Stribeck branch is steeper than the step's
-    compliance G; then det J ≤ 0 or Newton stalls, and the caller halves the step.
+    compliance G; then det J ≤ 0 or Newton stalls, and the caller halves the step. The start
+    holds the friction force at its step-start value u_start: in stick the root is close to it.
     """
-    v = v_free.copy()
+    v = v_free - G @ u_start
     scale = np.maximum(np.abs(v_free), law.vs) + np.abs(v_start)
     residual = np.zeros_like(v)
     for _ in range(ITERATIONS):
@@ -409,7 +411,7 @@ class _PythonKernel:
             return
         try:
             v_free = p.ET @ free0
-            v_new, phi_new, u_new = _solve_joints(p.law, G, v_free, s.v, s.phi, s.fn, h)
+            v_new, phi_new, u_new = _solve_joints(p.law, G, v_free, s.v, s.phi, s.fn, h, s.u)
         except _SolveFailed as failure:
             if depth >= MAX_HALVINGS:
                 raise ModelError(f"joint solve did not converge at step {h:.3g} s (residual {failure.residual:.3g}); "
