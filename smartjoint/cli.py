@@ -163,10 +163,11 @@ def cmd_identify(args) -> dict:
     records = [read_record(path) for path in args.records]
     micro = [r for r in records if classify(r, args.radius) == "micro-slip"]
     stick = [r for r in records if classify(r, args.radius) == "stick-slip"]
-    result = identify(micro, stick, radius=args.radius, progress=_progress)
+    result = identify(micro, stick, radius=args.radius, progress=_progress, output_error=not args.no_output_error)
     out = result.as_dict()
     _plots(args, out, lambda folder: plot_hysteresis(result, folder))
     if not args.json:
+        print("\n".join(f"step: {step}" for step in result.steps) + "\n")
         print(identification_table(result))
     return out
 
@@ -558,9 +559,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_rig)
 
-    p = sub.add_parser("identify", help="two-step LuGre identification (Eq. 3) from friction records")
+    p = sub.add_parser("identify", help="LuGre identification from friction records: two Eq. 3 steps, then "
+                                       "output error on the rig model")
     p.add_argument("records", nargs="+", help="record files (CSV, see design/records.py)")
     p.add_argument("--radius", type=float, help="joint radius r [m] for type B records (default: Table 1)")
+    p.add_argument("--no-output-error", action="store_true",
+                   help="stop after the two Eq. 3 steps (by default an output-error step follows when the "
+                        "stick-slip records carry excitation_force and inertia)")
     p.add_argument("--plots", help="folder for hysteresis plots (PNG)")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=cmd_identify)
