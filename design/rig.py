@@ -105,9 +105,12 @@ def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, d
     time = np.ascontiguousarray(time, dtype=float)
     nodes = (time.size - 1) * substeps + 1
     force = np.ascontiguousarray(force, dtype=float)
-    gain = np.ascontiguousarray(np.broadcast_to(np.asarray(gain, dtype=float), (nodes,)))
+    gain = np.asarray(gain, dtype=float)
     if force.shape != (nodes,):
         raise ValueError(f"force: {force.shape} values — need (len(time) − 1)·substeps + 1 = {nodes}")
+    if gain.shape not in ((), (nodes,)):
+        raise ValueError(f"gain: {gain.shape} values — need one number or {nodes}, one per substep node")
+    gain = np.ascontiguousarray(np.broadcast_to(gain, (nodes,)))
     if backend not in ("auto", "c", "python"):
         raise ValueError(f"backend: {backend!r} — must be 'auto', 'c' or 'python'")
     if backend == "python" or (backend == "auto" and _C_FAILURE):

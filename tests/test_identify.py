@@ -44,6 +44,8 @@ def test_rig_kernel_matches_the_python_reference(joint_type):
             assert np.max(np.abs(value - reference)) <= 1e-12 * np.max(np.abs(reference))
     with pytest.raises(ValueError, match="force: .* need"):
         rig.integrate(p, 400.0, 1.0, np.zeros(5), time, rig.SUBSTEPS)
+    with pytest.raises(ValueError, match="gain: .* one per substep node"):
+        rig.integrate(p, np.ones(5), 1.0, np.zeros(fine.size), time, rig.SUBSTEPS)
 
 
 def test_rig_command_writes_a_readable_record(tmp_path):
