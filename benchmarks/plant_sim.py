@@ -13,7 +13,13 @@ with Radau at second order, tests/test_simulate.py). Then speed over 10 s simula
 per-step energy books.
 LSODA gets a wall-clock budget; if it runs out, the ratio is reported as a lower bound.
 
-Run: python benchmarks/plant_sim.py [--budget SECONDS]   (writes benchmarks/plant_sim.json)
+Last, the work-precision diagram of the 24-state model (``--no-diagram`` skips it): friction error
+against real-time factor over the same 10 s for our scheme at steps of 1 ms … 12.5 µs and LSODA at
+rtol 1e-2 … 1e-5, errors against our scheme at 3.125 µs (itself checked against Radau on the first
+0.2 s), in the first 0.2 s and over all 10 s. It shows what step the 1000× target would need and
+what accuracy that step gives (benchmarks/plant_sim_work_precision.png).
+
+Run: python benchmarks/plant_sim.py [--budget SECONDS] [--no-diagram]   (writes benchmarks/plant_sim.json)
 """
 
 from __future__ import annotations
@@ -72,9 +78,122 @@ def lsoda(model, laws, pulse, duration, times, rtol, budget):
     return np.concatenate(out), time.perf_counter() - start, reached
 
 
+DIAGRAM_STEPS = (1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5, 1.25e-5)
+DIAGRAM_RTOLS = (1e-2, 1e-3, 1e-4, 1e-5)
+DIAGRAM_REFERENCE_STEP = 3.125e-6
+TARGET_REAL_TIME = 1000.0
+
+
+def windowed_errors(u, u_ref, times) -> dict[str, float]:
+    early = times <= WINDOW + 1e-12
+    return {"0-0.2s": friction_error(u[early], u_ref[early]), "0-10s": friction_error(u, u_ref)}
+
+
+def stuck_modes(model, laws, count: int = 3) -> list[tuple[float, float]]:
+    """Frequency [Hz] and damping ratio of the highest modes with the joints stuck: each joint a
+    bristle spring σ0·F_N with damper (σ1 + σ2)·F_N (Eq. 2 with φ̇ = v), coupled to the model."""
+    A, B, _, Cv, _ = model.state_space()
+    ns, l = A.shape[0], B.shape[1]
+    stiffness = np.array([p.moment_arm**2 * NORMAL_FORCE * p.sigma0 for p in laws])
+    damping = np.array([p.moment_arm**2 * NORMAL_FORCE * (p.sigma1 + p.sigma2) for p in laws])
+    coupled = np.zeros((ns + l, ns + l))
+    coupled[:ns, :ns] = A - (B * damping[None, :]) @ Cv
+    coupled[:ns, ns:] = -B * stiffness[None, :]
+    coupled[ns:, :ns] = Cv
+    eigenvalues = np.linalg.eigvals(coupled)
+    eigenvalues = eigenvalues[eigenvalues.imag > 0]
+    eigenvalues = eigenvalues[np.argsort(-np.abs(eigenvalues))][:count]
+    return [(float(abs(e) / (2 * np.pi)), float(-e.real / abs(e))) for e in eigenvalues]
+
+
+def spectral_floor(model, laws, pulse, span: float = 1.0) -> list[tuple[float, float]]:
+    """RMS of the friction force above 1/(2h), relative to its RMS (most loaded joint), over the
+    first ``span`` seconds of the reference run: the error floor of any scheme that represents
+    the friction force by a polynomial over each step h (ours, Runge–Kutta, BDF/LSODA alike)."""
+    reference, _ = ours(model, laws, pulse, span, DIAGRAM_REFERENCE_STEP, record=DIAGRAM_REFERENCE_STEP,
+                        books=False)
+    u = reference.friction_force
+    joint = int(np.argmax(np.sqrt(np.mean(u**2, axis=0))))
+    signal = u[:, joint] - u[:, joint].mean()
+    power = np.abs(np.fft.rfft(signal)) ** 2
+    frequency = np.fft.rfftfreq(signal.size, DIAGRAM_REFERENCE_STEP)
+    total = float(np.sqrt(np.mean(u[:, joint] ** 2)))
+    floors = []
+    for step in DIAGRAM_STEPS:
+        above = power[frequency >= 0.5 / step].sum()
+        floors.append((step, float(np.sqrt(2.0 * above) / signal.size / total)))  # Parseval (one-sided)
+    return floors
+
+
+def work_precision(model, laws, pulse, budget: float) -> dict:
+    """Error against cost over the same 10 s for our fixed steps and LSODA tolerances (24-state model)."""
+    times = np.arange(0.0, DURATION + 1e-12, 1e-3)
+    reference, _ = ours(model, laws, pulse, DURATION, DIAGRAM_REFERENCE_STEP, books=False)
+    u_ref = reference.friction_force
+    # The reference itself: our scheme at 3.125 µs against Radau rtol 1e-10 on the first 0.2 s.
+    early = times <= WINDOW + 1e-12
+    _, u_radau, _ = simulate.reference_simulation(model, laws, np.full(len(laws), NORMAL_FORCE), pulse, WINDOW,
+                                                  times[early])
+    check = friction_error(u_ref[early], u_radau)
+    print(f"  work-precision reference: ours at {DIAGRAM_REFERENCE_STEP:g} s, {100 * check:.3f} % from Radau "
+          f"(rtol 1e-10) on 0–{WINDOW} s")
+    rows = {"reference_step": DIAGRAM_REFERENCE_STEP, "reference_vs_radau_0-0.2s": check, "ours": [], "lsoda": [],
+            "stuck_modes_hz": stuck_modes(model, laws), "content_above_nyquist": spectral_floor(model, laws, pulse)}
+    print(f"  stuck-joint modes (joints linearised as bristle springs at {NORMAL_FORCE:g} N): highest "
+          + ", ".join(f"{f:.0f} Hz (ξ {z:.1e})" for f, z in rows["stuck_modes_hz"][:3]))
+    print("  friction RMS above the Nyquist frequency 1/(2h) of a step h (the floor of any scheme that holds "
+          "the friction force polynomial over steps of h): " + ", ".join(f"{h * 1e6:g} µs {100 * c:.2f} %" for h, c in rows["content_above_nyquist"]))
+    for step in DIAGRAM_STEPS:
+        runs = [ours(model, laws, pulse, DURATION, step, books=False) for _ in range(3)]
+        seconds = sorted(r[1] for r in runs)[1]
+        errors = windowed_errors(runs[0][0].friction_force, u_ref, times)
+        rows["ours"].append({"step": step, "seconds": seconds, "real_time_factor": DURATION / seconds, **errors})
+        print(f"  ours   step {step:8.3g} s: {DURATION / seconds:7.0f}x real time, friction error "
+              f"{100 * errors['0-0.2s']:6.2f} % (0–0.2 s), {100 * errors['0-10s']:6.2f} % (0–10 s)")
+    for rtol in DIAGRAM_RTOLS:
+        u, seconds, reached = lsoda(model, laws, pulse, DURATION, times, rtol, budget)
+        if reached < DURATION - 1e-9:
+            print(f"  LSODA rtol {rtol:g}: budget spent at {reached:g} s — left out")
+            continue
+        errors = windowed_errors(u, u_ref, times)
+        rows["lsoda"].append({"rtol": rtol, "seconds": seconds, "real_time_factor": DURATION / seconds, **errors})
+        print(f"  LSODA rtol {rtol:8.3g}: {DURATION / seconds:7.2f}x real time, friction error "
+              f"{100 * errors['0-0.2s']:6.2f} % (0–0.2 s), {100 * errors['0-10s']:6.2f} % (0–10 s)")
+    plot_work_precision(rows, Path(__file__).with_name("plant_sim_work_precision.png"))
+    return rows
+
+
+def plot_work_precision(rows: dict, target: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), sharey=True)
+    for ax, window in zip(axes, ("0-0.2s", "0-10s")):
+        for key, label, marker in (("ours", "ours (fixed step)", "o"), ("lsoda", "LSODA (rtol)", "s")):
+            points = rows[key]
+            ax.loglog([p["real_time_factor"] for p in points], [100 * p[window] for p in points], marker=marker,
+                      label=label)
+            for p in points:
+                note = f"{p['step'] * 1e6:g} µs" if key == "ours" else f"{p['rtol']:g}"
+                ax.annotate(note, (p["real_time_factor"], 100 * p[window]), fontsize=7, xytext=(3, 3),
+                            textcoords="offset points")
+        ax.axvline(TARGET_REAL_TIME, color="k", linestyle="--", linewidth=1, label="target 1000× real time")
+        ax.set_xlabel("real-time factor (10 s simulated / wall time)")
+        ax.set_title(f"24-state model, friction error {window.replace('-', '–')}")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_ylabel("friction force RMS error [%] (most loaded joint)")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(target, dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--budget", type=float, default=600.0, help="LSODA wall-clock budget per model [s]")
+    parser.add_argument("--no-diagram", action="store_true", help="skip the work-precision diagram")
     args = parser.parse_args()
 
     design = spec.load_design(DESIGN)
@@ -118,8 +237,10 @@ def main() -> None:
                           ours_seconds_with_books=seconds_books,
                           lsoda_seconds=lsoda_seconds, lsoda_simulated=reached, lsoda_finished=finished,
                           speedup=ratio, speedup_is_lower_bound=not finished)
+    diagram = None if args.no_diagram else work_precision(models["24"], laws, pulse, args.budget)
     out = dict(command="python benchmarks/plant_sim.py", step=STEP, rtol=RTOL, duration=DURATION,
-               normal_force=NORMAL_FORCE, machine=f"{platform.machine()}, {platform.python_version()}", models=rows)
+               normal_force=NORMAL_FORCE, machine=f"{platform.machine()}, {platform.python_version()}", models=rows,
+               work_precision_24=diagram)
     Path(__file__).with_suffix(".json").write_text(json.dumps(out, indent=1) + "\n")
 
 
