@@ -166,6 +166,11 @@ class Identification:
     def weakly_identifiable(self) -> list[str]:
         if self.refined is not None:
             return self.refined.weak
+        return self.weak_by_equation_error
+
+    @property
+    def weak_by_equation_error(self) -> list[str]:
+        """Weakly identifiable by the two Eq. 3 steps alone (the paper's method)."""
         return list(dict.fromkeys(self.micro.weak + self.stick.weak))
 
     def as_dict(self) -> dict:

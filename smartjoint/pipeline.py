@@ -213,9 +213,12 @@ def _friction_markdown(identification, hysteresis: list[str]) -> str:
     for name in ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity"):
         true, found = getattr(truth, name), getattr(identification.parameters, name)
         lines.append(f"| {name} | {true:.4g} | {found:.4g} | {100 * (found / true - 1):+.1f} |")
-    lines += ["", "Weakly identifiable (95 % interval wider than ±50 %): "
-              + (", ".join(identification.weakly_identifiable) or "none")
-              + " — as the paper found for σ1 and σ2.", ""]
+    lines += ["", "Weakly identifiable (95 % interval wider than ±50 %) by the two Eq. 3 steps: "
+              + (", ".join(identification.weak_by_equation_error) or "none") + " (the paper found σ1 and σ2)."]
+    if identification.refined is not None:
+        lines += ["After the output-error step (rig model driven by the measured excitation force, "
+                  "docs/identification.md): " + (", ".join(identification.weakly_identifiable) or "none") + "."]
+    lines += ["Steps: " + "; ".join(identification.steps) + ".", ""]
     lines += [f"![{name}]({name})" for name in hysteresis]
     return "\n".join(lines) + "\n"
 

@@ -121,12 +121,19 @@ def plot_spectrum(modes: Modes, measured: list[tuple[int, float]], path: Path) -
     plt.close(fig)
 
 
+def _interval(lower: float, upper: float) -> str:
+    """A 95 % interval; bounds the data do not constrain (clipped at ±700 in log) read as 0 and ∞."""
+    low = "0" if lower < 1e-290 else f"{lower:.4g}"
+    high = "∞" if upper > 1e290 else f"{upper:.4g}"
+    return f"[{low}, {high}]"
+
+
 def identification_table(result) -> str:
     """Markdown: identified LuGre parameters with 95 % intervals, NRMSE per record."""
     data = result.as_dict()
     lines = ["| parameter | value | 95 % interval | step |", "|---|---:|---|---|"]
     for name, entry in data["parameters"].items():
-        interval = "given" if entry["ci95"] is None else f"[{entry['ci95'][0]:.4g}, {entry['ci95'][1]:.4g}]"
+        interval = "given" if entry["ci95"] is None else _interval(*entry["ci95"])
         weak = " (weakly identifiable)" if name in data["weakly_identifiable"] else ""
         lines.append(f"| {name} | {entry['value']:.4g} | {interval}{weak} | {entry['step']} |")
     lines += ["", "| record | NRMSE |", "|---|---:|"]
