@@ -60,22 +60,24 @@ def ours(model, laws, pulse, duration, step, record=1e-3, books=True):
 def lsoda(model, laws, pulse, duration, times, rtol, budget):
     """solve_ivp(LSODA, analytic Jacobian) in windows (restarts at the pulse kinks, then every
     0.5 s) until done or the wall-clock budget is spent. Returns (u at the times reached, seconds,
-    simulated time reached)."""
+    simulated time reached, ½xᵀx at the times reached)."""
     rhs, jac, ns, friction = simulate.reference_system(model, laws, np.full(len(laws), NORMAL_FORCE), pulse)
     edges = sorted({0.0, duration, *[e for e in (*pulse.breakpoints, *np.arange(0.5, duration, 0.5)) if e < duration]})
     z = np.zeros(ns + len(laws))
-    out, reached = [], 0.0
+    out, energy, reached = [], [], 0.0
     start = time.perf_counter()
     for a, b in zip(edges[:-1], edges[1:]):
         inside = times[(times >= a) & ((times < b) if b < duration else (times <= b))]
         sol = solve_ivp(rhs, (a, b), z, method="LSODA", jac=jac, rtol=rtol, atol=rtol * 1e-3, dense_output=True)
         if not sol.success:
             raise RuntimeError(f"LSODA failed: {sol.message}")
-        out.append(friction(sol.sol(inside).T) if inside.size else np.zeros((0, len(laws))))
+        states = sol.sol(inside).T if inside.size else np.zeros((0, ns + len(laws)))
+        out.append(friction(states) if inside.size else np.zeros((0, len(laws))))
+        energy.append(0.5 * np.sum(states[:, :ns] ** 2, axis=1))
         z, reached = sol.y[:, -1], b
         if time.perf_counter() - start > budget:
             break
-    return np.concatenate(out), time.perf_counter() - start, reached
+    return np.concatenate(out), time.perf_counter() - start, reached, np.concatenate(energy)
 
 
 DIAGRAM_STEPS = (1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5, 1.25e-5)
@@ -84,9 +86,13 @@ DIAGRAM_REFERENCE_STEP = 3.125e-6
 TARGET_REAL_TIME = 1000.0
 
 
-def windowed_errors(u, u_ref, times) -> dict[str, float]:
+def windowed_errors(u, u_ref, times, energy, energy_ref) -> dict[str, float]:
+    """Friction RMS error on 0–0.2 s and 0–10 s, and the relative error of Eq. 32's energy measure
+    E(10 s) = ∫xᵀx dt (trapezoid on the 1 ms samples), the quantity the control study ranks by."""
     early = times <= WINDOW + 1e-12
-    return {"0-0.2s": friction_error(u[early], u_ref[early]), "0-10s": friction_error(u, u_ref)}
+    measure = float(np.trapezoid(2.0 * energy, times)) / float(np.trapezoid(2.0 * energy_ref, times)) - 1.0
+    return {"0-0.2s": friction_error(u[early], u_ref[early]), "0-10s": friction_error(u, u_ref),
+            "energy_measure_10s": measure}
 
 
 def stuck_modes(model, laws, count: int = 3) -> list[tuple[float, float]]:
@@ -146,19 +152,21 @@ def work_precision(model, laws, pulse, budget: float) -> dict:
     for step in DIAGRAM_STEPS:
         runs = [ours(model, laws, pulse, DURATION, step, books=False) for _ in range(3)]
         seconds = sorted(r[1] for r in runs)[1]
-        errors = windowed_errors(runs[0][0].friction_force, u_ref, times)
+        errors = windowed_errors(runs[0][0].friction_force, u_ref, times, runs[0][0].energy, reference.energy)
         rows["ours"].append({"step": step, "seconds": seconds, "real_time_factor": DURATION / seconds, **errors})
         print(f"  ours   step {step:8.3g} s: {DURATION / seconds:7.0f}x real time, friction error "
-              f"{100 * errors['0-0.2s']:6.2f} % (0–0.2 s), {100 * errors['0-10s']:6.2f} % (0–10 s)")
+              f"{100 * errors['0-0.2s']:6.2f} % (0–0.2 s), {100 * errors['0-10s']:6.2f} % (0–10 s); "
+              f"E(10 s) {100 * errors['energy_measure_10s']:+6.2f} %")
     for rtol in DIAGRAM_RTOLS:
-        u, seconds, reached = lsoda(model, laws, pulse, DURATION, times, rtol, budget)
+        u, seconds, reached, energy = lsoda(model, laws, pulse, DURATION, times, rtol, budget)
         if reached < DURATION - 1e-9:
             print(f"  LSODA rtol {rtol:g}: budget spent at {reached:g} s — left out")
             continue
-        errors = windowed_errors(u, u_ref, times)
+        errors = windowed_errors(u, u_ref, times, energy, reference.energy)
         rows["lsoda"].append({"rtol": rtol, "seconds": seconds, "real_time_factor": DURATION / seconds, **errors})
         print(f"  LSODA rtol {rtol:8.3g}: {DURATION / seconds:7.2f}x real time, friction error "
-              f"{100 * errors['0-0.2s']:6.2f} % (0–0.2 s), {100 * errors['0-10s']:6.2f} % (0–10 s)")
+              f"{100 * errors['0-0.2s']:6.2f} % (0–0.2 s), {100 * errors['0-10s']:6.2f} % (0–10 s); "
+              f"E(10 s) {100 * errors['energy_measure_10s']:+6.2f} %")
     plot_work_precision(rows, Path(__file__).with_name("plant_sim_work_precision.png"))
     return rows
 
@@ -169,21 +177,23 @@ def plot_work_precision(rows: dict, target: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), sharey=True)
-    for ax, window in zip(axes, ("0-0.2s", "0-10s")):
+    panels = (("0-0.2s", "friction force RMS error 0–0.2 s"), ("0-10s", "friction force RMS error 0–10 s"),
+              ("energy_measure_10s", "|error| of E(10 s) = ∫xᵀx dt (Eq. 32)"))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.4), sharey=True)
+    for ax, (metric, title) in zip(axes, panels):
         for key, label, marker in (("ours", "ours (fixed step)", "o"), ("lsoda", "LSODA (rtol)", "s")):
             points = rows[key]
-            ax.loglog([p["real_time_factor"] for p in points], [100 * p[window] for p in points], marker=marker,
-                      label=label)
-            for p in points:
+            errors = [max(100 * abs(p[metric]), 1e-4) for p in points]
+            ax.loglog([p["real_time_factor"] for p in points], errors, marker=marker, label=label)
+            for p, error in zip(points, errors):
                 note = f"{p['step'] * 1e6:g} µs" if key == "ours" else f"{p['rtol']:g}"
-                ax.annotate(note, (p["real_time_factor"], 100 * p[window]), fontsize=7, xytext=(3, 3),
+                ax.annotate(note, (p["real_time_factor"], error), fontsize=7, xytext=(3, 3),
                             textcoords="offset points")
         ax.axvline(TARGET_REAL_TIME, color="k", linestyle="--", linewidth=1, label="target 1000× real time")
         ax.set_xlabel("real-time factor (10 s simulated / wall time)")
-        ax.set_title(f"24-state model, friction error {window.replace('-', '–')}")
+        ax.set_title(f"24-state model: {title}", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].set_ylabel("friction force RMS error [%] (most loaded joint)")
+    axes[0].set_ylabel("error [%] (friction: most loaded joint)")
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(target, dpi=110)
@@ -218,14 +228,14 @@ def main() -> None:
             fine, _ = ours(model, laws, pulse, WINDOW, STEP / 8)
             u_ref, reference = fine.friction_force, f"ours at {STEP / 8:g} s"
         short, _ = ours(model, laws, pulse, WINDOW, STEP)
-        u_lsoda, _, _ = lsoda(model, laws, pulse, WINDOW, window_times, RTOL, float("inf"))
+        u_lsoda, _, _, _ = lsoda(model, laws, pulse, WINDOW, window_times, RTOL, float("inf"))
         error_ours, error_lsoda = friction_error(short.friction_force, u_ref), friction_error(u_lsoda, u_ref)
         print(f"  accuracy 0–{WINDOW} s vs {reference}: ours (step {STEP:g} s) {100 * error_ours:.2f} %, "
               f"LSODA (rtol {RTOL:g}) {100 * error_lsoda:.2f} %")
         # Speed over 10 s (ours: median of 3), trajectory only like LSODA; then with the exact energy books.
         seconds = sorted(ours(model, laws, pulse, DURATION, STEP, books=False)[1] for _ in range(3))[1]
         seconds_books = sorted(ours(model, laws, pulse, DURATION, STEP)[1] for _ in range(3))[1]
-        _, lsoda_seconds, reached = lsoda(model, laws, pulse, DURATION, times, RTOL, args.budget)
+        _, lsoda_seconds, reached, _ = lsoda(model, laws, pulse, DURATION, times, RTOL, args.budget)
         finished = bool(reached >= DURATION - 1e-9)
         ratio = lsoda_seconds / seconds
         print(f"  {DURATION:g} s simulated: ours {seconds:.3f} s ({DURATION / seconds:.0f}x real time), "
