@@ -4,7 +4,7 @@ Stages so far: load the design → build the FE model (joints locked, the conven
 of the modal survey) → update it to the measured eigenfrequencies → eigen solution of the
 updated model, also with the joints released (the frictionless linear subsystem of Eq. 12)
 → friction joint: isolated-rig records (Table 1 type B, 1 % noise) and the two-step LuGre
-identification of Eq. 3 with hysteresis loops like Fig. 5 → model reduction (Section 4, Fig. 10)
+identification of Eq. 3 plus the output-error step, with hysteresis loops like Fig. 5 → model reduction (Section 4, Fig. 10)
 → semi-active control: the controller design artefact and the closed-loop study of Section 6
 (Figs. 12–14) → generated C firmware, checked back to back against the Python reference → the
 study through the CAN loop (software in the loop) → report (Markdown + PNG). Each later stage of the design card joins here.
@@ -64,7 +64,8 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
         released_model = build_model(design, joints="released")
         released = solve_modes(released_model, min(REPORT_MODES, released_model.n_dof))
 
-    progress("[4/9] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3)")
+    progress("[4/9] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3 + output "
+             "error)")
     records = [rig.simulate(test) for test in rig.campaign("B", noise=0.01, cycles=8)]
     micro = [r for r in records if classify(r) == "micro-slip"]
     stick = [r for r in records if classify(r) == "stick-slip"]
@@ -205,7 +206,7 @@ def _markdown(design, model, modes, released, result, summary) -> str:
 
 def _friction_markdown(identification, hysteresis: list[str]) -> str:
     truth = lugre.TABLE_1[identification.joint_type]
-    lines = ["## Friction joint: identification from rig records (Section 3.2, Eq. 3)", "",
+    lines = ["## Friction joint: identification from rig records (Section 3.2, Eq. 3 + output error)", "",
              f"Synthetic records of the isolated type {identification.joint_type} joint (paper Table 1 parameters, "
              "1 % measurement noise): two micro-slip and four stick-slip records at F_N = 200 and 400 N.", "",
              plots.identification_table(identification), "",
