@@ -136,8 +136,10 @@ def identification_table(result) -> str:
         interval = "given" if entry["ci95"] is None else _interval(*entry["ci95"])
         weak = " (weakly identifiable)" if name in data["weakly_identifiable"] else ""
         lines.append(f"| {name} | {entry['value']:.4g} | {interval}{weak} | {entry['step']} |")
-    lines += ["", "| record | NRMSE |", "|---|---:|"]
-    lines += [f"| {name} | {value:.4f} |" for name, value in data["nrmse"].items()]
+    velocity = data.get("velocity_nrmse", {})
+    lines += ["", "| record | friction NRMSE (Eq. 3) | velocity NRMSE (output error) |", "|---|---:|---:|"]
+    lines += [f"| {name} | {value:.4f} | {velocity[name]:.4f} |" if name in velocity else f"| {name} | {value:.4f} | — |"
+              for name, value in data["nrmse"].items()]
     return "\n".join(lines)
 
 
