@@ -16,6 +16,7 @@ import shutil
 import sys
 import sysconfig
 import tempfile
+import warnings
 from pathlib import Path
 
 from .errors import ModelError
@@ -70,3 +71,24 @@ def load(stem: str, declarations: str, source: Path, *, objects: tuple[Path, ...
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def choose(backend: str, what: str, compiled, mirror, failures: list[str], stacklevel: int = 3):
+    """``compiled()`` or ``mirror()`` for ``backend`` 'c', 'python' or 'auto' (C where it builds).
+
+    Under 'auto' a failed build warns once (``failures`` remembers why, per kernel) and every
+    later call goes straight to the Python mirror; under 'c' the build error reaches the caller.
+    """
+    if backend not in ("auto", "c", "python"):
+        raise ModelError(f"backend: {backend!r} — must be 'auto', 'c' or 'python'")
+    if backend == "python" or (backend == "auto" and failures):
+        return mirror()
+    try:
+        return compiled()
+    except ModelError as error:
+        if backend == "c":
+            raise
+        failures.append(str(error))
+        warnings.warn(f"{what} falls back to Python (about 100x slower): {error}", RuntimeWarning,
+                      stacklevel=stacklevel + 1)
+        return mirror()

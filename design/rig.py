@@ -19,14 +19,12 @@ sliding velocity and excitation force at ``sample_rate`` with optional Gaussian 
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import lugre
-from .errors import ModelError
 from .records import Record, friction_from_excitation
 
 
@@ -111,18 +109,10 @@ def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, d
     if gain.shape not in ((), (nodes,)):
         raise ValueError(f"gain: {gain.shape} values — need one number or {nodes}, one per substep node")
     gain = np.ascontiguousarray(np.broadcast_to(gain, (nodes,)))
-    if backend not in ("auto", "c", "python"):
-        raise ValueError(f"backend: {backend!r} — must be 'auto', 'c' or 'python'")
-    if backend == "python" or (backend == "auto" and _C_FAILURE):
-        return _integrate_python(p, gain, inertia, force, time, substeps, velocity0, deflection0)
-    try:
-        module = kernel()
-    except ModelError as error:
-        if backend == "c":
-            raise
-        _C_FAILURE.append(str(error))
-        warnings.warn(f"rig integration falls back to Python (about 100x slower): {error}", RuntimeWarning,
-                      stacklevel=2)
+    from . import native
+
+    module = native.choose(backend, "rig integration", kernel, lambda: None, _C_FAILURE, stacklevel=2)
+    if module is None:
         return _integrate_python(p, gain, inertia, force, time, substeps, velocity0, deflection0)
     return _integrate_c(module, p, gain, inertia, force, time, substeps, velocity0, deflection0)
 

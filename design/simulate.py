@@ -44,7 +44,6 @@ continuous one is measured against Radau instead.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Protocol
@@ -521,19 +520,10 @@ _C_FAILURE: list[str] = []  # why the C kernel is unavailable on this machine (r
 
 
 def _kernel(backend: str, plant: _Plant, state: _State, recorder: _Recorder):
-    if backend not in ("auto", "c", "python"):
-        raise ModelError(f"backend: {backend!r} — must be 'auto', 'c' or 'python'")
-    if backend == "python" or (backend == "auto" and _C_FAILURE):
-        return _PythonKernel(plant, state, recorder)
-    try:
-        return _CKernel(plant, state, recorder)
-    except ModelError as error:
-        if backend == "c":
-            raise
-        _C_FAILURE.append(str(error))
-        warnings.warn(f"plant simulation falls back to numpy (about 100x slower): {error}", RuntimeWarning,
-                      stacklevel=3)
-        return _PythonKernel(plant, state, recorder)
+    from . import native
+
+    return native.choose(backend, "plant simulation", lambda: _CKernel(plant, state, recorder),
+                         lambda: _PythonKernel(plant, state, recorder), _C_FAILURE)
 
 
 def _check(model: ModalModel, joints, duration, step, controller, initial_state):
