@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -216,3 +218,29 @@ def test_unstable_damping_and_rigid_joint_are_named(model):
     with pytest.raises(simulate.ModelError, match="initial_state: 3 values"):
         simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4,
                           initial_state=np.zeros(3))
+
+
+def test_auto_backend_falls_back_to_the_mirror_once_when_c_does_not_build(model, monkeypatch):
+    """No compiler: 'auto' warns once and runs the numpy mirror (same trajectory), 'c' names the error."""
+    from smartjoint.design import native
+    from smartjoint.design.errors import ModelError
+
+    def no_compiler(*args, **kwargs):
+        raise ModelError("compiling plant_kernel.c failed: no compiler")
+
+    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    forces = simulate.ConstantNormalForce(np.array([300.0, 400.0]), 1e-3)
+    expected = simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="python")
+    monkeypatch.setattr(native, "load", no_compiler)
+    monkeypatch.setattr(simulate, "_C_FAILURE", [])
+    with pytest.warns(RuntimeWarning, match="plant simulation falls back to Python.*no compiler"):
+        first = simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="auto")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the second run goes straight to the mirror, silently
+        second = simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="auto")
+    for run in (first, second):
+        assert np.array_equal(run.friction_force, expected.friction_force)
+    with pytest.raises(ModelError, match="no compiler"):
+        simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="c")
+    with pytest.raises(ModelError, match="backend: 'fortran' — must be 'auto', 'c' or 'python'"):
+        simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="fortran")
