@@ -39,9 +39,20 @@ def cache_dir() -> Path:
     return Path(os.environ.get("SMARTJOINT_CACHE") or Path.home() / ".cache" / "smartjoint")
 
 
+_LOADED: dict[tuple, object] = {}  # per process: a short simulation should not re-hash the source
+
+
 def load(stem: str, declarations: str, source: Path, *, objects: tuple[Path, ...] = (), includes: tuple[Path, ...] = ()):
     """The cffi module (``.ffi``, ``.lib``) of ``source`` with the C ``declarations``; ``objects``:
     compiled object files linked into it, ``includes``: header folders."""
+    stamp = tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) for p in (Path(source), *map(Path, objects)))
+    key = (stem, declarations, stamp, tuple(map(str, includes)))
+    if key not in _LOADED:
+        _LOADED[key] = _load(stem, declarations, Path(source), tuple(objects), tuple(includes))
+    return _LOADED[key]
+
+
+def _load(stem: str, declarations: str, source: Path, objects: tuple[Path, ...], includes: tuple[Path, ...]):
     text = source.read_text()
     flags = FLAGS
     extra = [f"{p.name}\0{p.read_bytes().hex()}" for p in objects]

@@ -407,3 +407,251 @@ long sj_run(const sj_plant *p, sj_state *s, const double *w, long steps, long k0
     }
     return steps;
 }
+
+/* ---- Stick-exact steps (simulate(..., stick_step=H), stick_exact.py documents the scheme) ----
+ *
+ * State z = [x (interleaved eta_dot_i, omega_i eta_i); phi] of size N = 2n + l, dense exact
+ * first-order-hold discretisation per step length, stored transposed with rows padded to Np:
+ * Phi^T (N, Np), gamma0^T and gamma1^T (l + m, Np): rows the slip terms d, then the
+ * disturbances; Gv = Cv gamma1_d and
+ * Gp = gamma1_d rows of phi (l, l), row-major.  The same statements as stick_exact._StickPython. */
+#define SJ_STICK_CORRECTION 1e-5  /* relative Newton correction that ends the slip-term solve */
+
+typedef struct {
+    const double *phi, *g0, *g1, *Gv, *Gp;
+} sj_stick_step;
+
+/* Three step lengths: level 0 the long step H, level 1 H/ratio[0], level 2 (the short step)
+ * H/(ratio[0] ratio[1]); a level is tried where every joint is quiet for it (kappa, beta[level]). */
+typedef struct {
+    int N, Np, n2, l, m, ny;                  /* Np: N rounded up to a multiple of four */
+    int ratio[2];
+    double kappa, beta[2];
+    sj_stick_step level[3];
+    const double *Cv, *Cy;                    /* (l, n2), (ny, n2) */
+    const double *s0, *s1, *s2, *fc, *fd, *vs, *arm;
+    double *work;                             /* scratch: 2Np + 2N + 14l + l*l doubles */
+} sj_stick;
+
+typedef struct {
+    double *z, *d, *v, *u, *fn;
+    long steps[3];                            /* steps taken per level */
+    double failed_step, failed_residual;
+} sj_stick_state;
+
+/* out[:n] (+)= sum_c M[c, :n] y_c for M stored as `columns` rows of `stride` (a transposed matrix,
+ * rows padded to a multiple of four so that the loop vectorises without a remainder). */
+static void axpy_columns(const double *restrict M, const double *restrict y, int columns, int n, int stride,
+                         double *restrict out, int overwrite)
+{
+    if (overwrite)
+        for (int i = 0; i < n; ++i) out[i] = 0.0;
+    for (int c = 0; c < columns; ++c) {
+        const double *restrict col = M + (size_t)c * stride;
+        double yc = y[c];
+        for (int i = 0; i < n; ++i) out[i] += col[i] * yc;
+    }
+}
+
+static double stick_rate(const sj_stick *p, int j, double v, double *derivative)
+{
+    double g = p->fc[j] + p->fd[j] * exp(-(v / p->vs[j]) * (v / p->vs[j]));
+    double dg = -2.0 * v / (p->vs[j] * p->vs[j]) * (g - p->fc[j]);
+    *derivative = p->s0[j] * (sign_of(v) * g - fabs(v) * dg) / (g * g);
+    return p->s0[j] * fabs(v) / g;
+}
+
+/* u_R = r F_N [sigma0 phi + sigma1 (v - d) + sigma2 v] (Eq. 2 with phi_dot = v - d, Eq. 1). */
+static void stick_forces(const sj_stick *p, sj_stick_state *s)
+{
+    for (int j = 0; j < p->l; ++j) {
+        double scale = p->arm[j] * s->fn[j];
+        s->u[j] = scale * (p->s0[j] * s->z[p->n2 + j] + p->s1[j] * (s->v[j] - s->d[j]) + p->s2[j] * s->v[j]);
+    }
+}
+
+/* One step of the given discretisation from w_a to w_b; 0 on success (z, d, v updated). */
+static int stick_advance(const sj_stick *p, sj_stick_state *s, const sj_stick_step *k, double h, const double *w_a,
+                         const double *w_b)
+{
+    int N = p->N, l = p->l, m = p->m, n2 = p->n2;
+    double *zf = p->work, *vf = p->work + 2 * p->Np, *pf = vf + l, *d1 = pf + l, *r = d1 + l, *scale = r + l;
+    double *v1 = scale + l, *rho = v1 + l, *drho = rho + l, *J = drho + l;
+    int disturbed = !(all_zero(w_a, m) && all_zero(w_b, m));
+    /* z_free = Phi z + gamma0 [d; w_a] + gamma1 [0; w_b], column by column (the matrices are
+     * stored transposed), so that the loop over the N rows vectorises. */
+    int Np = p->Np;
+    axpy_columns(k->phi, s->z, N, Np, Np, zf, 1);
+    axpy_columns(k->g0, s->d, l, Np, Np, zf, 0);
+    if (disturbed) {
+        axpy_columns(k->g0 + (size_t)l * Np, w_a, m, Np, Np, zf, 0);
+        axpy_columns(k->g1 + (size_t)l * Np, w_b, m, Np, Np, zf, 0);
+    }
+    for (int j = 0; j < l; ++j) {
+        vf[j] = dot(p->Cv + (size_t)j * n2, zf, n2);
+        pf[j] = zf[n2 + j];
+        d1[j] = s->d[j];  /* start from the held slip term */
+        scale[j] = fmax(fabs(vf[j]), p->vs[j]) + fabs(s->v[j]);
+    }
+    double worst = 0.0;
+    for (int it = 0; it < SJ_ITERATIONS; ++it) {
+        int converged = 1;
+        worst = 0.0;
+        for (int i = 0; i < l; ++i) {
+            double v = vf[i], phi = pf[i];
+            for (int j = 0; j < l; ++j) {
+                v += k->Gv[i * l + j] * d1[j];
+                phi += k->Gp[i * l + j] * d1[j];
+            }
+            v1[i] = v;
+            rho[i] = stick_rate(p, i, v, &drho[i]);
+            r[i] = d1[i] - rho[i] * phi;
+            drho[i] *= phi;
+            if (!(fabs(r[i]) <= SJ_TOLERANCE * scale[i])) converged = 0;
+            worst = fmax(worst, fabs(r[i]));
+        }
+        if (converged) {
+            memcpy(s->z, zf, sizeof(double) * (size_t)N);
+            axpy_columns(k->g1, d1, l, N, p->Np, s->z, 0);
+            for (int j = 0; j < l; ++j) {
+                s->d[j] = d1[j];
+                s->v[j] = v1[j];
+            }
+            return 0;
+        }
+        for (int i = 0; i < l; ++i)
+            for (int j = 0; j < l; ++j)
+                J[i * l + j] = (i == j ? 1.0 : 0.0) - drho[i] * k->Gv[i * l + j] - rho[i] * k->Gp[i * l + j];
+        if (solve_small(l, J, r) == 0.0) break;
+        double limit = 0.0;
+        for (int j = 0; j < l; ++j) limit = fmax(limit, fabs(r[j]) / scale[j]);
+        for (int j = 0; j < l; ++j) d1[j] -= limit <= 1.0 ? r[j] : r[j] / limit;
+        if (limit <= SJ_STICK_CORRECTION) {
+            /* Newton converges quadratically: after a correction this small the next one would be
+             * below the tolerance, so take the result without another evaluation of rho */
+            for (int i = 0; i < l; ++i) {
+                double v = vf[i];
+                for (int j = 0; j < l; ++j) v += k->Gv[i * l + j] * d1[j];
+                v1[i] = v;
+            }
+            memcpy(s->z, zf, sizeof(double) * (size_t)N);
+            axpy_columns(k->g1, d1, l, N, p->Np, s->z, 0);
+            for (int j = 0; j < l; ++j) {
+                s->d[j] = d1[j];
+                s->v[j] = v1[j];
+            }
+            return 0;
+        }
+    }
+    s->failed_step = h;
+    s->failed_residual = worst;
+    return -1;
+}
+
+/* Every joint stuck enough for a step of length H: rho H < kappa and |u_R| < beta r F_N (F_c + F_d). */
+static int stick_quiet(const sj_stick *p, const sj_stick_state *s, double H, double beta)
+{
+    for (int j = 0; j < p->l; ++j) {
+        double unused;
+        /* rho <= sigma0 |v| / F_c (g >= F_c): most joints pass on this bound without the exp */
+        if (!(p->s0[j] * fabs(s->v[j]) / p->fc[j] * H < p->kappa)
+            && !(stick_rate(p, j, s->v[j], &unused) * H < p->kappa)) return 0;
+        if (!(fabs(s->u[j]) < beta * p->arm[j] * s->fn[j] * (p->fc[j] + p->fd[j]))) return 0;
+    }
+    return 1;
+}
+
+void sj_stick_set_normal_force(const sj_stick *p, sj_stick_state *s, const double *normal_force)
+{
+    for (int j = 0; j < p->l; ++j) s->fn[j] = normal_force[j];
+    stick_forces(p, s);
+}
+
+void sj_stick_record_row(const sj_stick *p, const sj_stick_state *s, const sj_record *r, long row)
+{
+    for (int j = 0; j < p->l; ++j) {
+        r->v[row * p->l + j] = s->v[j];
+        r->u[row * p->l + j] = s->u[j];
+        r->fn[row * p->l + j] = s->fn[j];
+        r->phi[row * p->l + j] = s->z[p->n2 + j];
+    }
+    for (int k = 0; k < p->ny; ++k) r->sensors[row * p->ny + k] = dot(p->Cy + (size_t)k * p->n2, s->z, p->n2);
+    r->energy[row] = 0.5 * dot(s->z, s->z, p->n2);
+    r->works[3 * row] = r->works[3 * row + 1] = r->works[3 * row + 2] = NAN;
+}
+
+/* Disturbance samples at the short-step ends; rows from `rows` on are zero (a run samples a
+ * disturbance with a known end only up to it). */
+typedef struct {
+    const double *w;
+    long rows;
+    int m;
+} sj_stick_w;
+
+static const double sj_zero_row[SJ_MAX_DISTURBANCES];
+
+static const double *stick_w(const sj_stick_w *w, long row)
+{
+    return row < w->rows ? w->w + (size_t)row * w->m : sj_zero_row;
+}
+
+static int stick_w_zero(const sj_stick_w *w, long row, long count)
+{
+    if (row >= w->rows) return 1;
+    long end = row + count < w->rows ? row + count : w->rows;
+    return all_zero(w->w + (size_t)row * w->m, (int)((end - row) * w->m));
+}
+
+/* The interval of one step at `level` (length H, from short-step sample `row`): one step there
+ * if the joints are quiet for it at both ends and the disturbance is off, else ratio[level]
+ * intervals of the next level.  0 on success. */
+static int stick_interval(const sj_stick *p, sj_stick_state *s, int level, const sj_stick_w *w, long row, double H)
+{
+    int N = p->N, l = p->l;
+    if (level == 2) {
+        if (stick_advance(p, s, &p->level[2], H, stick_w(w, row), stick_w(w, row + 1)) != 0) return -1;
+        stick_forces(p, s);
+        s->steps[2] += 1;
+        return 0;
+    }
+    int shorts = level == 0 ? p->ratio[0] * p->ratio[1] : p->ratio[1];  /* short steps in this interval */
+    if (stick_w_zero(w, row, shorts + 1) && stick_quiet(p, s, H, p->beta[level])) {
+        double *backup = p->work + 2 * p->Np + 8 * l + l * l + (size_t)level * (N + 3 * l);  /* after stick_advance's */
+        memcpy(backup, s->z, sizeof(double) * (size_t)N);
+        memcpy(backup + N, s->d, sizeof(double) * (size_t)l);
+        memcpy(backup + N + l, s->v, sizeof(double) * (size_t)l);
+        memcpy(backup + N + 2 * l, s->u, sizeof(double) * (size_t)l);
+        if (stick_advance(p, s, &p->level[level], H, sj_zero_row, sj_zero_row) == 0) {
+            stick_forces(p, s);
+            if (stick_quiet(p, s, H, p->beta[level])) {
+                s->steps[level] += 1;
+                return 0;
+            }
+        }
+        /* a slip may hide inside: redo the interval with the next level */
+        memcpy(s->z, backup, sizeof(double) * (size_t)N);
+        memcpy(s->d, backup + N, sizeof(double) * (size_t)l);
+        memcpy(s->v, backup + N + l, sizeof(double) * (size_t)l);
+        memcpy(s->u, backup + N + 2 * l, sizeof(double) * (size_t)l);
+    }
+    int parts = p->ratio[level], span = shorts / parts;
+    for (int i = 0; i < parts; ++i)
+        if (stick_interval(p, s, level + 1, w, row + (long)i * span, H / (double)parts) != 0) return -1;
+    return 0;
+}
+
+/* `longs` long steps of length H; w: the first w_rows of the longs*ratio[0]*ratio[1] + 1
+ * disturbance samples at the short-step ends (the rest zero); rows recorded before each long
+ * step whose global index k0 + k is a multiple of record_every.  Returns the number of long
+ * steps done (< longs on a failed short step). */
+long sj_stick_run(const sj_stick *p, sj_stick_state *s, const double *w, long w_rows, long longs, long k0,
+                  long record_every, const sj_record *r, double H)
+{
+    int shorts = p->ratio[0] * p->ratio[1];
+    sj_stick_w samples = {w, w_rows, p->m};
+    for (long k = 0; k < longs; ++k) {
+        if ((k0 + k) % record_every == 0) sj_stick_record_row(p, s, r, (k0 + k) / record_every);
+        if (stick_interval(p, s, 0, &samples, k * shorts, H) != 0) return k;
+    }
+    return longs;
+}

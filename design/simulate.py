@@ -101,12 +101,15 @@ class TriangularPulse:
         self.amplitude, self.duration = float(amplitude), float(duration)
         self.directions = np.asarray(directions, dtype=float).reshape(-1)
         self.breakpoints = (0.0, 0.5 * duration, duration)
+        self.support_end = self.duration  # w(t) = 0 after this time: a long run samples only the pulse
 
     def sample(self, times) -> np.ndarray:
         t = np.asarray(times, dtype=float).reshape(-1)
-        shape = np.where((t >= 0) & (t <= self.duration), np.maximum(0.0, 1.0 - np.abs(2.0 * t / self.duration - 1.0)),
-                         0.0)
-        return self.amplitude * shape[:, None] * self.directions[None, :]
+        out = np.zeros((t.size, self.directions.size))
+        inside = np.flatnonzero((t >= 0) & (t <= self.duration))  # a long run is mostly after the pulse
+        shape = np.maximum(0.0, 1.0 - np.abs(2.0 * t[inside] / self.duration - 1.0))
+        out[inside] = self.amplitude * shape[:, None] * self.directions[None, :]
+        return out
 
     def __call__(self, t: float) -> np.ndarray:
         return self.sample([t])[0]
@@ -318,7 +321,7 @@ class _Plant:
     (rows of length n) like ``plant_kernel.c``: discretisation at step/2^d for
     d = 0…MAX_HALVINGS, the transposed input matrices, the outputs and the joint laws."""
 
-    def __init__(self, model: ModalModel, joints, step: float, books: bool = True):
+    def __init__(self, model: ModalModel, joints, step: float, books: bool = True, discretised: bool = True):
         self.n, self.l = model.n_coordinates, model.joint_input.shape[1]
         self.m, self.ny = model.disturbance_input.shape[1], model.velocity_output.shape[0]
         self.step = step
@@ -331,7 +334,7 @@ class _Plant:
         self.Dy = np.ascontiguousarray(model.displacement_output / model.omega, dtype=float)
         self.two_xi_w = 2.0 * model.damping * model.omega
         self.law = _Joints(joints)
-        levels = MAX_HALVINGS + 1
+        levels = MAX_HALVINGS + 1 if discretised else 0  # the stick-exact scheme brings its own
         self.phi, self.g0, self.g1 = np.zeros((levels, 4, self.n)), np.zeros((levels, 2, self.n)), np.zeros((levels, 2, self.n))
         self.G = np.zeros((levels, self.l, self.l))
         self.books = books
@@ -459,6 +462,25 @@ class _CKernel:
     void sj_record_row(const sj_plant *p, const sj_state *s, const sj_record *r, long row);
     long sj_run(const sj_plant *p, sj_state *s, const double *w, long steps, long k0, long record_every,
                 const sj_record *r);
+    typedef struct { const double *phi, *g0, *g1, *Gv, *Gp; } sj_stick_step;
+    typedef struct {
+        int N, Np, n2, l, m, ny;
+        int ratio[2];
+        double kappa, beta[2];
+        sj_stick_step level[3];
+        const double *Cv, *Cy;
+        const double *s0, *s1, *s2, *fc, *fd, *vs, *arm;
+        double *work;
+    } sj_stick;
+    typedef struct {
+        double *z, *d, *v, *u, *fn;
+        long steps[3];
+        double failed_step, failed_residual;
+    } sj_stick_state;
+    void sj_stick_set_normal_force(const sj_stick *p, sj_stick_state *s, const double *normal_force);
+    void sj_stick_record_row(const sj_stick *p, const sj_stick_state *s, const sj_record *r, long row);
+    long sj_stick_run(const sj_stick *p, sj_stick_state *s, const double *w, long w_rows, long longs, long k0,
+                      long record_every, const sj_record *r, double H);
     """
 
     def __init__(self, plant: _Plant, state: _State, recorder: _Recorder):
@@ -561,8 +583,24 @@ def _check(model: ModalModel, joints, duration, step, controller, initial_state)
     return l, int(round(ratio))
 
 
+def _disturbance_at_steps(disturbance, steps: int, step: float, m: int, compact: bool = False) -> np.ndarray:
+    """w at the ends of ``steps`` steps, (steps + 1, m), sampled only up to the disturbance's
+    ``support_end`` where it has one (zero after). ``compact``: leave those zero rows out (for a
+    kernel that takes missing rows as zero) — a long run then never builds its full time axis."""
+    if disturbance is None:
+        return np.zeros((0 if compact else steps + 1, m))
+    end = getattr(disturbance, "support_end", None)
+    inside = steps + 1
+    if isinstance(end, (int, float)) and math.isfinite(end) and end >= 0:
+        inside = min(steps + 1, int(math.floor(end / step)) + 2)  # one sample past the end, to be sure
+    values = _disturbance_samples(_Unbounded(disturbance), np.arange(inside) * step, m)
+    if compact or inside == steps + 1:
+        return values
+    return np.concatenate([values, np.zeros((steps + 1 - inside, m))])
+
+
 def _disturbance_samples(disturbance, times: np.ndarray, m: int) -> np.ndarray:
-    """w at every step end, (n_t, m): one vectorised call where the function offers it."""
+    """w at the given times, (n_t, m): one vectorised call where the function offers it."""
     if disturbance is None:
         return np.zeros((times.size, m))
     sample = getattr(disturbance, "sample", None)
@@ -578,10 +616,22 @@ def _disturbance_samples(disturbance, times: np.ndarray, m: int) -> np.ndarray:
     return values
 
 
+class _Unbounded:
+    """The same disturbance without its ``support_end`` (for sampling inside the support)."""
+
+    def __init__(self, disturbance):
+        self.disturbance = disturbance
+        self.sample = getattr(disturbance, "sample", None)
+
+    def __call__(self, t):
+        return self.disturbance(t)
+
+
 def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller: Controller,
              disturbance: Callable[[float], np.ndarray] | None = None, duration: float = 1.0, step: float = 1e-4,
              initial_state: np.ndarray | None = None, progress: Callable[[str], None] | None = None,
-             record_every: int = 1, backend: str = "auto", energy_books: bool = True) -> SimulationResult:
+             record_every: int = 1, backend: str = "auto", energy_books: bool = True,
+             stick_step: float | None = None) -> SimulationResult:
     """Run the closed loop for ``duration`` seconds at plant step ``step`` (see module docstring).
 
     The controller is called every ``controller.sample_time`` (a whole multiple of ``step``); a
@@ -590,18 +640,27 @@ def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller:
     mirror) or "auto" (C where a compiler is available). ``energy_books``: book W_in, W_joints
     and W_damping exactly every step (18 coefficients per mode; about doubles the step cost of
     a large model); False leaves them NaN — the state, e(t) and Eq. 32 are unaffected.
+    ``stick_step``: run the stick-exact scheme of ``stick_exact.py`` instead — long steps of this
+    length while every joint sticks, ``step`` elsewhere (reduced models, energy_books=False).
     """
     l, ratio = _check(model, joints, duration, step, controller, initial_state)
     if not (isinstance(record_every, int) and record_every >= 1):
         raise ModelError(f"record_every: {record_every!r} — must be a whole number >= 1")
     if not isinstance(energy_books, bool):
         raise ModelError(f"energy_books: {energy_books!r} — must be True or False")
-    plant = _Plant(model, joints, step, energy_books)
+    if stick_step is not None:
+        from . import stick_exact
+
+        stick_exact.check(model, step, stick_step, controller, record_every, energy_books, duration)
+    plant = _Plant(model, joints, step, energy_books, discretised=stick_step is None)
     steps = int(round(duration / step))
     state = _State(plant, initial_state)
     recorder = _Recorder(plant, steps // record_every + 1)
-    kernel = _kernel(backend, plant, state, recorder)
-    w = _disturbance_samples(disturbance, np.arange(steps + 1) * step, plant.m)
+    if stick_step is None:
+        kernel = _kernel(backend, plant, state, recorder)
+    else:
+        kernel = stick_exact.kernel(backend, model, plant.law, step, float(stick_step), state, recorder)
+    w = _disturbance_at_steps(disturbance, steps, step, plant.m, compact=stick_step is not None)
     controller.reset()
     kernel.start(w[0])
     chunk = steps if getattr(controller, "holds_constant", False) else ratio
