@@ -13,9 +13,14 @@ with Radau at second order, tests/test_simulate.py). Then speed over 10 s simula
 per-step energy books.
 LSODA gets a wall-clock budget; if it runs out, the ratio is reported as a lower bound.
 
+For the 24-state model also the stick-exact scheme (``simulate(..., stick_step=1e-3)``,
+design/stick_exact.py): 1 ms steps while the joints stick, 50 µs elsewhere; its ~10 ms runs are
+timed as the median of 9.
+
 Last, the work-precision diagram of the 24-state model (``--no-diagram`` skips it): friction error
 against real-time factor over the same 10 s for our scheme at steps of 1 ms … 12.5 µs and LSODA at
-rtol 1e-2 … 1e-5, errors against our scheme at 3.125 µs (itself checked against Radau on the first
+rtol 1e-2 … 1e-5 (and the stick-exact scheme with short steps of 100 … 25 µs), errors against
+our scheme at 3.125 µs (itself checked against Radau on the first
 0.2 s), in the first 0.2 s and over all 10 s. It shows what step the 1000× target would need and
 what accuracy that step gives (benchmarks/plant_sim_work_precision.png).
 
@@ -48,13 +53,17 @@ def friction_error(u, u_ref) -> float:
     return float(np.sqrt(np.mean((u - u_ref) ** 2, axis=0)).max() / np.sqrt(np.mean(u_ref**2, axis=0)).max())
 
 
-def ours(model, laws, pulse, duration, step, record=1e-3, books=True):
+def ours(model, laws, pulse, duration, step, record=1e-3, books=True, stick_step=None):
     controller = simulate.ConstantNormalForce(np.full(len(laws), NORMAL_FORCE), 1e-3)
     every = int(round(record / step))
     start = time.perf_counter()
     result = simulate.simulate(model, laws, controller, pulse, duration, step, record_every=every, backend="c",
-                                 energy_books=books)
+                                 energy_books=books and stick_step is None, stick_step=stick_step)
     return result, time.perf_counter() - start
+
+
+def median_seconds(runs: int, *args, **kwargs) -> float:
+    return float(np.median([ours(*args, **kwargs)[1] for _ in range(runs)]))
 
 
 def lsoda(model, laws, pulse, duration, times, rtol, budget):
@@ -80,7 +89,10 @@ def lsoda(model, laws, pulse, duration, times, rtol, budget):
     return np.concatenate(out), time.perf_counter() - start, reached, np.concatenate(energy)
 
 
+STICK_STEP = 1e-3  # the long step of the stick-exact scheme (= the controller sample time)
+STICK_RUNS = 9  # ~10 ms a run: the median of more runs, wall-clock noise is larger than at 0.1 s
 DIAGRAM_STEPS = (1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5, 1.25e-5)
+DIAGRAM_STICK_STEPS = (1e-4, 6.25e-5, 5e-5, 2.5e-5)  # short steps of the stick-exact scheme
 DIAGRAM_RTOLS = (1e-2, 1e-3, 1e-4, 1e-5)
 DIAGRAM_REFERENCE_STEP = 3.125e-6
 TARGET_REAL_TIME = 1000.0
@@ -144,6 +156,7 @@ def work_precision(model, laws, pulse, budget: float) -> dict:
     print(f"  work-precision reference: ours at {DIAGRAM_REFERENCE_STEP:g} s, {100 * check:.3f} % from Radau "
           f"(rtol 1e-10) on 0–{WINDOW} s")
     rows = {"reference_step": DIAGRAM_REFERENCE_STEP, "reference_vs_radau_0-0.2s": check, "ours": [], "lsoda": [],
+            "stick": [],
             "stuck_modes_hz": stuck_modes(model, laws), "content_above_nyquist": spectral_floor(model, laws, pulse)}
     print(f"  stuck-joint modes (joints linearised as bristle springs at {NORMAL_FORCE:g} N): highest "
           + ", ".join(f"{f:.0f} Hz (ξ {z:.1e})" for f, z in rows["stuck_modes_hz"][:3]))
@@ -155,6 +168,15 @@ def work_precision(model, laws, pulse, budget: float) -> dict:
         errors = windowed_errors(runs[0][0].friction_force, u_ref, times, runs[0][0].energy, reference.energy)
         rows["ours"].append({"step": step, "seconds": seconds, "real_time_factor": DURATION / seconds, **errors})
         print(f"  ours   step {step:8.3g} s: {DURATION / seconds:7.0f}x real time, friction error "
+              f"{100 * errors['0-0.2s']:6.2f} % (0–0.2 s), {100 * errors['0-10s']:6.2f} % (0–10 s); "
+              f"E(10 s) {100 * errors['energy_measure_10s']:+6.2f} %")
+    for step in DIAGRAM_STICK_STEPS:
+        runs = [ours(model, laws, pulse, DURATION, step, stick_step=STICK_STEP) for _ in range(STICK_RUNS)]
+        seconds = float(np.median([r[1] for r in runs]))
+        errors = windowed_errors(runs[0][0].friction_force, u_ref, times, runs[0][0].energy, reference.energy)
+        rows["stick"].append({"step": step, "long_step": STICK_STEP, "seconds": seconds,
+                              "real_time_factor": DURATION / seconds, **errors})
+        print(f"  stick-exact, {STICK_STEP:g} s / {step:8.3g} s: {DURATION / seconds:7.0f}x real time, friction error "
               f"{100 * errors['0-0.2s']:6.2f} % (0–0.2 s), {100 * errors['0-10s']:6.2f} % (0–10 s); "
               f"E(10 s) {100 * errors['energy_measure_10s']:+6.2f} %")
     for rtol in DIAGRAM_RTOLS:
@@ -181,12 +203,13 @@ def plot_work_precision(rows: dict, target: Path) -> None:
               ("energy_measure_10s", "|error| of E(10 s) = ∫xᵀx dt (Eq. 32)"))
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.4), sharey=True)
     for ax, (metric, title) in zip(axes, panels):
-        for key, label, marker in (("ours", "ours (fixed step)", "o"), ("lsoda", "LSODA (rtol)", "s")):
+        for key, label, marker in (("ours", "ours (fixed step)", "o"), ("stick", "ours, stick-exact (1 ms / short step)",
+                                                                           "^"), ("lsoda", "LSODA (rtol)", "s")):
             points = rows[key]
             errors = [max(100 * abs(p[metric]), 1e-4) for p in points]
             ax.loglog([p["real_time_factor"] for p in points], errors, marker=marker, label=label)
             for p, error in zip(points, errors):
-                note = f"{p['step'] * 1e6:g} µs" if key == "ours" else f"{p['rtol']:g}"
+                note = f"{p['step'] * 1e6:g} µs" if key != "lsoda" else f"{p['rtol']:g}"
                 ax.annotate(note, (p["real_time_factor"], error), fontsize=7, xytext=(3, 3),
                             textcoords="offset points")
         ax.axvline(TARGET_REAL_TIME, color="k", linestyle="--", linewidth=1, label="target 1000× real time")
@@ -247,6 +270,19 @@ def main() -> None:
                           ours_seconds_with_books=seconds_books,
                           lsoda_seconds=lsoda_seconds, lsoda_simulated=reached, lsoda_finished=finished,
                           speedup=ratio, speedup_is_lower_bound=not finished)
+        if name == "24":
+            # Stick-exact steps (stick_exact.py): 1 ms while the joints stick, 50 µs elsewhere.
+            stick, _ = ours(model, laws, pulse, WINDOW, STEP, stick_step=STICK_STEP)
+            error_stick = friction_error(stick.friction_force, u_ref)
+            runs = [ours(model, laws, pulse, DURATION, STEP, stick_step=STICK_STEP)[1] for _ in range(STICK_RUNS)]
+            stick_seconds = float(np.median(runs))
+            print(f"  stick-exact steps ({STICK_STEP:g} s while the joints stick, else {STEP:g} s): accuracy 0–{WINDOW} s "
+                  f"{100 * error_stick:.2f} %; {DURATION:g} s simulated in {stick_seconds * 1e3:.1f} ms (median of "
+                  f"{STICK_RUNS}; fastest {min(runs) * 1e3:.1f} ms) = {DURATION / stick_seconds:.0f}x real time, "
+                  f"{lsoda_seconds / stick_seconds:.0f}x faster than LSODA")
+            rows[name].update(stick_step=STICK_STEP, friction_error_stick=error_stick, stick_seconds=stick_seconds,
+                              stick_seconds_fastest=min(runs), stick_real_time_factor=DURATION / stick_seconds,
+                              stick_speedup=lsoda_seconds / stick_seconds)
     diagram = None if args.no_diagram else work_precision(models["24"], laws, pulse, args.budget)
     out = dict(command="python benchmarks/plant_sim.py", step=STEP, rtol=RTOL, duration=DURATION,
                normal_force=NORMAL_FORCE, machine=f"{platform.machine()}, {platform.python_version()}", models=rows,

@@ -14,10 +14,12 @@ M is discretised exactly (first-order hold in d and w, Van Loan) once per set of
 and step length; a step then solves d⁺ = ρ(v⁺)·φ⁺ by Newton in the l slip terms, started from
 the held d. While the joints stick (ρ·h ≪ 1) d is a small, smooth correction and the stuck-joint
 modes — the bristle springs against the structure, 610–1149 Hz with ξ ≈ 1e-3 on the 24-state
-model — are exact at any step. So the run takes long steps H where, at both ends, every joint
-has ρ·H < ``KAPPA`` and |u_R| < ``BETA``·r·F_N·(F_c + F_d) (the second bound keeps a slip from
-hiding inside a long step), and ``H/step`` short steps of the same scheme elsewhere; a long
-step is only tried after the disturbance has ended on it.
+model — are exact at any step. So each interval H is one long step where, at both of its ends,
+every joint has ρ·H < ``KAPPA`` and |u_R| < ``BETA[0]``·r·F_N·(F_c + F_d) (the second bound keeps
+a slip from hiding inside a long step); else medium steps H/4 (H/2) under the same test with
+``BETA[1]``; else short steps ``step``, all of the same scheme. A longer step is only tried where
+the disturbance is off, and a tried step that ends outside the test is taken back. The slip
+term's first-order hold makes the scheme second order in the step (tests/test_stick_exact.py).
 
 Cost and limits: the state is dense (2n + l), so this is for reduced models (at most
 ``MAX_STATES`` states); each new set of normal forces costs two matrix exponentials (cached,
