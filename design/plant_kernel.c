@@ -453,6 +453,41 @@ static void axpy_columns(const double *restrict M, const double *restrict y, int
     }
 }
 
+/* J c = r for the Newton step of the slip terms: closed form up to three joints (the common
+ * case; the pivoting loop of solve_small costs more than the rest of the solve), else
+ * solve_small.  Returns 0.0 for a singular J. */
+static double stick_solve(int l, double *J, double *r)
+{
+    if (l == 1) {
+        if (J[0] == 0.0) return 0.0;
+        r[0] /= J[0];
+        return J[0];
+    }
+    if (l == 2) {
+        double det = J[0] * J[3] - J[1] * J[2];
+        if (det == 0.0) return 0.0;
+        double a = (J[3] * r[0] - J[1] * r[1]) / det, b = (J[0] * r[1] - J[2] * r[0]) / det;
+        r[0] = a;
+        r[1] = b;
+        return det;
+    }
+    if (l == 3) {
+        double c00 = J[4] * J[8] - J[5] * J[7], c01 = J[5] * J[6] - J[3] * J[8], c02 = J[3] * J[7] - J[4] * J[6];
+        double det = J[0] * c00 + J[1] * c01 + J[2] * c02;
+        if (det == 0.0) return 0.0;
+        double c10 = J[2] * J[7] - J[1] * J[8], c11 = J[0] * J[8] - J[2] * J[6], c12 = J[1] * J[6] - J[0] * J[7];
+        double c20 = J[1] * J[5] - J[2] * J[4], c21 = J[2] * J[3] - J[0] * J[5], c22 = J[0] * J[4] - J[1] * J[3];
+        double a = (c00 * r[0] + c10 * r[1] + c20 * r[2]) / det;
+        double b = (c01 * r[0] + c11 * r[1] + c21 * r[2]) / det;
+        double c = (c02 * r[0] + c12 * r[1] + c22 * r[2]) / det;
+        r[0] = a;
+        r[1] = b;
+        r[2] = c;
+        return det;
+    }
+    return solve_small(l, J, r);
+}
+
 static double stick_rate(const sj_stick *p, int j, double v, double *derivative)
 {
     double g = p->fc[j] + p->fd[j] * exp(-(v / p->vs[j]) * (v / p->vs[j]));
@@ -522,7 +557,7 @@ static int stick_advance(const sj_stick *p, sj_stick_state *s, const sj_stick_st
         for (int i = 0; i < l; ++i)
             for (int j = 0; j < l; ++j)
                 J[i * l + j] = (i == j ? 1.0 : 0.0) - drho[i] * k->Gv[i * l + j] - rho[i] * k->Gp[i * l + j];
-        if (solve_small(l, J, r) == 0.0) break;
+        if (stick_solve(l, J, r) == 0.0) break;
         double limit = 0.0;
         for (int j = 0; j < l; ++j) limit = fmax(limit, fabs(r[j]) / scale[j]);
         for (int j = 0; j < l; ++j) d1[j] -= limit <= 1.0 ? r[j] : r[j] / limit;
