@@ -505,6 +505,18 @@ static void stick_forces(const sj_stick *p, sj_stick_state *s)
     }
 }
 
+/* The solved step: z = z_free + gamma1_d d+, and the new slip terms and joint velocities. */
+static void stick_accept(const sj_stick *p, sj_stick_state *s, const sj_stick_step *k, const double *zf,
+                         const double *d1, const double *v1)
+{
+    memcpy(s->z, zf, sizeof(double) * (size_t)p->N);
+    axpy_columns(k->g1, d1, p->l, p->N, p->Np, s->z, 0);
+    for (int j = 0; j < p->l; ++j) {
+        s->d[j] = d1[j];
+        s->v[j] = v1[j];
+    }
+}
+
 /* One step of the given discretisation from w_a to w_b; 0 on success (z, d, v updated). */
 static int stick_advance(const sj_stick *p, sj_stick_state *s, const sj_stick_step *k, double h, const double *w_a,
                          const double *w_b)
@@ -546,12 +558,7 @@ static int stick_advance(const sj_stick *p, sj_stick_state *s, const sj_stick_st
             worst = fmax(worst, fabs(r[i]));
         }
         if (converged) {
-            memcpy(s->z, zf, sizeof(double) * (size_t)N);
-            axpy_columns(k->g1, d1, l, N, p->Np, s->z, 0);
-            for (int j = 0; j < l; ++j) {
-                s->d[j] = d1[j];
-                s->v[j] = v1[j];
-            }
+            stick_accept(p, s, k, zf, d1, v1);
             return 0;
         }
         for (int i = 0; i < l; ++i)
@@ -569,12 +576,7 @@ static int stick_advance(const sj_stick *p, sj_stick_state *s, const sj_stick_st
                 for (int j = 0; j < l; ++j) v += k->Gv[i * l + j] * d1[j];
                 v1[i] = v;
             }
-            memcpy(s->z, zf, sizeof(double) * (size_t)N);
-            axpy_columns(k->g1, d1, l, N, p->Np, s->z, 0);
-            for (int j = 0; j < l; ++j) {
-                s->d[j] = d1[j];
-                s->v[j] = v1[j];
-            }
+            stick_accept(p, s, k, zf, d1, v1);
             return 0;
         }
     }
