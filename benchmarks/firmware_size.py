@@ -41,6 +41,8 @@ from pathlib import Path
 from smartjoint.codegen import build, generate
 from smartjoint.design import artifact as artifacts
 
+from machine import cpu_model  # benchmarks/machine.py (the script's folder is on sys.path)
+
 ROOT = Path(__file__).resolve().parents[1]
 TARGET = ["-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"]
 BASE_FLAGS = [f for f in build.FLAGS if f != "-O2"]
@@ -298,13 +300,7 @@ def measure_image(a, folder: Path, callgraph: bool, prefix: str = "smartjoint") 
 
 
 def machine() -> dict:
-    cpu = ""
-    try:
-        cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                    if line.startswith("model name")), "")
-    except OSError:
-        pass
-    return {"platform": platform.platform(), "cpu": cpu or platform.processor(), "python": platform.python_version(),
+    return {"platform": platform.platform(), "cpu": cpu_model(), "python": platform.python_version(),
             "compiler": run(["arm-none-eabi-gcc", "--version"]).splitlines()[0]}
 
 

@@ -43,6 +43,8 @@ from smartjoint.codegen import build, generate
 from smartjoint.design import artifact as artifacts
 from smartjoint.design.simulate import Measurements
 
+from machine import cpu_model  # benchmarks/machine.py (the script's folder is on sys.path)
+
 ROOT = Path(__file__).resolve().parents[1]
 ROWS = 200_000
 REPEATS = 7
@@ -119,13 +121,7 @@ def run(command: list[str], cwd: Path | None = None) -> subprocess.CompletedProc
 
 
 def machine(compiler: str) -> dict:
-    cpu = ""
-    try:
-        cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                    if line.startswith("model name")), "")
-    except OSError:
-        pass
-    return {"platform": platform.platform(), "cpu": cpu or platform.processor(), "cpus": os.cpu_count(),
+    return {"platform": platform.platform(), "cpu": cpu_model(), "cpus": os.cpu_count(),
             "python": platform.python_version(), "numpy": np.__version__,
             "compiler": run([compiler, "--version"]).stdout.splitlines()[0]}
 
