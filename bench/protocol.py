@@ -29,6 +29,7 @@ from cantools.database import can, conversion
 from cantools.database.can.formats.dbc.dbc_attribute import DbcAttribute
 from cantools.database.can.formats.dbc.dbc_attribute_definition import DbcAttributeDefinition
 from cantools.database.can.formats.dbc.dbc_specifics import DbcSpecifics
+from cantools.database.can.formats.dbc.dbc_writer import ATTRIBUTE_DEFINITION_GENMSGCYCLETIME
 
 from ..design.artifact import ControllerArtifact
 from ..design.errors import ModelError
@@ -42,6 +43,8 @@ SLOW_FACTOR = 10  # controller status: every 10th sample (amplifier status every
 CONTROLLER = "CONTROLLER"
 MODES = {0: "INIT", 1: "SISO", 2: "CLQG", 3: "SAFE"}
 AMPLIFIER_FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current")
+E2E_SIGNALS = ("crc", "counter")  # first in every frame; no sensor signal may take these names
+CYCLE_TIME_MAX_MS = ATTRIBUTE_DEFINITION_GENMSGCYCLETIME.maximum  # the DBC attribute is an INT of this range
 
 
 @dataclass(frozen=True)
@@ -54,8 +57,9 @@ class Amplifier:
 
 
 def _e2e(frame_id: int) -> list[can.Signal]:
-    return [can.Signal("crc", 0, 8, comment="CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1"),
-            can.Signal("counter", 8, 4, minimum=0, maximum=15, comment="alive counter, +1 per frame, mod 16")]
+    crc, counter = E2E_SIGNALS
+    return [can.Signal(crc, 0, 8, comment="CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1"),
+            can.Signal(counter, 8, 4, minimum=0, maximum=15, comment="alive counter, +1 per frame, mod 16")]
 
 
 def _scaled(name, start, length, scale, signed, unit, minimum, maximum, comment) -> can.Signal:
@@ -74,6 +78,37 @@ def _identifier(name: str, kind: str) -> str:
     return name.upper()
 
 
+def _check_names(joints: list[str], sensors: list[str]) -> None:
+    """Frame names upper-case the joint names, signal names lower-case the sensor names: both
+    must stay distinct, and no sensor signal may repeat the E2E signals of its frame."""
+    for field, names, spell, what in (("joint_names", joints, str.upper, "frame JOINT_"),
+                                      ("sensor_names", sensors, str.lower, "TIP_SENSORS signal ")):
+        taken = {spell(n): f"the E2E signal {n!r}" for n in E2E_SIGNALS} if field == "sensor_names" else {}
+        for i, name in enumerate(names):
+            _identifier(name, field[:-6])
+            key = spell(name)
+            if key in taken:
+                raise ModelError(f"{field}[{i}]: {name!r} — the {what}{key} would repeat {taken[key]}; "
+                                 f"rename the {field[:-6]} in the design file")
+            taken[key] = f"{field}[{i}] {name!r}"
+
+
+def _check_ranges(db: can.Database) -> None:
+    """Every signal's [minimum, maximum] lies within what its raw field can carry."""
+    for message in db.messages:
+        for signal in message.signals:
+            if signal.minimum is None or signal.maximum is None:
+                continue
+            raw_min = -(2 ** (signal.length - 1)) if signal.is_signed else 0
+            raw_max = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2 ** signal.length - 1
+            low, high = sorted((signal.conversion.raw_to_scaled(raw_min, decode_choices=False),
+                                signal.conversion.raw_to_scaled(raw_max, decode_choices=False)))
+            if signal.minimum < low or signal.maximum > high:
+                raise ModelError(f"{message.name}.{signal.name}: range [{signal.minimum:g}, {signal.maximum:g}]"
+                                 f"{' ' + signal.unit if signal.unit else ''} — its {signal.length}-bit field carries "
+                                 f"[{float(low):g}, {float(high):g}]")
+
+
 def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -> can.Database:
     """The cantools database of ``artifact``'s controller bus (see the module docstring)."""
     joints, sensors = list(artifact.joint_names), list(artifact.sensor_names)
@@ -81,11 +116,16 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
         raise ModelError(f"joint_names: {len(joints)} joints — the protocol carries 1…{MAX_JOINTS}")
     if not 1 <= len(sensors) <= MAX_SENSORS:
         raise ModelError(f"sensor_names: {len(sensors)} sensors — one TIP_SENSORS frame carries 1…{MAX_SENSORS}")
+    _check_names(joints, sensors)
     cycle = artifact.sample_time * 1000.0
     if abs(cycle - round(cycle)) > 1e-9 or round(cycle) < 1:
         raise ModelError(f"sample_time: {artifact.sample_time!r} s — DBC cycle times are whole milliseconds; use a "
                          "sample time of 1 ms, 2 ms, …")
     cycle = int(round(cycle))
+    if cycle * SLOW_FACTOR > CYCLE_TIME_MAX_MS:
+        raise ModelError(f"sample_time: {artifact.sample_time!r} s — the DBC cycle time of CONTROLLER_STATUS "
+                         f"({SLOW_FACTOR}·Δt) must be at most {CYCLE_TIME_MAX_MS} ms (GenMsgCycleTime), so Δt ≤ "
+                         f"{CYCLE_TIME_MAX_MS // SLOW_FACTOR} ms")
     nodes = [can.Node(CONTROLLER, comment="semi-active controller (generated firmware)"),
              can.Node("TIP_NODE", comment="tip deflection sensors")]
     messages = []
@@ -134,6 +174,7 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
     db = can.Database(messages, nodes, version=f"smartjoint artefact {artifact.artifact_sha256[:16]}",
                       dbc_specifics=specifics)
     db.refresh()
+    _check_ranges(db)
     return db
 
 

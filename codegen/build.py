@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
+import subprocess
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -117,8 +120,6 @@ class Controllers:
 def compile_object(source: Path, flags: list[str]) -> Path:
     """``cc -c`` one file with ``flags`` (+ -fPIC) next to it, named by a hash of the flags;
     a compiler message is raised as a ModelError with the compiler's text."""
-    import subprocess
-
     tag = hashlib.sha256((" ".join(flags) + source.read_text()).encode()).hexdigest()[:12]
     target = source.with_name(f"{source.stem}-{tag}.o")
     if target.exists():
@@ -208,3 +209,46 @@ class CompiledClippedLqg(_Compiled):
 def compile_controllers(artifact: ControllerArtifact, real: str = "double", prefix: str = "smartjoint",
                         flags: list[str] | None = None) -> Controllers:
     return Controllers(artifact, real, prefix, flags)
+
+
+def _first_error(output: str, folder: Path) -> str:
+    """The compiler's first diagnostic line, with the temporary folder taken out of it."""
+    lines = [line.replace(f"{folder}{os.sep}", "") for line in output.splitlines() if line.strip()]
+    for line in lines:
+        if "error" in line:
+            return line.strip()
+    return lines[0].strip() if lines else "no message"
+
+
+def check_folder(folder: Path, flags: list[str] | None = None) -> dict:
+    """Compile everything C in ``folder`` as written: every header alone (each must be
+    self-contained), every ``.c`` with ``flags`` (default :data:`FLAGS`, any warning an error),
+    then link them into the example program. Build products go to a temporary folder of their
+    own; the first diagnostic is raised as a one-line ModelError."""
+    folder = Path(folder)
+    flags = FLAGS if flags is None else flags
+    compiler = os.environ.get("CC", "cc")
+    if shutil.which(compiler) is None:
+        raise ModelError(f"--check: no C compiler {compiler!r} found (install one or set CC)")
+    headers = sorted(p.name for p in folder.glob("*.h"))
+    sources = sorted(p.name for p in folder.glob("*.c"))
+    with tempfile.TemporaryDirectory(prefix="smartjoint-check-") as scratch:
+        work = Path(scratch)
+
+        def run(arguments: list[str], what: str) -> None:
+            done = subprocess.run([compiler, *arguments], capture_output=True, text=True)
+            if done.returncode != 0:
+                message = _first_error(done.stderr + done.stdout, folder).replace(f"{work}{os.sep}", "")
+                raise ModelError(f"--check: {what} fails with {compiler} {' '.join(flags)}: {message}")
+
+        for header in headers:
+            unit = work / f"header_{header}.c"
+            unit.write_text(f'#include "{header}"\n', encoding="ascii")
+            run([*flags, "-I", str(folder), "-fsyntax-only", str(unit)], f"{header} (included alone)")
+        objects = []
+        for source in sources:
+            objects.append(str(work / f"{source}.o"))
+            run([*flags, "-I", str(folder), "-c", str(folder / source), "-o", objects[-1]], source)
+        if sources:
+            run([*flags, *objects, "-o", str(work / "example"), "-lm"], f"linking {', '.join(sources)}")
+    return {"compiler": compiler, "flags": list(flags), "headers": headers, "sources": sources}

@@ -12,11 +12,12 @@ import numpy as np
 from ..bench import protocol
 from ..design.artifact import ControllerArtifact
 from ..design.errors import ModelError
-from . import generate
+from . import generate, identifiers
 
 RUNTIME = Path(__file__).resolve().parents[1] / "firmware" / "runtime"
 TIMEOUT_CYCLES = 3
 RECOVERY_FRAMES = 3
+UINT32_MAX = 2 ** 32 - 1  # the layer's clock: microseconds in uint32_t, wrapping
 
 
 def _signal(signal) -> dict:
@@ -35,6 +36,61 @@ def _signal(signal) -> dict:
             "comment": (signal.comment or signal.name).replace("*/", "* /")}
 
 
+def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier, safe_normal_force=None,
+              timeout_cycles: int = TIMEOUT_CYCLES, recovery_frames: int = RECOVERY_FRAMES) -> np.ndarray:
+    """What the CAN layer's C types and frames must hold, before anything is rendered; returns
+    the safe normal force per joint."""
+    identifiers.check_names(artifact.joint_names, artifact.sensor_names, members=protocol.E2E_SIGNALS)
+    for name, value in (("timeout_cycles", timeout_cycles), ("recovery_frames", recovery_frames)):
+        if isinstance(value, bool) or not (isinstance(value, int) and 1 <= value <= 255):
+            raise ModelError(f"{name}: {value!r} — a whole number between 1 and 255")
+    db = protocol.database(artifact, amplifier)  # names, cycle times and signal ranges of the DBC
+    # Timeouts compare wrapped uint32 differences: they hold for intervals below 2^32 µs.
+    cycle_us = int(round(artifact.sample_time * 1e6))
+    if timeout_cycles * cycle_us > UINT32_MAX:
+        raise ModelError(f"sample_time: {artifact.sample_time!r} s — the CAN layer counts microseconds in uint32_t: "
+                         f"timeout_cycles·Δt = {timeout_cycles}·{cycle_us} µs must stay within {UINT32_MAX} µs "
+                         f"(Δt ≤ {UINT32_MAX // timeout_cycles // 1000} ms with {timeout_cycles} timeout cycles)")
+    low, high = np.asarray(artifact.normal_force_min), np.asarray(artifact.normal_force_max)
+    k, preload = amplifier.force_per_volt, amplifier.preload
+    reach = k * amplifier.voltage_max + preload
+    for j, joint in enumerate(artifact.joint_names):
+        tag = joint.upper()
+        if preload > low[j]:
+            raise ModelError(f"piezo_preload: {preload!r} N — above normal_force_min[{j}] = {float(low[j])!r} N of joint "
+                             f"{joint!r}: the setpoint voltage cannot go below 0 V, so F_N^min is out of reach")
+        if high[j] > reach:
+            raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — the setpoint frame "
+                             f"commands at most piezo_force_per_volt·voltage_max + piezo_preload = {k:g}·"
+                             f"{amplifier.voltage_max:g} + {preload:g} = {reach:g} N")
+        measured = db.get_message_by_name(f"JOINT_{tag}").get_signal_by_name("normal_force").maximum
+        if high[j] > measured:
+            raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — the JOINT_{tag} frame "
+                             f"carries the applied F_N up to {measured:g} N (bench/protocol.py)")
+    if safe_normal_force is None:
+        return high.astype(float)
+    try:
+        safe = np.broadcast_to(np.asarray(safe_normal_force, dtype=float), (len(artifact.joint_names),))
+    except (TypeError, ValueError):
+        raise ModelError(f"safe_normal_force: {safe_normal_force!r} — numbers [N], one or one per joint "
+                         f"({len(artifact.joint_names)})") from None
+    for j, joint in enumerate(artifact.joint_names):
+        if not low[j] <= safe[j] <= high[j]:  # also refuses NaN
+            raise ModelError(f"safe_normal_force[{j}]: {float(safe[j])!r} N for joint {joint!r} — must lie within "
+                             f"[normal_force_min, normal_force_max] = [{float(low[j])!r}, {float(high[j])!r}] N")
+    return np.array(safe, dtype=float)
+
+
+def _same_bus(db, loaded) -> bool:
+    """The DBC text read back by cantools describes the same frames and signals."""
+    def frames(database):
+        return [(m.name, m.frame_id, m.length, m.is_fd, m.cycle_time, tuple(m.senders or ()),
+                 tuple((s.name, s.start, s.length, s.is_signed, s.conversion.scale, s.conversion.offset, s.minimum,
+                        s.maximum) for s in sorted(m.signals, key=lambda s: s.start)))
+                for m in sorted(database.messages, key=lambda m: m.frame_id)]
+    return frames(db) == frames(loaded)
+
+
 def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifier: protocol.Amplifier | None = None,
                safe_normal_force=None, timeout_cycles: int = TIMEOUT_CYCLES,
                recovery_frames: int = RECOVERY_FRAMES, full_codec: bool = False, real: str = "float") -> dict[str, str]:
@@ -44,13 +100,7 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
     generate.check(artifact, real, prefix)
     amplifier = amplifier or protocol.Amplifier(force_per_volt=artifact.piezo_force_per_volt,
                                                 preload=artifact.piezo_preload)
-    for name, value in (("timeout_cycles", timeout_cycles), ("recovery_frames", recovery_frames)):
-        if not (isinstance(value, int) and 1 <= value <= 255):
-            raise ModelError(f"{name}: {value!r} — a whole number between 1 and 255")
-    safe = np.broadcast_to(np.asarray(artifact.normal_force_max if safe_normal_force is None else safe_normal_force,
-                                      dtype=float), (len(artifact.joint_names),))
-    if not np.all(np.isfinite(safe)) or np.any(safe < 0):
-        raise ModelError(f"safe_normal_force: {safe.tolist()} — finite values >= 0 [N], one per joint")
+    safe = check_can(artifact, amplifier, safe_normal_force, timeout_cycles, recovery_frames)
     db = protocol.database(artifact, amplifier)
     messages = [{"name": m.name, "frame_id": m.frame_id, "length": m.length,
                  "received": protocol.CONTROLLER not in (m.senders or []),
@@ -93,6 +143,9 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
             raise ModelError(f"{source}: the firmware runtime is missing (it ships with the source tree)")
         files[name] = source.read_text()
     files["bus.dbc"] = protocol.dbc_text(db)
+    if not _same_bus(db, protocol.load_dbc(files["bus.dbc"])):
+        raise ModelError("bus.dbc: the DBC text does not read back as the protocol it was written from "
+                         "(names or attributes the DBC format cannot carry)")
     lit = lambda value: generate.literal(value, real)  # noqa: E731
     example = {**context, "zero": lit(0.0), "amplitude": lit(1e-3), "decay": lit(0.995), "friction_scale": lit(1e4),
                "sensor_scale": lit(10.0),

@@ -12,7 +12,6 @@ files; the banner names the generator version and the artefact hash, never a dat
 from __future__ import annotations
 
 import os
-import re
 import tempfile
 from pathlib import Path
 
@@ -21,13 +20,9 @@ import numpy as np
 
 from ..design import artifact as artifacts
 from ..design.errors import ModelError
+from . import identifiers
 
 REALS = ("float", "double")
-IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-PREFIX = re.compile(r"^[a-z_][a-z0-9_]*$")
-C_KEYWORDS = frozenset("""auto break case char const continue default do double else enum extern float for goto if
-inline int long register restrict return short signed sizeof static struct switch typedef union unsigned void
-volatile while _Bool _Complex _Imaginary""".split())
 FLOAT_MAX = float(np.finfo(np.float32).max)
 TEMPLATES = Path(__file__).parent / "templates"
 
@@ -52,20 +47,8 @@ def check(artifact: artifacts.ControllerArtifact, real: str, prefix: str) -> Non
     """Everything that would make the C wrong or uncompilable, before any file is written."""
     if real not in REALS:
         raise ModelError(f"--real: {real!r} — allowed: {', '.join(REALS)}")
-    if not (isinstance(prefix, str) and PREFIX.match(prefix)) or prefix in C_KEYWORDS or len(prefix) > 24:
-        raise ModelError(f"--prefix: {prefix!r} — must be a lower-case C identifier of at most 24 characters "
-                         "([a-z_][a-z0-9_]*, not a C keyword)")
-    for kind, names in (("joint", artifact.joint_names), ("sensor", artifact.sensor_names)):
-        for name in names:
-            if not IDENTIFIER.match(name):
-                raise ModelError(f"{kind}_names: {name!r} is not a valid C identifier ([A-Za-z_][A-Za-z0-9_]*) — it "
-                                 f"becomes the macro suffix {prefix.upper()}_…_{kind.upper()}_<NAME>; rename the "
-                                 f"{kind} in the design file")
-        upper = [n.upper() for n in names]
-        for i, name in enumerate(upper):
-            if upper.index(name) != i:
-                raise ModelError(f"{kind}_names: {names[upper.index(name)]!r} and {names[i]!r} give the same macro "
-                                 f"name {name!r} — C macros are case-sensitive but these must differ in more than case")
+    identifiers.check_prefix(prefix)
+    identifiers.check_names(artifact.joint_names, artifact.sensor_names)
     if real == "float":
         for field in ("blocks", "gamma0", "gamma1", "joint_input", "output", "estimator_gain", "feedback_gain",
                       "normal_force_min", "normal_force_max", "siso_boundary_layer"):
@@ -121,17 +104,26 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
     return files
 
 
+def umask() -> int:
+    """The process's file creation mask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write(files: dict[str, str], folder: Path) -> list[Path]:
     """Write every file through a temporary sibling and ``os.replace``: each target holds its
     old or its new complete text, never a part."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    mask = umask()
     written = []
     for name, text in files.items():
         handle, temporary = tempfile.mkstemp(prefix=f".{name}.", dir=folder)
         try:
             with os.fdopen(handle, "w", encoding="ascii", newline="\n") as stream:
                 stream.write(text)
+            os.chmod(temporary, 0o666 & ~mask)  # mkstemp makes 0600; a generated file is an ordinary file
             os.replace(temporary, folder / name)
         except BaseException:
             Path(temporary).unlink(missing_ok=True)
@@ -140,8 +132,27 @@ def write(files: dict[str, str], folder: Path) -> list[Path]:
     return written
 
 
-def generate(source, folder, real: str = "float", prefix: str = "smartjoint") -> list[Path]:
-    """Load and validate the artefact (path or object), render, then write — nothing is written
-    when any check fails."""
+def generate(source, folder, real: str = "float", prefix: str = "smartjoint", can: bool = True,
+             check: bool = False, progress=None, **can_options):
+    """The ``smartjoint codegen`` pipeline: load and validate the artefact (path or object),
+    render the controllers and (``can``) the CAN layer with ``can_options`` of
+    ``can_layer.render_can``, write the set into a temporary folder next to ``folder``, with
+    ``check`` compile all of it there (``build.check_folder``; ``progress(message)`` hears when),
+    then move it into place (``output.place``). Nothing is written when any check fails; returns
+    ``output.Placed`` with ``compiled`` the check's summary (or None)."""
+    from . import build, can_layer, output
+
     artifact = source if isinstance(source, artifacts.ControllerArtifact) else artifacts.load(Path(source))
-    return write(render(artifact, real, prefix), Path(folder))
+    files = render(artifact, real, prefix)
+    if can:
+        files.update(can_layer.render_can(artifact, prefix, real=real, **can_options))
+    compiled = {}
+
+    def compile_all(staging: Path) -> None:
+        if progress is not None:
+            progress(f"compiling the generated C with {' '.join(build.FLAGS)} before they move into place …")
+        compiled.update(build.check_folder(staging))
+
+    placed = output.place(files, Path(folder), check=compile_all if check else None)
+    placed.compiled = compiled or None
+    return placed

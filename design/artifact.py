@@ -36,6 +36,9 @@ from .control import ActiveLqg, ClippedLqg, LqgDesign, SisoLaw
 from .errors import ModelError
 
 SCHEMA_VERSION = 1
+# Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo
+# stacks block at ~100 kN; 1 MN is a typing error (an exponent too many), not a design.
+NORMAL_FORCE_LIMIT = 1e6  # N
 
 
 @dataclass(frozen=True)
@@ -69,7 +72,7 @@ SCHEMA: tuple[FieldSpec, ...] = (
     FieldSpec("modal_frequencies", "array", ("n",), "Hz", "ω_i/2π of the retained coordinates (information)"),
     FieldSpec("piezo_capacitance", "number", unit="F", meaning="capacitance of one piezo stack"),
     FieldSpec("piezo_force_per_volt", "number", unit="N/V", meaning="F_N = force_per_volt·V + preload"),
-    FieldSpec("piezo_preload", "number", unit="N", meaning="normal force at 0 V (>= 0)"),
+    FieldSpec("piezo_preload", "number", unit="N", meaning="normal force at 0 V (>= 0, <= F_N^min)"),
     FieldSpec("design_source", "string", meaning="file name of the design (no folder: the text must not depend on where it lies)"),
     FieldSpec("design_sha256", "string", meaning="SHA-256 of the design file bytes (\"\" for in-memory designs)"),
     FieldSpec("package_version", "string", meaning="smartjoint version that wrote the artefact"),
@@ -190,6 +193,13 @@ def _validated(values: dict) -> dict:
         if not 0 < low[j] <= high[j]:
             raise ModelError(f"normal_force_min/normal_force_max: {float(low[j])!r}/{float(high[j])!r} N for joint "
                              f"{joint!r} — need 0 < F_N^min <= F_N^max")
+        if high[j] > NORMAL_FORCE_LIMIT:
+            raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — at most "
+                             f"{NORMAL_FORCE_LIMIT:g} N (1 MN: far beyond any piezo-clamped friction joint)")
+        if out["piezo_preload"] > low[j]:
+            raise ModelError(f"piezo_preload: {out['piezo_preload']!r} N — above normal_force_min[{j}] = "
+                             f"{float(low[j])!r} N of joint {joint!r}: at 0 V the stack already presses with the "
+                             "preload, so F_N^min is out of reach; need piezo_preload <= F_N^min")
         if out["siso_boundary_layer"][j] <= 0:
             raise ModelError(f"siso_boundary_layer: {float(out['siso_boundary_layer'][j])!r} for joint {joint!r} "
                              "— ε must be > 0 [m/s] (Eq. 30)")
