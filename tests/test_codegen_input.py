@@ -1,0 +1,249 @@
+"""`smartjoint codegen` refuses what the C cannot hold and checks everything it writes: names
+that would become keywords, reserved or clashing identifiers, limits of the C types and CAN
+frames, each a one-line error with nothing written; `--check` compiles the whole set (a planted
+error in the CAN layer stops the move); an existing folder keeps every file codegen did not write."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from smartjoint import cli
+from smartjoint.bench import protocol
+from smartjoint.codegen import can_layer, generate, identifiers, output
+from smartjoint.design import artifact
+from smartjoint.design.errors import ModelError
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = ROOT / "firmware" / "generated"
+needs_cc = pytest.mark.skipif(shutil.which("cc") is None, reason="needs a C compiler")
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return artifact.load(REFERENCE / "controller.json")
+
+
+def _codegen(capsys, *arguments) -> tuple[int, str]:
+    code = cli.main(["codegen", *arguments])
+    captured = capsys.readouterr()
+    _codegen.out = captured.out
+    return code, captured.err
+
+
+def _artefact(tmp_path, reference, name, **changes) -> Path:
+    data = json.loads(artifact.dumps(reference))
+    data.update(changes)
+    path = tmp_path / f"{name}.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def _leftovers(folder: Path) -> list[str]:
+    """Temporary siblings codegen may have left next to ``folder``."""
+    if not folder.parent.exists():
+        return []
+    return [p.name for p in folder.parent.iterdir() if p.name.startswith(f".{folder.name}.codegen-")]
+
+
+# Each case: artefact changes, extra options, (field named in the message, value shown in it).
+REFUSED = {
+    "sensor counter (E2E signal)": ({"sensor_names": ["counter", "tip_z"]}, [], ("sensor_names[0]", "'counter'")),
+    "sensor crc (E2E signal)": ({"sensor_names": ["tip_y", "crc"]}, [], ("sensor_names[1]", "'crc'")),
+    "sensor double (C keyword)": ({"sensor_names": ["tip_y", "double"]}, [], ("sensor_names[1]", "'double'")),
+    "sensor INT (keyword once lower-cased)": ({"sensor_names": ["INT", "tip_z"]}, [], ("sensor_names[0]", "'int'")),
+    "sensor errno (library macro)": ({"sensor_names": ["errno", "tip_z"]}, [], ("sensor_names[0]", "'errno'")),
+    "sensor class (C++ keyword)": ({"sensor_names": ["class", "tip_z"]}, [], ("sensor_names[0]", "'class'")),
+    "sensors equal but for case": ({"sensor_names": ["tip_y", "TIP_Y"]}, [], ("sensor_names[1]", "'TIP_Y'")),
+    "joint _A1 (reserved: leading underscore)": ({"joint_names": ["_A1", "A2", "A3"]}, [], ("joint_names[0]", "'_A1'")),
+    "joint A1_ (gives __ in A1__ID)": ({"joint_names": ["A1_", "A2", "A3"]}, [], ("joint_names[0]", "'A1_'")),
+    "joint A__2 (double underscore)": ({"joint_names": ["A1", "A__2", "A3"]}, [], ("joint_names[1]", "'A__2'")),
+    "joints equal but for case": ({"joint_names": ["A1", "a1", "A3"]}, [], ("joint_names[1]", "'a1'")),
+    "joint name too long": ({"joint_names": ["A" * 33, "A2", "A3"]}, [], ("joint_names[0]", "at most 32")),
+    "prefix with double underscore": ({}, ["--prefix", "fw__x"], ("--prefix", "'fw__x'")),
+    "prefix with leading underscore": ({}, ["--prefix", "_fw"], ("--prefix", "'_fw'")),
+    "prefix of the E2E runtime": ({}, ["--prefix", "sj_e2e"], ("--prefix", "'sj_e2e'")),
+    "prefix a C keyword": ({}, ["--prefix", "double"], ("--prefix", "'double'")),
+    "sample time 5000 s": ({"sample_time": 5000.0}, [], ("sample_time", "5000.0")),
+    "safe force above F^max": ({}, ["--safe-normal-force", "500"], ("safe_normal_force[0]", "500.0")),
+    "safe force below F^min": ({}, ["--safe-normal-force", "400,5,400"], ("safe_normal_force[1]", "5.0")),
+    "safe force NaN": ({}, ["--safe-normal-force", "nan"], ("safe_normal_force[0]", "nan")),
+    "safe force count": ({}, ["--safe-normal-force", "100,100"], ("--safe-normal-force", "'100,100'")),
+    "safe force without CAN layer": ({}, ["--no-can", "--safe-normal-force", "100"], ("--safe-normal-force", "'100'")),
+    "F^max 1e12 N": ({"normal_force_max": [1e12, 400.0, 400.0]}, [], ("normal_force_max[0]", "1000000000000.0")),
+    "F^max beyond the setpoint frame": ({"normal_force_max": [400.0, 1250.0, 400.0]}, [],
+                                        ("normal_force_max[1]", "1200 N")),
+    "preload above F^min": ({"piezo_preload": 20.0}, [], ("piezo_preload", "20.0")),
+    "timeout cycles": ({}, ["--timeout-cycles", "0"], ("timeout_cycles", "0")),
+}
+
+
+@pytest.mark.parametrize("case", list(REFUSED))
+def test_each_bad_input_is_one_line_naming_the_field_and_writes_nothing(case, reference, tmp_path, capsys):
+    changes, options, (field, value) = REFUSED[case]
+    source = _artefact(tmp_path, reference, "bad", **changes)
+    target = tmp_path / "deep" / "out"
+    code, err = _codegen(capsys, str(source), "-o", str(target), *options)
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("smartjoint codegen: error: "), err
+    assert field in lines[0] and value in lines[0], lines[0]
+    assert not (tmp_path / "deep").exists() and _leftovers(target) == []
+
+
+def test_the_uint32_microsecond_clock_is_checked_even_where_the_dbc_would_allow_more(reference, monkeypatch):
+    # Today the DBC's cycle-time attribute (Δt ≤ 6.553 s) binds first; the uint32 limit of the
+    # layer's clock (timeout_cycles·Δt < 2^32 µs) must hold on its own should that change.
+    monkeypatch.setattr(protocol, "CYCLE_TIME_MAX_MS", 10 ** 9)
+    slow = dataclasses.replace(reference, sample_time=5000.0)
+    with pytest.raises(ModelError, match=r"^sample_time: 5000.0 s — the CAN layer counts microseconds in uint32_t"):
+        can_layer.render_can(slow)
+    can_layer.render_can(dataclasses.replace(reference, sample_time=1431.0))  # 3·1431 s < 2^32 µs
+
+
+def test_a_voltage_range_the_setpoint_field_cannot_carry_is_refused(reference):
+    with pytest.raises(ModelError, match=r"^SETPOINT_A1\.voltage: range \[0, 500\] V — its 32-bit field carries"):
+        can_layer.render_can(reference, amplifier=protocol.Amplifier(voltage_max=500.0))
+
+
+def test_reserved_words_include_the_standards_spellings():
+    for word in ("double", "_Bool", "restrict", "inline", "_Static_assert", "bool", "typeof", "class", "errno",
+                 "stdin", "size_t", "uint8_t", "isnan"):
+        assert word in identifiers.RESERVED, word
+    for good in ("A1", "tip_y", "Joint_2b", "x"):
+        identifiers.check_names([good], ["tip_y"], members=protocol.E2E_SIGNALS)
+    assert set(protocol.E2E_SIGNALS) == {"crc", "counter"}
+
+
+@needs_cc
+def test_unusual_but_legal_names_compile_clean(reference, tmp_path):
+    # Names that look like the generated ones: the fixed infixes keep them apart.
+    odd = dataclasses.replace(reference, joint_names=("S", "ID", "JOINT_A1"), sensor_names=("sensors", "state"))
+    placed = generate.generate(odd, tmp_path / "odd", "double", "fw", check=True)
+    assert placed.compiled["sources"] == ["fw_can.c", "fw_clqg.c", "fw_siso.c", "main.c", "sj_e2e.c"]
+    assert "#define FW_CAN_JOINT_JOINT_A1_ID 0x102u" in (tmp_path / "odd" / "fw_can.h").read_text()
+
+
+def _planted(monkeypatch, name: str, text: str):
+    original = can_layer.render_can
+
+    def render_can(*args, **kwargs):
+        files = original(*args, **kwargs)
+        files[name] = files[name] + text
+        return files
+
+    monkeypatch.setattr(can_layer, "render_can", render_can)
+
+
+@needs_cc
+@pytest.mark.parametrize("name, text, reported", [
+    ("smartjoint_can.c", "\nint planted(void) { return undeclared_in_the_can_layer; }\n", "smartjoint_can.c"),
+    ("smartjoint_can.c", "\nstatic int planted_but_unused;\n", "smartjoint_can.c"),  # a warning is an error
+    ("sj_e2e.h", "\nvoid planted(int);\nvoid planted(double);\n", "sj_e2e.h"),
+    ("main.c", "\nint main(void);\nint planted(void) { return 1; }\nint planted(void) { return 2; }\n", "main.c"),
+])
+def test_a_planted_error_anywhere_in_the_can_layer_stops_the_move(name, text, reported, reference, tmp_path,
+                                                                  monkeypatch):
+    _planted(monkeypatch, name, text)
+    target = tmp_path / "new"
+    with pytest.raises(ModelError) as error:
+        generate.generate(reference, target, check=True)
+    message = str(error.value)
+    assert "\n" not in message and message.startswith("--check: ") and reported in message, message
+    assert str(tmp_path) not in message  # the temporary folder is not shown
+    assert not target.exists() and _leftovers(target) == []
+
+    # Into an existing generated folder: the previous files stay exactly as they were.
+    monkeypatch.undo()
+    old = tmp_path / "old"
+    generate.generate(reference, old, "double")
+    before = {p.name: p.read_bytes() for p in old.iterdir()}
+    _planted(monkeypatch, name, text)
+    with pytest.raises(ModelError):
+        generate.generate(reference, old, check=True)
+    assert {p.name: p.read_bytes() for p in old.iterdir()} == before and _leftovers(old) == []
+
+
+@needs_cc
+def test_check_catches_what_the_name_rules_would_miss(reference, tmp_path, monkeypatch):
+    """Before, a sensor named `double` passed `--check` (only the controllers were compiled):
+    with the name rules switched off the compile of the CAN layer itself refuses it."""
+    monkeypatch.setattr(identifiers, "check_names", lambda *args, **kwargs: None)
+    bad = dataclasses.replace(reference, sensor_names=("tip_y", "double"))
+    target = tmp_path / "out"
+    with pytest.raises(ModelError, match=r"^--check: .*smartjoint_can\.h"):
+        generate.generate(bad, target, check=True)
+    assert not target.exists()
+
+
+@needs_cc
+def test_the_reference_regenerates_byte_identical_and_compiles(reference, tmp_path, capsys):
+    # Into a copy of firmware/generated (the artefact lies beside the generated files).
+    copy = tmp_path / "generated"
+    shutil.copytree(REFERENCE, copy)
+    (copy / "notes.txt").write_text("mine\n")
+    code, err = _codegen(capsys, str(copy / "controller.json"), "-o", str(copy), "--check")
+    assert code == 0, err
+    for path in REFERENCE.iterdir():
+        assert (copy / path.name).read_bytes() == path.read_bytes(), path.name
+    assert (copy / "notes.txt").read_text() == "mine\n"
+    assert sorted(p.name for p in copy.iterdir()) == sorted([*(p.name for p in REFERENCE.iterdir()), "notes.txt"])
+    # And into a new folder: the same bytes, the usual permissions.
+    placed = generate.generate(reference, tmp_path / "fresh")
+    assert [p.name for p in placed.untouched] == []
+    for path in placed.written:
+        assert path.read_bytes() == (REFERENCE / path.name).read_bytes(), path.name
+        assert path.stat().st_mode & 0o777 == 0o666 & ~generate.umask()
+
+
+def test_an_existing_folder_keeps_every_file_codegen_did_not_write(reference, tmp_path, capsys):
+    target = tmp_path / "firmware"
+    target.mkdir()
+    (target / "main.c").write_text("/* my own main */\nint main(void) { return 0; }\n")
+    (target / "board.c").write_text("/* my board support */\n")
+    code, err = _codegen(capsys, str(REFERENCE / "controller.json"), "-o", str(target))
+    assert code == 2 and "main.c: not written by smartjoint codegen" in err and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in target.iterdir()) == ["board.c", "main.c"]  # nothing added, nothing changed
+    assert (target / "main.c").read_text().startswith("/* my own main */")
+
+    (target / "main.c").unlink()
+    code, err = _codegen(capsys, str(REFERENCE / "controller.json"), "-o", str(target), "--json")
+    assert code == 0, err
+    assert json.loads(_codegen.out)["untouched"] == [str(target / "board.c")]
+    assert (target / "board.c").read_text() == "/* my board support */\n"
+    # A second run with another prefix replaces nothing of the first and leaves it untouched.
+    placed = generate.generate(reference, target, prefix="other", can=False)
+    assert {p.name for p in placed.untouched} >= {"board.c", "smartjoint_can.c", "smartjoint_siso.c"}
+    assert (target / "main.c").read_text() != (REFERENCE / "main.c").read_text()  # the controllers-only example
+
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    code, err = _codegen(capsys, str(REFERENCE / "controller.json"), "-o", str(a_file))
+    assert code == 2 and "not a folder" in err and a_file.read_text() == "x"
+
+
+def test_a_symlink_in_place_of_a_generated_file_is_not_followed(reference, tmp_path):
+    target = tmp_path / "out"
+    target.mkdir()
+    elsewhere = tmp_path / "precious.c"
+    elsewhere.write_text("/* Generated by smartjoint, but the link is the user's */\n")
+    (target / "smartjoint_siso.c").symlink_to(elsewhere)
+    with pytest.raises(ModelError, match="smartjoint_siso.c: not written by smartjoint codegen"):
+        generate.generate(reference, target)
+    assert (target / "smartjoint_siso.c").is_symlink() and elsewhere.read_text().startswith("/* Generated")
+
+
+def test_written_by_codegen_recognises_each_kind_of_generated_file(reference, tmp_path):
+    files = {**generate.render(reference), **can_layer.render_can(reference)}
+    other = {**generate.render(dataclasses.replace(reference, clqg_boundary_layer=5.0), "double"),
+             **can_layer.render_can(dataclasses.replace(reference, clqg_boundary_layer=5.0))}
+    for name, text in files.items():
+        path = tmp_path / name
+        path.write_text(other[name])  # an earlier generation: another artefact
+        assert output.written_by_codegen(path, text), name
+        path.write_text("hand-written\n")
+        assert not output.written_by_codegen(path, text), name
