@@ -104,9 +104,9 @@ def _check_ranges(db: can.Database) -> None:
             low, high = sorted((signal.conversion.raw_to_scaled(raw_min, decode_choices=False),
                                 signal.conversion.raw_to_scaled(raw_max, decode_choices=False)))
             if signal.minimum < low or signal.maximum > high:
-                raise ModelError(f"{message.name}.{signal.name}: range [{signal.minimum:g}, {signal.maximum:g}]"
-                                 f"{' ' + signal.unit if signal.unit else ''} — its {signal.length}-bit field carries "
-                                 f"[{float(low):g}, {float(high):g}]")
+                unit = f" {signal.unit}" if signal.unit else ""
+                raise ModelError(f"{message.name}.{signal.name}: range [{signal.minimum:g}, {signal.maximum:g}]{unit} "
+                                 f"— its {signal.length}-bit field carries [{float(low):g}, {float(high):g}]")
 
 
 def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -> can.Database:

@@ -57,16 +57,16 @@ def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier, safe_
     for j, joint in enumerate(artifact.joint_names):
         tag = joint.upper()
         if preload > low[j]:
-            raise ModelError(f"piezo_preload: {preload!r} N — above normal_force_min[{j}] = {float(low[j])!r} N of joint "
-                             f"{joint!r}: the setpoint voltage cannot go below 0 V, so F_N^min is out of reach")
+            raise ModelError(f"piezo_preload: {preload!r} N — above normal_force_min[{j}] = {float(low[j])!r} N "
+                             f"of joint {joint!r}: the setpoint voltage cannot go below 0 V, so F_N^min is out of reach")
         if high[j] > reach:
             raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — the setpoint frame "
                              f"commands at most piezo_force_per_volt·voltage_max + piezo_preload = {k:g}·"
                              f"{amplifier.voltage_max:g} + {preload:g} = {reach:g} N")
         measured = db.get_message_by_name(f"JOINT_{tag}").get_signal_by_name("normal_force").maximum
         if high[j] > measured:
-            raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — the JOINT_{tag} frame "
-                             f"carries the applied F_N up to {measured:g} N (bench/protocol.py)")
+            raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — the JOINT_{tag} "
+                             f"frame carries the applied F_N up to {measured:g} N (bench/protocol.py)")
     if safe_normal_force is None:
         return high.astype(float)
     try:

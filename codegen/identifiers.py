@@ -5,8 +5,10 @@ Joint and sensor names of the artefact and the ``--prefix`` are spliced into ide
 | source | identifiers (prefix ``p``, ``P`` = upper case) |
 |---|---|
 | prefix | ``p_real``, ``p_siso_*``, ``p_clqg_*``, ``p_can_*``, ``P_STATUS_*``, ``P_CAN_*``, file names |
-| joint ``j`` | ``P_SISO_JOINT_<J>``, ``P_CLQG_JOINT_<J>``, ``P_CAN_{JOINT,SETPOINT,AMP_STATUS}_<J>_{ID,LENGTH}``, ``p_can_{pack,unpack}_<frame>``, ``p_can_<frame>_t`` |
+| joint ``j`` | ``P_{SISO,CLQG}_JOINT_<J>``, ``P_CAN_<F>_{ID,LENGTH}``, ``p_can_{pack,unpack}_<f>``, ``p_can_<f>_t`` |
 | sensor ``s`` | ``P_CLQG_SENSOR_<S>``, the member ``<s>`` (lower case) of ``p_can_tip_sensors_t`` |
+
+(``F`` the frames ``JOINT_<J>``, ``SETPOINT_<J>``, ``AMP_STATUS_<J>``, ``f`` their lower case.)
 
 Every identifier but the sensor member carries the prefix and a fixed infix, so a name cannot
 be a keyword there; what can break is an underscore (``_x`` or ``x_`` give ``__`` next to the
@@ -26,7 +28,7 @@ from collections.abc import Iterable
 
 from ..design.errors import ModelError
 
-NAME_LENGTH = 32  # DBC symbols are 32 characters (longer ones need cantools' long-name attributes)
+NAME_LENGTH = 32  # keeps identifiers readable; longer DBC symbols get cantools' long-name attributes
 PREFIX_LENGTH = 24
 NAME = re.compile(r"^[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*$")
 PREFIX = re.compile(r"^[a-z][a-z0-9]*(?:_[a-z0-9]+)*$")

@@ -334,11 +334,13 @@ def cmd_codegen(args) -> dict:
             except ValueError:
                 raise ModelError(f"--safe-normal-force: {args.safe_normal_force!r} — numbers [N], one or one per "
                                  "joint, comma-separated") from None
-            if len(options["safe_normal_force"]) not in (1, len(loaded.joint_names)):
-                raise ModelError(f"--safe-normal-force: {args.safe_normal_force!r} — {len(options['safe_normal_force'])} "
-                                 f"values for {len(loaded.joint_names)} joints: give one or one per joint")
+            count, joints = len(options["safe_normal_force"]), len(loaded.joint_names)
+            if count not in (1, joints):
+                raise ModelError(f"--safe-normal-force: {args.safe_normal_force!r} — {count} values for {joints} "
+                                 "joints: give one or one per joint")
     elif args.safe_normal_force:
-        raise ModelError(f"--safe-normal-force: {args.safe_normal_force!r} — only for the CAN layer, not with --no-can")
+        raise ModelError(f"--safe-normal-force: {args.safe_normal_force!r} — only for the CAN layer, not with "
+                         "--no-can")
     placed = generate.generate(loaded, Path(args.output), args.real, args.prefix, can=not args.no_can,
                                check=args.check, progress=_progress, **options)
     out = {"artifact": args.artifact, "artifact_sha256": loaded.artifact_sha256, "real": args.real,

@@ -10,6 +10,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from smartjoint import cli
@@ -105,9 +106,17 @@ def test_the_uint32_microsecond_clock_is_checked_even_where_the_dbc_would_allow_
     can_layer.render_can(dataclasses.replace(reference, sample_time=1431.0))  # 3·1431 s < 2^32 µs
 
 
-def test_a_voltage_range_the_setpoint_field_cannot_carry_is_refused(reference):
+def test_forces_and_voltages_the_frames_cannot_carry_are_refused(reference):
     with pytest.raises(ModelError, match=r"^SETPOINT_A1\.voltage: range \[0, 500\] V — its 32-bit field carries"):
         can_layer.render_can(reference, amplifier=protocol.Amplifier(voltage_max=500.0))
+    # A stiffer stack reaches 15 kN, but the JOINT frame reports the applied F_N only up to 1310 N.
+    strong = dataclasses.replace(reference, normal_force_max=np.array([400.0, 400.0, 2000.0]))
+    with pytest.raises(ModelError, match=r"^normal_force_max\[2\]: 2000.0 N for joint 'A3' — the JOINT_A3 frame "
+                                         r"carries the applied F_N up to 1310 N"):
+        can_layer.render_can(strong, amplifier=protocol.Amplifier(force_per_volt=100.0))
+    # The amplifier given to the layer is checked as the artefact's own preload is.
+    with pytest.raises(ModelError, match=r"^piezo_preload: 20.0 N — above normal_force_min\[0\] = 10.0 N"):
+        can_layer.render_can(reference, amplifier=protocol.Amplifier(preload=20.0))
 
 
 def test_reserved_words_include_the_standards_spellings():
@@ -117,6 +126,16 @@ def test_reserved_words_include_the_standards_spellings():
     for good in ("A1", "tip_y", "Joint_2b", "x"):
         identifiers.check_names([good], ["tip_y"], members=protocol.E2E_SIGNALS)
     assert set(protocol.E2E_SIGNALS) == {"crc", "counter"}
+
+
+def test_the_dbc_written_reads_back_as_the_protocol(reference, monkeypatch):
+    longest = dataclasses.replace(reference, joint_names=("J" * 32, "K" * 32, "L" * 32), sensor_names=("s" * 32, "t"))
+    frames = protocol.load_dbc(can_layer.render_can(longest)["bus.dbc"]).messages
+    assert f"AMP_STATUS_{'J' * 32}" in {m.name for m in frames}  # beyond DBC's 32 characters, still read back
+    dropped = protocol.dbc_text
+    monkeypatch.setattr(protocol, "dbc_text", lambda db: dropped(db).replace(" SG_ tip_z ", " SG_ tip_w "))
+    with pytest.raises(ModelError, match=r"^bus\.dbc: the DBC text does not read back as the protocol"):
+        can_layer.render_can(reference)
 
 
 @needs_cc
