@@ -75,7 +75,8 @@ def inspect(files: dict[str, str], target: Path) -> list[Path]:
 def place(files: dict[str, str], target, check: Callable[[Path], object] | None = None) -> Placed:
     """Write ``files`` (name → text) into the folder ``target`` (see the module docstring);
     ``check(folder)`` runs on the complete temporary set and raises to stop the move."""
-    target = Path(target)
+    shown = Path(target)
+    target = Path(os.path.abspath(shown))  # "." and "x/.." name a folder with a parent to stage in
     untouched = inspect(files, target)
     created = [p for p in (target.parent, *target.parent.parents) if not p.exists()]
     staging = None
@@ -107,7 +108,7 @@ def place(files: dict[str, str], target, check: Callable[[Path], object] | None 
                     folder.rmdir()
                 except OSError:
                     break
-    return Placed(target, [target / name for name in files], untouched)
+    return Placed(shown, [shown / name for name in files], [shown / p.name for p in untouched])
 
 
 def _move_into(files: dict[str, str], staging: Path, target: Path) -> None:

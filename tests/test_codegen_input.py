@@ -266,3 +266,11 @@ def test_written_by_codegen_recognises_each_kind_of_generated_file(reference, tm
         assert output.written_by_codegen(path, text), name
         path.write_text("hand-written\n")
         assert not output.written_by_codegen(path, text), name
+
+
+def test_the_current_folder_as_target(reference, tmp_path, monkeypatch):
+    (tmp_path / "fw").mkdir()
+    monkeypatch.chdir(tmp_path / "fw")
+    placed = generate.generate(reference, ".", can=False)
+    assert sorted(p.name for p in (tmp_path / "fw").iterdir()) == sorted(p.name for p in placed.written)
+    assert [p.name for p in tmp_path.iterdir()] == ["fw"] and placed.written[0] == Path(".") / "smartjoint_types.h"
