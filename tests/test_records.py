@@ -44,8 +44,8 @@ GOOD = "# joint_type = A\n# inertia = 1.0 kg\ntime [s],sliding_velocity [m/s],ex
 @pytest.mark.parametrize("text, message", [
     ("time [s],sliding_velocity [m/s],normal_force [N]\n0,0,1\n1,0,1\n2,0,1\n", "needs column 'friction_force'"),
     (GOOD.replace(",normal_force [N]", "") + "0,0,1\n1,0,1\n2,0,1\n", "column 'normal_force' missing"),
-    (GOOD + "0,0,1,400\n1,nan,1,400\n2,0,1,400\n", "column 'sliding_velocity': NaN"),
-    (GOOD + "0,0,1,400\n1,0,1,400\n1,0,1,400\n", "column 'time' does not increase"),
+    (GOOD + "0,0,1,400\n1,nan,1,400\n2,0,1,400\n", "row 5, column 'sliding_velocity': nan m/s"),
+    (GOOD + "0,0,1,400\n1,0,1,400\n1,0,1,400\n", "row 6, column 'time': 1 after 1 — time does not increase"),
     (GOOD + "0,0,1,400\n1,0,1\n2,0,1,400\n", "row 5 has 3 fields"),
     (GOOD.replace("[m/s]", "[furlong/s]") + "0,0,1,400\n1,0,1,400\n2,0,1,400\n", "unit 'furlong/s' unknown"),
     (GOOD.replace("# inertia = 1.0 kg\n", "") + "0,0,1,400\n1,0,1,400\n2,0,1,400\n", "needs the '# inertia"),
