@@ -188,8 +188,12 @@ def _metadata_length(metadata, key: str, joint_type: str, name: str, lower: floa
     return number
 
 
-def read_record(path: str | Path) -> Record:
-    """Read and check a record (module docstring); ``RecordError`` names what is wrong and where."""
+def read_record(path: str | Path, radius: float | None = None) -> Record:
+    """Read and check a record (module docstring); ``RecordError`` names what is wrong and where.
+
+    ``radius`` [m]: the joint radius of a type B record that does not give one itself (a
+    record that does must agree with it). No radius at all for a type B record is an error.
+    """
     path = Path(path)
     name = str(path)
     text = _read_text(path, name)
@@ -214,15 +218,24 @@ def read_record(path: str | Path) -> Record:
         raise RecordError(f"{name}: metadata regime: {regime!r} — allowed: {', '.join(REGIMES)} (or no regime line: "
                           "then identify classifies the record by whether it slides)")
     inertia = _metadata_length(metadata, "inertia", joint_type, name, 0.0, bound("inertia", joint_type), True, "mass")
+    given = radius
     radius = _metadata_length(metadata, "radius", joint_type, name, MIN_RADIUS, bound("radius", joint_type), True,
                               "length")
-    if joint_type == "A" and radius is not None:
-        raise RecordError(f"{name}: metadata radius: a type A joint has no radius — allowed only with "
-                          "'# joint_type = B'")
+    if joint_type == "A" and (radius is not None or given is not None):
+        raise RecordError(f"{name}: {'metadata radius' if radius is not None else f'radius {given!r} m given'}: a "
+                          "type A joint has no radius — allowed only with '# joint_type = B'")
+    if joint_type == "B" and given is not None:
+        if not (math.isfinite(given) and MIN_RADIUS <= given <= bound("radius", "B")):
+            raise RecordError(f"{name}: radius {given!r} m given — allowed: {MIN_RADIUS:g} … "
+                              f"{bound('radius', 'B'):g} m")
+        if radius is not None and radius != given:
+            raise RecordError(f"{name}: metadata radius: {radius!r} m, but radius {given!r} m was given — the record's "
+                              "own radius and the given one must agree (or give none)")
+        radius = float(given)
     if joint_type == "B" and radius is None:
         raise RecordError(f"{name}: metadata radius: missing — a type B record must give its joint radius, e.g. "
-                          f"'# radius = 0.011 m' (allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m); no default "
-                          "is assumed")
+                          f"'# radius = 0.011 m' (allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m), or pass "
+                          "it (identify --radius); no default is assumed")
     reader = csv.reader(lines[body_start:])
     header = next(reader)
     header_row = body_start + 1
@@ -269,8 +282,8 @@ def read_record(path: str | Path) -> Record:
                 try:
                     float(row[index])
                 except ValueError:
-                    raise RecordError(f"{name}: row {row_number}, column {column!r}: {row[index].strip()!r} is not "
-                                      "a number") from None
+                    raise RecordError(f"{name}: row {row_number}, column {column!r}: {row[index].strip()} — not a "
+                                      "number (allowed: a finite number)") from None
             raise  # pragma: no cover - float() failed on the array but on no single cell
         _check_column(name, column, values, unit, factor, joint_type, row_numbers, [r[index] for r in rows])
         data[column] = values

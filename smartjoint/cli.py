@@ -199,7 +199,7 @@ def cmd_identify(args) -> dict:
     from .design.records import read_record
     from .report import identification_table, plot_hysteresis
 
-    records = [read_record(path) for path in args.records]
+    records = [read_record(path, args.radius) for path in args.records]
     micro = [r for r in records if classify(r, args.radius) == "micro-slip"]
     stick = [r for r in records if classify(r, args.radius) == "stick-slip"]
     result = identify(micro, stick, radius=args.radius, progress=_progress, output_error=not args.no_output_error)
