@@ -471,7 +471,8 @@ def _joint_radius(records: list[Record], joint_type: str, radius: float | None) 
     carried = {}
     for record in records:
         if record.radius is None:
-            record.moment_arm  # raises the one-line error for this record
+            raise RecordError(f"{record.name}: type B record without a radius — add '# radius = <r> m' to the record "
+                              "(or pass the radius to identify / --radius); no default is assumed")
         carried.setdefault(record.radius, record.name)
     if len(carried) > 1:
         (first, one), (second, other) = list(carried.items())[:2]
