@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+from array import array
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,7 +60,7 @@ COLUMNS = {
     "normal_force": "force",
 }
 REGIMES = ("micro-slip", "stick-slip")
-MAX_BYTES = 128 * 1024 * 1024  # 128 MiB: about 1.7 million rows of four full-precision columns
+MAX_BYTES = 64 * 1024 * 1024  # 64 MiB: about 900 000 rows of four full-precision columns
 
 # Physically plausible magnitudes in SI units, per joint type: (type A, type B). Generous for
 # a bolted or clamped friction joint of a truss (the paper's joints: F_N 200–400 N, velocities
@@ -154,6 +155,7 @@ def _read_text(path: Path, name: str) -> str:
         column = error.start - (data.rfind(b"\n", 0, error.start) + 1) + 1
         raise RecordError(f"{name}: row {line}, character {column}: byte 0x{data[error.start]:02x} is not UTF-8 — "
                           "a record must be UTF-8 text (CSV; re-save it as UTF-8)") from None
+    del data
     if "\x00" in text:
         line = text.count("\n", 0, text.index("\x00")) + 1
         raise RecordError(f"{name}: row {line}: NUL byte — a record must be text (CSV), not a binary file")
@@ -262,38 +264,42 @@ def read_record(path: str | Path, radius: float | None = None) -> Record:
     if "friction_force" not in columns and "excitation_force" not in columns:
         raise RecordError(f"{name}: row {header_row}: needs column 'friction_force' or 'excitation_force' "
                           "(with '# inertia = …')")
-    rows, row_numbers = [], []
+    # Column by column into float arrays as the rows come: no cell strings are kept, so a
+    # record of MAX_BYTES needs a few hundred MB at most.
+    values = {column: array("d") for column in columns}
+    row_numbers = array("q")
     for row in reader:
         if not row or all(not c.strip() for c in row):
             continue
+        line_number = body_start + reader.line_num
         if len(row) != len(header):
-            raise RecordError(f"{name}: row {body_start + reader.line_num} has {len(row)} fields, the header "
-                              f"{len(header)}")
-        rows.append(row)
-        row_numbers.append(body_start + reader.line_num)
-    if len(rows) < 3:
-        raise RecordError(f"{name}: {len(rows)} data rows — need at least 3")
+            raise RecordError(f"{name}: row {line_number} has {len(row)} fields, the header {len(header)}")
+        for column, (index, _, _) in columns.items():
+            try:
+                values[column].append(float(row[index]))
+            except ValueError:
+                raise RecordError(f"{name}: row {line_number}, column {column!r}: {row[index].strip()} — not a "
+                                  "number (allowed: a finite number)") from None
+        row_numbers.append(line_number)
+    if len(row_numbers) < 3:
+        raise RecordError(f"{name}: {len(row_numbers)} data rows — need at least 3")
+
+    def cell(column: str, k: int) -> str:
+        """The text of data row ``k`` in ``column``, as written (for the messages)."""
+        return next(csv.reader([lines[row_numbers[k] - 1]]))[columns[column][0]].strip()
+
     data = {}
     for column, (index, factor, unit) in columns.items():
-        try:
-            values = np.array([float(r[index]) for r in rows]) * factor
-        except ValueError:
-            for row, row_number in zip(rows, row_numbers):
-                try:
-                    float(row[index])
-                except ValueError:
-                    raise RecordError(f"{name}: row {row_number}, column {column!r}: {row[index].strip()} — not a "
-                                      "number (allowed: a finite number)") from None
-            raise  # pragma: no cover - float() failed on the array but on no single cell
-        _check_column(name, column, values, unit, factor, joint_type, row_numbers, [r[index] for r in rows])
-        data[column] = values
+        column_values = np.frombuffer(values.pop(column), dtype=float) * factor
+        _check_column(name, column, column_values, unit, factor, joint_type, row_numbers,
+                      lambda k, column=column: cell(column, k))
+        data[column] = column_values
     steps = np.diff(data["time"])
     smallest = bound("time_step", joint_type)
     if np.any(steps < smallest):
         first = int(np.flatnonzero(steps < smallest)[0]) + 1
-        cell = columns["time"][0]
-        raise RecordError(f"{name}: row {row_numbers[first]}, column 'time': {rows[first][cell].strip()} after "
-                          f"{rows[first - 1][cell].strip()} — time does not increase (allowed: each row at least "
+        raise RecordError(f"{name}: row {row_numbers[first]}, column 'time': {cell('time', first)} after "
+                          f"{cell('time', first - 1)} — time does not increase (allowed: each row at least "
                           f"{smallest:g} s after the one before)")
     if "friction_force" in data:
         friction = data["friction_force"]
@@ -318,7 +324,7 @@ def _check_column(name, column, values, unit, factor, joint_type, row_numbers, c
         allowed = f"allowed: a finite number with magnitude <= {shown}"
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
-        shown_value = cells[first].strip() if cells is not None else repr(float(values[first] / factor))
+        shown_value = cells(first) if cells is not None else repr(float(values[first] / factor))
         raise RecordError(f"{name}: row {row_numbers[first]}, column {column!r}: {shown_value} {unit} — "
                           f"{allowed}")
 

@@ -38,7 +38,7 @@ class RigError(SmartjointError, ValueError):
     """A rig test or a LuGre parameter set for the rig is not valid."""
 
 
-MAX_SAMPLES = 1_000_000  # per record: 50 s at 20 kHz, a CSV of about 70 MB (records.MAX_BYTES is 128 MiB)
+MAX_SAMPLES = 500_000  # per record: 25 s at 20 kHz, a CSV of about 35 MB (records.MAX_BYTES is 64 MiB)
 # Plausible LuGre parameters per unit normal force (Table 1 units; type A, type B): (lower, upper,
 # lower allowed). Table 1 sits well inside; outside, the record bounds would be left or the
 # rig's 20 kHz sampling could not follow the bristles.
