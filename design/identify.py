@@ -48,8 +48,7 @@ import scipy.optimize
 from scipy.signal import butter, find_peaks, savgol_filter, sosfiltfilt
 
 from . import lugre, rig
-from .errors import ModelError
-from .errors import SmartjointError
+from .errors import ModelError, SmartjointError
 from .records import MIN_RADIUS, Record, RecordError, bound
 
 P1 = ("sigma0", "sigma1")
