@@ -48,8 +48,8 @@ import scipy.optimize
 from scipy.signal import butter, find_peaks, savgol_filter, sosfiltfilt
 
 from . import lugre, rig
-from .errors import ModelError
-from .records import Record, RecordError
+from .errors import ModelError, SmartjointError
+from .records import MIN_RADIUS, Record, RecordError, bound
 
 P1 = ("sigma0", "sigma1")
 P2 = ("coulomb", "stribeck", "stribeck_velocity", "sigma2")
@@ -61,6 +61,9 @@ WEAK_RELATIVE_WIDTH = 0.5  # 95 % interval wider than ±50 % of the value: weakl
 # resonance (20–40× the excitation frequency on the rig).
 EXCITATION_CUTOFF = 5.0
 VELOCITY_CUTOFF = 25.0  # default of filtered_velocity, which also gives the output-error segment starts
+# Fewest samples per record: the 11-point Savitzky–Golay window of the friction column and the
+# spectrum that finds the excitation frequency need a few times that.
+MIN_SAMPLES = 50
 
 
 def dominant_frequency(signal, sample_time: float) -> float:
@@ -191,12 +194,16 @@ class Identification:
         return out
 
 
-def _initial_guess(micro: list[Record], stick: list[Record], radius: float | None, velocities) -> dict[str, float]:
+def _initial_guess(micro: list[Record], stick: list[Record], radius: float | None, velocities,
+                   joint_type: str) -> dict[str, float]:
     arm = radius if radius is not None else 1.0
     mu = np.concatenate([r.friction_force / (arm * r.normal_force) for r in stick])
     v = np.concatenate([velocities[r.name] for r in stick])
     sliding = np.abs(v) > 0.3 * np.abs(v).max()
     coulomb = float(np.median(np.abs(mu[sliding])))
+    if not coulomb > 0.0:
+        raise RecordError(f"identify: stick-slip records {', '.join(r.name for r in stick)}: column 'friction_force' "
+                          "is zero while sliding — step 2 needs a Coulomb level F_c > 0")
     peak = float(np.percentile(np.abs(mu), 99.5))
     stribeck = max(peak - coulomb, 0.05 * coulomb)
     # Presliding: μ grows like σ0·x with x = ∫v dt; the slope of μ over x gives σ0.
@@ -205,11 +212,33 @@ def _initial_guess(micro: list[Record], stick: list[Record], radius: float | Non
         x = np.concatenate([[0.0], np.cumsum(0.5 * (velocities[r.name][1:] + velocities[r.name][:-1]) * np.diff(r.time))])
         m = r.friction_force / (arm * r.normal_force)
         small = np.abs(m) < 0.5 * np.abs(m).max()
-        slopes.append(np.polyfit(x[small] - x[small].mean(), m[small], 1)[0])
-    sigma0 = float(np.median(slopes)) if slopes else 1e5
-    return {"sigma0": max(sigma0, 1.0), "sigma1": 1e-4 * math.sqrt(max(sigma0, 1.0)), "sigma2": 1e-3 * coulomb,
-            "coulomb": coulomb, "stribeck": stribeck,
-            "stribeck_velocity": float(0.05 * np.median(np.abs(v[sliding])))}
+        span = float(np.ptp(x[small])) if np.count_nonzero(small) >= 3 else 0.0
+        if span > 0.0 and np.all(np.isfinite(m[small])):
+            # x scaled to [−½, ½]: well conditioned whatever the displacement's magnitude
+            with np.errstate(all="ignore"):
+                slope = np.polyfit((x[small] - x[small].mean()) / span, m[small], 1)[0] / span
+            if math.isfinite(slope) and slope > 0.0:
+                slopes.append(slope)
+    if not slopes:
+        raise RecordError(f"identify: micro-slip records {', '.join(r.name for r in micro)}: the friction does not "
+                          "grow with the displacement (no presliding) — step 1 needs records whose friction force "
+                          "follows the displacement below break-away")
+    sigma0 = float(np.median(slopes))
+    guess = {"sigma0": max(sigma0, 1.0), "sigma1": 1e-4 * math.sqrt(max(sigma0, 1.0)), "sigma2": 1e-3 * coulomb,
+             "coulomb": coulomb, "stribeck": stribeck,
+             "stribeck_velocity": float(0.05 * np.median(np.abs(v[sliding])))}
+    _check_plausible(guess, joint_type, "start")
+    return guess
+
+
+def _check_plausible(values: dict[str, float], joint_type: str, stage: str) -> None:
+    """``RecordError`` when a start or result leaves the plausible range (``rig.PARAMETER_BOUNDS``):
+    the records then do not determine the parameters (e.g. a velocity of 1e-300 m/s)."""
+    for name, value in values.items():
+        lower, upper, _ = rig.PARAMETER_BOUNDS[name][0 if joint_type == "A" else 1]
+        if not (math.isfinite(value) and lower < value <= upper):
+            raise RecordError(f"identify: the records give {name} = {value:.6g} as {stage} — plausible: > {lower:g} "
+                              f"and <= {upper:g}; the records do not determine the LuGre parameters")
 
 
 def _rms(x) -> float:
@@ -418,11 +447,67 @@ def _output_error_blocker(stick: list[Record], enabled: bool) -> str | None:
     return None
 
 
+def _joint_radius(records: list[Record], joint_type: str, radius: float | None) -> float | None:
+    """The radius of type B records: ``radius`` if given, else the one every record carries.
+
+    Never a default: a type B record without a radius is refused (Table 1's 11 mm would put
+    σ0, F_c and σ2 off by the ratio of the radii).
+    """
+    if joint_type == "A":
+        if radius is not None:
+            raise RecordError(f"identify: radius {radius!r} m given, but the records are type A — a type A joint has "
+                              "no radius")
+        return None
+    if radius is not None:
+        if not (isinstance(radius, (int, float)) and math.isfinite(radius)
+                and MIN_RADIUS <= radius <= bound("radius", "B")):
+            raise RecordError(f"identify: radius {radius!r} m — allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m")
+        for record in records:
+            if record.radius is not None and record.radius != radius:
+                raise RecordError(f"identify: radius {radius!r} m given, but record {record.name} carries "
+                                  f"radius = {record.radius!r} m — give one radius")
+        return float(radius)
+    carried = {}
+    for record in records:
+        if record.radius is None:
+            raise RecordError(f"{record.name}: type B record without a radius — add '# radius = <r> m' to the record "
+                              "(or pass the radius to identify / --radius); no default is assumed")
+        carried.setdefault(record.radius, record.name)
+    if len(carried) > 1:
+        (first, one), (second, other) = list(carried.items())[:2]
+        raise RecordError(f"identify: records {one} (radius {first!r} m) and {other} (radius {second!r} m) are not "
+                          "of one joint — identify one joint's records at a time")
+    return next(iter(carried))
+
+
+def _check_records(records: list[Record]) -> None:
+    """One-line errors for records the fit cannot use (too short, nothing measured)."""
+    for record in records:
+        if record.time.size < MIN_SAMPLES:
+            raise RecordError(f"{record.name}: {record.time.size} samples — identify needs at least {MIN_SAMPLES} "
+                              "per record")
+        for column in ("sliding_velocity", "friction_force"):
+            values = getattr(record, column)
+            if not np.all(np.isfinite(values)):
+                raise RecordError(f"{record.name}: column {column!r}: not finite — allowed: finite numbers")
+            if not np.any(values != 0.0):
+                raise RecordError(f"{record.name}: column {column!r} is zero throughout — nothing to identify from")
+        if not (np.all(np.isfinite(record.time)) and np.all(np.diff(record.time) > 0.0)):
+            raise RecordError(f"{record.name}: column 'time' must be finite and increase")
+        if not np.all(np.isfinite(record.normal_force) & (record.normal_force > 0.0)):
+            raise RecordError(f"{record.name}: column 'normal_force': F_N must be > 0 and finite")
+
+
 def identify(micro: list[Record], stick: list[Record], radius: float | None = None, progress=None,
              cutoff_hz: float | None = None, output_error: bool = True) -> Identification:
     """Two-step identification of Eq. 3 from micro-slip and stick-slip records, then the
     output-error step (``_refine``) when every stick-slip record has its excitation force and
-    inertia and ``output_error`` is on; ``Identification.steps`` lists what ran."""
+    inertia and ``output_error`` is on; ``Identification.steps`` lists what ran.
+
+    Type B records need their radius (``radius``, or ``Record.radius`` of every record).
+    Records the fit cannot use raise ``RecordError``; so does a numerical failure inside the fit
+    (degenerate data that passed the checks), as one line instead of a traceback.
+    """
     if not micro:
         raise RecordError("identify: no micro-slip records (step 1 needs at least one)")
     if not stick:
@@ -431,11 +516,24 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
     if len(types) != 1:
         raise RecordError(f"identify: records mix joint types {sorted(types)}")
     joint_type = types.pop()
-    if joint_type == "B" and radius is None:
-        radius = lugre.TYPE_B.radius
+    radius = _joint_radius(micro + stick, joint_type, radius)
     names = [r.name for r in micro + stick]
     if len(set(names)) != len(names):
         raise RecordError("identify: two records share a name; rename the files")
+    _check_records(micro + stick)
+    try:
+        with np.errstate(all="ignore"):
+            return _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error)
+    except SmartjointError:
+        raise
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as error:
+        detail = " ".join(str(error).split())[:160]
+        raise RecordError(f"identify: the fit failed on records {', '.join(names)} ({type(error).__name__}: {detail}) "
+                          "— they do not determine the LuGre parameters (micro-slip records must show presliding, "
+                          "stick-slip records must slide)") from None
+
+
+def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error) -> Identification:
     # The raw velocity unless a cutoff is given: a low-pass also cuts the bristle resonance
     # that the measured force contains, which biases the fit more than the noise does.
     velocities = {r.name: (filtered_velocity(r, cutoff_hz) if cutoff_hz else r.sliding_velocity) for r in micro + stick}
@@ -443,7 +541,7 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
         if not slides(r, radius):
             raise RecordError(f"{r.name}: column 'sliding_velocity' shows no gross slip — a stick-slip record must "
                               "slide (step 2 identifies F_c, F_d, v_s, σ2 from sliding)")
-    guess = _initial_guess(micro, stick, radius, velocities)
+    guess = _initial_guess(micro, stick, radius, velocities, joint_type)
     velocity_scale = max(float(np.abs(r.sliding_velocity).max()) for r in stick)
     p2 = {n: guess[n] for n in P2}
     p1_starts = [{**guess, "sigma0": guess["sigma0"] * a, "sigma1": guess["sigma1"] * b}
@@ -476,6 +574,7 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
         steps.append(f"output error: skipped — {blocker}")
         if progress:
             progress(steps[-1])
+    _check_plausible({n: getattr(parameters, n) for n in P3}, joint_type, "result")
     for result, records in ((micro_result, micro), (stick_result, stick)):
         result.nrmse = {r.name: nrmse(r.friction_force, model_friction(parameters, r, velocities[r.name]))
                         for r in records}
@@ -485,7 +584,7 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
 
 def slides(record: Record, radius: float | None = None) -> bool:
     """Gross sliding: the element moves by far more than any bristle deflection μ/σ0 could."""
-    arm = radius if radius is not None else (lugre.TYPE_B.radius if record.joint_type == "B" else 1.0)
+    arm = 1.0 if record.joint_type == "A" else (radius if radius is not None else record.moment_arm)
     mu = np.abs(record.friction_force / (arm * record.normal_force))
     displacement = np.ptp(np.cumsum(record.sliding_velocity) * record.sample_time)
     return bool(displacement * 1e4 > mu.max() and displacement > 1e-4)

@@ -1,26 +1,35 @@
 """Friction records: the measured time series identification works on (paper Section 3.2).
 
-A record is a CSV file with a header line that names every column with its unit in
+A record is a UTF-8 CSV file with a header line that names every column with its unit in
 brackets, and optional ``# key = value unit`` metadata lines before it::
 
     # smartjoint friction record
-    # joint_type = A
-    # inertia = 0.5 kg
-    time [s],sliding_velocity [m/s],excitation_force [N],normal_force [N]
+    # joint_type = B
+    # radius = 0.011 m
+    # inertia = 0.002 kg*m^2
+    time [s],sliding_velocity [rad/s],excitation_force [N*m],normal_force [N]
     0.0,0.0,0.0,400.0
     …
 
 Required columns: ``time``, ``sliding_velocity``, ``normal_force`` and either
 ``friction_force`` or ``excitation_force`` (then the friction force is the excitation minus
 inertia × acceleration, with the ``inertia`` metadata, as in the paper). Type B records give
-velocities in rad/s and forces as moments in N·m. Units are converted to SI on reading; an
-unknown unit, a missing column, NaN, a non-increasing time or a row of the wrong length is an
-error naming the file, the column or row, and what is allowed.
+velocities in rad/s and forces as moments in N·m, and must give the joint ``radius`` (the
+moment arm r of u_R = r·F_N·μ): no default is assumed for a user's joint. Units are converted
+to SI on reading.
+
+Every value is checked (``BOUNDS``): a record that is not UTF-8 text, an unknown unit, a
+missing or repeated column, a row of the wrong length, a cell that is not a finite number, a
+time that does not increase, a normal force that is not > 0 or a magnitude beyond the
+physically plausible bounds is a one-line ``RecordError`` naming the file, the row (its line
+number in the file), the column, the value and what is allowed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+from array import array
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +50,7 @@ _UNITS = {
     "velocity": {"m/s": 1.0, "mm/s": 1e-3, "rad/s": 1.0, "mrad/s": 1e-3},
     "force": {"N": 1.0, "kN": 1e3, "N*m": 1.0, "N·m": 1.0, "Nm": 1.0},
     "mass": {"kg": 1.0, "g": 1e-3, "kg*m^2": 1.0, "kg·m²": 1.0, "kg m2": 1.0},
+    "length": {"m": 1.0, "mm": 1e-3},
 }
 COLUMNS = {
     "time": "time",
@@ -49,11 +59,45 @@ COLUMNS = {
     "excitation_force": "force",
     "normal_force": "force",
 }
+REGIMES = ("micro-slip", "stick-slip")
+MAX_BYTES = 64 * 1024 * 1024  # 64 MiB: about 900 000 rows of four full-precision columns
+
+# Physically plausible magnitudes in SI units, per joint type: (type A, type B). Generous for
+# a bolted or clamped friction joint of a truss (the paper's joints: F_N 200–400 N, velocities
+# of mm/s … m/s, r = 11 mm), but they catch unit slips (kN written as N × 1000, µm as m) and
+# values such as 1e308 that would overflow the fit.
+BOUNDS = {
+    "time": (1e6, 1e6),  # |t| [s]: 11.6 days
+    "time_step": (1e-9, 1e-9),  # smallest sample spacing [s]: 1 GHz sampling
+    "sliding_velocity": (100.0, 1e4),  # |v| [m/s] (type A), |ω| [rad/s] (type B, ≈ 95 000 rpm)
+    "friction_force": (1e7, 1e5),  # |u_R| [N] (type A), [N·m] (type B)
+    "excitation_force": (1e7, 1e5),
+    "normal_force": (1e6, 1e6),  # 1 mN ≤ F_N ≤ 1 MN (a fully preloaded M36 bolt is ≈ 0.6 MN)
+    "inertia": (1e6, 1e4),  # 0 ≤ m ≤ 1000 t (type A), ≤ 1e4 kg·m² (type B)
+    "radius": (10.0, 10.0),  # 1e-4 m ≤ r ≤ 10 m (type B only)
+}
+MIN_RADIUS = 1e-4  # [m]
+MIN_NORMAL_FORCE = 1e-3  # [N]: μ = u_R/F_N is meaningless below (and a zero F_N divides by zero)
+_SI = {"time": "s", "sliding_velocity": ("m/s", "rad/s"), "friction_force": ("N", "N*m"),
+       "excitation_force": ("N", "N*m"), "normal_force": "N", "inertia": ("kg", "kg*m^2"), "radius": "m"}
+
+
+def bound(quantity: str, joint_type: str) -> float:
+    """The plausible magnitude limit of ``quantity`` (a ``BOUNDS`` key) for a joint type, in SI."""
+    return BOUNDS[quantity][0 if joint_type == "A" else 1]
+
+
+def si_unit(quantity: str, joint_type: str) -> str:
+    unit = _SI[quantity]
+    return unit if isinstance(unit, str) else unit[0 if joint_type == "A" else 1]
 
 
 @dataclass
 class Record:
-    """One measured (or simulated) record in SI units."""
+    """One measured (or simulated) record in SI units.
+
+    ``radius`` is the moment arm r [m] of a type B joint (None for type A).
+    """
 
     name: str
     time: np.ndarray
@@ -64,10 +108,21 @@ class Record:
     inertia: float | None = None
     excitation_force: np.ndarray | None = None
     metadata: dict = field(default_factory=dict)
+    radius: float | None = None
 
     @property
     def sample_time(self) -> float:
         return float(np.median(np.diff(self.time)))
+
+    @property
+    def moment_arm(self) -> float:
+        """r for a type B record, 1 for type A (``RecordError`` for type B without a radius)."""
+        if self.joint_type == "A":
+            return 1.0
+        if self.radius is None:
+            raise RecordError(f"{self.name}: type B record without a radius — add '# radius = <r> m' to the "
+                              "record (or pass the radius to identify / --radius)")
+        return self.radius
 
 
 def friction_from_excitation(time, velocity, excitation, inertia):
@@ -81,13 +136,69 @@ def friction_from_excitation(time, velocity, excitation, inertia):
     return excitation - inertia * acceleration
 
 
-def read_record(path: str | Path) -> Record:
+def _read_text(path: Path, name: str) -> str:
+    """The file as UTF-8 text, at most ``MAX_BYTES`` (a device or a pipe is read no further)."""
+    if path.exists() and not path.is_file():
+        raise RecordError(f"{name}: not a regular file — a record is a CSV file")
+    try:
+        with path.open("rb") as handle:
+            data = handle.read(MAX_BYTES + 1)
+    except OSError as error:
+        raise RecordError(f"{name}: cannot read record ({error.strerror or error})") from None
+    if len(data) > MAX_BYTES:
+        raise RecordError(f"{name}: larger than {MAX_BYTES // 2**20} MiB — allowed: records up to that size "
+                          "(split a longer measurement)")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        line = data.count(b"\n", 0, error.start) + 1
+        column = error.start - (data.rfind(b"\n", 0, error.start) + 1) + 1
+        raise RecordError(f"{name}: row {line}, character {column}: byte 0x{data[error.start]:02x} is not UTF-8 — "
+                          "a record must be UTF-8 text (CSV; re-save it as UTF-8)") from None
+    del data
+    if "\x00" in text:
+        line = text.count("\n", 0, text.index("\x00")) + 1
+        raise RecordError(f"{name}: row {line}: NUL byte — a record must be text (CSV), not a binary file")
+    return text
+
+
+def _number(text: str, unit: str, what: str, name: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise RecordError(f"{name}: {what}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise RecordError(f"{name}: {what}: {text!r} — must be a finite number")
+    return value
+
+
+def _metadata_length(metadata, key: str, joint_type: str, name: str, lower: float, upper: float,
+                     lower_inclusive: bool, kind: str) -> float | None:
+    if key not in metadata:
+        return None
+    value, unit = metadata[key]
+    allowed = _UNITS[kind]
+    if unit not in allowed:
+        raise RecordError(f"{name}: metadata {key}: unit {unit!r} unknown — write '# {key} = <value> <unit>' "
+                          f"with unit one of {', '.join(allowed)}")
+    number = _number(value, unit, f"metadata {key}", name) * allowed[unit]
+    low_ok = number >= lower if lower_inclusive else number > lower
+    if not (low_ok and number <= upper):
+        relation = ">=" if lower_inclusive else ">"
+        raise RecordError(f"{name}: metadata {key}: {value} {unit} — allowed: {relation} {lower:g} and <= "
+                          f"{upper:g} {si_unit(key, joint_type)}")
+    return number
+
+
+def read_record(path: str | Path, radius: float | None = None) -> Record:
+    """Read and check a record (module docstring); ``RecordError`` names what is wrong and where.
+
+    ``radius`` [m]: the joint radius of a type B record that does not give one itself (a
+    record that does must agree with it). No radius at all for a type B record is an error.
+    """
     path = Path(path)
     name = str(path)
-    try:
-        text = path.read_text()
-    except OSError as error:
-        raise RecordError(f"{name}: cannot read record ({error.strerror})") from None
+    text = _read_text(path, name)
     metadata: dict[str, tuple[str, str]] = {}
     lines = text.splitlines()
     body_start = 0
@@ -101,62 +212,95 @@ def read_record(path: str | Path) -> Record:
         break
     else:
         raise RecordError(f"{name}: no header line (expected e.g. 'time [s],sliding_velocity [m/s],…')")
+    joint_type = metadata.get("joint_type", ("A", ""))[0]
+    if joint_type not in ("A", "B"):
+        raise RecordError(f"{name}: metadata joint_type: {joint_type!r} — allowed: A, B")
+    regime = " ".join(metadata["regime"]).strip() if "regime" in metadata else None
+    if regime is not None and regime not in REGIMES:
+        raise RecordError(f"{name}: metadata regime: {regime!r} — allowed: {', '.join(REGIMES)} (or no regime line: "
+                          "then identify classifies the record by whether it slides)")
+    inertia = _metadata_length(metadata, "inertia", joint_type, name, 0.0, bound("inertia", joint_type), True, "mass")
+    given = radius
+    radius = _metadata_length(metadata, "radius", joint_type, name, MIN_RADIUS, bound("radius", joint_type), True,
+                              "length")
+    if joint_type == "A" and (radius is not None or given is not None):
+        raise RecordError(f"{name}: {'metadata radius' if radius is not None else f'radius {given!r} m given'}: a "
+                          "type A joint has no radius — allowed only with '# joint_type = B'")
+    if joint_type == "B" and given is not None:
+        if not (math.isfinite(given) and MIN_RADIUS <= given <= bound("radius", "B")):
+            raise RecordError(f"{name}: radius {given!r} m given — allowed: {MIN_RADIUS:g} … "
+                              f"{bound('radius', 'B'):g} m")
+        if radius is not None and radius != given:
+            raise RecordError(f"{name}: metadata radius: {radius!r} m, but radius {given!r} m was given — the record's "
+                              "own radius and the given one must agree (or give none)")
+        radius = float(given)
+    if joint_type == "B" and radius is None:
+        raise RecordError(f"{name}: metadata radius: missing — a type B record must give its joint radius, e.g. "
+                          f"'# radius = 0.011 m' (allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m), or pass "
+                          "it (identify --radius); no default is assumed")
     reader = csv.reader(lines[body_start:])
     header = next(reader)
-    columns: dict[str, tuple[int, float]] = {}
+    header_row = body_start + 1
+    columns: dict[str, tuple[int, float, str]] = {}
     for index, cell in enumerate(header):
         cell = cell.strip()
         if "[" not in cell or not cell.endswith("]"):
-            raise RecordError(f"{name}: column {cell!r} has no unit — write it as 'name [unit]'")
+            raise RecordError(f"{name}: row {header_row}: column {cell!r} has no unit — write it as 'name [unit]'")
         column, unit = cell[:-1].split("[", 1)
         column, unit = column.strip(), unit.strip()
         if column not in COLUMNS:
             continue  # extra columns are allowed and ignored
+        if column in columns:
+            raise RecordError(f"{name}: row {header_row}: column {column!r} appears twice — allowed: once")
         allowed = _UNITS[COLUMNS[column]]
         if unit not in allowed:
-            raise RecordError(f"{name}: column {column!r}: unit {unit!r} unknown; allowed: {', '.join(allowed)}")
-        columns[column] = (index, allowed[unit])
+            raise RecordError(f"{name}: row {header_row}, column {column!r}: unit {unit!r} unknown; allowed: "
+                              f"{', '.join(allowed)}")
+        columns[column] = (index, allowed[unit], unit)
     for required in ("time", "sliding_velocity", "normal_force"):
         if required not in columns:
-            raise RecordError(f"{name}: column {required!r} missing; header has {', '.join(h.strip() for h in header)}")
+            raise RecordError(f"{name}: row {header_row}: column {required!r} missing; header has "
+                              f"{', '.join(h.strip() for h in header)}")
     if "friction_force" not in columns and "excitation_force" not in columns:
-        raise RecordError(f"{name}: needs column 'friction_force' or 'excitation_force' (with '# inertia = …')")
-    rows = []
-    for row_number, row in enumerate(reader, start=body_start + 2):
+        raise RecordError(f"{name}: row {header_row}: needs column 'friction_force' or 'excitation_force' "
+                          "(with '# inertia = …')")
+    # Column by column into float arrays as the rows come: no cell strings are kept, so a
+    # record of MAX_BYTES needs a few hundred MB at most.
+    values = {column: array("d") for column in columns}
+    row_numbers = array("q")
+    for row in reader:
         if not row or all(not c.strip() for c in row):
             continue
+        line_number = body_start + reader.line_num
         if len(row) != len(header):
-            raise RecordError(f"{name}: row {row_number} has {len(row)} fields, the header {len(header)}")
-        rows.append(row)
-    if len(rows) < 3:
-        raise RecordError(f"{name}: {len(rows)} data rows — need at least 3")
+            raise RecordError(f"{name}: row {line_number} has {len(row)} fields, the header {len(header)}")
+        for column, (index, _, _) in columns.items():
+            try:
+                values[column].append(float(row[index]))
+            except ValueError:
+                raise RecordError(f"{name}: row {line_number}, column {column!r}: {row[index].strip()} — not a "
+                                  "number (allowed: a finite number)") from None
+        row_numbers.append(line_number)
+    if len(row_numbers) < 3:
+        raise RecordError(f"{name}: {len(row_numbers)} data rows — need at least 3")
+
+    def cell(column: str, k: int) -> str:
+        """The text of data row ``k`` in ``column``, as written (for the messages)."""
+        return next(csv.reader([lines[row_numbers[k] - 1]]))[columns[column][0]].strip()
+
     data = {}
-    for column, (index, factor) in columns.items():
-        try:
-            values = np.array([float(r[index]) for r in rows]) * factor
-        except ValueError as error:
-            raise RecordError(f"{name}: column {column!r}: not a number ({error})") from None
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            raise RecordError(f"{name}: column {column!r}: NaN or infinite value at data row {bad[0] + 1}")
-        data[column] = values
-    if np.any(np.diff(data["time"]) <= 0):
-        first = int(np.flatnonzero(np.diff(data["time"]) <= 0)[0])
-        raise RecordError(f"{name}: column 'time' does not increase at data row {first + 2}")
-    joint_type = metadata.get("joint_type", ("A", ""))[0]
-    if joint_type not in ("A", "B"):
-        raise RecordError(f"{name}: joint_type {joint_type!r} — allowed: A, B")
-    inertia = None
-    if "inertia" in metadata:
-        value, unit = metadata["inertia"]
-        if unit not in _UNITS["mass"]:
-            raise RecordError(f"{name}: inertia unit {unit!r} unknown; allowed: {', '.join(_UNITS['mass'])}")
-        try:
-            inertia = float(value) * _UNITS["mass"][unit]
-        except ValueError:
-            raise RecordError(f"{name}: inertia {value!r} is not a number") from None
-        if not (math.isfinite(inertia) and inertia >= 0):
-            raise RecordError(f"{name}: inertia {value!r} must be a finite number >= 0")
+    for column, (index, factor, unit) in columns.items():
+        column_values = np.frombuffer(values.pop(column), dtype=float) * factor
+        _check_column(name, column, column_values, unit, factor, joint_type, row_numbers,
+                      lambda k, column=column: cell(column, k))
+        data[column] = column_values
+    steps = np.diff(data["time"])
+    smallest = bound("time_step", joint_type)
+    if np.any(steps < smallest):
+        first = int(np.flatnonzero(steps < smallest)[0]) + 1
+        raise RecordError(f"{name}: row {row_numbers[first]}, column 'time': {cell('time', first)} after "
+                          f"{cell('time', first - 1)} — time does not increase (allowed: each row at least "
+                          f"{smallest:g} s after the one before)")
     if "friction_force" in data:
         friction = data["friction_force"]
     else:
@@ -164,20 +308,45 @@ def read_record(path: str | Path) -> Record:
             raise RecordError(f"{name}: column 'excitation_force' needs the '# inertia = <value> kg' metadata line")
         friction = friction_from_excitation(data["time"], data["sliding_velocity"], data["excitation_force"], inertia)
     return Record(path.stem, data["time"], data["sliding_velocity"], friction, data["normal_force"], joint_type,
-                  inertia, data.get("excitation_force"), {k: " ".join(v).strip() for k, v in metadata.items()})
+                  inertia, data.get("excitation_force"), {k: " ".join(v).strip() for k, v in metadata.items()},
+                  radius)
+
+
+def _check_column(name, column, values, unit, factor, joint_type, row_numbers, cells=None) -> None:
+    """Finite values within ``BOUNDS``; F_N > 0. Names the first offending row."""
+    limit = bound(column, joint_type)
+    shown = f"{limit / factor:g} {unit}"
+    if column == "normal_force":
+        bad = ~(np.isfinite(values) & (values >= MIN_NORMAL_FORCE) & (values <= limit))
+        allowed = f"F_N must be > 0: allowed {MIN_NORMAL_FORCE / factor:g} … {shown}"
+    else:
+        bad = ~(np.isfinite(values) & (np.abs(values) <= limit))
+        allowed = f"allowed: a finite number with magnitude <= {shown}"
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        shown_value = cells(first) if cells is not None else repr(float(values[first] / factor))
+        raise RecordError(f"{name}: row {row_numbers[first]}, column {column!r}: {shown_value} {unit} — "
+                          f"{allowed}")
 
 
 def write_record(record: Record, path: str | Path) -> None:
-    """Write a record as CSV (atomically: through a temporary file)."""
+    """Write a record as CSV (atomically: through a temporary file, removed on failure).
+
+    A type B record must carry its radius, so that the file reads back as it was written.
+    """
     path = Path(path)
     rotational = record.joint_type == "B"
+    if rotational and record.radius is None:
+        raise RecordError(f"{path}: type B record {record.name!r} without a radius — cannot be written readably")
     velocity_unit, force_unit = ("rad/s", "N*m") if rotational else ("m/s", "N")
     lines = ["# smartjoint friction record", f"# joint_type = {record.joint_type}"]
+    if rotational:
+        lines.append(f"# radius = {record.radius!r} m")
     if record.inertia is not None:
         lines.append(f"# inertia = {record.inertia!r} {'kg*m^2' if rotational else 'kg'}")
     for key, value in sorted(record.metadata.items()):
-        if key not in ("joint_type", "inertia"):
-            lines.append(f"# {key} = {value}")
+        if key not in ("joint_type", "inertia", "radius"):
+            lines.append(f"# {key} = {' '.join(str(value).split())}")
     columns = [("time [s]", record.time), (f"sliding_velocity [{velocity_unit}]", record.sliding_velocity)]
     if record.excitation_force is not None:
         columns.append((f"excitation_force [{force_unit}]", record.excitation_force))
@@ -185,8 +354,18 @@ def write_record(record: Record, path: str | Path) -> None:
         columns.append((f"friction_force [{force_unit}]", record.friction_force))
     columns.append(("normal_force [N]", record.normal_force))
     lines.append(",".join(c for c, _ in columns))
+    first_row = len(lines) + 1
+    for (title, values) in columns:
+        column, unit = title[:-1].split(" [")
+        _check_column(str(path), column, np.asarray(values, dtype=float), unit, 1.0, record.joint_type,
+                      range(first_row, first_row + len(values)))
     matrix = np.column_stack([v for _, v in columns])
     lines += [",".join(repr(float(x)) for x in row) for row in matrix]
     temporary = path.with_name(path.name + ".partial")
-    temporary.write_text("\n".join(lines) + "\n")
-    temporary.replace(path)
+    try:
+        temporary.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        temporary.replace(path)
+    except OSError as error:
+        with contextlib.suppress(OSError):
+            temporary.unlink(missing_ok=True)
+        raise RecordError(f"{path}: cannot write record ({error.strerror or error})") from None

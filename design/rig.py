@@ -14,18 +14,130 @@ analytic Jacobian at ``SUBSTEPS`` steps per sample (C kernel ``rig_kernel.c``, w
 loop kept as its reference); the rig "measures"
 sliding velocity and excitation force at ``sample_rate`` with optional Gaussian noise
 (relative to each signal's RMS), like the paper's shaker tests.
+
+The rig simulates any LuGre parameter set (``parameter_set``: from numbers, a TOML file or
+the paper's Table 1 when the caller asks for nothing else); every record it writes carries the
+joint type, the radius of a type B joint and the name of the parameter set.
 """
 
 from __future__ import annotations
 
 import math
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import lugre
-from .records import Record, friction_from_excitation
+from .errors import SmartjointError
+from .records import MIN_RADIUS, Record, bound, friction_from_excitation
+
+
+class RigError(SmartjointError, ValueError):
+    """A rig test or a LuGre parameter set for the rig is not valid."""
+
+
+MAX_SAMPLES = 500_000  # per record: 25 s at 20 kHz, a CSV of about 35 MB (records.MAX_BYTES is 64 MiB)
+# Plausible LuGre parameters per unit normal force (Table 1 units; type A, type B): (lower, upper,
+# lower allowed). Table 1 sits well inside; outside, the record bounds would be left or the
+# rig's 20 kHz sampling could not follow the bristles.
+PARAMETER_BOUNDS = {
+    "sigma0": ((0.0, 1e10, False), (0.0, 1e10, False)),  # [1/m] / [1/rad]
+    "sigma1": ((0.0, 1e4, True), (0.0, 1e4, True)),  # [s/m] / [s/rad]
+    "sigma2": ((0.0, 1e4, True), (0.0, 1e4, True)),
+    "coulomb": ((0.0, 10.0, False), (0.0, 10.0, False)),  # dimensionless
+    "stribeck": ((0.0, 10.0, True), (0.0, 10.0, True)),
+    "stribeck_velocity": ((0.0, bound("sliding_velocity", "A"), False), (0.0, bound("sliding_velocity", "B"), False)),
+}
+PARAMETER_UNITS = {"sigma0": ("1/m", "1/rad"), "sigma1": ("s/m", "s/rad"), "sigma2": ("s/m", "s/rad"),
+                   "coulomb": ("", ""), "stribeck": ("", ""), "stribeck_velocity": ("m/s", "rad/s")}
+LUGRE_NAMES = tuple(PARAMETER_BOUNDS)
+TABLE_1_SOURCE = "paper Table 1"
+
+
+@dataclass(frozen=True)
+class ParameterSet:
+    """LuGre parameters for the rig and where they came from (``source``, shown in the output)."""
+
+    joint_type: str
+    parameters: lugre.LuGreParameters
+    source: str
+
+    def as_dict(self) -> dict:
+        values = {n: getattr(self.parameters, n) for n in LUGRE_NAMES}
+        if self.parameters.radius is not None:
+            values["radius"] = self.parameters.radius
+        return {"source": self.source, "joint_type": self.joint_type, "values": values}
+
+    def describe(self) -> str:
+        values = ", ".join(f"{n} = {v:g}" for n, v in self.as_dict()["values"].items())
+        return f"LuGre parameters ({self.source}, type {self.joint_type}): {values}"
+
+
+def parameter_set(joint_type: str, values: dict | None = None, source: str = "command line") -> ParameterSet:
+    """Check a LuGre parameter set for the rig: all six parameters, plus ``radius`` [m] for type B.
+
+    ``values`` None gives the paper's Table 1 — only then. ``source`` names the origin in the
+    errors (``joint.toml``, ``command line``).
+    """
+    if joint_type not in ("A", "B"):
+        raise RigError(f"{source}: joint_type: {joint_type!r} — allowed: 'A', 'B'")
+    if values is None:
+        return ParameterSet(joint_type, lugre.TABLE_1[joint_type], TABLE_1_SOURCE)
+    allowed = LUGRE_NAMES + (("radius",) if joint_type == "B" else ())
+    for key in values:
+        if key == "radius" and joint_type == "A":
+            raise RigError(f"{source}: radius: a type A joint has no radius — allowed only for type B")
+        if key not in allowed:
+            raise RigError(f"{source}: {key}: unknown parameter — allowed: {', '.join(allowed)}")
+    checked = {}
+    for key in allowed:
+        if key not in values:
+            raise RigError(f"{source}: {key}: missing — give all of {', '.join(allowed)} (or none for "
+                           f"{TABLE_1_SOURCE})")
+        value = values[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise RigError(f"{source}: {key}: {value!r} — must be a finite number")
+        if key == "radius":
+            lower, upper, inclusive, unit = MIN_RADIUS, bound("radius", "B"), True, "m"
+        else:
+            lower, upper, inclusive = PARAMETER_BOUNDS[key][0 if joint_type == "A" else 1]
+            unit = PARAMETER_UNITS[key][0 if joint_type == "A" else 1]
+        if not ((value >= lower if inclusive else value > lower) and value <= upper):
+            relation = ">=" if inclusive else ">"
+            raise RigError(f"{source}: {key}: {value!r} — allowed: {relation} {lower:g} and <= {upper:g}"
+                           f"{' ' + unit if unit else ''}")
+        checked[key] = float(value)
+    return ParameterSet(joint_type, lugre.LuGreParameters(**checked), source)
+
+
+def load_parameter_set(path: str | Path, joint_type: str | None = None) -> ParameterSet:
+    """A parameter set from a TOML file: the six LuGre keys, ``radius`` for type B and an
+    optional ``joint_type`` (must agree with ``joint_type`` when both are given)."""
+    path = Path(path)
+    source = str(path)
+    if path.exists() and not path.is_file():
+        raise RigError(f"{source}: not a regular file — a parameter set is a TOML file")
+    try:
+        with path.open("rb") as handle:
+            data = handle.read(1 << 20)
+            if handle.read(1):
+                raise RigError(f"{source}: larger than 1 MiB — a parameter set is a few lines of TOML")
+    except OSError as error:
+        raise RigError(f"{source}: cannot read parameter set ({error.strerror or error})") from None
+    try:
+        values = tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as error:
+        raise RigError(f"{source}: byte {error.start}: not UTF-8 — a parameter set is TOML text") from None
+    except tomllib.TOMLDecodeError as error:
+        raise RigError(f"{source}: not valid TOML ({error})") from None
+    declared = values.pop("joint_type", None)
+    if declared is not None and declared not in ("A", "B"):
+        raise RigError(f"{source}: joint_type: {declared!r} — allowed: 'A', 'B'")
+    if declared is not None and joint_type is not None and declared != joint_type:
+        raise RigError(f"{source}: joint_type: {declared!r}, but --type {joint_type} was given — make them agree")
+    return parameter_set(declared or joint_type or "A", values, source)
 
 
 @dataclass(frozen=True)
@@ -50,14 +162,49 @@ def breakaway(parameters: lugre.LuGreParameters, normal_force: float) -> float:
     return parameters.moment_arm * normal_force * (parameters.coulomb + parameters.stribeck)
 
 
-def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None) -> Record:
-    """Run the rig and return the (noisy) record; the friction column is F_exc − m·a."""
+def check_test(test: RigTest, parameters: lugre.LuGreParameters) -> None:
+    """``RigError`` unless the test can be run and its record written (finite, positive, bounded)."""
     if test.joint_type not in ("A", "B"):
-        raise ValueError(f"joint_type: {test.joint_type!r} — allowed: 'A', 'B'")
-    p = parameters or lugre.TABLE_1[test.joint_type]
+        raise RigError(f"joint_type: {test.joint_type!r} — allowed: 'A', 'B'")
     for name in ("normal_force", "amplitude", "frequency", "cycles", "inertia", "sample_rate"):
-        if not getattr(test, name) > 0:
-            raise ValueError(f"{name}: {getattr(test, name)!r} — must be > 0")
+        value = getattr(test, name)
+        if not (math.isfinite(value) and value > 0):
+            raise RigError(f"{name}: {value!r} — must be a finite number > 0")
+    if test.normal_force > bound("normal_force", test.joint_type):
+        raise RigError(f"normal_force: {test.normal_force!r} — allowed: <= {bound('normal_force', 'A'):g} N")
+    if test.amplitude > bound("excitation_force", test.joint_type):
+        raise RigError(f"amplitude: {test.amplitude!r} — allowed: <= {bound('excitation_force', test.joint_type):g} "
+                       f"{'N' if test.joint_type == 'A' else 'N*m'}")
+    if test.inertia > bound("inertia", test.joint_type):
+        raise RigError(f"inertia: {test.inertia!r} — allowed: <= {bound('inertia', test.joint_type):g} "
+                       f"{'kg' if test.joint_type == 'A' else 'kg*m^2'}")
+    if not (math.isfinite(test.noise) and 0.0 <= test.noise <= 1.0):
+        raise RigError(f"noise: {test.noise!r} — allowed: 0 … 1 (relative to each signal's RMS)")
+    samples = test.cycles / test.frequency * test.sample_rate
+    if not samples <= MAX_SAMPLES:
+        raise RigError(f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples at "
+                       f"{test.sample_rate:g} Hz — allowed: at most {MAX_SAMPLES} samples per record")
+    if samples < 3:
+        raise RigError(f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples — need at "
+                       "least 3")
+    if test.joint_type == "B" and parameters.radius is None:
+        raise RigError("radius: missing — a type B joint needs its radius in the parameter set")
+    if test.joint_type == "A" and parameters.radius is not None:
+        raise RigError(f"radius: {parameters.radius!r} — a type A joint has no radius")
+
+
+def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None, source: str | None = None) -> Record:
+    """Run the rig and return the (noisy) record; the friction column is F_exc − m·a.
+
+    ``parameters`` None: the paper's Table 1 for the test's joint type. ``source`` names the
+    parameter set in the record's metadata (default: Table 1 or "given").
+    """
+    if test.joint_type not in ("A", "B"):
+        raise RigError(f"joint_type: {test.joint_type!r} — allowed: 'A', 'B'")
+    p = parameters or lugre.TABLE_1[test.joint_type]
+    if source is None:
+        source = TABLE_1_SOURCE if parameters is None else "given"
+    check_test(test, p)
     gain = p.moment_arm * test.normal_force
     omega = 2.0 * np.pi * test.frequency
     duration = test.cycles / test.frequency
@@ -74,7 +221,9 @@ def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None) -> 
     return Record(test.name, time, velocity, friction, np.full(time.size, test.normal_force), test.joint_type,
                   test.inertia, force, {"regime": "micro-slip" if test.amplitude < breakaway(p, test.normal_force)
                                         else "stick-slip", "noise": f"{test.noise:g}",
-                                        "true_friction_rms": f"{np.sqrt(np.mean(true_friction**2)):.6g}"})
+                                        "parameter_set": source,
+                                        "true_friction_rms": f"{np.sqrt(np.mean(true_friction**2)):.6g}"},
+                  radius=p.radius if test.joint_type == "B" else None)
 
 
 SUBSTEPS = 8
@@ -201,6 +350,9 @@ def campaign(joint_type: str, parameters: lugre.LuGreParameters | None = None, n
     faster-sliding element hides F_d and v_s under the velocity noise).
     """
     p = parameters or lugre.TABLE_1[joint_type]
+    if not p.stribeck > 0.0:
+        raise RigError(f"stribeck: {p.stribeck!r} — the campaign sizes the stick-slip inertia from F_d "
+                       "(sliding at about 5·v_s); must be > 0")
     micro_inertia = 1.0 if joint_type == "A" else 2e-3
     tests = []
     for normal_force in (200.0, 400.0):

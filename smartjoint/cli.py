@@ -117,6 +117,34 @@ def cmd_run(args) -> dict:
     return result
 
 
+_LUGRE_FLAGS = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity", "radius")
+
+
+def _rig_parameters(args):
+    """The rig's parameter set: --parameters FILE, or all the LuGre flags, or (neither) Table 1."""
+    from .design import rig
+
+    flags = {n: getattr(args, n) for n in _LUGRE_FLAGS if getattr(args, n) is not None}
+    if args.parameters is not None:
+        if flags:
+            raise SmartjointError(f"--{next(iter(flags)).replace('_', '-')} together with --parameters — give "
+                                  "the parameter set either as flags or as a file")
+        return rig.load_parameter_set(args.parameters, args.type)
+    joint_type = args.type or "A"
+    if not flags:
+        return rig.parameter_set(joint_type)
+    values = {n: v for n, v in flags.items()}
+    for name in _LUGRE_FLAGS:
+        if name not in values and (name != "radius" or joint_type == "B"):
+            raise SmartjointError(f"--{name.replace('_', '-')} missing — give all of --sigma0, --sigma1, "
+                                  "--sigma2, --coulomb, --stribeck, --stribeck-velocity"
+                                  f"{', --radius' if joint_type == 'B' else ''} (or --parameters FILE, or none of "
+                                  f"them for {rig.TABLE_1_SOURCE})")
+    if "radius" in values and joint_type == "A":
+        raise SmartjointError("--radius: a type A joint has no radius — allowed only with --type B")
+    return rig.parameter_set(joint_type, values, "command line")
+
+
 def _rig_test(args, joint_type, normal_force, amplitude, frequency, seed):
     from .design.rig import RigTest
 
@@ -126,33 +154,44 @@ def _rig_test(args, joint_type, normal_force, amplitude, frequency, seed):
 
 
 def cmd_rig(args) -> dict:
-    from .design import lugre, rig
+    from .design import rig
     from .design.records import write_record
 
     output = Path(args.output)
-    parameters = lugre.TABLE_1[args.type]
+    chosen = _rig_parameters(args)
+    parameters, joint_type = chosen.parameters, chosen.joint_type
     if args.campaign:
-        tests = rig.campaign(args.type, parameters, noise=args.noise, seed=args.seed, cycles=args.cycles)
-        output.mkdir(parents=True, exist_ok=True)
+        if output.exists() and not output.is_dir():
+            raise SmartjointError(f"-o {output}: exists and is not a folder — --campaign writes its records "
+                                  "into a folder")
+        tests = rig.campaign(joint_type, parameters, noise=args.noise, seed=args.seed, cycles=args.cycles)
         paths = [output / f"{t.name}.csv" for t in tests]
     else:
         missing = [n for n in ("normal_force", "amplitude", "frequency") if getattr(args, n) is None]
         if missing:
-            raise SmartjointError(f"rig: give --{missing[0].replace('_', '-')} (or --campaign)")
-        tests = [_rig_test(args, args.type, args.normal_force, args.amplitude, args.frequency, args.seed)]
+            raise SmartjointError(f"give --{missing[0].replace('_', '-')} (or --campaign)")
+        if output.is_dir():
+            raise SmartjointError(f"-o {output}: is a folder — give a record file name (or --campaign)")
+        tests = [_rig_test(args, joint_type, args.normal_force, args.amplitude, args.frequency, args.seed)]
         paths = [output]
+    for test in tests:  # every test is checked before anything is written
+        rig.check_test(test, parameters)
+    if not args.json:
+        print(chosen.describe())
+    if args.campaign:
+        try:
+            output.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise SmartjointError(f"-o {output}: cannot create folder ({error.strerror or error})") from None
     written = []
     for test, path in zip(tests, paths):
-        try:
-            record = rig.simulate(test, parameters)
-        except ValueError as error:
-            raise SmartjointError(f"rig: {error}") from None
+        record = rig.simulate(test, parameters, chosen.source)
         write_record(record, path)
         written.append({"file": str(path), "regime": record.metadata["regime"], "samples": int(record.time.size),
                         "max_velocity": float(abs(record.sliding_velocity).max())})
         if not args.json:
             print(f"wrote {path} ({record.metadata['regime']}, {record.time.size} samples)")
-    return {"records": written}
+    return {"parameters": chosen.as_dict(), "records": written}
 
 
 def cmd_identify(args) -> dict:
@@ -160,7 +199,7 @@ def cmd_identify(args) -> dict:
     from .design.records import read_record
     from .report import identification_table, plot_hysteresis
 
-    records = [read_record(path) for path in args.records]
+    records = [read_record(path, args.radius) for path in args.records]
     micro = [r for r in records if classify(r, args.radius) == "micro-slip"]
     stick = [r for r in records if classify(r, args.radius) == "stick-slip"]
     result = identify(micro, stick, radius=args.radius, progress=_progress, output_error=not args.no_output_error)
@@ -555,13 +594,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_export_model)
 
     p = sub.add_parser("rig", help="simulate the isolated-joint test rig (Section 3.2) and write friction records")
-    p.add_argument("--type", choices=("A", "B"), default="A", help="joint type (Table 1 parameters)")
+    p.add_argument("--type", choices=("A", "B"), default=None,
+                   help="joint type (default: the parameter file's joint_type, else A)")
+    p.add_argument("--parameters", metavar="FILE", help="LuGre parameter set (TOML: sigma0, sigma1, sigma2, coulomb, "
+                                                        "stribeck, stribeck_velocity, radius for type B, optional "
+                                                        "joint_type; docs/identification.md)")
+    lugre_flags = p.add_argument_group("LuGre parameter set as flags (all six, and --radius for type B; "
+                                       "without flags or --parameters: the paper's Table 1)")
+    lugre_flags.add_argument("--sigma0", type=float, help="bristle stiffness σ0 [1/m] (type B: [1/rad])")
+    lugre_flags.add_argument("--sigma1", type=float, help="bristle damping σ1 [s/m]")
+    lugre_flags.add_argument("--sigma2", type=float, help="viscous friction σ2 [s/m]")
+    lugre_flags.add_argument("--coulomb", type=float, help="Coulomb coefficient F_c")
+    lugre_flags.add_argument("--stribeck", type=float, help="Stribeck excess F_d = F_s − F_c")
+    lugre_flags.add_argument("--stribeck-velocity", type=float, help="Stribeck velocity v_s [m/s] (type B: [rad/s])")
+    lugre_flags.add_argument("--radius", type=float, help="joint radius r [m] (type B only)")
     p.add_argument("--normal-force", type=float, help="F_N [N]")
     p.add_argument("--amplitude", type=float, help="shaker force [N] (type B: moment [N·m])")
     p.add_argument("--frequency", type=float, help="excitation frequency [Hz]")
     p.add_argument("--cycles", type=float, default=4.0, help="excitation cycles (default: %(default)s)")
     p.add_argument("--inertia", type=float, help="friction element inertia [kg] or [kg·m²] (default 1 / 2e-3)")
-    p.add_argument("--noise", type=float, default=0.0, help="measurement noise, relative to RMS (e.g. 0.01)")
+    p.add_argument("--noise", type=float, default=0.0, help="measurement noise, relative to RMS (0 … 1, e.g. 0.01)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--campaign", action="store_true", help="write the standard micro-/stick-slip set into -o DIR")
     p.add_argument("-o", "--output", required=True, help="record file (CSV), or folder with --campaign")
@@ -570,8 +622,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("identify", help="LuGre identification from friction records: two Eq. 3 steps, then "
                                        "output error on the rig model")
-    p.add_argument("records", nargs="+", help="record files (CSV, see design/records.py)")
-    p.add_argument("--radius", type=float, help="joint radius r [m] for type B records (default: Table 1)")
+    p.add_argument("records", nargs="+", help="record files (CSV, docs/identification.md)")
+    p.add_argument("--radius", type=float, help="joint radius r [m] of type B records that do not carry "
+                                                "'# radius = … m' (no default)")
     p.add_argument("--no-output-error", action="store_true",
                    help="stop after the two Eq. 3 steps (by default an output-error step follows when the "
                         "stick-slip records carry excitation_force and inertia)")
