@@ -18,6 +18,7 @@ Usage: ``python firmware/fuzz/prepare.py FOLDER``.
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -27,8 +28,11 @@ PREFIX = "smartjoint"
 
 
 def _number(value: float) -> str:
+    """A C double literal of a finite value that parses back to the same double."""
+    if not math.isfinite(value):
+        raise SystemExit(f"prepare.py: {value!r} — the bus table and the limits hold finite numbers only")
     text = repr(float(value))
-    return text if any(c in text for c in ".einf") else text + ".0"
+    return text if any(c in text for c in ".e") else text + ".0"
 
 
 def _reference_sources(artifact, can_layer, generate) -> dict[str, str]:
