@@ -1,0 +1,223 @@
+/* Fuzz harness 2: the whole CAN layer of firmware/generated — receive, controller step, transmit.
+ *
+ * Input: the law, a start time, then a sequence of events: a received frame (identifier — mostly
+ * one the controller listens to —, length, payload, optionally given a valid E2E CRC and
+ * counter so the fuzzer gets past the check, and the time since the last event), a step
+ * followed by draining the transmit queue, or a healthy bus cycle (every input frame with any
+ * payload, valid E2E) followed by a step. Times wrap around uint32.
+ * Checks after every event:
+ * - smartjoint_can_rx returns only its documented result bits;
+ * - smartjoint_can_step returns only documented status bits; in the safe state the status is
+ *   SAFE_STATE and every command the configured safe normal force, else every command lies
+ *   within [F^min, F^max] (an amplifier fault always means the safe state);
+ * - smartjoint_can_tx sends the setpoints of all joints in order, then the status frame on
+ *   every tenth step, then nothing; each frame has its length, a valid CRC and its own alive
+ *   counter advancing by one; the setpoint decodes (bit-wise reference, bus.dbc) to the
+ *   command over the amplifier gain, within the amplifier's range; the status frame's mode is
+ *   3 in the safe state, else the law, and it carries the step status.
+ * Every frame sits in a buffer of exactly its size; ASan and UBSan abort on any bad access or
+ * undefined behaviour. */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fuzz_reference.h"
+#include "smartjoint_can.h"
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
+
+#define MAX_EVENTS 2048
+#define TX_LENGTH                                                                                         \
+    (SMARTJOINT_CAN_SETPOINT_A1_LENGTH > SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH ? SMARTJOINT_CAN_SETPOINT_A1_LENGTH \
+                                                                                  : SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH)
+
+/* The frames the controller receives, then two it sends itself (which it must ignore). */
+static const uint32_t frame_ids[] = {
+    SMARTJOINT_CAN_JOINT_A1_ID,      SMARTJOINT_CAN_JOINT_A2_ID,      SMARTJOINT_CAN_JOINT_A3_ID,
+    SMARTJOINT_CAN_TIP_SENSORS_ID,   SMARTJOINT_CAN_AMP_STATUS_A1_ID, SMARTJOINT_CAN_AMP_STATUS_A2_ID,
+    SMARTJOINT_CAN_AMP_STATUS_A3_ID, SMARTJOINT_CAN_SETPOINT_A1_ID,   SMARTJOINT_CAN_CONTROLLER_STATUS_ID,
+};
+#define FRAME_IDS (sizeof frame_ids / sizeof frame_ids[0])
+#define INPUT_IDS 7u
+typedef char inputs_agree[SMARTJOINT_CAN_INPUTS == INPUT_IDS ? 1 : -1];
+
+typedef struct {
+    smartjoint_can_state can;
+    uint32_t time;
+    uint8_t rx_counter[FRAME_IDS];       /* alive counters the harness sends with */
+    uint8_t tx_counter[FUZZ_JOINTS + 1u]; /* expected alive counters of the frames sent */
+    unsigned int steps;
+} bench;
+
+static void deliver(bench *b, uint32_t id, const uint8_t *frame, uint8_t length)
+{
+    const unsigned int result = smartjoint_can_rx(&b->can, id, frame, length, b->time);
+    if (result & ~(SMARTJOINT_CAN_RX_WRONG_LENGTH | SMARTJOINT_CAN_RX_BAD_CRC | SMARTJOINT_CAN_RX_COUNTER_REPEATED |
+                   SMARTJOINT_CAN_RX_COUNTER_JUMP | SMARTJOINT_CAN_RX_UNKNOWN_ID | SMARTJOINT_CAN_RX_COUNTER_STALE)) {
+        fuzz_fail("can_layer", "rx of id 0x%x, length %u: undocumented result 0x%x", id, length, result);
+    }
+}
+
+static void receive(bench *b, fuzz_reader *reader)
+{
+    const uint8_t control = fuzz_take_u8(reader);
+    const uint8_t choice = fuzz_take_u8(reader);
+    const uint32_t id = choice < 224u ? frame_ids[choice % FRAME_IDS] : fuzz_take_u32(reader);
+    const fuzz_message *message = fuzz_find_message(id);
+    const uint8_t length = (control & 1u) && message != NULL ? (uint8_t)message->length : fuzz_take_u8(reader);
+    uint8_t *frame = malloc(length);
+    if (frame == NULL && length > 0u) {
+        abort();
+    }
+    fuzz_take_bytes(reader, frame, length);
+    if (control & 2u) {
+        /* A frame a healthy node would send: next counter, or a few ahead, valid CRC. */
+        const unsigned int slot = choice < 224u ? choice % FRAME_IDS : 0u;
+        b->rx_counter[slot] = (uint8_t)(b->rx_counter[slot] + 1u + ((control >> 4) & 3u));
+        sj_e2e_protect((uint16_t)id, frame, length, b->rx_counter[slot]);
+    }
+    b->time += (control & 4u) ? fuzz_take_u32(reader) : fuzz_take_u8(reader);
+    deliver(b, id, frame, length);
+    free(frame);
+}
+
+/* One sample of a healthy bus: every input node sends its frame (any payload), with the next
+ * alive counter and a valid CRC, 10 us apart. */
+static void bus_cycle(bench *b, fuzz_reader *reader)
+{
+    unsigned int slot;
+    for (slot = 0u; slot < INPUT_IDS; ++slot) {
+        const fuzz_message *message = fuzz_find_message(frame_ids[slot]);
+        uint8_t *frame = malloc(message->length);
+        if (frame == NULL) {
+            abort();
+        }
+        fuzz_take_bytes(reader, frame, message->length);
+        sj_e2e_protect((uint16_t)message->id, frame, message->length, ++b->rx_counter[slot]);
+        b->time += 10u;
+        deliver(b, message->id, frame, (uint8_t)message->length);
+        free(frame);
+    }
+}
+
+static double field_value(const fuzz_message *message, const char *name, const uint8_t *frame)
+{
+    const fuzz_signal *signal = fuzz_find_signal(message, name);
+    return fuzz_reference_decode(fuzz_reference_field(frame, signal), signal);
+}
+
+static void check_setpoint(const bench *b, unsigned int joint, const uint8_t *frame)
+{
+    const fuzz_message *message = fuzz_find_message(fuzz_setpoint_ids[joint]);
+    const fuzz_signal *voltage = fuzz_find_signal(message, "voltage");
+    const double sent = field_value(message, "voltage", frame);
+    double expected = (b->can.command[joint] - fuzz_preload) / fuzz_force_per_volt;
+    expected = expected < voltage->minimum ? voltage->minimum : (expected > voltage->maximum ? voltage->maximum : expected);
+    if (!(fabs(sent - expected) <= 0.5 * voltage->scale * (1.0 + 1e-9))) {
+        fuzz_fail("can_layer", "setpoint of joint %u: %.9g V sent for a command of %.9g N", joint, sent,
+                  b->can.command[joint]);
+    }
+}
+
+static void check_status_frame(const bench *b, unsigned int status, const uint8_t *frame)
+{
+    const fuzz_message *message = fuzz_find_message(SMARTJOINT_CAN_CONTROLLER_STATUS_ID);
+    const double mode = field_value(message, "mode", frame);
+    const double expected = b->can.safe ? 3.0 : (double)b->can.law;
+    if (mode != expected || field_value(message, "step_status", frame) != (double)(status & 0xFFu)) {
+        fuzz_fail("can_layer", "status frame: mode %g (expected %g), step status %g (expected %u)", mode, expected,
+                  field_value(message, "step_status", frame), status & 0xFFu);
+    }
+}
+
+static void check_commands(const bench *b, unsigned int status)
+{
+    unsigned int j;
+    int fault = 0;
+    if (status & ~(SMARTJOINT_STATUS_INPUT_INVALID | SMARTJOINT_STATUS_ESTIMATE_RESET | SMARTJOINT_CAN_STATUS_SAFE_STATE)) {
+        fuzz_fail("can_layer", "step: undocumented status 0x%x", status);
+    }
+    for (j = 0u; j < FUZZ_JOINTS; ++j) {
+        const double command = b->can.command[j];
+        fault |= b->can.amplifier_fault[j] != 0u;
+        if (b->can.safe) {
+            if (command != fuzz_safe_normal_force[j] || status != SMARTJOINT_CAN_STATUS_SAFE_STATE) {
+                fuzz_fail("can_layer", "safe state: joint %u commanded %.9g N, status 0x%x", j, command, status);
+            }
+        } else if (!(command >= fuzz_normal_force_min[j] && command <= fuzz_normal_force_max[j])) {
+            fuzz_fail("can_layer", "step: joint %u commanded %.9g N, outside [%g, %g]", j, command,
+                      fuzz_normal_force_min[j], fuzz_normal_force_max[j]);
+        }
+    }
+    if (fault && !b->can.safe) {
+        fuzz_fail("can_layer", "step: an amplifier reports a fault but the controller is not in the safe state");
+    }
+}
+
+static void step_and_send(bench *b, fuzz_reader *reader)
+{
+    const uint8_t control = fuzz_take_u8(reader);
+    uint8_t *frame = malloc(TX_LENGTH);
+    unsigned int status, sent = 0u, expected_frames;
+    uint32_t id = 0u;
+    uint8_t length = 0u;
+    if (frame == NULL) {
+        abort();
+    }
+    b->time += (control & 1u) ? fuzz_take_u32(reader) : (uint32_t)SMARTJOINT_CAN_CYCLE_US * (control >> 6);
+    status = smartjoint_can_step(&b->can, b->time);
+    check_commands(b, status);
+    expected_frames = FUZZ_JOINTS + (b->steps % 10u == 0u ? 1u : 0u);
+    b->steps++;
+    while (smartjoint_can_tx(&b->can, &id, frame, &length)) {
+        const unsigned int slot = sent < FUZZ_JOINTS ? sent : FUZZ_JOINTS;
+        const uint32_t expected_id = sent < FUZZ_JOINTS ? fuzz_setpoint_ids[sent] : SMARTJOINT_CAN_CONTROLLER_STATUS_ID;
+        const fuzz_message *message = fuzz_find_message(expected_id);
+        if (sent >= expected_frames || id != expected_id || length != message->length) {
+            fuzz_fail("can_layer", "tx frame %u of step %u: id 0x%x length %u (expected id 0x%x length %u, %u frames)",
+                      sent, b->steps, id, length, expected_id, message->length, expected_frames);
+        }
+        if (frame[0] != sj_e2e_frame_crc((uint16_t)id, frame, length) || (frame[1] & 0x0Fu) != b->tx_counter[slot] % 16u) {
+            fuzz_fail("can_layer", "tx frame 0x%x: CRC 0x%02x or counter %u wrong (expected counter %u)", id, frame[0],
+                      frame[1] & 0x0Fu, b->tx_counter[slot] % 16u);
+        }
+        b->tx_counter[slot]++;
+        if (sent < FUZZ_JOINTS) {
+            check_setpoint(b, sent, frame);
+        } else {
+            check_status_frame(b, status, frame);
+        }
+        sent++;
+    }
+    if (sent != expected_frames) {
+        fuzz_fail("can_layer", "step %u sent %u frames, expected %u", b->steps, sent, expected_frames);
+    }
+    free(frame);
+}
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
+{
+    fuzz_reader reader;
+    bench b;
+    int event;
+    fuzz_reader_init(&reader, data, size);
+    memset(&b, 0, sizeof b);
+    smartjoint_can_init(&b.can, (fuzz_take_u8(&reader) & 1u) ? SMARTJOINT_CAN_LAW_CLQG : SMARTJOINT_CAN_LAW_SISO);
+    b.time = fuzz_take_u32(&reader);
+    for (event = 0; event < MAX_EVENTS && fuzz_more(&reader); ++event) {
+        switch (fuzz_take_u8(&reader) % 4u) {
+        case 0u:
+            receive(&b, &reader);
+            break;
+        case 1u:
+            step_and_send(&b, &reader);
+            break;
+        default:
+            bus_cycle(&b, &reader);
+            step_and_send(&b, &reader);
+            break;
+        }
+    }
+    return 0;
+}

@@ -1,0 +1,127 @@
+"""Prepare the sources the fuzz harnesses are built from (run by ``.ci/fuzz``).
+
+Writes into FOLDER:
+
+- ``double/``: the double build of the controllers of ``firmware/generated/controller.json``;
+- ``codec/``: the CAN layer of the same artefact with both directions of every frame
+  (``full_codec``, as the SIL bench compiles it), so pack and unpack can be fuzzed as a pair;
+- ``fuzz_reference.h/.c``: what the harnesses check against, taken from the protocol and the
+  artefact rather than from the generated C: the signal layout of ``bus.dbc``, F^min and F^max,
+  the safe normal force and the amplifier gain.
+
+Before writing anything it renders the float firmware again and requires it to equal
+``firmware/generated`` byte for byte, so the extra builds come from the generator that wrote
+the reference firmware (the codec functions of ``codec/`` are those of the reference).
+
+Usage: ``python firmware/fuzz/prepare.py FOLDER``.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+REFERENCE = ROOT / "firmware" / "generated"
+PREFIX = "smartjoint"
+
+
+def _number(value: float) -> str:
+    """A C double literal of a finite value that parses back to the same double."""
+    if not math.isfinite(value):
+        raise SystemExit(f"prepare.py: {value!r} — the bus table and the limits hold finite numbers only")
+    text = repr(float(value))
+    return text if any(c in text for c in ".e") else text + ".0"
+
+
+def _reference_sources(artifact, can_layer, generate) -> dict[str, str]:
+    files = {**generate.render(artifact, "float", PREFIX), **can_layer.render_can(artifact, PREFIX)}
+    return {name: text for name, text in files.items() if name.endswith((".c", ".h"))}
+
+
+def _layout(db, artifact) -> tuple[str, str]:
+    """fuzz_reference.h and fuzz_reference.c: the bus table and the limits of the artefact."""
+    header = ['/* Written by firmware/fuzz/prepare.py from bus.dbc and controller.json of firmware/generated. */',
+              '#ifndef FUZZ_REFERENCE_H', '#define FUZZ_REFERENCE_H', '', '#include "fuzz_support.h"', '']
+    source = ['/* Written by firmware/fuzz/prepare.py from bus.dbc and controller.json of firmware/generated. */',
+              '#include "fuzz_reference.h"', '']
+    messages = sorted(db.messages, key=lambda m: m.frame_id)
+    most = max(len(m.signals) for m in messages)
+    longest = max(m.length for m in messages)
+    header.append(f"#define FUZZ_MAX_SIGNALS {most}u")
+    header.append(f"#define FUZZ_MAX_LENGTH {longest}u")
+    header.append(f"#define FUZZ_MESSAGE_COUNT {len(messages)}u")
+    header.append(f"#define FUZZ_JOINTS {len(artifact.joint_names)}u")
+    header.append("/* X(lower-case message name) for every frame of the bus */")
+    header.append("#define FUZZ_MESSAGES(X) " + " ".join(f"X({m.name.lower()})" for m in messages))
+    header.append("")
+    for m in messages:
+        header.append(f"extern const fuzz_message fuzz_message_{m.name.lower()};")
+    header += ["extern const fuzz_message *const fuzz_bus[FUZZ_MESSAGE_COUNT];",
+               "extern const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS];",
+               "extern const double fuzz_normal_force_min[FUZZ_JOINTS];",
+               "extern const double fuzz_normal_force_max[FUZZ_JOINTS];",
+               "extern const double fuzz_safe_normal_force[FUZZ_JOINTS];",
+               "extern const double fuzz_force_per_volt;", "extern const double fuzz_preload;", "",
+               "#endif /* FUZZ_REFERENCE_H */", ""]
+    for m in messages:
+        rows = []
+        for s in sorted(m.signals, key=lambda s: s.start):
+            if s.byte_order != "little_endian" or s.is_float:
+                raise SystemExit(f"prepare.py: signal {m.name}.{s.name}: only little-endian integer signals are modelled")
+            ranged = s.minimum is not None and s.maximum is not None
+            rows.append(f'    {{"{s.name}", {s.start}u, {s.length}u, {int(s.is_signed)}, {int(ranged)}, '
+                        f"{_number(s.conversion.scale)}, {_number(s.conversion.offset)}, "
+                        f"{_number(s.minimum if ranged else 0.0)}, {_number(s.maximum if ranged else 0.0)}}},")
+        lower = m.name.lower()
+        source.append(f"static const fuzz_signal signals_{lower}[{len(rows)}] = {{")
+        source += rows
+        source.append("};")
+        source.append(f'const fuzz_message fuzz_message_{lower} = {{"{m.name}", 0x{m.frame_id:03X}u, {m.length}u, '
+                      f"{len(rows)}u, signals_{lower}}};")
+        source.append("")
+    source.append("const fuzz_message *const fuzz_bus[FUZZ_MESSAGE_COUNT] = {"
+                  + ", ".join(f"&fuzz_message_{m.name.lower()}" for m in messages) + "};")
+    by_name = {m.name: m for m in messages}
+    setpoints = [by_name[f"SETPOINT_{j.upper()}"].frame_id for j in artifact.joint_names]
+    source.append("const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS] = {" + ", ".join(f"0x{i:03X}u" for i in setpoints) + "};")
+    for name, values in (("normal_force_min", artifact.normal_force_min), ("normal_force_max", artifact.normal_force_max),
+                         # codegen's default safe state (F^max), with which firmware/generated was written
+                         ("safe_normal_force", artifact.normal_force_max)):
+        source.append(f"const double fuzz_{name}[FUZZ_JOINTS] = {{" + ", ".join(_number(v) for v in values) + "};")
+    source.append(f"const double fuzz_force_per_volt = {_number(artifact.piezo_force_per_volt)};")
+    source.append(f"const double fuzz_preload = {_number(artifact.piezo_preload)};")
+    return "\n".join(header), "\n".join(source) + "\n"
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 1:
+        print("usage: prepare.py FOLDER", file=sys.stderr)
+        return 2
+    from smartjoint.bench import protocol
+    from smartjoint.codegen import can_layer, generate
+    from smartjoint.design import artifact as artifacts
+
+    artifact = artifacts.load(REFERENCE / "controller.json")
+    for name, text in _reference_sources(artifact, can_layer, generate).items():
+        if not (REFERENCE / name).exists() or (REFERENCE / name).read_text() != text:
+            print(f"prepare.py: firmware/generated/{name} is not what the generator writes: regenerate it "
+                  "(firmware/README.md)", file=sys.stderr)
+            return 2
+    folder = Path(argv[0])
+    files = {f"double/{name}": text for name, text in generate.render(artifact, "double", PREFIX).items()
+             if name.endswith((".c", ".h")) and name != "main.c"}
+    codec = can_layer.render_can(artifact, PREFIX, full_codec=True)
+    files.update({f"codec/{name}": codec[name] for name in (f"{PREFIX}_can.h", f"{PREFIX}_can.c")})
+    db = protocol.load_dbc((REFERENCE / "bus.dbc").read_text())
+    files["fuzz_reference.h"], files["fuzz_reference.c"] = _layout(db, artifact)
+    for name, text in files.items():
+        path = folder / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
