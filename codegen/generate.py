@@ -19,6 +19,7 @@ from pathlib import Path
 import jinja2
 import numpy as np
 
+from .. import package_data
 from ..design import artifact as artifacts
 from ..design.errors import ModelError
 
@@ -29,7 +30,7 @@ C_KEYWORDS = frozenset("""auto break case char const continue default do double 
 inline int long register restrict return short signed sizeof static struct switch typedef union unsigned void
 volatile while _Bool _Complex _Imaginary""".split())
 FLOAT_MAX = float(np.finfo(np.float32).max)
-TEMPLATES = Path(__file__).parent / "templates"
+TEMPLATES = package_data.folder("smartjoint.codegen", "templates")
 
 
 def _version() -> str:
