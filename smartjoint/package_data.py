@@ -3,7 +3,7 @@
 C kernels, the hand-written firmware runtime, the code generator's templates and the bundled
 designs ship inside the package (``pyproject.toml``, ``[tool.setuptools.package-data]``), so an
 installed wheel runs from any folder. Every module that opens one of them asks :func:`path` or
-:func:`folder` here instead of locating it beside its own ``__file__``; ``tests/test_packaging.py``
+:func:`folder` here instead of locating it beside its own source file; ``tests/test_packaging.py``
 builds the wheel and checks it against :data:`FILES`.
 """
 
