@@ -257,8 +257,8 @@ def clean_stale(output: Path) -> list[str]:
 class ReportFolder:
     """Staging, commit and clean-up of one run's report folder (a context manager).
 
-    The constructor checks ``output`` (:func:`inspect`) and clears what killed runs left; it
-    raises before anything is written. ``with`` creates the claim and the staging folder
+    The constructor checks ``output`` (:func:`inspect`), raising before anything is written,
+    then clears what killed runs left. ``with`` creates the claim and the staging folder
     (``staging``); :meth:`commit` puts the finished report in place; leaving the block without a
     commit deletes the staging folder and the claim.
     """
@@ -266,8 +266,8 @@ class ReportFolder:
     def __init__(self, output: Path, run_id: str):
         self.output = Path(output)
         self.run_id = run_id
-        self.stale_removed = clean_stale(self.output)
         inspect(self.output)
+        self.stale_removed = clean_stale(self.output)
         stem = f".{self.output.name}.smartjoint-{run_id}"
         self.claim = self.output.parent / f"{stem}.run"
         self.staging = self.output.parent / f"{stem}.staging"
@@ -285,6 +285,9 @@ class ReportFolder:
             self._discard()
             raise ReportFolderError(f"-o {self.output}: cannot write beside it ({error.strerror}) — give a "
                                     "folder in a writable place") from None
+        except BaseException:  # a signal held back above: __exit__ does not run when __enter__ raises
+            self._discard()
+            raise
         return self
 
     def commit(self) -> None:
