@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from datetime import datetime
 from pathlib import Path
@@ -210,24 +212,46 @@ def small_design(tmp_path) -> Path:
     return path
 
 
-def _start(design: Path, output: Path, temporary: Path) -> subprocess.Popen:
-    temporary.mkdir(exist_ok=True)
-    env = {**os.environ, "TMPDIR": str(temporary)}  # where a temporary folder would appear
-    return subprocess.Popen([sys.executable, "-m", "smartjoint.cli", "run", str(design), "-o", str(output)],
-                            stderr=subprocess.PIPE, text=True, env=env, cwd=design.parent)
+class _Run:
+    """``smartjoint run`` in a child process; its stderr read line by line on a thread (so no wait blocks)."""
 
+    def __init__(self, design: Path, output: Path, temporary: Path):
+        from smartjoint.design import rig
 
-def _wait_for(process: subprocess.Popen, marker: str) -> list[str]:
-    """stderr lines up to the one starting with ``marker`` (the run is then inside that stage)."""
-    lines = []
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline:
-        line = process.stderr.readline()
-        assert line, f"the run ended before {marker!r}: {''.join(lines)}"
-        lines.append(line)
-        if line.startswith(marker):
-            return lines
-    pytest.fail(f"no {marker!r} within 300 s")
+        rig.kernel()  # compiled beforehand: a signal must not land in a compiler the child started
+        temporary.mkdir(exist_ok=True)
+        env = {**os.environ, "TMPDIR": str(temporary)}  # where a temporary folder would appear
+        self.process = subprocess.Popen([sys.executable, "-m", "smartjoint.cli", "run", str(design), "-o", str(output)],
+                                        stderr=subprocess.PIPE, text=True, env=env, cwd=design.parent)
+        self.lines: queue.Queue = queue.Queue()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        for line in self.process.stderr:
+            self.lines.put(line)
+        self.lines.put(None)
+
+    def wait_for(self, marker: str, timeout: float = 300.0) -> list[str]:
+        """stderr lines up to the one starting with ``marker`` (the run is then inside that stage)."""
+        lines, deadline = [], time.monotonic() + timeout
+        while True:
+            try:
+                line = self.lines.get(timeout=max(deadline - time.monotonic(), 0.01))
+            except queue.Empty:
+                self.process.kill()
+                pytest.fail(f"no {marker!r} within {timeout:g} s: {''.join(lines)}")
+            assert line is not None, f"the run ended before {marker!r}: {''.join(lines)}"
+            lines.append(line)
+            if line.startswith(marker):
+                return lines
+
+    def finish(self, timeout: float = 120.0) -> tuple[int, list[str]]:
+        """Exit code and the remaining stderr lines."""
+        code = self.process.wait(timeout=timeout)
+        rest = []
+        while (line := self.lines.get(timeout=timeout)) is not None:
+            rest.append(line)
+        return code, rest
 
 
 @pytest.mark.parametrize("number, name", [(signal.SIGINT, "SIGINT"), (signal.SIGTERM, "SIGTERM")])
@@ -237,15 +261,15 @@ def test_an_interrupted_run_ends_with_one_line_and_leaves_the_earlier_report(tmp
     monkeypatch.setattr(pipeline, "_stages", _stand_in())
     assert main(["run", "-o", str(output)]) == 0  # an earlier, finished report
     earlier = _snapshot(output)
-    process = _start(small_design, output, temporary)
-    progress = _wait_for(process, "[4/9]")  # friction identification: seconds of work ahead
+    run = _Run(small_design, output, temporary)
+    progress = run.wait_for("[4/9]")  # friction identification: seconds of work ahead
     time.sleep(0.5)
     assert any(p.name.endswith(".staging") for p in tmp_path.iterdir())  # it was writing beside the report
-    process.send_signal(number)
-    rest = process.stderr.read()
-    assert process.wait(timeout=60) == 130
-    assert "Traceback" not in rest and rest.splitlines() and rest.splitlines()[-1] == f"smartjoint run: interrupted ({name})"
-    lines = progress + rest.splitlines(True)
+    run.process.send_signal(number)
+    code, rest = run.finish()
+    assert code == 130
+    assert "Traceback" not in "".join(rest) and rest and rest[-1] == f"smartjoint run: interrupted ({name})\n"
+    lines = progress + rest
     # Besides the progress lines ("[k/9] …" and their indented details) exactly one line: the last.
     assert [line for line in lines if not line.startswith(("[", " "))] == [lines[-1]]
     assert _snapshot(output) == earlier  # the earlier report as it was, no partial one
@@ -255,11 +279,10 @@ def test_an_interrupted_run_ends_with_one_line_and_leaves_the_earlier_report(tmp
 
 def test_what_a_killed_run_left_is_cleared_by_the_next_and_only_that(tmp_path, small_design, monkeypatch):
     output, temporary = tmp_path / "report", tmp_path / "tmp"
-    process = _start(small_design, output, temporary)
-    _wait_for(process, "[2/9]")
-    process.kill()
-    process.wait(timeout=60)
-    process.stderr.close()
+    run = _Run(small_design, output, temporary)
+    run.wait_for("[2/9]")
+    run.process.kill()
+    run.finish()
     left = sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".report.smartjoint-"))
     assert [n.rsplit(".", 1)[1] for n in left] == ["run", "staging"]
     # Look-alikes that cannot be proved a dead run's: no claim, and a claim of a live process (this one).
