@@ -273,9 +273,14 @@ class ReportFolder:
         self.staging = self.output.parent / f"{stem}.staging"
         self.previous = self.output.parent / f"{stem}.previous"
         self.committed = False
+        self.created: list[Path] = []  # parent folders this run made (removed again if it fails)
 
     def __enter__(self) -> "ReportFolder":
         try:
+            missing = self.output.parent
+            while not missing.exists():
+                self.created.append(missing)
+                missing = missing.parent
             self.output.parent.mkdir(parents=True, exist_ok=True)
             with signals_held():
                 with open(self.claim, "x", encoding="utf-8") as handle:
@@ -328,3 +333,8 @@ class ReportFolder:
             os.rename(self.previous, self.output)
         _remove_folder(self.previous)
         self.claim.unlink(missing_ok=True)
+        for folder in self.created:  # deepest first; only while empty
+            try:
+                folder.rmdir()
+            except OSError:
+                break

@@ -316,3 +316,11 @@ def test_a_run_killed_while_swapping_reports_gets_the_earlier_one_back(tmp_path,
     assert report_folder.clean_stale(output) == [stem.name]
     assert _snapshot(output) == earlier
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report"]
+
+
+def test_a_run_that_fails_leaves_nothing_not_even_the_parent_folders_it_made(tmp_path, capsys):
+    design = tmp_path / "bad.toml"
+    design.write_text("[nodes\n")
+    assert main(["run", str(design), "-o", str(tmp_path / "a" / "b" / "report")]) == 2
+    assert "not valid TOML" in _one_error_line(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml"]
