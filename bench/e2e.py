@@ -13,7 +13,8 @@ the receiver does not follow it). ``firmware/runtime/sj_e2e.c`` is the C twin; t
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
+
+from .. import package_data
 
 POLYNOMIAL = 0x1D
 INITIAL = 0xFF
@@ -98,7 +99,7 @@ def check(frame_id: int, payload: bytes, last_counter: int | None) -> Check:
     return Check(payload[0] == frame_crc(frame_id, payload), counter, step)
 
 
-RUNTIME = Path(__file__).resolve().parents[1] / "firmware" / "runtime"
+RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
 _DECLARATIONS = """
 typedef struct { uint8_t last_counter; uint8_t valid; } sj_e2e_receiver;
 uint8_t sj_crc8_j1850(const uint8_t *data, size_t length, uint8_t crc);
@@ -116,7 +117,7 @@ def compiled():
 
     source = RUNTIME / "sj_e2e.c"
     if not source.exists():
-        raise FileNotFoundError(f"{source}: the firmware runtime is part of the source tree, not of an installed wheel")
+        raise FileNotFoundError(f"{source}: the firmware runtime is missing from the installed package")
     build = native.cache_dir() / "runtime"
     build.mkdir(parents=True, exist_ok=True)
     copy = build / "sj_e2e.c"

@@ -5,16 +5,15 @@ timeouts, the safe state with recovery, the controller step between receive and 
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
+from .. import package_data
 from ..bench import protocol
 from ..design.artifact import ControllerArtifact
 from ..design.errors import ModelError
 from . import generate, identifiers
 
-RUNTIME = Path(__file__).resolve().parents[1] / "firmware" / "runtime"
+RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
 TIMEOUT_CYCLES = 3
 RECOVERY_FRAMES = 3
 UINT32_MAX = 2 ** 32 - 1  # the layer's clock: microseconds in uint32_t, wrapping

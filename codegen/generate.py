@@ -18,13 +18,14 @@ from pathlib import Path
 import jinja2
 import numpy as np
 
+from .. import package_data
 from ..design import artifact as artifacts
 from ..design.errors import ModelError
 from . import identifiers
 
 REALS = ("float", "double")
 FLOAT_MAX = float(np.finfo(np.float32).max)
-TEMPLATES = Path(__file__).parent / "templates"
+TEMPLATES = package_data.folder("smartjoint.codegen", "templates")
 
 
 def _version() -> str:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 import tomllib
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -268,9 +267,10 @@ def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, d
 
 def kernel():
     """The compiled rig kernel (cffi module; ``ModelError`` when it cannot be built)."""
+    from .. import package_data
     from . import native
 
-    return native.load("rig", DECLARATIONS, Path(__file__).with_name("rig_kernel.c"))
+    return native.load("rig", DECLARATIONS, package_data.path("smartjoint.design", "rig_kernel.c"))
 
 
 def _integrate_c(module, p, gain, inertia, force, time, substeps, velocity0, deflection0):

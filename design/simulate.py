@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable, Protocol
 
 import numpy as np
@@ -484,9 +483,10 @@ class _CKernel:
     """
 
     def __init__(self, plant: _Plant, state: _State, recorder: _Recorder):
+        from .. import package_data
         from . import native
 
-        module = native.load("plant", self.DECLARATIONS, Path(__file__).with_name("plant_kernel.c"))
+        module = native.load("plant", self.DECLARATIONS, package_data.path("smartjoint.design", "plant_kernel.c"))
         self.ffi, self.lib = ffi, lib = module.ffi, module.lib
         self.p, self.s, self.r = plant, state, recorder
         self._keep = []  # arrays whose memory the C structs point into

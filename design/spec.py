@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import package_data
 from .errors import MISSING, DesignError
 
 SCHEMA = "smartjoint-design/1"
@@ -26,7 +27,7 @@ SENSOR_QUANTITIES = ("displacement", "velocity")
 DIAGONAL_PATTERNS = ("alternating", "parallel")
 TIP_NODES = ("none", "cross", "diagonal")
 
-REFERENCE_DESIGN = Path(__file__).parent / "data" / "meroform_10bay.toml"
+REFERENCE_DESIGN = package_data.path("smartjoint.design", "data/meroform_10bay.toml")
 
 
 # --------------------------------------------------------------------------- dataclasses

@@ -31,7 +31,6 @@ model in benchmarks/plant_sim.py and docs/simulation.md.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import scipy.linalg
@@ -241,10 +240,11 @@ class _StickC:
     name = "c"
 
     def __init__(self, plant: _StickPlant, state, recorder):
+        from .. import package_data
         from . import native
         from .simulate import _CKernel
 
-        module = native.load("plant", _CKernel.DECLARATIONS, Path(__file__).with_name("plant_kernel.c"))
+        module = native.load("plant", _CKernel.DECLARATIONS, package_data.path("smartjoint.design", "plant_kernel.c"))
         self.ffi, self.lib = ffi, lib = module.ffi, module.lib
         self.mirror = _StickPython(plant, state, recorder)  # holds z, d and the discretisations
         self.p, self.s, self.r = plant, state, recorder

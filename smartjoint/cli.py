@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from pathlib import Path
 
@@ -109,6 +110,9 @@ def cmd_export_model(args) -> dict:
 
 
 def cmd_run(args) -> dict:
+    from .report_folder import inspect
+
+    inspect(Path(args.output))  # refuse a file or a foreign folder before the pipeline even loads
     from .pipeline import run
 
     result = run(args.design, Path(args.output), progress=_progress)
@@ -568,7 +572,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run the whole pipeline on a design and write a report")
     _add_design(p)
-    p.add_argument("-o", "--output", default="smartjoint-report", help="report folder (default: %(default)s)")
+    p.add_argument("-o", "--output", default="smartjoint-report",
+                   help="report folder: new, empty, or the report of an earlier run, which is replaced; anything "
+                        "else is refused (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=cmd_run)
 
@@ -762,16 +768,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C's KeyboardInterrupt so that the same clean-up runs."""
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        previous = signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:  # not the main thread (an embedding program): it keeps its own handling
+        previous = None
+    try:
         out = args.func(args)
+        if args.json:
+            print(json.dumps(out, indent=1))
     except SmartjointError as error:
         print(f"smartjoint {args.command}: error: {error}", file=sys.stderr)
         return 2
-    if args.json:
-        print(json.dumps(out, indent=1))
+    except KeyboardInterrupt as interrupt:  # the clean-up of every stage (its finally blocks) ran on the way here
+        name = "SIGTERM" if isinstance(interrupt, Terminated) else "SIGINT"
+        print(f"smartjoint {args.command}: interrupted ({name})", file=sys.stderr)
+        return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
 
 

@@ -9,15 +9,18 @@ identification of Eq. 3 plus the output-error step, with hysteresis loops like F
 (Figs. 12–14) → generated C firmware, checked back to back against the Python reference → the
 study through the CAN loop (software in the loop) → report (Markdown + PNG). Each later stage of the design card joins here.
 
-The report folder is written to a temporary sibling and renamed into place at the end, so a
-failed run never leaves half a report behind.
+The report folder (``smartjoint/report_folder.py``) is checked before any work: a new or empty
+folder, or the report of an earlier run, and nothing else. The run writes into a staging folder
+beside it and moves the finished report into place at the end, so an interrupted or failed run
+leaves the earlier report as it was and nothing half written; ``summary.json`` names the run
+(id, start and end in UTC) and holds only paths that exist, relative to the report folder.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
+import os
+import re
 import time
 from pathlib import Path
 
@@ -32,6 +35,7 @@ from .design import artifact, build_model, load_design, lugre, rig, solve_modes,
 from .design import study as closed_loop
 from .design.identify import classify, identify
 from .design.spec import REFERENCE_DESIGN
+from .report_folder import ReportFolder, iso, new_run_id, utc_now
 from .studies import plot_study, reduction_study, study_markdown, study_summary
 
 FIG10_DESIGN = REFERENCE_DESIGN.parent / "fig10_three_joints.toml"
@@ -41,8 +45,47 @@ REPORT_MODES = 30
 
 
 def run(design_path: str | None, output: Path, progress=print) -> dict:
-    started = time.perf_counter()
-    output = Path(output)
+    """Run every stage on the design and write the report folder ``output``; the summary.
+
+    ``output`` is refused (``ReportFolderError``) before any work unless it is new, empty or the
+    report of an earlier run. Paths in the summary are relative to ``output``, except
+    ``design.source`` (absolute) and ``report`` (returned only, not written)."""
+    started, clock = utc_now(), time.perf_counter()
+    run_id = new_run_id(started)
+    folder = ReportFolder(Path(output), run_id)
+    for name in folder.stale_removed:
+        progress(f"removed {name}.*, left beside {folder.output} by a run that was killed")
+    with folder:
+        summary, markdown = _stages(design_path, folder.staging, progress)
+        summary = {"run_id": run_id, "started_utc": iso(started), "finished_utc": iso(utc_now()), **summary,
+                   "seconds": time.perf_counter() - clock}
+        dangling = [path for path in _paths(summary) if not (folder.staging / path).exists()]
+        if dangling:  # a stage named a file it did not write into the report
+            raise RuntimeError(f"summary.json names files that are not in the report: {dangling}")
+        (folder.staging / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+        (folder.staging / "report.md").write_text(markdown(summary))
+        folder.commit()
+    return {**summary, "report": str(folder.output / "report.md")}
+
+
+# A string in the summary that names a file: a report file name or any absolute path.
+_FILE_NAME = re.compile(r"[\w.@+-]+(/[\w.@+-]+)*\.(png|json|md|blf|dbc|c|h|toml|txt|csv)")
+
+
+def _paths(value) -> list[str]:
+    """Every string of the nested ``value`` that names a file (the check that they all exist)."""
+    if isinstance(value, dict):
+        return [p for item in value.values() for p in _paths(item)]
+    if isinstance(value, (list, tuple)):
+        return [p for item in value for p in _paths(item)]
+    if isinstance(value, str) and (os.path.isabs(value) or _FILE_NAME.fullmatch(value)):
+        return [value]
+    return []
+
+
+def _stages(design_path: str | None, staging: Path, progress):
+    """Stages 1–9 into the folder ``staging``: the summary (without the run's id and times) and a
+    function of the final summary that gives report.md."""
     design = load_design(design_path)
     progress(f"[1/9] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
              f"{len(design.members)} members, {len(design.joints)} joints")
@@ -100,77 +143,66 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
                                             study=control_study)
 
     progress("[8/9] software in the loop: the study through CAN (firmware, bus, amplifier models)")
-    sil_folder = Path(tempfile.mkdtemp(prefix="smartjoint-sil-"))
-    try:
-        sil_check = sil.sil_study(control_study.setup, controller, spread_runs=4, log_folder=sil_folder,
-                                  progress=progress)
-        sil_logs = {p.name: p.read_bytes() for p in sil_folder.iterdir()}
-    finally:
-        shutil.rmtree(sil_folder, ignore_errors=True)
+    # The bus logs go straight into the report (no temporary folder to leave behind).
+    sil_check = sil.sil_study(control_study.setup, controller, spread_runs=4, log_folder=staging / "can",
+                              progress=progress)
+    sil_logs = sorted(p.name for p in (staging / "can").iterdir())
+    for law in sil_check["laws"].values():
+        if law.get("log") is not None:
+            law["log"] = Path(law["log"]).relative_to(staging).as_posix()
     bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
     progress("      injected faults: " + ", ".join(f"{f.kind} {f.target}".strip() for f in sil.DEMO_FAULTS))
     fault_check = sil.fault_run(control_study.setup, controller)
 
     progress("[9/9] report")
-    output.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{output.name}-", dir=output.parent))
-    try:
-        plots.plot_mode_shapes(model, modes, staging / "mode_shapes.png")
-        measured = [(m.mode, m.frequency_hz) for m in design.updating.measured] if design.updating else []
-        plots.plot_spectrum(modes, measured, staging / "spectrum.png")
-        if result is not None:
-            plots.plot_updating(result, staging / "updating.png")
-        hysteresis = [p.name for p in plots.plot_hysteresis(identification, staging)]
-        plot_study(study, staging)
-        plot_control_study(control_study, staging)
-        artifact.save(controller, staging / "controller.json")
-        generate.write({**firmware_files, **can_layer.render_can(controller)}, staging / "firmware")
-        sil.plot_sil(sil_check, staging, sil_check.get("mil_runs"))
-        sil.plot_faults(fault_check, staging / "sil_faults.png")
-        (staging / "can").mkdir()
-        for name, data in sil_logs.items():
-            (staging / "can" / name).write_bytes(data)
-        summary = {
-            "smartjoint_version": __version__,
-            "design": {"name": design.name, "source": design.source, "sha256": design.sha256},
-            "fe_model": {"n_dof": model.n_dof, "elements": len(model.element_kind), "mass_kg": model.total_mass},
-            "updating": result.as_dict() if result is not None else None,
-            "modes_hz": [float(f) for f in modes.frequencies_hz],
-            "modes_released_hz": [float(f) for f in released.frequencies_hz] if released is not None else None,
-            "friction_identification": identification.as_dict(),
-            "reduction": study_summary(study),
-            "control": {**closed_loop.summary(control_study), "design": controlled.name,
-                        "artifact": "controller.json", "artifact_sha256": controller.artifact_sha256},
-            "firmware": {"folder": "firmware", "real": "float", "files": sorted(firmware_files),
-                         "back_to_back": firmware_check},
-            "sil": {**{k: v for k, v in sil_check.items() if k not in ("laws", "mil_runs")},
-                    "laws": {law: {k: v for k, v in f.items() if k not in ("record", "result")}
-                             for law, f in sil_check["laws"].items()},
-                    "logs": sorted(f"can/{name}" for name in sil_logs),
-                    "faults": {k: v for k, v in fault_check.items() if k not in ("result", "record")}},
-            "seconds": time.perf_counter() - started,
-        }
-        (staging / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
-        (staging / "report.md").write_text(_markdown(design, model, modes, released, result, summary)
-                                           + _friction_markdown(identification, hysteresis) + "\n"
-                                           + study_markdown(study) + "\n" + _control_section(control_study, controller) + "\n"
-                                           + backtoback.markdown(firmware_check, controller)
-                                           + "\nFiles (float build for the Cortex-M4F): `firmware/` — "
-                                           + ", ".join(f"`{name}`" for name in sorted(firmware_files)) + ".\n\n"
-                                           + sil.sil_markdown(sil_check) + "\n![SIL energy](sil_energy.png)\n\n"
-                                           + bus_load.table() + "\n\n" + sil.fault_markdown(fault_check)
-                                           + "\n![faults](sil_faults.png)\n\n"
-                                           + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
-                                           "`bench replay`): " + ", ".join(f"`can/{n}`" for n in sorted(sil_logs))
-                                           + "; protocol: `firmware/bus.dbc`.\n")
-        if output.exists():
-            shutil.rmtree(output)
-        staging.replace(output)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    summary["report"] = str(output / "report.md")
-    return summary
+    plots.plot_mode_shapes(model, modes, staging / "mode_shapes.png")
+    measured = [(m.mode, m.frequency_hz) for m in design.updating.measured] if design.updating else []
+    plots.plot_spectrum(modes, measured, staging / "spectrum.png")
+    if result is not None:
+        plots.plot_updating(result, staging / "updating.png")
+    hysteresis = [p.name for p in plots.plot_hysteresis(identification, staging)]
+    plot_study(study, staging)
+    plot_control_study(control_study, staging)
+    artifact.save(controller, staging / "controller.json")
+    generate.write({**firmware_files, **can_layer.render_can(controller)}, staging / "firmware")
+    sil.plot_sil(sil_check, staging, sil_check.get("mil_runs"))
+    sil.plot_faults(fault_check, staging / "sil_faults.png")
+    source = os.path.abspath(design.source) if os.path.isfile(design.source) else design.source
+    summary = {
+        "smartjoint_version": __version__,
+        "design": {"name": design.name, "source": source, "sha256": design.sha256},
+        "fe_model": {"n_dof": model.n_dof, "elements": len(model.element_kind), "mass_kg": model.total_mass},
+        "updating": result.as_dict() if result is not None else None,
+        "modes_hz": [float(f) for f in modes.frequencies_hz],
+        "modes_released_hz": [float(f) for f in released.frequencies_hz] if released is not None else None,
+        "friction_identification": identification.as_dict(),
+        "reduction": study_summary(study),
+        "control": {**closed_loop.summary(control_study), "design": controlled.name,
+                    "artifact": "controller.json", "artifact_sha256": controller.artifact_sha256},
+        "firmware": {"folder": "firmware", "real": "float", "files": [f"firmware/{n}" for n in sorted(firmware_files)],
+                     "back_to_back": firmware_check},
+        "sil": {**{k: v for k, v in sil_check.items() if k not in ("laws", "mil_runs")},
+                "laws": {law: {k: v for k, v in f.items() if k not in ("record", "result")}
+                         for law, f in sil_check["laws"].items()},
+                "logs": [f"can/{name}" for name in sil_logs],
+                "faults": {k: v for k, v in fault_check.items() if k not in ("result", "record")}},
+    }
+
+    def markdown(final: dict) -> str:
+        return (_markdown(design, model, modes, released, result, final)
+                + _friction_markdown(identification, hysteresis) + "\n"
+                + study_markdown(study) + "\n" + _control_section(control_study, controller) + "\n"
+                + backtoback.markdown(firmware_check, controller)
+                + "\nFiles (float build for the Cortex-M4F): `firmware/` — "
+                + ", ".join(f"`{name}`" for name in sorted(firmware_files)) + ".\n\n"
+                + sil.sil_markdown(sil_check) + "\n![SIL energy](sil_energy.png)\n\n"
+                + bus_load.table() + "\n\n" + sil.fault_markdown(fault_check)
+                + "\n![faults](sil_faults.png)\n\n"
+                + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
+                "`bench replay`): " + ", ".join(f"`can/{n}`" for n in sil_logs)
+                + "; protocol: `firmware/bus.dbc`.\n")
+
+    return summary, markdown
 
 
 def _markdown(design, model, modes, released, result, summary) -> str:
@@ -183,7 +215,8 @@ def _markdown(design, model, modes, released, result, summary) -> str:
         f"- FE model: {model.n_dof} independent DOFs, {len(model.element_kind)} Euler–Bernoulli beam elements, "
         f"{len(design.nodes)} rigid nodes, total mass {model.total_mass:.2f} kg",
         f"- modal damping ξ = {design.modal_damping:.2%} for every mode",
-        f"- run time {summary['seconds']:.1f} s",
+        f"- run `{summary['run_id']}`: {summary['started_utc']} to {summary['finished_utc']} (UTC), "
+        f"{summary['seconds']:.1f} s",
         "",
         "## Model updating (paper Section 3.3, Fig. 7)",
         "",

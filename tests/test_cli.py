@@ -73,4 +73,4 @@ def test_run_writes_a_complete_report(tmp_path, capsys):
         assert fault["cycles_to_safe_state"] is not None and fault["cycles_to_safe_state"] <= 3
         assert fault["cycles_to_recover"] is not None
     assert (out / "sil_faults.png").stat().st_size > 0
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".report-")]  # no staging left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "small.toml"]  # no staging or claim left

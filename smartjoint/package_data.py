@@ -1,0 +1,64 @@
+"""The data files the package opens at run time, named in one place.
+
+C kernels, the hand-written firmware runtime, the code generator's templates and the bundled
+designs ship inside the package (``pyproject.toml``, ``[tool.setuptools.package-data]``), so an
+installed wheel runs from any folder. Every module that opens one of them asks :func:`path` or
+:func:`folder` here instead of locating it beside its own source file; ``tests/test_packaging.py``
+builds the wheel and checks it against :data:`FILES`.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+# Import package → the files it owns, relative to the package folder.
+FILES: dict[str, tuple[str, ...]] = {
+    "smartjoint.design": (
+        "plant_kernel.c",
+        "rig_kernel.c",
+        "data/meroform_10bay.toml",
+        "data/fig10_three_joints.toml",
+        "data/three_type_a.toml",
+    ),
+    "smartjoint.codegen": tuple(f"templates/{name}" for name in (
+        "CMakeLists.txt.j2", "Makefile.j2", "can.c.j2", "can.h.j2", "clqg.c.j2", "clqg.h.j2", "main.c.j2",
+        "main_can.c.j2", "siso.c.j2", "siso.h.j2", "types.h.j2")),
+    "smartjoint.firmware": (
+        "runtime/sj_e2e.c",
+        "runtime/sj_e2e.h",
+        "runtime/replay.c",
+    ),
+}
+
+
+def _root(package: str) -> Path:
+    if package not in FILES:
+        raise KeyError(f"{package!r} owns no data files; packages with data: {', '.join(sorted(FILES))}")
+    try:
+        root = resources.files(package)
+    except ModuleNotFoundError:
+        raise ModuleNotFoundError(f"{package} is not installed: the installed smartjoint predates it; "
+                                  "reinstall it (pip install -e .)") from None
+    # Regular packages on disk (a wheel or an editable install): the traversable is a Path.
+    return Path(str(root))
+
+
+def path(package: str, name: str) -> Path:
+    """The data file ``name`` of ``package`` (a key of :data:`FILES`) on disk."""
+    if name not in FILES.get(package, ()):
+        raise KeyError(f"{package}: {name!r} is not one of its data files (smartjoint/package_data.py FILES)")
+    return _root(package) / name
+
+
+def folder(package: str, name: str) -> Path:
+    """The folder ``name`` of ``package`` that holds some of its data files."""
+    if not any(f.startswith(name.rstrip("/") + "/") for f in FILES.get(package, ())):
+        raise KeyError(f"{package}: {name!r} holds none of its data files (smartjoint/package_data.py FILES)")
+    return _root(package) / name
+
+
+def all_files() -> list[tuple[str, Path]]:
+    """Every data file as (path inside the package tree, e.g. ``smartjoint/design/rig_kernel.c``, path on disk)."""
+    return [(f"{package.replace('.', '/')}/{name}", path(package, name))
+            for package, names in FILES.items() for name in names]
