@@ -74,3 +74,28 @@ def test_run_writes_a_complete_report(tmp_path, capsys):
         assert fault["cycles_to_recover"] is not None
     assert (out / "sil_faults.png").stat().st_size > 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "small.toml"]  # no staging or claim left
+
+
+def test_interrupt_while_the_command_line_imports_is_one_line_and_exit_130():
+    """Ctrl-C during the seconds the console script spends importing numpy, scipy and the stages:
+    one line, exit 130, no traceback (the interrupt is raised by the import of smartjoint.cli)."""
+    code = (
+        "import sys\n"
+        "class Interrupting:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'smartjoint.cli':\n"
+        "            raise KeyboardInterrupt\n"
+        "sys.meta_path.insert(0, Interrupting())\n"
+        "from smartjoint.console import main\n"
+        "sys.exit(main())\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 130
+    assert done.stderr.strip().splitlines() == ["smartjoint: interrupted (SIGINT) while starting"]
+
+
+def test_the_console_script_runs_the_command_line():
+    from importlib.metadata import entry_points
+
+    (script,) = [e for e in entry_points(group="console_scripts") if e.name == "smartjoint"]
+    assert script.value == "smartjoint.console:main"
