@@ -101,15 +101,24 @@ def solve_modes(model, n_modes: int, parameters: dict[str, float] | None = None)
     return Modes(np.sqrt(values), vectors, np.full(n_modes, model.design.modal_damping))
 
 
-def count_zero_energy_modes(model, probe: int = 8) -> tuple[int, str]:
-    """Number of zero-energy motions among the lowest ``probe`` modes and where the first sits."""
+def probe_zero_energy(model, probe: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lowest ``probe`` modes (ω², Φ) and which of them are zero-energy motions; more modes
+    when all of those are (a structure with more than ``probe`` of them)."""
     n = min(probe, model.n_dof)
     stiffness = model.stiffness
     values, vectors = eigensolve(stiffness, model.mass, n)
-    zero = np.flatnonzero(zero_energy(stiffness, vectors))
-    if zero.size == n and n < model.n_dof:
-        values, vectors = eigensolve(stiffness, model.mass, model.n_dof if model.n_dof <= DENSE_LIMIT else min(model.n_dof - 1, 64))
-        zero = np.flatnonzero(zero_energy(stiffness, vectors))
+    zero = zero_energy(stiffness, vectors)
+    if zero.all() and n < model.n_dof:
+        more = model.n_dof if model.n_dof <= DENSE_LIMIT else min(model.n_dof - 1, 64)
+        values, vectors = eigensolve(stiffness, model.mass, more)
+        zero = zero_energy(stiffness, vectors)
+    return values, vectors, zero
+
+
+def count_zero_energy_modes(model, probe: int = 8) -> tuple[int, str]:
+    """Number of zero-energy motions among the lowest ``probe`` modes and where the first sits."""
+    _, vectors, zero_mask = probe_zero_energy(model, probe)
+    zero = np.flatnonzero(zero_mask)
     if zero.size == 0:
         return 0, ""
     shape = vectors[:, zero[0]]
