@@ -749,6 +749,9 @@ def _check_control_limits(t: _Table, control: Control, count: int, dofs: int) ->
                       f"vectors must stay under {MAX_LANCZOS_BYTES // 1024**3} GiB)")
     if control.modes > control.considered_modes:
         raise t.error("modes", control.modes, f"must be <= considered_modes ({control.considered_modes})")
+    # A number applies to every joint and is checked even when the design has none yet.
+    count = count or int(not isinstance(control.normal_force_min, tuple)
+                         and not isinstance(control.normal_force_max, tuple))
     low = np.broadcast_to(np.asarray(control.normal_force_min, dtype=float), (count,))
     high = np.broadcast_to(np.asarray(control.normal_force_max, dtype=float), (count,))
     for i in range(count):

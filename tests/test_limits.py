@@ -186,6 +186,9 @@ def test_normal_force_max_above_what_a_piezo_joint_can_set_is_refused():
     message = _control_error(normal_force_max=[400.0, 2e5])
     assert "control.normal_force_max: 200000.0" in message and "entry 1" in message
     parse_design({**small_truss(), "control": {"normal_force_max": spec.MAX_NORMAL_FORCE}})
+    no_joints = {**small_truss(), "joints": [], "control": {"normal_force_max": 1e12}}
+    with pytest.raises(DesignError, match="control.normal_force_max: 1000000000000.0"):
+        parse_design(no_joints)  # a number for every joint is checked before there are any
 
 
 def test_normal_force_min_above_max_is_refused_per_joint():
