@@ -1,13 +1,20 @@
-"""FE scale benchmark: assembly + 100 lowest modes for 10-, 87- and 300-bay masts.
+"""FE scale benchmark: assembly + 100 lowest modes for 10-, 87-, 300- and 1000-bay masts.
 
-Each size runs in a fresh subprocess so that its peak resident memory is its own. The
+Each size runs in a fresh subprocess so that its peak resident memory is its own; a size that
+fails is reported with the child's error (its last stderr line) and the others still run. The
 baseline, run side by side on the 10-bay model, is a dense LAPACK solve (scipy.linalg.eigh,
 subset of 100) of the same K, M: the ratio says what the sparse shift-invert path buys; for
 87 bays and more the dense matrices alone would not fit comfortably (36 000² doubles ≈ 10 GB).
 
-    python benchmarks/fe_scale.py [--bays 10 87 300] [--json benchmarks/fe_scale.json]
+    python benchmarks/fe_scale.py [--bays 10 87 300 1000] [--json benchmarks/fe_scale.json]
 
-Target (issue 2): 87 bays in ≤ 10 s on the 2-core reference machine.
+Targets: 87 bays in ≤ 10 s (issue 2); 1000 bays (first mode 0.6 mHz, accepted by the relative
+zero-energy cut-off) in ≤ 2 minutes (issue 15). Assembly includes the zero-energy check
+(``build_model``), as a user's run does. The children run single-threaded BLAS
+(``OPENBLAS_NUM_THREADS=1`` unless set): on a 2-core machine it costs nothing here (SuperLU and
+ARPACK's vector updates are single-threaded or memory-bound), and it makes the CPU seconds,
+reported beside the wall-clock, what a quiet core's wall-clock would be; on a shared machine
+the wall-clock includes other people's work, spinning BLAS threads inflate CPU time.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import tomllib
 from pathlib import Path
 
 MODES = 100
+TARGETS = {87: 10.0, 1000: 120.0}  # bays: total seconds
 
 
 def mast(bays: int) -> dict:
@@ -46,13 +54,15 @@ def measure(bays: int, dense: bool) -> dict:
     from smartjoint.design.modal import eigensolve
 
     design = parse_design(mast(bays), source=f"<{bays}-bay mast>")
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     model = build_model(design, joints="locked")
-    assembled = time.perf_counter()
+    assembled, cpu_assembled = time.perf_counter(), time.process_time()
     values, _ = eigensolve(model.stiffness, model.mass, MODES)
-    solved = time.perf_counter()
+    solved, cpu_solved = time.perf_counter(), time.process_time()
     result = {"bays": bays, "n_dof": model.n_dof, "assembly_s": assembled - start, "eigen_s": solved - assembled,
-              "total_s": solved - start, "f1_hz": float(values[0] ** 0.5 / 6.283185307179586),
+              "total_s": solved - start, "assembly_cpu_s": cpu_assembled - cpu_start,
+              "eigen_cpu_s": cpu_solved - cpu_assembled, "total_cpu_s": cpu_solved - cpu_start,
+              "f1_hz": float(values[0] ** 0.5 / 6.283185307179586),
               "f100_hz": float(values[-1] ** 0.5 / 6.283185307179586)}
     if dense:
         begin = time.perf_counter()
@@ -66,7 +76,7 @@ def measure(bays: int, dense: bool) -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--bays", type=int, nargs="+", default=[10, 87, 300])
+    parser.add_argument("--bays", type=int, nargs="+", default=[10, 87, 300, 1000])
     parser.add_argument("--json", default=str(Path(__file__).with_name("fe_scale.json")))
     parser.add_argument("--child", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--dense", action="store_true", help=argparse.SUPPRESS)
@@ -74,27 +84,43 @@ def main() -> int:
     if args.child:
         print(json.dumps(measure(args.child, args.dense)))
         return 0
-    rows = []
+    rows, failed = [], []
+    environment = dict(os.environ)
+    for variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+        environment.setdefault(variable, "1")
     for bays in args.bays:
         command = [sys.executable, __file__, "--child", str(bays)] + (["--dense"] if bays <= 10 else [])
-        done = subprocess.run(command, capture_output=True, text=True, check=True)
+        done = subprocess.run(command, capture_output=True, text=True, env=environment)
+        if done.returncode != 0:
+            lines = done.stderr.strip().splitlines() or [f"exit status {done.returncode}, no message"]
+            failed.append({"bays": bays, "error": lines[-1]})
+            print(f"{bays:4d} bays  FAILED: {lines[-1]}", flush=True)
+            continue
         rows.append(json.loads(done.stdout))
         row = rows[-1]
         print(f"{bays:4d} bays  {row['n_dof']:7d} DOFs  assembly {row['assembly_s']:6.2f} s  "
-              f"100 modes {row['eigen_s']:6.2f} s  total {row['total_s']:6.2f} s  peak RSS {row['peak_rss_mb']:7.0f} MB"
-              f"  f1 {row['f1_hz']:.4g} Hz", flush=True)
+              f"100 modes {row['eigen_s']:6.2f} s  total {row['total_s']:6.2f} s (CPU {row['total_cpu_s']:6.2f} s)  "
+              f"peak RSS {row['peak_rss_mb']:7.0f} MB  f1 {row['f1_hz']:.4g} Hz", flush=True)
         if "dense_eigen_s" in row:
             print(f"      baseline dense LAPACK eigh (same K, M): {row['dense_eigen_s']:.2f} s → sparse is "
                   f"{row['dense_eigen_s'] / row['eigen_s']:.1f}× faster; max rel. eigenvalue difference "
                   f"{row['dense_max_rel_diff']:.1e}")
-    target = next((r for r in rows if r["bays"] == 87), None)
-    if target:
-        print(f"target 87 bays ≤ 10 s: {target['total_s']:.2f} s → {'met' if target['total_s'] <= 10 else 'MISSED'}")
-    machine = {"python": platform.python_version(), "machine": platform.machine(), "cpus": os.cpu_count(),
-               "processor": platform.processor() or platform.machine()}
-    Path(args.json).write_text(json.dumps({"benchmark": "fe_scale", "modes": MODES, "machine": machine, "rows": rows},
-                                          indent=1) + "\n")
-    return 0
+    for bays, limit in TARGETS.items():
+        target = next((r for r in rows if r["bays"] == bays), None)
+        if target:
+            print(f"target {bays} bays ≤ {limit:g} s: {target['total_s']:.2f} s → "
+                  f"{'met' if target['total_s'] <= limit else 'MISSED'}")
+    import numpy
+    import scipy
+
+    from machine import cpu_model
+
+    machine = {"python": platform.python_version(), "numpy": numpy.__version__, "scipy": scipy.__version__,
+               "machine": platform.machine(), "cpu": cpu_model(), "cpus": os.cpu_count(),
+               "blas_threads": environment["OPENBLAS_NUM_THREADS"], "load_average_1min": os.getloadavg()[0]}
+    Path(args.json).write_text(json.dumps({"benchmark": "fe_scale", "modes": MODES, "machine": machine, "rows": rows,
+                                           "failed": failed}, indent=1) + "\n")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

@@ -18,9 +18,16 @@ from .errors import ModelError
 
 DENSE_LIMIT = 2500  # DOFs up to which the dense solver is faster than shift-invert Lanczos
 SHIFT = -1.0  # (rad/s)²: below every elastic mode, keeps K − σM regular
-# A zero-energy motion computed through shift-invert lands at |ω²| of round-off size;
-# elastic modes of any plausible truss lie many decades above this.
-ZERO_ENERGY = 1e-4  # (rad/s)²  (f < 1.6 mHz)
+# A zero-energy motion is told from a soft elastic mode relative to its own energy scale, not
+# by an absolute ω² (a 1000-bay mast's first mode is 0.6 mHz, ω² = 1.5e-5, below the former
+# cut-off 1e-4). The eigenvalue the solver returns carries the error of the shift-invert
+# solves (up to 4e-6 for a free 2-bay truss), but the energy φᵀKφ of the computed vector is
+# quadratic in the vector's error and so is only limited by the cancellation in Kφ: a fraction
+# of eps times the gross energy |φ|ᵀ|K||φ|, the energy φ would have if no term cancelled.
+# Measured ratios φᵀKφ / |φ|ᵀ|K||φ|: mechanisms (free and pinned trusses, free masts of 10 and
+# 300 bays, a hinged chain) ≤ 0.1 eps; the first mode of a clamped 1000-bay mast 11 eps,
+# 300 bays 1300 eps, 10 bays 7e8 eps. The cut-off, eps, sits in the decade between.
+ZERO_ENERGY_RELATIVE = float(np.finfo(float).eps)
 
 
 @dataclass
@@ -71,23 +78,47 @@ def eigensolve(stiffness: sp.spmatrix, mass: sp.spmatrix, n_modes: int) -> tuple
     return values, vectors
 
 
+def gross_energy(stiffness: sp.spmatrix, vectors: np.ndarray) -> np.ndarray:
+    """|φ|ᵀ|K||φ| per column: the energy scale against which round-off in φᵀKφ is measured."""
+    magnitude = np.abs(vectors)
+    return np.einsum("ij,ij->j", magnitude, abs(stiffness) @ magnitude)
+
+
+def zero_energy(stiffness: sp.spmatrix, vectors: np.ndarray) -> np.ndarray:
+    """Which computed modes are zero-energy motions: |φᵀKφ| ≤ eps·|φ|ᵀ|K||φ| (see
+    :data:`ZERO_ENERGY_RELATIVE`), independent of units, size and the modes' scaling."""
+    energy = np.einsum("ij,ij->j", vectors, stiffness @ vectors)
+    return np.abs(energy) <= ZERO_ENERGY_RELATIVE * gross_energy(stiffness, vectors)
+
+
 def solve_modes(model, n_modes: int, parameters: dict[str, float] | None = None) -> Modes:
     """The ``n_modes`` lowest modes of an :class:`~smartjoint.design.fem.FEModel`."""
     stiffness = model.stiffness_with(parameters or {})
     values, vectors = eigensolve(stiffness, model.mass, n_modes)
-    if values[0] < ZERO_ENERGY:
-        raise ModelError(f"lowest eigenvalue ω² = {values[0]:.3g} (rad/s)²: the structure is not fully supported")
+    if zero_energy(stiffness, vectors[:, :1])[0]:
+        raise ModelError(f"lowest eigenvalue ω² = {values[0]:.3g} (rad/s)² is round-off of a zero-energy motion: "
+                         "the structure is not fully supported")
     return Modes(np.sqrt(values), vectors, np.full(n_modes, model.design.modal_damping))
+
+
+def probe_zero_energy(model, probe: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lowest ``probe`` modes (ω², Φ) and which of them are zero-energy motions; more modes
+    when all of those are (a structure with more than ``probe`` of them)."""
+    n = min(probe, model.n_dof)
+    stiffness = model.stiffness
+    values, vectors = eigensolve(stiffness, model.mass, n)
+    zero = zero_energy(stiffness, vectors)
+    if zero.all() and n < model.n_dof:
+        more = model.n_dof if model.n_dof <= DENSE_LIMIT else min(model.n_dof - 1, 64)
+        values, vectors = eigensolve(stiffness, model.mass, more)
+        zero = zero_energy(stiffness, vectors)
+    return values, vectors, zero
 
 
 def count_zero_energy_modes(model, probe: int = 8) -> tuple[int, str]:
     """Number of zero-energy motions among the lowest ``probe`` modes and where the first sits."""
-    n = min(probe, model.n_dof)
-    values, vectors = eigensolve(model.stiffness, model.mass, n)
-    zero = np.flatnonzero(values < ZERO_ENERGY)
-    if zero.size == n and n < model.n_dof:
-        values, vectors = eigensolve(model.stiffness, model.mass, model.n_dof if model.n_dof <= DENSE_LIMIT else min(model.n_dof - 1, 64))
-        zero = np.flatnonzero(values < ZERO_ENERGY)
+    _, vectors, zero_mask = probe_zero_energy(model, probe)
+    zero = np.flatnonzero(zero_mask)
     if zero.size == 0:
         return 0, ""
     shape = vectors[:, zero[0]]

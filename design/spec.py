@@ -10,6 +10,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import os
+import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +30,27 @@ DIAGONAL_PATTERNS = ("alternating", "parallel")
 TIP_NODES = ("none", "cross", "diagonal")
 
 REFERENCE_DESIGN = package_data.path("smartjoint.design", "data/meroform_10bay.toml")
+
+# Limits on every size a design file controls, checked before anything of that size is
+# allocated (docs/design-file.md). Each is generous for a real truss: a 1000-bay mast of the
+# reference kind has 4 005 nodes, 12 004 members and 384 000 DOFs and solves in about a minute.
+MAX_FILE_BYTES = 4 * 1024 * 1024  # one design file: some 50 000 explicit members, parsed in seconds
+MAX_BASE_DEPTH = 4  # base files behind the file given
+MAX_BAYS = 5000
+MAX_ELEMENTS = 1000  # beam elements per tube (a cubic beam element needs a handful per wave)
+MAX_NODES = 100_000
+MAX_MEMBERS = 300_000
+MAX_DOFS = 1_000_000  # about 5 GB for assembly plus 100 modes
+MAX_MODES = 1000  # considered_modes, updating mode numbers
+MAX_KRYLOV = 20  # Krylov correction vectors per joint
+MAX_LANCZOS_BYTES = 4 * 1024**3  # the Lanczos basis of 2·considered_modes vectors of the DOF size
+MIN_SAMPLE_TIME = 1e-6  # [s]: the firmware counts its cycle in whole microseconds
+MAX_STUDY_DURATION = 3600.0  # [s] of simulated time in a closed-loop study (the paper: 4 s)
+MAX_CONTROLLER_STEPS = 10_000_000  # study_duration / sample_time
+# The largest normal force a piezo-actuated friction joint can plausibly set: the blocking
+# force of the largest multilayer piezo stacks is some tens of kN, and the bolt of a truss joint
+# (M12, property class 8.8: proof load 48 kN) holds no more. 1e5 N is above both.
+MAX_NORMAL_FORCE = 1e5  # [N]
 
 
 # --------------------------------------------------------------------------- dataclasses
@@ -305,12 +328,14 @@ class _Table:
             raise self.error(name, value, f"must be <= {maximum}")
         return value
 
-    def integer(self, name: str, default: object = MISSING, *, minimum: int = 1) -> int:
+    def integer(self, name: str, default: object = MISSING, *, minimum: int = 1,
+                maximum: int | None = None) -> int:
         value = self.get(name, default)
+        allowed = f"an integer {minimum} … {maximum}" if maximum is not None else f"an integer >= {minimum}"
         if isinstance(value, bool) or not isinstance(value, int):
-            raise self.error(name, value, "expected an integer")
-        if value < minimum:
-            raise self.error(name, value, f"must be >= {minimum}")
+            raise self.error(name, value, "expected " + allowed)
+        if value < minimum or (maximum is not None and value > maximum):
+            raise self.error(name, value, "must be " + allowed)
         return value
 
     def boolean(self, name: str, default: object = MISSING) -> bool:
@@ -380,18 +405,68 @@ def load_design(path: str | Path | None = None) -> Design:
     """Load and validate a design file; ``None`` loads the bundled reference truss."""
     path = Path(path) if path is not None else REFERENCE_DESIGN
     source = str(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as error:
-        raise DesignError("<file>", source, f"cannot read design file ({error.strerror})") from None
-    data, raw = _read_toml(path, source, raw)
+    raw = _read_file(path, "<file>", source, None)
+    data, raw = _read_toml(path, source, raw, [path])
     design = parse_design(data, source=source)
     return dataclasses.replace(design, sha256=hashlib.sha256(raw).hexdigest())
 
 
-def _read_toml(path: Path, source: str, raw: bytes, depth: int = 0) -> tuple[dict[str, Any], bytes]:
+def _read_file(path: Path, key: str, shown: str, source: str | None) -> bytes:
+    """The bytes of a regular file of at most :data:`MAX_FILE_BYTES`.
+
+    Opened without blocking and checked on the open descriptor: a FIFO would block the open
+    and a device (``/dev/zero``) or a huge file would fill the memory before TOML sees it.
+    """
+    what = "base design file" if key == "base" else "design file"
+    try:
+        descriptor = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as error:
+        raise DesignError(key, shown, f"cannot read {what} {path} ({error.strerror})", source) from None
+    try:
+        status = os.fstat(descriptor)
+        if not stat.S_ISREG(status.st_mode):
+            kind = ("a folder" if stat.S_ISDIR(status.st_mode) else "a FIFO" if stat.S_ISFIFO(status.st_mode)
+                    else "a device" if stat.S_ISCHR(status.st_mode) or stat.S_ISBLK(status.st_mode)
+                    else "a socket" if stat.S_ISSOCK(status.st_mode) else "not a regular file")
+            raise DesignError(key, shown, f"{path} is {kind}; a {what} must be a regular file", source)
+        limit = f"a {what} must be a regular file of at most {MAX_FILE_BYTES} bytes (4 MiB)"
+        if status.st_size > MAX_FILE_BYTES:
+            raise DesignError(key, shown, f"{path} has {status.st_size} bytes; {limit}", source)
+        chunks, size = [], 0
+        while size <= MAX_FILE_BYTES:
+            chunk = os.read(descriptor, MAX_FILE_BYTES + 1 - size)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+        raw = b"".join(chunks)
+    except OSError as error:
+        raise DesignError(key, shown, f"cannot read {what} {path} ({error.strerror})", source) from None
+    finally:
+        os.close(descriptor)
+    if len(raw) > MAX_FILE_BYTES:  # it grew after the size check
+        raise DesignError(key, shown, f"{path} has more than {MAX_FILE_BYTES} bytes; {limit}", source)
+    return raw
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _chain_names(chain: list[Path]) -> str:
+    names = [p.name for p in chain]
+    if len(set(names)) < len(set(map(str, chain))):  # file names alone are ambiguous
+        names = [str(p) for p in chain]
+    return " → ".join(names)
+
+
+def _read_toml(path: Path, source: str, raw: bytes, chain: list[Path]) -> tuple[dict[str, Any], bytes]:
     """Parse a design file; ``base = "other.toml"`` (relative to the file) supplies every
-    top-level key the file does not set itself. The hash covers the whole chain of bytes."""
+    top-level key the file does not set itself. The hash covers the whole chain of bytes.
+    ``chain`` lists the files read so far, this one last (for cycles and the depth limit)."""
     try:
         data = tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
@@ -399,16 +474,19 @@ def _read_toml(path: Path, source: str, raw: bytes, depth: int = 0) -> tuple[dic
     if "base" not in data:
         return data, raw
     base = data.pop("base")
-    if not isinstance(base, str):
+    if not isinstance(base, str) or not base:
         raise DesignError("base", base, "expected a path (string) to the design file this one extends", source)
-    if depth >= 4:
-        raise DesignError("base", base, "at most 4 levels of base files", source)
     base_path = (path.parent / base) if not Path(base).is_absolute() else Path(base)
-    try:
-        base_raw = base_path.read_bytes()
-    except OSError as error:
-        raise DesignError("base", base, f"cannot read base design file {base_path} ({error.strerror})", source) from None
-    base_data, base_chain = _read_toml(base_path, str(base_path), base_raw, depth + 1)
+    for earlier in chain:
+        if _same_file(earlier, base_path):
+            cycle = chain[chain.index(earlier):] + [base_path]
+            raise DesignError("base", base, f"{_chain_names(cycle)} is a cycle; a base chain must end in a "
+                              "file without base", source)
+    if len(chain) > MAX_BASE_DEPTH:
+        raise DesignError("base", base, f"{_chain_names(chain + [base_path])}: at most {MAX_BASE_DEPTH} "
+                          "levels of base files", source)
+    base_raw = _read_file(base_path, "base", base, source)
+    base_data, base_chain = _read_toml(base_path, str(base_path), base_raw, chain + [base_path])
     return {**base_data, **data}, base_chain + b"\0" + raw
 
 
@@ -468,7 +546,7 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
         t.finish()
 
     mesh = root.table("mesh", {})
-    default_elements = mesh.integer("tube_elements", 4)
+    default_elements = mesh.integer("tube_elements", 4, maximum=MAX_ELEMENTS)
     mesh.finish()
 
     nodes: dict[str, Node] = {}
@@ -480,7 +558,10 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
         _generate_mast(truss, nodes, members, node_types, sections, connectors, default_elements)
         truss.finish()
 
-    for t in root.tables("nodes"):
+    explicit_nodes = root.tables("nodes")
+    if len(nodes) + len(explicit_nodes) > MAX_NODES:
+        raise root.error("nodes", f"{len(nodes) + len(explicit_nodes)} nodes", f"at most {MAX_NODES} nodes")
+    for t in explicit_nodes:
         node_name = t.string("name")
         if node_name in nodes:
             raise t.error("name", node_name, "duplicate node name")
@@ -490,7 +571,10 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
         nodes[node_name] = Node(node_name, t.vector("position", 3), node_type)
         t.finish()
 
-    for t in root.tables("members"):
+    explicit_members = root.tables("members")
+    if len(members) + len(explicit_members) > MAX_MEMBERS:
+        raise root.error("members", f"{len(members) + len(explicit_members)} members", f"at most {MAX_MEMBERS} members")
+    for t in explicit_members:
         member_name = t.string("name")
         if member_name in members:
             raise t.error("name", member_name, "duplicate member name")
@@ -501,10 +585,15 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
         if connector is not None:
             _reference(t, "connector", connector, connectors, "connector")
         members[member_name] = Member(member_name, start, end, section, connector,
-                                      t.integer("elements", default_elements))
+                                      t.integer("elements", default_elements, maximum=MAX_ELEMENTS))
         t.finish()
     if not members:
         raise root.error("members", [], "the design has no members (give [truss] or [[members]])")
+    joint_entries = root.data.get("joints", [])
+    dofs = estimated_dofs(nodes, members, len(joint_entries) if isinstance(joint_entries, list) else 0)
+    if dofs > MAX_DOFS:
+        raise DesignError("<model>", f"{dofs} DOFs", f"at most {MAX_DOFS} DOFs (6 per node and per inner beam node, "
+                          "1 per joint); use fewer bays, members or [mesh] tube_elements", source)
     _check_member_lengths(members, nodes, node_types, connectors)
 
     point_masses = []
@@ -569,12 +658,20 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
     if "updating" in root.data:
         updating = _parse_updating(root.table("updating"), materials, connectors)
 
-    control = _parse_control(root.table("control", {}), joints)
+    control = _parse_control(root.table("control", {}), joints, dofs)
 
     root.finish()
     return Design(name, description, materials, sections, connectors, node_types, nodes, members,
                   tuple(point_masses), tuple(supports), tuple(joints), tuple(sensors),
                   tuple(disturbances), modal_damping, updating, control, source=source, truss=truss_settings)
+
+
+def estimated_dofs(nodes: dict[str, Node], members: dict[str, Member], joints: int) -> int:
+    """Upper bound of the model's DOF count (before supports), known before anything is built:
+    6 per node centre and per beam node inside a member (tube nodes, connector–tube nodes), one
+    per joint. The seats at the member ends move with their node and have none of their own."""
+    inner = sum(m.elements - 1 + (2 if m.connector else 0) for m in members.values())
+    return 6 * (len(nodes) + inner) + joints
 
 
 def _per_joint(t: _Table, name: str, default, count: int, **checks):
@@ -594,7 +691,7 @@ def _per_joint(t: _Table, name: str, default, count: int, **checks):
     return t.number(name, default, **checks)
 
 
-def _parse_control(t: _Table, joints) -> Control:
+def _parse_control(t: _Table, joints, dofs: int) -> Control:
     names = [j.name for j in joints]
     controlled = None
     if "joints" in t.data:
@@ -614,9 +711,9 @@ def _parse_control(t: _Table, joints) -> Control:
         sample_time=t.number("sample_time", d.sample_time, positive=True),
         normal_force_min=_per_joint(t, "normal_force_min", d.normal_force_min, count, non_negative=True),
         normal_force_max=_per_joint(t, "normal_force_max", d.normal_force_max, count, positive=True),
-        considered_modes=t.integer("considered_modes", d.considered_modes),
-        modes=t.integer("modes", d.modes),
-        krylov=t.integer("krylov", d.krylov, minimum=0),
+        considered_modes=t.integer("considered_modes", d.considered_modes, maximum=MAX_MODES),
+        modes=t.integer("modes", d.modes, maximum=MAX_MODES),
+        krylov=t.integer("krylov", d.krylov, minimum=0, maximum=MAX_KRYLOV),
         state_weight=t.number("state_weight", d.state_weight, positive=True),
         control_weight=t.number("control_weight", d.control_weight, positive=True),
         process_noise=t.number("process_noise", d.process_noise, positive=True),
@@ -628,16 +725,51 @@ def _parse_control(t: _Table, joints) -> Control:
         piezo_preload=t.number("piezo_preload", d.piezo_preload, non_negative=True),
         study_duration=t.number("study_duration", d.study_duration, positive=True),
     )
+    _check_control_limits(t, control, count, dofs)
+    t.finish()
+    return control
+
+
+def _check_control_limits(t: _Table, control: Control, count: int, dofs: int) -> None:
+    """Ranges of [control] that single keys cannot express: sizes the study allocates or runs
+    through, and the normal forces a piezo joint can set (F_N = force_per_volt·V + preload)."""
+    if control.sample_time < MIN_SAMPLE_TIME:
+        raise t.error("sample_time", control.sample_time, f"must be >= {MIN_SAMPLE_TIME:g} s (the firmware counts "
+                      "its cycle in whole microseconds)")
+    if control.study_duration > MAX_STUDY_DURATION:
+        raise t.error("study_duration", control.study_duration, f"must be 0 < t_e <= {MAX_STUDY_DURATION:g} s")
+    steps = control.study_duration / control.sample_time
+    if steps > MAX_CONTROLLER_STEPS:
+        raise t.error("study_duration", control.study_duration,
+                      f"at most {MAX_CONTROLLER_STEPS} controller steps: t_e <= {MAX_CONTROLLER_STEPS:g} × "
+                      f"sample_time = {MAX_CONTROLLER_STEPS * control.sample_time:g} s")
+    lanczos_modes = MAX_LANCZOS_BYTES // (16 * max(dofs, 1))
+    if min(control.considered_modes, dofs) > lanczos_modes:
+        raise t.error("considered_modes", control.considered_modes,
+                      f"with about {dofs} DOFs at most {lanczos_modes} (the Lanczos basis of 2 × considered_modes "
+                      f"vectors must stay under {MAX_LANCZOS_BYTES // 1024**3} GiB)")
+    if control.modes > control.considered_modes:
+        raise t.error("modes", control.modes, f"must be <= considered_modes ({control.considered_modes})")
+    # A number applies to every joint and is checked even when the design has none yet.
+    count = count or int(not isinstance(control.normal_force_min, tuple)
+                         and not isinstance(control.normal_force_max, tuple))
     low = np.broadcast_to(np.asarray(control.normal_force_min, dtype=float), (count,))
     high = np.broadcast_to(np.asarray(control.normal_force_max, dtype=float), (count,))
     for i in range(count):
+        joint = f" (entry {i})" if isinstance(control.normal_force_max, tuple) else ""
+        if high[i] > MAX_NORMAL_FORCE:
+            raise t.error("normal_force_max", float(high[i]),
+                          f"must be 0 < F_N^max <= {MAX_NORMAL_FORCE:g} N{joint}: more than the largest piezo "
+                          "stacks push and the joint bolt holds")
+    for i in range(count):
+        joint = f" (entry {i})" if isinstance(control.normal_force_min, tuple) or isinstance(control.normal_force_max, tuple) else ""
         if low[i] > high[i]:
-            raise t.error("normal_force_min", control.normal_force_min,
-                          f"F_N^min must not exceed F_N^max ({high[i]:g} N){f' (joint {i})' if count > 1 else ''}")
-    if control.modes > control.considered_modes:
-        raise t.error("modes", control.modes, f"must be <= considered_modes ({control.considered_modes})")
-    t.finish()
-    return control
+            raise t.error("normal_force_min", float(low[i]),
+                          f"must be 0 <= F_N^min <= F_N^max = {high[i]:g} N{joint}")
+    if count and control.piezo_preload > float(low.min()):
+        raise t.error("piezo_preload", control.piezo_preload,
+                      f"must be 0 <= preload <= F_N^min = {float(low.min()):g} N (at 0 V the stack "
+                      "already presses with the preload, so no setting could reach F_N^min)")
 
 
 def _unique(names: list[str], table: str, source: str) -> None:
@@ -714,7 +846,7 @@ def _parse_updating(t: _Table, materials, connectors) -> Updating:
             raise t.error(f"parameters[{i}]", key, f"no {table[:-1]} named {name!r}")
     measured = []
     for m in t.tables("measured"):
-        measured.append(MeasuredMode(m.integer("mode"), m.number("frequency_hz", positive=True),
+        measured.append(MeasuredMode(m.integer("mode", maximum=MAX_MODES), m.number("frequency_hz", positive=True),
                                      m.number("mac", None) if m.data.get("mac") is not None else None))
         m.finish()
     if len(measured) < 1:
@@ -736,7 +868,7 @@ def _generate_mast(t: _Table, nodes, members, node_types, sections, connectors, 
     optional frame diagonals F<i>, and a centre node TIP in the last frame tied to the four
     corners (``tip_node = "cross"``) or splitting that frame's diagonal (``"diagonal"``) by T<c>.
     """
-    bays = t.integer("bays")
+    bays = t.integer("bays", maximum=MAX_BAYS)
     bay_length = t.number("bay_length", positive=True)
     width = t.number("width", positive=True)
     pattern = t.string("diagonals", "alternating", choices=DIAGONAL_PATTERNS)
@@ -749,7 +881,16 @@ def _generate_mast(t: _Table, nodes, members, node_types, sections, connectors, 
     connector = t.string("connector", None)
     if connector is not None:
         _reference(t, "connector", connector, connectors, "connector")
-    elements = t.integer("tube_elements", default_elements)
+    elements = t.integer("tube_elements", default_elements, maximum=MAX_ELEMENTS)
+    # The mast's size before any of it is made (the same count as estimated_dofs).
+    tip_spokes = {"none": 0, "cross": 4, "diagonal": 2}[tip_node]
+    generated_nodes = 4 * (bays + 1) + (tip_node != "none")
+    generated_members = 12 * bays + 4 * root_battens + tip_spokes + (
+        bays - (tip_node == "diagonal") if frame_diagonals else 0)
+    dofs = 6 * (generated_nodes + generated_members * (elements - 1 + (2 if connector else 0)))
+    if dofs > MAX_DOFS:
+        raise t.error("bays", bays, f"the mast would have {dofs} DOFs ({generated_nodes} nodes, {generated_members} "
+                      f"members of {elements} tube elements); at most {MAX_DOFS}: fewer bays or tube_elements")
 
     corners = [(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)]
     for i in range(bays + 1):
