@@ -74,24 +74,29 @@ def check_prefix(prefix) -> None:
                          "(firmware/runtime/sj_e2e.h); choose another prefix")
 
 
-def check_names(joint_names: Iterable[str], sensor_names: Iterable[str], members: Iterable[str] = ()) -> None:
+ARTIFACT_FIELDS = ("joint_names[{}]", "sensor_names[{}]")
+DESIGN_FIELDS = ("joints[{}].name", "sensors[{}].name")  # the design file's keys, checked before any work
+
+
+def check_names(joint_names: Iterable[str], sensor_names: Iterable[str], members: Iterable[str] = (),
+                fields: tuple[str, str] = ARTIFACT_FIELDS) -> None:
     """Joint and sensor names of an artefact (fields ``joint_names[i]``, ``sensor_names[i]``).
 
     ``members`` are the other members of the sensor frame's struct (the E2E ``crc`` and
-    ``counter``), which a sensor member must not repeat.
+    ``counter``), which a sensor member must not repeat. ``fields``: how errors name the i-th
+    joint and sensor (``DESIGN_FIELDS`` for a design file).
     """
     members = tuple(members)
-    for kind, names in (("joint", tuple(joint_names)), ("sensor", tuple(sensor_names))):
-        field = f"{kind}_names"
+    for kind, names, template in (("joint", tuple(joint_names), fields[0]), ("sensor", tuple(sensor_names), fields[1])):
         seen: dict[str, int] = {}
         for i, name in enumerate(names):
-            where = f"{field}[{i}]"
+            where = template.format(i)
             if not (isinstance(name, str) and NAME.match(name) and len(name) <= NAME_LENGTH):
                 raise ModelError(f"{where}: {name!r} — a {kind} name becomes part of C identifiers: {NAME_RULE}; "
                                  f"rename {kind} {name!r} in the design file")
             key = name.upper()
             if key in seen:
-                raise ModelError(f"{where}: {name!r} — equal to {field}[{seen[key]}] {names[seen[key]]!r} but for "
+                raise ModelError(f"{where}: {name!r} — equal to {template.format(seen[key])} {names[seen[key]]!r} but for "
                                  f"case; the generated macros upper-case names, so they must differ in more than case")
             seen[key] = i
             if kind == "sensor":

@@ -43,12 +43,15 @@ def _model(args, *, joints: str = "locked"):
     return build_model(design, joints=joints), result
 
 
-def _updated(args):
+def _updated(args, *, firmware_names: bool = False):
     """The design, updated to its EMA unless --no-update, and the updating result (or None).
-    The updated parameters also hold for a design that adds joints to an updated base."""
+    The updated parameters also hold for a design that adds joints to an updated base.
+    ``firmware_names``: refuse, before any work, joint and sensor names the firmware cannot carry."""
     from .design import load_design, updated_design
 
     design = load_design(args.design)
+    if firmware_names:
+        check_firmware_names(design)
     if design.updating is None or getattr(args, "no_update", False):
         return design, None
     _progress(f"updating {len(design.updating.parameters)} parameters to {len(design.updating.measured)} measured modes …")
@@ -291,14 +294,24 @@ def cmd_simulate(args) -> dict:
     return out
 
 
-def _control_design(args):
+def check_firmware_names(design) -> None:
+    """Joint and sensor names of ``design`` that the generated C and the CAN layer cannot carry
+    (C keywords, reserved names, the E2E signals) — one line naming ``sensors[i].name``."""
+    from .bench import protocol
+    from .codegen import identifiers
+
+    identifiers.check_names([j.name for j in design.joints], [s.name for s in design.sensors],
+                            members=protocol.E2E_SIGNALS, fields=identifiers.DESIGN_FIELDS)
+
+
+def _control_design(args, *, firmware_names: bool = False):
     """The (updated) design the controllers are built for: the given one, or for the bundled
     reference truss (no joints) the paper's three type A joint design of Fig. 11."""
     from .design import load_design, spec
 
     if args.design is None:
         args.design = str(spec.REFERENCE_DESIGN.parent / "three_type_a.toml")
-    design, _ = _updated(args)
+    design, _ = _updated(args, firmware_names=firmware_names)
     if args.duration is not None:
         import dataclasses
 
@@ -328,7 +341,7 @@ def cmd_design(args) -> dict:
     from .design import artifact
     from .design import study as closed_loop
 
-    design = _control_design(args)
+    design = _control_design(args, firmware_names=True)
     Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # fail early, not after the optimisation
     model = closed_loop.design_model(design, _progress)
     s = closed_loop.setup(design, model)
@@ -468,7 +481,7 @@ def cmd_sil(args) -> dict:
     from .bench import logs, sil
     from .design import study as closed_loop
 
-    design = _control_design(args)
+    design = _control_design(args, firmware_names=True)
     model = closed_loop.design_model(design, _progress)
     controller = _controller_artifact(args, design, model)
     faults = [logs.parse_fault(text) for text in args.fault or []]

@@ -29,7 +29,7 @@ import numpy as np
 from . import __version__
 from . import report as plots
 from .bench import busload, protocol, sil
-from .codegen import backtoback, can_layer, generate
+from .codegen import backtoback, can_layer, generate, identifiers
 from .control_study import control_markdown, plot_control_study
 from .design import artifact, build_model, load_design, lugre, rig, solve_modes, updated_design
 from .design import study as closed_loop
@@ -87,6 +87,9 @@ def _stages(design_path: str | None, staging: Path, progress):
     """Stages 1–9 into the folder ``staging``: the summary (without the run's id and times) and a
     function of the final summary that gives report.md."""
     design = load_design(design_path)
+    # Stage 7 generates C from these names: refuse them now, not after minutes of work.
+    identifiers.check_names([j.name for j in design.joints], [s.name for s in design.sensors],
+                            members=protocol.E2E_SIGNALS, fields=identifiers.DESIGN_FIELDS)
     progress(f"[1/9] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
              f"{len(design.members)} members, {len(design.joints)} joints")
     model = build_model(design, joints="locked")

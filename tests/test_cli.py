@@ -99,3 +99,23 @@ def test_the_console_script_runs_the_command_line():
 
     (script,) = [e for e in entry_points(group="console_scripts") if e.name == "smartjoint"]
     assert script.value == "smartjoint.console:main"
+
+
+@pytest.mark.parametrize("name", ["double", "counter", "_Tip"])
+@pytest.mark.parametrize("command", [["run", "-o", "report"], ["design", "-o", "controller.json"]])
+def test_a_sensor_name_the_firmware_cannot_carry_is_refused_before_any_work(tmp_path, name, command):
+    """'double' is a C keyword, 'counter' an E2E signal of the sensor frame, '_Tip' a reserved
+    identifier: refused at once with the design file's key, and nothing is written."""
+    from conftest import small_truss
+    import tomli_w
+
+    data = small_truss()
+    data["sensors"][0]["name"] = name
+    design = tmp_path / "small.toml"
+    design.write_text(tomli_w.dumps(data))
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", command[0], str(design), *command[1:]],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=60)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"sensors[0].name: {name!r}" in lines[0], lines
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.toml"]
