@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pytest
 
+from smartjoint.bench import sil
 from smartjoint.design import artifact, parse_design, study
 from smartjoint.design.errors import ModelError
 
@@ -29,6 +30,7 @@ def small_study():
     return design, study.run_study(design, progress=lambda message: None)
 
 
+@pytest.mark.numerics
 def test_the_study_is_bit_identical_when_repeated(small_study):
     design, first = small_study
     again = study.run_study(design, progress=lambda message: None)
@@ -38,6 +40,7 @@ def test_the_study_is_bit_identical_when_repeated(small_study):
     assert json.dumps(study.summary(first)) == json.dumps(study.summary(again))
 
 
+@pytest.mark.numerics
 def test_metrics_follow_their_definitions(small_study):
     design, result = small_study
     s = result.setup
@@ -64,6 +67,7 @@ def test_metrics_follow_their_definitions(small_study):
         assert np.all(force[result.run(name).time < study.PULSE_DURATION - 1e-12] == s.normal_force_max)
 
 
+@pytest.mark.numerics
 def test_piezo_power_counts_charging_only():
     s = dataclasses.replace(study.setup(_small(siso_boundary_layer=1e-4), study.design_model(
         _small(siso_boundary_layer=1e-4), lambda m: None)), duration=1.0)
@@ -75,16 +79,36 @@ def test_piezo_power_counts_charging_only():
     assert study._piezo_power(s, forces) == pytest.approx(expected, rel=1e-12)
 
 
+@pytest.mark.numerics
 def test_boundary_layer_optimum_beats_its_neighbours():
     design = _small(duration=0.3)
     model = study.design_model(design, lambda m: None)
     s = study.setup(design, model)
     messages = []
-    found = study.optimise_boundary_layer(s, messages.append, grid=(1e-5, 1e-4, 1e-3, 1e-2))
+    grid = (1e-5, 1e-4, 1e-3, 1e-2)
+    found = study.optimise_boundary_layer(s, messages.append, grid=grid)
     values = dict(found.evaluations)
-    assert found.energy_measure == min(values.values())
-    assert found.energy_measure <= found.tenth and found.energy_measure <= found.tenfold
     assert len(messages) == len(values)
+    # The optimum is exactly the best point of the search (grid and bounded Brent); the checks at
+    # ε/10 and 10ε come after it unless they are grid points.
+    checks = [found.boundary_layer / 10.0, found.boundary_layer * 10.0]
+
+    def near(width, others):
+        return any(abs(width / other - 1.0) < 1e-9 for other in others)
+
+    searched = [value for width, value in values.items() if not near(width, checks) or near(width, grid)]
+    assert found.energy_measure == min(searched)
+    # A decade either side is not better beyond the loop's own sensitivity. E(ε) is a rough
+    # function (stick–slip events shift with ε) and the loop is chaotic: 6e-8 perturbations of the
+    # commands move E(t_e) by ~1e-3 here while ε/10 and 10ε can lie within 1e-4 of the optimum, so
+    # which one wins bit for bit depends on the machine. The band is measured here, as in
+    # tests/test_codegen.py::test_study_back_to_back, with the same margin.
+    spread = [study.run_semi_active(s, "SISO", sil.perturbed(study.siso(s, found.boundary_layer), 6e-8, seed))
+              .energy_measure() / found.energy_measure - 1.0 for seed in range(4)]
+    band = 2.0 * max(abs(d) for d in spread)
+    assert 0.0 < band < 0.01, spread  # a measured sensitivity, small against the scan's range
+    assert found.energy_measure <= min(found.tenth, found.tenfold) * (1.0 + band), (found, spread)
+    assert max(values.values()) > found.energy_measure * (1.0 + 5.0 * band)  # ε matters beyond the band
 
 
 def test_the_controllers_need_every_joint_in_design_order():
@@ -109,6 +133,7 @@ def bundled(three_type_a):
     return study.run_study(design, model, progress=lambda message: None)
 
 
+@pytest.mark.numerics
 def test_the_papers_orderings_hold_on_the_bundled_truss(bundled):
     m = {r.name: r.metrics for r in bundled.runs}
     passive = min(m["passive F_min"]["energy_end"], m["passive F_max"]["energy_end"])
@@ -121,6 +146,7 @@ def test_the_papers_orderings_hold_on_the_bundled_truss(bundled):
     assert bundled.stability_margin > 0
 
 
+@pytest.mark.numerics
 def test_the_optimised_boundary_layer_beats_a_decade_either_side(bundled):
     o = bundled.optimum
     assert o is not None
