@@ -9,6 +9,8 @@ import pytest
 from smartjoint.design import fem, modal, placement, spec
 from smartjoint.design.errors import ModelError
 
+pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
+
 
 
 @pytest.fixture(scope="module")
