@@ -57,8 +57,8 @@ def connector_energy(fe, modes, targets) -> list[Candidate]:
 TIE_TOLERANCE = 1e-8
 """Relative score difference below which two connectors are tied. Symmetric positions (the two
 longerons of one bending plane) score equal up to rounding, and rounding differs per machine:
-the eigen solutions of the degenerate bending pair leave ~1e-11 relative between mirror images
-on one CPU or BLAS kernel and the opposite sign on another. Distinct positions of the bundled
+the eigen solution leaves ~1e-11 relative between mirror images (up to 2e-11 measured over
+OpenBLAS kernels), with one sign on one CPU and the opposite sign on another. Distinct positions of the bundled
 truss differ by 3.6e-5 relative or more, so 1e-8 separates the two by three orders either side."""
 
 
