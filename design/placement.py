@@ -54,9 +54,35 @@ def connector_energy(fe, modes, targets) -> list[Candidate]:
     return candidates
 
 
+TIE_TOLERANCE = 1e-8
+"""Relative score difference below which two connectors are tied. Symmetric positions (the two
+longerons of one bending plane) score equal up to rounding, and rounding differs per machine:
+the eigen solution leaves ~1e-11 relative between mirror images (up to 2e-11 measured over
+OpenBLAS kernels), with one sign on one CPU and the opposite sign on another. Distinct positions of the bundled
+truss differ by 3.6e-5 relative or more, so 1e-8 separates the two by three orders either side."""
+
+
+def tied(first: float, second: float) -> bool:
+    """Whether two scores are equal within :data:`TIE_TOLERANCE` (relative to the larger)."""
+    return abs(first - second) <= TIE_TOLERANCE * max(abs(first), abs(second))
+
+
 def rank(candidates: list[Candidate]) -> list[Candidate]:
-    """Best first; ties (symmetric positions) in member/end order, so the choice is reproducible."""
-    return sorted(candidates, key=lambda c: (-round(c.score, 12), c.member, c.end))
+    """Best first, with a tie rule that makes the choice the same on every machine.
+
+    The candidates are sorted by score; consecutive scores that are :func:`tied` form one group
+    (a chain, so a group can be wider than the tolerance only if the scores are that dense);
+    the groups stay in score order and inside a group the candidates go in (member, end)
+    order — never by the last bits of their scores.
+    """
+    by_score = sorted(candidates, key=lambda c: (-c.score, c.member, c.end))
+    groups: list[list[Candidate]] = []
+    for candidate in by_score:
+        if groups and tied(groups[-1][-1].score, candidate.score):
+            groups[-1].append(candidate)
+        else:
+            groups.append([candidate])
+    return [c for group in groups for c in sorted(group, key=lambda c: (c.member, c.end))]
 
 
 def choose(candidates: list[Candidate], count: int) -> list[Candidate]:

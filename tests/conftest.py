@@ -1,10 +1,45 @@
-"""Shared helpers: small design dictionaries built in code (validated by parse_design)."""
+"""Shared helpers: small design dictionaries built in code (validated by parse_design), and the
+portability leg's ``--perturb-inputs`` option (see tests/perturbation/sitecustomize.py)."""
 
 from __future__ import annotations
 
 import copy
+import importlib.util
+import math
+import os
+from pathlib import Path
 
 import pytest
+
+PERTURBATION = Path(__file__).with_name("perturbation")
+
+
+def pytest_addoption(parser):
+    parser.addoption("--perturb-inputs", type=float, default=0.0, metavar="RELATIVE",
+                     help="multiply the model's physical inputs (designs, Table 1) by 1 + RELATIVE·r, r in [-1, 1] "
+                          "fixed per input, in this process and its Python subprocesses: another machine's last bits "
+                          "(the portability leg, .ci/portability, uses 1e-12 on the tests marked 'numerics')")
+
+
+def pytest_configure(config):
+    relative = config.getoption("perturb_inputs")
+    if relative == 0.0:
+        return
+    if not (math.isfinite(relative) and 0.0 < relative <= 1e-6):
+        raise pytest.UsageError(f"--perturb-inputs: {relative!r} — must be a relative size in (0, 1e-6]")
+    # Before the test modules are imported, so that names they import are the perturbed ones.
+    module_spec = importlib.util.spec_from_file_location("smartjoint_test_perturbation", PERTURBATION / "sitecustomize.py")
+    module = importlib.util.module_from_spec(module_spec)
+    module_spec.loader.exec_module(module)
+    module.install(relative)
+    os.environ[module.VARIABLE] = repr(relative)
+    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PERTURBATION), os.environ.get("PYTHONPATH")]))
+
+
+def pytest_report_header(config):
+    relative = config.getoption("perturb_inputs")
+    if relative:
+        return f"model inputs perturbed by up to {relative:g} relative (--perturb-inputs)"
 
 ALUMINIUM = {"youngs_modulus": 70.0e9, "shear_modulus": 26.0e9, "density": 2700.0}
 TUBE = {"material": "aluminium", "outer_diameter": 0.022, "wall_thickness": 0.0015}

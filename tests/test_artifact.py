@@ -51,6 +51,7 @@ def test_round_trip_is_exact_and_the_text_canonical(setup, tmp_path):
     assert loaded != dataclasses.replace(built, clqg_boundary_layer=6.0)
 
 
+@pytest.mark.numerics
 def test_rebuilt_controllers_match_the_originals_bit_for_bit(setup, tmp_path):
     design, _, lqg, built = setup
     loaded = artifact.load(artifact.save(built, tmp_path / "c.json"))

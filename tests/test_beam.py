@@ -10,6 +10,8 @@ from smartjoint.design.modal import eigensolve
 
 from conftest import ALUMINIUM, TUBE, beam_design
 
+pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
+
 BETA_L = np.array([1.875104, 4.694091, 7.854757])
 
 

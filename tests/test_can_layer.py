@@ -156,6 +156,7 @@ def test_every_injected_fault_reaches_the_safe_state_within_three_cycles_and_rec
     assert result.energy[after].max() <= result.energy.max() and np.all(np.isfinite(result.energy))
 
 
+@pytest.mark.numerics
 def test_sil_matches_the_model_in_the_loop_study(bench, tmp_path):
     """Without faults: zero E2E errors and timeouts, the planned bus load, and E(t_e) of the SIL
     within 1 % of the MIL study beyond the MIL's own spread under float-rounding perturbations

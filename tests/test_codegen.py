@@ -14,12 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from smartjoint.bench import sil
 from smartjoint.codegen import build, generate
 from smartjoint.design import artifact, control, load_design, simulate, spec, study
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated"
 FLOAT_BOUND = 1e-3  # documented: |ΔF_N| of the float build ≤ 1e-3·(F^max − F^min) per sample
+SPREAD_RUNS = 8  # reference runs with perturbed commands that measure the chaotic loop's band
+SPREAD_MARGIN = 2.0  # the float build in the loop within twice the band's largest deviation
 
 
 @pytest.fixture(scope="module")
@@ -66,6 +69,7 @@ def _check_pair(reference_controller, compiled, sequence, exact):
     return worst
 
 
+@pytest.mark.numerics
 def test_double_build_is_bit_identical_to_the_python_reference(reference, builds):
     c = builds["double"]
     sequence = _sequence(reference)
@@ -73,6 +77,7 @@ def test_double_build_is_bit_identical_to_the_python_reference(reference, builds
     assert _check_pair(artifact.clipped_lqg(reference), c.clipped_lqg(), sequence, exact=True) == 0.0
 
 
+@pytest.mark.numerics
 def test_float_build_stays_within_its_documented_bound(reference, builds):
     """Float build (docs/codegen.md): SISO |ΔF_N| ≤ 1e-4·(F^max − F^min); cLQG |Δu_d| ≤
     2e-5·max|u_d| over the run, hence |ΔF_N| ≤ (F^max − F^min)/ε · 2e-5·max|u_d| (the
@@ -122,10 +127,24 @@ def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
     assert control.STATUS_ESTIMATE_RESET in statuses
 
 
+@pytest.mark.numerics
 def test_study_back_to_back(reference, builds, three_type_a):
     """On the paper's study: the C controllers see the inputs the Python reference saw (replay)
-    — double bit-identical, float within its bound; in the loop, the float build gives the
-    same E(t_e) within 1 %."""
+    — double bit-identical, float within its bound; in the loop, the double build reproduces the
+    reference bit for bit and the float build lands within the loop's own sensitivity band.
+
+    Why the in-loop assertion holds on every machine: the stick–slip loop is chaotic, so E(t_e)
+    of one trajectory moves by percents with the last bits of any input (on this machine the
+    reference moves by −5 … +2 % (cLQG) and by either ~0 % or +7 … +13 % (SISO, two outcomes)
+    under 6e-8 relative perturbations of its commands, the size of float rounding). The band is
+    measured here, on this machine's numerics, with ``SPREAD_RUNS`` such perturbed runs as the
+    SIL stage does (bench/sil.py); the float build is one more member of that ensemble, so it is
+    asserted within ``SPREAD_MARGIN`` times the ensemble's largest deviation. The margin covers
+    that a new member can fall outside the range of SPREAD_RUNS others (probability 2/(n + 1));
+    to exceed twice the range's largest magnitude it would need all perturbed SISO runs to take
+    the other outcome (about 2^-9) or a cLQG deviation beyond twice the largest of eight. The
+    double build and the replays are not chaotic comparisons — same inputs, same operations —
+    so they stay exact."""
     design, model = three_type_a
     s = study.setup(design, model)
 
@@ -151,9 +170,14 @@ def test_study_back_to_back(reference, builds, three_type_a):
             law.reset()
             worst = max(float(np.max(np.abs(law.step(m) - out))) for m, out in recorder.log)
             assert worst <= bound, (name, real, worst)
-        in_loop = study.run_semi_active(s, name, builds["float"].__getattribute__(compiled)())
-        assert abs(in_loop.energy_measure() / run.energy_measure() - 1) < 0.01, name
-        twin = study.run_semi_active(s, name, builds["double"].__getattribute__(compiled)())
+        in_loop = study.run_semi_active(s, name, getattr(builds["float"], compiled)())
+        deviation = in_loop.energy_measure() / run.energy_measure() - 1.0
+        spread = [study.run_semi_active(s, name, sil.perturbed(python(reference), 6e-8, seed)).energy_measure()
+                  / run.energy_measure() - 1.0 for seed in range(SPREAD_RUNS)]
+        band = SPREAD_MARGIN * max(abs(d) for d in spread)
+        assert 0.0 < band < 0.5, (name, spread)  # a measured sensitivity, not a licence for any result
+        assert abs(deviation) <= band, (name, deviation, spread)
+        twin = study.run_semi_active(s, name, getattr(builds["double"], compiled)())
         assert twin.energy.tobytes() == run.energy.tobytes(), name
 
 

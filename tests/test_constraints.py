@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import scipy.sparse as sp
 
 from smartjoint.design import beam, build_model, parse_design
 from smartjoint.design.modal import eigensolve
 
 from conftest import ALUMINIUM, TUBE, small_truss
+
+pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
 
 ARMS = [[1.0, 0.0, 0.0], [0.0, 1.2, 0.0], [0.3, 0.4, 0.9]]
 

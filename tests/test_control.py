@@ -12,6 +12,8 @@ from smartjoint.design.errors import DesignError, ModelError
 from smartjoint.design.fem import build_model
 from smartjoint.design.spec import parse_design
 
+pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
+
 
 @pytest.fixture(scope="module")
 def model():

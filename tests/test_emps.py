@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
+
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "emps_lugre.py"
 spec = importlib.util.spec_from_file_location("emps_lugre", EXAMPLE)
 emps = importlib.util.module_from_spec(spec)

@@ -13,6 +13,7 @@ from smartjoint.design import lugre, rig
 from smartjoint.design.identify import classify, model_friction, nrmse
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("joint_type, inertia", [("A", 1.0), ("B", 2e-3)])
 def test_true_parameters_reproduce_noise_free_records(joint_type, inertia):
     p = lugre.TABLE_1[joint_type]
@@ -29,6 +30,7 @@ def test_true_parameters_reproduce_noise_free_records(joint_type, inertia):
     assert nrmse(stick.friction_force, model_friction(wrong, stick, stick.sliding_velocity)) > 0.03
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("joint_type", ["A", "B"])
 def test_rig_kernel_matches_the_python_reference(joint_type):
     """rig_kernel.c mirrors rig._integrate_python: both regimes, a varying F_N, uneven samples."""
@@ -106,6 +108,7 @@ def test_identification_recovers_table_1_from_noisy_rig_records(joint_type):
     assert max(result.refined.nrmse.values()) < 0.012
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("joint_type", ["A", "B"])
 def test_output_error_model_reproduces_a_noise_free_stick_slip_record(joint_type):
     """shoot(): segments from the velocity peaks, low-passed force, same integrator as the rig."""

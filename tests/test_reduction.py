@@ -10,6 +10,8 @@ from smartjoint.design import modal, reduction
 from smartjoint.design.fem import build_model
 from smartjoint.design.spec import parse_design
 
+pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
+
 
 @pytest.fixture(scope="module")
 def small():

@@ -24,6 +24,7 @@ def model():
 JOINTS = [lugre.TYPE_A, lugre.TYPE_B]
 
 
+@pytest.mark.numerics
 def test_free_decay_is_exact_for_any_step(model):
     """F_N = 0: each mode decays as the analytic damped oscillator, whatever the step."""
     x0 = np.zeros((model.n_coordinates, 2))
@@ -46,6 +47,7 @@ def _velocity(w, xi, t):
     return -(w / wd) * np.exp(-xi * w * t) * np.sin(wd * t)
 
 
+@pytest.mark.numerics
 def test_energy_balance_and_dissipation(model):
     """e(t) − e(0) = W_in − W_joints − W_damping to round-off at any step; the joints dissipate net."""
     pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
@@ -114,6 +116,7 @@ class _Switching:
         return self.maximum * (self.rng.random(self.count) < 0.5) * self.rng.random(self.count)
 
 
+@pytest.mark.numerics
 def test_c_kernel_matches_numpy_mirror_with_switching_forces(model):
     """plant_kernel.c and its numpy mirror take the same steps (halvings included) to round-off."""
     pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
@@ -125,6 +128,7 @@ def test_c_kernel_matches_numpy_mirror_with_switching_forces(model):
         assert np.max(np.abs(a - b)) <= 1e-9 * np.max(np.abs(a)), name
 
 
+@pytest.mark.numerics
 def test_energy_balance_with_switching_normal_forces(model):
     """e(t) − e(0) = W_in − W_joints − W_damping while F_N jumps every millisecond in [0, 800 N]
     (issue 4: 1e-3 of the input work). The three works are integrated exactly per step,
@@ -175,6 +179,7 @@ def test_energy_books_can_be_left_out(model):
         simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books="yes")
 
 
+@pytest.mark.numerics
 def test_stable_at_the_controller_sample_time_for_any_normal_force(model):
     """Plant step = controller sample time (1 ms) with F_N jumping anywhere in [0, 800 N]: no
     blow-up — the energy never exceeds what the pulse put in, and the joints never feed energy."""

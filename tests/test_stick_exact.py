@@ -71,6 +71,7 @@ class _Switching:
         return np.where(self.rng.random(self.count) < 0.5, 10.0, 400.0)
 
 
+@pytest.mark.numerics
 def test_c_kernel_matches_numpy_mirror(model, monkeypatch):
     """sj_stick_run and its numpy mirror take the same steps of each length and agree to round-off,
     with the pulse and with normal forces switching every sample (a discretisation per combination)."""
