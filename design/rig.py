@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import tomllib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
