@@ -139,7 +139,7 @@ static void check_codec(const codec *c, fuzz_reader *reader)
             fuzz_fail("can_codec", "%s.%s: %.17g packs to a non-finite value", message->name, signal->name, values[k]);
         }
         if (isfinite(values[k]) && within_range(signal, values[k]) && values[k] >= lowest && values[k] <= highest &&
-            !(fabs(again[k] - values[k]) <= 0.5 * signal->scale * (1.0 + 1e-9))) {
+            !fuzz_within_half_step(again[k], values[k], signal)) {
             fuzz_fail("can_codec", "%s.%s: %.17g comes back as %.17g (scale %g)", message->name, signal->name,
                       values[k], again[k], signal->scale);
         }

@@ -114,7 +114,7 @@ static void check_setpoint(const bench *b, unsigned int joint, const uint8_t *fr
     const double sent = field_value(message, "voltage", frame);
     double expected = (b->can.command[joint] - fuzz_preload) / fuzz_force_per_volt;
     expected = expected < voltage->minimum ? voltage->minimum : (expected > voltage->maximum ? voltage->maximum : expected);
-    if (!(fabs(sent - expected) <= 0.5 * voltage->scale * (1.0 + 1e-9))) {
+    if (!fuzz_within_half_step(sent, expected, voltage)) {
         fuzz_fail("can_layer", "setpoint of joint %u: %.9g V sent for a command of %.9g N", joint, sent,
                   b->can.command[joint]);
     }

@@ -184,3 +184,10 @@ void fuzz_fail(const char *harness, const char *format, ...)
     fprintf(stderr, "\n");
     abort();
 }
+
+int fuzz_within_half_step(double decoded, double value, const fuzz_signal *signal)
+{
+    const double magnitude = fabs(decoded) > fabs(value) ? fabs(decoded) : fabs(value);
+    const double slack = 8.0 * DBL_EPSILON * (magnitude + fabs(signal->offset));
+    return fabs(decoded - value) <= 0.5 * signal->scale + slack;
+}

@@ -58,6 +58,10 @@ double fuzz_reference_decode(uint64_t raw, const fuzz_signal *signal);
  * (value - offset) / scale, NaN as 0, kept within the field; the raw bits of the field. */
 uint64_t fuzz_reference_encode(double value, const fuzz_signal *signal);
 double fuzz_raw_minimum(const fuzz_signal *signal);
+/* Whether DECODED is VALUE quantised by SIGNAL: within half a scale step, plus the few ulps by
+ * which raw * scale + offset misses the exact grid point in double (a value exactly halfway
+ * between two raw steps decodes to either neighbour, a hair more than half a step away). */
+int fuzz_within_half_step(double decoded, double value, const fuzz_signal *signal);
 double fuzz_raw_maximum(const fuzz_signal *signal);
 
 /* Reports a finding of HARNESS and aborts (libFuzzer keeps the input as a crash file). */
