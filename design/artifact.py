@@ -6,7 +6,7 @@ file, its SHA-256, package version). The C generator reads only this file, and
 ``siso_law``/``clipped_lqg``/``active_lqg`` rebuild the Python reference controllers from it
 alone, so firmware and reference are checked against the same numbers.
 
-Schema (``schema_version`` 1, documented in ``docs/controller-artifact.md``): a flat JSON
+Schema (``schema_version`` 2, documented in ``docs/controller-artifact.md``): a flat JSON
 object whose keys are the fields of :data:`SCHEMA`, SI units. Sizes: l controlled joints
 (``joint_names``: the column order of E and K and the order of every per-joint vector),
 n_y sensors (``sensor_names``: the rows of C), n retained coordinates, state
@@ -35,7 +35,7 @@ import numpy as np
 from .control import ActiveLqg, ClippedLqg, LqgDesign, SisoLaw
 from .errors import ModelError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: the safe state and the plausibility ranges (docs/safety.md)
 # Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo
 # stacks block at ~100 kN; 1 MN is a typing error (an exponent too many), not a design.
 NORMAL_FORCE_LIMIT = 1e6  # N
@@ -46,7 +46,7 @@ class FieldSpec:
     """One key of the artefact: its kind, shape (symbols n, 2n, l, n_y), unit and meaning."""
 
     name: str
-    kind: str  # "integer" | "string" | "names" | "number" | "array"
+    kind: str  # "integer" | "string" | "names" (unique) | "strings" | "number" | "array"
     shape: tuple = ()
     unit: str = ""
     meaning: str = ""
@@ -73,6 +73,19 @@ SCHEMA: tuple[FieldSpec, ...] = (
     FieldSpec("piezo_capacitance", "number", unit="F", meaning="capacitance of one piezo stack"),
     FieldSpec("piezo_force_per_volt", "number", unit="N/V", meaning="F_N = force_per_volt·V + preload"),
     FieldSpec("piezo_preload", "number", unit="N", meaning="normal force at 0 V (>= 0, <= F_N^min)"),
+    FieldSpec("sensor_quantities", "strings", ("ny",), meaning="per sensor: displacement (m) or velocity (m/s)"),
+    FieldSpec("safe_normal_force", "array", ("l",), "N", "F_N of every joint while the controller cannot act "
+              "(within [F_N^min, F_N^max]; docs/safety.md)"),
+    FieldSpec("sliding_velocity_limit", "array", ("l",), "m/s", "|v| above is implausible (> 0)"),
+    FieldSpec("friction_force_limit", "array", ("l",), "N", "|u_R| above is implausible (> 0)"),
+    FieldSpec("measured_normal_force_min", "array", ("l",), "N", "a measured F_N below is implausible (<= 0)"),
+    FieldSpec("measured_normal_force_max", "array", ("l",), "N", "a measured F_N above is implausible "
+              "(>= F_N^max)"),
+    FieldSpec("sensor_limit", "array", ("ny",), "m or m/s", "|y| above is implausible (> 0)"),
+    FieldSpec("amplifier_temperature_limit", "number", unit="degC", meaning="amplifier temperature above is a fault"),
+    FieldSpec("amplifier_current_limit", "number", unit="A", meaning="|amplifier current| above is a fault (> 0)"),
+    FieldSpec("tracking_tolerance", "number", unit="V", meaning="|monitor voltage − setpoint| above is a tracking "
+              "fault (> 0)"),
     FieldSpec("design_source", "string", meaning="file name of the design (no folder: the text must not depend on where it lies)"),
     FieldSpec("design_sha256", "string", meaning="SHA-256 of the design file bytes (\"\" for in-memory designs)"),
     FieldSpec("package_version", "string", meaning="smartjoint version that wrote the artefact"),
@@ -123,6 +136,16 @@ class ControllerArtifact:
     piezo_capacitance: float
     piezo_force_per_volt: float
     piezo_preload: float
+    sensor_quantities: tuple[str, ...]
+    safe_normal_force: np.ndarray
+    sliding_velocity_limit: np.ndarray
+    friction_force_limit: np.ndarray
+    measured_normal_force_min: np.ndarray
+    measured_normal_force_max: np.ndarray
+    sensor_limit: np.ndarray
+    amplifier_temperature_limit: float
+    amplifier_current_limit: float
+    tracking_tolerance: float
     design_source: str
     design_sha256: str
     package_version: str
@@ -162,6 +185,8 @@ def _validated(values: dict) -> dict:
             out[spec.name] = _number(spec.name, value)
         elif spec.kind == "names":
             out[spec.name] = _names(spec.name, value)
+        elif spec.kind == "strings":
+            out[spec.name] = _strings(spec.name, value)
         elif spec.kind == "array":
             out[spec.name] = _array(spec.name, value)
     for field in ("name", "package_version"):
@@ -180,6 +205,9 @@ def _validated(values: dict) -> dict:
         raise ModelError(f"blocks: shape {blocks.shape} — expected (n, 2, 2) with n >= 1 retained coordinates")
     n, l, ny = blocks.shape[0], len(out["joint_names"]), len(out["sensor_names"])
     sizes = {"n": n, "2n": 2 * n, "l": l, "ny": ny}
+    if len(out["sensor_quantities"]) != ny:
+        raise ModelError(f"sensor_quantities: {len(out['sensor_quantities'])} entries — expected one per sensor "
+                         f"(n_y = {ny})")
     for spec in SCHEMA:
         if spec.kind == "array":
             expected = tuple(sizes.get(s, s) for s in spec.shape)
@@ -205,12 +233,46 @@ def _validated(values: dict) -> dict:
                              "— ε must be > 0 [m/s] (Eq. 30)")
     if np.any(out["modal_frequencies"] <= 0):
         raise _error("modal_frequencies", out["modal_frequencies"], "must be > 0 [Hz]")
+    _check_safety(out)
     return out
+
+
+SENSOR_QUANTITIES = ("displacement", "velocity")
+
+
+def _check_safety(out: dict) -> None:
+    """The safe force within the limits, the plausibility ranges around what the law can see."""
+    for i, quantity in enumerate(out["sensor_quantities"]):
+        if quantity not in SENSOR_QUANTITIES:
+            raise _error(f"sensor_quantities[{i}]", quantity, "allowed: " + ", ".join(SENSOR_QUANTITIES))
+    low, high = out["normal_force_min"], out["normal_force_max"]
+    for j, joint in enumerate(out["joint_names"]):
+        safe = float(out["safe_normal_force"][j])
+        if not low[j] <= safe <= high[j]:
+            raise ModelError(f"safe_normal_force[{j}]: {safe!r} N for joint {joint!r} — must lie within "
+                             f"[normal_force_min, normal_force_max] = [{float(low[j])!r}, {float(high[j])!r}] N")
+        for field in ("sliding_velocity_limit", "friction_force_limit"):
+            if out[field][j] <= 0:
+                raise ModelError(f"{field}[{j}]: {float(out[field][j])!r} for joint {joint!r} — must be > 0 "
+                                 f"[{FIELDS[field].unit}]")
+        if out["measured_normal_force_min"][j] > 0:
+            raise ModelError(f"measured_normal_force_min[{j}]: {float(out['measured_normal_force_min'][j])!r} N for "
+                             f"joint {joint!r} — must be <= 0 N (an unloaded joint reads 0 N)")
+        if out["measured_normal_force_max"][j] < high[j]:
+            raise ModelError(f"measured_normal_force_max[{j}]: {float(out['measured_normal_force_max'][j])!r} N for "
+                             f"joint {joint!r} — must be >= normal_force_max = {float(high[j])!r} N")
+    if np.any(out["sensor_limit"] <= 0):
+        raise _error("sensor_limit", out["sensor_limit"], "must be > 0 [m or m/s]")
+    for field in ("amplifier_current_limit", "tracking_tolerance"):
+        if out[field] <= 0:
+            raise _error(field, out[field], f"must be > 0 [{FIELDS[field].unit}]")
 
 
 def _version(value) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value != SCHEMA_VERSION:
-        raise _error("schema_version", value, f"unknown; this version reads schema_version {SCHEMA_VERSION}")
+        hint = (" — schema_version 1 has no safe state or plausibility ranges: re-run `smartjoint design` to write "
+                "version 2" if value == 1 and not isinstance(value, bool) else "")
+        raise _error("schema_version", value, f"unknown; this version reads schema_version {SCHEMA_VERSION}{hint}")
     return value
 
 
@@ -234,6 +296,15 @@ def _names(field: str, value) -> tuple[str, ...]:
             raise _error(f"{field}[{i}]", name, "expected a non-empty string")
         if value.index(name) != i:
             raise _error(f"{field}[{i}]", name, f"duplicate name (also {field}[{value.index(name)}])")
+    return tuple(value)
+
+
+def _strings(field: str, value) -> tuple[str, ...]:
+    if not isinstance(value, (list, tuple)):
+        raise _error(field, value, "expected a list of strings")
+    for i, item in enumerate(value):
+        if not isinstance(item, str):
+            raise _error(f"{field}[{i}]", item, "expected a string")
     return tuple(value)
 
 
@@ -318,8 +389,41 @@ def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> Cont
         feedback_gain=lqg.feedback_gain, estimator_gain=lqg.estimator_gain,
         modal_frequencies=np.asarray(model.omega, dtype=float) / (2.0 * math.pi),
         piezo_capacitance=control.piezo_capacitance, piezo_force_per_volt=control.piezo_force_per_volt,
-        piezo_preload=control.piezo_preload, design_source=Path(str(design.source)).name, design_sha256=design.sha256,
+        piezo_preload=control.piezo_preload, **safety_fields(design, joints),
+        design_source=Path(str(design.source)).name, design_sha256=design.sha256,
         package_version=installed_version())
+
+
+DISPLACEMENT_FRACTION = 0.05  # default displacement plausibility: 5 % of the truss's largest extent
+
+
+def safety_fields(design, joints: tuple[str, ...]) -> dict:
+    """The artefact's safe state and plausibility ranges from the design's ``[safety]``."""
+    control, safety = design.control, design.safety
+    low = _per_joint("normal_force_min", control.normal_force_min, joints)
+    high = _per_joint("normal_force_max", control.normal_force_max, joints)
+    if safety.safe_normal_force == "max":
+        safe = high
+    elif safety.safe_normal_force == "min":
+        safe = low
+    else:
+        safe = _per_joint("safe_normal_force", safety.safe_normal_force, joints)
+    margin = safety.normal_force_margin
+    displacement = safety.displacement_limit
+    if displacement is None:
+        positions = np.array([n.position for n in design.nodes.values()], dtype=float).reshape(-1, 3)
+        extent = float(np.max(np.ptp(positions, axis=0))) if len(positions) else 0.0
+        displacement = DISPLACEMENT_FRACTION * extent if extent > 0 else 1.0
+    quantities = tuple(s.quantity for s in design.sensors)
+    return dict(
+        sensor_quantities=quantities, safe_normal_force=safe,
+        sliding_velocity_limit=np.full(len(joints), safety.sliding_velocity_limit),
+        friction_force_limit=safety.friction_coefficient_limit * (high + margin * high),
+        measured_normal_force_min=-margin * high, measured_normal_force_max=high + margin * high,
+        sensor_limit=np.array([displacement if q == "displacement" else safety.velocity_limit for q in quantities],
+                              dtype=float),
+        amplifier_temperature_limit=safety.amplifier_temperature_limit,
+        amplifier_current_limit=safety.amplifier_current_limit, tracking_tolerance=safety.tracking_tolerance)
 
 
 # --------------------------------------------------------------------------- text
@@ -343,7 +447,7 @@ def dumps(artifact: ControllerArtifact) -> str:
     data = {}
     for spec in SCHEMA:
         value = getattr(artifact, spec.name)
-        data[spec.name] = value.tolist() if spec.kind == "array" else list(value) if spec.kind == "names" else value
+        data[spec.name] = value.tolist() if spec.kind == "array" else list(value) if spec.kind in ("names", "strings") else value
     return _encode(data, "") + "\n"
 
 

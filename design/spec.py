@@ -227,6 +227,36 @@ class Control:
 
 
 @dataclass(frozen=True)
+class Safety:
+    """The safe state and the plausibility ranges of the firmware (``[safety]``, all optional;
+    docs/safety.md says why each default is what it is).
+
+    ``safe_normal_force``: the normal force every joint gets while the controller cannot act —
+    "max" (F_N^max, the default: locked joints keep the truss as stiff and shape-accurate as
+    its rigid design, and a constant F_N can never destabilise it), "min", or newtons (a number
+    or one per controlled joint, within [F_N^min, F_N^max]). The same force holds in the
+    controllers, the CAN layer, the amplifiers (power-up, silence, bus-off) and the reports.
+
+    Plausibility: a measured value beyond its range is not physics but a broken sensor or
+    frame. ``sliding_velocity_limit`` |v| [m/s]; ``friction_coefficient_limit`` |u_R| ≤ this ×
+    the largest plausible F_N; ``normal_force_margin`` the measured F_N within [−m, 1 + m]·F_N^max;
+    ``displacement_limit`` [m] / ``velocity_limit`` [m/s] for the sensors by quantity
+    (displacement default: 5 % of the truss's largest extent); ``amplifier_temperature_limit``
+    [°C], ``amplifier_current_limit`` [A]; ``tracking_tolerance`` [V] between the setpoint and
+    the amplifier's monitor voltage."""
+
+    safe_normal_force: tuple[float, ...] | float | str = "max"
+    sliding_velocity_limit: float = 1.0
+    friction_coefficient_limit: float = 1.5
+    normal_force_margin: float = 0.1
+    displacement_limit: float | None = None  # None: 5 % of the largest extent of the nodes
+    velocity_limit: float = 2.0
+    amplifier_temperature_limit: float = 85.0
+    amplifier_current_limit: float = 2.5
+    tracking_tolerance: float = 3.0
+
+
+@dataclass(frozen=True)
 class Design:
     name: str
     description: str
@@ -244,6 +274,7 @@ class Design:
     modal_damping: float
     updating: Updating | None
     control: Control = field(default_factory=Control)
+    safety: Safety = field(default_factory=Safety)
     source: str = "<memory>"
     sha256: str = ""
     truss: dict[str, Any] = field(default_factory=dict)
@@ -659,11 +690,61 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
         updating = _parse_updating(root.table("updating"), materials, connectors)
 
     control = _parse_control(root.table("control", {}), joints, dofs)
+    safety = _parse_safety(root.table("safety", {}), control, joints)
 
     root.finish()
     return Design(name, description, materials, sections, connectors, node_types, nodes, members,
                   tuple(point_masses), tuple(supports), tuple(joints), tuple(sensors),
-                  tuple(disturbances), modal_damping, updating, control, source=source, truss=truss_settings)
+                  tuple(disturbances), modal_damping, updating, control, safety, source=source,
+                  truss=truss_settings)
+
+
+# Bounds of [safety]: beyond them a value is a typing error, not a design.
+MAX_SLIDING_VELOCITY = 100.0  # m/s
+MAX_FRICTION_COEFFICIENT = 10.0
+MAX_TEMPERATURE = 200.0  # °C: above the Curie point of PZT stacks
+MAX_CURRENT = 100.0  # A
+MAX_TRACKING_TOLERANCE = 1e3  # V
+MAX_DISPLACEMENT = 20.0  # m: what the TIP_SENSORS frame carries
+
+
+def _parse_safety(t: _Table, control: Control, joints) -> Safety:
+    count = len(control.joints) if control.joints is not None else len(joints)
+    d = Safety()
+    value = t.data.get("safe_normal_force", d.safe_normal_force)
+    if isinstance(value, str):
+        safe = t.string("safe_normal_force", d.safe_normal_force, choices=("max", "min"))
+    else:
+        safe = _per_joint(t, "safe_normal_force", d.safe_normal_force, count, positive=True)
+        low = np.broadcast_to(np.asarray(control.normal_force_min, dtype=float), (max(count, 1),))
+        high = np.broadcast_to(np.asarray(control.normal_force_max, dtype=float), (max(count, 1),))
+        forces = np.broadcast_to(np.asarray(safe, dtype=float), (max(count, 1),))
+        for i in range(len(forces)):
+            if not low[i] <= forces[i] <= high[i]:
+                entry = f" (entry {i})" if isinstance(safe, tuple) else ""
+                raise t.error("safe_normal_force", float(forces[i]),
+                              f"\"max\", \"min\" or newtons within [normal_force_min, normal_force_max] = "
+                              f"[{low[i]:g}, {high[i]:g}] N{entry}")
+    safety = Safety(
+        safe_normal_force=safe,
+        sliding_velocity_limit=t.number("sliding_velocity_limit", d.sliding_velocity_limit, positive=True,
+                                        maximum=MAX_SLIDING_VELOCITY),
+        friction_coefficient_limit=t.number("friction_coefficient_limit", d.friction_coefficient_limit,
+                                            positive=True, maximum=MAX_FRICTION_COEFFICIENT),
+        normal_force_margin=t.number("normal_force_margin", d.normal_force_margin, non_negative=True, maximum=1.0),
+        displacement_limit=(t.number("displacement_limit", positive=True, maximum=MAX_DISPLACEMENT)
+                            if "displacement_limit" in t.data else None),
+        velocity_limit=t.number("velocity_limit", d.velocity_limit, positive=True, maximum=MAX_SLIDING_VELOCITY),
+        amplifier_temperature_limit=t.number("amplifier_temperature_limit", d.amplifier_temperature_limit,
+                                             positive=True, maximum=MAX_TEMPERATURE),
+        amplifier_current_limit=t.number("amplifier_current_limit", d.amplifier_current_limit, positive=True,
+                                         maximum=MAX_CURRENT),
+        tracking_tolerance=t.number("tracking_tolerance", d.tracking_tolerance, positive=True,
+                                    maximum=MAX_TRACKING_TOLERANCE),
+    )
+    t.used.add("displacement_limit")  # optional without a default: listed among the allowed keys
+    t.finish()
+    return safety
 
 
 def estimated_dofs(nodes: dict[str, Node], members: dict[str, Member], joints: int) -> int:

@@ -117,7 +117,14 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
 
 
 @pytest.mark.parametrize("change, message", [
-    (lambda d: d.update(schema_version=2), r"schema_version: 2 — unknown; this version reads schema_version 1"),
+    (lambda d: d.update(schema_version=3), r"schema_version: 3 — unknown; this version reads schema_version 2"),
+    (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
+    (lambda d: d.update(safe_normal_force=[5.0, 400.0]), r"safe_normal_force\[0\]: 5.0 N for joint 'JA' — must lie "
+                                                         r"within \[normal_force_min, normal_force_max\]"),
+    (lambda d: d.update(sensor_quantities=["displacement", "speed"]), r"sensor_quantities\[1\]: 'speed' — allowed"),
+    (lambda d: d.update(sensor_quantities=["displacement"]), r"sensor_quantities: 1 entries — expected one per sensor"),
+    (lambda d: d.update(measured_normal_force_max=[100.0, 500.0]), r"measured_normal_force_max\[0\]: 100.0 N"),
+    (lambda d: d.update(sliding_velocity_limit=[0.0, 1.0]), r"sliding_velocity_limit\[0\]: 0.0 for joint 'JA'"),
     (lambda d: d.pop("schema_version"), r"schema_version: missing"),
     (lambda d: d.pop("feedback_gain"), r"feedback_gain: missing — required field"),
     (lambda d: d.update(feedback_gain=[row[:-1] for row in d["feedback_gain"]]),
@@ -142,7 +149,7 @@ def test_invalid_artefacts_are_named(setup, change, message):
 def test_bad_text_and_files_raise_model_errors(setup, tmp_path, monkeypatch):
     built = setup[3]
     for text, message in (("{\"schema_version\": 1,", "not valid JSON"), ("[1, 2]", "expected a JSON object"),
-                          ("{\"schema_version\": 1, \"schema_version\": 1}", "schema_version: 1 — duplicate key")):
+                          ("{\"schema_version\": 2, \"schema_version\": 2}", "schema_version: 2 — duplicate key")):
         with pytest.raises(ModelError, match=message):
             artifact.loads(text)
     with pytest.raises(ModelError, match="missing.json: cannot read"):
