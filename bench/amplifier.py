@@ -1,37 +1,114 @@
-"""Piezo amplifier as a CAN bus node: voltage setpoint in, stack voltage out, status frames.
+"""Piezo amplifier as a CAN bus node: setpoint and heartbeat in, stack voltage out, status frames.
 
-Output dynamics per controller sample Δt (exact for a held setpoint): first-order lag with time
-constant τ (0: ideal) towards the saturated setpoint V_set ∈ [0, V_max], the change over one sample limited
-to slew·Δt. The normal force the stack applies over the sample is F_N = k·V̄ + preload with V̄
-the mean voltage over the sample (so the plant gets the right impulse). Status frames report the
-monitor voltage, the current C·dV/dt, the temperature and the fault bits. Injectable faults:
-``over_temperature`` (status bit, output ramps to 0 V), ``no_response`` (no status frames,
-setpoints ignored, output held), ``stuck_output`` (output frozen, status bit set).
+The amplifier is the last link to the joint, so it makes the joint safe on its own (policy:
+docs/safety.md): it watches its ``SETPOINT_<j>`` frame and the controller's heartbeat
+``CONTROLLER_STATUS`` with the same rules as the firmware — E2E check, age in cycles by the
+sender's alive counter (a frame more than ``timeout_cycles − 1`` cycles late or missing is
+stale), a setpoint outside the design's normal-force range is implausible — and drives the
+stack to the safe voltage V_safe = (F_safe − preload)/k whenever one of them fails, from
+power-up until the first ``recovery_cycles`` fault-free cycles, and while the heartbeat says
+the controller is in its safe state. Its status frame reports that (``safe_state``).
+
+Output dynamics per controller sample Δt (exact for a held target): first-order lag with time
+constant τ (0: ideal) towards the target in [0, V_max], the change over one sample limited to
+slew·Δt. The normal force the stack applies over the sample is F_N = k·V̄ + preload with V̄
+the mean voltage over the sample (so the plant gets the right impulse).
+
+Injectable faults: ``over_temperature`` and ``over_current`` (status bit and reading; the stage
+holds the safe voltage, which a capacitive stack keeps without current), ``no_response`` (the CAN
+transceiver is dead: no status frames, no frames received — the watchdog drives the safe
+voltage), ``stuck_output`` (output frozen, status bit) and ``gain_error`` (the stage delivers half
+its target, no bit: only the firmware's monitor-voltage check sees it). The last two are failed
+output stages: no command can make that joint safe, the firmware detects them and makes the
+others safe (:data:`OUTPUT_STAGE_FAULTS`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..design.errors import ModelError
+from . import e2e
 
-FAULTS = ("over_temperature", "no_response", "stuck_output")
+FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current", "gain_error")
+OUTPUT_STAGE_FAULTS = ("stuck_output", "gain_error")  # the joint itself cannot reach the safe force
+HOT_TEMPERATURE = 95.0  # °C reported under ``over_temperature``
+HIGH_CURRENT = 2.9  # A reported under ``over_current``
+GAIN_ERROR = 0.5  # output / target under ``gain_error``
+MODE_SAFE = 3
+
+
+@dataclass
+class FrameWatch:
+    """Receiver side of one cyclic frame, the rules of the firmware's CAN layer: E2E check, age
+    in cycles by the sender's counter (kept across a timeout, afresh after a counter jump or a
+    silence the 4-bit counter cannot tell), stale frames ignored."""
+
+    timeout_cycles: int
+    last_counter: int | None = None  # the E2E receiver
+    age_counter: int | None = None  # the ageing
+    age: int = 0
+    advance: int = 0
+    seen: bool = False
+    healthy: bool = False
+    failed: bool = False  # an E2E failure since the last tick
+
+    def receive(self, frame_id: int, data: bytes, length: int) -> bool:
+        if len(data) != length:
+            self.failed, self.healthy = True, False
+            return False
+        checked = e2e.check(frame_id, data, self.last_counter)
+        if checked.resynchronises:  # the receiver policy of sj_e2e.c
+            self.last_counter = checked.counter
+        if not checked.ok:
+            if checked.reason == "counter stale":
+                return False  # older than what we have: its lateness shows in the age
+            self.failed, self.healthy = True, False
+            if checked.reason == "counter jump":
+                self.age_counter = None
+            return False
+        if self.age_counter is not None and self.age < e2e.COUNTER_MODULO - 1:
+            self.advance += (checked.counter - self.age_counter) % e2e.COUNTER_MODULO
+        else:
+            self.age, self.advance = 0, 1
+        self.age_counter = checked.counter
+        self.seen = self.healthy = True
+        return True
+
+    def tick(self) -> str | None:
+        """One controller cycle passed: the reason this frame cannot be used, or None."""
+        self.age = min(max(self.age + 1 - self.advance, 0), 255)
+        self.advance = 0
+        failed, self.failed = self.failed, False
+        if not self.seen or self.age >= self.timeout_cycles:
+            if self.seen:
+                self.last_counter = None  # the E2E check accepts whatever counter comes next
+            return "timeout"
+        if failed or not self.healthy:
+            return "e2e"
+        return None
 
 
 @dataclass
 class AmplifierModel:
     force_per_volt: float  # k [N/V]
+    safe_normal_force: float  # F_safe [N]
+    normal_force_min: float  # plausible setpoints: F^min … F^max (± setpoint_tolerance)
+    normal_force_max: float
     preload: float = 0.0  # [N]
     voltage_max: float = 150.0  # [V]
     time_constant: float = 0.0  # τ [s]; 0: ideal (the SIL check isolates firmware and bus)
     slew_rate: float = 2e6  # [V/s]
     capacitance: float = 1.8e-6  # [F]
     temperature: float = 35.0  # [°C]
-    voltage: float = 0.0
-    setpoint: float = 0.0
+    timeout_cycles: int = 2
+    recovery_cycles: int = 3
+    setpoint_tolerance: float = 0.5  # [V] around the plausible setpoint range
     fault: str | None = None
     setpoints_received: int = 0
+    voltage: float = field(init=False)
+    setpoint: float = field(init=False)
 
     def __post_init__(self):
         for name in ("force_per_volt", "voltage_max", "slew_rate", "capacitance"):
@@ -40,25 +117,75 @@ class AmplifierModel:
                 raise ModelError(f"amplifier {name}: {value!r} — must be a finite number > 0")
         if not (math.isfinite(self.time_constant) and self.time_constant >= 0):
             raise ModelError(f"amplifier time_constant: {self.time_constant!r} — must be >= 0 s (0: ideal)")
+        self.safe_voltage = self.volts(self.safe_normal_force)
+        self.voltage = self.setpoint = self.safe_voltage  # power-up: the safe force at once
+        self.current = 0.0
+        self.setpoint_watch = FrameWatch(self.timeout_cycles)
+        self.heartbeat_watch = FrameWatch(self.timeout_cycles)
+        self.controller_mode = None
+        self.implausible = False
+        self.own_safe = True
+        self.clear_cycles = 0
+        self.reasons: tuple[str, ...] = ("power-up",)
 
-    def receive(self, voltage: float) -> None:
-        """A decoded setpoint frame (already E2E-checked by the caller)."""
-        if self.fault == "no_response":
+    def volts(self, normal_force: float) -> float:
+        return min(max((normal_force - self.preload) / self.force_per_volt, 0.0), self.voltage_max)
+
+    @property
+    def listening(self) -> bool:
+        return self.fault != "no_response"
+
+    def receive_setpoint(self, frame_id: int, data: bytes, length: int, decode) -> None:
+        """A SETPOINT frame as it came off the bus; ``decode(data)`` gives its voltage."""
+        if not self.listening or not self.setpoint_watch.receive(frame_id, data, length):
             return
-        self.setpoint = min(max(float(voltage), 0.0), self.voltage_max)
-        self.setpoints_received += 1
+        voltage = float(decode(bytes(data)))
+        low = self.volts(self.normal_force_min) - self.setpoint_tolerance
+        high = self.volts(self.normal_force_max) + self.setpoint_tolerance
+        self.implausible = not low <= voltage <= high
+        if not self.implausible:
+            self.setpoint = voltage
+            self.setpoints_received += 1
+
+    def receive_heartbeat(self, frame_id: int, data: bytes, length: int, decode) -> None:
+        """A CONTROLLER_STATUS frame; ``decode(data)`` gives its mode."""
+        if self.listening and self.heartbeat_watch.receive(frame_id, data, length):
+            self.controller_mode = int(decode(bytes(data)))
+
+    def _watchdog(self) -> None:
+        reasons = []
+        for name, watch in (("setpoint", self.setpoint_watch), ("heartbeat", self.heartbeat_watch)):
+            reason = watch.tick()
+            if reason:
+                reasons.append(f"{name} {reason}")
+        if self.implausible:
+            reasons.append("implausible setpoint")
+        if reasons:
+            self.own_safe, self.clear_cycles = True, 0
+        else:
+            self.clear_cycles += 1
+            if self.clear_cycles >= self.recovery_cycles:
+                self.own_safe = False
+        self.reasons = tuple(reasons)
 
     def advance(self, step: float) -> float:
-        """Move the output over one sample; returns the mean normal force over it [N]."""
+        """One controller sample: the watchdog decides, the output moves; returns the mean normal
+        force over the sample [N]."""
+        self._watchdog()
         start = self.voltage
-        if self.fault == "stuck_output" or self.fault == "no_response":
+        if self.fault == "stuck_output":
+            self.current = 0.0
             return self.force_per_volt * start + self.preload
-        target = 0.0 if self.fault == "over_temperature" else self.setpoint
+        holds_safe = (self.own_safe or self.controller_mode == MODE_SAFE
+                      or self.fault in ("over_temperature", "over_current"))
+        target = self.safe_voltage if holds_safe else self.setpoint
+        if self.fault == "gain_error":
+            target *= GAIN_ERROR
         if self.time_constant > 0:
             decay = math.exp(-step / self.time_constant)
             end = target + (start - target) * decay
             mean = target + (start - target) * self.time_constant / step * (1.0 - decay)
-        else:  # ideal: the setpoint holds from the start of the sample
+        else:  # ideal: the target holds from the start of the sample
             end = mean = target
         limit = self.slew_rate * step
         if abs(end - start) > limit:  # slew-limited: a ramp over the sample
@@ -70,9 +197,11 @@ class AmplifierModel:
 
     def status(self) -> dict | None:
         """Signals of the AMP_STATUS frame, or None while not responding."""
-        if self.fault == "no_response":
+        if not self.listening:
             return None
-        return {"monitor_voltage": self.voltage, "current": getattr(self, "current", 0.0),
-                "temperature": 95.0 if self.fault == "over_temperature" else self.temperature,
+        return {"monitor_voltage": self.voltage,
+                "current": HIGH_CURRENT if self.fault == "over_current" else self.current,
+                "temperature": HOT_TEMPERATURE if self.fault == "over_temperature" else self.temperature,
                 "over_temperature": int(self.fault == "over_temperature"), "no_response": 0,
-                "stuck_output": int(self.fault == "stuck_output"), "over_current": 0}
+                "stuck_output": int(self.fault == "stuck_output"), "over_current": int(self.fault == "over_current"),
+                "safe_state": int(self.own_safe)}

@@ -37,11 +37,12 @@ def _opaque(prefix: str) -> str:
     """Prototypes of the opaque-state accessors (cffi declarations and C glue alike)."""
     n = f"{prefix}_can"
     return f"""size_t {n}_state_size(void);
-void {n}_init_opaque(uint8_t *state, int law);
+int {n}_init_opaque(uint8_t *state, int law);
 unsigned int {n}_rx_opaque(uint8_t *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us);
 unsigned int {n}_step_opaque(uint8_t *state, uint32_t time_us);
 int {n}_tx_opaque(uint8_t *state, uint32_t *id, uint8_t *data, uint8_t *length);
 int {n}_safe(const uint8_t *state);
+unsigned int {n}_faults(const uint8_t *state);
 double {n}_command(const uint8_t *state, int joint);
 uint32_t {n}_counter(const uint8_t *state, int which);
 """
@@ -56,7 +57,7 @@ def _driver(prefix: str) -> str:
     n = f"{prefix}_can"
     return _prototypes(prefix) + f"""
 size_t {n}_state_size(void) {{ return sizeof({n}_state); }}
-void {n}_init_opaque(uint8_t *state, int law) {{ {n}_init(({n}_state *)(void *)state, law); }}
+int {n}_init_opaque(uint8_t *state, int law) {{ return {n}_init(({n}_state *)(void *)state, ({n}_law)law); }}
 unsigned int {n}_rx_opaque(uint8_t *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us)
 {{
     return {n}_rx(({n}_state *)(void *)state, id, data, length, time_us);
@@ -67,6 +68,7 @@ int {n}_tx_opaque(uint8_t *state, uint32_t *id, uint8_t *data, uint8_t *length)
     return {n}_tx(({n}_state *)(void *)state, id, data, length);
 }}
 int {n}_safe(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->safe; }}
+unsigned int {n}_faults(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->faults; }}
 double {n}_command(const uint8_t *state, int joint) {{ return ((const {n}_state *)(const void *)state)->command[joint]; }}
 uint32_t {n}_counter(const uint8_t *state, int which)
 {{
@@ -78,13 +80,15 @@ uint32_t {n}_counter(const uint8_t *state, int which)
     case 3: return s->length_errors;
     case 4: return s->unknown_ids;
     case 5: return s->timeouts;
+    case 6: return s->implausible_frames;
     default: return s->steps;
     }}
 }}
 """
 
 
-COUNTERS = ("rx_frames", "crc_errors", "counter_errors", "length_errors", "unknown_ids", "timeouts", "steps")
+COUNTERS = ("rx_frames", "crc_errors", "counter_errors", "length_errors", "unknown_ids", "timeouts",
+            "implausible_frames", "steps")
 
 
 class Firmware:
@@ -124,7 +128,8 @@ class Firmware:
         return getattr(self.lib, f"{self._name}_{suffix}")(*args)
 
     def reset(self) -> None:
-        self._call("init_opaque", self._state, LAWS[self.law])
+        if self._call("init_opaque", self._state, LAWS[self.law]) != 0:
+            raise ModelError(f"firmware: the CAN layer refused law {self.law!r}")
 
     def rx(self, frame_id: int, data: bytes, time_us: int) -> int:
         return int(self._call("rx_opaque", self._state, frame_id & 0xFFFFFFFF, bytes(data), len(data) & 0xFF,
@@ -142,6 +147,15 @@ class Firmware:
     @property
     def safe(self) -> bool:
         return bool(self._call("safe", self._state))
+
+    @property
+    def faults(self) -> int:
+        """FAULT_ bits of the last step (bench/protocol.CONTROLLER_FAULTS in bit order)."""
+        return int(self._call("faults", self._state))
+
+    def fault_names(self) -> list[str]:
+        bits = self.faults
+        return [name for k, name in enumerate(protocol.CONTROLLER_FAULTS) if bits >> k & 1]
 
     @property
     def command(self) -> np.ndarray:

@@ -10,8 +10,12 @@ starts with the E2E bytes of ``bench/e2e.py``: byte 0 CRC-8 J1850, bits 8–11 a
 | ``JOINT_<j>`` | 0x100 + j | joint sensor node | Δt | sliding velocity v_j, friction force u_R,j, applied normal force F_N,j |
 | ``TIP_SENSORS`` | 0x180 | tip sensor node | Δt | the design's sensors y (m or m/s) |
 | ``SETPOINT_<j>`` | 0x200 + j | controller | Δt | piezo voltage setpoint V_j (F_N = k·V + preload) |
-| ``AMP_STATUS_<j>`` | 0x280 + j | amplifier j | Δt | monitor voltage, current, temperature, fault bits |
-| ``CONTROLLER_STATUS`` | 0x080 | controller | 10·Δt | mode, status bits of the last step |
+| ``AMP_STATUS_<j>`` | 0x280 + j | amplifier j | Δt | monitor voltage, current, temperature, fault bits, own safe state |
+| ``CONTROLLER_STATUS`` | 0x080 | controller | Δt | heartbeat: mode, inputs missing, step status, fault bits |
+
+The heartbeat goes every cycle: the amplifiers watch it (and their setpoints) and go to the
+safe normal force on their own when either stops, fails its E2E check or says "safe"
+(docs/safety.md).
 
 Scalings are chosen so that quantisation stays far below what the controllers resolve (the
 SISO boundary layer ε ~ 1e-6 m/s: velocity step 1e-9 m/s; the voltage setpoint steps by 1e-7 V, 1e-6 N:
@@ -38,11 +42,14 @@ JOINT_BASE, TIP_ID, SETPOINT_BASE, STATUS_BASE, CONTROLLER_ID = 0x100, 0x180, 0x
 MAX_JOINTS = 0x80  # identifier blocks of 128
 MAX_SENSORS = 15  # 2 + 4·15 = 62 bytes ≤ 64 (CAN FD)
 FD_LENGTHS = (8, 12, 16, 20, 24, 32, 48, 64)
-SLOW_FACTOR = 10  # controller status: every 10th sample (amplifier status every sample: faults within 3 cycles)
 
 CONTROLLER = "CONTROLLER"
 MODES = {0: "INIT", 1: "SISO", 2: "CLQG", 3: "SAFE"}
 AMPLIFIER_FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current")
+MODE_SAFE = 3
+# Fault bits of CONTROLLER_STATUS.faults, in bit order (the C layer's <PREFIX>_CAN_FAULT_*).
+CONTROLLER_FAULTS = ("velocity", "friction", "normal_force", "sensor", "temperature", "current", "tracking",
+                     "amplifier", "amplifier_safe", "timeout", "e2e", "controller", "law")
 E2E_SIGNALS = ("crc", "counter")  # first in every frame; no sensor signal may take these names
 CYCLE_TIME_MAX_MS = ATTRIBUTE_DEFINITION_GENMSGCYCLETIME.maximum  # the DBC attribute is an INT of this range
 
@@ -122,10 +129,9 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
         raise ModelError(f"sample_time: {artifact.sample_time!r} s — DBC cycle times are whole milliseconds; use a "
                          "sample time of 1 ms, 2 ms, …")
     cycle = int(round(cycle))
-    if cycle * SLOW_FACTOR > CYCLE_TIME_MAX_MS:
-        raise ModelError(f"sample_time: {artifact.sample_time!r} s — the DBC cycle time of CONTROLLER_STATUS "
-                         f"({SLOW_FACTOR}·Δt) must be at most {CYCLE_TIME_MAX_MS} ms (GenMsgCycleTime), so Δt ≤ "
-                         f"{CYCLE_TIME_MAX_MS // SLOW_FACTOR} ms")
+    if cycle > CYCLE_TIME_MAX_MS:
+        raise ModelError(f"sample_time: {artifact.sample_time!r} s — DBC cycle times (GenMsgCycleTime) are at most "
+                         f"{CYCLE_TIME_MAX_MS} ms")
     nodes = [can.Node(CONTROLLER, comment="semi-active controller (generated firmware)"),
              can.Node("TIP_NODE", comment="tip deflection sensors")]
     messages = []
@@ -152,7 +158,9 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
             can.Signal("temperature", 48, 8, conversion=conversion.BaseConversion.factory(1.0, -40.0), minimum=-40.0,
                        maximum=215.0, unit="degC", comment="amplifier temperature"),
         ] + [can.Signal(fault, 12 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
-             for k, fault in enumerate(AMPLIFIER_FAULTS)]
+             for k, fault in enumerate(AMPLIFIER_FAULTS)] + [
+            can.Signal("safe_state", 56, 1, comment="the amplifier holds the safe force by its own watchdog "
+                       "(no fresh valid setpoint or heartbeat, implausible setpoint, heartbeat mode safe is not it)")]
         messages.append(can.Message(STATUS_BASE + j, f"AMP_STATUS_{tag}", 8, status, senders=[f"AMPLIFIER_{tag}"],
                                     cycle_time=cycle, is_fd=True, comment=f"amplifier {name} status"))
     tip = _e2e(TIP_ID) + [
@@ -163,9 +171,12 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
     mode = can.Signal("mode", 16, 4, minimum=0, maximum=3, comment="0 init, 1 SISO, 2 cLQG, 3 safe state",
                       conversion=conversion.BaseConversion.factory(1, 0, dict(MODES)))
     controller = _e2e(CONTROLLER_ID) + [mode, can.Signal("step_status", 24, 8, comment="status bits of the last step"),
-                                        can.Signal("missing_inputs", 20, 4, comment="inputs in timeout or invalid")]
-    messages.append(can.Message(CONTROLLER_ID, "CONTROLLER_STATUS", 4, controller, senders=[CONTROLLER],
-                                cycle_time=cycle * SLOW_FACTOR, is_fd=True, comment="controller heartbeat"))
+                                        can.Signal("missing_inputs", 20, 4, comment="inputs in timeout or invalid"),
+                                        can.Signal("faults", 32, 16, comment="why the safe state holds: bits " + ", ".join(
+                                            f"{k} {name}" for k, name in enumerate(CONTROLLER_FAULTS)))]
+    messages.append(can.Message(CONTROLLER_ID, "CONTROLLER_STATUS", 8, controller, senders=[CONTROLLER],
+                                cycle_time=cycle, is_fd=True,
+                                comment="controller heartbeat: the amplifiers go to the safe force without it"))
     messages.sort(key=lambda m: m.frame_id)
     # BusType "CAN FD" makes cantools write VFrameFormat per frame, so is_fd survives the DBC.
     bus_type = DbcAttributeDefinition("BusType", default_value="CAN", kind=None, type_name="STRING")

@@ -35,38 +35,111 @@ from .amplifier import AmplifierModel
 
 FRAME_FAULTS = ("drop", "delay", "duplicate", "corrupt_crc", "corrupt_counter", "wrong_dlc", "silent")
 BUS_FAULTS = ("bus_off",)
+KINDS = FRAME_FAULTS + ("implausible", "amplifier") + BUS_FAULTS
+NEVER = math.inf  # the end of a fault that never ends
+DEFAULT_DELAY = 0.005  # s
 
 
 @dataclass(frozen=True)
 class Fault:
-    """One injected fault on [start, end) s. ``target``: a frame name for frame faults (e.g.
-    "JOINT_A1", "TIP_SENSORS"), a joint name for ``amplifier`` (with ``amplifier_fault``)."""
+    """One injected fault on [start, end) s (``end`` = inf: it never ends).
+
+    ``target``: a frame name for frame faults and ``implausible`` (any frame the bus carries,
+    the firmware's own ``SETPOINT_<j>`` and ``CONTROLLER_STATUS`` included — those are faulted on
+    their way to the amplifiers), a joint name for ``amplifier`` (with ``amplifier_fault``),
+    nothing for ``bus_off``. ``delay`` [s] only for ``delay``; ``signal`` and ``value`` only for
+    ``implausible`` (the sender puts that value into the signal, with a valid E2E protection)."""
 
     kind: str
     start: float
-    end: float
+    end: float = NEVER
     target: str = ""
     amplifier_fault: str = ""
-    delay: float = 0.005  # s, for "delay"
+    delay: float | None = None
+    signal: str = ""
+    value: float | None = None
 
     def active(self, t: float) -> bool:
         return self.start - 1e-12 <= t < self.end - 1e-12
 
+    @property
+    def lateness(self) -> float:
+        return (DEFAULT_DELAY if self.delay is None else self.delay) if self.kind == "delay" else 0.0
 
-def check_faults(faults, frame_names, joint_names) -> None:
+    def label(self) -> str:
+        detail = {"delay": f" {1e3 * self.lateness:g} ms", "amplifier": f" {self.amplifier_fault}",
+                  "implausible": f".{self.signal} = {self.value:g}" if self.value is not None else ""}.get(self.kind, "")
+        return f"{self.kind} {self.target or 'bus'}{detail}"
+
+
+def check_faults(faults, frame_names, joint_names, signals=None) -> None:
+    """Every field of every fault means something: known kind, existing target, a detail only
+    where the kind has one, a window 0 <= start < end (end may be inf)."""
+    signals = signals or {}
     for f in faults:
-        if f.kind in FRAME_FAULTS:
+        what = f"fault {f.kind}"
+        if f.kind not in KINDS:
+            raise ModelError(f"fault kind {f.kind!r} — allowed: {', '.join(KINDS)}")
+        if f.kind in FRAME_FAULTS + ("implausible",):
             if f.target not in frame_names:
-                raise ModelError(f"fault {f.kind}: target {f.target!r} — a frame the bench sends: "
-                                 f"{', '.join(sorted(frame_names))}")
+                raise ModelError(f"{what}: target {f.target!r} — a frame on the bus: {', '.join(sorted(frame_names))}")
         elif f.kind == "amplifier":
             if f.target not in joint_names or f.amplifier_fault not in AMPLIFIER_FAULTS:
-                raise ModelError(f"fault amplifier: target {f.target!r} / {f.amplifier_fault!r} — a joint "
+                raise ModelError(f"{what}: target {f.target!r} / {f.amplifier_fault!r} — a joint "
                                  f"({', '.join(joint_names)}) and one of {', '.join(AMPLIFIER_FAULTS)}")
-        elif f.kind not in BUS_FAULTS:
-            raise ModelError(f"fault kind {f.kind!r} — allowed: {', '.join(FRAME_FAULTS + ('amplifier',) + BUS_FAULTS)}")
-        if not (math.isfinite(f.start) and math.isfinite(f.end) and 0 <= f.start < f.end):
-            raise ModelError(f"fault {f.kind}: window [{f.start!r}, {f.end!r}) — need 0 <= start < end")
+        elif f.target:
+            raise ModelError(f"{what}: target {f.target!r} — bus_off takes the whole bus off: give no target")
+        if f.amplifier_fault and f.kind != "amplifier":
+            raise ModelError(f"{what}: amplifier_fault {f.amplifier_fault!r} — only for kind amplifier")
+        if f.delay is not None and f.kind != "delay":
+            raise ModelError(f"{what}: delay {f.delay!r} — only for kind delay")
+        if f.kind == "delay" and not (f.delay is None or (math.isfinite(f.delay) and f.delay > 0)):
+            raise ModelError(f"{what}: delay {f.delay!r} — a time > 0 s")
+        if f.kind == "implausible":
+            names = signals.get(f.target)
+            if names is not None and f.signal not in names:
+                raise ModelError(f"{what}: signal {f.signal!r} of {f.target} — one of {', '.join(names)}")
+            if f.value is None or not math.isfinite(f.value):
+                raise ModelError(f"{what}: value {f.value!r} — the finite value the sender puts into {f.signal}")
+        elif f.signal or f.value is not None:
+            raise ModelError(f"{what}: signal/value {f.signal!r}/{f.value!r} — only for kind implausible")
+        if not (math.isfinite(f.start) and 0 <= f.start < f.end and not math.isnan(f.end)):
+            raise ModelError(f"{what}: window [{f.start!r}, {f.end!r}) — need 0 <= start < end (end may be inf)")
+
+
+def parse_fault(text: str) -> Fault:
+    """``kind:target:start:end[:detail]`` → Fault. ``end``: seconds or ``inf`` (never ends);
+    detail: the delay [s] (``delay``, default 5 ms), the amplifier fault (``amplifier``), the
+    value (``implausible``, target ``FRAME.signal``); ``bus_off`` has no target and no detail."""
+    parts = text.split(":")
+    example = ("e.g. drop:JOINT_A1:1.0:1.2, delay:JOINT_A1:1.0:1.2:0.002, amplifier:A1:1.0:inf:over_temperature, "
+               "implausible:JOINT_A1.sliding_velocity:1.0:1.2:2.1, bus_off::1.0:1.05")
+    if len(parts) not in (4, 5):
+        raise ModelError(f"--fault {text!r}: expected kind:target:start:end[:detail], {example}")
+    kind, target, detail = parts[0], parts[1], parts[4] if len(parts) == 5 else None
+    try:
+        start, end = float(parts[2]), float(parts[3])
+    except ValueError:
+        raise ModelError(f"--fault {text!r}: start and end must be numbers [s] (end may be inf)") from None
+    if kind not in KINDS:
+        raise ModelError(f"--fault {text!r}: kind {kind!r} — allowed: {', '.join(KINDS)}")
+    fields: dict = {}
+    if kind == "delay" and detail is not None:
+        try:
+            fields["delay"] = float(detail)
+        except ValueError:
+            raise ModelError(f"--fault {text!r}: the delay {detail!r} must be a number [s]") from None
+    elif kind == "amplifier":
+        fields["amplifier_fault"] = detail or ""
+    elif kind == "implausible":
+        target, _, fields["signal"] = target.partition(".")
+        try:
+            fields["value"] = float(detail) if detail is not None else None
+        except ValueError:
+            raise ModelError(f"--fault {text!r}: the value {detail!r} must be a number") from None
+    elif detail is not None:
+        raise ModelError(f"--fault {text!r}: kind {kind} takes no detail (got {detail!r})")
+    return Fault(kind, start, end, target, **fields)
 
 
 def open_bus(interface: str, channel: str, **kwargs):
@@ -83,12 +156,17 @@ def open_bus(interface: str, channel: str, **kwargs):
 
 @dataclass
 class SilRecord:
-    """Per controller sample: firmware safe flag, step status, commanded and applied F_N."""
+    """Per controller sample: firmware safe flag, step status and fault bits, commanded F_N,
+    the F_N the amplifiers really apply, their own safe state, and F_N as the plant gets it
+    (the study's pulse protocol holds F_N^max while the pulse acts)."""
 
     time: list = field(default_factory=list)
     safe: list = field(default_factory=list)
     status: list = field(default_factory=list)
+    faults: list = field(default_factory=list)
     command: list = field(default_factory=list)
+    amplifier_force: list = field(default_factory=list)
+    amplifier_safe: list = field(default_factory=list)
     applied: list = field(default_factory=list)
 
 
@@ -97,7 +175,7 @@ class SilLoop:
 
     def __init__(self, firmware, excitation_end: float = 0.0, excitation_force=None, faults=(),
                  interface: str = "virtual", channel: str = "smartjoint-sil", log_path=None,
-                 amplifier: dict | None = None):
+                 amplifier: dict | None = None, timeout_cycles: int = 2, recovery_cycles: int = 3):
         self.fw = firmware
         self.db = firmware.db
         a = firmware.artifact
@@ -107,11 +185,20 @@ class SilLoop:
         self.excitation_end = float(excitation_end)
         self.excitation_force = np.asarray(a.normal_force_max if excitation_force is None else excitation_force, float)
         names = {m.name for m in self.db.messages}
-        check_faults(faults, names, [j for j in a.joint_names])
+        signals = {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in self.db.messages}
+        check_faults(faults, names, [j for j in a.joint_names], signals)
         self.faults = list(faults)
         self.interface, self.channel, self.log_path = interface, channel, log_path
-        self.amplifier_options = dict(force_per_volt=a.piezo_force_per_volt, preload=a.piezo_preload,
-                                      capacitance=a.piezo_capacitance, **(amplifier or {}))
+        options = dict(amplifier or {})
+        unknown = sorted(set(options) - {"time_constant", "slew_rate", "temperature", "voltage_max"})
+        if unknown:
+            raise ModelError(f"amplifier option {unknown[0]!r} — allowed: time_constant, slew_rate, temperature, "
+                             "voltage_max")
+        self.amplifier_options = [dict(force_per_volt=a.piezo_force_per_volt, preload=a.piezo_preload,
+                                       capacitance=a.piezo_capacitance, safe_normal_force=float(a.safe_normal_force[j]),
+                                       normal_force_min=float(a.normal_force_min[j]),
+                                       normal_force_max=float(a.normal_force_max[j]), timeout_cycles=timeout_cycles,
+                                       recovery_cycles=recovery_cycles, **options) for j in range(len(self.joints))]
         self.frames = {m.name: m for m in self.db.messages}
         self.buses = []
         self.writer = None
@@ -132,10 +219,10 @@ class SilLoop:
 
             self.writer = can.Logger(str(self.log_path))
         self.fw.reset()
-        self.amplifiers = [AmplifierModel(**self.amplifier_options) for _ in self.joints]
+        self.amplifiers = [AmplifierModel(**options) for options in self.amplifier_options]
         self.counters = defaultdict(int)
-        self.setpoint_last = [None] * len(self.joints)
-        self.delayed = []  # (due time, message)
+        self.delayed = []  # (due time, bus, message)
+        self.frozen_counters = {}  # corrupt_counter: the counter each fault froze
         self.k = 0
         self.record = SilRecord()
         self.stats = defaultdict(int)
@@ -157,8 +244,6 @@ class SilLoop:
 
     # ------------------------------------------------------------------------------ frames
     def _message(self, name: str, values: dict, t: float):
-        import can
-
         m = self.frames[name]
         counter = self.counters[name]
         self.counters[name] = (counter + 1) % e2e.COUNTER_MODULO
@@ -170,16 +255,43 @@ class SilLoop:
             elif s.minimum is not None:
                 signals[s.name] = min(max(signals[s.name], s.minimum), s.maximum)
         data = e2e.protect(m.frame_id, bytearray(m.encode(signals, strict=False)), counter)
-        return can.Message(arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False, is_fd=m.is_fd,
+        return self._frame(m.frame_id, bytes(data), t)
+
+    def _frame(self, frame_id: int, data: bytes, t: float):
+        import can
+
+        m = self.db.get_message_by_frame_id(frame_id)
+        return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=m.is_fd,
                            bitrate_switch=m.is_fd, timestamp=t)
 
-    def _send_from_nodes(self, message, t: float) -> None:
+    def _implausible(self, message, f: Fault, t: float):
+        """The frame with ``f.value`` in ``f.signal``, re-protected with its own counter: a sender
+        whose sensor or stage is broken, not a damaged frame."""
+        m = self.db.get_message_by_frame_id(message.arbitration_id)
+        values = m.decode(bytes(message.data), decode_choices=False, scaling=True)
+        values[f.signal] = f.value
+        signal = m.get_signal_by_name(f.signal)
+        raw = round((f.value - signal.offset) / signal.scale)
+        low = -(2 ** (signal.length - 1)) if signal.is_signed else 0
+        high = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2 ** signal.length - 1
+        if not low <= raw <= high:
+            raise ModelError(f"fault implausible: value {f.value!r} — {m.name}.{f.signal} carries "
+                             f"{low * signal.scale + signal.offset:g} … {high * signal.scale + signal.offset:g}")
+        data = bytearray(m.encode(values, strict=False, scaling=True))
+        return self._frame(m.frame_id, bytes(e2e.protect(m.frame_id, data, message.data[1] & 0x0F)), t)
+
+    def _bus_off(self, t: float) -> bool:
+        return any(f.kind == "bus_off" and f.active(t) for f in self.faults)
+
+    def _transmit(self, bus, message, t: float) -> None:
+        """Put ``message`` on the bus from ``bus``'s side, through the fault injector."""
         import can
 
         name = self.db.get_message_by_frame_id(message.arbitration_id).name
-        if any(f.kind == "bus_off" and f.active(t) for f in self.faults):
+        if self._bus_off(t):
             self.stats["frames_lost_bus_off"] += 1
             return
+        copies = 1
         for f in self.faults:
             if f.target != name or not f.active(t):
                 continue
@@ -187,27 +299,39 @@ class SilLoop:
             if f.kind in ("drop", "silent"):
                 return
             if f.kind == "delay":
-                self.delayed.append((t + f.delay, message))
+                self.delayed.append((t + f.lateness, bus, message))
                 return
             if f.kind == "duplicate":
-                self.node_bus.send(message)
-                self.frame_counts[name] += 1
+                copies = 2
             elif f.kind == "corrupt_crc":
                 data = bytearray(message.data)
                 data[-1] ^= 0x5A
-                message = can.Message(arbitration_id=message.arbitration_id, data=bytes(data), is_fd=message.is_fd,
-                                      bitrate_switch=message.bitrate_switch, timestamp=t)
-            elif f.kind == "corrupt_counter":
-                data = bytearray(message.data)
-                data = e2e.protect(message.arbitration_id, data, (data[1] + 7) & 0x0F)  # valid CRC, wrong counter
-                message = can.Message(arbitration_id=message.arbitration_id, data=bytes(data), is_fd=message.is_fd,
-                                      bitrate_switch=message.bitrate_switch, timestamp=t)
+                message = self._frame(message.arbitration_id, bytes(data), t)
+            elif f.kind == "corrupt_counter":  # a sender whose counter froze: valid CRC, the same counter again
+                frozen = self.frozen_counters.setdefault(id(f), message.data[1] & 0x0F)
+                data = e2e.protect(message.arbitration_id, bytearray(message.data), frozen)
+                message = self._frame(message.arbitration_id, bytes(data), t)
             elif f.kind == "wrong_dlc":  # the next shorter length a CAN (FD) frame can have
                 shorter = max(n for n in (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48) if n < len(message.data))
                 message = can.Message(arbitration_id=message.arbitration_id, data=bytes(message.data[:shorter]),
                                       is_fd=message.is_fd, bitrate_switch=message.bitrate_switch, timestamp=t)
-        self.node_bus.send(message)
-        self.frame_counts[name] += 1
+            elif f.kind == "implausible":
+                message = self._implausible(message, f, t)
+        for _ in range(copies):
+            bus.send(message)
+            self.frame_counts[name] += 1
+
+    def _release_delayed(self, t: float, sender) -> None:
+        """Late frames of ``sender``'s side go out at the first sample after their delay."""
+        due = [(bus, m) for when, bus, m in self.delayed if bus is sender and when <= t + 1e-12]
+        self.delayed = [(w, bus, m) for w, bus, m in self.delayed if not (bus is sender and w <= t + 1e-12)]
+        for bus, message in due:
+            if self._bus_off(t):
+                self.stats["frames_lost_bus_off"] += 1
+                continue
+            message.timestamp = t
+            bus.send(message)
+            self.frame_counts[self.db.get_message_by_frame_id(message.arbitration_id).name] += 1
 
     def _drain(self, bus) -> list:
         out = []
@@ -219,63 +343,52 @@ class SilLoop:
 
     # ------------------------------------------------------------------------------ a sample
     def step(self, measurements: Measurements) -> np.ndarray:
-        import can
-
         t = float(measurements.time)
-        time_us = int(round(t * 1e6))
+        time_us = int(round(t * 1e6)) & 0xFFFFFFFF
+        # 1. The sensor nodes and the amplifiers send.
+        self._release_delayed(t, self.node_bus)  # due since the last sample: before this sample's frames
         for j, joint in enumerate(self.joints):
-            self._send_from_nodes(self._message(f"JOINT_{joint}", {
+            self._transmit(self.node_bus, self._message(f"JOINT_{joint}", {
                 "sliding_velocity": float(measurements.sliding_velocity[j]),
                 "friction_force": float(measurements.friction_force[j]),
                 "normal_force": float(measurements.normal_force[j])}, t), t)
-        self._send_from_nodes(self._message("TIP_SENSORS", dict(zip(self.sensor_signals,
-                                                                  map(float, measurements.sensors))), t), t)
+        self._transmit(self.node_bus, self._message("TIP_SENSORS", dict(zip(self.sensor_signals,
+                                                                          map(float, measurements.sensors))), t), t)
         for j, joint in enumerate(self.joints):  # amplifier status every sample: faults seen within a cycle
             fault = next((f.amplifier_fault for f in self.faults
                           if f.kind == "amplifier" and f.target.upper() == joint and f.active(t)), None)
             self.amplifiers[j].fault = fault
             status = self.amplifiers[j].status()
             if status is not None:
-                self._send_from_nodes(self._message(f"AMP_STATUS_{joint}", status, t), t)
-        bus_off = any(f.kind == "bus_off" and f.active(t) for f in self.faults)
-        due = [m for when, m in self.delayed if when <= t + 1e-12]
-        self.delayed = [(when, m) for when, m in self.delayed if when > t + 1e-12]
-        for message in due:  # late frames go out at the first sample after their delay
-            if bus_off:
-                self.stats["frames_lost_bus_off"] += 1
-                continue
-            message.timestamp = t
-            self.node_bus.send(message)
-            self.frame_counts[self.db.get_message_by_frame_id(message.arbitration_id).name] += 1
+                self._transmit(self.node_bus, self._message(f"AMP_STATUS_{joint}", status, t), t)
 
+        # 2. The firmware: receive, step, send (setpoints and heartbeat).
         for message in self._drain(self.firmware_bus):
             self.fw.rx(message.arbitration_id, bytes(message.data), time_us)
         status = self.fw.step(time_us)
+        self._release_delayed(t, self.firmware_bus)
         for frame_id, data in self.fw.tx():
-            if bus_off:
-                continue
-            m = self.db.get_message_by_frame_id(frame_id)
-            self.firmware_bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False,
-                                               is_fd=m.is_fd, bitrate_switch=m.is_fd, timestamp=t))
-            self.frame_counts[m.name] += 1
+            self._transmit(self.firmware_bus, self._frame(frame_id, data, t), t)
 
+        # 3. The amplifiers take their setpoint and the heartbeat, and drive their stacks.
+        heartbeat = self.frames["CONTROLLER_STATUS"]
+        mode = lambda data: heartbeat.decode(data, decode_choices=False)["mode"]  # noqa: E731
         for message in self._drain(self.node_bus):
             name = self.db.get_message_by_frame_id(message.arbitration_id).name
-            if not name.startswith("SETPOINT_"):
-                continue
-            j = self.joints.index(name[len("SETPOINT_"):])
-            if len(message.data) != self.frames[name].length:
-                self.amplifier_e2e_errors += 1
-                continue
-            checked = e2e.check(message.arbitration_id, message.data, self.setpoint_last[j])
-            if checked.resynchronises:  # the receiver policy of sj_e2e.c
-                self.setpoint_last[j] = checked.counter
-            if not checked.ok:
-                self.amplifier_e2e_errors += 1
-                continue
-            voltage = self.frames[name].decode(bytes(message.data), decode_choices=False)["voltage"]
-            self.amplifiers[j].receive(voltage)
-        applied = np.array([a.advance(self.sample_time) for a in self.amplifiers])
+            data = bytes(message.data)
+            if name == "CONTROLLER_STATUS":
+                for amplifier in self.amplifiers:
+                    amplifier.receive_heartbeat(message.arbitration_id, data, heartbeat.length, mode)
+            elif name.startswith("SETPOINT_"):
+                j = self.joints.index(name[len("SETPOINT_"):])
+                m = self.frames[name]
+                before = self.amplifiers[j].setpoint_watch.failed
+                self.amplifiers[j].receive_setpoint(
+                    message.arbitration_id, data, m.length,
+                    lambda d, m=m: m.decode(d, decode_choices=False)["voltage"])
+                self.amplifier_e2e_errors += int(self.amplifiers[j].setpoint_watch.failed and not before)
+        amplifier_force = np.array([a.advance(self.sample_time) for a in self.amplifiers])
+        applied = amplifier_force.copy()
         if t < self.excitation_end - 1e-12:
             applied = self.excitation_force.copy()  # the study's protocol: F_N^max while the pulse acts
         if self.writer is not None:
@@ -287,7 +400,10 @@ class SilLoop:
         r.time.append(t)
         r.safe.append(self.fw.safe)
         r.status.append(status)
+        r.faults.append(self.fw.faults)
         r.command.append(self.fw.command)
+        r.amplifier_force.append(amplifier_force)
+        r.amplifier_safe.append([a.own_safe for a in self.amplifiers])
         r.applied.append(applied)
         self.k += 1
         return np.maximum(applied, 0.0)
@@ -305,7 +421,6 @@ class SilLoop:
                 "e2e_errors": counters["crc_errors"] + counters["counter_errors"] + counters["length_errors"],
                 "amplifier_e2e_errors": self.amplifier_e2e_errors,
                 "safe_samples": int(sum(self.record.safe)), "injected": dict(self.stats)}
-
 
 def perturbed(controller, relative: float, seed: int):
     """``controller`` with its normal-force commands multiplied by 1 + relative·N(0, 1): the

@@ -1,7 +1,9 @@
 """Render the CAN message layer of the controller (``templates/can.*.j2``) from the artefact and
 the DBC of ``bench/protocol.py``: pack/unpack of every frame (bit-exact with cantools),
-E2E check and protection (``firmware/runtime/sj_e2e.c``, copied next to it), per-input
-timeouts, the safe state with recovery, the controller step between receive and transmit."""
+E2E check and protection (``firmware/runtime/sj_e2e.c``, copied next to it), per-input ageing
+by the senders' counters, plausibility of every decoded signal, the safe state with recovery
+(the artefact's safe normal force; docs/safety.md), the controller step between receive and
+transmit, the heartbeat the amplifiers watch."""
 
 from __future__ import annotations
 
@@ -14,8 +16,8 @@ from ..design.errors import ModelError
 from . import generate, identifiers
 
 RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
-TIMEOUT_CYCLES = 3
-RECOVERY_FRAMES = 3
+TIMEOUT_CYCLES = 2  # a frame more than one cycle late is missing; up to one cycle late it is used
+RECOVERY_CYCLES = 3  # fault-free cycles before the safe state ends
 UINT32_MAX = 2 ** 32 - 1  # the layer's clock: microseconds in uint32_t, wrapping
 
 
@@ -35,21 +37,17 @@ def _signal(signal) -> dict:
             "comment": (signal.comment or signal.name).replace("*/", "* /")}
 
 
-def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier, safe_normal_force=None,
-              timeout_cycles: int = TIMEOUT_CYCLES, recovery_frames: int = RECOVERY_FRAMES) -> np.ndarray:
-    """What the CAN layer's C types and frames must hold, before anything is rendered; returns
-    the safe normal force per joint."""
+def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier, timeout_cycles: int = TIMEOUT_CYCLES,
+              recovery_cycles: int = RECOVERY_CYCLES) -> None:
+    """What the CAN layer's C types and frames must hold, before anything is rendered."""
     identifiers.check_names(artifact.joint_names, artifact.sensor_names, members=protocol.E2E_SIGNALS)
-    for name, value in (("timeout_cycles", timeout_cycles), ("recovery_frames", recovery_frames)):
+    for name, value in (("timeout_cycles", timeout_cycles), ("recovery_cycles", recovery_cycles)):
         if isinstance(value, bool) or not (isinstance(value, int) and 1 <= value <= 255):
             raise ModelError(f"{name}: {value!r} — a whole number between 1 and 255")
+    if timeout_cycles < 2:
+        raise ModelError(f"timeout_cycles: {timeout_cycles!r} — at least 2: with 1 every frame that arrives after "
+                         "its step (jitter) would be missing")
     db = protocol.database(artifact, amplifier)  # names, cycle times and signal ranges of the DBC
-    # Timeouts compare wrapped uint32 differences: they hold for intervals below 2^32 µs.
-    cycle_us = int(round(artifact.sample_time * 1e6))
-    if timeout_cycles * cycle_us > UINT32_MAX:
-        raise ModelError(f"sample_time: {artifact.sample_time!r} s — the CAN layer counts microseconds in uint32_t: "
-                         f"timeout_cycles·Δt = {timeout_cycles}·{cycle_us} µs must stay within {UINT32_MAX} µs "
-                         f"(Δt ≤ {UINT32_MAX // timeout_cycles // 1000} ms with {timeout_cycles} timeout cycles)")
     low, high = np.asarray(artifact.normal_force_min), np.asarray(artifact.normal_force_max)
     k, preload = amplifier.force_per_volt, amplifier.preload
     reach = k * amplifier.voltage_max + preload
@@ -62,22 +60,26 @@ def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier, safe_
             raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — the setpoint frame "
                              f"commands at most piezo_force_per_volt·voltage_max + piezo_preload = {k:g}·"
                              f"{amplifier.voltage_max:g} + {preload:g} = {reach:g} N")
-        measured = db.get_message_by_name(f"JOINT_{tag}").get_signal_by_name("normal_force").maximum
-        if high[j] > measured:
-            raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — the JOINT_{tag} "
-                             f"frame carries the applied F_N up to {measured:g} N (bench/protocol.py)")
-    if safe_normal_force is None:
-        return high.astype(float)
-    try:
-        safe = np.broadcast_to(np.asarray(safe_normal_force, dtype=float), (len(artifact.joint_names),))
-    except (TypeError, ValueError):
-        raise ModelError(f"safe_normal_force: {safe_normal_force!r} — numbers [N], one or one per joint "
-                         f"({len(artifact.joint_names)})") from None
-    for j, joint in enumerate(artifact.joint_names):
-        if not low[j] <= safe[j] <= high[j]:  # also refuses NaN
-            raise ModelError(f"safe_normal_force[{j}]: {float(safe[j])!r} N for joint {joint!r} — must lie within "
-                             f"[normal_force_min, normal_force_max] = [{float(low[j])!r}, {float(high[j])!r}] N")
-    return np.array(safe, dtype=float)
+        frame = db.get_message_by_name(f"JOINT_{tag}")
+        for field, signal, limit in (("measured_normal_force_max", "normal_force", artifact.measured_normal_force_max[j]),
+                                     ("sliding_velocity_limit", "sliding_velocity", artifact.sliding_velocity_limit[j]),
+                                     ("friction_force_limit", "friction_force", artifact.friction_force_limit[j])):
+            carried = frame.get_signal_by_name(signal).maximum
+            if limit > carried:
+                raise ModelError(f"{field}[{j}]: {float(limit)!r} for joint {joint!r} — the JOINT_{tag} frame carries "
+                                 f"{signal} up to {carried:g} (bench/protocol.py): a limit beyond it never trips")
+    tip = db.get_message_by_name("TIP_SENSORS")
+    for r, sensor in enumerate(artifact.sensor_names):
+        carried = tip.get_signal_by_name(sensor.lower()).maximum
+        if artifact.sensor_limit[r] > carried:
+            raise ModelError(f"sensor_limit[{r}]: {float(artifact.sensor_limit[r])!r} for sensor {sensor!r} — the "
+                             f"TIP_SENSORS frame carries up to {carried:g}: a limit beyond it never trips")
+    status = db.get_message_by_name(f"AMP_STATUS_{artifact.joint_names[0].upper()}")
+    for field, signal in (("amplifier_temperature_limit", "temperature"), ("amplifier_current_limit", "current")):
+        carried = status.get_signal_by_name(signal).maximum
+        if getattr(artifact, field) >= carried:
+            raise ModelError(f"{field}: {getattr(artifact, field)!r} — the AMP_STATUS frames carry {signal} up to "
+                             f"{carried:g}: the limit must lie below")
 
 
 def _same_bus(db, loaded) -> bool:
@@ -91,15 +93,15 @@ def _same_bus(db, loaded) -> bool:
 
 
 def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifier: protocol.Amplifier | None = None,
-               safe_normal_force=None, timeout_cycles: int = TIMEOUT_CYCLES,
-               recovery_frames: int = RECOVERY_FRAMES, full_codec: bool = False, real: str = "float") -> dict[str, str]:
+               timeout_cycles: int = TIMEOUT_CYCLES, recovery_cycles: int = RECOVERY_CYCLES,
+               full_codec: bool = False, real: str = "float") -> dict[str, str]:
     """File name → text: ``<prefix>_can.h/.c``, the E2E runtime ``sj_e2e.h/.c``, ``bus.dbc`` and
     an example ``main.c`` with the CAN loop. The firmware packs what it sends and unpacks what it
     receives; ``full_codec`` adds the other direction (test benches)."""
     generate.check(artifact, real, prefix)
     amplifier = amplifier or protocol.Amplifier(force_per_volt=artifact.piezo_force_per_volt,
                                                 preload=artifact.piezo_preload)
-    safe = check_can(artifact, amplifier, safe_normal_force, timeout_cycles, recovery_frames)
+    check_can(artifact, amplifier, timeout_cycles, recovery_cycles)
     db = protocol.database(artifact, amplifier)
     messages = [{"name": m.name, "frame_id": m.frame_id, "length": m.length,
                  "received": protocol.CONTROLLER not in (m.senders or []),
@@ -115,22 +117,34 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
             layouts.append({"signals": m["signals"]})
         m["layout"] = keys.index(key)
     by_name = {m.name: m for m in db.messages}
+    doubles = lambda values: ", ".join(generate.literal(float(v), "double") for v in values)  # noqa: E731
     joints = [j.upper() for j in artifact.joint_names]
     cycle_us = int(round(artifact.sample_time * 1e6))
-    inputs = [{"kind": "joint", "index": j, "message": f"JOINT_{tag}", "clqg_only": 0,
-               "cycle_us": int(by_name[f"JOINT_{tag}"].cycle_time) * 1000} for j, tag in enumerate(joints)]
-    inputs.append({"kind": "tip", "index": 0, "message": "TIP_SENSORS", "clqg_only": 1,
-                   "cycle_us": int(by_name["TIP_SENSORS"].cycle_time) * 1000})
-    inputs += [{"kind": "amp", "index": j, "message": f"AMP_STATUS_{tag}", "clqg_only": 0,
-                "cycle_us": int(by_name[f"AMP_STATUS_{tag}"].cycle_time) * 1000} for j, tag in enumerate(joints)]
+    # Every input comes once per controller cycle: ages count steps (bench/protocol.py).
+    inputs = [{"kind": "joint", "index": j, "message": f"JOINT_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
+    inputs.append({"kind": "tip", "index": 0, "message": "TIP_SENSORS", "clqg_only": 1})
+    inputs += [{"kind": "amp", "index": j, "message": f"AMP_STATUS_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
+    for i in inputs:
+        if int(by_name[i["message"]].cycle_time) * 1000 != cycle_us:
+            raise ModelError(f"{i['message']}: cycle time {by_name[i['message']].cycle_time} ms — the CAN layer ages "
+                             f"inputs in controller cycles and needs every input at Δt = {cycle_us / 1000:g} ms")
     digest = artifact.artifact_sha256
     banner = (f"/* Generated by smartjoint {generate._version()} (codegen, CAN layer) from controller artefact sha256 "
               f"{digest}.\n * Do not edit: regenerate with `smartjoint codegen`. */")
     context = {"prefix": prefix, "PREFIX": prefix.upper(), "name": f"{prefix}_can", "NAME": f"{prefix}_can".upper(),
                "banner": banner, "joints": joints, "sensors": [s.upper() for s in artifact.sensor_names],
                "messages": messages, "layouts": layouts, "inputs": inputs, "cycle_us": cycle_us, "timeout_cycles": timeout_cycles,
-               "recovery_frames": recovery_frames, "slow_factor": protocol.SLOW_FACTOR, "full_codec": full_codec,
-               "safe_normal_force": ", ".join(generate.literal(v, "double") for v in safe),
+               "recovery_cycles": recovery_cycles, "full_codec": full_codec, "mode_safe": protocol.MODE_SAFE,
+               "safe_normal_force": doubles(artifact.safe_normal_force),
+               "sliding_velocity_limit": doubles(artifact.sliding_velocity_limit),
+               "friction_force_limit": doubles(artifact.friction_force_limit),
+               "normal_force_low": doubles(artifact.measured_normal_force_min),
+               "normal_force_high": doubles(artifact.measured_normal_force_max),
+               "sensor_limit": doubles(artifact.sensor_limit),
+               "temperature_limit": generate.literal(artifact.amplifier_temperature_limit, "double"),
+               "current_limit": generate.literal(artifact.amplifier_current_limit, "double"),
+               "tracking_tolerance": generate.literal(artifact.tracking_tolerance, "double"),
+               "voltage_max": generate.literal(amplifier.voltage_max, "double"),
                "force_per_volt": generate.literal(amplifier.force_per_volt, "double"),
                "preload": generate.literal(amplifier.preload, "double")}
     env = generate._environment()

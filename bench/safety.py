@@ -1,0 +1,244 @@
+"""The safe-state policy verified on the SIL bench: every fault kind on every frame, from power-up,
+mid-run, never ending and two at once, with the normal force each joint really gets.
+
+Per case the bench (compiled firmware ↔ python-can bus ↔ amplifier nodes) runs a few dozen
+controller cycles and reports, counted from the fault's start — or, for a delay, from its
+detection bound (the latency of ``timeout_cycles − 1`` cycles a frame may have):
+
+- ``firmware``: cycles until the firmware is in its safe state;
+- ``joints``: cycles until every joint's amplifier applies the safe normal force (a joint
+  whose output stage itself failed — ``stuck_output``, ``gain_error`` — cannot, whatever it is
+  told: it is listed, the others must be safe);
+- ``holds``: the joints stay at the safe force while the fault lasts;
+- ``recovery``: cycles after the fault's end until the firmware controls again and no
+  amplifier holds its own safe state.
+
+The plant is the study's model-in-the-loop run replayed open loop (its sensor and joint
+signals), except that each joint's measured F_N is what its amplifier applied — the safety
+logic sees the same signals as in the study, and a case takes milliseconds. Policy and
+figures: docs/safety.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..design.errors import ModelError
+from ..design.simulate import Measurements
+from . import sil
+from .amplifier import FAULTS as AMPLIFIER_FAULTS
+from .amplifier import OUTPUT_STAGE_FAULTS
+
+DETECTION_LIMIT = 3  # cycles from a fault (or its detection bound) to the safe force at every joint
+FORCE_TOLERANCE = 1e-6  # N: "at the safe force" (the setpoint quantum is 8e-7 N)
+START, END, LENGTH = 20, 40, 70  # cycles: fault window and run length of a mid-run case
+TIMINGS = ("mid-run", "from t = 0", "never ending")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One fault scenario: the faults (one, or two at once) and the run length in cycles."""
+
+    name: str
+    timing: str
+    faults: tuple
+    cycles: int
+    tolerated: bool = False  # a delay within the latency bound: no safe state expected
+
+
+def implausible_values(artifact, db) -> dict:
+    """Per (frame, signal): a value the sender could carry that lies beyond the design's range."""
+    values = {}
+    for j, joint in enumerate(artifact.joint_names):
+        tag = joint.upper()
+        values[(f"JOINT_{tag}", "sliding_velocity")] = 1.5 * float(artifact.sliding_velocity_limit[j])
+        values[(f"JOINT_{tag}", "friction_force")] = -1.5 * float(artifact.friction_force_limit[j])
+        values[(f"JOINT_{tag}", "normal_force")] = 1.2 * float(artifact.measured_normal_force_max[j])
+        values[(f"AMP_STATUS_{tag}", "temperature")] = artifact.amplifier_temperature_limit + 20.0
+        values[(f"AMP_STATUS_{tag}", "current")] = -1.1 * artifact.amplifier_current_limit
+        safe_volts = (float(artifact.safe_normal_force[j]) - artifact.piezo_preload) / artifact.piezo_force_per_volt
+        values[(f"AMP_STATUS_{tag}", "monitor_voltage")] = safe_volts + 10.0 * artifact.tracking_tolerance
+        high_volts = (float(artifact.normal_force_max[j]) - artifact.piezo_preload) / artifact.piezo_force_per_volt
+        values[(f"SETPOINT_{tag}", "voltage")] = high_volts + 10.0
+    for r, sensor in enumerate(artifact.sensor_names):
+        values[("TIP_SENSORS", sensor.lower())] = -1.5 * float(artifact.sensor_limit[r])
+    for (frame, signal), value in values.items():  # within what the frame's field carries
+        s = db.get_message_by_name(frame).get_signal_by_name(signal)
+        top = s.maximum if s.maximum is not None else value
+        bottom = s.minimum if s.minimum is not None else value
+        values[(frame, signal)] = min(max(value, bottom), top)
+    return values
+
+
+def cases(artifact, db, timeout_cycles: int = 2, timings=TIMINGS) -> list[Case]:
+    """Every fault kind on every frame (and every decoded signal, amplifier and the bus), in
+    each of ``timings``; a delay within the latency bound on each frame (tolerated); pairs of
+    faults at once."""
+    dt = float(artifact.sample_time)
+    frames = [m.name for m in sorted(db.messages, key=lambda m: m.frame_id)]
+    joints = list(artifact.joint_names)
+    late = timeout_cycles * dt  # one cycle beyond the latency bound
+    single = []
+    for frame in frames:
+        for kind in sil.FRAME_FAULTS:
+            single.append((kind, dict(target=frame, delay=late if kind == "delay" else None)))
+    for (frame, signal), value in implausible_values(artifact, db).items():
+        single.append(("implausible", dict(target=frame, signal=signal, value=value)))
+    for joint in joints:
+        for fault in AMPLIFIER_FAULTS:
+            single.append(("amplifier", dict(target=joint, amplifier_fault=fault)))
+    single.append(("bus_off", {}))
+    windows = {"mid-run": (START, END, LENGTH), "from t = 0": (0, END - START, LENGTH - START),
+               "never ending": (START, None, END + 10)}
+    out = []
+    for timing in timings:
+        first, last, length = windows[timing]
+        for kind, fields in single:
+            fault = sil.Fault(kind, first * dt, math.inf if last is None else last * dt, **fields)
+            out.append(Case(fault.label(), timing, (fault,), length))
+    bound = (timeout_cycles - 1) * dt
+    for frame in frames:  # late, but within the bound: used, never a timeout
+        fault = sil.Fault("delay", START * dt, END * dt, frame, delay=bound)
+        out.append(Case(fault.label(), "within the latency bound", (fault,), LENGTH, tolerated=True))
+    tag = joints[0].upper()
+    other = joints[-1].upper()
+    pairs = [
+        (sil.Fault("drop", START * dt, END * dt, f"JOINT_{tag}"),
+         sil.Fault("corrupt_crc", START * dt, END * dt, f"SETPOINT_{other}")),
+        (sil.Fault("bus_off", START * dt, END * dt),
+         sil.Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="over_temperature")),
+        (sil.Fault("delay", START * dt, END * dt, "TIP_SENSORS", delay=late),
+         sil.Fault("implausible", START * dt, END * dt, f"AMP_STATUS_{other}", signal="temperature",
+                   value=artifact.amplifier_temperature_limit + 20.0)),
+        (sil.Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="stuck_output"),
+         sil.Fault("drop", START * dt, END * dt, "CONTROLLER_STATUS")),
+        (sil.Fault("bus_off", 0.0, math.inf), sil.Fault("amplifier", 0.0, math.inf, joints[-1],
+                                                        amplifier_fault="no_response")),
+    ]
+    for pair in pairs:
+        length = LENGTH if math.isfinite(pair[0].end) else END + 10
+        timing = "two at once" if math.isfinite(pair[0].end) else "two at once, from t = 0, never ending"
+        out.append(Case(" + ".join(f.label() for f in pair), timing, pair, length))
+    return out
+
+
+def signals(setup_run, artifact, cycles: int):
+    """The measurements the study's controller saw at its first ``cycles`` samples (the MIL run
+    of ``smartjoint run``), or — without a run — decaying oscillations of the study's size."""
+    dt = float(artifact.sample_time)
+    joints, sensors = len(artifact.joint_names), len(artifact.sensor_names)
+    if setup_run is not None:
+        seen = list(setup_run)[:cycles]
+        if len(seen) < cycles:
+            raise ModelError(f"fault cases: the recorded run has {len(seen)} samples — {cycles} needed")
+        return seen
+    out = []
+    for k in range(cycles):
+        t = k * dt
+        wave = math.exp(-t / 0.5) * math.sin(2 * math.pi * 17.7 * t)
+        out.append(Measurements(t, np.full(sensors, 0.01 * wave), np.full(joints, 0.03 * wave),
+                                np.full(joints, 150.0 * wave), np.zeros(joints)))
+    return out
+
+
+def run_case(firmware, case: Case, measurements) -> dict:
+    """One case on the bench; the figures of the module docstring."""
+    artifact = firmware.artifact
+    loop = sil.SilLoop(firmware, 0.0, faults=case.faults)
+    loop.reset()
+    applied = np.zeros(len(artifact.joint_names))
+    try:
+        for m in measurements[:case.cycles]:
+            # The joint's measured F_N is what its amplifier applied over the last sample.
+            applied = loop.step(Measurements(m.time, m.sensors, m.sliding_velocity, m.friction_force, applied))
+    finally:
+        loop.close()
+    r = loop.record
+    dt = float(artifact.sample_time)
+    safe = np.array(r.safe)
+    force = np.array(r.amplifier_force)
+    own_safe = np.array(r.amplifier_safe).any(axis=1)
+    target = np.asarray(artifact.safe_normal_force, dtype=float)
+    failed_stage = sorted({f.target for f in case.faults if f.kind == "amplifier"
+                           and f.amplifier_fault in OUTPUT_STAGE_FAULTS})
+    free = np.array([j not in failed_stage for j in artifact.joint_names])
+    at_safe = np.all(np.abs(force - target)[:, free] <= FORCE_TOLERANCE, axis=1)
+    start = min(int(round(f.start / dt)) for f in case.faults)
+    ends = [f.end for f in case.faults]
+    end = None if any(math.isinf(e) for e in ends) else int(round(max(ends) / dt))
+    bound = max((int(math.ceil(f.lateness / dt - 1e-9)) - 1 if f.kind == "delay" else 0) for f in case.faults)
+    reference = start + max(bound, 0)
+    stop = end if end is not None else len(safe)
+
+    def first(flags, frm):
+        hits = np.flatnonzero(flags[frm:])
+        return int(hits[0]) if hits.size else None
+
+    row = {"case": case.name, "timing": case.timing, "start": start, "end": end, "tolerated": case.tolerated,
+           "failed_output_stage": failed_stage, "safe_samples": int(safe.sum())}
+    if case.tolerated:
+        row.update(firmware=None, joints=None, holds=None, recovery=None,
+                   ok=not safe[START:].any() and not own_safe[START:].any())
+        return row
+    firmware_cycles = first(safe, start)
+    joint_hit = first(at_safe, start)
+    row["firmware"] = None if firmware_cycles is None else max(firmware_cycles - (reference - start), 0)
+    row["joints"] = None if joint_hit is None else max(joint_hit - (reference - start), 0)
+    row["holds"] = bool(joint_hit is not None and at_safe[start + joint_hit:stop].all())
+    recovered = None
+    if end is not None and end < len(safe):
+        recovered = first(~safe & ~own_safe, end)
+    row["recovery"] = recovered
+    row["power_up_safe"] = bool(np.all(at_safe[:first(~safe, 0) or len(safe)]))  # until the first valid command
+    row["ok"] = bool(row["joints"] is not None and row["joints"] <= DETECTION_LIMIT and row["holds"]
+                     and row["power_up_safe"] and (end is None or end >= len(safe) or recovered is not None))
+    return row
+
+
+def fault_matrix(artifact, law: str = "clqg", real: str = "float", measurements=None, timings=TIMINGS,
+                 progress=None) -> dict:
+    """Every case of :func:`cases` on one compiled firmware; rows and the worst figures."""
+    from . import firmware as firmware_module
+
+    image = firmware_module.Firmware(artifact, law, real)
+    todo = cases(artifact, image.db, timings=timings)
+    seen = signals(measurements, artifact, max(c.cycles for c in todo))
+    rows = []
+    for i, case in enumerate(todo):
+        rows.append(run_case(image, case, seen))
+        if progress and (i + 1) % 50 == 0:
+            progress(f"        {i + 1}/{len(todo)} fault cases")
+    checked = [r for r in rows if not r["tolerated"]]
+    return {"law": law, "real": real, "rows": rows, "cases": len(rows),
+            "failed": [r["case"] + " (" + r["timing"] + ")" for r in rows if not r["ok"]],
+            "worst_firmware": max((r["firmware"] for r in checked if r["firmware"] is not None), default=None),
+            "worst_joints": max((r["joints"] for r in checked if r["joints"] is not None), default=None),
+            "worst_recovery": max((r["recovery"] for r in checked if r["recovery"] is not None), default=None)}
+
+
+def matrix_markdown(out: dict) -> str:
+    """The table of all cases (grouped per timing) and the worst figures."""
+    def cell(value):
+        return "—" if value is None else str(value)
+
+    lines = [f"### Safe state under every fault ({out['law']}, {out['real']} firmware, SIL bench)", "",
+             f"{out['cases']} cases; worst cycles to the safe state: firmware {cell(out['worst_firmware'])}, "
+             f"force at every joint {cell(out['worst_joints'])} (limit {DETECTION_LIMIT}); worst recovery "
+             f"{cell(out['worst_recovery'])} cycles after the fault ends; "
+             + ("every case passes." if not out["failed"] else f"**{len(out['failed'])} fail**: "
+                + "; ".join(out["failed"][:10])), "",
+             "| fault | timing | firmware safe [cycles] | joints at F_safe [cycles] | holds | recovery [cycles] | ok |",
+             "|---|---|---:|---:|---|---:|---|"]
+    for r in out["rows"]:
+        note = f" (output stage of {', '.join(r['failed_output_stage'])} failed: that joint cannot)" \
+            if r["failed_output_stage"] else ""
+        if r["tolerated"]:
+            lines.append(f"| {r['case']} | {r['timing']} | no safe state (used late) | — | — | — | "
+                         f"{'yes' if r['ok'] else '**no**'} |")
+            continue
+        lines.append(f"| {r['case']}{note} | {r['timing']} | {cell(r['firmware'])} | {cell(r['joints'])} | "
+                     f"{'yes' if r['holds'] else '**no**'} | {cell(r['recovery'])} | {'yes' if r['ok'] else '**no**'} |")
+    return "\n".join(lines) + "\n"
