@@ -79,10 +79,11 @@ def test_a_bus_off_log_replays_every_setpoint(reference, bus_off_log):
     assert out["recorded_not_replayed"] == 0 and out["replayed_not_recorded"] == 0
     assert out["replayed_not_recorded_in_silent_samples"] == joints * 100
     assert out["ok"] and out["max_difference_V"] == 0.0
-    # A rig's time stamps: jitter of up to (almost) half a cycle still groups every frame to its sample.
+    # A rig's time stamps: absolute (since 1970), off the µs grid and jittering by up to 0.45 Δt —
+    # every frame still goes to its sample.
     jitter = np.random.default_rng(16).uniform(-0.45, 0.45, len(content.messages)) * reference.sample_time
     for message, dt in zip(content.messages, jitter):
-        message.timestamp += dt
+        message.timestamp += 1.7e9 + 321.5e-6 + dt
     jittered = _replay(reference, content)
     assert jittered["differing"] == 0 and jittered["setpoints_compared"] == out["setpoints_compared"]
 
@@ -234,3 +235,82 @@ def test_time_stamps_that_are_not_finite_are_refused_and_odd_ones_counted(refere
     assert code == 2 and "not finite" in captured.err.splitlines()[-1]
     decoded = logs.decode(content, firmware.Firmware(reference, "siso", "float").db)
     assert decoded.non_finite_times == 1 and decoded.summary()["log"]["negative_times"] == 1
+
+
+class StepAgeingFirmware:
+    """A stand-in with the Firmware API whose setpoint depends on how many times ``step`` ran —
+    the contract of a CAN layer that ages its inputs by controller steps: SETPOINT_A1 carries
+    the steps since reset, plus 10 V while JOINT_A1 is more than 3 steps old and for the 3 steps
+    after it came back (a recovery). Only a replay that steps every
+    sample of the log, silent ones included, can reproduce it."""
+
+    def __init__(self, reference):
+        self.db = protocol.database(reference)
+        self.artifact = reference
+        self.frame = self.db.get_message_by_name("SETPOINT_A1")
+        self.joint = self.db.get_message_by_name("JOINT_A1").frame_id
+        self.reset()
+
+    def reset(self):
+        self.steps, self.since_input, self.recovery, self.counter, self.out = 0, 0, 0, 0, []
+
+    def rx(self, frame_id, data, time_us):
+        if frame_id == self.joint:
+            self.since_input = 0
+        return 0
+
+    def step(self, time_us):
+        self.steps += 1
+        self.since_input += 1
+        if self.since_input > 3:
+            self.recovery = 3
+        timed_out = self.recovery > 0
+        if self.since_input <= 3 and self.recovery:
+            self.recovery -= 1
+        voltage = 0.01 * (self.steps % 1000) + (10.0 if timed_out else 0.0)
+        data = e2e.protect(self.frame.frame_id, bytearray(self.frame.encode({"crc": 0, "counter": 0,
+                                                                               "voltage": voltage})), self.counter)
+        self.counter = (self.counter + 1) % e2e.COUNTER_MODULO
+        self.out = [(self.frame.frame_id, bytes(data))]
+        return 0
+
+    def tx(self):
+        out, self.out = self.out, []
+        return out
+
+
+def test_replay_reproduces_a_layer_that_ages_its_inputs_by_steps(reference):
+    """A log with a silent bus on samples 50–79 and the controller alone off the bus on 120–129
+    (sensor frames recorded, no setpoints): every recorded setpoint replays, including the
+    recovery after the silent bus; the controller-alone gap counts as replayed, not recorded."""
+    node = StepAgeingFirmware(reference)
+    joint = node.db.get_message_by_name("JOINT_A1")
+    frames = []
+    for k in range(200):
+        t = 0.25 + k * reference.sample_time  # a log that does not start at 0
+        if 50 <= k < 80:
+            node.step(0)
+            node.tx()
+            continue
+        data = e2e.protect(joint.frame_id, bytearray(joint.encode({"crc": 0, "counter": 0, "sliding_velocity": 0.0,
+                                                                  "friction_force": 0.0, "normal_force": 100.0})),
+                           k % e2e.COUNTER_MODULO)
+        frames.append(can.Message(arbitration_id=joint.frame_id, data=bytes(data), is_fd=True, timestamp=t))
+        node.rx(joint.frame_id, bytes(data), 0)
+        node.step(0)
+        for frame_id, payload in node.tx():
+            if not 120 <= k < 130:
+                frames.append(can.Message(arbitration_id=frame_id, data=payload, is_fd=False, timestamp=t))
+    recorded = [r[3] for r in logs.decode(frames, node.db).rows if r[2] == "voltage"]
+    assert sum(v >= 10 for v in recorded) == 3  # the recovery after the silent bus is in the log
+    out = logs.replay(frames, StepAgeingFirmware(reference))
+    assert out["samples"] == 200 and out["silent_samples"] == 30
+    assert out["setpoints_compared"] == 160 and out["differing"] == 0 and out["ok"]
+    assert out["replayed_not_recorded_in_silent_samples"] == 30 and out["replayed_not_recorded"] == 10
+    # The same log with the silent samples squeezed out (what a replay that skips them sees)
+    # diverges from the first setpoint after the gap on.
+    squeezed = [can.Message(arbitration_id=m.arbitration_id, data=m.data, is_fd=m.is_fd,
+                            timestamp=m.timestamp - (30 * reference.sample_time if m.timestamp > 0.25 + 0.05 else 0))
+                for m in frames]
+    diverged = logs.replay(squeezed, StepAgeingFirmware(reference))
+    assert diverged["differing"] == diverged["setpoints_compared"] - 50 and not diverged["ok"]
