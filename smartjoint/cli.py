@@ -543,31 +543,84 @@ def cmd_bench(args) -> dict:
         if not args.json:
             print(f"{out['frames']} frames in {out['seconds']:.1f} s → {out['file']}")
         return out
-    messages, problem = logs.read(args.log)
-    if problem:
-        _progress(f"warning: {args.log} ends early after {len(messages)} frames ({problem}); using what was read")
     if args.bench_command == "decode":
-        decoded = logs.decode(messages, _bench_database(args), problem)
-        out = decoded.summary()
-        if args.output:
-            logs.write_csv(decoded, args.output)
-            out["csv"] = args.output
-        _plots(args, out, lambda folder: logs.plot(decoded, folder))
-        if not args.json:
-            for key, value in out.items():
-                print(f"{key}: {value}")
-        return out
-    from .bench import firmware
+        return _bench_decode(args)
+    return _bench_replay(args)
 
-    loaded = artifact.load(Path(args.artifact))
-    out = logs.replay(messages, firmware.Firmware(loaded, args.law, args.real), args.tolerance)
-    out["log_problem"] = problem
+
+def _bench_log(args):
+    """The log of ``bench decode`` / ``bench replay``, its damage on stderr (counts by kind)."""
+    from .bench import logs
+    from .design.errors import ModelError
+
+    content = logs.load(args.log)
+    if not content.messages:
+        raise ModelError(f"log file {args.log}: no frames"
+                         + (f" ({content.problem()})" if content.problem() else "") + " — nothing to "
+                         + args.bench_command)
+    problem = content.problem()
+    if problem:
+        early = " ends early and" if content.truncated else ""
+        _progress(f"warning: {args.log}{early} is damaged — {problem}; using the {len(content.messages)} frames read")
+    return content
+
+
+def _bench_decode(args) -> dict:
+    from .bench import logs
+
+    content = _bench_log(args)
+    decoded = logs.decode(content, _bench_database(args))
+    out = decoded.summary()
+    if args.output:
+        logs.write_csv(decoded, args.output)
+        out["csv"] = args.output
+    _plots(args, out, lambda folder: logs.plot(decoded, folder))
+    if decoded.skipped():
+        _progress(f"warning: {decoded.skipped()} of {decoded.frames} frames not decoded: "
+                  f"unknown ids {sum(decoded.unknown_ids.values())}, "
+                  f"wrong length {sum(decoded.wrong_length.values())}, "
+                  f"bad CRC {sum(decoded.bad_e2e.values())}, error frames {decoded.error_frames}, remote frames "
+                  f"{decoded.remote_frames}, non-finite time stamps {decoded.non_finite_times}")
     if not args.json:
-        print(f"{out['samples']} samples, {out['setpoints_compared']} setpoints compared, {out['differing']} differ "
-              f"(max {out['max_difference_V']:.3g} V)")
-        for d in out["first_differences"]:
-            print(f"  t = {d['time']:.4f} s {d['frame']}: recorded {d['recorded_V']:.6g} V, replayed {d['replayed_V']:.6g} V")
+        for key, value in out.items():
+            print(f"{key}: {value}")
     return out
+
+
+def _bench_replay(args) -> dict:
+    """Exit 1 (after the report) when a setpoint differs or a recorded one was not replayed."""
+    from .bench import firmware, logs
+    from .design import artifact
+    from .design.errors import ModelError
+
+    content = _bench_log(args)
+    loaded = artifact.load(Path(args.artifact))
+    out = logs.replay(content, firmware.Firmware(loaded, args.law, args.real), args.tolerance)
+    out["log_problem"] = content.problem()
+    out["log"] = content.skipped()
+    if out["setpoints_compared"] == 0 and out["recorded_not_replayed"] == 0:
+        raise ModelError(f"log file {args.log}: no recorded SETPOINT_* frame to compare "
+                         f"({out['samples']} samples replayed) — a log of the controller's bus is needed")
+    line = (f"{out['samples']} samples ({out['silent_samples']} without frames), {out['setpoints_compared']} "
+            f"setpoints compared, {out['differing']} differ beyond {args.tolerance:g} V (max "
+            f"{out['max_difference_V']:.3g} V), {out['recorded_not_replayed']} recorded but not replayed, "
+            f"{out['replayed_not_recorded'] + out['replayed_not_recorded_in_silent_samples']} replayed but not "
+            f"recorded ({out['replayed_not_recorded_in_silent_samples']} of them in samples without frames)")
+    skipped = out["recorded_setpoints_bad_crc"] + out["recorded_setpoints_wrong_length"]
+    if skipped:
+        line += (f"; {skipped} recorded setpoints not compared (bad CRC {out['recorded_setpoints_bad_crc']}, wrong "
+                 f"length {out['recorded_setpoints_wrong_length']})")
+    if out["ok"]:
+        if not args.json:  # main prints the JSON
+            print(line)
+        return out
+    print(json.dumps(out, indent=1) if args.json else line)  # main does not get to print: the exit is 1
+    print(f"smartjoint bench replay: FAILED: {line}", file=sys.stderr)
+    for d in out["first_differences"][:10]:
+        replayed = "nothing" if d["replayed_V"] is None else f"{d['replayed_V']:.9g} V"
+        print(f"  t = {d['time']:.6f} s {d['frame']} {d['kind']}: recorded {d['recorded_V']:.9g} V, replayed "
+              f"{replayed}", file=sys.stderr)
+    raise SystemExit(1)
 
 
 def _write_atomic(path: Path, text: str) -> None:
