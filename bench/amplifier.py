@@ -2,12 +2,14 @@
 
 The amplifier is the last link to the joint, so it makes the joint safe on its own (policy:
 docs/safety.md): it watches its ``SETPOINT_<j>`` frame and the controller's heartbeat
-``CONTROLLER_STATUS`` with the same rules as the firmware — E2E check, age in cycles by the
-sender's alive counter (a frame more than ``timeout_cycles − 1`` cycles late or missing is
-stale), a setpoint outside the design's normal-force range is implausible — and drives the
-stack to the safe voltage V_safe = (F_safe − preload)/k whenever one of them fails, from
+``CONTROLLER_STATUS`` with the same rules as the firmware — E2E check, ``timeout_cycles``
+cycles without a frame is missing, a setpoint outside the design's normal-force range is
+implausible — and drives the stack to the safe voltage V_safe = (F_safe − preload)/k whenever one of them fails, from
 power-up until the first ``recovery_cycles`` fault-free cycles, and while the heartbeat says
-the controller is in its safe state. Its status frame reports that (``safe_state``).
+the controller is in its safe state. The controller stamps every frame of a cycle with the same
+alive counter, so a setpoint kept back behind its heartbeat (or the other way round) beyond the
+bound is late too. Its status frame reports its own safe state (``safe_state``) and echoes the
+last heartbeat counter (``sync``), from which the controller ages the frame.
 
 Output dynamics per controller sample Δt (exact for a held target): first-order lag with time
 constant τ (0: ideal) towards the target in [0, V_max], the change over one sample limited to
@@ -41,15 +43,13 @@ MODE_SAFE = 3
 
 @dataclass
 class FrameWatch:
-    """Receiver side of one cyclic frame, the rules of the firmware's CAN layer: E2E check, age
-    in cycles by the sender's counter (kept across a timeout, afresh after a counter jump or a
-    silence the 4-bit counter cannot tell), stale frames ignored."""
+    """Receiver side of one cyclic frame, the rules of the firmware's CAN layer: E2E check
+    (stale frames ignored), cycles without a frame."""
 
     timeout_cycles: int
     last_counter: int | None = None  # the E2E receiver
-    age_counter: int | None = None  # the ageing
-    age: int = 0
-    advance: int = 0
+    counter: int | None = None  # alive counter of the newest accepted frame
+    silent: int = 0
     seen: bool = False
     healthy: bool = False
     failed: bool = False  # an E2E failure since the last tick
@@ -62,26 +62,18 @@ class FrameWatch:
         if checked.resynchronises:  # the receiver policy of sj_e2e.c
             self.last_counter = checked.counter
         if not checked.ok:
-            if checked.reason == "counter stale":
-                return False  # older than what we have: its lateness shows in the age
-            self.failed, self.healthy = True, False
-            if checked.reason == "counter jump":
-                self.age_counter = None
+            if checked.reason != "counter stale":  # older than what we have: ignored
+                self.failed, self.healthy = True, False
             return False
-        if self.age_counter is not None and self.age < e2e.COUNTER_MODULO - 1:
-            self.advance += (checked.counter - self.age_counter) % e2e.COUNTER_MODULO
-        else:
-            self.age, self.advance = 0, 1
-        self.age_counter = checked.counter
+        self.counter, self.silent = checked.counter, 0
         self.seen = self.healthy = True
         return True
 
     def tick(self) -> str | None:
         """One controller cycle passed: the reason this frame cannot be used, or None."""
-        self.age = min(max(self.age + 1 - self.advance, 0), 255)
-        self.advance = 0
+        silent, self.silent = self.silent, min(self.silent + 1, 255)
         failed, self.failed = self.failed, False
-        if not self.seen or self.age >= self.timeout_cycles:
+        if not self.seen or silent >= self.timeout_cycles:
             if self.seen:
                 self.last_counter = None  # the E2E check accepts whatever counter comes next
             return "timeout"
@@ -158,6 +150,12 @@ class AmplifierModel:
             reason = watch.tick()
             if reason:
                 reasons.append(f"{name} {reason}")
+        if not reasons:
+            # The controller stamps a setpoint and its heartbeat with the same cycle counter:
+            # one kept back behind the other beyond the latency bound is late.
+            lag = (self.setpoint_watch.counter - self.heartbeat_watch.counter + 8) % e2e.COUNTER_MODULO - 8
+            if abs(lag) >= self.timeout_cycles:
+                reasons.append("setpoint late" if lag < 0 else "heartbeat late")
         if self.implausible:
             reasons.append("implausible setpoint")
         if reasons:
@@ -204,4 +202,4 @@ class AmplifierModel:
                 "temperature": HOT_TEMPERATURE if self.fault == "over_temperature" else self.temperature,
                 "over_temperature": int(self.fault == "over_temperature"), "no_response": 0,
                 "stuck_output": int(self.fault == "stuck_output"), "over_current": int(self.fault == "over_current"),
-                "safe_state": int(self.own_safe)}
+                "safe_state": int(self.own_safe), "sync": self.heartbeat_watch.counter or 0}

@@ -50,7 +50,9 @@ MODE_SAFE = 3
 # Fault bits of CONTROLLER_STATUS.faults, in bit order (the C layer's <PREFIX>_CAN_FAULT_*).
 CONTROLLER_FAULTS = ("velocity", "friction", "normal_force", "sensor", "temperature", "current", "tracking",
                      "amplifier", "amplifier_safe", "timeout", "e2e", "controller", "law")
-E2E_SIGNALS = ("crc", "counter")  # first in every frame; no sensor signal may take these names
+E2E_SIGNALS = ("crc", "counter", "sync")  # E2E bytes and the heartbeat echo; no sensor signal may take these names
+SYNC_COMMENT = ("the alive counter of the last controller heartbeat this node saw: the controller tells from it "
+                "how many of its cycles the frame is old (docs/safety.md)")
 CYCLE_TIME_MAX_MS = ATTRIBUTE_DEFINITION_GENMSGCYCLETIME.maximum  # the DBC attribute is an INT of this range
 
 
@@ -63,10 +65,15 @@ class Amplifier:
     preload: float = 0.0  # N
 
 
-def _e2e(frame_id: int) -> list[can.Signal]:
-    crc, counter = E2E_SIGNALS
-    return [can.Signal(crc, 0, 8, comment="CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1"),
-            can.Signal(counter, 8, 4, minimum=0, maximum=15, comment="alive counter, +1 per frame, mod 16")]
+def _e2e(frame_id: int, sync: int | None = None) -> list[can.Signal]:
+    """The E2E signals of a frame, and for the frames the controller reads the heartbeat echo
+    (4 bits at ``sync``)."""
+    crc, counter, echo = E2E_SIGNALS
+    signals = [can.Signal(crc, 0, 8, comment="CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1"),
+               can.Signal(counter, 8, 4, minimum=0, maximum=15, comment="alive counter, +1 per frame, mod 16")]
+    if sync is not None:
+        signals.append(can.Signal(echo, sync, 4, minimum=0, maximum=15, comment=SYNC_COMMENT))
+    return signals
 
 
 def _scaled(name, start, length, scale, signed, unit, minimum, maximum, comment) -> can.Signal:
@@ -138,7 +145,7 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
     for j, name in enumerate(joints):
         tag = _identifier(name, "joint")
         frame_id = JOINT_BASE + j
-        signals = _e2e(frame_id) + [
+        signals = _e2e(frame_id, sync=12) + [
             _scaled("sliding_velocity", 16, 32, 1e-9, True, "m/s", -2.0, 2.0, f"v of joint {name}"),
             _scaled("friction_force", 48, 32, 1e-5, True, "N", -20000.0, 20000.0, f"u_R of joint {name}"),
             _scaled("normal_force", 80, 16, 0.02, False, "N", 0.0, 1310.0, f"applied F_N of joint {name}")]
@@ -152,7 +159,7 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
         messages.append(can.Message(SETPOINT_BASE + j, f"SETPOINT_{tag}", 6, _e2e(SETPOINT_BASE + j) + [volts],
                                     senders=[CONTROLLER], cycle_time=cycle, is_fd=True,
                                     comment=f"setpoint of amplifier {name}"))
-        status = _e2e(STATUS_BASE + j) + [
+        status = _e2e(STATUS_BASE + j, sync=60) + [
             _scaled("monitor_voltage", 16, 16, 0.005, False, "V", 0.0, amplifier.voltage_max, "measured output"),
             _scaled("current", 32, 16, 1e-4, True, "A", -3.0, 3.0, "output current"),
             can.Signal("temperature", 48, 8, conversion=conversion.BaseConversion.factory(1.0, -40.0), minimum=-40.0,
@@ -163,7 +170,7 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
                        "(no fresh valid setpoint or heartbeat, implausible setpoint, heartbeat mode safe is not it)")]
         messages.append(can.Message(STATUS_BASE + j, f"AMP_STATUS_{tag}", 8, status, senders=[f"AMPLIFIER_{tag}"],
                                     cycle_time=cycle, is_fd=True, comment=f"amplifier {name} status"))
-    tip = _e2e(TIP_ID) + [
+    tip = _e2e(TIP_ID, sync=12) + [
         _scaled(_identifier(s, "sensor").lower(), 16 + 32 * k, 32, 1e-8, True, "m", -20.0, 20.0, f"sensor {s}")
         for k, s in enumerate(sensors)]
     messages.append(can.Message(TIP_ID, "TIP_SENSORS", _fd_length(2 + 4 * len(sensors)), tip, senders=["TIP_NODE"],

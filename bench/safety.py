@@ -171,6 +171,14 @@ def run_case(firmware, case: Case, measurements) -> dict:
     end = None if any(math.isinf(e) for e in ends) else int(round(max(ends) / dt))
     bound = max((int(math.ceil(f.lateness / dt - 1e-9)) - 1 if f.kind == "delay" else 0) for f in case.faults)
     reference = start + max(bound, 0)
+    if any(f.kind == "amplifier" and f.amplifier_fault == "gain_error" for f in case.faults):
+        # No bit tells: the fault shows once the output is off its setpoint by more than the
+        # tracking tolerance (a small command halved is within it, and harmless).
+        volts = lambda force: (force - artifact.piezo_preload) / artifact.piezo_force_per_volt  # noqa: E731
+        command = np.array(r.command)
+        off = np.any(np.abs(volts(force) - volts(command)) > artifact.tracking_tolerance, axis=1)
+        seen = np.flatnonzero(off[start:])
+        reference = start + int(seen[0]) if seen.size else len(safe)
     stop = end if end is not None else len(safe)
 
     def first(flags, frm):
@@ -183,11 +191,12 @@ def run_case(firmware, case: Case, measurements) -> dict:
         row.update(firmware=None, joints=None, holds=None, recovery=None,
                    ok=not safe[START:].any() and not own_safe[START:].any())
         return row
-    firmware_cycles = first(safe, start)
-    joint_hit = first(at_safe, start)
-    row["firmware"] = None if firmware_cycles is None else max(firmware_cycles - (reference - start), 0)
-    row["joints"] = None if joint_hit is None else max(joint_hit - (reference - start), 0)
-    row["holds"] = bool(joint_hit is not None and at_safe[start + joint_hit:stop].all())
+    if reference >= stop:  # a fault that never showed (a gain error on commands within the tolerance)
+        row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
+        return row
+    row["firmware"] = first(safe, reference)
+    row["joints"] = first(at_safe, reference)
+    row["holds"] = bool(row["joints"] is not None and at_safe[reference + row["joints"]:stop].all())
     recovered = None
     if end is not None and end < len(safe):
         recovered = first(~safe & ~own_safe, end)

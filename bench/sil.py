@@ -223,6 +223,7 @@ class SilLoop:
         self.counters = defaultdict(int)
         self.delayed = []  # (due time, bus, message)
         self.frozen_counters = {}  # corrupt_counter: the counter each fault froze
+        self.node_echo = 0  # heartbeat counter the sensor nodes last saw
         self.k = 0
         self.record = SilRecord()
         self.stats = defaultdict(int)
@@ -347,13 +348,14 @@ class SilLoop:
         time_us = int(round(t * 1e6)) & 0xFFFFFFFF
         # 1. The sensor nodes and the amplifiers send.
         self._release_delayed(t, self.node_bus)  # due since the last sample: before this sample's frames
+        echo = self.node_echo  # the sensor nodes sample on the controller's heartbeat and say which
         for j, joint in enumerate(self.joints):
             self._transmit(self.node_bus, self._message(f"JOINT_{joint}", {
                 "sliding_velocity": float(measurements.sliding_velocity[j]),
                 "friction_force": float(measurements.friction_force[j]),
-                "normal_force": float(measurements.normal_force[j])}, t), t)
-        self._transmit(self.node_bus, self._message("TIP_SENSORS", dict(zip(self.sensor_signals,
-                                                                          map(float, measurements.sensors))), t), t)
+                "normal_force": float(measurements.normal_force[j]), "sync": echo}, t), t)
+        self._transmit(self.node_bus, self._message("TIP_SENSORS", {"sync": echo, **dict(
+            zip(self.sensor_signals, map(float, measurements.sensors)))}, t), t)
         for j, joint in enumerate(self.joints):  # amplifier status every sample: faults seen within a cycle
             fault = next((f.amplifier_fault for f in self.faults
                           if f.kind == "amplifier" and f.target.upper() == joint and f.active(t)), None)
@@ -379,6 +381,8 @@ class SilLoop:
             if name == "CONTROLLER_STATUS":
                 for amplifier in self.amplifiers:
                     amplifier.receive_heartbeat(message.arbitration_id, data, heartbeat.length, mode)
+                if len(data) == heartbeat.length and e2e.check(message.arbitration_id, data, None).crc_ok:
+                    self.node_echo = data[1] & 0x0F
             elif name.startswith("SETPOINT_"):
                 j = self.joints.index(name[len("SETPOINT_"):])
                 m = self.frames[name]
