@@ -100,7 +100,10 @@ def test_float_build_stays_within_its_documented_bound(reference, builds):
 
 @pytest.mark.parametrize("real", ["double", "float"])
 def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
-    low, high = reference.normal_force_min, reference.normal_force_max
+    """Any input a law cannot use (NaN/Inf: INPUT_INVALID; a finite value beyond its range:
+    INPUT_IMPLAUSIBLE) puts every joint of either law at the artefact's safe normal force."""
+    low, high, safe = reference.normal_force_min, reference.normal_force_max, reference.safe_normal_force
+    assert np.all((safe >= low) & (safe <= high))
     for law in (builds[real].siso(), builds[real].clipped_lqg()):
         statuses = set()
         for m in _sequence(reference, count=1500, seed=3):
@@ -111,19 +114,27 @@ def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
                 [m.sliding_velocity, m.friction_force, m.normal_force]
             if not all(np.all(np.isfinite(f)) for f in fields):
                 assert law.status & control.STATUS_INPUT_INVALID
-                if law.law == "clqg":
-                    assert np.array_equal(out, low)
+            if law.status & (control.STATUS_INPUT_INVALID | control.STATUS_INPUT_IMPLAUSIBLE):
+                assert np.array_equal(out, safe), (real, law.law, m)
         assert control.STATUS_INPUT_INVALID in statuses
-    # Absurd but finite sensor values drive the estimate out of range: the filter restarts.
+        assert control.STATUS_INPUT_IMPLAUSIBLE in statuses  # the sequence's 1e30 and -1e300
+    # Absurd but finite sensor values are implausible: the safe force, the filter restarts.
+    biggest = float(np.finfo(np.float64 if real == "double" else np.float32).max)
+    l, ny = len(reference.joint_names), len(reference.sensor_names)
+    m = simulate.Measurements(0.0, np.full(ny, biggest), np.zeros(l), np.ones(l), np.full(l, 100.0))
     law = builds[real].clipped_lqg()
-    m = simulate.Measurements(0.0, np.full(len(reference.sensor_names), float(np.finfo(np.float64 if real == "double" else np.float32).max)),
-                              np.zeros(len(reference.joint_names)), np.ones(len(reference.joint_names)),
-                              np.full(len(reference.joint_names), 100.0))
+    assert np.array_equal(law.step(m), safe) and law.status == control.STATUS_INPUT_IMPLAUSIBLE
+    # With the sensor range opened to the largest number they drive the estimate out of the
+    # finite numbers: ESTIMATE_RESET, the safe force, the filter restarts.
+    wide = artifact.loads(json.dumps(dict(json.loads(artifact.dumps(reference)), sensor_limit=[biggest] * ny)))
+    law = build.compile_controllers(wide, real).clipped_lqg()
     statuses = []
     for _ in range(5):
         out = law.step(m)
         statuses.append(law.status)
         assert np.all(np.isfinite(out)) and np.all(out >= low) and np.all(out <= high)
+        if law.status:
+            assert np.array_equal(out, safe)
     assert control.STATUS_ESTIMATE_RESET in statuses
 
 
