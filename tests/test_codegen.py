@@ -138,6 +138,95 @@ def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
     assert control.STATUS_ESTIMATE_RESET in statuses
 
 
+# Every input channel of both laws with its plausible range in the artefact.
+CHANNELS = [("siso", "sliding_velocity"), ("siso", "friction_force"), ("siso", "normal_force"),
+            ("clqg", "sensors"), ("clqg", "friction_force"), ("clqg", "normal_force")]
+
+
+def _channel_range(a, field):
+    if field == "normal_force":
+        return a.measured_normal_force_min, a.measured_normal_force_max
+    limit = {"sliding_velocity": a.sliding_velocity_limit, "friction_force": a.friction_force_limit,
+             "sensors": a.sensor_limit}[field]
+    return -limit, limit
+
+
+def _probes(low, high):
+    """(value, expected status) for one input: inside, at both limits, one ulp beyond each,
+    NaN, ±1e38 (finite even in float) and ±Inf."""
+    implausible, invalid = control.STATUS_INPUT_IMPLAUSIBLE, control.STATUS_INPUT_INVALID
+    return [(0.5 * high, 0), (0.5 * low, 0), (low, 0), (high, 0),
+            (float(np.nextafter(high, np.inf)), implausible), (float(np.nextafter(low, -np.inf)), implausible),
+            (np.nan, invalid), (1e38, implausible), (-1e38, implausible), (np.inf, invalid), (-np.inf, invalid)]
+
+
+def _plausible_run(a, count, seed):
+    """Measurements well inside every range, with the stick-slip scales of the study."""
+    rng = np.random.default_rng(seed)
+    l, ny = len(a.joint_names), len(a.sensor_names)
+    return [simulate.Measurements(k * a.sample_time, rng.normal(0, 1e-2, ny), rng.normal(0, 1e-2, l),
+                                  rng.normal(0, 100, l), rng.uniform(10, 400, l)) for k in range(count)]
+
+
+def _inject(m, field, index, value):
+    out = simulate.Measurements(m.time, m.sensors.copy(), m.sliding_velocity.copy(), m.friction_force.copy(),
+                                m.normal_force.copy())
+    getattr(out, field)[index] = value
+    return out
+
+
+@pytest.mark.parametrize("law, field", CHANNELS)
+def test_each_input_channel_is_checked_alike_in_python_and_c(reference, builds, law, field):
+    """Per channel and element: inside, at the limit, one ulp beyond, NaN, ±1e38, ±Inf — the
+    double build gives the outputs, u_d and status of the Python reference bit for bit (also on
+    the samples after, with the memories restarted); an unusable value puts every joint at the
+    safe force. The float build: the same status and safe force where the value is clearly
+    outside (twice the limit, ±1e38, ±Inf, NaN) and status 0 inside."""
+    make = artifact.siso_law if law == "siso" else artifact.clipped_lqg
+    python = make(reference)
+    compiled = {real: getattr(builds[real], "siso" if law == "siso" else "clipped_lqg")() for real in builds}
+    low, high = (np.asarray(v, dtype=float) for v in _channel_range(reference, field))
+    before, after = _plausible_run(reference, 6, seed=11), _plausible_run(reference, 4, seed=12)
+    safe, lowest = reference.safe_normal_force, reference.normal_force_min
+    for index in range(low.size):
+        for value, expected in _probes(float(low[index]), float(high[index])):
+            sequence = before + [_inject(before[-1], field, index, value)] + after
+            python.reset()
+            compiled["double"].reset()
+            for k, m in enumerate(sequence):
+                expected_out = python.step(m)
+                got = compiled["double"].step(m)
+                assert got.tobytes() == expected_out.tobytes(), (field, index, value, k)
+                assert compiled["double"].status == python.status, (field, index, value, k)
+                if law == "clqg":
+                    assert compiled["double"].desired_force.tobytes() == python.desired_force.tobytes()
+                if k == len(before):
+                    assert python.status == expected, (field, index, value)
+                    if expected:
+                        assert np.array_equal(expected_out, safe)
+                elif k == len(before) + 1 and expected and law == "siso":
+                    # the joint forgot its μ: F^min at its next sample; the others kept theirs
+                    assert expected_out[index] == lowest[index]
+                else:
+                    assert python.status == control.STATUS_OK
+        float_law = compiled["float"]
+        # 2·limit for the magnitudes; below a measured F_N minimum of 0 N, 2·min − 1 N is still outside
+        cases = [(0.5 * float(high[index]), 0), (0.5 * float(low[index]), 0),
+                  (2.0 * float(high[index]), control.STATUS_INPUT_IMPLAUSIBLE),
+                  (2.0 * float(low[index]) - 1.0, control.STATUS_INPUT_IMPLAUSIBLE),
+                  (np.nan, control.STATUS_INPUT_INVALID), (1e38, control.STATUS_INPUT_IMPLAUSIBLE),
+                  (-1e38, control.STATUS_INPUT_IMPLAUSIBLE), (np.inf, control.STATUS_INPUT_INVALID),
+                  (-np.inf, control.STATUS_INPUT_INVALID)]
+        for value, expected in cases:
+            float_law.reset()
+            for m in before:
+                float_law.step(m)
+            out = float_law.step(_inject(before[-1], field, index, value))
+            assert float_law.status == expected, ("float", field, index, value)
+            if expected:
+                assert np.array_equal(out, safe), ("float", field, index, value)
+
+
 @pytest.mark.numerics
 def test_study_back_to_back(reference, builds, three_type_a):
     """On the paper's study: the C controllers see the inputs the Python reference saw (replay)
