@@ -52,7 +52,9 @@ def check(artifact: artifacts.ControllerArtifact, real: str, prefix: str) -> Non
     identifiers.check_names(artifact.joint_names, artifact.sensor_names)
     if real == "float":
         for field in ("blocks", "gamma0", "gamma1", "joint_input", "output", "estimator_gain", "feedback_gain",
-                      "normal_force_min", "normal_force_max", "siso_boundary_layer"):
+                      "normal_force_min", "normal_force_max", "siso_boundary_layer", "safe_normal_force",
+                      "sliding_velocity_limit", "friction_force_limit", "measured_normal_force_min",
+                      "measured_normal_force_max", "sensor_limit"):
             values = np.asarray(getattr(artifact, field))
             if np.any(np.abs(values) > FLOAT_MAX):
                 raise ModelError(f"{field}: a value of magnitude {float(np.abs(values).max()):.3g} does not fit the "
@@ -80,12 +82,18 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
         "joints": list(artifact.joint_names), "sensors": list(artifact.sensor_names),
         "normal_force_min": row(artifact.normal_force_min),
         "normal_force_range": row(np.asarray(artifact.normal_force_max) - np.asarray(artifact.normal_force_min)),
+        # The safe state and the plausibility ranges (docs/safety.md): checked by both laws.
+        "safe_normal_force": row(artifact.safe_normal_force),
+        "friction_force_limit": row(artifact.friction_force_limit),
+        "measured_normal_force_min": row(artifact.measured_normal_force_min),
+        "measured_normal_force_max": row(artifact.measured_normal_force_max),
     }
     env = _environment()
     files: dict[str, str] = {}
     files[f"{prefix}_types.h"] = env.get_template("types.h.j2").render(common)
     siso = {**common, "name": f"{prefix}_siso", "NAME": f"{prefix}_siso".upper(),
-            "boundary_layer": row(artifact.siso_boundary_layer)}
+            "boundary_layer": row(artifact.siso_boundary_layer),
+            "sliding_velocity_limit": row(artifact.sliding_velocity_limit)}
     files[f"{prefix}_siso.h"] = env.get_template("siso.h.j2").render(siso)
     files[f"{prefix}_siso.c"] = env.get_template("siso.c.j2").render(siso)
     clqg = {**common, "name": f"{prefix}_clqg", "NAME": f"{prefix}_clqg".upper(),
@@ -94,7 +102,7 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
             "gamma1": [row(g) for g in artifact.gamma1], "joint_input": [row(e) for e in artifact.joint_input],
             "output": [row(c) for c in artifact.output], "estimator_gain": [row(m) for m in artifact.estimator_gain],
             "feedback_gain": [row(k) for k in artifact.feedback_gain],
-            "clqg_boundary_layer": lit(artifact.clqg_boundary_layer)}
+            "clqg_boundary_layer": lit(artifact.clqg_boundary_layer), "sensor_limit": row(artifact.sensor_limit)}
     files[f"{prefix}_clqg.h"] = env.get_template("clqg.h.j2").render(clqg)
     files[f"{prefix}_clqg.c"] = env.get_template("clqg.c.j2").render(clqg)
     example = {**common, "amplitude": lit(1e-3), "decay": lit(0.995), "friction_scale": lit(1e4),

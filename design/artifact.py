@@ -529,15 +529,24 @@ def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
 
 
 def siso_law(artifact: ControllerArtifact) -> SisoLaw:
-    """The local Lyapunov law of Eq. 30 with μ of Eq. 31, per joint."""
+    """The local Lyapunov law of Eq. 30 with μ of Eq. 31, per joint, with the artefact's safe
+    normal force and plausibility ranges (what the generated C checks)."""
     return SisoLaw(artifact.sample_time, artifact.normal_force_min, artifact.normal_force_max,
-                   artifact.siso_boundary_layer)
+                   artifact.siso_boundary_layer, safe_normal_force=artifact.safe_normal_force,
+                   sliding_velocity_limit=artifact.sliding_velocity_limit,
+                   friction_force_limit=artifact.friction_force_limit,
+                   measured_normal_force_min=artifact.measured_normal_force_min,
+                   measured_normal_force_max=artifact.measured_normal_force_max)
 
 
 def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
-    """The clipped-optimal LQG of Eq. 33–34."""
+    """The clipped-optimal LQG of Eq. 33–34, with the artefact's safe normal force and
+    plausibility ranges (what the generated C checks)."""
     return ClippedLqg(lqg_design(artifact), artifact.normal_force_min, artifact.normal_force_max,
-                      artifact.clqg_boundary_layer)
+                      artifact.clqg_boundary_layer, safe_normal_force=artifact.safe_normal_force,
+                      sensor_limit=artifact.sensor_limit, friction_force_limit=artifact.friction_force_limit,
+                      measured_normal_force_min=artifact.measured_normal_force_min,
+                      measured_normal_force_max=artifact.measured_normal_force_max)
 
 
 def active_lqg(artifact: ControllerArtifact) -> ActiveLqg:

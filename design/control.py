@@ -27,10 +27,56 @@ from .modal import ModalModel
 from .simulate import Measurements, discretise
 
 
-# Status bits of a controller step (the generated C returns the same values).
+# Status bits of a controller step (the generated C returns the same values; 4 is the C's
+# NULL_POINTER, 0x10 the CAN layer's SAFE_STATE). Any of them puts EVERY joint at the safe
+# normal force (the artefact's safe_normal_force, docs/safety.md).
 STATUS_OK = 0
-STATUS_INPUT_INVALID = 1  # a measurement was NaN or ±Inf: that joint (SISO) / every joint (cLQG) at F_N^min
-STATUS_ESTIMATE_RESET = 2  # the cLQG estimate or force left the finite numbers: filter restarted, F_N^min
+STATUS_INPUT_INVALID = 1  # a measurement was NaN or ±Inf
+STATUS_ESTIMATE_RESET = 2  # the cLQG estimate or force left the finite numbers: filter restarted
+STATUS_INPUT_IMPLAUSIBLE = 8  # a finite measurement outside its plausible range
+
+
+def _vector(field: str, value, count: int, default: float) -> np.ndarray:
+    """A per-channel float vector (a number is broadcast; None gives ``default``)."""
+    array = np.array(default if value is None else value, dtype=float)
+    if array.ndim == 0:
+        array = np.full(count, float(array))
+    if array.shape != (count,) or np.any(np.isnan(array)):
+        raise ModelError(f"{field}: {array.tolist()} — expected a number or {count} numbers, none NaN")
+    return array
+
+
+def _safe_force(value, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The safe normal force per joint; default F_N^max (the design file's default, locked joints)."""
+    safe = _vector("safe_normal_force", high if value is None else value, low.size, 0.0)
+    if not np.all(np.isfinite(safe)) or np.any(safe < low) or np.any(safe > high):
+        raise ModelError(f"safe_normal_force: {safe.tolist()} — must lie within [normal_force_min, normal_force_max] "
+                         f"= [{low.tolist()}, {high.tolist()}] N per joint")
+    return safe
+
+
+def _magnitude_limit(field: str, value, count: int) -> np.ndarray:
+    """|x| <= limit is plausible; None: no range beyond finiteness (+inf)."""
+    limit = _vector(field, value, count, math.inf)
+    if np.any(limit <= 0):
+        raise ModelError(f"{field}: {limit.tolist()} — must be > 0")
+    return limit
+
+
+def input_status(value, low, high) -> np.ndarray:
+    """Per measured value, its status bits against its plausible range [low, high]:
+    ``STATUS_INPUT_INVALID`` for NaN/±Inf, ``STATUS_INPUT_IMPLAUSIBLE`` for a number outside (a
+    value at a limit is within), else 0. The range test is written as "within", false for NaN,
+    as in the C (``check_input``)."""
+    value = np.asarray(value, dtype=float)
+    with np.errstate(invalid="ignore"):
+        inside = (value >= low) & (value <= high)
+    return np.where(~np.isfinite(value), STATUS_INPUT_INVALID, np.where(inside, STATUS_OK, STATUS_INPUT_IMPLAUSIBLE))
+
+
+def _any_status(*statuses: np.ndarray) -> int:
+    """The OR of every bit of the per-value statuses."""
+    return int(np.bitwise_or.reduce(np.concatenate([np.ravel(s) for s in statuses]), initial=STATUS_OK))
 
 
 def boundary_layer(value, width):
@@ -49,17 +95,27 @@ class SisoLaw:
         μ_k   = u_R,k−1 / F_N,k−1                               (Eq. 31; 0 at the first sample)
         F_N,k = F_N^min + (F_N^max − F_N^min)·clip(μ_k·v_k / ε, 0, 1)     (Eq. 30)
 
-    A joint whose v, u_R or F_N is NaN or ±Inf gets F_N^min and forgets its memory (μ = 0 at
-    the next sample); ``status`` then has ``STATUS_INPUT_INVALID``.
+    Inputs the law cannot use: a v, u_R or F_N that is NaN or ±Inf (``STATUS_INPUT_INVALID``)
+    or a number outside its plausible range (``STATUS_INPUT_IMPLAUSIBLE``; plausible are
+    |v| <= sliding_velocity_limit, |u_R| <= friction_force_limit and measured_normal_force_min
+    <= F_N <= measured_normal_force_max, limits included). Then EVERY joint is commanded
+    ``safe_normal_force`` and the affected joints forget their memory (μ = 0 at their next
+    sample); the others keep theirs, μ being a ratio of their own measurements. ``status``
+    holds the bits.
 
     u_R,k−1 and F_N,k−1 are the friction force and the applied normal force *measured* at the
     previous sample, so μ is always a ratio of quantities of one instant. Reading of Eq. 30:
     the paper writes the boundary-layer branch as F^min + (F^max/ε)·μv, which jumps at μv = ε
     unless F^min = 0; the continuous interpolation between the two outer branches is used.
     State: the previous friction force and normal force per joint (zero after reset).
+
+    Without the safety arguments: safe force F_N^max, no ranges beyond finiteness (``siso_law``
+    of ``design/artifact.py`` builds the law with the artefact's).
     """
 
-    def __init__(self, sample_time: float, normal_force_min, normal_force_max, boundary_layer_width):
+    def __init__(self, sample_time: float, normal_force_min, normal_force_max, boundary_layer_width, *,
+                 safe_normal_force=None, sliding_velocity_limit=None, friction_force_limit=None,
+                 measured_normal_force_min=None, measured_normal_force_max=None):
         self.sample_time = float(sample_time)
         self.normal_force_min = np.array(normal_force_min, dtype=float)
         self.normal_force_max = np.array(normal_force_max, dtype=float)
@@ -71,6 +127,12 @@ class SisoLaw:
                              "μ = u_R/F_N (Eq. 31) is undefined at F_N = 0")
         if not np.all(np.isfinite(self.boundary_layer)) or np.any(self.boundary_layer <= 0):
             raise ModelError(f"siso_boundary_layer: {self.boundary_layer.tolist()} — ε must be finite and > 0 [m/s]")
+        count = self.normal_force_min.size
+        self.safe_normal_force = _safe_force(safe_normal_force, self.normal_force_min, self.normal_force_max)
+        self.sliding_velocity_limit = _magnitude_limit("sliding_velocity_limit", sliding_velocity_limit, count)
+        self.friction_force_limit = _magnitude_limit("friction_force_limit", friction_force_limit, count)
+        self.measured_normal_force_min, self.measured_normal_force_max = _measured_range(
+            measured_normal_force_min, measured_normal_force_max, count)
         self.reset()
 
     def reset(self) -> None:
@@ -83,18 +145,31 @@ class SisoLaw:
         velocity = np.asarray(measurements.sliding_velocity, dtype=float)
         friction = np.asarray(measurements.friction_force, dtype=float)
         applied = np.asarray(measurements.normal_force, dtype=float)
-        valid = np.isfinite(velocity) & np.isfinite(friction) & np.isfinite(applied)
+        joint_status = (input_status(velocity, -self.sliding_velocity_limit, self.sliding_velocity_limit)
+                        | input_status(friction, -self.friction_force_limit, self.friction_force_limit)
+                        | input_status(applied, self.measured_normal_force_min, self.measured_normal_force_max))
+        usable = joint_status == STATUS_OK
+        self.status = _any_status(joint_status)
         previous_force, previous_normal = self.previous_friction, self.previous_normal_force
+        self.previous_friction = np.where(usable, friction, 0.0)
+        self.previous_normal_force = np.where(usable, applied, 0.0)
+        if self.status != STATUS_OK:
+            return self.safe_normal_force.copy()
         with np.errstate(all="ignore"):
-            known = valid & (previous_normal > 0.0)
+            known = previous_normal > 0.0
             mu = np.where(known, previous_force / np.where(known, previous_normal, 1.0), 0.0)  # Eq. 31
-            power = mu * np.where(valid, velocity, 0.0)
-        normal_force = np.where(valid, self.normal_force_min + self.normal_force_range * boundary_layer(
-            power, self.boundary_layer), self.normal_force_min)
-        self.previous_friction = np.where(valid, friction, 0.0)
-        self.previous_normal_force = np.where(valid, applied, 0.0)
-        self.status = STATUS_OK if valid.all() else STATUS_INPUT_INVALID
-        return normal_force
+            power = mu * velocity
+        return self.normal_force_min + self.normal_force_range * boundary_layer(power, self.boundary_layer)
+
+
+def _measured_range(low, high, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The plausible range of a measured normal force; None: unbounded on that side."""
+    low = _vector("measured_normal_force_min", low, count, -math.inf)
+    high = _vector("measured_normal_force_max", high, count, math.inf)
+    if np.any(low > high):
+        raise ModelError(f"measured_normal_force_min {low.tolist()} / measured_normal_force_max {high.tolist()}: "
+                         "need min <= max per joint")
+    return low, high
 
 
 @dataclass(frozen=True)
@@ -305,24 +380,35 @@ class ClippedLqg(_Lqg):
     the friction force is smaller than the desired force in the same direction and falls to
     F^min when it is larger or opposes it. u_R,j = 0 counts as sgn = 0 (F^min: nothing to steer).
 
-    Faults (``status``): any NaN/±Inf measurement → every joint at F_N^min and the filter
-    restarts (``STATUS_INPUT_INVALID``); an estimate or desired force that is no longer finite
-    (e.g. after absurdly large sensor values) → the same with ``STATUS_ESTIMATE_RESET``.
+    Faults (``status``): a measurement that is NaN/±Inf (``STATUS_INPUT_INVALID``) or a number
+    outside its plausible range (``STATUS_INPUT_IMPLAUSIBLE``; plausible are |y_r| <=
+    sensor_limit, |u_R,j| <= friction_force_limit and measured_normal_force_min <= F_N,j <=
+    measured_normal_force_max, limits included) → every joint at ``safe_normal_force``, u_d = 0,
+    and the filter restarts; an estimate or desired force that is no longer finite → the same with
+    ``STATUS_ESTIMATE_RESET``. Without the safety arguments: safe force F_N^max, no ranges
+    beyond finiteness (``clipped_lqg`` of ``design/artifact.py`` passes the artefact's).
     """
 
-    def __init__(self, design: LqgDesign, normal_force_min, normal_force_max, boundary_layer_width: float):
+    def __init__(self, design: LqgDesign, normal_force_min, normal_force_max, boundary_layer_width: float, *,
+                 safe_normal_force=None, sensor_limit=None, friction_force_limit=None,
+                 measured_normal_force_min=None, measured_normal_force_max=None):
         super().__init__(design)
         self.normal_force_min = np.array(normal_force_min, dtype=float)
         self.normal_force_max = np.array(normal_force_max, dtype=float)
         _check_limits(self.normal_force_min, self.normal_force_max)
-        if self.normal_force_min.size != design.joint_input.shape[1]:
-            raise ModelError(f"normal_force_min: {self.normal_force_min.size} values for "
-                             f"{design.joint_input.shape[1]} joints")
+        count = design.joint_input.shape[1]
+        if self.normal_force_min.size != count:
+            raise ModelError(f"normal_force_min: {self.normal_force_min.size} values for {count} joints")
         if not (math.isfinite(boundary_layer_width) and boundary_layer_width > 0):
             raise ModelError(f"clqg_boundary_layer: {boundary_layer_width!r} — must be finite and > 0 [N]")
         self.boundary_layer = float(boundary_layer_width)
         self.normal_force_range = self.normal_force_max - self.normal_force_min
         self.desired_force = np.zeros(self.normal_force_min.size)
+        self.safe_normal_force = _safe_force(safe_normal_force, self.normal_force_min, self.normal_force_max)
+        self.sensor_limit = _magnitude_limit("sensor_limit", sensor_limit, design.output.shape[0])
+        self.friction_force_limit = _magnitude_limit("friction_force_limit", friction_force_limit, count)
+        self.measured_normal_force_min, self.measured_normal_force_max = _measured_range(
+            measured_normal_force_min, measured_normal_force_max, count)
 
     def reset(self) -> None:
         super().reset()
@@ -332,14 +418,17 @@ class ClippedLqg(_Lqg):
     def _fault(self, status: int) -> np.ndarray:
         self.reset()
         self.status = status
-        return self.normal_force_min.copy()
+        return self.safe_normal_force.copy()
 
     def step(self, measurements: Measurements) -> np.ndarray:
         sensors = np.asarray(measurements.sensors, dtype=float)
         friction = np.asarray(measurements.friction_force, dtype=float)
         applied = np.asarray(measurements.normal_force, dtype=float)
-        if not (np.all(np.isfinite(sensors)) and np.all(np.isfinite(friction)) and np.all(np.isfinite(applied))):
-            return self._fault(STATUS_INPUT_INVALID)
+        status = _any_status(input_status(sensors, -self.sensor_limit, self.sensor_limit),
+                             input_status(friction, -self.friction_force_limit, self.friction_force_limit),
+                             input_status(applied, self.measured_normal_force_min, self.measured_normal_force_max))
+        if status != STATUS_OK:
+            return self._fault(status)
         with np.errstate(all="ignore"):
             self.desired_force = self._estimate(sensors, friction)
         if not (np.all(np.isfinite(self.estimate)) and np.all(np.isfinite(self.desired_force))):

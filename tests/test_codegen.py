@@ -100,7 +100,10 @@ def test_float_build_stays_within_its_documented_bound(reference, builds):
 
 @pytest.mark.parametrize("real", ["double", "float"])
 def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
-    low, high = reference.normal_force_min, reference.normal_force_max
+    """Any input a law cannot use (NaN/Inf: INPUT_INVALID; a finite value beyond its range:
+    INPUT_IMPLAUSIBLE) puts every joint of either law at the artefact's safe normal force."""
+    low, high, safe = reference.normal_force_min, reference.normal_force_max, reference.safe_normal_force
+    assert np.all((safe >= low) & (safe <= high))
     for law in (builds[real].siso(), builds[real].clipped_lqg()):
         statuses = set()
         for m in _sequence(reference, count=1500, seed=3):
@@ -111,20 +114,117 @@ def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
                 [m.sliding_velocity, m.friction_force, m.normal_force]
             if not all(np.all(np.isfinite(f)) for f in fields):
                 assert law.status & control.STATUS_INPUT_INVALID
-                if law.law == "clqg":
-                    assert np.array_equal(out, low)
+            if law.status & (control.STATUS_INPUT_INVALID | control.STATUS_INPUT_IMPLAUSIBLE):
+                assert np.array_equal(out, safe), (real, law.law, m)
         assert control.STATUS_INPUT_INVALID in statuses
-    # Absurd but finite sensor values drive the estimate out of range: the filter restarts.
+        assert control.STATUS_INPUT_IMPLAUSIBLE in statuses  # the sequence's 1e30 and -1e300
+    # Absurd but finite sensor values are implausible: the safe force, the filter restarts.
+    biggest = float(np.finfo(np.float64 if real == "double" else np.float32).max)
+    l, ny = len(reference.joint_names), len(reference.sensor_names)
+    m = simulate.Measurements(0.0, np.full(ny, biggest), np.zeros(l), np.ones(l), np.full(l, 100.0))
     law = builds[real].clipped_lqg()
-    m = simulate.Measurements(0.0, np.full(len(reference.sensor_names), float(np.finfo(np.float64 if real == "double" else np.float32).max)),
-                              np.zeros(len(reference.joint_names)), np.ones(len(reference.joint_names)),
-                              np.full(len(reference.joint_names), 100.0))
+    assert np.array_equal(law.step(m), safe) and law.status == control.STATUS_INPUT_IMPLAUSIBLE
+    # With the sensor range opened to the largest number they drive the estimate out of the
+    # finite numbers: ESTIMATE_RESET, the safe force, the filter restarts.
+    wide = artifact.loads(json.dumps(dict(json.loads(artifact.dumps(reference)), sensor_limit=[biggest] * ny)))
+    law = build.compile_controllers(wide, real).clipped_lqg()
     statuses = []
     for _ in range(5):
         out = law.step(m)
         statuses.append(law.status)
         assert np.all(np.isfinite(out)) and np.all(out >= low) and np.all(out <= high)
+        if law.status:
+            assert np.array_equal(out, safe)
     assert control.STATUS_ESTIMATE_RESET in statuses
+
+
+# Every input channel of both laws with its plausible range in the artefact.
+CHANNELS = [("siso", "sliding_velocity"), ("siso", "friction_force"), ("siso", "normal_force"),
+            ("clqg", "sensors"), ("clqg", "friction_force"), ("clqg", "normal_force")]
+
+
+def _channel_range(a, field):
+    if field == "normal_force":
+        return a.measured_normal_force_min, a.measured_normal_force_max
+    limit = {"sliding_velocity": a.sliding_velocity_limit, "friction_force": a.friction_force_limit,
+             "sensors": a.sensor_limit}[field]
+    return -limit, limit
+
+
+def _probes(low, high):
+    """(value, expected status) for one input: inside, at both limits, one ulp beyond each,
+    NaN, ±1e38 (finite even in float) and ±Inf."""
+    implausible, invalid = control.STATUS_INPUT_IMPLAUSIBLE, control.STATUS_INPUT_INVALID
+    return [(0.5 * high, 0), (0.5 * low, 0), (low, 0), (high, 0),
+            (float(np.nextafter(high, np.inf)), implausible), (float(np.nextafter(low, -np.inf)), implausible),
+            (np.nan, invalid), (1e38, implausible), (-1e38, implausible), (np.inf, invalid), (-np.inf, invalid)]
+
+
+def _plausible_run(a, count, seed):
+    """Measurements well inside every range, with the stick-slip scales of the study."""
+    rng = np.random.default_rng(seed)
+    l, ny = len(a.joint_names), len(a.sensor_names)
+    return [simulate.Measurements(k * a.sample_time, rng.normal(0, 1e-2, ny), rng.normal(0, 1e-2, l),
+                                  rng.normal(0, 100, l), rng.uniform(10, 400, l)) for k in range(count)]
+
+
+def _inject(m, field, index, value):
+    out = simulate.Measurements(m.time, m.sensors.copy(), m.sliding_velocity.copy(), m.friction_force.copy(),
+                                m.normal_force.copy())
+    getattr(out, field)[index] = value
+    return out
+
+
+@pytest.mark.parametrize("law, field", CHANNELS)
+def test_each_input_channel_is_checked_alike_in_python_and_c(reference, builds, law, field):
+    """Per channel and element: inside, at the limit, one ulp beyond, NaN, ±1e38, ±Inf — the
+    double build gives the outputs, u_d and status of the Python reference bit for bit (also on
+    the samples after, with the memories restarted); an unusable value puts every joint at the
+    safe force. The float build: the same status and safe force where the value is clearly
+    outside (twice the limit, ±1e38, ±Inf, NaN) and status 0 inside."""
+    make = artifact.siso_law if law == "siso" else artifact.clipped_lqg
+    python = make(reference)
+    compiled = {real: getattr(builds[real], "siso" if law == "siso" else "clipped_lqg")() for real in builds}
+    low, high = (np.asarray(v, dtype=float) for v in _channel_range(reference, field))
+    before, after = _plausible_run(reference, 6, seed=11), _plausible_run(reference, 4, seed=12)
+    safe, lowest = reference.safe_normal_force, reference.normal_force_min
+    for index in range(low.size):
+        for value, expected in _probes(float(low[index]), float(high[index])):
+            sequence = before + [_inject(before[-1], field, index, value)] + after
+            python.reset()
+            compiled["double"].reset()
+            for k, m in enumerate(sequence):
+                expected_out = python.step(m)
+                got = compiled["double"].step(m)
+                assert got.tobytes() == expected_out.tobytes(), (field, index, value, k)
+                assert compiled["double"].status == python.status, (field, index, value, k)
+                if law == "clqg":
+                    assert compiled["double"].desired_force.tobytes() == python.desired_force.tobytes()
+                if k == len(before):
+                    assert python.status == expected, (field, index, value)
+                    if expected:
+                        assert np.array_equal(expected_out, safe)
+                elif k == len(before) + 1 and expected and law == "siso":
+                    # the joint forgot its μ: F^min at its next sample; the others kept theirs
+                    assert expected_out[index] == lowest[index]
+                else:
+                    assert python.status == control.STATUS_OK
+        float_law = compiled["float"]
+        # 2·limit for the magnitudes; below a measured F_N minimum of 0 N, 2·min − 1 N is still outside
+        cases = [(0.5 * float(high[index]), 0), (0.5 * float(low[index]), 0),
+                  (2.0 * float(high[index]), control.STATUS_INPUT_IMPLAUSIBLE),
+                  (2.0 * float(low[index]) - 1.0, control.STATUS_INPUT_IMPLAUSIBLE),
+                  (np.nan, control.STATUS_INPUT_INVALID), (1e38, control.STATUS_INPUT_IMPLAUSIBLE),
+                  (-1e38, control.STATUS_INPUT_IMPLAUSIBLE), (np.inf, control.STATUS_INPUT_INVALID),
+                  (-np.inf, control.STATUS_INPUT_INVALID)]
+        for value, expected in cases:
+            float_law.reset()
+            for m in before:
+                float_law.step(m)
+            out = float_law.step(_inject(before[-1], field, index, value))
+            assert float_law.status == expected, ("float", field, index, value)
+            if expected:
+                assert np.array_equal(out, safe), ("float", field, index, value)
 
 
 @pytest.mark.numerics

@@ -132,3 +132,71 @@ def test_design_file_control_table_errors_name_the_key():
     data["control"] = {"normal_force_max": [100.0]}
     with pytest.raises(DesignError, match="control.normal_force_max"):
         parse_design(data)
+
+
+SAFETY = dict(safe_normal_force=[60.0, 80.0], friction_force_limit=[100.0, 100.0], measured_normal_force_min=[-5.0, -5.0],
+              measured_normal_force_max=[120.0, 120.0])
+
+
+def test_siso_law_puts_every_joint_at_the_safe_force_on_an_unusable_input():
+    law = control.SisoLaw(1e-3, [10.0, 10.0], [110.0, 110.0], [1e-3, 1e-3], sliding_velocity_limit=[1.0, 1.0],
+                          **SAFETY)
+    law.step(_measure(0.0, [0.1, 0.1], [30.0, 30.0], [100.0, 100.0]))
+    assert np.array_equal(law.step(_measure(1e-3, [0.1, 0.1], [30.0, 30.0], [100.0, 100.0])), [110.0, 110.0])
+    # At the limits is plausible: the law acts (μ = 0.3, v = 1 → F^max).
+    assert np.array_equal(law.step(_measure(2e-3, [1.0, -1.0], [100.0, -100.0], [120.0, -5.0])), [110.0, 10.0])
+    assert law.status == control.STATUS_OK
+    # One value just beyond its range in joint 0: both joints at their safe force, only joint 0 forgets μ.
+    beyond = float(np.nextafter(100.0, np.inf))
+    assert np.array_equal(law.step(_measure(3e-3, [0.1, -0.1], [beyond, -30.0], [100.0, 100.0])), [60.0, 80.0])
+    assert law.status == control.STATUS_INPUT_IMPLAUSIBLE
+    out = law.step(_measure(4e-3, [0.1, 0.1], [30.0, 30.0], [100.0, 100.0]))
+    assert out[0] == 10.0 and out[1] == 10.0  # joint 0: μ = 0; joint 1: μ = −30/100 < 0 with v > 0
+    # NaN is INPUT_INVALID only, Inf too; a finite absurd value is INPUT_IMPLAUSIBLE; both at once: both bits.
+    for bad, status in ((np.nan, control.STATUS_INPUT_INVALID), (np.inf, control.STATUS_INPUT_INVALID),
+                        (1e38, control.STATUS_INPUT_IMPLAUSIBLE), (-200.0, control.STATUS_INPUT_IMPLAUSIBLE)):
+        assert np.array_equal(law.step(_measure(5e-3, [0.1, 0.1], [30.0, 30.0], [bad, 100.0])), [60.0, 80.0])
+        assert law.status == status, bad
+    law.step(_measure(6e-3, [np.nan, 2.0], [30.0, 30.0], [100.0, 100.0]))
+    assert law.status == control.STATUS_INPUT_INVALID | control.STATUS_INPUT_IMPLAUSIBLE
+
+
+def test_clipped_lqg_restarts_at_the_safe_force_on_an_unusable_input(model):
+    design = control.design_lqg(model, 1e-3)
+    ny = model.velocity_output.shape[0]
+    law = control.ClippedLqg(design, np.full(2, 20.0), np.full(2, 220.0), 10.0, sensor_limit=np.full(ny, 0.01),
+                             **{**SAFETY, "safe_normal_force": [220.0, 20.0]})
+    good = _measure(0.0, [0.0, 0.0], [50.0, -50.0], [100.0, 100.0], y=np.full(ny, 0.01))  # sensors at the limit
+    fresh = law.step(good)
+    assert law.status == control.STATUS_OK and law.started
+    for field, bad, status in (("sensors", -0.0101, control.STATUS_INPUT_IMPLAUSIBLE),
+                               ("friction_force", -101.0, control.STATUS_INPUT_IMPLAUSIBLE),
+                               ("normal_force", 121.0, control.STATUS_INPUT_IMPLAUSIBLE),
+                               ("normal_force", np.nan, control.STATUS_INPUT_INVALID)):
+        law.step(good)
+        faulty = _measure(0.0, [0.0, 0.0], [50.0, -50.0], [100.0, 100.0], y=np.full(ny, 0.01))
+        getattr(faulty, field)[-1] = bad
+        assert np.array_equal(law.step(faulty), [220.0, 20.0]) and law.status == status, field
+        assert not law.started and np.all(law.desired_force == 0.0) and np.all(law.estimate == 0.0)
+        assert np.array_equal(law.step(good), fresh)  # the filter restarted: as at its first sample
+
+
+def test_defaults_without_safety_data_only_refuse_non_finite_inputs():
+    law = control.SisoLaw(1e-3, [10.0, 10.0], [110.0, 110.0], [1e-3, 1e-3])
+    assert np.array_equal(law.safe_normal_force, [110.0, 110.0])  # the design file's default: F^max
+    law.step(_measure(0.0, [1e6, -1e6], [1e9, 1e9], [-1e9, 1e9]))
+    assert law.status == control.STATUS_OK
+    assert np.array_equal(law.step(_measure(0.0, [np.inf, 0.0], [0.0, 0.0], [1.0, 1.0])), [110.0, 110.0])
+    assert law.status == control.STATUS_INPUT_INVALID
+
+
+def test_bad_safety_arguments_are_named():
+    args = (1e-3, [10.0, 10.0], [110.0, 110.0], [1e-3, 1e-3])
+    with pytest.raises(ModelError, match="safe_normal_force: \\[5.0, 50.0\\] — must lie within"):
+        control.SisoLaw(*args, safe_normal_force=[5.0, 50.0])
+    with pytest.raises(ModelError, match="sliding_velocity_limit: \\[0.0, 1.0\\] — must be > 0"):
+        control.SisoLaw(*args, sliding_velocity_limit=[0.0, 1.0])
+    with pytest.raises(ModelError, match="friction_force_limit: .*expected a number or 2 numbers"):
+        control.SisoLaw(*args, friction_force_limit=[1.0, 2.0, 3.0])
+    with pytest.raises(ModelError, match="measured_normal_force_min .* need min <= max"):
+        control.SisoLaw(*args, measured_normal_force_min=[0.0, 0.0], measured_normal_force_max=[-1.0, 100.0])

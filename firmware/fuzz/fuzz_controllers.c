@@ -4,12 +4,15 @@
  *
  * Input: the law, then one input struct per step, every scalar an arbitrary bit pattern (NaN,
  * infinities, denormals and huge values included); a control byte per step may restart the
- * controller. The contract, as smartjoint_types.h and the headers state it:
- * - every output normal force, on every step, is a number within [F^min, F^max] of its joint;
+ * controller. The contract, as smartjoint_types.h and the headers state it, with the safe force
+ * and the plausible ranges taken from the artefact (fuzz_reference.c), not from the C:
  * - the status holds only the documented bits; INPUT_INVALID is set exactly when an input is
- *   NaN or infinite (SISO: then that joint is at F^min exactly);
- * - clipped LQG: a non-zero status (invalid input, or ESTIMATE_RESET when the estimate left the
- *   finite numbers) puts every joint at F^min with u_d = 0; a zero status gives finite u_d.
+ *   NaN or infinite, INPUT_IMPLAUSIBLE exactly when a finite input lies outside its range
+ *   (|v|, |u_R|, |y| up to their limits, the measured F_N within its range, limits included);
+ * - either bit (and, for the clipped LQG, ESTIMATE_RESET) puts EVERY joint at the safe normal
+ *   force exactly, with u_d = 0 for the clipped LQG;
+ * - otherwise every output normal force is a number within [F^min, F^max] of its joint, and the
+ *   clipped LQG's u_d is finite.
  * UBSan and ASan abort on any undefined behaviour or out-of-bounds access in the step. */
 #include <math.h>
 #include <stdint.h>
@@ -24,6 +27,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 /* The bus table and the controllers come from the same artefact. */
 typedef char joints_agree[(FUZZ_JOINTS == SMARTJOINT_SISO_JOINTS && FUZZ_JOINTS == SMARTJOINT_CLQG_JOINTS) ? 1 : -1];
+typedef char sensors_agree[(FUZZ_SENSORS == SMARTJOINT_CLQG_SENSORS) ? 1 : -1];
 
 #ifdef FUZZ_REAL_DOUBLE
 #define take_real fuzz_take_double
@@ -33,23 +37,42 @@ typedef char joints_agree[(FUZZ_JOINTS == SMARTJOINT_SISO_JOINTS && FUZZ_JOINTS 
 #define BUILD "float"
 #endif
 
-static smartjoint_real lowest(unsigned int joint)
+/* Every limit in the build's type, as the generated tables hold it: a float input is compared
+ * with the float the literal of the limit parses to. */
+static smartjoint_real in_build(double value)
 {
-    return (smartjoint_real)fuzz_normal_force_min[joint];
+    return (smartjoint_real)value;
 }
 
-static smartjoint_real highest(unsigned int joint)
+/* The reference classification of one input: INPUT_INVALID for NaN/Inf, INPUT_IMPLAUSIBLE for
+ * a finite value outside [low, high], else 0. */
+static unsigned int classify(smartjoint_real value, double low, double high)
 {
-    return (smartjoint_real)fuzz_normal_force_max[joint];
+    if (!isfinite(value)) {
+        return SMARTJOINT_STATUS_INPUT_INVALID;
+    }
+    return (value >= in_build(low) && value <= in_build(high)) ? 0u : SMARTJOINT_STATUS_INPUT_IMPLAUSIBLE;
 }
 
 static void check_bounds(const char *law, const smartjoint_real *normal_force, int step)
 {
     unsigned int j;
     for (j = 0u; j < FUZZ_JOINTS; ++j) {
-        if (!(normal_force[j] >= lowest(j) && normal_force[j] <= highest(j))) {
+        if (!(normal_force[j] >= in_build(fuzz_normal_force_min[j]) &&
+              normal_force[j] <= in_build(fuzz_normal_force_max[j]))) {
             fuzz_fail("controllers_" BUILD, "%s step %d: F_N of joint %u is %.9g, outside [%.9g, %.9g]", law, step, j,
-                      (double)normal_force[j], (double)lowest(j), (double)highest(j));
+                      (double)normal_force[j], fuzz_normal_force_min[j], fuzz_normal_force_max[j]);
+        }
+    }
+}
+
+static void check_safe(const char *law, const smartjoint_real *normal_force, unsigned int status, int step)
+{
+    unsigned int j;
+    for (j = 0u; j < FUZZ_JOINTS; ++j) {
+        if (normal_force[j] != in_build(fuzz_controller_safe_normal_force[j])) {
+            fuzz_fail("controllers_" BUILD, "%s step %d: status 0x%x but joint %u at %.9g N, not the safe %.9g N", law,
+                      step, status, j, (double)normal_force[j], fuzz_controller_safe_normal_force[j]);
         }
     }
 }
@@ -62,7 +85,7 @@ static void fuzz_siso(fuzz_reader *reader)
     for (step = 0; step < MAX_STEPS && fuzz_more(reader); ++step) {
         smartjoint_siso_input input;
         smartjoint_siso_output output;
-        unsigned int status, j, invalid = 0u;
+        unsigned int status, j, expected = 0u;
         if (fuzz_take_u8(reader) == 0xFFu) {
             smartjoint_siso_init(&state);
         }
@@ -70,26 +93,19 @@ static void fuzz_siso(fuzz_reader *reader)
             input.sliding_velocity[j] = take_real(reader);
             input.friction_force[j] = take_real(reader);
             input.normal_force[j] = take_real(reader);
+            expected |= classify(input.sliding_velocity[j], -fuzz_sliding_velocity_limit[j],
+                                 fuzz_sliding_velocity_limit[j]);
+            expected |= classify(input.friction_force[j], -fuzz_friction_force_limit[j], fuzz_friction_force_limit[j]);
+            expected |= classify(input.normal_force[j], fuzz_measured_normal_force_min[j],
+                                 fuzz_measured_normal_force_max[j]);
         }
         status = smartjoint_siso_step(&state, &input, &output);
-        if (status & ~SMARTJOINT_STATUS_INPUT_INVALID) {
-            fuzz_fail("controllers_" BUILD, "siso step %d: undocumented status bits 0x%x", step, status);
+        if (status != expected) {
+            fuzz_fail("controllers_" BUILD, "siso step %d: status 0x%x, the inputs give 0x%x", step, status, expected);
         }
         check_bounds("siso", output.normal_force, step);
-        for (j = 0u; j < FUZZ_JOINTS; ++j) {
-            const int finite = isfinite(input.sliding_velocity[j]) && isfinite(input.friction_force[j]) &&
-                               isfinite(input.normal_force[j]);
-            if (!finite) {
-                invalid = 1u;
-                if (output.normal_force[j] != lowest(j)) {
-                    fuzz_fail("controllers_" BUILD, "siso step %d: joint %u with a non-finite input is at %.9g, not F^min",
-                              step, j, (double)output.normal_force[j]);
-                }
-            }
-        }
-        if ((status != 0u) != (invalid != 0u)) {
-            fuzz_fail("controllers_" BUILD, "siso step %d: status 0x%x for %s inputs", step, status,
-                      invalid ? "non-finite" : "finite");
+        if (status != 0u) {
+            check_safe("siso", output.normal_force, status, step);
         }
     }
 }
@@ -102,33 +118,34 @@ static void fuzz_clqg(fuzz_reader *reader)
     for (step = 0; step < MAX_STEPS && fuzz_more(reader); ++step) {
         smartjoint_clqg_input input;
         smartjoint_clqg_output output;
-        unsigned int status, j, r;
-        int invalid = 0;
+        unsigned int status, j, r, expected = 0u;
         if (fuzz_take_u8(reader) == 0xFFu) {
             smartjoint_clqg_init(&state);
         }
-        for (r = 0u; r < SMARTJOINT_CLQG_SENSORS; ++r) {
+        for (r = 0u; r < FUZZ_SENSORS; ++r) {
             input.sensors[r] = take_real(reader);
-            invalid |= !isfinite(input.sensors[r]);
+            expected |= classify(input.sensors[r], -fuzz_sensor_limit[r], fuzz_sensor_limit[r]);
         }
         for (j = 0u; j < FUZZ_JOINTS; ++j) {
             input.friction_force[j] = take_real(reader);
             input.normal_force[j] = take_real(reader);
-            invalid |= !isfinite(input.friction_force[j]) || !isfinite(input.normal_force[j]);
+            expected |= classify(input.friction_force[j], -fuzz_friction_force_limit[j], fuzz_friction_force_limit[j]);
+            expected |= classify(input.normal_force[j], fuzz_measured_normal_force_min[j],
+                                 fuzz_measured_normal_force_max[j]);
         }
         status = smartjoint_clqg_step(&state, &input, &output);
-        if (status & ~(SMARTJOINT_STATUS_INPUT_INVALID | SMARTJOINT_STATUS_ESTIMATE_RESET)) {
-            fuzz_fail("controllers_" BUILD, "clqg step %d: undocumented status bits 0x%x", step, status);
+        /* Usable inputs may still drive the estimate out of the finite numbers: ESTIMATE_RESET. */
+        if (status != expected && !(expected == 0u && status == SMARTJOINT_STATUS_ESTIMATE_RESET)) {
+            fuzz_fail("controllers_" BUILD, "clqg step %d: status 0x%x, the inputs give 0x%x", step, status, expected);
         }
         check_bounds("clqg", output.normal_force, step);
-        if (((status & SMARTJOINT_STATUS_INPUT_INVALID) != 0u) != (invalid != 0)) {
-            fuzz_fail("controllers_" BUILD, "clqg step %d: status 0x%x for %s inputs", step, status,
-                      invalid ? "non-finite" : "finite");
+        if (status != 0u) {
+            check_safe("clqg", output.normal_force, status, step);
         }
         for (j = 0u; j < FUZZ_JOINTS; ++j) {
-            if (status != 0u && (output.normal_force[j] != lowest(j) || output.desired_force[j] != 0)) {
-                fuzz_fail("controllers_" BUILD, "clqg step %d: status 0x%x but joint %u at %.9g N, u_d %.9g", step,
-                          status, j, (double)output.normal_force[j], (double)output.desired_force[j]);
+            if (status != 0u && output.desired_force[j] != 0) {
+                fuzz_fail("controllers_" BUILD, "clqg step %d: status 0x%x but u_d of joint %u is %.9g", step, status, j,
+                          (double)output.desired_force[j]);
             }
             if (status == 0u && !isfinite(output.desired_force[j])) {
                 fuzz_fail("controllers_" BUILD, "clqg step %d: status 0 with a non-finite u_d of joint %u", step, j);

@@ -7,7 +7,7 @@ Writes into FOLDER:
   (``full_codec``, as the SIL bench compiles it), so pack and unpack can be fuzzed as a pair;
 - ``fuzz_reference.h/.c``: what the harnesses check against, taken from the protocol and the
   artefact rather than from the generated C: the signal layout of ``bus.dbc``, F^min and F^max,
-  the safe normal force and the amplifier gain.
+  the safe normal force, the amplifier gain and the plausible ranges of the controller inputs.
 
 Before writing anything it renders the float firmware again and requires it to equal
 ``firmware/generated`` byte for byte, so the extra builds come from the generator that wrote
@@ -53,6 +53,7 @@ def _layout(db, artifact) -> tuple[str, str]:
     header.append(f"#define FUZZ_MAX_LENGTH {longest}u")
     header.append(f"#define FUZZ_MESSAGE_COUNT {len(messages)}u")
     header.append(f"#define FUZZ_JOINTS {len(artifact.joint_names)}u")
+    header.append(f"#define FUZZ_SENSORS {len(artifact.sensor_names)}u")
     header.append("/* X(lower-case message name) for every frame of the bus */")
     header.append("#define FUZZ_MESSAGES(X) " + " ".join(f"X({m.name.lower()})" for m in messages))
     header.append("")
@@ -63,7 +64,14 @@ def _layout(db, artifact) -> tuple[str, str]:
                "extern const double fuzz_normal_force_min[FUZZ_JOINTS];",
                "extern const double fuzz_normal_force_max[FUZZ_JOINTS];",
                "extern const double fuzz_safe_normal_force[FUZZ_JOINTS];",
-               "extern const double fuzz_force_per_volt;", "extern const double fuzz_preload;", "",
+               "extern const double fuzz_force_per_volt;", "extern const double fuzz_preload;",
+               "/* The controllers' safe force and the plausible ranges of their inputs (artefact) */",
+               "extern const double fuzz_controller_safe_normal_force[FUZZ_JOINTS];",
+               "extern const double fuzz_sliding_velocity_limit[FUZZ_JOINTS];",
+               "extern const double fuzz_friction_force_limit[FUZZ_JOINTS];",
+               "extern const double fuzz_measured_normal_force_min[FUZZ_JOINTS];",
+               "extern const double fuzz_measured_normal_force_max[FUZZ_JOINTS];",
+               "extern const double fuzz_sensor_limit[FUZZ_SENSORS];", "",
                "#endif /* FUZZ_REFERENCE_H */", ""]
     for m in messages:
         rows = []
@@ -92,6 +100,13 @@ def _layout(db, artifact) -> tuple[str, str]:
         source.append(f"const double fuzz_{name}[FUZZ_JOINTS] = {{" + ", ".join(_number(v) for v in values) + "};")
     source.append(f"const double fuzz_force_per_volt = {_number(artifact.piezo_force_per_volt)};")
     source.append(f"const double fuzz_preload = {_number(artifact.piezo_preload)};")
+    for name, values, size in (("controller_safe_normal_force", artifact.safe_normal_force, "FUZZ_JOINTS"),
+                               ("sliding_velocity_limit", artifact.sliding_velocity_limit, "FUZZ_JOINTS"),
+                               ("friction_force_limit", artifact.friction_force_limit, "FUZZ_JOINTS"),
+                               ("measured_normal_force_min", artifact.measured_normal_force_min, "FUZZ_JOINTS"),
+                               ("measured_normal_force_max", artifact.measured_normal_force_max, "FUZZ_JOINTS"),
+                               ("sensor_limit", artifact.sensor_limit, "FUZZ_SENSORS")):
+        source.append(f"const double fuzz_{name}[{size}] = {{" + ", ".join(_number(v) for v in values) + "};")
     return "\n".join(header), "\n".join(source) + "\n"
 
 
