@@ -117,6 +117,8 @@ class AmplifierModel:
         self.controller_mode = None
         self.implausible = False
         self.own_safe = True
+        self.started = False  # no valid command yet (power-up: holds the safe force, not a trip …
+        self.waiting = 0  # … until it waited timeout_cycles: then its watchdog says so)
         self.clear_cycles = 0
         self.reasons: tuple[str, ...] = ("power-up",)
 
@@ -145,6 +147,7 @@ class AmplifierModel:
             self.controller_mode = int(decode(bytes(data)))
 
     def _watchdog(self) -> None:
+        self.waiting += not self.started  # power-up cycles without a valid command
         reasons = []
         for name, watch in (("setpoint", self.setpoint_watch), ("heartbeat", self.heartbeat_watch)):
             reason = watch.tick()
@@ -162,8 +165,9 @@ class AmplifierModel:
             self.own_safe, self.clear_cycles = True, 0
         else:
             self.clear_cycles += 1
-            if self.clear_cycles >= self.recovery_cycles:
-                self.own_safe = False
+            # power-up: the first valid command ends it; after a trip, recovery_cycles clean ones
+            if self.clear_cycles >= self.recovery_cycles or not self.started:
+                self.own_safe, self.started = False, True
         self.reasons = tuple(reasons)
 
     def advance(self, step: float) -> float:
@@ -202,4 +206,5 @@ class AmplifierModel:
                 "temperature": HOT_TEMPERATURE if self.fault == "over_temperature" else self.temperature,
                 "over_temperature": int(self.fault == "over_temperature"), "no_response": 0,
                 "stuck_output": int(self.fault == "stuck_output"), "over_current": int(self.fault == "over_current"),
-                "safe_state": int(self.own_safe), "sync": self.heartbeat_watch.counter or 0}
+                "safe_state": int(self.own_safe and (self.started or self.waiting >= self.timeout_cycles)),
+                "sync": self.heartbeat_watch.counter or 0}

@@ -166,8 +166,9 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
                        maximum=215.0, unit="degC", comment="amplifier temperature"),
         ] + [can.Signal(fault, 12 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
              for k, fault in enumerate(AMPLIFIER_FAULTS)] + [
-            can.Signal("safe_state", 56, 1, comment="the amplifier holds the safe force by its own watchdog "
-                       "(no fresh valid setpoint or heartbeat, implausible setpoint, heartbeat mode safe is not it)")]
+            can.Signal("safe_state", 56, 1, comment="the amplifier's watchdog tripped and holds the safe force "
+                       "(no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold "
+                       "before the first command, nor following the heartbeat's mode)")]
         messages.append(can.Message(STATUS_BASE + j, f"AMP_STATUS_{tag}", 8, status, senders=[f"AMPLIFIER_{tag}"],
                                     cycle_time=cycle, is_fd=True, comment=f"amplifier {name} status"))
     tip = _e2e(TIP_ID, sync=12) + [

@@ -5,11 +5,12 @@ Per case the bench (compiled firmware ↔ python-can bus ↔ amplifier nodes) ru
 controller cycles and reports, counted from the fault's start — or, for a delay, from its
 detection bound (the latency of ``timeout_cycles − 1`` cycles a frame may have):
 
-- ``firmware``: cycles until the firmware is in its safe state;
-- ``joints``: cycles until every joint's amplifier applies the safe normal force (a joint
-  whose output stage itself failed — ``stuck_output``, ``gain_error`` — cannot, whatever it is
-  told: it is listed, the others must be safe);
-- ``holds``: the joints stay at the safe force while the fault lasts;
+- ``firmware``: cycles until the firmware is in its safe state and stays there while the fault
+  lasts;
+- ``joints``: cycles until every joint's amplifier applies the safe normal force and keeps it
+  while the fault lasts (a joint whose output stage itself failed — ``stuck_output``,
+  ``gain_error`` — cannot, whatever it is told: it is listed, the others must be safe);
+- ``holds``: the joints do settle at the safe force before the fault ends;
 - ``recovery``: cycles after the fault's end until the firmware controls again and no
   amplifier holds its own safe state.
 
@@ -73,13 +74,14 @@ def implausible_values(artifact, db) -> dict:
     return values
 
 
-def cases(artifact, db, timeout_cycles: int = 2, timings=TIMINGS) -> list[Case]:
+def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     """Every fault kind on every frame (and every decoded signal, amplifier and the bus), in
     each of ``timings``; a delay within the latency bound on each frame (tolerated); pairs of
     faults at once."""
     dt = float(artifact.sample_time)
     frames = [m.name for m in sorted(db.messages, key=lambda m: m.frame_id)]
     joints = list(artifact.joint_names)
+    timeout_cycles = artifact.timeout_cycles
     late = timeout_cycles * dt  # one cycle beyond the latency bound
     single = []
     for frame in frames:
@@ -194,14 +196,19 @@ def run_case(firmware, case: Case, measurements) -> dict:
     if reference >= stop:  # a fault that never showed (a gain error on commands within the tolerance)
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
         return row
-    row["firmware"] = first(safe, reference)
-    row["joints"] = first(at_safe, reference)
-    row["holds"] = bool(row["joints"] is not None and at_safe[reference + row["joints"]:stop].all())
+    def settled(flags):  # cycles from the reference until the flag holds for the rest of the fault
+        off = np.flatnonzero(~flags[reference:stop])
+        return 0 if not off.size else (int(off[-1]) + 1 if off[-1] + 1 < stop - reference else None)
+
+    row["firmware"] = settled(safe)
+    row["joints"] = settled(at_safe)
+    row["holds"] = row["joints"] is not None
     recovered = None
     if end is not None and end < len(safe):
         recovered = first(~safe & ~own_safe, end)
     row["recovery"] = recovered
-    row["power_up_safe"] = bool(np.all(at_safe[:first(~safe, 0) or len(safe)]))  # until the first valid command
+    running = first(~safe, 0)  # until the first valid command the joints hold the safe force
+    row["power_up_safe"] = bool(np.all(at_safe[:len(safe) if running is None else running]))
     row["ok"] = bool(row["joints"] is not None and row["joints"] <= DETECTION_LIMIT and row["holds"]
                      and row["power_up_safe"] and (end is None or end >= len(safe) or recovered is not None))
     return row

@@ -175,7 +175,7 @@ class SilLoop:
 
     def __init__(self, firmware, excitation_end: float = 0.0, excitation_force=None, faults=(),
                  interface: str = "virtual", channel: str = "smartjoint-sil", log_path=None,
-                 amplifier: dict | None = None, timeout_cycles: int = 2, recovery_cycles: int = 3):
+                 amplifier: dict | None = None):
         self.fw = firmware
         self.db = firmware.db
         a = firmware.artifact
@@ -197,8 +197,9 @@ class SilLoop:
         self.amplifier_options = [dict(force_per_volt=a.piezo_force_per_volt, preload=a.piezo_preload,
                                        capacitance=a.piezo_capacitance, safe_normal_force=float(a.safe_normal_force[j]),
                                        normal_force_min=float(a.normal_force_min[j]),
-                                       normal_force_max=float(a.normal_force_max[j]), timeout_cycles=timeout_cycles,
-                                       recovery_cycles=recovery_cycles, **options) for j in range(len(self.joints))]
+                                       normal_force_max=float(a.normal_force_max[j]),
+                                       timeout_cycles=a.timeout_cycles, recovery_cycles=a.recovery_cycles,
+                                       **options) for j in range(len(self.joints))]
         self.frames = {m.name: m for m in self.db.messages}
         self.buses = []
         self.writer = None

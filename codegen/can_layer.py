@@ -16,9 +16,6 @@ from ..design.errors import ModelError
 from . import generate, identifiers
 
 RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
-TIMEOUT_CYCLES = 2  # a frame more than one cycle late is missing; up to one cycle late it is used
-RECOVERY_CYCLES = 3  # fault-free cycles before the safe state ends
-UINT32_MAX = 2 ** 32 - 1  # the layer's clock: microseconds in uint32_t, wrapping
 
 
 def _signal(signal) -> dict:
@@ -37,16 +34,10 @@ def _signal(signal) -> dict:
             "comment": (signal.comment or signal.name).replace("*/", "* /")}
 
 
-def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier, timeout_cycles: int = TIMEOUT_CYCLES,
-              recovery_cycles: int = RECOVERY_CYCLES) -> None:
-    """What the CAN layer's C types and frames must hold, before anything is rendered."""
+def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier) -> None:
+    """What the CAN layer's C types and frames must hold, before anything is rendered (the
+    timing and the safe state come validated with the artefact)."""
     identifiers.check_names(artifact.joint_names, artifact.sensor_names, members=protocol.E2E_SIGNALS)
-    for name, value in (("timeout_cycles", timeout_cycles), ("recovery_cycles", recovery_cycles)):
-        if isinstance(value, bool) or not (isinstance(value, int) and 1 <= value <= 255):
-            raise ModelError(f"{name}: {value!r} — a whole number between 1 and 255")
-    if timeout_cycles < 2:
-        raise ModelError(f"timeout_cycles: {timeout_cycles!r} — at least 2: with 1 every frame that arrives after "
-                         "its step (jitter) would be missing")
     db = protocol.database(artifact, amplifier)  # names, cycle times and signal ranges of the DBC
     low, high = np.asarray(artifact.normal_force_min), np.asarray(artifact.normal_force_max)
     k, preload = amplifier.force_per_volt, amplifier.preload
@@ -61,6 +52,10 @@ def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier, timeo
                              f"commands at most piezo_force_per_volt·voltage_max + piezo_preload = {k:g}·"
                              f"{amplifier.voltage_max:g} + {preload:g} = {reach:g} N")
         frame = db.get_message_by_name(f"JOINT_{tag}")
+        measured = frame.get_signal_by_name("normal_force").maximum
+        if high[j] > measured:
+            raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — the JOINT_{tag} "
+                             f"frame carries the applied F_N up to {measured:g} N (bench/protocol.py)")
         for field, signal, limit in (("measured_normal_force_max", "normal_force", artifact.measured_normal_force_max[j]),
                                      ("sliding_velocity_limit", "sliding_velocity", artifact.sliding_velocity_limit[j]),
                                      ("friction_force_limit", "friction_force", artifact.friction_force_limit[j])):
@@ -93,7 +88,6 @@ def _same_bus(db, loaded) -> bool:
 
 
 def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifier: protocol.Amplifier | None = None,
-               timeout_cycles: int = TIMEOUT_CYCLES, recovery_cycles: int = RECOVERY_CYCLES,
                full_codec: bool = False, real: str = "float") -> dict[str, str]:
     """File name → text: ``<prefix>_can.h/.c``, the E2E runtime ``sj_e2e.h/.c``, ``bus.dbc`` and
     an example ``main.c`` with the CAN loop. The firmware packs what it sends and unpacks what it
@@ -101,7 +95,7 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
     generate.check(artifact, real, prefix)
     amplifier = amplifier or protocol.Amplifier(force_per_volt=artifact.piezo_force_per_volt,
                                                 preload=artifact.piezo_preload)
-    check_can(artifact, amplifier, timeout_cycles, recovery_cycles)
+    check_can(artifact, amplifier)
     db = protocol.database(artifact, amplifier)
     messages = [{"name": m.name, "frame_id": m.frame_id, "length": m.length,
                  "received": protocol.CONTROLLER not in (m.senders or []),
@@ -133,8 +127,8 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
               f"{digest}.\n * Do not edit: regenerate with `smartjoint codegen`. */")
     context = {"prefix": prefix, "PREFIX": prefix.upper(), "name": f"{prefix}_can", "NAME": f"{prefix}_can".upper(),
                "banner": banner, "joints": joints, "sensors": [s.upper() for s in artifact.sensor_names],
-               "messages": messages, "layouts": layouts, "inputs": inputs, "cycle_us": cycle_us, "timeout_cycles": timeout_cycles,
-               "recovery_cycles": recovery_cycles, "full_codec": full_codec, "mode_safe": protocol.MODE_SAFE,
+               "messages": messages, "layouts": layouts, "inputs": inputs, "cycle_us": cycle_us,
+               "timeout_cycles": artifact.timeout_cycles, "recovery_cycles": artifact.recovery_cycles, "full_codec": full_codec, "mode_safe": protocol.MODE_SAFE,
                "safe_normal_force": doubles(artifact.safe_normal_force),
                "sliding_velocity_limit": doubles(artifact.sliding_velocity_limit),
                "friction_force_limit": doubles(artifact.friction_force_limit),

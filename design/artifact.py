@@ -86,6 +86,9 @@ SCHEMA: tuple[FieldSpec, ...] = (
     FieldSpec("amplifier_current_limit", "number", unit="A", meaning="|amplifier current| above is a fault (> 0)"),
     FieldSpec("tracking_tolerance", "number", unit="V", meaning="|monitor voltage − setpoint| above is a tracking "
               "fault (> 0)"),
+    FieldSpec("timeout_cycles", "integer", meaning="an input whose newest frame is this many cycles old is missing "
+              "(a whole number 2 … 7; firmware and amplifiers)"),
+    FieldSpec("recovery_cycles", "integer", meaning="fault-free cycles in a row before the safe state ends (1 … 255)"),
     FieldSpec("design_source", "string", meaning="file name of the design (no folder: the text must not depend on where it lies)"),
     FieldSpec("design_sha256", "string", meaning="SHA-256 of the design file bytes (\"\" for in-memory designs)"),
     FieldSpec("package_version", "string", meaning="smartjoint version that wrote the artefact"),
@@ -146,6 +149,8 @@ class ControllerArtifact:
     amplifier_temperature_limit: float
     amplifier_current_limit: float
     tracking_tolerance: float
+    timeout_cycles: int
+    recovery_cycles: int
     design_source: str
     design_sha256: str
     package_version: str
@@ -187,6 +192,10 @@ def _validated(values: dict) -> dict:
             out[spec.name] = _names(spec.name, value)
         elif spec.kind == "strings":
             out[spec.name] = _strings(spec.name, value)
+        elif spec.kind == "integer" and spec.name != "schema_version":
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+                raise _error(spec.name, value, "expected a whole number")
+            out[spec.name] = int(value)
         elif spec.kind == "array":
             out[spec.name] = _array(spec.name, value)
     for field in ("name", "package_version"):
@@ -266,6 +275,9 @@ def _check_safety(out: dict) -> None:
     for field in ("amplifier_current_limit", "tracking_tolerance"):
         if out[field] <= 0:
             raise _error(field, out[field], f"must be > 0 [{FIELDS[field].unit}]")
+    for field, low, high in (("timeout_cycles", 2, 7), ("recovery_cycles", 1, 255)):
+        if not low <= out[field] <= high:
+            raise _error(field, out[field], f"a whole number {low} … {high}")
 
 
 def _version(value) -> int:
@@ -423,7 +435,8 @@ def safety_fields(design, joints: tuple[str, ...]) -> dict:
         sensor_limit=np.array([displacement if q == "displacement" else safety.velocity_limit for q in quantities],
                               dtype=float),
         amplifier_temperature_limit=safety.amplifier_temperature_limit,
-        amplifier_current_limit=safety.amplifier_current_limit, tracking_tolerance=safety.tracking_tolerance)
+        amplifier_current_limit=safety.amplifier_current_limit, tracking_tolerance=safety.tracking_tolerance,
+        timeout_cycles=safety.timeout_cycles, recovery_cycles=safety.recovery_cycles)
 
 
 # --------------------------------------------------------------------------- text

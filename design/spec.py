@@ -243,7 +243,11 @@ class Safety:
     ``displacement_limit`` [m] / ``velocity_limit`` [m/s] for the sensors by quantity
     (displacement default: 5 % of the truss's largest extent); ``amplifier_temperature_limit``
     [°C], ``amplifier_current_limit`` [A]; ``tracking_tolerance`` [V] between the setpoint and
-    the amplifier's monitor voltage."""
+    the amplifier's monitor voltage.
+
+    Timing, the same in the firmware and the amplifiers: an input whose newest frame is
+    ``timeout_cycles`` controller cycles old is missing (2: a frame may come up to one cycle
+    late), and the safe state ends after ``recovery_cycles`` fault-free cycles in a row."""
 
     safe_normal_force: tuple[float, ...] | float | str = "max"
     sliding_velocity_limit: float = 1.0
@@ -254,6 +258,8 @@ class Safety:
     amplifier_temperature_limit: float = 85.0
     amplifier_current_limit: float = 2.5
     tracking_tolerance: float = 3.0
+    timeout_cycles: int = 2
+    recovery_cycles: int = 3
 
 
 @dataclass(frozen=True)
@@ -706,6 +712,7 @@ MAX_TEMPERATURE = 200.0  # °C: above the Curie point of PZT stacks
 MAX_CURRENT = 100.0  # A
 MAX_TRACKING_TOLERANCE = 1e3  # V
 MAX_DISPLACEMENT = 20.0  # m: what the TIP_SENSORS frame carries
+MAX_TIMEOUT_CYCLES = 7  # frames echo a 4-bit heartbeat counter: ages of 8 and more read as "ahead"
 
 
 def _parse_safety(t: _Table, control: Control, joints) -> Safety:
@@ -741,6 +748,8 @@ def _parse_safety(t: _Table, control: Control, joints) -> Safety:
                                          maximum=MAX_CURRENT),
         tracking_tolerance=t.number("tracking_tolerance", d.tracking_tolerance, positive=True,
                                     maximum=MAX_TRACKING_TOLERANCE),
+        timeout_cycles=t.integer("timeout_cycles", d.timeout_cycles, minimum=2, maximum=MAX_TIMEOUT_CYCLES),
+        recovery_cycles=t.integer("recovery_cycles", d.recovery_cycles, minimum=1, maximum=255),
     )
     t.used.add("displacement_limit")  # optional without a default: listed among the allowed keys
     t.finish()

@@ -381,24 +381,8 @@ def cmd_codegen(args) -> dict:
     from .design.errors import ModelError
 
     loaded = artifact.load(Path(args.artifact))
-    options = {}
-    if not args.no_can:
-        options = {"timeout_cycles": args.timeout_cycles, "recovery_frames": args.recovery_frames}
-        if args.safe_normal_force:
-            try:
-                options["safe_normal_force"] = [float(v) for v in args.safe_normal_force.split(",")]
-            except ValueError:
-                raise ModelError(f"--safe-normal-force: {args.safe_normal_force!r} — numbers [N], one or one per "
-                                 "joint, comma-separated") from None
-            count, joints = len(options["safe_normal_force"]), len(loaded.joint_names)
-            if count not in (1, joints):
-                raise ModelError(f"--safe-normal-force: {args.safe_normal_force!r} — {count} values for {joints} "
-                                 "joints: give one or one per joint")
-    elif args.safe_normal_force:
-        raise ModelError(f"--safe-normal-force: {args.safe_normal_force!r} — only for the CAN layer, not with "
-                         "--no-can")
     placed = generate.generate(loaded, Path(args.output), args.real, args.prefix, can=not args.no_can,
-                               check=args.check, progress=_progress, **options)
+                               check=args.check, progress=_progress)
     out = {"artifact": args.artifact, "artifact_sha256": loaded.artifact_sha256, "real": args.real,
            "prefix": args.prefix, "files": [str(p) for p in placed.written],
            "untouched": [str(p) for p in placed.untouched]}
@@ -764,9 +748,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="compile everything generated (headers alone, every .c, linked) with the strict warning set "
                         "before it is moved into place")
     p.add_argument("--no-can", action="store_true", help="controllers only, without the CAN message layer and DBC")
-    p.add_argument("--safe-normal-force", help="F_N [N] held in the safe state, one or one per joint (default: F_N^max)")
-    p.add_argument("--timeout-cycles", type=int, default=3, help="an input older than this many cycles is missing")
-    p.add_argument("--recovery-frames", type=int, default=3, help="good frames before a failed input counts again")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_codegen)
 

@@ -95,12 +95,17 @@ def test_dbc_is_generated_from_the_artefact_and_round_trips(reference):
         joint_frame = names[f"JOINT_{joint.upper()}"]
         assert joint_frame.frame_id == 0x100 + j and joint_frame.is_fd and joint_frame.cycle_time == 1
         assert names[f"SETPOINT_{joint.upper()}"].cycle_time == 1 and names[f"AMP_STATUS_{joint.upper()}"].cycle_time == 1
+        # the frames the controller reads echo its heartbeat: it ages them by that (docs/safety.md)
+        assert joint_frame.get_signal_by_name("sync").length == 4
+        assert names[f"AMP_STATUS_{joint.upper()}"].get_signal_by_name("sync").length == 4
+    assert names["CONTROLLER_STATUS"].cycle_time == 1  # the heartbeat, every cycle
     tip = names["TIP_SENSORS"]
-    assert [s.name for s in tip.signals][2:] == [s.lower() for s in reference.sensor_names]
+    assert [s.name for s in tip.signals][3:] == [s.lower() for s in reference.sensor_names]
+    assert tip.get_signal_by_name("sync").start == 12
     for message in again.messages:  # every frame starts with the E2E bytes
         assert message.get_signal_by_name("crc").start == 0 and message.get_signal_by_name("counter").start == 8
     frame = names["JOINT_A1"]
-    decoded = frame.decode(frame.encode({"crc": 0, "counter": 3, "sliding_velocity": 1.234567891e-3,
+    decoded = frame.decode(frame.encode({"crc": 0, "counter": 3, "sync": 5, "sliding_velocity": 1.234567891e-3,
                                          "friction_force": -123.45678, "normal_force": 399.98}))
     assert decoded["sliding_velocity"] == pytest.approx(1.234567891e-3, abs=1e-9)
     assert decoded["friction_force"] == pytest.approx(-123.45678, abs=1e-5)
@@ -126,7 +131,8 @@ def test_bus_load_worst_case_frames_and_the_limit(reference):
                    34 / 1e6 + busload.fd_bits(m.length)[1] / 5e6) / (m.cycle_time / 1e3) for m in db.messages)
     assert fast.load == pytest.approx(by_hand, rel=1e-12)
     assert busload.check(db, 1_000_000, 5_000_000).load == fast.load
-    with pytest.raises(ModelError, match=r"exceeds the limit 70 %; it fits at CAN FD 1/4 Mbit/s"):
+    assert fast.load == pytest.approx(0.6426, abs=5e-4)  # docs/can.md: 64.3 % with the heartbeat every cycle
+    with pytest.raises(ModelError, match=r"exceeds the limit 70 %; it fits at CAN FD 1/5 Mbit/s, CAN FD 1/8 Mbit/s"):
         busload.check(db, 1_000_000, 2_000_000)
     with pytest.raises(ModelError, match=r"no standard bitrate carries it — lengthen the sample time"):
         busload.check(db, 500_000, 2_000_000)

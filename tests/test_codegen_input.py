@@ -70,16 +70,22 @@ REFUSED = {
     "prefix of the E2E runtime": ({}, ["--prefix", "sj_e2e"], ("--prefix", "'sj_e2e'")),
     "prefix a C keyword": ({}, ["--prefix", "double"], ("--prefix", "'double'")),
     "sample time 5000 s": ({"sample_time": 5000.0}, [], ("sample_time", "5000.0")),
-    "safe force above F^max": ({}, ["--safe-normal-force", "500"], ("safe_normal_force[0]", "500.0")),
-    "safe force below F^min": ({}, ["--safe-normal-force", "400,5,400"], ("safe_normal_force[1]", "5.0")),
-    "safe force NaN": ({}, ["--safe-normal-force", "nan"], ("safe_normal_force[0]", "nan")),
-    "safe force count": ({}, ["--safe-normal-force", "100,100"], ("--safe-normal-force", "'100,100'")),
-    "safe force without CAN layer": ({}, ["--no-can", "--safe-normal-force", "100"], ("--safe-normal-force", "'100'")),
+    "safe force above F^max": ({"safe_normal_force": [500.0, 400.0, 400.0]}, [], ("safe_normal_force[0]", "500.0")),
+    "safe force below F^min": ({"safe_normal_force": [400.0, 5.0, 400.0]}, [], ("safe_normal_force[1]", "5.0")),
+    "safe force count": ({"safe_normal_force": [100.0, 100.0]}, [], ("safe_normal_force", "expected (3,)")),
+    "sensor limit beyond the frame": ({"sensor_limit": [25.0, 0.5]}, [], ("sensor_limit[0]", "25.0")),
+    "velocity limit beyond the frame": ({"sliding_velocity_limit": [1.0, 3.0, 1.0]}, [],
+                                        ("sliding_velocity_limit[1]", "3.0")),
+    "temperature limit at the frame's top": ({"amplifier_temperature_limit": 215.0}, [],
+                                             ("amplifier_temperature_limit", "215.0")),
     "F^max 1e12 N": ({"normal_force_max": [1e12, 400.0, 400.0]}, [], ("normal_force_max[0]", "1000000000000.0")),
-    "F^max beyond the setpoint frame": ({"normal_force_max": [400.0, 1250.0, 400.0]}, [],
+    "F^max beyond the setpoint frame": ({"normal_force_max": [400.0, 1250.0, 400.0],
+                                         "measured_normal_force_max": [440.0, 1300.0, 440.0]}, [],
                                         ("normal_force_max[1]", "1200 N")),
     "preload above F^min": ({"piezo_preload": 20.0}, [], ("piezo_preload", "20.0")),
-    "timeout cycles": ({}, ["--timeout-cycles", "0"], ("timeout_cycles", "0")),
+    "timeout cycles": ({"timeout_cycles": 1}, [], ("timeout_cycles", "1")),
+    "timeout cycles beyond the echo": ({"timeout_cycles": 8}, [], ("timeout_cycles", "8")),
+    "recovery cycles as a float": ({"recovery_cycles": 3.0}, [], ("recovery_cycles", "3.0")),
 }
 
 
@@ -96,21 +102,12 @@ def test_each_bad_input_is_one_line_naming_the_field_and_writes_nothing(case, re
     assert not (tmp_path / "deep").exists() and _leftovers(target) == []
 
 
-def test_the_uint32_microsecond_clock_is_checked_even_where_the_dbc_would_allow_more(reference, monkeypatch):
-    # Today the DBC's cycle-time attribute (Δt ≤ 6.553 s) binds first; the uint32 limit of the
-    # layer's clock (timeout_cycles·Δt < 2^32 µs) must hold on its own should that change.
-    monkeypatch.setattr(protocol, "CYCLE_TIME_MAX_MS", 10 ** 9)
-    slow = dataclasses.replace(reference, sample_time=5000.0)
-    with pytest.raises(ModelError, match=r"^sample_time: 5000.0 s — the CAN layer counts microseconds in uint32_t"):
-        can_layer.render_can(slow)
-    can_layer.render_can(dataclasses.replace(reference, sample_time=1431.0))  # 3·1431 s < 2^32 µs
-
-
 def test_forces_and_voltages_the_frames_cannot_carry_are_refused(reference):
     with pytest.raises(ModelError, match=r"^SETPOINT_A1\.voltage: range \[0, 500\] V — its 32-bit field carries"):
         can_layer.render_can(reference, amplifier=protocol.Amplifier(voltage_max=500.0))
     # A stiffer stack reaches 15 kN, but the JOINT frame reports the applied F_N only up to 1310 N.
-    strong = dataclasses.replace(reference, normal_force_max=np.array([400.0, 400.0, 2000.0]))
+    strong = dataclasses.replace(reference, normal_force_max=np.array([400.0, 400.0, 2000.0]),
+                                 measured_normal_force_max=np.array([440.0, 440.0, 2200.0]))
     with pytest.raises(ModelError, match=r"^normal_force_max\[2\]: 2000.0 N for joint 'A3' — the JOINT_A3 frame "
                                          r"carries the applied F_N up to 1310 N"):
         can_layer.render_can(strong, amplifier=protocol.Amplifier(force_per_volt=100.0))
@@ -125,7 +122,7 @@ def test_reserved_words_include_the_standards_spellings():
         assert word in identifiers.RESERVED, word
     for good in ("A1", "tip_y", "Joint_2b", "x"):
         identifiers.check_names([good], ["tip_y"], members=protocol.E2E_SIGNALS)
-    assert set(protocol.E2E_SIGNALS) == {"crc", "counter"}
+    assert set(protocol.E2E_SIGNALS) == {"crc", "counter", "sync"}
 
 
 def test_the_dbc_written_reads_back_as_the_protocol(reference, monkeypatch):

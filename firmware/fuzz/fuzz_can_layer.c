@@ -2,19 +2,22 @@
  *
  * Input: the law, a start time, then a sequence of events: a received frame (identifier — mostly
  * one the controller listens to —, length, payload, optionally given a valid E2E CRC and
- * counter so the fuzzer gets past the check, and the time since the last event), a step
- * followed by draining the transmit queue, or a healthy bus cycle (every input frame with any
- * payload, valid E2E) followed by a step. Times wrap around uint32.
- * Checks after every event:
+ * counter and the heartbeat echo of a healthy node so the fuzzer gets past the checks, and the
+ * time since the last event), a step followed by draining the transmit queue, or a healthy bus
+ * cycle (every input frame with any payload, valid E2E, the right echo) followed by a step.
+ * Times wrap around uint32.
+ * Checks after every event (the policy of docs/safety.md):
  * - smartjoint_can_rx returns only its documented result bits;
- * - smartjoint_can_step returns only documented status bits; in the safe state the status is
- *   SAFE_STATE and every command the configured safe normal force, else every command lies
- *   within [F^min, F^max] (an amplifier fault always means the safe state);
- * - smartjoint_can_tx sends the setpoints of all joints in order, then the status frame on
- *   every tenth step, then nothing; each frame has its length, a valid CRC and its own alive
- *   counter advancing by one; the setpoint decodes (bit-wise reference, bus.dbc) to the
- *   command over the amplifier gain, within the amplifier's range; the status frame's mode is
- *   3 in the safe state, else the law, and it carries the step status.
+ * - smartjoint_can_step returns only documented status bits; in the safe state the status has
+ *   SAFE_STATE and every command is the artefact's safe normal force, else every command lies
+ *   within [F^min, F^max];
+ * - the newest accepted amplifier status frame of any joint with a fault bit or its own safe
+ *   state means the safe state, whatever the layer remembers itself;
+ * - smartjoint_can_tx sends the setpoints of all joints in order, then the heartbeat, then
+ *   nothing; each frame has its length, a valid CRC, and every frame of a step the step's alive
+ *   counter (step n sends n + 1, mod 16); the setpoint decodes (bit-wise reference, bus.dbc) to the
+ *   command over the amplifier gain, within the amplifier's range; the heartbeat's mode is 3 in
+ *   the safe state, else the law, and it carries the step status and the fault bits.
  * Every frame sits in a buffer of exactly its size; ASan and UBSan abort on any bad access or
  * undefined behaviour. */
 #include <math.h>
@@ -45,18 +48,60 @@ typedef char inputs_agree[SMARTJOINT_CAN_INPUTS == INPUT_IDS ? 1 : -1];
 typedef struct {
     smartjoint_can_state can;
     uint32_t time;
-    uint8_t rx_counter[FRAME_IDS];       /* alive counters the harness sends with */
-    uint8_t tx_counter[FUZZ_JOINTS + 1u]; /* expected alive counters of the frames sent */
+    uint8_t rx_counter[FRAME_IDS]; /* alive counters the harness sends with */
+    uint8_t heartbeat;             /* counter of the last heartbeat sent: what healthy nodes echo */
+    uint8_t amplifier_alarm[FUZZ_JOINTS]; /* the newest accepted status frame had a fault or safe bit */
     unsigned int steps;
 } bench;
+
+static double field_value(const fuzz_message *message, const char *name, const uint8_t *frame)
+{
+    const fuzz_signal *signal = fuzz_find_signal(message, name);
+    return fuzz_reference_decode(fuzz_reference_field(frame, signal), signal);
+}
+
+/* Writes the raw bits of SIGNAL into FRAME (DBC "@1"). */
+static void put_field(uint8_t *frame, const fuzz_signal *signal, uint64_t raw)
+{
+    unsigned int k;
+    for (k = 0u; k < signal->length; ++k) {
+        const unsigned int bit = signal->start + k;
+        const uint8_t mask = (uint8_t)(1u << (bit & 7u));
+        frame[bit >> 3] = (uint8_t)(((raw >> k) & 1u) ? (frame[bit >> 3] | mask) : (frame[bit >> 3] & ~mask));
+    }
+}
 
 static void deliver(bench *b, uint32_t id, const uint8_t *frame, uint8_t length)
 {
     const unsigned int result = smartjoint_can_rx(&b->can, id, frame, length, b->time);
+    unsigned int j;
     if (result & ~(SMARTJOINT_CAN_RX_WRONG_LENGTH | SMARTJOINT_CAN_RX_BAD_CRC | SMARTJOINT_CAN_RX_COUNTER_REPEATED |
                    SMARTJOINT_CAN_RX_COUNTER_JUMP | SMARTJOINT_CAN_RX_UNKNOWN_ID | SMARTJOINT_CAN_RX_COUNTER_STALE)) {
         fuzz_fail("can_layer", "rx of id 0x%x, length %u: undocumented result 0x%x", id, length, result);
     }
+    for (j = 0u; j < FUZZ_JOINTS && result == SMARTJOINT_CAN_RX_OK; ++j) {
+        if (id == frame_ids[FUZZ_JOINTS + 1u + j]) {
+            const fuzz_message *m = fuzz_find_message(id);
+            b->amplifier_alarm[j] = (uint8_t)(field_value(m, "over_temperature", frame) != 0.0 ||
+                                              field_value(m, "no_response", frame) != 0.0 ||
+                                              field_value(m, "stuck_output", frame) != 0.0 ||
+                                              field_value(m, "over_current", frame) != 0.0 ||
+                                              field_value(m, "safe_state", frame) != 0.0);
+        }
+    }
+}
+
+/* A healthy node echoes the last heartbeat and protects the frame. */
+static void protect_as_node(bench *b, uint32_t id, uint8_t *frame, uint8_t length, uint8_t counter)
+{
+    const fuzz_message *message = fuzz_find_message(id);
+    unsigned int k;
+    for (k = 0u; message != NULL && length == message->length && k < message->count; ++k) {
+        if (strcmp(message->signals[k].name, "sync") == 0) { /* the frames the controller reads */
+            put_field(frame, &message->signals[k], b->heartbeat);
+        }
+    }
+    sj_e2e_protect((uint16_t)id, frame, length, counter);
 }
 
 static void receive(bench *b, fuzz_reader *reader)
@@ -75,36 +120,81 @@ static void receive(bench *b, fuzz_reader *reader)
         /* A frame a healthy node would send: next counter, or a few ahead, valid CRC. */
         const unsigned int slot = choice < 224u ? choice % FRAME_IDS : 0u;
         b->rx_counter[slot] = (uint8_t)(b->rx_counter[slot] + 1u + ((control >> 4) & 3u));
-        sj_e2e_protect((uint16_t)id, frame, length, b->rx_counter[slot]);
+        protect_as_node(b, id, frame, length, b->rx_counter[slot]);
     }
     b->time += (control & 4u) ? fuzz_take_u32(reader) : fuzz_take_u8(reader);
     deliver(b, id, frame, length);
     free(frame);
 }
 
-/* One sample of a healthy bus: every input node sends its frame (any payload), with the next
- * alive counter and a valid CRC, 10 us apart. */
+/* A value within [-limit, limit] (or [0, limit] when non-negative) chosen by one byte. */
+static double within_limit(fuzz_reader *reader, double limit, int non_negative)
+{
+    const double fraction = (double)fuzz_take_u8(reader) / 255.0;
+    return non_negative ? fraction * limit : (2.0 * fraction - 1.0) * limit;
+}
+
+/* The physical value a healthy node sends in signal K of input SLOT, mostly within the design's
+ * ranges, sometimes at a fault bit. */
+static double healthy_value(const bench *b, unsigned int slot, const fuzz_message *message, unsigned int k,
+                            fuzz_reader *reader)
+{
+    const char *name = message->signals[k].name;
+    const unsigned int j = slot < FUZZ_JOINTS ? slot : (slot > FUZZ_JOINTS ? slot - FUZZ_JOINTS - 1u : 0u);
+    if (slot < FUZZ_JOINTS) {
+        if (strcmp(name, "sliding_velocity") == 0) {
+            return within_limit(reader, fuzz_sliding_velocity_limit[j], 0);
+        }
+        if (strcmp(name, "friction_force") == 0) {
+            return within_limit(reader, fuzz_friction_force_limit[j], 0);
+        }
+        return within_limit(reader, fuzz_measured_normal_force_max[j], 1);
+    }
+    if (slot == FUZZ_JOINTS) { /* crc, counter, sync, then the sensors in order */
+        return within_limit(reader, fuzz_sensor_limit[(k - 3u) % FUZZ_SENSORS], 0);
+    }
+    if (strcmp(name, "monitor_voltage") == 0) {
+        return b->can.sent_voltage[j] + within_limit(reader, 0.5 * fuzz_tracking_tolerance, 0);
+    }
+    if (strcmp(name, "current") == 0) {
+        return within_limit(reader, fuzz_amplifier_current_limit, 0);
+    }
+    if (strcmp(name, "temperature") == 0) {
+        return within_limit(reader, fuzz_amplifier_temperature_limit, 1);
+    }
+    return (fuzz_take_u8(reader) & 15u) == 0u ? 1.0 : 0.0; /* a fault or safe-state bit, now and then */
+}
+
+/* One sample of a bus: every input node sends its frame with the next alive counter, the
+ * heartbeat echo and a valid CRC, 10 us apart; the payload is mostly what a healthy node sends
+ * (values within the design's ranges), else any bytes. */
 static void bus_cycle(bench *b, fuzz_reader *reader)
 {
     unsigned int slot;
     for (slot = 0u; slot < INPUT_IDS; ++slot) {
         const fuzz_message *message = fuzz_find_message(frame_ids[slot]);
         uint8_t *frame = malloc(message->length);
+        unsigned int k;
         if (frame == NULL) {
             abort();
         }
-        fuzz_take_bytes(reader, frame, message->length);
-        sj_e2e_protect((uint16_t)message->id, frame, message->length, ++b->rx_counter[slot]);
+        memset(frame, 0, message->length);
+        if (fuzz_take_u8(reader) < 224u) {
+            for (k = 0u; k < message->count; ++k) {
+                const fuzz_signal *signal = &message->signals[k];
+                if (strcmp(signal->name, "crc") != 0 && strcmp(signal->name, "counter") != 0 &&
+                    strcmp(signal->name, "sync") != 0) {
+                    put_field(frame, signal, fuzz_reference_encode(healthy_value(b, slot, message, k, reader), signal));
+                }
+            }
+        } else {
+            fuzz_take_bytes(reader, frame, message->length);
+        }
+        protect_as_node(b, message->id, frame, (uint8_t)message->length, ++b->rx_counter[slot]);
         b->time += 10u;
         deliver(b, message->id, frame, (uint8_t)message->length);
         free(frame);
     }
-}
-
-static double field_value(const fuzz_message *message, const char *name, const uint8_t *frame)
-{
-    const fuzz_signal *signal = fuzz_find_signal(message, name);
-    return fuzz_reference_decode(fuzz_reference_field(frame, signal), signal);
 }
 
 static void check_setpoint(const bench *b, unsigned int joint, const uint8_t *frame)
@@ -125,9 +215,11 @@ static void check_status_frame(const bench *b, unsigned int status, const uint8_
     const fuzz_message *message = fuzz_find_message(SMARTJOINT_CAN_CONTROLLER_STATUS_ID);
     const double mode = field_value(message, "mode", frame);
     const double expected = b->can.safe ? 3.0 : (double)b->can.law;
-    if (mode != expected || field_value(message, "step_status", frame) != (double)(status & 0xFFu)) {
-        fuzz_fail("can_layer", "status frame: mode %g (expected %g), step status %g (expected %u)", mode, expected,
-                  field_value(message, "step_status", frame), status & 0xFFu);
+    if (mode != expected || field_value(message, "step_status", frame) != (double)(status & 0xFFu) ||
+        field_value(message, "faults", frame) != (double)b->can.faults) {
+        fuzz_fail("can_layer", "status frame: mode %g (expected %g), step status %g (expected %u), faults %g (%u)", mode,
+                  expected, field_value(message, "step_status", frame), status & 0xFFu,
+                  field_value(message, "faults", frame), (unsigned int)b->can.faults);
     }
 }
 
@@ -135,14 +227,18 @@ static void check_commands(const bench *b, unsigned int status)
 {
     unsigned int j;
     int fault = 0;
-    if (status & ~(SMARTJOINT_STATUS_INPUT_INVALID | SMARTJOINT_STATUS_ESTIMATE_RESET | SMARTJOINT_CAN_STATUS_SAFE_STATE)) {
+    if (status & ~(SMARTJOINT_STATUS_INPUT_INVALID | SMARTJOINT_STATUS_ESTIMATE_RESET |
+                   SMARTJOINT_STATUS_INPUT_IMPLAUSIBLE | SMARTJOINT_CAN_STATUS_SAFE_STATE)) {
         fuzz_fail("can_layer", "step: undocumented status 0x%x", status);
+    }
+    if (!b->can.safe && status != 0u) {
+        fuzz_fail("can_layer", "step: status 0x%x outside the safe state", status);
     }
     for (j = 0u; j < FUZZ_JOINTS; ++j) {
         const double command = b->can.command[j];
-        fault |= b->can.amplifier_fault[j] != 0u;
+        fault |= b->amplifier_alarm[j] != 0u;
         if (b->can.safe) {
-            if (command != fuzz_safe_normal_force[j] || status != SMARTJOINT_CAN_STATUS_SAFE_STATE) {
+            if (command != fuzz_safe_normal_force[j] || !(status & SMARTJOINT_CAN_STATUS_SAFE_STATE)) {
                 fuzz_fail("can_layer", "safe state: joint %u commanded %.9g N, status 0x%x", j, command, status);
             }
         } else if (!(command >= fuzz_normal_force_min[j] && command <= fuzz_normal_force_max[j])) {
@@ -151,7 +247,8 @@ static void check_commands(const bench *b, unsigned int status)
         }
     }
     if (fault && !b->can.safe) {
-        fuzz_fail("can_layer", "step: an amplifier reports a fault but the controller is not in the safe state");
+        fuzz_fail("can_layer", "step: an amplifier reports a fault or its own safe state but the controller is not "
+                               "in the safe state");
     }
 }
 
@@ -168,21 +265,18 @@ static void step_and_send(bench *b, fuzz_reader *reader)
     b->time += (control & 1u) ? fuzz_take_u32(reader) : (uint32_t)SMARTJOINT_CAN_CYCLE_US * (control >> 6);
     status = smartjoint_can_step(&b->can, b->time);
     check_commands(b, status);
-    expected_frames = FUZZ_JOINTS + (b->steps % 10u == 0u ? 1u : 0u);
-    b->steps++;
+    expected_frames = FUZZ_JOINTS + 1u; /* the setpoints and the heartbeat, every step */
     while (smartjoint_can_tx(&b->can, &id, frame, &length)) {
-        const unsigned int slot = sent < FUZZ_JOINTS ? sent : FUZZ_JOINTS;
         const uint32_t expected_id = sent < FUZZ_JOINTS ? fuzz_setpoint_ids[sent] : SMARTJOINT_CAN_CONTROLLER_STATUS_ID;
         const fuzz_message *message = fuzz_find_message(expected_id);
         if (sent >= expected_frames || id != expected_id || length != message->length) {
             fuzz_fail("can_layer", "tx frame %u of step %u: id 0x%x length %u (expected id 0x%x length %u, %u frames)",
                       sent, b->steps, id, length, expected_id, message->length, expected_frames);
         }
-        if (frame[0] != sj_e2e_frame_crc((uint16_t)id, frame, length) || (frame[1] & 0x0Fu) != b->tx_counter[slot] % 16u) {
+        if (frame[0] != sj_e2e_frame_crc((uint16_t)id, frame, length) || (frame[1] & 0x0Fu) != (b->steps + 1u) % 16u) {
             fuzz_fail("can_layer", "tx frame 0x%x: CRC 0x%02x or counter %u wrong (expected counter %u)", id, frame[0],
-                      frame[1] & 0x0Fu, b->tx_counter[slot] % 16u);
+                      frame[1] & 0x0Fu, (b->steps + 1u) % 16u);
         }
-        b->tx_counter[slot]++;
         if (sent < FUZZ_JOINTS) {
             check_setpoint(b, sent, frame);
         } else {
@@ -193,6 +287,8 @@ static void step_and_send(bench *b, fuzz_reader *reader)
     if (sent != expected_frames) {
         fuzz_fail("can_layer", "step %u sent %u frames, expected %u", b->steps, sent, expected_frames);
     }
+    b->heartbeat = (uint8_t)((b->steps + 1u) % 16u);
+    b->steps++;
     free(frame);
 }
 

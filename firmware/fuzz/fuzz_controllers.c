@@ -70,9 +70,9 @@ static void check_safe(const char *law, const smartjoint_real *normal_force, uns
 {
     unsigned int j;
     for (j = 0u; j < FUZZ_JOINTS; ++j) {
-        if (normal_force[j] != in_build(fuzz_controller_safe_normal_force[j])) {
+        if (normal_force[j] != in_build(fuzz_safe_normal_force[j])) {
             fuzz_fail("controllers_" BUILD, "%s step %d: status 0x%x but joint %u at %.9g N, not the safe %.9g N", law,
-                      step, status, j, (double)normal_force[j], fuzz_controller_safe_normal_force[j]);
+                      step, status, j, (double)normal_force[j], fuzz_safe_normal_force[j]);
         }
     }
 }

@@ -63,15 +63,17 @@ def _layout(db, artifact) -> tuple[str, str]:
                "extern const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS];",
                "extern const double fuzz_normal_force_min[FUZZ_JOINTS];",
                "extern const double fuzz_normal_force_max[FUZZ_JOINTS];",
+               "/* The one safe force of the policy (artefact; docs/safety.md) */",
                "extern const double fuzz_safe_normal_force[FUZZ_JOINTS];",
                "extern const double fuzz_force_per_volt;", "extern const double fuzz_preload;",
-               "/* The controllers' safe force and the plausible ranges of their inputs (artefact) */",
-               "extern const double fuzz_controller_safe_normal_force[FUZZ_JOINTS];",
+               "/* The plausible ranges of the measured signals (artefact) */",
                "extern const double fuzz_sliding_velocity_limit[FUZZ_JOINTS];",
                "extern const double fuzz_friction_force_limit[FUZZ_JOINTS];",
                "extern const double fuzz_measured_normal_force_min[FUZZ_JOINTS];",
                "extern const double fuzz_measured_normal_force_max[FUZZ_JOINTS];",
-               "extern const double fuzz_sensor_limit[FUZZ_SENSORS];", "",
+               "extern const double fuzz_sensor_limit[FUZZ_SENSORS];",
+               "extern const double fuzz_amplifier_temperature_limit;", "extern const double fuzz_amplifier_current_limit;",
+               "extern const double fuzz_tracking_tolerance;", "",
                "#endif /* FUZZ_REFERENCE_H */", ""]
     for m in messages:
         rows = []
@@ -95,18 +97,18 @@ def _layout(db, artifact) -> tuple[str, str]:
     setpoints = [by_name[f"SETPOINT_{j.upper()}"].frame_id for j in artifact.joint_names]
     source.append("const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS] = {" + ", ".join(f"0x{i:03X}u" for i in setpoints) + "};")
     for name, values in (("normal_force_min", artifact.normal_force_min), ("normal_force_max", artifact.normal_force_max),
-                         # codegen's default safe state (F^max), with which firmware/generated was written
-                         ("safe_normal_force", artifact.normal_force_max)):
+                         ("safe_normal_force", artifact.safe_normal_force)):
         source.append(f"const double fuzz_{name}[FUZZ_JOINTS] = {{" + ", ".join(_number(v) for v in values) + "};")
     source.append(f"const double fuzz_force_per_volt = {_number(artifact.piezo_force_per_volt)};")
     source.append(f"const double fuzz_preload = {_number(artifact.piezo_preload)};")
-    for name, values, size in (("controller_safe_normal_force", artifact.safe_normal_force, "FUZZ_JOINTS"),
-                               ("sliding_velocity_limit", artifact.sliding_velocity_limit, "FUZZ_JOINTS"),
+    for name, values, size in (("sliding_velocity_limit", artifact.sliding_velocity_limit, "FUZZ_JOINTS"),
                                ("friction_force_limit", artifact.friction_force_limit, "FUZZ_JOINTS"),
                                ("measured_normal_force_min", artifact.measured_normal_force_min, "FUZZ_JOINTS"),
                                ("measured_normal_force_max", artifact.measured_normal_force_max, "FUZZ_JOINTS"),
                                ("sensor_limit", artifact.sensor_limit, "FUZZ_SENSORS")):
         source.append(f"const double fuzz_{name}[{size}] = {{" + ", ".join(_number(v) for v in values) + "};")
+    for name in ("amplifier_temperature_limit", "amplifier_current_limit", "tracking_tolerance"):
+        source.append(f"const double fuzz_{name} = {_number(getattr(artifact, name))};")
     return "\n".join(header), "\n".join(source) + "\n"
 
 
