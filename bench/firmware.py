@@ -45,6 +45,7 @@ int {n}_safe(const uint8_t *state);
 unsigned int {n}_faults(const uint8_t *state);
 double {n}_command(const uint8_t *state, int joint);
 uint32_t {n}_counter(const uint8_t *state, int which);
+void {n}_set_steps(uint8_t *state, uint32_t steps);
 """
 
 
@@ -70,6 +71,7 @@ int {n}_tx_opaque(uint8_t *state, uint32_t *id, uint8_t *data, uint8_t *length)
 int {n}_safe(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->safe; }}
 unsigned int {n}_faults(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->faults; }}
 double {n}_command(const uint8_t *state, int joint) {{ return ((const {n}_state *)(const void *)state)->command[joint]; }}
+void {n}_set_steps(uint8_t *state, uint32_t steps) {{ (({n}_state *)(void *)state)->steps = steps; }}
 uint32_t {n}_counter(const uint8_t *state, int which)
 {{
     const {n}_state *s = (const {n}_state *)(const void *)state;

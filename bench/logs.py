@@ -468,28 +468,3 @@ def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None
            "first_differences": differences[:20]}
     out["ok"] = compared > 0 and differing == 0 and out["recorded_not_replayed"] == 0
     return out
-
-
-def parse_fault(text: str):
-    """``kind:target:start:end[:detail]`` → sil.Fault (detail: the amplifier fault or the delay [s])."""
-    from .sil import Fault
-
-    parts = text.split(":")
-    if len(parts) not in (4, 5):
-        raise ModelError(f"--fault {text!r}: expected kind:target:start:end[:detail], e.g. drop:JOINT_A1:1.0:1.2 or "
-                         "amplifier:A1:1.0:1.5:over_temperature")
-    kind, target = parts[0], parts[1]
-    try:
-        start, end = float(parts[2]), float(parts[3])
-    except ValueError:
-        raise ModelError(f"--fault {text!r}: start and end must be numbers [s]") from None
-    detail = parts[4] if len(parts) == 5 else ""
-    if kind == "delay":
-        try:
-            delay = float(detail) if detail else 0.005
-        except ValueError:
-            raise ModelError(f"--fault {text!r}: the delay must be a number [s]") from None
-        if not (math.isfinite(delay) and delay > 0):
-            raise ModelError(f"--fault {text!r}: the delay must be > 0 s")
-        return Fault(kind, start, end, target, delay=delay)
-    return Fault(kind, start, end, target, amplifier_fault=detail)

@@ -11,8 +11,8 @@ detection bound (the latency of ``timeout_cycles − 1`` cycles a frame may have
   while the fault lasts (a joint whose output stage itself failed — ``stuck_output``,
   ``gain_error`` — cannot, whatever it is told: it is listed, the others must be safe);
 - ``holds``: the joints do settle at the safe force before the fault ends;
-- ``recovery``: cycles after the fault's end until the firmware controls again and no
-  amplifier holds its own safe state.
+- ``recovery``: cycles after the fault's end (a delay's: after its last late frame arrived)
+  until the firmware controls again and no amplifier holds its own safe state.
 
 The plant is the study's model-in-the-loop run replayed open loop (its sensor and joint
 signals), except that each joint's measured F_N is what its amplifier applied — the safety
@@ -158,44 +158,51 @@ def run_case(firmware, case: Case, measurements) -> dict:
             applied = loop.step(Measurements(m.time, m.sensors, m.sliding_velocity, m.friction_force, applied))
     finally:
         loop.close()
-    r = loop.record
+    return {"case": case.name, "timing": case.timing, **measure(loop.record, case.faults, artifact, case.tolerated)}
+
+
+def measure(record, faults, artifact, tolerated: bool = False) -> dict:
+    """The figures of the module docstring for ``faults`` (acting together) in a SIL record."""
+    r = record
     dt = float(artifact.sample_time)
-    safe = np.array(r.safe)
+    safe = np.array(r.safe, dtype=bool)
     force = np.array(r.amplifier_force)
-    own_safe = np.array(r.amplifier_safe).any(axis=1)
+    own_safe = np.array(r.amplifier_safe, dtype=bool).any(axis=1)
     target = np.asarray(artifact.safe_normal_force, dtype=float)
-    failed_stage = sorted({f.target for f in case.faults if f.kind == "amplifier"
-                           and f.amplifier_fault in OUTPUT_STAGE_FAULTS})
+    failed_stage = sorted({f.target for f in faults if f.kind == "amplifier" and f.amplifier_fault in OUTPUT_STAGE_FAULTS})
     free = np.array([j not in failed_stage for j in artifact.joint_names])
     at_safe = np.all(np.abs(force - target)[:, free] <= FORCE_TOLERANCE, axis=1)
-    start = min(int(round(f.start / dt)) for f in case.faults)
-    ends = [f.end for f in case.faults]
+    start = min(int(round(f.start / dt)) for f in faults)
+    ends = [f.end for f in faults]
     end = None if any(math.isinf(e) for e in ends) else int(round(max(ends) / dt))
-    bound = max((int(math.ceil(f.lateness / dt - 1e-9)) - 1 if f.kind == "delay" else 0) for f in case.faults)
+    bound = max((int(math.ceil(f.lateness / dt - 1e-9)) - 1 if f.kind == "delay" else 0) for f in faults)
     reference = start + max(bound, 0)
-    if any(f.kind == "amplifier" and f.amplifier_fault == "gain_error" for f in case.faults):
+    stop = len(safe) if end is None else min(end, len(safe))
+    if any(f.kind == "amplifier" and f.amplifier_fault == "gain_error" for f in faults):
         # No bit tells: the fault shows once the output is off its setpoint by more than the
         # tracking tolerance (a small command halved is within it, and harmless).
-        volts = lambda force: (force - artifact.piezo_preload) / artifact.piezo_force_per_volt  # noqa: E731
-        command = np.array(r.command)
-        off = np.any(np.abs(volts(force) - volts(command)) > artifact.tracking_tolerance, axis=1)
-        seen = np.flatnonzero(off[start:])
-        reference = start + int(seen[0]) if seen.size else len(safe)
-    stop = end if end is not None else len(safe)
+        volts = lambda value: (value - artifact.piezo_preload) / artifact.piezo_force_per_volt  # noqa: E731
+        off = np.any(np.abs(volts(force) - volts(np.array(r.command))) > artifact.tracking_tolerance, axis=1)
+        seen = np.flatnonzero(off[start:stop])
+        reference = start + int(seen[0]) if seen.size else stop
 
     def first(flags, frm):
         hits = np.flatnonzero(flags[frm:])
         return int(hits[0]) if hits.size else None
 
-    row = {"case": case.name, "timing": case.timing, "start": start, "end": end, "tolerated": case.tolerated,
-           "failed_output_stage": failed_stage, "safe_samples": int(safe.sum())}
-    if case.tolerated:
+    row = {"start": start, "end": end, "tolerated": tolerated, "failed_output_stage": failed_stage,
+           "safe_samples": int(safe.sum()), "observable": True}
+    if start >= len(safe):
+        row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
+        return row
+    if tolerated:
         row.update(firmware=None, joints=None, holds=None, recovery=None,
-                   ok=not safe[START:].any() and not own_safe[START:].any())
+                   ok=not safe[start:].any() and not own_safe[start:].any())
         return row
     if reference >= stop:  # a fault that never showed (a gain error on commands within the tolerance)
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
         return row
+
     def settled(flags):  # cycles from the reference until the flag holds for the rest of the fault
         off = np.flatnonzero(~flags[reference:stop])
         return 0 if not off.size else (int(off[-1]) + 1 if off[-1] + 1 < stop - reference else None)
@@ -203,14 +210,13 @@ def run_case(firmware, case: Case, measurements) -> dict:
     row["firmware"] = settled(safe)
     row["joints"] = settled(at_safe)
     row["holds"] = row["joints"] is not None
-    recovered = None
-    if end is not None and end < len(safe):
-        recovered = first(~safe & ~own_safe, end)
-    row["recovery"] = recovered
+    # Recovery counts from the fault's end; for a delay, from its last late frame.
+    over = None if end is None else end + max((int(math.ceil(f.lateness / dt - 1e-9)) for f in faults), default=0)
+    row["recovery"] = first(~safe & ~own_safe, over) if over is not None and over < len(safe) else None
     running = first(~safe, 0)  # until the first valid command the joints hold the safe force
     row["power_up_safe"] = bool(np.all(at_safe[:len(safe) if running is None else running]))
-    row["ok"] = bool(row["joints"] is not None and row["joints"] <= DETECTION_LIMIT and row["holds"]
-                     and row["power_up_safe"] and (end is None or end >= len(safe) or recovered is not None))
+    row["ok"] = bool(row["joints"] is not None and row["joints"] <= DETECTION_LIMIT and row["power_up_safe"]
+                     and (end is None or end >= len(safe) or row["recovery"] is not None))
     return row
 
 
@@ -258,3 +264,49 @@ def matrix_markdown(out: dict) -> str:
         lines.append(f"| {r['case']}{note} | {r['timing']} | {cell(r['firmware'])} | {cell(r['joints'])} | "
                      f"{'yes' if r['holds'] else '**no**'} | {cell(r['recovery'])} | {'yes' if r['ok'] else '**no**'} |")
     return "\n".join(lines) + "\n"
+
+
+def summary_markdown(out: dict, table: str) -> str:
+    """The report's paragraph: what was run, the worst figures, the failing cases (if any)."""
+    def cell(value):
+        return "—" if value is None else str(value)
+
+    timings = sorted({r["timing"] for r in out["rows"]})
+    lines = [f"### Safe state under every fault ({out['law']}, {out['real']} firmware, SIL bench)", "",
+             f"{out['cases']} cases — every fault kind on every frame, every implausible signal, every amplifier "
+             f"fault and the bus off, timed {', '.join(timings)}. Worst cycles until the safe state holds: "
+             f"firmware {cell(out['worst_firmware'])}, the force at every joint {cell(out['worst_joints'])} (limit "
+             f"{DETECTION_LIMIT}); worst recovery {cell(out['worst_recovery'])} cycles after a fault ends. "
+             + ("Every case passes." if not out["failed"] else f"**{len(out['failed'])} cases fail:** "
+                + "; ".join(out["failed"][:20]) + ".") + f" All cases: [{table}]({table}).", ""]
+    return "\n".join(lines)
+
+
+def plot_matrix(out: dict, path):
+    """safety_cycles.png: how many cases reach the safe state (firmware, joints) or recover after
+    how many cycles."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    checked = [r for r in out["rows"] if not r["tolerated"] and r.get("observable", True)]
+    fig, ax = plt.subplots(figsize=(7, 3.4))
+    width = 0.27
+    for offset, key, label in ((-width, "firmware", "firmware safe"), (0.0, "joints", "F_safe at every joint"),
+                               (width, "recovery", "recovered after the fault")):
+        values = [r[key] for r in checked if r[key] is not None]
+        if not values:
+            continue
+        counts = np.bincount(values)
+        ax.bar(np.arange(counts.size) + offset, counts, width, label=f"{label} ({len(values)} cases)")
+    ax.axvline(DETECTION_LIMIT + 0.5, color="k", lw=0.8, ls="--")
+    ax.text(DETECTION_LIMIT + 0.55, ax.get_ylim()[1] * 0.9, "limit", fontsize=8)
+    ax.set_xlabel("controller cycles after the fault (or its end, for recovery)")
+    ax.set_ylabel("cases")
+    ax.set_title(f"{out['cases']} fault cases on the SIL bench ({out['law']})")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -4,12 +4,13 @@ amplifier models ↔ normal forces, on a python-can bus, one controller sample a
 Per sample t_k (the plant simulation calls ``SilLoop.step`` as its controller):
 
 1. the sensor nodes send ``JOINT_<j>`` (v, u_R, F_N) and ``TIP_SENSORS`` (y), each amplifier its
-   ``AMP_STATUS`` — all E2E-protected; the fault injector may drop, delay,
-   duplicate or corrupt them, silence a node, take the bus off;
+   ``AMP_STATUS`` — all E2E-protected, echoing the last heartbeat; the fault injector may drop,
+   delay, duplicate, corrupt or fill with implausible values any frame (the firmware's too),
+   silence a node, take the bus off;
 2. the firmware takes every frame waiting for it (``rx``), runs ``step`` and sends what ``tx``
-   gives (the setpoints, every 10th sample its status);
-3. each amplifier checks and decodes its setpoint, and its output over [t_k, t_k+1) sets the
-   normal force of its joint (the mean over the sample; F_N^max while the study's pulse acts,
+   gives (the setpoints and the heartbeat, every sample);
+3. each amplifier checks its setpoint and the heartbeat (its own watchdog: ``bench/amplifier.py``),
+   and its output over [t_k, t_k+1) sets the normal force of its joint (the mean over the sample; F_N^max while the study's pulse acts,
    the protocol of Section 6);
 4. a logger on the same bus writes every frame with the simulated time stamp (python-can
    writers: .blf, .asc, .mf4 …).
@@ -459,10 +460,12 @@ def sil_study(setup, artifact, laws=("siso", "clqg"), real: str = "float", fault
     from ..design import artifact as artifacts
     from ..design import simulate
     from ..design import study as closed_loop
-    from . import busload, firmware, protocol
+    from . import busload, firmware, protocol, safety
 
     python = {"siso": artifacts.siso_law, "clqg": artifacts.clipped_lqg}
     db = protocol.database(artifact)
+    check_faults(faults, {m.name for m in db.messages}, list(artifact.joint_names),
+                 {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in db.messages})
     planned = busload.check(db, bitrate, data_bitrate)
     out = {"bitrate": bitrate, "data_bitrate": data_bitrate, "planned_bus_load": planned.load, "real": real,
            "amplifier": dict(amplifier or {}), "laws": {}}
@@ -496,9 +499,27 @@ def sil_study(setup, artifact, laws=("siso", "clqg"), real: str = "float", fault
             "max_energy_sil": float(result.energy.max()),
             "bus": loop.statistics(setup.duration, bitrate, data_bitrate),
             "log": None if log_path is None else str(log_path),
+            "faults": [{"fault": f.label(), **safety.measure(loop.record, (f,), artifact)} for f in faults],
             "record": loop.record, "result": result,
         }
     return out
+
+
+def fault_lines(rows: list) -> list[str]:
+    """Per injected fault: cycles to the safe state at the firmware and at the joints (the force
+    the amplifiers really apply), and to recovery after its end."""
+    def cell(value):
+        return "—" if value is None else str(value)
+
+    lines = ["| fault | window [cycles] | firmware safe [cycles] | joints at F_safe [cycles] | recovery [cycles] |",
+             "|---|---|---:|---:|---:|"]
+    for r in rows:
+        window = f"{r['start']}–{'∞' if r['end'] is None else r['end']}"
+        note = "" if r.get("observable", True) else " (never showed)"
+        note += f" (output stage of {', '.join(r['failed_output_stage'])} failed)" if r["failed_output_stage"] else ""
+        lines.append(f"| {r['fault']}{note} | {window} | {cell(r['firmware'])} | {cell(r['joints'])} | "
+                     f"{cell(r['recovery'])} |")
+    return lines
 
 
 def sil_markdown(out: dict) -> str:
@@ -515,6 +536,9 @@ def sil_markdown(out: dict) -> str:
                      f"{100 * f['energy_measure_difference']:+.2f} % | {band} | {f['energy_end_mil']:.3g} / "
                      f"{f['energy_end_sil']:.3g} | {bus['frames_total']} | {100 * bus['bus_load']:.1f} % | "
                      f"{bus['e2e_errors']} | {bus['firmware']['timeouts']} | {bus['safe_samples']} |")
+    for law, f in out["laws"].items():
+        if f.get("faults"):
+            lines += ["", f"Injected faults ({law}):", ""] + fault_lines(f["faults"])
     return "\n".join(lines) + "\n"
 
 
@@ -552,55 +576,49 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     return [path]
 
 
-DEMO_FAULTS = (Fault("drop", 0.5, 0.6, "JOINT_A1"), Fault("corrupt_crc", 1.0, 1.05, "TIP_SENSORS"),
-               Fault("amplifier", 1.5, 1.6, "A2", amplifier_fault="over_temperature"), Fault("bus_off", 2.0, 2.05))
+def demo_faults(artifact, duration: float) -> tuple:
+    """Four faults in sequence for the report, on the design's own frames and joints: a dropped
+    joint frame, a damaged sensor frame, an over-heated amplifier, the bus off — at 1/8, 1/4,
+    3/8 and 1/2 of the study."""
+    joints = list(artifact.joint_names)
+    at = lambda fraction, length: (fraction * duration, fraction * duration + length)  # noqa: E731
+    return (Fault("drop", *at(0.125, 0.1), f"JOINT_{joints[0].upper()}"),
+            Fault("corrupt_crc", *at(0.25, 0.05), "TIP_SENSORS"),
+            Fault("amplifier", *at(0.375, 0.1), joints[len(joints) // 2], amplifier_fault="over_temperature"),
+            Fault("bus_off", *at(0.5, 0.05)))
 
 
-def fault_run(setup, artifact, law: str = "clqg", faults=DEMO_FAULTS, real: str = "float") -> dict:
-    """One SIL run with a sequence of faults: per fault the cycles until the safe state and until
-    recovery after it ended, and the largest energy after the pulse (bounded: the safe state is
-    passive)."""
+def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "float") -> dict:
+    """One SIL run of the study with a sequence of faults (default :func:`demo_faults`): per
+    fault the figures of ``bench/safety.measure``, and the largest energy after the pulse
+    (bounded: the safe state is passive)."""
     from ..design import simulate
     from ..design import study as closed_loop
-    from . import firmware
+    from . import firmware, safety
 
-    names = {m.name for m in firmware.Firmware(artifact, law, real).db.messages}
-    usable = [f for f in faults if f.kind in BUS_FAULTS or f.target in names or f.kind == "amplifier"
-              and f.target in artifact.joint_names]
-    loop = SilLoop(firmware.Firmware(artifact, law, real), closed_loop.PULSE_DURATION, faults=usable)
+    faults = demo_faults(artifact, setup.duration) if faults is None else tuple(faults)
+    loop = SilLoop(firmware.Firmware(artifact, law, real), closed_loop.PULSE_DURATION, faults=faults)
     try:
         result = simulate.simulate(setup.plant, setup.laws, loop, setup.pulse(), setup.duration, setup.plant_step,
                                    record_every=closed_loop.PLANT_STEPS_PER_SAMPLE, energy_books=False)
     finally:
         loop.close()
-    time, safe = np.array(loop.record.time), np.array(loop.record.safe)
-    rows = []
-    for f in usable:
-        k0 = int(np.searchsorted(time, f.start - 1e-9))
-        k1 = int(np.searchsorted(time, f.end - 1e-9))
-        entered = np.flatnonzero(safe[k0:])
-        left = np.flatnonzero(~safe[k1:])
-        rows.append({"fault": f.kind, "target": f.target or "bus", "detail": f.amplifier_fault, "start": f.start,
-                     "end": f.end, "cycles_to_safe_state": int(entered[0]) if entered.size else None,
-                     "cycles_to_recover": int(left[0]) if left.size else None})
+    rows = [{"fault": f.label(), "kind": f.kind, "target": f.target or "bus", "start_s": f.start, "end_s": f.end,
+             **safety.measure(loop.record, (f,), artifact)} for f in faults]
     after = result.time > closed_loop.PULSE_DURATION
     return {"law": law, "faults": rows, "max_energy_after_pulse": float(result.energy[after].max()),
-            "energy_end": float(result.energy[-1]), "safe_samples": int(safe.sum()), "result": result,
+            "energy_end": float(result.energy[-1]), "safe_samples": int(np.sum(loop.record.safe)), "result": result,
             "record": loop.record, "statistics": loop.statistics(setup.duration, 1_000_000, 5_000_000)}
 
 
 def fault_markdown(run: dict) -> str:
-    lines = ["### Injected faults (SIL, cLQG): safe state and recovery", "",
-             "| fault | target | window [s] | cycles to the safe state | cycles to recover after it |",
-             "|---|---|---|---:|---:|"]
-    for r in run["faults"]:
-        lines.append(f"| {r['fault']}{' ' + r['detail'] if r['detail'] else ''} | {r['target']} | "
-                     f"{r['start']:g}–{r['end']:g} | {r['cycles_to_safe_state']} | {r['cycles_to_recover']} |")
+    lines = [f"### Injected faults in the study (SIL, {run['law']}): safe state and recovery", ""]
+    lines += fault_lines(run["faults"])
     s = run["statistics"]
     lines += ["", f"Largest energy after the pulse {run['max_energy_after_pulse']:.3g} J (bounded; e(t_e) = "
               f"{run['energy_end']:.3g} J); {run['safe_samples']} samples in the safe state; firmware counters: "
               f"CRC errors {s['firmware']['crc_errors']}, counter errors {s['firmware']['counter_errors']}, "
-              f"timeouts {s['firmware']['timeouts']}.", ""]
+              f"timeouts {s['firmware']['timeouts']}, implausible frames {s['firmware']['implausible_frames']}.", ""]
     return "\n".join(lines)
 
 
@@ -616,16 +634,16 @@ def plot_faults(run: dict, path) -> Path:
     top.semilogy(r.time, np.maximum(r.energy, 1e-12), lw=0.9)
     top.set_ylabel("½xᵀx [J]")
     top.set_title("SIL with injected faults (orange), safe state (grey)")
-    commands = np.array(record.command)
-    for j in range(commands.shape[1]):
-        bottom.plot(time, commands[:, j], lw=0.6, label=f"F_N joint {j + 1}")
+    applied = np.array(record.amplifier_force)
+    for j in range(applied.shape[1]):
+        bottom.plot(time, applied[:, j], lw=0.6, label=f"F_N applied, joint {j + 1}")
     safe = np.array(record.safe)
     for ax in (top, bottom):
         for f in run["faults"]:
-            ax.axvspan(f["start"], f["end"], color="tab:orange", alpha=0.25, lw=0)
+            ax.axvspan(f["start_s"], min(f["end_s"], time[-1]), color="tab:orange", alpha=0.25, lw=0)
         ax.fill_between(time, 0, 1, where=safe, transform=ax.get_xaxis_transform(), color="k", alpha=0.12, lw=0)
     bottom.set_xlabel("t [s]")
-    bottom.set_ylabel("F_N command [N]")
+    bottom.set_ylabel("F_N by the amplifier [N]")
     bottom.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -378,7 +378,6 @@ def cmd_design(args) -> dict:
 def cmd_codegen(args) -> dict:
     from .codegen import generate
     from .design import artifact
-    from .design.errors import ModelError
 
     loaded = artifact.load(Path(args.artifact))
     placed = generate.generate(loaded, Path(args.output), args.real, args.prefix, can=not args.no_can,
@@ -462,13 +461,13 @@ def _controller_artifact(args, design, model):
 
 
 def cmd_sil(args) -> dict:
-    from .bench import logs, sil
+    from .bench import sil
     from .design import study as closed_loop
 
     design = _control_design(args, firmware_names=True)
     model = closed_loop.design_model(design, _progress)
     controller = _controller_artifact(args, design, model)
-    faults = [logs.parse_fault(text) for text in args.fault or []]
+    faults = [sil.parse_fault(text) for text in args.fault or []]
     laws = ("siso", "clqg") if args.law == "both" else (args.law,)
     _progress(f"software in the loop on {design.name!r}: {', '.join(laws)}, t_e = {design.control.study_duration:g} s")
     out = sil.sil_study(closed_loop.setup(design, model), controller, laws, args.real, faults, args.log_folder,
@@ -757,7 +756,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--law", choices=("siso", "clqg", "both"), default="both")
     p.add_argument("--real", choices=("float", "double"), default="float", help="firmware build (default: %(default)s)")
     p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
-    p.add_argument("--fault", action="append", help="inject kind:target:start:end[:detail], repeatable")
+    p.add_argument("--fault", action="append",
+                   help="inject kind:target:start:end[:detail], repeatable; kinds: drop, delay (detail: seconds), "
+                        "duplicate, corrupt_crc, corrupt_counter, wrong_dlc, silent on any frame (the firmware's "
+                        "SETPOINT_* and CONTROLLER_STATUS too), implausible (target FRAME.signal, detail: the "
+                        "value), amplifier (target a joint, detail: over_temperature, no_response, stuck_output, "
+                        "over_current, gain_error), bus_off (no target); end may be inf")
     p.add_argument("--log-folder", help="write the bus of each run as sil_<law>.blf here")
     p.add_argument("--plots", help="folder for sil_energy.png")
     p.add_argument("--amplifier-lag", type=float, default=0.0, help="amplifier time constant [s] (default 0: ideal)")

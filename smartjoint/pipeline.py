@@ -28,7 +28,7 @@ import numpy as np
 
 from . import __version__
 from . import report as plots
-from .bench import busload, protocol, sil
+from .bench import busload, protocol, safety, sil
 from .codegen import backtoback, can_layer, generate, identifiers
 from .control_study import control_markdown, plot_control_study
 from .design import artifact, build_model, load_design, lugre, rig, solve_modes, updated_design
@@ -154,8 +154,13 @@ def _stages(design_path: str | None, staging: Path, progress):
         if law.get("log") is not None:
             law["log"] = Path(law["log"]).relative_to(staging).as_posix()
     bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
-    progress("      injected faults: " + ", ".join(f"{f.kind} {f.target}".strip() for f in sil.DEMO_FAULTS))
-    fault_check = sil.fault_run(control_study.setup, controller)
+    demo = sil.demo_faults(controller, control_study.setup.duration)
+    progress("      injected faults in the study: " + ", ".join(f.label() for f in demo))
+    fault_check = sil.fault_run(control_study.setup, controller, faults=demo)
+    progress("      safe state under every fault kind on every frame (docs/safety.md) …")
+    safety_check = safety.fault_matrix(controller, progress=progress)
+    progress(f"      {safety_check['cases']} fault cases: worst {safety_check['worst_joints']} cycles to the safe force "
+             f"at every joint, {len(safety_check['failed'])} failing")
 
     progress("[9/9] report")
     plots.plot_mode_shapes(model, modes, staging / "mode_shapes.png")
@@ -170,6 +175,8 @@ def _stages(design_path: str | None, staging: Path, progress):
     generate.write({**firmware_files, **can_layer.render_can(controller)}, staging / "firmware")
     sil.plot_sil(sil_check, staging, sil_check.get("mil_runs"))
     sil.plot_faults(fault_check, staging / "sil_faults.png")
+    safety.plot_matrix(safety_check, staging / "safety_cycles.png")
+    (staging / "safety_cases.md").write_text(safety.matrix_markdown(safety_check), encoding="utf-8")
     source = os.path.abspath(design.source) if os.path.isfile(design.source) else design.source
     summary = {
         "smartjoint_version": __version__,
@@ -188,7 +195,12 @@ def _stages(design_path: str | None, staging: Path, progress):
                 "laws": {law: {k: v for k, v in f.items() if k not in ("record", "result")}
                          for law, f in sil_check["laws"].items()},
                 "logs": [f"can/{name}" for name in sil_logs],
-                "faults": {k: v for k, v in fault_check.items() if k not in ("result", "record")}},
+                "faults": {k: v for k, v in fault_check.items() if k not in ("result", "record")},
+                "safety": {"cases": safety_check["cases"], "failed": safety_check["failed"],
+                           "worst_firmware_cycles": safety_check["worst_firmware"],
+                           "worst_joint_cycles": safety_check["worst_joints"],
+                           "worst_recovery_cycles": safety_check["worst_recovery"], "table": "safety_cases.md",
+                           "plot": "safety_cycles.png"}},
     }
 
     def markdown(final: dict) -> str:
@@ -200,7 +212,8 @@ def _stages(design_path: str | None, staging: Path, progress):
                 + ", ".join(f"`{name}`" for name in sorted(firmware_files)) + ".\n\n"
                 + sil.sil_markdown(sil_check) + "\n![SIL energy](sil_energy.png)\n\n"
                 + bus_load.table() + "\n\n" + sil.fault_markdown(fault_check)
-                + "\n![faults](sil_faults.png)\n\n"
+                + "\n![faults](sil_faults.png)\n\n" + safety.summary_markdown(safety_check, "safety_cases.md")
+                + "\n![cycles to the safe state](safety_cycles.png)\n\n"
                 + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
                 "`bench replay`): " + ", ".join(f"`can/{n}`" for n in sil_logs)
                 + "; protocol: `firmware/bus.dbc`.\n")
