@@ -62,8 +62,9 @@ def initial_guess(baseline: dict) -> dict:
             "stribeck": 0.2 * coulomb, "stribeck_velocity": 0.01}
 
 
-def lugre_fit(t, force, velocity, acceleration, start):
-    """Nonlinear least squares over [σ0, σ1, σ2, F_c, F_d, v_s] (log) plus M and offset (linear)."""
+def lugre_fit(t, force, velocity, acceleration, start, max_nfev: int = 300):
+    """Nonlinear least squares over [σ0, σ1, σ2, F_c, F_d, v_s] (log) plus M and offset (linear),
+    at most ``max_nfev`` evaluations of the residual."""
     names = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")
     normal = np.ones_like(t)
 
@@ -82,7 +83,7 @@ def lugre_fit(t, force, velocity, acceleration, start):
 
     theta0 = np.log([start[n] for n in names])
     solution = scipy.optimize.least_squares(residual, theta0, bounds=(theta0 - 7.0, theta0 + 7.0), diff_step=1e-6,
-                                            max_nfev=300)
+                                            max_nfev=max_nfev)
     p = split(solution.x)
     model, (mass, offset) = solve_linear(p)
     return p, float(mass), float(offset), model

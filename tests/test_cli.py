@@ -70,9 +70,13 @@ def test_run_writes_a_complete_report(tmp_path, capsys):
         assert (out / "can" / f"sil_{law}.blf").stat().st_size > 0
     assert (out / "firmware" / "bus.dbc").exists() and "Software in the loop" in (out / "report.md").read_text()
     for fault in sil_summary["faults"]["faults"]:  # the demonstration faults: safe within 3 cycles, recovered
-        assert fault["cycles_to_safe_state"] is not None and fault["cycles_to_safe_state"] <= 3
-        assert fault["cycles_to_recover"] is not None
+        assert fault["joints"] is not None and fault["joints"] <= 3 and fault["firmware"] <= 3, fault
+        assert fault["recovery"] is not None
     assert (out / "sil_faults.png").stat().st_size > 0
+    safety = sil_summary["safety"]  # every fault kind on every frame (docs/safety.md)
+    assert safety["cases"] > 100 and safety["failed"] == [] and safety["worst_joint_cycles"] <= 3
+    assert (out / "safety_cases.md").read_text().count("\n|") > safety["cases"]
+    assert (out / "safety_cycles.png").stat().st_size > 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "small.toml"]  # no staging or claim left
 
 

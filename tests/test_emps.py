@@ -22,7 +22,9 @@ def test_lugre_explains_the_emps_record_better_than_coulomb_viscous():
     # The benchmark description's rigid-body + Coulomb/viscous values come out.
     assert baseline["mass"] == pytest.approx(95.1, rel=0.02)
     assert baseline["coulomb"] == pytest.approx(20.4, rel=0.05)
-    _, mass, _, model = emps.lugre_fit(t, force, velocity, acceleration, emps.initial_guess(baseline))
+    # 20 evaluations of the fit already beat Coulomb + viscous (NRMSE 0.0436 against 0.0461); the
+    # claim is about the model, and the optimiser's last digits cost two minutes.
+    _, mass, _, model = emps.lugre_fit(t, force, velocity, acceleration, emps.initial_guess(baseline), max_nfev=20)
     lugre_error = emps.nrmse(force, model)
     baseline_error = emps.nrmse(force, baseline_model)
     assert lugre_error < baseline_error
