@@ -39,6 +39,7 @@ HOT_TEMPERATURE = 95.0  # °C reported under ``over_temperature``
 HIGH_CURRENT = 2.9  # A reported under ``over_current``
 GAIN_ERROR = 0.5  # output / target under ``gain_error``
 MODE_SAFE = 3
+CONTROLLER_MODES = (1, 2, MODE_SAFE)  # SISO, cLQG, safe: what a heartbeat may say
 
 
 @dataclass
@@ -161,6 +162,8 @@ class AmplifierModel:
                 reasons.append("setpoint late" if lag < 0 else "heartbeat late")
         if self.implausible:
             reasons.append("implausible setpoint")
+        if self.controller_mode is not None and self.controller_mode not in CONTROLLER_MODES:
+            reasons.append("implausible heartbeat mode")  # the controller sends only its law or "safe"
         if reasons:
             self.own_safe, self.clear_cycles = True, 0
         else:

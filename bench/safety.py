@@ -66,11 +66,12 @@ def implausible_values(artifact, db) -> dict:
         values[(f"SETPOINT_{tag}", "voltage")] = high_volts + 10.0
     for r, sensor in enumerate(artifact.sensor_names):
         values[("TIP_SENSORS", sensor.lower())] = -1.5 * float(artifact.sensor_limit[r])
-    for (frame, signal), value in values.items():  # within what the frame's field carries
+    values[("CONTROLLER_STATUS", "mode")] = 9.0  # the amplifiers read it: only 1, 2 (the laws) and 3 (safe) exist
+    for (frame, signal), value in values.items():  # within what the frame's raw field carries
         s = db.get_message_by_name(frame).get_signal_by_name(signal)
-        top = s.maximum if s.maximum is not None else value
-        bottom = s.minimum if s.minimum is not None else value
-        values[(frame, signal)] = min(max(value, bottom), top)
+        low = -(2 ** (s.length - 1)) if s.is_signed else 0
+        high = 2 ** (s.length - 1) - 1 if s.is_signed else 2 ** s.length - 1
+        values[(frame, signal)] = min(max(value, low * s.scale + s.offset), high * s.scale + s.offset)
     return values
 
 
