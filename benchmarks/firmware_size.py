@@ -364,7 +364,7 @@ def main() -> int:
     print("\nwhole firmware image (float -O2: SISO + clipped LQG + CAN layer + E2E, linked from the CAN entry points):")
     print(f"  flash {whole['flash']:5d} B  (modules .text: "
           + ", ".join(f"{k} {v}" for k, v in whole["modules"].items()) + "; the rest: libgcc soft-float for the "
-          "double codec, libm rint)")
+          "double codec, libm floor)")
     print(f"  RAM   {whole['ram']:5d} B  (static {whole['static_ram']} B + state {whole['state']} B + two 64-byte "
           "frame buffers)")
     print(f"  stack {whole['stack']:5d} B  ({' → '.join(whole['stack_chain'])})")

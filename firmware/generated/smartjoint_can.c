@@ -43,7 +43,9 @@ static double round_half_even(double x)
     }
     whole = floor(x);
     fraction = x - whole;
-    if (fraction > 0.5 || (fraction == 0.5 && fmod(whole, 2.0) != 0.0)) {
+    /* whole is odd when half of it is not an integer (exact below 2^53; no fmod, which would
+     * drag errno and newlib's 1 kB reentrancy struct into the image) */
+    if (fraction > 0.5 || (fraction == 0.5 && floor(0.5 * whole) != 0.5 * whole)) {
         whole += 1.0;
     }
     return whole;
