@@ -14,9 +14,10 @@ detection bound (the latency of ``timeout_cycles − 1`` cycles a frame may have
 - ``recovery``: cycles after the fault's end (a delay's: after its last late frame arrived)
   until the firmware controls again and no amplifier holds its own safe state.
 
-The plant is the study's model-in-the-loop run replayed open loop (its sensor and joint
-signals), except that each joint's measured F_N is what its amplifier applied — the safety
-logic sees the same signals as in the study, and a case takes milliseconds. Policy and
+The plant is replaced by replayed signals (:func:`signals`: an oscillation of the design's
+size, or a recorded run), except that each joint's measured F_N is what its amplifier applied
+— the safety logic sees values of the design's ranges, and a case takes milliseconds
+(tests/test_can_layer.py repeats representative faults with the plant in the loop). Policy and
 figures: docs/safety.md.
 """
 
@@ -128,22 +129,29 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     return out
 
 
-def signals(setup_run, artifact, cycles: int):
-    """The measurements the study's controller saw at its first ``cycles`` samples (the MIL run
-    of ``smartjoint run``), or — without a run — decaying oscillations of the study's size."""
+SIGNAL_FRACTION = 0.3  # the replayed signals swing through 30 % of each plausibility range
+
+
+def signals(recorded, artifact, cycles: int):
+    """What the nodes measure at the first ``cycles`` samples: ``recorded`` measurements (e.g.
+    of a model-in-the-loop run) when given, else a decaying oscillation at the design's median
+    retained modal frequency through :data:`SIGNAL_FRACTION` of each signal's plausible range
+    (the artefact's), so the safety logic sees values of the design's size, never a fault."""
     dt = float(artifact.sample_time)
-    joints, sensors = len(artifact.joint_names), len(artifact.sensor_names)
-    if setup_run is not None:
-        seen = list(setup_run)[:cycles]
+    if recorded is not None:
+        seen = list(recorded)[:cycles]
         if len(seen) < cycles:
             raise ModelError(f"fault cases: the recorded run has {len(seen)} samples — {cycles} needed")
         return seen
+    frequency = float(np.median(artifact.modal_frequencies))
+    sensors = SIGNAL_FRACTION * np.asarray(artifact.sensor_limit, dtype=float)
+    velocity = SIGNAL_FRACTION * np.asarray(artifact.sliding_velocity_limit, dtype=float)
+    friction = SIGNAL_FRACTION * np.asarray(artifact.friction_force_limit, dtype=float)
     out = []
     for k in range(cycles):
         t = k * dt
-        wave = math.exp(-t / 0.5) * math.sin(2 * math.pi * 17.7 * t)
-        out.append(Measurements(t, np.full(sensors, 0.01 * wave), np.full(joints, 0.03 * wave),
-                                np.full(joints, 150.0 * wave), np.zeros(joints)))
+        wave = math.exp(-t * frequency / 10.0) * math.sin(2 * math.pi * frequency * t)
+        out.append(Measurements(t, sensors * wave, velocity * wave, friction * wave, np.zeros(len(velocity))))
     return out
 
 
