@@ -120,19 +120,17 @@ def _run(bench, law, faults=(), log_path=None):
     return loop, result
 
 
+# One of each family with the plant in the loop (every kind on every frame runs without the
+# plant in tests/test_safety.py): a lost input, a late one, a damaged one, the firmware's own
+# setpoint and heartbeat, an implausible value, amplifier faults, the bus off.
 FAULTS = [
     sil.Fault("drop", 0.2, 0.3, "JOINT_A2"),
-    sil.Fault("silent", 0.2, 0.3, "TIP_SENSORS"),
     sil.Fault("delay", 0.2, 0.3, "JOINT_A1", delay=0.006),
-    sil.Fault("duplicate", 0.2, 0.3, "JOINT_A3"),
     sil.Fault("corrupt_crc", 0.2, 0.3, "TIP_SENSORS"),
-    sil.Fault("corrupt_counter", 0.2, 0.3, "JOINT_A1"),
-    sil.Fault("wrong_dlc", 0.2, 0.3, "JOINT_A2"),
     sil.Fault("drop", 0.2, 0.3, "SETPOINT_A1"),
     sil.Fault("corrupt_crc", 0.2, 0.3, "CONTROLLER_STATUS"),
     sil.Fault("implausible", 0.2, 0.3, "JOINT_A1", signal="sliding_velocity", value=1.9),
     sil.Fault("amplifier", 0.2, 0.3, "A1", amplifier_fault="over_temperature"),
-    sil.Fault("amplifier", 0.2, 0.3, "A2", amplifier_fault="no_response"),
     sil.Fault("amplifier", 0.2, 0.3, "A3", amplifier_fault="stuck_output"),
     sil.Fault("bus_off", 0.2, 0.3),
 ]
