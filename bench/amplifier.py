@@ -30,8 +30,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ..design.errors import ModelError
-from . import e2e
+from smartjoint.common.errors import ModelError
+from smartjoint.bench import e2e
 
 FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current", "gain_error")
 OUTPUT_STAGE_FAULTS = ("stuck_output", "gain_error")  # the joint itself cannot reach the safe force

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..design.errors import ModelError
+from smartjoint.common.errors import ModelError
 
 CLASSICAL_RATES = (125_000, 250_000, 500_000, 1_000_000)
 FD_DATA_RATES = (2_000_000, 4_000_000, 5_000_000, 8_000_000)

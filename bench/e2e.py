@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .. import package_data
+from smartjoint.common import package_data
 
 POLYNOMIAL = 0x1D
 INITIAL = 0xFF
@@ -112,8 +112,8 @@ unsigned int sj_e2e_check(sj_e2e_receiver *receiver, uint16_t frame_id, const ui
 
 def compiled():
     """The C twin (``firmware/runtime/sj_e2e.c``, strict flags) loaded with cffi: ``.ffi``, ``.lib``."""
-    from ..codegen.build import FLAGS, compile_object
-    from ..design import native
+    from smartjoint.codegen.build import FLAGS, compile_object
+    from smartjoint.common import native
 
     source = RUNTIME / "sj_e2e.c"
     if not source.exists():

@@ -11,11 +11,11 @@ import hashlib
 
 import numpy as np
 
-from ..codegen import build, can_layer, generate
-from ..design import native
-from ..design.artifact import ControllerArtifact
-from ..design.errors import ModelError
-from . import protocol
+from smartjoint.codegen import build, can_layer, generate
+from smartjoint.common import native
+from smartjoint.design.control.artifact import ControllerArtifact
+from smartjoint.common.errors import ModelError
+from smartjoint.design.network import protocol
 
 LAWS = {"siso": 1, "clqg": 2}
 

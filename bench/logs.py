@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design.errors import ModelError
-from . import e2e
+from smartjoint.common.errors import ModelError
+from smartjoint.bench import e2e
 
 
 def record(bus, path, duration: float | None = None, max_bytes: int = 0, stop=None, progress=None) -> dict:

@@ -28,11 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..design.errors import ModelError
-from ..design.simulate import Measurements
-from . import sil
-from .amplifier import FAULTS as AMPLIFIER_FAULTS
-from .amplifier import OUTPUT_STAGE_FAULTS
+from smartjoint.common.errors import ModelError
+from smartjoint.design.plant.simulate import Measurements
+from smartjoint.bench import sil
+from smartjoint.bench.amplifier import FAULTS as AMPLIFIER_FAULTS
+from smartjoint.bench.amplifier import OUTPUT_STAGE_FAULTS
 
 DETECTION_LIMIT = 3  # cycles from a fault (or its detection bound) to the safe force at every joint
 FORCE_TOLERANCE = 1e-6  # N: "at the safe force" (the setpoint quantum is 8e-7 N)
@@ -232,7 +232,7 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
 def fault_matrix(artifact, law: str = "clqg", real: str = "float", measurements=None, timings=TIMINGS,
                  progress=None) -> dict:
     """Every case of :func:`cases` on one compiled firmware; rows and the worst figures."""
-    from . import firmware as firmware_module
+    from smartjoint.bench import firmware as firmware_module
 
     image = firmware_module.Firmware(artifact, law, real)
     todo = cases(artifact, image.db, timings=timings)

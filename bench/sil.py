@@ -28,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design.errors import ModelError
-from ..design.simulate import Measurements
-from . import e2e
-from .amplifier import FAULTS as AMPLIFIER_FAULTS
-from .amplifier import AmplifierModel
+from smartjoint.common.errors import ModelError
+from smartjoint.design.plant.simulate import Measurements
+from smartjoint.bench import e2e
+from smartjoint.bench.amplifier import FAULTS as AMPLIFIER_FAULTS
+from smartjoint.bench.amplifier import AmplifierModel
 
 FRAME_FAULTS = ("drop", "delay", "duplicate", "corrupt_crc", "corrupt_counter", "wrong_dlc", "silent")
 BUS_FAULTS = ("bus_off",)
@@ -416,7 +416,7 @@ class SilLoop:
 
     def statistics(self, duration: float, bitrate: int, data_bitrate: int | None) -> dict:
         """Frames per name, measured worst-case bus load over the run, E2E errors, timeouts."""
-        from .busload import _frame_time
+        from smartjoint.bench.busload import _frame_time
 
         busy = sum(count * _frame_time(self.frames[name].length, self.frames[name].is_fd, bitrate, data_bitrate)
                    for name, count in self.frame_counts.items())
@@ -457,10 +457,11 @@ def sil_study(setup, artifact, laws=("siso", "clqg"), real: str = "float", fault
     spread of the MIL run itself under float-rounding-sized perturbations of its commands (the
     stick–slip closed loop is chaotic: that spread bounds what any faithful re-implementation
     can match)."""
-    from ..design import artifact as artifacts
-    from ..design import simulate
-    from ..design import study as closed_loop
-    from . import busload, firmware, protocol, safety
+    from smartjoint.design.control import artifact as artifacts
+    from smartjoint.design.plant import simulate
+    from smartjoint.design.control import study as closed_loop
+    from smartjoint.bench import busload, firmware, safety
+    from smartjoint.design.network import protocol
 
     python = {"siso": artifacts.siso_law, "clqg": artifacts.clipped_lqg}
     db = protocol.database(artifact)
@@ -592,9 +593,9 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
     """One SIL run of the study with a sequence of faults (default :func:`demo_faults`): per
     fault the figures of ``bench/safety.measure``, and the largest energy after the pulse
     (bounded: the safe state is passive)."""
-    from ..design import simulate
-    from ..design import study as closed_loop
-    from . import firmware, safety
+    from smartjoint.design.plant import simulate
+    from smartjoint.design.control import study as closed_loop
+    from smartjoint.bench import firmware, safety
 
     faults = demo_faults(artifact, setup.duration) if faults is None else tuple(faults)
     loop = SilLoop(firmware.Firmware(artifact, law, real), closed_loop.PULSE_DURATION, faults=faults)

@@ -51,7 +51,7 @@ def measure(bays: int, dense: bool) -> dict:
     import scipy.linalg
 
     from smartjoint.design import build_model, parse_design
-    from smartjoint.design.modal import eigensolve
+    from smartjoint.design.structure.modal import eigensolve
 
     design = parse_design(mast(bays), source=f"<{bays}-bay mast>")
     start, cpu_start = time.perf_counter(), time.process_time()

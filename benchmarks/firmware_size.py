@@ -39,7 +39,7 @@ import tempfile
 from pathlib import Path
 
 from smartjoint.codegen import build, generate
-from smartjoint.design import artifact as artifacts
+from smartjoint.design.control import artifact as artifacts
 
 from machine import cpu_model  # benchmarks/machine.py (the script's folder is on sys.path)
 

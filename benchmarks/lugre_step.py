@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from smartjoint.design import lugre, rig
+from smartjoint.design.friction import lugre, rig
 
 P = lugre.TYPE_A
 NORMAL_FORCE = 400.0

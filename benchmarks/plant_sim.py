@@ -14,7 +14,7 @@ per-step energy books.
 LSODA gets a wall-clock budget; if it runs out, the ratio is reported as a lower bound.
 
 For the 24-state model also the stick-exact scheme (``simulate(..., stick_step=1e-3)``,
-design/stick_exact.py): 1 ms steps while the joints stick, 50 µs elsewhere; its ~10 ms runs are
+design/plant/stick_exact.py): 1 ms steps while the joints stick, 50 µs elsewhere; its ~10 ms runs are
 timed as the median of 9.
 
 Last, the work-precision diagram of the 24-state model (``--no-diagram`` skips it): friction error
@@ -38,7 +38,9 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from smartjoint.design import fem, modal, reduction, simulate, spec
+from smartjoint.design.structure import fem, modal, spec
+from smartjoint.design.reduction import krylov as reduction
+from smartjoint.design.plant import simulate
 from smartjoint.studies import joint_laws
 
 DESIGN = Path(__file__).resolve().parents[1] / "design" / "data" / "three_type_a.toml"

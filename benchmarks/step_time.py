@@ -40,8 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.codegen import build, generate
-from smartjoint.design import artifact as artifacts
-from smartjoint.design.simulate import Measurements
+from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.plant.simulate import Measurements
 
 from machine import cpu_model  # benchmarks/machine.py (the script's folder is on sys.path)
 

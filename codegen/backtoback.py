@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..design import artifact as artifacts
-from ..design import study as closed_loop
-from . import build
+from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.control import study as closed_loop
+from smartjoint.codegen import build
 
 
 class Recorder:

@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design import native
-from ..design.artifact import ControllerArtifact
-from ..design.errors import ModelError
-from ..design.simulate import Measurements
-from . import generate
+from smartjoint.common import native
+from smartjoint.design.control.artifact import ControllerArtifact
+from smartjoint.common.errors import ModelError
+from smartjoint.design.plant.simulate import Measurements
+from smartjoint.codegen import generate
 
 WARNINGS = ["-Wall", "-Wextra", "-Wpedantic", "-Wconversion", "-Wdouble-promotion", "-Wshadow", "-Werror"]
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", *WARNINGS]

@@ -1,5 +1,5 @@
 """Render the CAN message layer of the controller (``templates/can.*.j2``) from the artefact and
-the DBC of ``bench/protocol.py``: pack/unpack of every frame (bit-exact with cantools),
+the DBC of ``design/network/protocol.py``: pack/unpack of every frame (bit-exact with cantools),
 E2E check and protection (``firmware/runtime/sj_e2e.c``, copied next to it), per-input ageing
 by the senders' counters, plausibility of every decoded signal, the safe state with recovery
 (the artefact's safe normal force; docs/safety.md), the controller step between receive and
@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import package_data
-from ..bench import protocol
-from ..design.artifact import ControllerArtifact
-from ..design.errors import ModelError
-from . import generate, identifiers
+from smartjoint.common import package_data
+from smartjoint.design.network import protocol
+from smartjoint.design.control.artifact import ControllerArtifact
+from smartjoint.common.errors import ModelError
+from smartjoint.codegen import generate, identifiers
 
 RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
 
@@ -55,14 +55,14 @@ def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier) -> No
         measured = frame.get_signal_by_name("normal_force").maximum
         if high[j] > measured:
             raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — the JOINT_{tag} "
-                             f"frame carries the applied F_N up to {measured:g} N (bench/protocol.py)")
+                             f"frame carries the applied F_N up to {measured:g} N (design/network/protocol.py)")
         for field, signal, limit in (("measured_normal_force_max", "normal_force", artifact.measured_normal_force_max[j]),
                                      ("sliding_velocity_limit", "sliding_velocity", artifact.sliding_velocity_limit[j]),
                                      ("friction_force_limit", "friction_force", artifact.friction_force_limit[j])):
             carried = frame.get_signal_by_name(signal).maximum
             if limit > carried:
                 raise ModelError(f"{field}[{j}]: {float(limit)!r} for joint {joint!r} — the JOINT_{tag} frame carries "
-                                 f"{signal} up to {carried:g} (bench/protocol.py): a limit beyond it never trips")
+                                 f"{signal} up to {carried:g} (design/network/protocol.py): a limit beyond it never trips")
     tip = db.get_message_by_name("TIP_SENSORS")
     for r, sensor in enumerate(artifact.sensor_names):
         carried = tip.get_signal_by_name(sensor.lower()).maximum
@@ -114,7 +114,7 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
     doubles = lambda values: ", ".join(generate.literal(float(v), "double") for v in values)  # noqa: E731
     joints = [j.upper() for j in artifact.joint_names]
     cycle_us = int(round(artifact.sample_time * 1e6))
-    # Every input comes once per controller cycle: ages count steps (bench/protocol.py).
+    # Every input comes once per controller cycle: ages count steps (design/network/protocol.py).
     inputs = [{"kind": "joint", "index": j, "message": f"JOINT_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
     inputs.append({"kind": "tip", "index": 0, "message": "TIP_SENSORS", "clqg_only": 1})
     inputs += [{"kind": "amp", "index": j, "message": f"AMP_STATUS_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]

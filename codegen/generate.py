@@ -3,7 +3,7 @@
 One call gives a self-contained folder: ``<prefix>_types.h`` (the scalar type and status bits),
 ``<prefix>_siso.h/.c`` (Eq. 30–31 in every joint), ``<prefix>_clqg.h/.c`` (Eq. 33–34), an
 example ``main.c``, a ``Makefile`` and a ``CMakeLists.txt``. The C mirrors the Python reference
-controllers of ``design/control.py`` statement by statement (update order, clipping, boundary
+controllers of ``design/control/laws.py`` statement by statement (update order, clipping, boundary
 layers, fault handling) and exploits the model's structure: the predictor is a 2×2 block per
 coordinate. Rendering is deterministic: the same artefact and options give byte-identical
 files; the banner names the generator version and the artefact hash, never a date.
@@ -18,10 +18,10 @@ from pathlib import Path
 import jinja2
 import numpy as np
 
-from .. import package_data
-from ..design import artifact as artifacts
-from ..design.errors import ModelError
-from . import identifiers
+from smartjoint.common import package_data
+from smartjoint.design.control import artifact as artifacts
+from smartjoint.common.errors import ModelError
+from smartjoint.codegen import identifiers
 
 REALS = ("float", "double")
 FLOAT_MAX = float(np.finfo(np.float32).max)
@@ -149,7 +149,7 @@ def generate(source, folder, real: str = "float", prefix: str = "smartjoint", ca
     ``check`` compile all of it there (``build.check_folder``; ``progress(message)`` hears when),
     then move it into place (``output.place``). Nothing is written when any check fails; returns
     ``output.Placed`` with ``compiled`` the check's summary (or None)."""
-    from . import build, can_layer, output
+    from smartjoint.codegen import build, can_layer, output
 
     artifact = source if isinstance(source, artifacts.ControllerArtifact) else artifacts.load(Path(source))
     files = render(artifact, real, prefix)

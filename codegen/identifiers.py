@@ -26,7 +26,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 
-from ..design.errors import ModelError
+from smartjoint.common.errors import ModelError
 
 NAME_LENGTH = 32  # keeps identifiers readable; longer DBC symbols get cantools' long-name attributes
 PREFIX_LENGTH = 24

@@ -4,11 +4,11 @@ Kept apart as in pyMOR: ``spec`` (the design file), ``beam``/``fem`` (the model)
 (the eigen solution), ``updating`` (the algorithm that fits the model to measurements).
 """
 
-from .errors import DesignError, ModelError, SmartjointError
-from .fem import FEModel, build_model
-from .modal import Modes, solve_modes
-from .spec import REFERENCE_DESIGN, Design, load_design, parse_design
-from .updating import UpdatingResult, update_model, updated_design
+from smartjoint.common.errors import DesignError, ModelError, SmartjointError
+from smartjoint.design.structure.fem import FEModel, build_model
+from smartjoint.design.structure.modal import Modes, solve_modes
+from smartjoint.design.structure.spec import REFERENCE_DESIGN, Design, load_design, parse_design
+from smartjoint.design.structure.updating import UpdatingResult, update_model, updated_design
 
 __all__ = [
     "Design", "DesignError", "FEModel", "ModelError", "Modes", "REFERENCE_DESIGN", "SmartjointError",

@@ -1,3 +1,3 @@
 """The C side of smartjoint as package data: ``runtime/`` holds the hand-written E2E runtime and
-replay harness that the code generator and the bench use (``smartjoint/package_data.py``).
+replay harness that the code generator and the bench use (``common/package_data.py``).
 ``generated/`` is the reference output kept in the source tree; it is not installed."""

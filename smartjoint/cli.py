@@ -12,8 +12,8 @@ import signal
 import sys
 from pathlib import Path
 
-from . import __version__
-from .design.errors import SmartjointError
+from smartjoint import __version__
+from smartjoint.common.errors import SmartjointError
 
 
 def _progress(message: str) -> None:
@@ -37,7 +37,7 @@ def _add_design(parser: argparse.ArgumentParser) -> None:
 
 def _model(args, *, joints: str = "locked"):
     """Load the design, build the FE model and, unless --no-update, update it to the EMA."""
-    from .design import build_model
+    from smartjoint.design import build_model
 
     design, result = _updated(args)
     return build_model(design, joints=joints), result
@@ -47,7 +47,7 @@ def _updated(args, *, firmware_names: bool = False):
     """The design, updated to its EMA unless --no-update, and the updating result (or None).
     The updated parameters also hold for a design that adds joints to an updated base.
     ``firmware_names``: refuse, before any work, joint and sensor names the firmware cannot carry."""
-    from .design import load_design, updated_design
+    from smartjoint.design import load_design, updated_design
 
     design = load_design(args.design)
     if firmware_names:
@@ -59,7 +59,7 @@ def _updated(args, *, firmware_names: bool = False):
 
 
 def cmd_modes(args) -> dict:
-    from .design import solve_modes
+    from smartjoint.design import solve_modes
 
     model, result = _model(args)
     modes = solve_modes(model, min(args.count, model.n_dof))
@@ -92,14 +92,14 @@ def cmd_update(args) -> dict:
         raise SmartjointError(f"{model.design.source}: the design has no [updating] section")
     out = result.as_dict()
     if not args.json:
-        from .report import updating_table
+        from smartjoint.report import updating_table
 
         print(updating_table(result))
     return out
 
 
 def cmd_export_model(args) -> dict:
-    from .design.export import export_model
+    from smartjoint.design.structure.export import export_model
 
     model, _ = _model(args, joints=args.joints)
     document = export_model(model)
@@ -113,10 +113,10 @@ def cmd_export_model(args) -> dict:
 
 
 def cmd_run(args) -> dict:
-    from .report_folder import inspect
+    from smartjoint.report_folder import inspect
 
     inspect(Path(args.output))  # refuse a file or a foreign folder before the pipeline even loads
-    from .pipeline import run
+    from smartjoint.pipeline import run
 
     result = run(args.design, Path(args.output), progress=_progress)
     if not args.json:
@@ -129,7 +129,7 @@ _LUGRE_FLAGS = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_v
 
 def _rig_parameters(args):
     """The rig's parameter set: --parameters FILE, or all the LuGre flags, or (neither) Table 1."""
-    from .design import rig
+    from smartjoint.design.friction import rig
 
     flags = {n: getattr(args, n) for n in _LUGRE_FLAGS if getattr(args, n) is not None}
     if args.parameters is not None:
@@ -153,7 +153,7 @@ def _rig_parameters(args):
 
 
 def _rig_test(args, joint_type, normal_force, amplitude, frequency, seed):
-    from .design.rig import RigTest
+    from smartjoint.design.friction.rig import RigTest
 
     inertia = args.inertia if args.inertia is not None else (1.0 if joint_type == "A" else 2e-3)
     return RigTest(joint_type, normal_force, amplitude, frequency, cycles=args.cycles, inertia=inertia,
@@ -161,8 +161,8 @@ def _rig_test(args, joint_type, normal_force, amplitude, frequency, seed):
 
 
 def cmd_rig(args) -> dict:
-    from .design import rig
-    from .design.records import write_record
+    from smartjoint.design.friction import rig
+    from smartjoint.design.friction.records import write_record
 
     output = Path(args.output)
     chosen = _rig_parameters(args)
@@ -202,9 +202,9 @@ def cmd_rig(args) -> dict:
 
 
 def cmd_identify(args) -> dict:
-    from .design.identify import classify, identify
-    from .design.records import read_record
-    from .report import identification_table, plot_hysteresis
+    from smartjoint.design.friction.identify import classify, identify
+    from smartjoint.design.friction.records import read_record
+    from smartjoint.report import identification_table, plot_hysteresis
 
     records = [read_record(path, args.radius) for path in args.records]
     micro = [r for r in records if classify(r, args.radius) == "micro-slip"]
@@ -229,7 +229,7 @@ def _plots(args, out: dict, draw) -> None:
 def cmd_reduce(args) -> dict:
     import numpy as np
 
-    from .studies import parse_normal_forces, plot_study, reduction_study, study_summary
+    from smartjoint.studies import parse_normal_forces, plot_study, reduction_study, study_summary
 
     design, _ = _updated(args)
     forces = parse_normal_forces(args.normal_force, design) if args.normal_force else \
@@ -241,7 +241,7 @@ def cmd_reduce(args) -> dict:
         names = [j.name for j in design.joints]
         unknown = [n for n in args.krylov_joints.split(",") if n not in names]
         if unknown:
-            from .design.errors import ModelError
+            from smartjoint.common.errors import ModelError
             raise ModelError(f"--krylov-joints: {unknown[0]!r} — joints are {', '.join(names)}")
         joints = [names.index(n) for n in args.krylov_joints.split(",")]
     elif forces is not None:
@@ -251,7 +251,7 @@ def cmd_reduce(args) -> dict:
     out = study_summary(study)
     _plots(args, out, lambda folder: plot_study(study, folder))
     if not args.json:
-        from .studies import study_markdown
+        from smartjoint.studies import study_markdown
         print(study_markdown(study))
     return out
 
@@ -259,8 +259,11 @@ def cmd_reduce(args) -> dict:
 def cmd_simulate(args) -> dict:
     import numpy as np
 
-    from .design import build_model, modal, reduction, simulate
-    from .studies import joint_laws, parse_normal_forces
+    from smartjoint.design import build_model
+    from smartjoint.design.structure import modal
+    from smartjoint.design.reduction import krylov as reduction
+    from smartjoint.design.plant import simulate
+    from smartjoint.studies import joint_laws, parse_normal_forces
 
     design, _ = _updated(args)
     forces = parse_normal_forces(args.normal_force, design)
@@ -297,8 +300,8 @@ def cmd_simulate(args) -> dict:
 def check_firmware_names(design) -> None:
     """Joint and sensor names of ``design`` that the generated C and the CAN layer cannot carry
     (C keywords, reserved names, the E2E signals) — one line naming ``sensors[i].name``."""
-    from .bench import protocol
-    from .codegen import identifiers
+    from smartjoint.design.network import protocol
+    from smartjoint.codegen import identifiers
 
     identifiers.check_names([j.name for j in design.joints], [s.name for s in design.sensors],
                             members=protocol.E2E_SIGNALS, fields=identifiers.DESIGN_FIELDS)
@@ -307,7 +310,8 @@ def check_firmware_names(design) -> None:
 def _control_design(args, *, firmware_names: bool = False):
     """The (updated) design the controllers are built for: the given one, or for the bundled
     reference truss (no joints) the paper's three type A joint design of Fig. 11."""
-    from .design import load_design, spec
+    from smartjoint.design import load_design
+    from smartjoint.design.structure import spec
 
     if args.design is None:
         args.design = str(spec.REFERENCE_DESIGN.parent / "three_type_a.toml")
@@ -316,15 +320,15 @@ def _control_design(args, *, firmware_names: bool = False):
         import dataclasses
 
         if not (args.duration > 0):
-            from .design.errors import ModelError
+            from smartjoint.common.errors import ModelError
             raise ModelError(f"--duration: {args.duration!r} — must be > 0 [s]")
         design = dataclasses.replace(design, control=dataclasses.replace(design.control, study_duration=args.duration))
     return design
 
 
 def cmd_study(args) -> dict:
-    from .control_study import control_markdown, plot_control_study
-    from .design import study as closed_loop
+    from smartjoint.control_study import control_markdown, plot_control_study
+    from smartjoint.design.control import study as closed_loop
 
     design = _control_design(args)
     _progress(f"closed-loop study (Section 6) on {design.name!r}, t_e = {design.control.study_duration:g} s …")
@@ -338,8 +342,8 @@ def cmd_study(args) -> dict:
 
 
 def cmd_design(args) -> dict:
-    from .design import artifact
-    from .design import study as closed_loop
+    from smartjoint.design.control import artifact
+    from smartjoint.design.control import study as closed_loop
 
     design = _control_design(args, firmware_names=True)
     Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # fail early, not after the optimisation
@@ -353,7 +357,8 @@ def cmd_design(args) -> dict:
         optimum = closed_loop.optimise_boundary_layer(s, lambda m: _progress(m))
         width = optimum.boundary_layer
     result = artifact.from_design(design, model, lqg, width)
-    from .bench import busload, protocol
+    from smartjoint.bench import busload
+    from smartjoint.design.network import protocol
 
     load = busload.check(protocol.database(result), args.bitrate, args.data_bitrate or None, args.max_load)
     _progress(f"CAN bus load {100 * load.load:.1f} % at {args.bitrate / 1e6:g}"
@@ -376,8 +381,8 @@ def cmd_design(args) -> dict:
 
 
 def cmd_codegen(args) -> dict:
-    from .codegen import generate
-    from .design import artifact
+    from smartjoint.codegen import generate
+    from smartjoint.design.control import artifact
 
     loaded = artifact.load(Path(args.artifact))
     placed = generate.generate(loaded, Path(args.output), args.real, args.prefix, can=not args.no_can,
@@ -401,8 +406,9 @@ def cmd_codegen(args) -> dict:
 def cmd_place(args) -> dict:
     import os
 
-    from .design import build_model, placement, solve_modes
-    from .design.errors import ModelError
+    from smartjoint.design import build_model, solve_modes
+    from smartjoint.design.structure import placement
+    from smartjoint.common.errors import ModelError
 
     design, _ = _updated(args)
     if design.joints:
@@ -442,9 +448,9 @@ def cmd_place(args) -> dict:
 
 def _controller_artifact(args, design, model):
     """--artifact FILE (checked against the design), else designed now (ε optimised if absent)."""
-    from .design import artifact
-    from .design import study as closed_loop
-    from .design.errors import ModelError
+    from smartjoint.design.control import artifact
+    from smartjoint.design.control import study as closed_loop
+    from smartjoint.common.errors import ModelError
 
     if getattr(args, "artifact", None):
         loaded = artifact.load(Path(args.artifact))
@@ -461,8 +467,8 @@ def _controller_artifact(args, design, model):
 
 
 def cmd_sil(args) -> dict:
-    from .bench import sil
-    from .design import study as closed_loop
+    from smartjoint.bench import sil
+    from smartjoint.design.control import study as closed_loop
 
     design = _control_design(args, firmware_names=True)
     model = closed_loop.design_model(design, _progress)
@@ -486,9 +492,9 @@ def cmd_sil(args) -> dict:
 
 
 def _bench_database(args):
-    from .bench import protocol
-    from .design import artifact
-    from .design.errors import ModelError
+    from smartjoint.design.network import protocol
+    from smartjoint.design.control import artifact
+    from smartjoint.common.errors import ModelError
 
     if args.dbc:
         try:
@@ -501,13 +507,14 @@ def _bench_database(args):
 
 
 def cmd_bench(args) -> dict:
-    from .bench import logs, protocol, sil
-    from .design import artifact
+    from smartjoint.bench import logs, sil
+    from smartjoint.design.network import protocol
+    from smartjoint.design.control import artifact
 
     if args.bench_command == "dbc":
         loaded = artifact.load(Path(args.artifact))
         db = protocol.database(loaded)
-        from .bench import busload
+        from smartjoint.bench import busload
 
         load = busload.check(db, args.bitrate, args.data_bitrate, args.max_load)
         _write_atomic(Path(args.output), protocol.dbc_text(db))
@@ -533,8 +540,8 @@ def cmd_bench(args) -> dict:
 
 def _bench_log(args):
     """The log of ``bench decode`` / ``bench replay``, its damage on stderr (counts by kind)."""
-    from .bench import logs
-    from .design.errors import ModelError
+    from smartjoint.bench import logs
+    from smartjoint.common.errors import ModelError
 
     content = logs.load(args.log)
     if not content.messages:
@@ -549,7 +556,7 @@ def _bench_log(args):
 
 
 def _bench_decode(args) -> dict:
-    from .bench import logs
+    from smartjoint.bench import logs
 
     content = _bench_log(args)
     decoded = logs.decode(content, _bench_database(args))
@@ -572,9 +579,9 @@ def _bench_decode(args) -> dict:
 
 def _bench_replay(args) -> dict:
     """Exit 1 (after the report) when a setpoint differs or a recorded one was not replayed."""
-    from .bench import firmware, logs
-    from .design import artifact
-    from .design.errors import ModelError
+    from smartjoint.bench import firmware, logs
+    from smartjoint.design.control import artifact
+    from smartjoint.common.errors import ModelError
 
     content = _bench_log(args)
     loaded = artifact.load(Path(args.artifact))

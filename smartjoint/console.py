@@ -12,7 +12,7 @@ import sys
 
 def main() -> int:
     try:
-        from .cli import main as run_command
+        from smartjoint.cli import main as run_command
     except KeyboardInterrupt:
         print("smartjoint: interrupted (SIGINT) while starting", file=sys.stderr)
         return 130

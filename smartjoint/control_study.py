@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .design import study as closed_loop
-from .studies import _save
+from smartjoint.design.control import study as closed_loop
+from smartjoint.studies import _save
 
 COLOURS = {"passive F_min": "tab:gray", "passive F_max": "k", "SISO": "tab:blue", "cLQG": "tab:red",
            "active LQG": "tab:green"}

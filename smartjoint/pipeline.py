@@ -26,17 +26,20 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from . import report as plots
-from .bench import busload, protocol, safety, sil
-from .codegen import backtoback, can_layer, generate, identifiers
-from .control_study import control_markdown, plot_control_study
-from .design import artifact, build_model, load_design, lugre, rig, solve_modes, updated_design
-from .design import study as closed_loop
-from .design.identify import classify, identify
-from .design.spec import REFERENCE_DESIGN
-from .report_folder import ReportFolder, iso, new_run_id, utc_now
-from .studies import plot_study, reduction_study, study_markdown, study_summary
+from smartjoint import __version__
+from smartjoint import report as plots
+from smartjoint.bench import busload, safety, sil
+from smartjoint.design.network import protocol
+from smartjoint.codegen import backtoback, can_layer, generate, identifiers
+from smartjoint.control_study import control_markdown, plot_control_study
+from smartjoint.design.control import artifact
+from smartjoint.design import build_model, load_design, solve_modes, updated_design
+from smartjoint.design.friction import lugre, rig
+from smartjoint.design.control import study as closed_loop
+from smartjoint.design.friction.identify import classify, identify
+from smartjoint.design.structure.spec import REFERENCE_DESIGN
+from smartjoint.report_folder import ReportFolder, iso, new_run_id, utc_now
+from smartjoint.studies import plot_study, reduction_study, study_markdown, study_summary
 
 FIG10_DESIGN = REFERENCE_DESIGN.parent / "fig10_three_joints.toml"
 CONTROL_DESIGN = REFERENCE_DESIGN.parent / "three_type_a.toml"  # Fig. 11: three type A joints

@@ -10,9 +10,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .design.fem import FEModel  # noqa: E402
-from .design.modal import Modes  # noqa: E402
-from .design.updating import UpdatingResult  # noqa: E402
+from smartjoint.design.structure.fem import FEModel  # noqa: E402
+from smartjoint.design.structure.modal import Modes  # noqa: E402
+from smartjoint.design.structure.updating import UpdatingResult  # noqa: E402
 
 
 def updating_table(result: UpdatingResult) -> str:
@@ -145,7 +145,7 @@ def identification_table(result) -> str:
 
 def plot_hysteresis(result, folder: Path) -> list[Path]:
     """Measured vs model friction over displacement (micro-slip) or velocity (stick-slip)."""
-    from .design.identify import model_friction
+    from smartjoint.design.friction.identify import model_friction
 
     paths = []
     stick_names = set(result.stick.nrmse)  # record names of step 2

@@ -29,7 +29,7 @@ import socket
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .design.errors import SmartjointError
+from smartjoint.common.errors import SmartjointError
 
 MANIFEST = "smartjoint-manifest.json"
 MANIFEST_KIND = "smartjoint run report"

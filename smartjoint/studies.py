@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .design import lugre, modal, reduction, simulate
-from .design.errors import ModelError
-from .design.fem import build_model
+from smartjoint.design.friction import lugre
+from smartjoint.design.structure import modal
+from smartjoint.design.reduction import krylov as reduction
+from smartjoint.design.plant import simulate
+from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.fem import build_model
 
 WINDOWS = (0.05, 0.1, 0.2, 0.5)  # s: RMS windows of the friction-moment comparison
 

@@ -88,7 +88,9 @@ def truss_dict():
 @pytest.fixture(scope="session")
 def three_type_a():
     """The paper's configuration (Fig. 11), updated to the EMA, and its 24-state design model."""
-    from smartjoint.design import load_design, spec, study, updated_design
+    from smartjoint.design import load_design, updated_design
+    from smartjoint.design.structure import spec
+    from smartjoint.design.control import study
 
     design, _ = updated_design(load_design(spec.REFERENCE_DESIGN.parent / "three_type_a.toml"))
     return design, study.design_model(design, lambda message: None)

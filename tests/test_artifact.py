@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from smartjoint.design import artifact, control, modal, simulate
-from smartjoint.design.errors import ModelError
-from smartjoint.design.fem import build_model
-from smartjoint.design.spec import load_design, parse_design
+from smartjoint.design.control import artifact, laws as control
+from smartjoint.design.structure import modal
+from smartjoint.design.plant import simulate
+from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.spec import load_design, parse_design
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "controller-artifact.md"
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from smartjoint.design import build_model, parse_design, solve_modes
-from smartjoint.design.modal import eigensolve
+from smartjoint.design.structure.modal import eigensolve
 
 from conftest import ALUMINIUM, TUBE, beam_design
 

@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from smartjoint.bench import e2e, firmware, logs, sil
-from smartjoint.design import artifact, simulate
-from smartjoint.design import study as closed_loop
-from smartjoint.design.errors import ModelError
+from smartjoint.design.control import artifact
+from smartjoint.design.plant import simulate
+from smartjoint.design.control import study as closed_loop
+from smartjoint.common.errors import ModelError
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated" / "controller.json"
@@ -231,7 +232,7 @@ def test_damaged_logs_and_unknown_interfaces_get_clear_messages(bench, tmp_path)
 def test_decode_skips_and_counts_malformed_frames(reference):
     import can
 
-    from smartjoint.bench import protocol
+    from smartjoint.design.network import protocol
 
     db = protocol.database(reference)
     m = db.get_message_by_name("SETPOINT_A1")
@@ -268,7 +269,7 @@ def test_bench_log_records_a_live_bus_that_reopens_and_converts(reference, tmp_p
 
     import can
 
-    from smartjoint.bench import protocol
+    from smartjoint.design.network import protocol
 
     db = protocol.database(reference)
     m = db.get_message_by_name("SETPOINT_A1")

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from smartjoint.bench import busload, e2e, protocol
-from smartjoint.design import artifact
-from smartjoint.design.errors import ModelError
+from smartjoint.bench import busload, e2e
+from smartjoint.design.network import protocol
+from smartjoint.design.control import artifact
+from smartjoint.common.errors import ModelError
 
 REFERENCE = Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json"
 # AUTOSAR "Specification of CRC Routines", CRC8 SAE J1850 check table.

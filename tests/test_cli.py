@@ -54,7 +54,7 @@ def test_run_writes_a_complete_report(tmp_path, capsys):
         assert (out / name).stat().st_size > 0
     assert summary["modes_released_hz"][0] < summary["modes_hz"][0]
     # Control study, controller artefact and generated firmware join the report.
-    from smartjoint.design import artifact
+    from smartjoint.design.control import artifact
 
     assert artifact.load(out / "controller.json").artifact_sha256 == summary["control"]["artifact_sha256"]
     assert set(summary["control"]["runs"]) == {"passive F_min", "passive F_max", "SISO", "cLQG", "active LQG"}

@@ -16,7 +16,10 @@ import pytest
 
 from smartjoint.bench import sil
 from smartjoint.codegen import build, generate
-from smartjoint.design import artifact, control, load_design, simulate, spec, study
+from smartjoint.design.control import artifact, laws as control, study
+from smartjoint.design import load_design
+from smartjoint.design.plant import simulate
+from smartjoint.design.structure import spec
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated"

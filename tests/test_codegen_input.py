@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from smartjoint import cli
-from smartjoint.bench import protocol
+from smartjoint.design.network import protocol
 from smartjoint.codegen import can_layer, generate, identifiers, output
-from smartjoint.design import artifact
-from smartjoint.design.errors import ModelError
+from smartjoint.design.control import artifact
+from smartjoint.common.errors import ModelError
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated"

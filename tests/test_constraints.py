@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from smartjoint.design import beam, build_model, parse_design
-from smartjoint.design.modal import eigensolve
+from smartjoint.design.structure import beam
+from smartjoint.design import build_model, parse_design
+from smartjoint.design.structure.modal import eigensolve
 
 from conftest import ALUMINIUM, TUBE, small_truss
 

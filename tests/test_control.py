@@ -7,10 +7,13 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from smartjoint.design import control, lugre, modal, simulate
-from smartjoint.design.errors import DesignError, ModelError
-from smartjoint.design.fem import build_model
-from smartjoint.design.spec import parse_design
+from smartjoint.design.control import laws as control
+from smartjoint.design.friction import lugre
+from smartjoint.design.structure import modal
+from smartjoint.design.plant import simulate
+from smartjoint.common.errors import DesignError, ModelError
+from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.spec import parse_design
 
 pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
 

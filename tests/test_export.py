@@ -11,9 +11,10 @@ import pytest
 import scipy.linalg
 import scipy.sparse as sp
 
-from smartjoint.design import beam, build_model, parse_design
-from smartjoint.design.export import export_model
-from smartjoint.design.modal import eigensolve
+from smartjoint.design.structure import beam
+from smartjoint.design import build_model, parse_design
+from smartjoint.design.structure.export import export_model
+from smartjoint.design.structure.modal import eigensolve
 
 from conftest import small_truss
 

@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from smartjoint.design import lugre, rig
-from smartjoint.design.identify import classify, model_friction, nrmse
+from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction.identify import classify, model_friction, nrmse
 
 
 @pytest.mark.numerics
@@ -58,7 +58,7 @@ def test_rig_command_writes_a_readable_record(tmp_path):
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["records"][0]["regime"] == "micro-slip"
-    from smartjoint.design.records import read_record
+    from smartjoint.design.friction.records import read_record
 
     record = read_record(target)
     assert record.inertia == 1.0 and np.all(record.normal_force == 400.0)
@@ -83,7 +83,7 @@ def test_identification_recovers_table_1_from_noisy_rig_records(joint_type):
     down to about ±15–45 % (95 %): σ2 is weakly identifiable by Eq. 3 alone, and its
     output-error interval must hold the true value.
     """
-    from smartjoint.design.identify import identify
+    from smartjoint.design.friction.identify import identify
 
     p = lugre.TABLE_1[joint_type]
     records = [rig.simulate(test) for test in rig.campaign(joint_type, noise=0.01, cycles=8)]
@@ -112,7 +112,7 @@ def test_identification_recovers_table_1_from_noisy_rig_records(joint_type):
 @pytest.mark.parametrize("joint_type", ["A", "B"])
 def test_output_error_model_reproduces_a_noise_free_stick_slip_record(joint_type):
     """shoot(): segments from the velocity peaks, low-passed force, same integrator as the rig."""
-    from smartjoint.design.identify import _prepare_shooting, shoot
+    from smartjoint.design.friction.identify import _prepare_shooting, shoot
 
     p = lugre.TABLE_1[joint_type]
     record = rig.simulate(rig.campaign(joint_type, cycles=2)[1])  # stick-slip, 1.1× break-away
@@ -125,7 +125,7 @@ def test_output_error_model_reproduces_a_noise_free_stick_slip_record(joint_type
 
 
 def test_output_error_step_needs_excitation_force_and_inertia():
-    from smartjoint.design.identify import _output_error_blocker, output_error_gap
+    from smartjoint.design.friction.identify import _output_error_blocker, output_error_gap
 
     record = rig.simulate(rig.campaign("A", cycles=1)[2])
     assert output_error_gap(record) is None and _output_error_blocker([record], True) is None
@@ -137,8 +137,8 @@ def test_output_error_step_needs_excitation_force_and_inertia():
 
 
 def test_stick_slip_step_refuses_a_record_without_slip():
-    from smartjoint.design.identify import identify
-    from smartjoint.design.records import RecordError
+    from smartjoint.design.friction.identify import identify
+    from smartjoint.design.friction.records import RecordError
 
     micro = rig.simulate(rig.RigTest("A", 400.0, 150.0, 10.0, cycles=1.0))
     still = rig.simulate(rig.RigTest("A", 400.0, 100.0, 8.0, cycles=1.0))

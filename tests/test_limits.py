@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 from smartjoint.design import DesignError, ModelError, build_model, load_design, parse_design
-from smartjoint.design import spec
-from smartjoint.design.modal import count_zero_energy_modes, gross_energy, probe_zero_energy
+from smartjoint.design.structure import spec
+from smartjoint.design.structure.modal import count_zero_energy_modes, gross_energy, probe_zero_energy
 
 from conftest import small_truss
 
@@ -58,7 +58,7 @@ _CHILD = textwrap.dedent("""
     import json, resource, sys, time
     resource.setrlimit(resource.RLIMIT_AS, (4 << 30, 4 << 30))  # a regression fails, not the machine
     from smartjoint.design import load_design
-    from smartjoint.design.errors import SmartjointError
+    from smartjoint.common.errors import SmartjointError
     for name, path in json.loads(sys.argv[1]).items():
         start = time.perf_counter()
         try:

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from smartjoint.design import lugre
-from smartjoint.design.lugre import CANUDAS_1995 as P
+from smartjoint.design.friction import lugre
+from smartjoint.design.friction.lugre import CANUDAS_1995 as P
 
 
 def test_steady_state_friction_is_the_stribeck_curve():

@@ -1,7 +1,7 @@
 """The wheel carries every data file the code opens (C kernels, firmware runtime, templates, bundled
 designs), and the code finds them inside the installed package, not in a source tree beside it.
 
-The data files are named once, in ``smartjoint/package_data.py``; these tests build the wheel from
+The data files are named once, in ``common/package_data.py``; these tests build the wheel from
 the files ``pyproject.toml`` maps into the package and hold it against that list, the list against
 the source tree, and the installed code against the list.
 """
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from smartjoint import package_data
+from smartjoint.common import package_data
 
 ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from smartjoint.design import fem, modal, placement, spec
-from smartjoint.design.errors import ModelError
+from smartjoint.design.structure import fem, modal, placement, spec
+from smartjoint.common.errors import ModelError
 
 pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from smartjoint.design import lugre, rig
-from smartjoint.design.records import RecordError, read_record, write_record
+from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction.records import RecordError, read_record, write_record
 
 
 def test_rig_matches_radau_reference():
@@ -209,7 +209,7 @@ def test_write_record_refuses_what_it_could_not_read_back(tmp_path):
 # --- identify: guards for records that pass the reader but cannot be fitted ------------------------------------
 
 def _records(joint_type="A", cycles=0.5, normal_forces=(200.0, 400.0)):
-    from smartjoint.design.identify import classify
+    from smartjoint.design.friction.identify import classify
 
     records = [rig.simulate(t) for t in rig.campaign(joint_type, cycles=cycles) if t.normal_force in normal_forces]
     return ([r for r in records if classify(r) == "micro-slip"], [r for r in records if classify(r) == "stick-slip"])
@@ -217,7 +217,7 @@ def _records(joint_type="A", cycles=0.5, normal_forces=(200.0, 400.0)):
 
 def test_one_normal_force_suffices():
     """The parameters are per unit normal force: records at one F_N determine them (noise-free)."""
-    from smartjoint.design.identify import identify
+    from smartjoint.design.friction.identify import identify
 
     micro, stick = _records(normal_forces=(400.0,))
     assert {float(r.normal_force[0]) for r in micro + stick} == {400.0}
@@ -227,8 +227,8 @@ def test_one_normal_force_suffices():
 
 
 def test_identify_refuses_unusable_records_in_one_line():
-    from smartjoint.design.identify import identify
-    from smartjoint.design.records import Record
+    from smartjoint.design.friction.identify import identify
+    from smartjoint.design.friction.records import Record
 
     micro, stick = _records()
     short = Record("short", micro[0].time[:20], micro[0].sliding_velocity[:20], micro[0].friction_force[:20],
@@ -253,7 +253,7 @@ def test_identify_refuses_unusable_records_in_one_line():
 
 
 def test_identify_radius_comes_from_the_records_and_must_be_one():
-    from smartjoint.design.identify import identify
+    from smartjoint.design.friction.identify import identify
 
     micro, stick = _records("B")
     stick[0].radius = 0.012
@@ -269,8 +269,8 @@ def test_identify_radius_comes_from_the_records_and_must_be_one():
 
 def test_degenerate_records_never_crash_identify():
     """Random records that pass the reader's checks: identify returns or raises RecordError, nothing else."""
-    from smartjoint.design.identify import identify
-    from smartjoint.design.records import Record
+    from smartjoint.design.friction.identify import identify
+    from smartjoint.design.friction.records import Record
 
     rng = np.random.default_rng(7)
     outcomes = []

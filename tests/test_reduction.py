@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
-from smartjoint.design import modal, reduction
-from smartjoint.design.fem import build_model
-from smartjoint.design.spec import parse_design
+from smartjoint.design.structure import modal
+from smartjoint.design.reduction import krylov as reduction
+from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.spec import parse_design
 
 pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
 

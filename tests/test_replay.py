@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from smartjoint import cli
-from smartjoint.bench import e2e, firmware, logs, protocol, sil
-from smartjoint.design import artifact
-from smartjoint.design.errors import ModelError
-from smartjoint.design.simulate import Measurements
+from smartjoint.bench import e2e, firmware, logs, sil
+from smartjoint.design.network import protocol
+from smartjoint.design.control import artifact
+from smartjoint.common.errors import ModelError
+from smartjoint.design.plant.simulate import Measurements
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated" / "controller.json"

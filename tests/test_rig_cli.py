@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from smartjoint.cli import main
-from smartjoint.design.records import read_record
+from smartjoint.design.friction.records import read_record
 
 # A type B joint that is not Table 1's (σ0 +38 %, F_c −29 %, F_d +50 %, v_s +50 %, r 15 mm instead of 11).
 JOINT_B = {"sigma0": 9.0e4, "sigma1": 0.03, "sigma2": 0.02, "coulomb": 0.35, "stribeck": 0.12,

@@ -216,7 +216,7 @@ class _Run:
     """``smartjoint run`` in a child process; its stderr read line by line on a thread (so no wait blocks)."""
 
     def __init__(self, design: Path, output: Path, temporary: Path):
-        from smartjoint.design import rig
+        from smartjoint.design.friction import rig
 
         rig.kernel()  # compiled beforehand: a signal must not land in a compiler the child started
         temporary.mkdir(exist_ok=True)

@@ -10,10 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from smartjoint.bench import e2e, firmware, protocol, safety, sil
+from smartjoint.bench import e2e, firmware, safety, sil
+from smartjoint.design.network import protocol
 from smartjoint.bench.amplifier import AmplifierModel
-from smartjoint.design import artifact
-from smartjoint.design.errors import ModelError
+from smartjoint.design.control import artifact
+from smartjoint.common.errors import ModelError
 
 REFERENCE = Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json"
 LOADED = artifact.load(REFERENCE)

@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from smartjoint.design import lugre, modal, simulate
-from smartjoint.design.fem import build_model
-from smartjoint.design.spec import parse_design
+from smartjoint.design.friction import lugre
+from smartjoint.design.structure import modal
+from smartjoint.design.plant import simulate
+from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.spec import parse_design
 
 
 @pytest.fixture(scope="module")
@@ -227,8 +229,8 @@ def test_unstable_damping_and_rigid_joint_are_named(model):
 
 def test_auto_backend_falls_back_to_the_mirror_once_when_c_does_not_build(model, monkeypatch):
     """No compiler: 'auto' warns once and runs the numpy mirror (same trajectory), 'c' names the error."""
-    from smartjoint.design import native
-    from smartjoint.design.errors import ModelError
+    from smartjoint.common import native
+    from smartjoint.common.errors import ModelError
 
     def no_compiler(*args, **kwargs):
         raise ModelError("compiling plant_kernel.c failed: no compiler")

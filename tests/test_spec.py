@@ -108,8 +108,8 @@ def test_command_line_reports_one_line(tmp_path):
 
 
 def test_base_file_supplies_the_keys_a_design_does_not_set(tmp_path):
-    from smartjoint.design.errors import DesignError
-    from smartjoint.design.spec import REFERENCE_DESIGN, load_design
+    from smartjoint.common.errors import DesignError
+    from smartjoint.design.structure.spec import REFERENCE_DESIGN, load_design
 
     child = tmp_path / "child.toml"
     child.write_text(f'base = "{REFERENCE_DESIGN}"\nname = "child"\n')

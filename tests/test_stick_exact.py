@@ -5,10 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from smartjoint.design import lugre, modal, simulate, stick_exact
-from smartjoint.design.errors import ModelError
-from smartjoint.design.fem import build_model
-from smartjoint.design.spec import parse_design
+from smartjoint.design.friction import lugre
+from smartjoint.design.structure import modal
+from smartjoint.design.plant import simulate, stick_exact
+from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.spec import parse_design
 
 JOINTS = [lugre.TYPE_A, lugre.TYPE_B]
 

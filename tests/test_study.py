@@ -1,4 +1,4 @@
-"""The closed-loop study of paper Section 6 (design/study.py) and the design/study commands."""
+"""The closed-loop study of paper Section 6 (design/control/study.py) and the design/study commands."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import sys
 import numpy as np
 import pytest
 
-from smartjoint.design import artifact, parse_design, study
-from smartjoint.design.errors import ModelError
+from smartjoint.design.control import artifact, study
+from smartjoint.design import parse_design
+from smartjoint.common.errors import ModelError
 
 
 def _small(duration=0.3, **control):

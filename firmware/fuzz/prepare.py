@@ -116,9 +116,9 @@ def main(argv: list[str]) -> int:
     if len(argv) != 1:
         print("usage: prepare.py FOLDER", file=sys.stderr)
         return 2
-    from smartjoint.bench import protocol
+    from smartjoint.design.network import protocol
     from smartjoint.codegen import can_layer, generate
-    from smartjoint.design import artifact as artifacts
+    from smartjoint.design.control import artifact as artifacts
 
     artifact = artifacts.load(REFERENCE / "controller.json")
     for name, text in _reference_sources(artifact, can_layer, generate).items():

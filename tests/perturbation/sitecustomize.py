@@ -57,7 +57,8 @@ def perturb_design(design, relative: float):
 def install(relative: float) -> None:
     """Perturb every design parsed from now on and Table 1, by about ``relative``. Idempotent."""
     import smartjoint.design as package
-    from smartjoint.design import lugre, spec
+    from smartjoint.design.friction import lugre
+    from smartjoint.design.structure import spec
 
     if getattr(spec.parse_design, "perturbation", None) is not None:
         return

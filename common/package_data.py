@@ -14,9 +14,9 @@ from pathlib import Path
 
 # Import package → the files it owns, relative to the package folder.
 FILES: dict[str, tuple[str, ...]] = {
+    "smartjoint.design.plant": ("plant_kernel.c",),
+    "smartjoint.design.friction": ("rig_kernel.c",),
     "smartjoint.design": (
-        "plant_kernel.c",
-        "rig_kernel.c",
         "data/meroform_10bay.toml",
         "data/fig10_three_joints.toml",
         "data/three_type_a.toml",
@@ -47,18 +47,18 @@ def _root(package: str) -> Path:
 def path(package: str, name: str) -> Path:
     """The data file ``name`` of ``package`` (a key of :data:`FILES`) on disk."""
     if name not in FILES.get(package, ()):
-        raise KeyError(f"{package}: {name!r} is not one of its data files (smartjoint/package_data.py FILES)")
+        raise KeyError(f"{package}: {name!r} is not one of its data files (common/package_data.py FILES)")
     return _root(package) / name
 
 
 def folder(package: str, name: str) -> Path:
     """The folder ``name`` of ``package`` that holds some of its data files."""
     if not any(f.startswith(name.rstrip("/") + "/") for f in FILES.get(package, ())):
-        raise KeyError(f"{package}: {name!r} holds none of its data files (smartjoint/package_data.py FILES)")
+        raise KeyError(f"{package}: {name!r} holds none of its data files (common/package_data.py FILES)")
     return _root(package) / name
 
 
 def all_files() -> list[tuple[str, Path]]:
-    """Every data file as (path inside the package tree, e.g. ``smartjoint/design/rig_kernel.c``, path on disk)."""
+    """Every data file as (path inside the package tree, e.g. ``smartjoint/design/friction/rig_kernel.c``, path on disk)."""
     return [(f"{package.replace('.', '/')}/{name}", path(package, name))
             for package, names in FILES.items() for name in names]

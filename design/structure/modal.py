@@ -14,7 +14,7 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .errors import ModelError
+from smartjoint.common.errors import ModelError
 
 DENSE_LIMIT = 2500  # DOFs up to which the dense solver is faster than shift-invert Lanczos
 SHIFT = -1.0  # (rad/s)²: below every elastic mode, keeps K − σM regular
@@ -92,7 +92,7 @@ def zero_energy(stiffness: sp.spmatrix, vectors: np.ndarray) -> np.ndarray:
 
 
 def solve_modes(model, n_modes: int, parameters: dict[str, float] | None = None) -> Modes:
-    """The ``n_modes`` lowest modes of an :class:`~smartjoint.design.fem.FEModel`."""
+    """The ``n_modes`` lowest modes of an :class:`~smartjoint.design.structure.fem.FEModel`."""
     stiffness = model.stiffness_with(parameters or {})
     values, vectors = eigensolve(stiffness, model.mass, n_modes)
     if zero_energy(stiffness, vectors[:, :1])[0]:

@@ -1,4 +1,4 @@
-/* Isolated-joint rig kernel of smartjoint.design.rig (compiled on first use through cffi).
+/* Isolated-joint rig kernel of smartjoint.design.friction.rig (compiled on first use through cffi).
  *
  * The same algorithm as rig._integrate_python, statement for statement, so that the two agree
  * to round-off (tests/test_identify.py): the rig model of paper Section 3.2

@@ -1,4 +1,4 @@
-/* Fixed-step plant kernel of smartjoint.design.simulate (compiled on first use through cffi).
+/* Fixed-step plant kernel of smartjoint.design.plant.simulate (compiled on first use through cffi).
  *
  * The same algorithm as simulate._PythonKernel, statement for statement, so that the two agree
  * to round-off (tests/test_simulate.py): exact first-order-hold modal step, implicit Newton

@@ -47,9 +47,9 @@ import numpy as np
 import scipy.optimize
 from scipy.signal import butter, find_peaks, savgol_filter, sosfiltfilt
 
-from . import lugre, rig
-from .errors import ModelError, SmartjointError
-from .records import MIN_RADIUS, Record, RecordError, bound
+from smartjoint.design.friction import lugre, rig
+from smartjoint.common.errors import ModelError, SmartjointError
+from smartjoint.design.friction.records import MIN_RADIUS, Record, RecordError, bound
 
 P1 = ("sigma0", "sigma1")
 P2 = ("coulomb", "stribeck", "stribeck_velocity", "sigma2")

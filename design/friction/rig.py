@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import lugre
-from .errors import SmartjointError
-from .records import MIN_RADIUS, Record, bound, friction_from_excitation
+from smartjoint.design.friction import lugre
+from smartjoint.common.errors import SmartjointError
+from smartjoint.design.friction.records import MIN_RADIUS, Record, bound, friction_from_excitation
 
 
 class RigError(SmartjointError, ValueError):
@@ -258,7 +258,7 @@ def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, d
     if gain.shape not in ((), (nodes,)):
         raise ValueError(f"gain: {gain.shape} values — need one number or {nodes}, one per substep node")
     gain = np.ascontiguousarray(np.broadcast_to(gain, (nodes,)))
-    from . import native
+    from smartjoint.common import native
 
     module = native.choose(backend, "rig integration", kernel, lambda: None, _C_FAILURE, stacklevel=2)
     if module is None:
@@ -268,10 +268,10 @@ def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, d
 
 def kernel():
     """The compiled rig kernel (cffi module; ``ModelError`` when it cannot be built)."""
-    from .. import package_data
-    from . import native
+    from smartjoint.common import package_data
+    from smartjoint.common import native
 
-    return native.load("rig", DECLARATIONS, package_data.path("smartjoint.design", "rig_kernel.c"))
+    return native.load("rig", DECLARATIONS, package_data.path("smartjoint.design.friction", "rig_kernel.c"))
 
 
 def _integrate_c(module, p, gain, inertia, force, time, substeps, velocity0, deflection0):

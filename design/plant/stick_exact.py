@@ -35,7 +35,7 @@ import math
 import numpy as np
 import scipy.linalg
 
-from .errors import ModelError
+from smartjoint.common.errors import ModelError
 
 KAPPA = 0.05  # ρ·h below which a joint counts as stuck for a step h
 BETA = (0.3, 0.5)  # |u_R| / break-away force below which it does, for the long and the medium step
@@ -240,11 +240,11 @@ class _StickC:
     name = "c"
 
     def __init__(self, plant: _StickPlant, state, recorder):
-        from .. import package_data
-        from . import native
-        from .simulate import _CKernel
+        from smartjoint.common import package_data
+        from smartjoint.common import native
+        from smartjoint.design.plant.simulate import _CKernel
 
-        module = native.load("plant", _CKernel.DECLARATIONS, package_data.path("smartjoint.design", "plant_kernel.c"))
+        module = native.load("plant", _CKernel.DECLARATIONS, package_data.path("smartjoint.design.plant", "plant_kernel.c"))
         self.ffi, self.lib = ffi, lib = module.ffi, module.lib
         self.mirror = _StickPython(plant, state, recorder)  # holds z, d and the discretisations
         self.p, self.s, self.r = plant, state, recorder
@@ -335,7 +335,7 @@ def check(model, step: float, stick_step, controller, record_every: int, energy_
 
 
 def kernel(backend: str, model, law, step: float, stick_step: float, state, recorder):
-    from . import native
+    from smartjoint.common import native
 
     plant = _StickPlant(model, law, step, stick_step)
     return native.choose(backend, "stick-exact simulation", lambda: _StickC(plant, state, recorder),

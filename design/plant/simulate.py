@@ -50,9 +50,9 @@ from typing import Callable, Protocol
 import numpy as np
 import scipy.linalg
 
-from . import lugre
-from .errors import ModelError
-from .modal import ModalModel
+from smartjoint.design.friction import lugre
+from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.modal import ModalModel
 
 
 @dataclass
@@ -483,10 +483,10 @@ class _CKernel:
     """
 
     def __init__(self, plant: _Plant, state: _State, recorder: _Recorder):
-        from .. import package_data
-        from . import native
+        from smartjoint.common import package_data
+        from smartjoint.common import native
 
-        module = native.load("plant", self.DECLARATIONS, package_data.path("smartjoint.design", "plant_kernel.c"))
+        module = native.load("plant", self.DECLARATIONS, package_data.path("smartjoint.design.plant", "plant_kernel.c"))
         self.ffi, self.lib = ffi, lib = module.ffi, module.lib
         self.p, self.s, self.r = plant, state, recorder
         self._keep = []  # arrays whose memory the C structs point into
@@ -542,7 +542,7 @@ _C_FAILURE: list[str] = []  # why the C kernel is unavailable on this machine (r
 
 
 def _kernel(backend: str, plant: _Plant, state: _State, recorder: _Recorder):
-    from . import native
+    from smartjoint.common import native
 
     return native.choose(backend, "plant simulation", lambda: _CKernel(plant, state, recorder),
                          lambda: _PythonKernel(plant, state, recorder), _C_FAILURE)
@@ -649,7 +649,7 @@ def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller:
     if not isinstance(energy_books, bool):
         raise ModelError(f"energy_books: {energy_books!r} — must be True or False")
     if stick_step is not None:
-        from . import stick_exact
+        from smartjoint.design.plant import stick_exact
 
         stick_exact.check(model, step, stick_step, controller, record_every, energy_books, duration)
     plant = _Plant(model, joints, step, energy_books, discretised=stick_step is None)

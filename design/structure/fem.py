@@ -36,9 +36,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from . import beam
-from .errors import ModelError
-from .spec import DOF_NAMES, Design
+from smartjoint.design.structure import beam
+from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.spec import DOF_NAMES, Design
 
 _TERM_INDEX = {name: i for i, name in enumerate(beam.STIFFNESS_TERMS)}
 
@@ -363,12 +363,12 @@ def check_supported(model: FEModel) -> None:
     """Refuse a structure whose stiffness matrix has zero-energy motions (rigid-body modes).
 
     The lowest modes are solved and each is judged against its own energy scale
-    (:func:`~smartjoint.design.modal.zero_energy`): a motion whose ω² is round-off of its gross
+    (:func:`~smartjoint.design.structure.modal.zero_energy`): a motion whose ω² is round-off of its gross
     strain energy costs no energy. A slender but supported mast passes however low its first
     mode (a 1000-bay mast: 0.6 mHz); the largest DOF of the first such motion says where the
     structure is loose.
     """
-    from .modal import count_zero_energy_modes
+    from smartjoint.design.structure.modal import count_zero_energy_modes
 
     count, where = count_zero_energy_modes(model)
     if count:

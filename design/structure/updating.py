@@ -23,9 +23,9 @@ import numpy as np
 import scipy.optimize
 import scipy.stats
 
-from .errors import ModelError
-from .fem import FEModel
-from .modal import eigensolve
+from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.fem import FEModel
+from smartjoint.design.structure.modal import eigensolve
 
 SEED = 20021  # fixed: the same design always updates to the same parameters
 SCREENING_SAMPLES = 64
@@ -161,7 +161,7 @@ def updated_design(design, progress=None):
     Updating always runs on the conventional truss (joints locked): that is what the modal
     survey measured, whatever joint setting the caller then builds its model with.
     """
-    from .fem import build_model
+    from smartjoint.design.structure.fem import build_model
 
     if design.updating is None:
         return design, None

@@ -16,10 +16,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from . import control, lugre, modal, reduction, simulate
-from .errors import ModelError
-from .fem import build_model
-from .modal import ModalModel
+from smartjoint.design.control import laws as control
+from smartjoint.design.friction import lugre
+from smartjoint.design.structure import modal
+from smartjoint.design.reduction import krylov as reduction
+from smartjoint.design.plant import simulate
+from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.modal import ModalModel
 
 PULSE_DURATION = 0.04  # s (Section 4.3)
 PULSE_AMPLITUDE = 200.0  # N

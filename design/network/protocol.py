@@ -35,8 +35,8 @@ from cantools.database.can.formats.dbc.dbc_attribute_definition import DbcAttrib
 from cantools.database.can.formats.dbc.dbc_specifics import DbcSpecifics
 from cantools.database.can.formats.dbc.dbc_writer import ATTRIBUTE_DEFINITION_GENMSGCYCLETIME
 
-from ..design.artifact import ControllerArtifact
-from ..design.errors import ModelError
+from smartjoint.design.control.artifact import ControllerArtifact
+from smartjoint.common.errors import ModelError
 
 JOINT_BASE, TIP_ID, SETPOINT_BASE, STATUS_BASE, CONTROLLER_ID = 0x100, 0x180, 0x200, 0x280, 0x080
 MAX_JOINTS = 0x80  # identifier blocks of 128

@@ -27,8 +27,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .errors import ModelError
-from .modal import ModalModel, Modes, modal_model
+from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.modal import ModalModel, Modes, modal_model
 
 PATHS = ("uv", "wy", "uy", "wv")
 

@@ -19,7 +19,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
-from .errors import ModelError
+from smartjoint.common.errors import ModelError
 
 # No -ffast-math and no FMA contraction: the kernels must round like their numpy mirrors.
 # -march=native: the build is per machine anyway, and the key below names the CPU.

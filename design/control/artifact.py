@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .control import ActiveLqg, ClippedLqg, LqgDesign, SisoLaw
-from .errors import ModelError
+from smartjoint.design.control.laws import ActiveLqg, ClippedLqg, LqgDesign, SisoLaw
+from smartjoint.common.errors import ModelError
 
 SCHEMA_VERSION = 2  # 2: the safe state and the plausibility ranges (docs/safety.md)
 # Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo

@@ -1,7 +1,7 @@
 """The design file: a TOML description of a truss with friction joints, loaded into dataclasses.
 
 The format is documented in ``docs/design-file.md``. Every check here fails with a
-:class:`~smartjoint.design.errors.DesignError` that names the key path (``joints[2].type``),
+:class:`~smartjoint.common.errors.DesignError` that names the key path (``joints[2].type``),
 the value found and what is allowed, so a user never meets a traceback from numpy.
 """
 
@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from .. import package_data
-from .errors import MISSING, DesignError
+from smartjoint.common import package_data
+from smartjoint.common.errors import MISSING, DesignError
 
 SCHEMA = "smartjoint-design/1"
 DOF_NAMES = ("ux", "uy", "uz", "rx", "ry", "rz")

@@ -8,7 +8,7 @@ masses and the supports. It is plain data: no smartjoint objects, SI units throu
 
 from __future__ import annotations
 
-from .fem import FEModel
+from smartjoint.design.structure.fem import FEModel
 
 SCHEMA = "smartjoint-model/1"
 

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import control as ct
 import numpy as np
 
-from .errors import ModelError
-from .modal import ModalModel
-from .simulate import Measurements, discretise
+from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.modal import ModalModel
+from smartjoint.design.plant.simulate import Measurements, discretise
 
 
 # Status bits of a controller step (the generated C returns the same values; 4 is the C's
@@ -110,7 +110,7 @@ class SisoLaw:
     State: the previous friction force and normal force per joint (zero after reset).
 
     Without the safety arguments: safe force F_N^max, no ranges beyond finiteness (``siso_law``
-    of ``design/artifact.py`` builds the law with the artefact's).
+    of ``design/control/artifact.py`` builds the law with the artefact's).
     """
 
     def __init__(self, sample_time: float, normal_force_min, normal_force_max, boundary_layer_width, *,
@@ -386,7 +386,7 @@ class ClippedLqg(_Lqg):
     measured_normal_force_max, limits included) → every joint at ``safe_normal_force``, u_d = 0,
     and the filter restarts; an estimate or desired force that is no longer finite → the same with
     ``STATUS_ESTIMATE_RESET``. Without the safety arguments: safe force F_N^max, no ranges
-    beyond finiteness (``clipped_lqg`` of ``design/artifact.py`` passes the artefact's).
+    beyond finiteness (``clipped_lqg`` of ``design/control/artifact.py`` passes the artefact's).
     """
 
     def __init__(self, design: LqgDesign, normal_force_min, normal_force_max, boundary_layer_width: float, *,

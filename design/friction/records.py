@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
-from .errors import SmartjointError
+from smartjoint.common.errors import SmartjointError
 
 
 class RecordError(SmartjointError, ValueError):
