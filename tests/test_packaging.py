@@ -50,6 +50,12 @@ def wheel(tmp_path_factory) -> Path:
     return built
 
 
+def _source_folder(package: str) -> Path:
+    """The source folder of an import package: its own package-dir entry, or its parent's plus the rest."""
+    parent = max((name for name in PACKAGE_DIRS if package == name or package.startswith(name + ".")), key=len)
+    return ROOT / PACKAGE_DIRS[parent] / Path(*package[len(parent):].split(".")[1:])
+
+
 def _data_folders(package: str) -> set[str]:
     return {str(Path(name).parent) for name in package_data.FILES[package]}
 
@@ -68,7 +74,7 @@ def test_every_data_file_of_the_source_tree_is_named_in_the_registry():
     """A new template, kernel or bundled design must be named in package_data.FILES, or the wheel
     check above would not see it."""
     for package, names in package_data.FILES.items():
-        folder = ROOT / PACKAGE_DIRS[package]
+        folder = _source_folder(package)
         for sub in _data_folders(package):
             present = {f"{sub}/{p.name}".removeprefix("./") for p in (folder / sub).iterdir()
                        if p.is_file() and p.suffix not in (".py", ".pyc") and p.name != "README.md"}
@@ -97,10 +103,13 @@ import json, sys
 from pathlib import Path
 root = Path(sys.argv[1]).resolve()
 import smartjoint
-from smartjoint import package_data, pipeline
+from smartjoint import pipeline
 from smartjoint.bench import e2e
 from smartjoint.codegen import can_layer, generate
-from smartjoint.design import artifact, rig, spec
+from smartjoint.common import package_data
+from smartjoint.design.control import artifact
+from smartjoint.design.friction import rig
+from smartjoint.design.structure import spec
 found = {"package": smartjoint.__file__,
          "files": [str(p) for _, p in package_data.all_files()],
          "constants": [str(p) for p in (spec.REFERENCE_DESIGN, pipeline.FIG10_DESIGN, pipeline.CONTROL_DESIGN,
