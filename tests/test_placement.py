@@ -35,7 +35,7 @@ def test_fractions_are_bounded_and_follow_the_mode_shapes(reference):
 def test_bundled_three_joint_design_is_the_placement_result(reference):
     fe, modes = reference
     chosen = placement.choose(placement.connector_energy(fe, modes, [0, 1]), 3)
-    design = spec.load_design(Path(fem.__file__).with_name("data") / "three_type_a.toml")
+    design = spec.load_design(spec.REFERENCE_DESIGN.with_name("three_type_a.toml"))
     assert [(c.member, c.end) for c in chosen] == [(j.member, j.end) for j in design.joints]
     assert all(j.type == "A" for j in design.joints)
 
@@ -59,7 +59,7 @@ def test_place_command_writes_a_loadable_design_with_the_ranked_joints(tmp_path)
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     placed = spec.load_design(target)
-    bundled = spec.load_design(Path(fem.__file__).with_name("data") / "three_type_a.toml")
+    bundled = spec.load_design(spec.REFERENCE_DESIGN.with_name("three_type_a.toml"))
     assert [(j.member, j.end, j.type) for j in placed.joints] == [(j.member, j.end, j.type) for j in bundled.joints]
     assert [c["member"] for c in out["chosen"]] == [j.member for j in placed.joints]
     # The tie rule, not a float sort: mirror-image connectors score equal up to rounding that

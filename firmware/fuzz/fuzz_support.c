@@ -53,6 +53,17 @@ uint32_t fuzz_take_u32(fuzz_reader *reader)
 /* A selector byte below SPECIAL_SELECTORS picks a special value, any other takes raw bytes. */
 #define SPECIAL_SELECTORS 48u
 
+/* One value of `size` bytes: a special one of the `count` in `special`, or raw bytes. */
+static void take_value(fuzz_reader *reader, void *value, size_t size, const void *special, size_t count)
+{
+    const uint8_t selector = fuzz_take_u8(reader);
+    if (selector < SPECIAL_SELECTORS) {
+        memcpy(value, (const uint8_t *)special + (selector % count) * size, size);
+    } else {
+        fuzz_take_bytes(reader, (uint8_t *)value, size);
+    }
+}
+
 double fuzz_take_double(fuzz_reader *reader)
 {
     static const double special[] = {
@@ -61,14 +72,8 @@ double fuzz_take_double(fuzz_reader *reader)
         1.0, -1.0, 0.5, -0.5, 2147483648.0, -2147483649.0, 4294967296.0, 9223372036854775808.0,
         -9223372036854775808.0, 18446744073709551616.0, 1e-9, -1e-9, 5e-10, 1e19, -1e19, 1e-300,
     };
-    const uint8_t selector = fuzz_take_u8(reader);
-    uint8_t bytes[sizeof(double)];
     double value;
-    if (selector < SPECIAL_SELECTORS) {
-        return special[selector % (sizeof special / sizeof special[0])];
-    }
-    fuzz_take_bytes(reader, bytes, sizeof bytes);
-    memcpy(&value, bytes, sizeof value);
+    take_value(reader, &value, sizeof value, special, sizeof special / sizeof special[0]);
     return value;
 }
 
@@ -79,14 +84,8 @@ float fuzz_take_float(fuzz_reader *reader)
         1.40129846e-45f, -1.40129846e-45f, 1e38f, -1e38f, 1.0f, -1.0f, 0.5f, -0.5f, 1e-9f, -1e-9f,
         3.1622776e-06f, 1e-30f, 1e30f, -1e30f,
     };
-    const uint8_t selector = fuzz_take_u8(reader);
-    uint8_t bytes[sizeof(float)];
     float value;
-    if (selector < SPECIAL_SELECTORS) {
-        return special[selector % (sizeof special / sizeof special[0])];
-    }
-    fuzz_take_bytes(reader, bytes, sizeof bytes);
-    memcpy(&value, bytes, sizeof value);
+    take_value(reader, &value, sizeof value, special, sizeof special / sizeof special[0]);
     return value;
 }
 

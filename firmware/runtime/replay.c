@@ -10,40 +10,30 @@
 #include "smartjoint_clqg.h"
 #include "smartjoint_siso.h"
 
-static int replay_siso(int32_t count)
+/* One law behind one signature, so that a single loop replays either. */
+typedef unsigned int (*step_function)(void *state, const void *input, void *output);
+
+static unsigned int siso_step(void *state, const void *input, void *output)
 {
-    static smartjoint_siso_state state;
-    smartjoint_siso_input input;
-    smartjoint_siso_output output;
-    int32_t k;
-    smartjoint_siso_init(&state);
-    for (k = 0; k < count; ++k) {
-        uint32_t status;
-        if (fread(&input, sizeof input, 1, stdin) != 1) {
-            return 3;
-        }
-        status = (uint32_t)smartjoint_siso_step(&state, &input, &output);
-        if (fwrite(&output, sizeof output, 1, stdout) != 1 || fwrite(&status, sizeof status, 1, stdout) != 1) {
-            return 4;
-        }
-    }
-    return 0;
+    return smartjoint_siso_step(state, input, output);
 }
 
-static int replay_clqg(int32_t count)
+static unsigned int clqg_step(void *state, const void *input, void *output)
 {
-    static smartjoint_clqg_state state;
-    smartjoint_clqg_input input;
-    smartjoint_clqg_output output;
+    return smartjoint_clqg_step(state, input, output);
+}
+
+static int replay(int32_t count, step_function step, void *state, void *input, size_t input_size, void *output,
+                  size_t output_size)
+{
     int32_t k;
-    smartjoint_clqg_init(&state);
     for (k = 0; k < count; ++k) {
         uint32_t status;
-        if (fread(&input, sizeof input, 1, stdin) != 1) {
+        if (fread(input, input_size, 1, stdin) != 1) {
             return 3;
         }
-        status = (uint32_t)smartjoint_clqg_step(&state, &input, &output);
-        if (fwrite(&output, sizeof output, 1, stdout) != 1 || fwrite(&status, sizeof status, 1, stdout) != 1) {
+        status = (uint32_t)step(state, input, output);
+        if (fwrite(output, output_size, 1, stdout) != 1 || fwrite(&status, sizeof status, 1, stdout) != 1) {
             return 4;
         }
     }
@@ -57,10 +47,18 @@ int main(void)
         return 2;
     }
     if (header[0] == 0) {
-        return replay_siso(header[1]);
+        static smartjoint_siso_state state;
+        smartjoint_siso_input input;
+        smartjoint_siso_output output;
+        smartjoint_siso_init(&state);
+        return replay(header[1], siso_step, &state, &input, sizeof input, &output, sizeof output);
     }
     if (header[0] == 1) {
-        return replay_clqg(header[1]);
+        static smartjoint_clqg_state state;
+        smartjoint_clqg_input input;
+        smartjoint_clqg_output output;
+        smartjoint_clqg_init(&state);
+        return replay(header[1], clqg_step, &state, &input, sizeof input, &output, sizeof output);
     }
     return 2;
 }
