@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from smartjoint.codegen import build
 from smartjoint.common import package_data
 
 POLYNOMIAL = 0x1D
@@ -100,32 +101,26 @@ def check(frame_id: int, payload: bytes, last_counter: int | None) -> Check:
 
 
 RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
-_DECLARATIONS = """
-typedef struct { uint8_t last_counter; uint8_t valid; } sj_e2e_receiver;
-uint8_t sj_crc8_j1850(const uint8_t *data, size_t length, uint8_t crc);
-uint8_t sj_e2e_frame_crc(uint16_t frame_id, const uint8_t *payload, size_t length);
-void sj_e2e_protect(uint16_t frame_id, uint8_t *payload, size_t length, uint8_t counter);
-unsigned int sj_e2e_check(sj_e2e_receiver *receiver, uint16_t frame_id, const uint8_t *payload, size_t length,
-                          size_t expected_length);
-"""
 
 
 def compiled():
-    """The C twin (``firmware/runtime/sj_e2e.c``, strict flags) loaded with cffi: ``.ffi``, ``.lib``."""
-    from smartjoint.codegen.build import FLAGS, compile_object
-    from smartjoint.common import native
+    """The C twin (``firmware/runtime/sj_e2e.c``, strict flags) loaded with cffi.
 
+    The declarations come from ``sj_e2e.h`` itself (``codegen.build.declarations``).
+
+    Returns
+    -------
+    module
+        The cffi module: ``.ffi`` and ``.lib`` (``sj_crc8_j1850``, ``sj_e2e_frame_crc``,
+        ``sj_e2e_protect``, ``sj_e2e_check``).
+
+    Raises
+    ------
+    FileNotFoundError
+        The runtime is missing from the installed package.
+    """
     source = RUNTIME / "sj_e2e.c"
     if not source.exists():
         raise FileNotFoundError(f"{source}: the firmware runtime is missing from the installed package")
-    build = native.cache_dir() / "runtime"
-    build.mkdir(parents=True, exist_ok=True)
-    copy = build / "sj_e2e.c"
-    for name in ("sj_e2e.c", "sj_e2e.h"):
-        text = (RUNTIME / name).read_text()
-        if not (build / name).exists() or (build / name).read_text() != text:
-            (build / name).write_text(text)
-    glue = build / "_e2e_glue.c"
-    if not glue.exists():
-        glue.write_text('#include "sj_e2e.h"\n')
-    return native.load("e2e", _DECLARATIONS, glue, objects=(compile_object(copy, FLAGS),), includes=(build,))
+    files = {name: (RUNTIME / name).read_text() for name in ("sj_e2e.c", "sj_e2e.h")}
+    return build.load("e2e", files, "sj_e2e.h", ("sj_e2e.c",))[1]

@@ -12,7 +12,7 @@ import numpy as np
 
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
-from smartjoint.codegen import build
+from smartjoint.codegen import compiled
 
 
 class Recorder:
@@ -36,7 +36,7 @@ def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerAr
     """Figures per law: samples compared, max |ΔF_N| of the double and float replays, the
     number of bit-identical double samples, and E(t_e) of the float build in the loop. With the
     ``study`` (its passive and active runs), also the paper's orderings with the float build."""
-    compiled = {real: build.compile_controllers(artifact, real) for real in ("double", "float")}
+    builds = {real: compiled.compile_controllers(artifact, real) for real in ("double", "float")}
     out = {}
     for name, python, wrapper in (("SISO", artifacts.siso_law, "siso"), ("cLQG", artifacts.clipped_lqg, "clipped_lqg")):
         progress(f"      {name}: reference run, replay through the double and float builds, float build in the loop")
@@ -44,7 +44,7 @@ def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerAr
         reference = closed_loop.run_semi_active(setup, name, recorder)
         figures = {"samples": len(recorder.log), "energy_measure_reference": reference.energy_measure()}
         for real in ("double", "float"):
-            law = getattr(compiled[real], wrapper)()
+            law = getattr(builds[real], wrapper)()
             law.reset()
             deviations = []
             identical = 0
@@ -54,7 +54,7 @@ def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerAr
                 identical += int(got.tobytes() == expected.tobytes())
             figures[f"{real}_max_deviation"] = max(deviations)
             figures[f"{real}_identical_samples"] = identical
-        in_loop = closed_loop.run_semi_active(setup, name, getattr(compiled["float"], wrapper)())
+        in_loop = closed_loop.run_semi_active(setup, name, getattr(builds["float"], wrapper)())
         figures["energy_measure_float"] = in_loop.energy_measure()
         figures["energy_measure_float_relative_error"] = in_loop.energy_measure() / reference.energy_measure() - 1.0
         if study is not None:
