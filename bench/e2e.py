@@ -39,7 +39,25 @@ TABLE = _table()
 
 
 def crc8(data: bytes, initial: int = INITIAL, final_xor: int = FINAL_XOR) -> int:
-    """CRC-8 SAE J1850 of ``data``."""
+    """CRC-8 SAE J1850 of a byte string.
+
+    Parameters
+    ----------
+    data : bytes
+        The bytes covered.
+    initial, final_xor : int
+        Start value and final XOR (0xFF, 0xFF for J1850).
+
+    Returns
+    -------
+    int
+        The CRC, 0…255.
+
+    Examples
+    --------
+    >>> hex(crc8(b"123456789"))
+    '0x4b'
+    """
     crc = initial
     for byte in bytes(data):
         crc = TABLE[crc ^ byte]
@@ -47,12 +65,40 @@ def crc8(data: bytes, initial: int = INITIAL, final_xor: int = FINAL_XOR) -> int
 
 
 def frame_crc(frame_id: int, payload: bytes) -> int:
-    """The CRC of byte 0 of a frame: over the identifier (2 bytes, low first) and payload[1:]."""
+    """The CRC of byte 0 of a frame.
+
+    Parameters
+    ----------
+    frame_id : int
+        The frame's identifier (its two low bytes are covered, low byte first).
+    payload : bytes
+        The frame's payload; bytes 1… are covered.
+
+    Returns
+    -------
+    int
+        The CRC, 0…255.
+    """
     return crc8(bytes((frame_id & 0xFF, (frame_id >> 8) & 0xFF)) + bytes(payload[1:]))
 
 
 def protect(frame_id: int, payload: bytearray, counter: int) -> bytearray:
-    """Write the alive counter (low nibble of byte 1) and then the CRC (byte 0) into ``payload``."""
+    """Write the alive counter (low nibble of byte 1) and then the CRC (byte 0) into a payload.
+
+    Parameters
+    ----------
+    frame_id : int
+        The frame's identifier.
+    payload : bytearray
+        The payload, at least 2 bytes; changed in place.
+    counter : int
+        The alive counter (taken modulo 16).
+
+    Returns
+    -------
+    bytearray
+        ``payload``.
+    """
     if len(payload) < 2:
         raise ValueError(f"payload: {len(payload)} bytes — a protected frame needs at least 2 (CRC, counter)")
     payload[1] = (payload[1] & 0xF0) | (counter % COUNTER_MODULO)
@@ -91,7 +137,27 @@ class Check:
 
 
 def check(frame_id: int, payload: bytes, last_counter: int | None) -> Check:
-    """Check CRC and alive counter of a received frame against the last accepted counter."""
+    """Check CRC and alive counter of a received frame against the last accepted counter.
+
+    Parameters
+    ----------
+    frame_id : int
+        The identifier the frame arrived under.
+    payload : bytes
+        The received payload.
+    last_counter : int or None
+        The receiver's last accepted counter; None before the first frame.
+
+    Returns
+    -------
+    Check
+        Whether the CRC holds, the counter, and its step from ``last_counter``.
+
+    Examples
+    --------
+    >>> check(0x100, protect(0x100, bytearray(12), 5), 4).ok
+    True
+    """
     payload = bytes(payload)
     if len(payload) < 2:
         return Check(False, 0, None)

@@ -85,7 +85,21 @@ COUNTERS = ("rx_frames", "crc_errors", "counter_errors", "length_errors", "unkno
 
 
 class Firmware:
-    """One compiled firmware image (controllers + CAN layer) and one instance of its state."""
+    """One compiled firmware image (controllers + CAN layer) and one instance of its state.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact.
+    law : str
+        The law the CAN layer runs, ``"siso"`` or ``"clqg"``.
+    real : str
+        The controllers' scalar type.
+    prefix : str
+        The prefix of every C identifier and file name.
+    **can_options
+        Passed to ``codegen.can_layer.render_can`` (``amplifier``).
+    """
 
     def __init__(self, artifact: ControllerArtifact, law: str = "siso", real: str = "float",
                  prefix: str = "smartjoint", **can_options):
@@ -114,17 +128,36 @@ class Firmware:
         return getattr(self.lib, f"{self._name}_{suffix}")(*args)
 
     def reset(self) -> None:
+        """Power-up: the CAN layer's ``init`` with the law (the safe state until inputs arrive)."""
         if self._call("init_opaque", self._state, LAWS[self.law]) != 0:
             raise ModelError(f"firmware: the CAN layer refused law {self.law!r}")
 
     def rx(self, frame_id: int, data: bytes, time_us: int) -> int:
+        """One received frame into the CAN layer (``<prefix>_can_rx``).
+
+        Parameters
+        ----------
+        frame_id : int
+            The frame's identifier.
+        data : bytes
+            Its payload.
+        time_us : int
+            The receive time [µs] (wraps at 2^32; diagnostics only).
+
+        Returns
+        -------
+        int
+            The RX result bits of the generated header.
+        """
         return int(self._call("rx_opaque", self._state, frame_id & 0xFFFFFFFF, bytes(data), len(data) & 0xFF,
                               time_us & 0xFFFFFFFF))
 
     def step(self, time_us: int) -> int:
+        """One controller sample (``<prefix>_can_step``): the law or the safe state; returns its status bits."""
         return int(self._call("step_opaque", self._state, time_us & 0xFFFFFFFF))
 
     def tx(self) -> list[tuple[int, bytes]]:
+        """Every frame the last step queued, as (identifier, payload), until ``<prefix>_can_tx`` returns 0."""
         frames = []
         while self._call("tx_opaque", self._state, self._id, self._data, self._length):
             frames.append((int(self._id[0]), bytes(self.ffi.buffer(self._data, self._length[0]))))
@@ -132,26 +165,44 @@ class Firmware:
 
     @property
     def safe(self) -> bool:
+        """Whether the CAN layer holds the safe state."""
         return bool(self._call("safe", self._state))
 
     @property
     def faults(self) -> int:
-        """FAULT_ bits of the last step (bench/protocol.CONTROLLER_FAULTS in bit order)."""
+        """FAULT_ bits of the last step (design/network/protocol.CONTROLLER_FAULTS in bit order)."""
         return int(self._call("faults", self._state))
 
     def fault_names(self) -> list[str]:
+        """The names of the fault bits of the last step (design/network/protocol.CONTROLLER_FAULTS)."""
         bits = self.faults
         return [name for k, name in enumerate(protocol.CONTROLLER_FAULTS) if bits >> k & 1]
 
     @property
     def command(self) -> np.ndarray:
+        """The normal forces commanded by the last step [N]."""
         return np.array([self._call("command", self._state, j) for j in range(len(self.artifact.joint_names))])
 
     @property
     def counters(self) -> dict[str, int]:
+        """The CAN layer's diagnostic counters (:data:`COUNTERS`)."""
         return {name: int(self._call("counter", self._state, k)) for k, name in enumerate(COUNTERS)}
 
     def pack(self, message: str, values: dict) -> bytes:
+        """Pack signal values into a frame's payload with the generated codec.
+
+        Parameters
+        ----------
+        message : str
+            The frame's name (``JOINT_A1``, …).
+        values : dict of str to float
+            Signal values; signals not given pack as 0.
+
+        Returns
+        -------
+        bytes
+            The payload.
+        """
         m = self.db.get_message_by_name(message)
         signals = self.ffi.new(f"{self._name}_{message.lower()}_t *")
         for key, value in values.items():
@@ -161,6 +212,20 @@ class Firmware:
         return bytes(self.ffi.buffer(data, m.length))
 
     def unpack(self, message: str, data: bytes) -> dict:
+        """Unpack a frame's payload with the generated codec.
+
+        Parameters
+        ----------
+        message : str
+            The frame's name.
+        data : bytes
+            The payload.
+
+        Returns
+        -------
+        dict of str to float
+            The value of every signal.
+        """
         m = self.db.get_message_by_name(message)
         signals = self.ffi.new(f"{self._name}_{message.lower()}_t *")
         self._call(f"unpack_{message.lower()}", bytes(data), signals)

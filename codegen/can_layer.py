@@ -103,6 +103,38 @@ def _same_bus(db, loaded) -> bool:
     return frames(db) == frames(loaded)
 
 
+def _messages(db) -> tuple[list[dict], list[dict]]:
+    """The template's frames (signals in bit order) and their layout tables: frames with
+    identical signal rows share one layout table in the C."""
+    messages = [{"name": m.name, "frame_id": m.frame_id, "length": m.length,
+                 "received": protocol.CONTROLLER not in (m.senders or []),
+                 "signals": [_signal(s) for s in sorted(m.signals, key=lambda s: s.start)]} for m in db.messages]
+    layouts: list[dict] = []
+    keys: list = []
+    for m in messages:
+        fields = ("start", "length", "signed", "scale", "offset", "minimum", "maximum", "raw_min", "raw_max")
+        key = tuple(tuple(sig[f] for f in fields) for sig in m["signals"])
+        if key not in keys:
+            keys.append(key)
+            layouts.append({"signals": m["signals"]})
+        m["layout"] = keys.index(key)
+    return messages, layouts
+
+
+def _inputs(db, joints: list[str], cycle_us: int) -> list[dict]:
+    """The frames the controller receives, in the order the C ages them; each must come once per
+    controller cycle, since ages count steps (design/network/protocol.py)."""
+    by_name = {m.name: m for m in db.messages}
+    inputs = [{"kind": "joint", "index": j, "message": f"JOINT_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
+    inputs.append({"kind": "tip", "index": 0, "message": "TIP_SENSORS", "clqg_only": 1})
+    inputs += [{"kind": "amp", "index": j, "message": f"AMP_STATUS_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
+    for i in inputs:
+        if int(by_name[i["message"]].cycle_time) * 1000 != cycle_us:
+            raise ModelError(f"{i['message']}: cycle time {by_name[i['message']].cycle_time} ms — the CAN layer ages "
+                             f"inputs in controller cycles and needs every input at Δt = {cycle_us / 1000:g} ms")
+    return inputs
+
+
 def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifier: protocol.Amplifier | None = None,
                full_codec: bool = False, real: str = "float") -> dict[str, str]:
     """Render the CAN message layer of the controller.
@@ -137,31 +169,11 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
                                                 preload=artifact.piezo_preload)
     check_can(artifact, amplifier)
     db = protocol.database(artifact, amplifier)
-    messages = [{"name": m.name, "frame_id": m.frame_id, "length": m.length,
-                 "received": protocol.CONTROLLER not in (m.senders or []),
-                 "signals": [_signal(s) for s in sorted(m.signals, key=lambda s: s.start)]} for m in db.messages]
-    # Frames with identical signal rows share one layout table in the C.
-    layouts: list[dict] = []
-    keys: list = []
-    for m in messages:
-        fields = ("start", "length", "signed", "scale", "offset", "minimum", "maximum", "raw_min", "raw_max")
-        key = tuple(tuple(sig[f] for f in fields) for sig in m["signals"])
-        if key not in keys:
-            keys.append(key)
-            layouts.append({"signals": m["signals"]})
-        m["layout"] = keys.index(key)
-    by_name = {m.name: m for m in db.messages}
+    messages, layouts = _messages(db)
     doubles = lambda values: ", ".join(rendering.literal(float(v), "double") for v in values)  # noqa: E731
     joints = [j.upper() for j in artifact.joint_names]
     cycle_us = int(round(artifact.sample_time * 1e6))
-    # Every input comes once per controller cycle: ages count steps (design/network/protocol.py).
-    inputs = [{"kind": "joint", "index": j, "message": f"JOINT_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
-    inputs.append({"kind": "tip", "index": 0, "message": "TIP_SENSORS", "clqg_only": 1})
-    inputs += [{"kind": "amp", "index": j, "message": f"AMP_STATUS_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
-    for i in inputs:
-        if int(by_name[i["message"]].cycle_time) * 1000 != cycle_us:
-            raise ModelError(f"{i['message']}: cycle time {by_name[i['message']].cycle_time} ms — the CAN layer ages "
-                             f"inputs in controller cycles and needs every input at Δt = {cycle_us / 1000:g} ms")
+    inputs = _inputs(db, joints, cycle_us)
     digest = artifact.artifact_sha256
     banner = rendering.banner(digest, part="codegen, CAN layer")
     context = {"prefix": prefix, "PREFIX": prefix.upper(), "name": f"{prefix}_can", "NAME": f"{prefix}_can".upper(),

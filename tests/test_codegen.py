@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from smartjoint.bench import sil
-from smartjoint.codegen import build, compiled, generate, output, rendering
+from smartjoint.codegen import build, controllers, generate, output, rendering
 from smartjoint.design.control import artifact, laws as control, study
 from smartjoint.design import load_design
 from smartjoint.design.plant import simulate
@@ -35,7 +35,7 @@ def reference():
 
 @pytest.fixture(scope="module")
 def builds(reference):
-    return {real: compiled.compile_controllers(reference, real) for real in ("double", "float")}
+    return {real: controllers.compile_controllers(reference, real) for real in ("double", "float")}
 
 
 def _sequence(a, count=3000, seed=7, faults=True):
@@ -130,7 +130,7 @@ def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
     # With the sensor range opened to the largest number they drive the estimate out of the
     # finite numbers: ESTIMATE_RESET, the safe force, the filter restarts.
     wide = artifact.loads(json.dumps(dict(json.loads(artifact.dumps(reference)), sensor_limit=[biggest] * ny)))
-    law = compiled.compile_controllers(wide, real).clipped_lqg()
+    law = controllers.compile_controllers(wide, real).clipped_lqg()
     statuses = []
     for _ in range(5):
         out = law.step(m)

@@ -105,6 +105,7 @@ class _Compiled:
         self.reset()
 
     def reset(self) -> None:
+        """Back to the initial state (the ``<prefix>_<law>_init`` of the C)."""
         self._init(self._state)
         self.status = 0
 
@@ -112,14 +113,36 @@ class _Compiled:
         raise NotImplementedError
 
     def step(self, measurements: Measurements) -> np.ndarray:
+        """One controller sample through the C.
+
+        Parameters
+        ----------
+        measurements : Measurements
+            What the joints and sensors measure at this sample.
+
+        Returns
+        -------
+        numpy.ndarray
+            The commanded normal forces F_N,j [N]; ``status`` holds the step's status bits.
+        """
         for field, values in zip(self.input_fields, self._inputs(measurements)):
             getattr(self._input, field)[0:len(values)] = [float(v) for v in values]
         self.status = int(self._step(self._state, self._input, self._output))
         return np.array(list(self._output.normal_force), dtype=float)
 
     def run(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Feed rows of inputs (fields concatenated in struct order) through C from the current
-        state; returns (outputs in struct order, status per row)."""
+        """Feed rows of inputs through the C from the current state, in one call.
+
+        Parameters
+        ----------
+        inputs : numpy.ndarray
+            One row per sample, the input struct's fields concatenated in struct order.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            The outputs in struct order, one row per sample, and the status bits per row.
+        """
         dtype = self.c.dtype
         rows = np.ascontiguousarray(inputs, dtype=dtype)
         count = rows.shape[0]
@@ -154,6 +177,7 @@ class CompiledClippedLqg(_Compiled):
 
     @property
     def desired_force(self) -> np.ndarray:
+        """The LQR forces u_d = -K x_hat of the last step [N] (Eq. 33)."""
         return np.array(list(self._output.desired_force), dtype=float)
 
 
