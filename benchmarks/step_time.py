@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from smartjoint.codegen import build, compiled, generate, output
+from smartjoint.codegen import build, controllers, generate, output
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.plant.simulate import Measurements
 
@@ -259,7 +259,7 @@ def main() -> int:
 
     sensors, velocity, friction, normal = inputs(a, ROWS)
     rows = {"siso": np.hstack([velocity, friction, normal]), "clqg": np.hstack([sensors, friction, normal])}
-    c = compiled.compile_controllers(a, "double", PREFIX)
+    c = controllers.compile_controllers(a, "double", PREFIX)
     timing = c_timing(c, rows)
     statuses = {law: int(np.count_nonzero(make().run(rows[law])[1])) for law, make in
                 (("siso", c.siso), ("clqg", c.clipped_lqg))}
