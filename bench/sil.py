@@ -90,9 +90,9 @@ def sil_study(setup, artifact, laws=("siso", "clqg"), real: str = "float", fault
     Parameters
     ----------
     setup : study.StudySetup
-        The closed-loop study (paper Section 6).
+        The plant, pulse and duration of the study (paper Section 6).
     artifact : ControllerArtifact
-        The controller design artefact.
+        The design artefact the firmware is generated from.
     laws : tuple of str
         ``"siso"`` and/or ``"clqg"``.
     real : str

@@ -187,14 +187,8 @@ def compile_controllers(artifact: ControllerArtifact, real: str = "double", pref
 
     Parameters
     ----------
-    artifact : ControllerArtifact
-        The controller design artefact.
-    real : str
-        The scalar type, ``"float"`` or ``"double"``.
-    prefix : str
-        The prefix of every C identifier and file name.
-    flags : list of str, optional
-        The compiler flags of the generated C; default ``build.FLAGS``.
+    artifact, real, prefix, flags
+        As for :class:`Controllers`.
 
     Returns
     -------
