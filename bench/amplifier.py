@@ -56,6 +56,7 @@ class FrameWatch:
     failed: bool = False  # an E2E failure since the last tick
 
     def receive(self, frame_id: int, data: bytes, length: int) -> bool:
+        """Take one received frame: its length and E2E check; whether it was accepted."""
         if len(data) != length:
             self.failed, self.healthy = True, False
             return False
@@ -124,10 +125,12 @@ class AmplifierModel:
         self.reasons: tuple[str, ...] = ("power-up",)
 
     def volts(self, normal_force: float) -> float:
+        """The setpoint voltage of a normal force [V] (F_N = force_per_volt·V + preload)."""
         return min(max((normal_force - self.preload) / self.force_per_volt, 0.0), self.voltage_max)
 
     @property
     def listening(self) -> bool:
+        """Whether the amplifier takes frames (not under a ``no_response`` fault)."""
         return self.fault != "no_response"
 
     def receive_setpoint(self, frame_id: int, data: bytes, length: int, decode) -> None:

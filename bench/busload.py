@@ -25,13 +25,41 @@ DEFAULT_LIMIT = 0.70
 
 
 def classical_bits(length: int) -> int:
+    """Worst-case bits of a classical CAN frame (Davis et al. 2007).
+
+    Parameters
+    ----------
+    length : int
+        Data bytes, 0…8.
+
+    Returns
+    -------
+    int
+        8n + 47 + ⌊(34 + 8n − 1)/4⌋.
+
+    Examples
+    --------
+    >>> classical_bits(8)
+    135
+    """
     if not 0 <= length <= 8:
         raise ModelError(f"frame length {length} bytes: classical CAN carries 0…8 — use CAN FD (--data-bitrate)")
     return 8 * length + 47 + (34 + 8 * length - 1) // 4
 
 
 def fd_bits(length: int) -> tuple[int, int]:
-    """(bits at the nominal rate, bits at the data rate) of a CAN FD frame with BRS."""
+    """Worst-case bits of a CAN FD frame with bit-rate switch (ISO 11898-1:2015).
+
+    Parameters
+    ----------
+    length : int
+        Data bytes, a CAN FD length (0…8, 12, 16, 20, 24, 32, 48, 64).
+
+    Returns
+    -------
+    tuple of (int, int)
+        Bits at the nominal rate and bits at the data rate (module docstring).
+    """
     if length not in (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64):
         raise ModelError(f"frame length {length} bytes: not a CAN FD length (0…8, 12, 16, 20, 24, 32, 48, 64)")
     crc = 17 if length <= 16 else 21
@@ -64,6 +92,7 @@ class BusLoad:
         return sum(f.load for f in self.frames)
 
     def table(self) -> str:
+        """The Markdown table of the frames' loads and the total."""
         kind = "classical CAN" if self.data_bitrate is None else f"CAN FD, data {self.data_bitrate / 1e6:g} Mbit/s"
         lines = [f"bus load at {self.bitrate / 1e6:g} Mbit/s ({kind}), worst-case bit stuffing:", "",
                  "| frame | id | bytes | cycle [ms] | worst-case time [µs] | load |", "|---|---|---:|---:|---:|---:|"]
@@ -74,7 +103,35 @@ class BusLoad:
         return "\n".join(lines)
 
 
-def _frame_time(length: int, is_fd: bool, bitrate: int, data_bitrate: int | None) -> float:
+def frame_time(length: int, is_fd: bool, bitrate: int, data_bitrate: int | None) -> float:
+    """Worst-case time of one frame on the bus.
+
+    Parameters
+    ----------
+    length : int
+        Data bytes.
+    is_fd : bool
+        A CAN FD frame (with bit-rate switch).
+    bitrate : int
+        The nominal (arbitration) bitrate [bit/s].
+    data_bitrate : int or None
+        The CAN FD data bitrate [bit/s]; None for a classical bus.
+
+    Returns
+    -------
+    float
+        Seconds; a classical frame on an FD bus runs entirely at the nominal rate.
+
+    Raises
+    ------
+    ModelError
+        A CAN FD frame on a classical bus.
+
+    Examples
+    --------
+    >>> round(frame_time(8, False, 1_000_000, None) * 1e6, 1)
+    135.0
+    """
     if data_bitrate is None:
         if is_fd or length > 8:
             raise ModelError(f"a {length}-byte CAN FD frame cannot go on a classical CAN bus — give a data bitrate")
@@ -86,7 +143,27 @@ def _frame_time(length: int, is_fd: bool, bitrate: int, data_bitrate: int | None
 
 
 def bus_load(db, bitrate: int, data_bitrate: int | None = None) -> BusLoad:
-    """Worst-case load of every frame of the cantools database ``db`` that has a cycle time."""
+    """Worst-case load of every frame of a database that has a cycle time.
+
+    Parameters
+    ----------
+    db : cantools.database.can.Database
+        The bus (``design.network.protocol.database``).
+    bitrate : int
+        The nominal bitrate [bit/s].
+    data_bitrate : int, optional
+        The CAN FD data bitrate [bit/s]; None for classical CAN.
+
+    Returns
+    -------
+    BusLoad
+        Per frame and in total (``load``: Σ frame time / cycle time).
+
+    Raises
+    ------
+    ModelError
+        A bitrate outside 10 kbit/s…20 Mbit/s or a data rate below the nominal one.
+    """
     for name, value in (("bitrate", bitrate), ("data_bitrate", data_bitrate)):
         if value is not None and not (isinstance(value, int) and 10_000 <= value <= 20_000_000):
             raise ModelError(f"{name}: {value!r} — a whole number of bit/s between 10 000 and 20 000 000")
@@ -97,12 +174,34 @@ def bus_load(db, bitrate: int, data_bitrate: int | None = None) -> BusLoad:
         if m.cycle_time is None:
             continue
         frames.append(FrameLoad(m.name, m.frame_id, m.length, m.cycle_time / 1000.0,
-                                _frame_time(m.length, m.is_fd, bitrate, data_bitrate)))
+                                frame_time(m.length, m.is_fd, bitrate, data_bitrate)))
     return BusLoad(bitrate, data_bitrate, tuple(frames))
 
 
 def check(db, bitrate: int, data_bitrate: int | None = None, limit: float = DEFAULT_LIMIT) -> BusLoad:
-    """``bus_load``, refused above ``limit`` with what would fit."""
+    """:func:`bus_load`, refused above ``limit`` with what would fit.
+
+    Parameters
+    ----------
+    db : cantools.database.can.Database
+        The bus.
+    bitrate : int
+        The nominal bitrate [bit/s].
+    data_bitrate : int, optional
+        The CAN FD data bitrate [bit/s]; None for classical CAN.
+    limit : float
+        The largest load allowed, a fraction in (0, 1].
+
+    Returns
+    -------
+    BusLoad
+        The load, at most ``limit``.
+
+    Raises
+    ------
+    ModelError
+        The load exceeds ``limit``; the message names the standard bitrates that would carry it.
+    """
     if not (0 < limit <= 1):
         raise ModelError(f"max_load: {limit!r} — a fraction in (0, 1]")
     result = bus_load(db, bitrate, data_bitrate)

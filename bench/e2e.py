@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from smartjoint.codegen import build
 from smartjoint.common import package_data
 
 POLYNOMIAL = 0x1D
@@ -38,7 +39,25 @@ TABLE = _table()
 
 
 def crc8(data: bytes, initial: int = INITIAL, final_xor: int = FINAL_XOR) -> int:
-    """CRC-8 SAE J1850 of ``data``."""
+    """CRC-8 SAE J1850 of a byte string.
+
+    Parameters
+    ----------
+    data : bytes
+        The bytes covered.
+    initial, final_xor : int
+        Start value and final XOR (0xFF, 0xFF for J1850).
+
+    Returns
+    -------
+    int
+        The CRC, 0…255.
+
+    Examples
+    --------
+    >>> hex(crc8(b"123456789"))
+    '0x4b'
+    """
     crc = initial
     for byte in bytes(data):
         crc = TABLE[crc ^ byte]
@@ -46,12 +65,40 @@ def crc8(data: bytes, initial: int = INITIAL, final_xor: int = FINAL_XOR) -> int
 
 
 def frame_crc(frame_id: int, payload: bytes) -> int:
-    """The CRC of byte 0 of a frame: over the identifier (2 bytes, low first) and payload[1:]."""
+    """The CRC of byte 0 of a frame.
+
+    Parameters
+    ----------
+    frame_id : int
+        The frame's identifier (its two low bytes are covered, low byte first).
+    payload : bytes
+        The frame's payload; bytes 1… are covered.
+
+    Returns
+    -------
+    int
+        The CRC, 0…255.
+    """
     return crc8(bytes((frame_id & 0xFF, (frame_id >> 8) & 0xFF)) + bytes(payload[1:]))
 
 
 def protect(frame_id: int, payload: bytearray, counter: int) -> bytearray:
-    """Write the alive counter (low nibble of byte 1) and then the CRC (byte 0) into ``payload``."""
+    """Write the alive counter (low nibble of byte 1) and then the CRC (byte 0) into a payload.
+
+    Parameters
+    ----------
+    frame_id : int
+        The frame's identifier.
+    payload : bytearray
+        The payload, at least 2 bytes; changed in place.
+    counter : int
+        The alive counter (taken modulo 16).
+
+    Returns
+    -------
+    bytearray
+        ``payload``.
+    """
     if len(payload) < 2:
         raise ValueError(f"payload: {len(payload)} bytes — a protected frame needs at least 2 (CRC, counter)")
     payload[1] = (payload[1] & 0xF0) | (counter % COUNTER_MODULO)
@@ -90,7 +137,27 @@ class Check:
 
 
 def check(frame_id: int, payload: bytes, last_counter: int | None) -> Check:
-    """Check CRC and alive counter of a received frame against the last accepted counter."""
+    """Check CRC and alive counter of a received frame against the last accepted counter.
+
+    Parameters
+    ----------
+    frame_id : int
+        The identifier the frame arrived under.
+    payload : bytes
+        The received payload.
+    last_counter : int or None
+        The receiver's last accepted counter; None before the first frame.
+
+    Returns
+    -------
+    Check
+        Whether the CRC holds, the counter, and its step from ``last_counter``.
+
+    Examples
+    --------
+    >>> check(0x100, protect(0x100, bytearray(12), 5), 4).ok
+    True
+    """
     payload = bytes(payload)
     if len(payload) < 2:
         return Check(False, 0, None)
@@ -100,32 +167,26 @@ def check(frame_id: int, payload: bytes, last_counter: int | None) -> Check:
 
 
 RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
-_DECLARATIONS = """
-typedef struct { uint8_t last_counter; uint8_t valid; } sj_e2e_receiver;
-uint8_t sj_crc8_j1850(const uint8_t *data, size_t length, uint8_t crc);
-uint8_t sj_e2e_frame_crc(uint16_t frame_id, const uint8_t *payload, size_t length);
-void sj_e2e_protect(uint16_t frame_id, uint8_t *payload, size_t length, uint8_t counter);
-unsigned int sj_e2e_check(sj_e2e_receiver *receiver, uint16_t frame_id, const uint8_t *payload, size_t length,
-                          size_t expected_length);
-"""
 
 
 def compiled():
-    """The C twin (``firmware/runtime/sj_e2e.c``, strict flags) loaded with cffi: ``.ffi``, ``.lib``."""
-    from smartjoint.codegen.build import FLAGS, compile_object
-    from smartjoint.common import native
+    """The C twin (``firmware/runtime/sj_e2e.c``, strict flags) loaded with cffi.
 
+    The declarations come from ``sj_e2e.h`` itself (``codegen.build.declarations``).
+
+    Returns
+    -------
+    module
+        The cffi module: ``.ffi`` and ``.lib`` (``sj_crc8_j1850``, ``sj_e2e_frame_crc``,
+        ``sj_e2e_protect``, ``sj_e2e_check``).
+
+    Raises
+    ------
+    FileNotFoundError
+        The runtime is missing from the installed package.
+    """
     source = RUNTIME / "sj_e2e.c"
     if not source.exists():
         raise FileNotFoundError(f"{source}: the firmware runtime is missing from the installed package")
-    build = native.cache_dir() / "runtime"
-    build.mkdir(parents=True, exist_ok=True)
-    copy = build / "sj_e2e.c"
-    for name in ("sj_e2e.c", "sj_e2e.h"):
-        text = (RUNTIME / name).read_text()
-        if not (build / name).exists() or (build / name).read_text() != text:
-            (build / name).write_text(text)
-    glue = build / "_e2e_glue.c"
-    if not glue.exists():
-        glue.write_text('#include "sj_e2e.h"\n')
-    return native.load("e2e", _DECLARATIONS, glue, objects=(compile_object(copy, FLAGS),), includes=(build,))
+    files = {name: (RUNTIME / name).read_text() for name in ("sj_e2e.c", "sj_e2e.h")}
+    return build.load("e2e", files, "sj_e2e.h", ("sj_e2e.c",))[1]

@@ -7,12 +7,9 @@ with the strict warning set (``codegen.build.FLAGS``); only cffi's glue is compi
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 
 from smartjoint.codegen import build, can_layer, generate
-from smartjoint.common import native
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.common.errors import ModelError
 from smartjoint.design.network import protocol
@@ -20,23 +17,18 @@ from smartjoint.design.network import protocol
 LAWS = {"siso": 1, "clqg": 2}
 
 
-def _cdef(prefix: str, messages) -> str:
-    name = f"{prefix}_can"
-    out = []
-    for m in messages:
-        fields = " ".join(f"double {s.name};" for s in sorted(m.signals, key=lambda s: s.start))
-        lower = m.name.lower()
-        out.append(f"typedef struct {{ {fields} }} {name}_{lower}_t;")
-        out.append(f"void {name}_pack_{lower}(const {name}_{lower}_t *signals, uint8_t *data);")
-        out.append(f"void {name}_unpack_{lower}(const uint8_t *data, {name}_{lower}_t *signals);")
-    out.append(_opaque(prefix))
-    return "\n".join(out)
-
-
-def _opaque(prefix: str) -> str:
-    """Prototypes of the opaque-state accessors (cffi declarations and C glue alike)."""
+def _driver_header(prefix: str) -> str:
+    """The header of the opaque-state accessors: the CAN layer's header and their prototypes
+    (cffi declarations and C driver alike)."""
     n = f"{prefix}_can"
-    return f"""size_t {n}_state_size(void);
+    guard = f"{n.upper()}_BENCH_DRIVER_H"
+    return f"""/* Opaque-state accessors of the CAN layer for Python (not part of the firmware). */
+#ifndef {guard}
+#define {guard}
+
+#include "{n}.h"
+
+size_t {n}_state_size(void);
 int {n}_init_opaque(uint8_t *state, int law);
 unsigned int {n}_rx_opaque(uint8_t *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us);
 unsigned int {n}_step_opaque(uint8_t *state, uint32_t time_us);
@@ -46,17 +38,16 @@ unsigned int {n}_faults(const uint8_t *state);
 double {n}_command(const uint8_t *state, int joint);
 uint32_t {n}_counter(const uint8_t *state, int which);
 void {n}_set_steps(uint8_t *state, uint32_t steps);
+
+#endif
 """
-
-
-def _prototypes(prefix: str) -> str:
-    return f'#include "{prefix}_can.h"\n\n' + _opaque(prefix)
 
 
 def _driver(prefix: str) -> str:
     """Opaque-state accessors for Python (not part of the firmware)."""
     n = f"{prefix}_can"
-    return _prototypes(prefix) + f"""
+    return f'#include "_{n}_driver.h"\n' + f"""
+
 size_t {n}_state_size(void) {{ return sizeof({n}_state); }}
 int {n}_init_opaque(uint8_t *state, int law) {{ return {n}_init(({n}_state *)(void *)state, ({n}_law)law); }}
 unsigned int {n}_rx_opaque(uint8_t *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us)
@@ -94,7 +85,21 @@ COUNTERS = ("rx_frames", "crc_errors", "counter_errors", "length_errors", "unkno
 
 
 class Firmware:
-    """One compiled firmware image (controllers + CAN layer) and one instance of its state."""
+    """One compiled firmware image (controllers + CAN layer) and one instance of its state.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact.
+    law : str
+        The law the CAN layer runs, ``"siso"`` or ``"clqg"``.
+    real : str
+        The controllers' scalar type.
+    prefix : str
+        The prefix of every C identifier and file name.
+    **can_options
+        Passed to ``codegen.can_layer.render_can`` (``amplifier``).
+    """
 
     def __init__(self, artifact: ControllerArtifact, law: str = "siso", real: str = "float",
                  prefix: str = "smartjoint", **can_options):
@@ -102,21 +107,14 @@ class Firmware:
             raise ModelError(f"law: {law!r} — allowed: {', '.join(LAWS)}")
         files = {**generate.render(artifact, real, prefix),
                  **can_layer.render_can(artifact, prefix, full_codec=True, **can_options)}
+        files[f"_{prefix}_can_driver.h"] = _driver_header(prefix)
         files[f"_{prefix}_can_driver.c"] = _driver(prefix)
-        digest = hashlib.sha256("\0".join(f"{k}\0{v}" for k, v in sorted(files.items())).encode()).hexdigest()[:16]
-        folder = native.cache_dir() / f"firmware-{prefix}-{real}-{digest}"
-        if not all((folder / k).exists() and (folder / k).read_text() == v for k, v in files.items()):
-            generate.write(files, folder)
-        objects = tuple(build.compile_object(folder / name, build.FLAGS) for name in
-                        (f"{prefix}_siso.c", f"{prefix}_clqg.c", f"{prefix}_can.c", "sj_e2e.c",
-                         f"_{prefix}_can_driver.c"))
-        glue = folder / "_glue.c"
-        glue_text = _prototypes(prefix)
-        if not glue.exists() or glue.read_text() != glue_text:
-            generate.write({"_glue.c": glue_text}, folder)
+        # The generated sources and the driver compile with the strict flags; the declarations
+        # come from the generated headers through the driver's header.
+        folder, module = build.load(f"firmware_{prefix}_{real}", files, f"_{prefix}_can_driver.h",
+                                    (f"{prefix}_siso.c", f"{prefix}_clqg.c", f"{prefix}_can.c", "sj_e2e.c",
+                                     f"_{prefix}_can_driver.c"))
         self.db = protocol.load_dbc(files["bus.dbc"])
-        module = native.load(f"firmware_{real}", _cdef(prefix, self.db.messages), glue, objects=objects,
-                             includes=(folder,))
         self.ffi, self.lib, self.prefix, self.artifact, self.law = module.ffi, module.lib, prefix, artifact, law
         self.folder, self.files = folder, files
         self._name = f"{prefix}_can"
@@ -130,17 +128,36 @@ class Firmware:
         return getattr(self.lib, f"{self._name}_{suffix}")(*args)
 
     def reset(self) -> None:
+        """Power-up: the CAN layer's ``init`` with the law (the safe state until inputs arrive)."""
         if self._call("init_opaque", self._state, LAWS[self.law]) != 0:
             raise ModelError(f"firmware: the CAN layer refused law {self.law!r}")
 
     def rx(self, frame_id: int, data: bytes, time_us: int) -> int:
+        """One received frame into the CAN layer (``<prefix>_can_rx``).
+
+        Parameters
+        ----------
+        frame_id : int
+            The frame's identifier.
+        data : bytes
+            Its payload.
+        time_us : int
+            The receive time [µs] (wraps at 2^32; diagnostics only).
+
+        Returns
+        -------
+        int
+            The RX result bits of the generated header.
+        """
         return int(self._call("rx_opaque", self._state, frame_id & 0xFFFFFFFF, bytes(data), len(data) & 0xFF,
                               time_us & 0xFFFFFFFF))
 
     def step(self, time_us: int) -> int:
+        """One controller sample (``<prefix>_can_step``): the law or the safe state; returns its status bits."""
         return int(self._call("step_opaque", self._state, time_us & 0xFFFFFFFF))
 
     def tx(self) -> list[tuple[int, bytes]]:
+        """Every frame the last step queued, as (identifier, payload), until ``<prefix>_can_tx`` returns 0."""
         frames = []
         while self._call("tx_opaque", self._state, self._id, self._data, self._length):
             frames.append((int(self._id[0]), bytes(self.ffi.buffer(self._data, self._length[0]))))
@@ -148,26 +165,44 @@ class Firmware:
 
     @property
     def safe(self) -> bool:
+        """Whether the CAN layer holds the safe state."""
         return bool(self._call("safe", self._state))
 
     @property
     def faults(self) -> int:
-        """FAULT_ bits of the last step (bench/protocol.CONTROLLER_FAULTS in bit order)."""
+        """FAULT_ bits of the last step (design/network/protocol.CONTROLLER_FAULTS in bit order)."""
         return int(self._call("faults", self._state))
 
     def fault_names(self) -> list[str]:
+        """The names of the fault bits of the last step (design/network/protocol.CONTROLLER_FAULTS)."""
         bits = self.faults
         return [name for k, name in enumerate(protocol.CONTROLLER_FAULTS) if bits >> k & 1]
 
     @property
     def command(self) -> np.ndarray:
+        """The normal forces commanded by the last step [N]."""
         return np.array([self._call("command", self._state, j) for j in range(len(self.artifact.joint_names))])
 
     @property
     def counters(self) -> dict[str, int]:
+        """The CAN layer's diagnostic counters (:data:`COUNTERS`)."""
         return {name: int(self._call("counter", self._state, k)) for k, name in enumerate(COUNTERS)}
 
     def pack(self, message: str, values: dict) -> bytes:
+        """Pack signal values into a frame's payload with the generated codec.
+
+        Parameters
+        ----------
+        message : str
+            The frame's name (``JOINT_A1``, …).
+        values : dict of str to float
+            Signal values; signals not given pack as 0.
+
+        Returns
+        -------
+        bytes
+            The payload.
+        """
         m = self.db.get_message_by_name(message)
         signals = self.ffi.new(f"{self._name}_{message.lower()}_t *")
         for key, value in values.items():
@@ -177,6 +212,20 @@ class Firmware:
         return bytes(self.ffi.buffer(data, m.length))
 
     def unpack(self, message: str, data: bytes) -> dict:
+        """Unpack a frame's payload with the generated codec.
+
+        Parameters
+        ----------
+        message : str
+            The frame's name.
+        data : bytes
+            The payload.
+
+        Returns
+        -------
+        dict of str to float
+            The value of every signal.
+        """
         m = self.db.get_message_by_name(message)
         signals = self.ffi.new(f"{self._name}_{message.lower()}_t *")
         self._call(f"unpack_{message.lower()}", bytes(data), signals)

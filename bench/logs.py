@@ -1,5 +1,6 @@
-"""CAN bench logs: record any python-can bus, decode a log to signals with the DBC, replay the
-recorded sensor frames through the firmware and compare its setpoints with the recorded ones.
+"""CAN bench logs: record any python-can bus, read a log with everything it had to skip counted,
+decode it to signals with the DBC, write and plot them. Replaying a log through the firmware is
+``bench/replay.py``.
 
 Formats are python-can's (by file suffix: .blf, .asc, .mf4, .csv, .log, .trc …), so logs open in
 the tools engineers already use; ``can.logconvert`` converts between them.
@@ -22,9 +23,36 @@ from smartjoint.bench import e2e
 
 
 def record(bus, path, duration: float | None = None, max_bytes: int = 0, stop=None, progress=None) -> dict:
-    """Write every frame of ``bus`` to ``path`` until ``duration`` seconds pass, ``stop()`` returns
-    True or Ctrl-C; with ``max_bytes`` > 0 the file rotates (python-can SizedRotatingLogger). The
-    writer is stopped (flushed, closed) whatever happens, so nothing beyond the last flush is lost."""
+    """Write every frame of a bus to a log file until a time passes, ``stop()`` says so or Ctrl-C.
+
+    The writer is stopped (flushed, closed) whatever happens, so nothing beyond the last flush
+    is lost.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        Any python-can bus.
+    path : path
+        The log file; its suffix chooses the format (.blf, .asc, .mf4, .csv, .log, .trc).
+    duration : float, optional
+        Seconds to record; None: until ``stop`` or Ctrl-C.
+    max_bytes : int
+        With > 0 the file rotates at that size (python-can SizedRotatingLogger).
+    stop : callable, optional
+        ``stop()`` returns True to end the recording.
+    progress : callable, optional
+        ``progress(message)`` hears how many frames were written.
+
+    Returns
+    -------
+    dict
+        What was recorded (frames, seconds, the file).
+
+    Raises
+    ------
+    ModelError
+        A suffix python-can does not write, or MF4 without asammdf.
+    """
     import can
 
     path = Path(path)
@@ -171,9 +199,23 @@ def _read_asc(path: Path, out: LogContent) -> None:
 
 
 def load(path) -> LogContent:
-    """All frames of a log with what had to be skipped, counted by kind (``LogContent``)."""
-    import can
+    """All frames of a log with what had to be skipped, counted by kind.
 
+    Parameters
+    ----------
+    path : path
+        The log file (ASC read line by line, other formats through python-can's LogReader).
+
+    Returns
+    -------
+    LogContent
+        The frames and the damage found.
+
+    Raises
+    ------
+    ModelError
+        The file does not exist or cannot be opened.
+    """
     path = Path(path)
     if not path.exists():
         raise ModelError(f"log file {path}: not found")
@@ -238,13 +280,25 @@ def _check_frames(out: LogContent) -> None:
 
 
 def read(path) -> tuple[list, str | None]:
-    """All frames of a log and, if it is damaged, a line saying what was skipped (``load``)."""
+    """All frames of a log and, if it is damaged, a line saying what was skipped.
+
+    Parameters
+    ----------
+    path : path
+        The log file.
+
+    Returns
+    -------
+    tuple of (list of can.Message, str or None)
+        The frames and :meth:`LogContent.problem`.
+    """
     content = load(path)
     return content.messages, content.problem()
 
 
 @dataclass
 class Decoded:
+    """Signal values of a decoded log and the frames it skipped, counted by kind."""
     rows: list = field(default_factory=list)  # (time, frame, signal, value)
     frames: int = 0
     unknown_ids: dict = field(default_factory=lambda: defaultdict(int))
@@ -262,6 +316,7 @@ class Decoded:
                 + self.error_frames + self.remote_frames + self.non_finite_times)
 
     def summary(self) -> dict:
+        """The counts as a JSON-ready dict."""
         return {"frames": self.frames, "signal_values": len(self.rows), "frames_skipped": self.skipped(),
                 "unknown_ids": {f"0x{k:03X}": v for k, v in sorted(self.unknown_ids.items())},
                 "wrong_length": dict(self.wrong_length), "bad_e2e": dict(self.bad_e2e),
@@ -270,9 +325,25 @@ class Decoded:
 
 
 def decode(messages, db, problem: str | None = None) -> Decoded:
-    """Signals of every frame the DBC knows, skipping and counting the rest by kind: unknown id,
-    wrong length, bad CRC, error and remote frames, frames without a finite time stamp.
-    ``messages``: a list of python-can messages or a ``LogContent`` (its damage is carried along)."""
+    """Signals of every frame the DBC knows, skipping and counting the rest by kind.
+
+    Skipped: unknown identifier, wrong length, bad CRC, error and remote frames, frames without
+    a finite time stamp.
+
+    Parameters
+    ----------
+    messages : list of can.Message or LogContent
+        The frames (a ``LogContent`` carries its damage along).
+    db : cantools.database.can.Database
+        The bus.
+    problem : str, optional
+        What reading the log found damaged.
+
+    Returns
+    -------
+    Decoded
+        (time, frame, signal, value) rows and the counts.
+    """
     out = Decoded(problem=problem)
     if isinstance(messages, LogContent):
         out.problem, out.log, messages = problem or messages.problem(), messages.skipped(), messages.messages
@@ -305,6 +376,15 @@ def decode(messages, db, problem: str | None = None) -> Decoded:
 
 
 def write_csv(decoded: Decoded, path) -> None:
+    """Write decoded signals as CSV (time_s, frame, signal, value), through a temporary sibling.
+
+    Parameters
+    ----------
+    decoded : Decoded
+        What :func:`decode` returned.
+    path : path
+        The CSV file.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(path.name + ".partial")
@@ -317,7 +397,22 @@ def write_csv(decoded: Decoded, path) -> None:
 
 
 def plot(decoded: Decoded, folder, frames=None) -> list[Path]:
-    """One PNG per frame with its physical signals over time (E2E bytes left out)."""
+    """One PNG per frame with its physical signals over time (E2E bytes left out).
+
+    Parameters
+    ----------
+    decoded : Decoded
+        What :func:`decode` returned.
+    folder : path
+        Where the figures go (created if missing).
+    frames : iterable of str, optional
+        Only these frames.
+
+    Returns
+    -------
+    list of Path
+        The figures written.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -348,123 +443,3 @@ def plot(decoded: Decoded, folder, frames=None) -> list[Path]:
         plt.close(fig)
         written.append(path)
     return written
-
-
-def _grid_origin(times, step: float) -> float:
-    """The controller sample nearest the earliest frame, on the grid whose phase is the circular
-    mean of the time stamps modulo the sample time: jitter on both sides of the true sample times
-    averages out (the earliest frame alone may be up to half a cycle early, which would shift
-    every sample by as much)."""
-    first, earliest = times[0], min(times)
-    angles = [2 * math.pi * math.fmod(t - first, step) / step for t in times]
-    phase = step * math.atan2(sum(map(math.sin, angles)), sum(map(math.cos, angles))) / (2 * math.pi)
-    grid = first + phase
-    return grid + step * math.floor((earliest - grid) / step + 0.5)
-
-
-MAX_SAMPLES = 100_000_000  # ~28 h at 1 ms: beyond that a wild time stamp is likelier than a real log
-
-
-def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None = None) -> dict:
-    """Replay a log through ``firmware`` and compare its setpoints with the recorded ones.
-
-    The controller samples are t0 + k·Δt, k = 0, 1, … (Δt: ``sample_time``, default the
-    artefact's; t0 the sample of the earliest frame on the grid that fits all time stamps best);
-    each frame belongs to its nearest sample (a rig's time stamps jitter within the cycle, the
-    SIL's sit on the grid). Every sample from the first to the last is
-    stepped, also those without any frame (a bus-off, a silent bus): the firmware's timeouts and
-    recovery then replay exactly. Per sample the recorded sensor and amplifier frames go to
-    ``rx``, then ``step``, then the ``SETPOINT_*`` frames of ``tx`` are paired with the recorded
-    ones of that sample and their voltages compared.
-
-    Only samples where the log holds a setpoint can be compared: what the firmware sent while it
-    was off the bus never reached the log. So a replayed setpoint without a recorded one is
-    counted (``replayed_not_recorded``, split into samples with and without other traffic) but is
-    no failure; a recorded setpoint without a replayed one (``recorded_not_replayed``) is.
-    Recorded setpoints that fail their length or CRC are counted and not compared.
-
-    Raises ModelError for a log without frames the firmware's protocol knows, for time stamps
-    that are not finite and for a time span beyond ``MAX_SAMPLES`` samples.
-    """
-    if isinstance(messages, LogContent):
-        messages = messages.messages
-    db = firmware.db
-    known = {m.frame_id: m for m in db.messages}
-    step = float(sample_time or firmware.artifact.sample_time)
-    usable = [m for m in messages if not (m.is_error_frame or m.is_remote_frame)]
-    bad_times = sum(1 for m in usable if not math.isfinite(float(m.timestamp)))
-    if bad_times:
-        raise ModelError(f"log: {bad_times} frame(s) with a time stamp that is not finite (NaN or infinite) — a "
-                         "replay needs every frame on the sample grid")
-    if not any(m.arbitration_id in known for m in usable):
-        raise ModelError(f"log: {len(usable)} frame(s), none with an identifier of the artefact's protocol "
-                         f"({', '.join(f'0x{k:03X}' for k in sorted(known))}) — nothing to replay")
-    start = _grid_origin([float(m.timestamp) for m in usable], step)
-    groups = defaultdict(list)
-    for message in usable:
-        groups[int(math.floor((float(message.timestamp) - start) / step + 0.5))].append(message)
-    samples = max(groups) + 1
-    if samples > MAX_SAMPLES:
-        raise ModelError(f"log: time stamps span {(samples - 1) * step:.6g} s = {samples} samples of {step:g} s "
-                         f"(at most {MAX_SAMPLES}) — a wild time stamp?")
-    start_us = int(round(start * 1e6))
-    firmware.reset()
-    compared, differences, worst = 0, [], 0.0
-    counts = defaultdict(int)
-    unknown = 0
-    for k in range(samples):
-        time_us = start_us + int(round(k * step * 1e6))
-        recorded = defaultdict(list)
-        frames = groups.get(k, ())
-        for message in frames:
-            m = known.get(message.arbitration_id)
-            if m is None:
-                unknown += 1  # the firmware counts and rejects it, as on the bus
-            elif m.name.startswith("SETPOINT_"):
-                data = bytes(message.data)
-                if len(data) != m.length:
-                    counts["recorded_wrong_length"] += 1
-                elif not e2e.check(m.frame_id, data, None).crc_ok:
-                    counts["recorded_bad_crc"] += 1
-                else:
-                    recorded[m.name].append(m.decode(data, decode_choices=False)["voltage"])
-                continue
-            elif m.name == "CONTROLLER_STATUS":  # the firmware's own frame, not an input
-                continue
-            firmware.rx(message.arbitration_id, bytes(message.data), time_us)
-        firmware.step(time_us)
-        replayed = defaultdict(list)
-        for frame_id, data in firmware.tx():
-            m = known.get(frame_id)
-            if m is not None and m.name.startswith("SETPOINT_"):
-                replayed[m.name].append(m.decode(data, decode_choices=False)["voltage"])
-        t = start + k * step
-        for name in sorted(set(recorded) | set(replayed)):
-            ours, theirs = replayed[name], recorded[name]
-            for a, b in zip(ours, theirs):
-                compared += 1
-                deviation = abs(a - b)
-                worst = max(worst, deviation)
-                if not deviation <= tolerance:
-                    differences.append({"time": t, "frame": name, "kind": "differs", "recorded_V": b,
-                                        "replayed_V": a})
-            if len(theirs) > len(ours):
-                counts["recorded_not_replayed"] += len(theirs) - len(ours)
-                differences.append({"time": t, "frame": name, "kind": "recorded, not replayed",
-                                    "recorded_V": theirs[len(ours)], "replayed_V": None})
-            elif len(ours) > len(theirs):
-                key = "replayed_not_recorded_in_silent_samples" if not frames else "replayed_not_recorded"
-                counts[key] += len(ours) - len(theirs)
-        if not frames:
-            counts["silent_samples"] += 1
-    differing = sum(1 for d in differences if d["kind"] == "differs")
-    out = {"samples": samples, "silent_samples": counts["silent_samples"], "setpoints_compared": compared,
-           "differing": differing, "recorded_not_replayed": counts["recorded_not_replayed"],
-           "replayed_not_recorded": counts["replayed_not_recorded"],
-           "replayed_not_recorded_in_silent_samples": counts["replayed_not_recorded_in_silent_samples"],
-           "recorded_setpoints_bad_crc": counts["recorded_bad_crc"],
-           "recorded_setpoints_wrong_length": counts["recorded_wrong_length"],
-           "unknown_id_frames": unknown, "max_difference_V": worst, "tolerance_V": tolerance,
-           "first_differences": differences[:20]}
-    out["ok"] = compared > 0 and differing == 0 and out["recorded_not_replayed"] == 0
-    return out

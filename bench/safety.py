@@ -28,11 +28,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from smartjoint.common.errors import ModelError
-from smartjoint.design.plant.simulate import Measurements
-from smartjoint.bench import sil
+from smartjoint.bench import firmware as firmware_module
 from smartjoint.bench.amplifier import FAULTS as AMPLIFIER_FAULTS
 from smartjoint.bench.amplifier import OUTPUT_STAGE_FAULTS
+from smartjoint.bench.faults import FRAME_FAULTS, Fault
+from smartjoint.bench.loop import SilLoop
+from smartjoint.common.errors import ModelError
+from smartjoint.design.plant.simulate import Measurements
 
 DETECTION_LIMIT = 3  # cycles from a fault (or its detection bound) to the safe force at every joint
 FORCE_TOLERANCE = 1e-6  # N: "at the safe force" (the setpoint quantum is 8e-7 N)
@@ -52,7 +54,20 @@ class Case:
 
 
 def implausible_values(artifact, db) -> dict:
-    """Per (frame, signal): a value the sender could carry that lies beyond the design's range."""
+    """Per (frame, signal): a value the sender could carry that lies beyond the design's range.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact (its plausibility ranges).
+    db : cantools.database.can.Database
+        The bus (each value is clamped to what its signal's raw field carries).
+
+    Returns
+    -------
+    dict of (str, str) to float
+        The implausible value per (frame, signal).
+    """
     values = {}
     for j, joint in enumerate(artifact.joint_names):
         tag = joint.upper()
@@ -77,9 +92,24 @@ def implausible_values(artifact, db) -> dict:
 
 
 def cases(artifact, db, timings=TIMINGS) -> list[Case]:
-    """Every fault kind on every frame (and every decoded signal, amplifier and the bus), in
-    each of ``timings``; a delay within the latency bound on each frame (tolerated); pairs of
-    faults at once."""
+    """Every fault kind on every frame, each signal, amplifier and the bus, in each timing.
+
+    Also a delay within the latency bound on each frame (tolerated) and pairs of faults at once.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact.
+    db : cantools.database.can.Database
+        The bus.
+    timings : iterable of str
+        Some of :data:`TIMINGS`.
+
+    Returns
+    -------
+    list of Case
+        The cases, single faults first.
+    """
     dt = float(artifact.sample_time)
     frames = [m.name for m in sorted(db.messages, key=lambda m: m.frame_id)]
     joints = list(artifact.joint_names)
@@ -87,7 +117,7 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     late = timeout_cycles * dt  # one cycle beyond the latency bound
     single = []
     for frame in frames:
-        for kind in sil.FRAME_FAULTS:
+        for kind in FRAME_FAULTS:
             single.append((kind, dict(target=frame, delay=late if kind == "delay" else None)))
     for (frame, signal), value in implausible_values(artifact, db).items():
         single.append(("implausible", dict(target=frame, signal=signal, value=value)))
@@ -101,25 +131,25 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     for timing in timings:
         first, last, length = windows[timing]
         for kind, fields in single:
-            fault = sil.Fault(kind, first * dt, math.inf if last is None else last * dt, **fields)
+            fault = Fault(kind, first * dt, math.inf if last is None else last * dt, **fields)
             out.append(Case(fault.label(), timing, (fault,), length))
     bound = (timeout_cycles - 1) * dt
     for frame in frames:  # late, but within the bound: used, never a timeout
-        fault = sil.Fault("delay", START * dt, END * dt, frame, delay=bound)
+        fault = Fault("delay", START * dt, END * dt, frame, delay=bound)
         out.append(Case(fault.label(), "within the latency bound", (fault,), LENGTH, tolerated=True))
     tag = joints[0].upper()
     other = joints[-1].upper()
     pairs = [
-        (sil.Fault("drop", START * dt, END * dt, f"JOINT_{tag}"),
-         sil.Fault("corrupt_crc", START * dt, END * dt, f"SETPOINT_{other}")),
-        (sil.Fault("bus_off", START * dt, END * dt),
-         sil.Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="over_temperature")),
-        (sil.Fault("delay", START * dt, END * dt, "TIP_SENSORS", delay=late),
-         sil.Fault("implausible", START * dt, END * dt, f"AMP_STATUS_{other}", signal="temperature",
+        (Fault("drop", START * dt, END * dt, f"JOINT_{tag}"),
+         Fault("corrupt_crc", START * dt, END * dt, f"SETPOINT_{other}")),
+        (Fault("bus_off", START * dt, END * dt),
+         Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="over_temperature")),
+        (Fault("delay", START * dt, END * dt, "TIP_SENSORS", delay=late),
+         Fault("implausible", START * dt, END * dt, f"AMP_STATUS_{other}", signal="temperature",
                    value=artifact.amplifier_temperature_limit + 20.0)),
-        (sil.Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="stuck_output"),
-         sil.Fault("drop", START * dt, END * dt, "CONTROLLER_STATUS")),
-        (sil.Fault("bus_off", 0.0, math.inf), sil.Fault("amplifier", 0.0, math.inf, joints[-1],
+        (Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="stuck_output"),
+         Fault("drop", START * dt, END * dt, "CONTROLLER_STATUS")),
+        (Fault("bus_off", 0.0, math.inf), Fault("amplifier", 0.0, math.inf, joints[-1],
                                                         amplifier_fault="no_response")),
     ]
     for pair in pairs:
@@ -133,10 +163,30 @@ SIGNAL_FRACTION = 0.3  # the replayed signals swing through 30 % of each plausib
 
 
 def signals(recorded, artifact, cycles: int):
-    """What the nodes measure at the first ``cycles`` samples: ``recorded`` measurements (e.g.
-    of a model-in-the-loop run) when given, else a decaying oscillation at the design's median
-    retained modal frequency through :data:`SIGNAL_FRACTION` of each signal's plausible range
-    (the artefact's), so the safety logic sees values of the design's size, never a fault."""
+    """What the nodes measure at the first ``cycles`` samples.
+
+    Parameters
+    ----------
+    recorded : iterable of Measurements or None
+        Recorded measurements (e.g. of a model-in-the-loop run); when None, a decaying
+        oscillation at the design's median retained modal frequency through
+        :data:`SIGNAL_FRACTION` of each signal's plausible range (the artefact's), so the safety
+        logic sees values of the design's size, never a fault.
+    artifact : ControllerArtifact
+        The controller design artefact.
+    cycles : int
+        Samples needed.
+
+    Returns
+    -------
+    list of Measurements
+        ``cycles`` samples.
+
+    Raises
+    ------
+    ModelError
+        The recorded run is shorter than ``cycles``.
+    """
     dt = float(artifact.sample_time)
     if recorded is not None:
         seen = list(recorded)[:cycles]
@@ -156,9 +206,24 @@ def signals(recorded, artifact, cycles: int):
 
 
 def run_case(firmware, case: Case, measurements) -> dict:
-    """One case on the bench; the figures of the module docstring."""
+    """One case on the bench.
+
+    Parameters
+    ----------
+    firmware : bench.firmware.Firmware
+        The compiled firmware image.
+    case : Case
+        The fault scenario.
+    measurements : list of Measurements
+        What the nodes measure (:func:`signals`); each joint's F_N is what its amplifier applied.
+
+    Returns
+    -------
+    dict
+        The case's name and timing with the figures of the module docstring (:func:`measure`).
+    """
     artifact = firmware.artifact
-    loop = sil.SilLoop(firmware, 0.0, faults=case.faults)
+    loop = SilLoop(firmware, 0.0, faults=case.faults)
     loop.reset()
     applied = np.zeros(len(artifact.joint_names))
     try:
@@ -171,7 +236,26 @@ def run_case(firmware, case: Case, measurements) -> dict:
 
 
 def measure(record, faults, artifact, tolerated: bool = False) -> dict:
-    """The figures of the module docstring for ``faults`` (acting together) in a SIL record."""
+    """The figures of the module docstring for faults acting together in a SIL record.
+
+    Parameters
+    ----------
+    record : loop.SilRecord
+        The run's record.
+    faults : tuple of Fault
+        The faults injected.
+    artifact : ControllerArtifact
+        The controller design artefact (safe force, tolerances).
+    tolerated : bool
+        A delay within the latency bound: no safe state is expected.
+
+    Returns
+    -------
+    dict
+        ``firmware``, ``joints``, ``holds``, ``recovery`` (cycles or None), ``observable`` and
+        ``ok`` (the joints at the safe force within :data:`DETECTION_LIMIT` cycles, safe at power
+        up, and recovered after the fault's end).
+    """
     r = record
     dt = float(artifact.sample_time)
     safe = np.array(r.safe, dtype=bool)
@@ -231,9 +315,35 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
 
 def fault_matrix(artifact, law: str = "clqg", real: str = "float", measurements=None, timings=TIMINGS,
                  progress=None) -> dict:
-    """Every case of :func:`cases` on one compiled firmware; rows and the worst figures."""
-    from smartjoint.bench import firmware as firmware_module
+    """Every case of :func:`cases` on one compiled firmware: rows and the worst figures.
 
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact.
+    law : str
+        ``"siso"`` or ``"clqg"``.
+    real : str
+        The firmware's scalar type.
+    measurements : iterable of Measurements, optional
+        Recorded measurements to replay (default :func:`signals`' oscillation).
+    timings : iterable of str
+        Some of :data:`TIMINGS`.
+    progress : callable, optional
+        ``progress(message)`` hears every 50 cases.
+
+    Returns
+    -------
+    dict
+        The rows, the number of cases, the failing ones and the worst cycles to the safe state
+        (firmware, joints) and to recovery.
+
+    Examples
+    --------
+    >>> out = fault_matrix(artifact.load("firmware/generated/controller.json"))  # doctest: +SKIP
+    >>> out["failed"]  # doctest: +SKIP
+    []
+    """
     image = firmware_module.Firmware(artifact, law, real)
     todo = cases(artifact, image.db, timings=timings)
     seen = signals(measurements, artifact, max(c.cycles for c in todo))
@@ -251,7 +361,18 @@ def fault_matrix(artifact, law: str = "clqg", real: str = "float", measurements=
 
 
 def matrix_markdown(out: dict) -> str:
-    """The table of all cases (grouped per timing) and the worst figures."""
+    """The table of all cases (grouped per timing) and the worst figures.
+
+    Parameters
+    ----------
+    out : dict
+        What :func:`fault_matrix` returned.
+
+    Returns
+    -------
+    str
+        Markdown.
+    """
     def cell(value):
         return "—" if value is None else str(value)
 
@@ -276,7 +397,20 @@ def matrix_markdown(out: dict) -> str:
 
 
 def summary_markdown(out: dict, table: str) -> str:
-    """The report's paragraph: what was run, the worst figures, the failing cases (if any)."""
+    """The report's paragraph: what was run, the worst figures, the failing cases (if any).
+
+    Parameters
+    ----------
+    out : dict
+        What :func:`fault_matrix` returned.
+    table : str
+        The file of the full table (linked).
+
+    Returns
+    -------
+    str
+        Markdown.
+    """
     def cell(value):
         return "—" if value is None else str(value)
 
@@ -292,8 +426,20 @@ def summary_markdown(out: dict, table: str) -> str:
 
 
 def plot_matrix(out: dict, path):
-    """safety_cycles.png: how many cases reach the safe state (firmware, joints) or recover after
-    how many cycles."""
+    """Plot safety_cycles.png: how many cases reach the safe state or recover after how many cycles.
+
+    Parameters
+    ----------
+    out : dict
+        What :func:`fault_matrix` returned.
+    path : path
+        The figure file.
+
+    Returns
+    -------
+    path
+        ``path``.
+    """
     import matplotlib
 
     matplotlib.use("Agg")

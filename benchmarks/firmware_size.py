@@ -38,7 +38,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from smartjoint.codegen import build, generate
+from smartjoint.codegen import build, generate, output
 from smartjoint.design.control import artifact as artifacts
 
 from machine import cpu_model  # benchmarks/machine.py (the script's folder is on sys.path)
@@ -217,7 +217,7 @@ def struct_sizes(folder: Path, prefix: str) -> dict[str, dict[str, int]]:
 
 def measure(a, real: str, level: str, folder: Path, callgraph: bool, prefix: str = "smartjoint") -> dict:
     folder.mkdir(parents=True)
-    generate.write(generate.render(a, real, prefix), folder)
+    output.write(generate.render(a, real, prefix), folder)
     structs = struct_sizes(folder, prefix)
     out = {}
     for law, _ in LAWS:
@@ -266,7 +266,7 @@ def measure_image(a, folder: Path, callgraph: bool, prefix: str = "smartjoint") 
 
     folder.mkdir(parents=True)
     files = {**generate.render(a, "float", prefix), **can_layer.render_can(a, prefix)}
-    generate.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, folder)
+    output.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, folder)
     sources = [f"{prefix}_siso", f"{prefix}_clqg", f"{prefix}_can", "sj_e2e"]
     extra = ["-fstack-usage"] + (["-fcallgraph-info=su"] if callgraph else [])
     for name in sources:

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from smartjoint.codegen import build, generate
+from smartjoint.codegen import build, controllers, generate, output
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.plant.simulate import Measurements
 
@@ -210,7 +210,7 @@ def python_timing(a, measurements: list[Measurements], c, rows: dict[str, np.nda
 
 
 def callgrind(a, rows: dict[str, np.ndarray], compiler: str, folder: Path) -> dict:
-    generate.write(generate.render(a, "double", PREFIX), folder)
+    output.write(generate.render(a, "double", PREFIX), folder)
     (folder / "bench_main.c").write_text(BENCH_MAIN.replace("PREFIX", PREFIX))
     for law in ("siso", "clqg"):
         np.ascontiguousarray(rows[law][:max(CALLGRIND_STEPS)], dtype=np.float64).tofile(folder / f"{law}.bin")
@@ -259,7 +259,7 @@ def main() -> int:
 
     sensors, velocity, friction, normal = inputs(a, ROWS)
     rows = {"siso": np.hstack([velocity, friction, normal]), "clqg": np.hstack([sensors, friction, normal])}
-    c = build.compile_controllers(a, "double", PREFIX)
+    c = controllers.compile_controllers(a, "double", PREFIX)
     timing = c_timing(c, rows)
     statuses = {law: int(np.count_nonzero(make().run(rows[law])[1])) for law, make in
                 (("siso", c.siso), ("clqg", c.clipped_lqg))}

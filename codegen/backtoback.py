@@ -12,11 +12,17 @@ import numpy as np
 
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
-from smartjoint.codegen import build
+from smartjoint.codegen import controllers
 
 
 class Recorder:
-    """Wraps a controller and keeps (measurements, output) of every sample."""
+    """Wraps a controller and keeps (measurements, output) of every sample.
+
+    Parameters
+    ----------
+    inner : controller
+        Any controller of the plant interface (``reset``, ``step``, ``sample_time``).
+    """
 
     def __init__(self, inner):
         self.inner, self.sample_time, self.log = inner, inner.sample_time, []
@@ -26,6 +32,7 @@ class Recorder:
         self.log = []
 
     def step(self, measurements):
+        """Step the wrapped controller and keep what it saw and answered."""
         out = self.inner.step(measurements)
         self.log.append((measurements, np.array(out, dtype=float)))
         return out
@@ -33,10 +40,28 @@ class Recorder:
 
 def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerArtifact, progress=print,
                  study: closed_loop.Study | None = None) -> dict:
-    """Figures per law: samples compared, max |ΔF_N| of the double and float replays, the
-    number of bit-identical double samples, and E(t_e) of the float build in the loop. With the
-    ``study`` (its passive and active runs), also the paper's orderings with the float build."""
-    compiled = {real: build.compile_controllers(artifact, real) for real in ("double", "float")}
+    """Back-to-back check of the generated controllers on the closed-loop study (SIL vs MIL).
+
+    Parameters
+    ----------
+    setup : study.StudySetup
+        The closed-loop study (paper Section 6).
+    artifact : ControllerArtifact
+        The controller design artefact.
+    progress : callable
+        ``progress(message)`` hears what runs.
+    study : study.Study, optional
+        The study's passive and active runs; with it, also the paper's orderings with the float
+        build in the loop.
+
+    Returns
+    -------
+    dict
+        Per law (``"SISO"``, ``"cLQG"``): samples compared, max |ΔF_N| of the double and float
+        replays, the number of bit-identical samples, and E(t_e) (Eq. 32) of the float build in
+        the loop against the reference's; with ``study``, ``float_orderings``.
+    """
+    builds = {real: controllers.compile_controllers(artifact, real) for real in ("double", "float")}
     out = {}
     for name, python, wrapper in (("SISO", artifacts.siso_law, "siso"), ("cLQG", artifacts.clipped_lqg, "clipped_lqg")):
         progress(f"      {name}: reference run, replay through the double and float builds, float build in the loop")
@@ -44,7 +69,7 @@ def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerAr
         reference = closed_loop.run_semi_active(setup, name, recorder)
         figures = {"samples": len(recorder.log), "energy_measure_reference": reference.energy_measure()}
         for real in ("double", "float"):
-            law = getattr(compiled[real], wrapper)()
+            law = getattr(builds[real], wrapper)()
             law.reset()
             deviations = []
             identical = 0
@@ -54,7 +79,7 @@ def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerAr
                 identical += int(got.tobytes() == expected.tobytes())
             figures[f"{real}_max_deviation"] = max(deviations)
             figures[f"{real}_identical_samples"] = identical
-        in_loop = closed_loop.run_semi_active(setup, name, getattr(compiled["float"], wrapper)())
+        in_loop = closed_loop.run_semi_active(setup, name, getattr(builds["float"], wrapper)())
         figures["energy_measure_float"] = in_loop.energy_measure()
         figures["energy_measure_float_relative_error"] = in_loop.energy_measure() / reference.energy_measure() - 1.0
         if study is not None:
@@ -71,6 +96,20 @@ def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerAr
 
 
 def markdown(figures: dict, artifact: artifacts.ControllerArtifact) -> str:
+    """The report section of a back-to-back check.
+
+    Parameters
+    ----------
+    figures : dict
+        What :func:`back_to_back` returned.
+    artifact : ControllerArtifact
+        The artefact (its normal-force span scales the float deviations).
+
+    Returns
+    -------
+    str
+        A Markdown section with one table row per law.
+    """
     span = float(np.min(artifact.normal_force_max - artifact.normal_force_min))
     lines = ["## Generated firmware: back-to-back on the study (SIL vs MIL)", "",
              "The C of `firmware/` (`smartjoint codegen`) fed with exactly the measurements the Python reference "

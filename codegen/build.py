@@ -1,125 +1,53 @@
-"""Compile the generated controllers with cffi and wrap them behind the controller interface.
+"""Compile generated C: the warning set it is held to, one object file at a time
+(:func:`compile_object`), a whole generated folder as written (:func:`check_folder`), and the cffi
+declarations of generated code taken from its own headers (:func:`declarations`), and the two
+together: a generated set compiled in the build cache and loaded (:func:`load`).
 
-``compile_controllers`` renders the artefact, writes the files to the build cache and compiles
-them with the warning set the generated C is held to (any warning is an error). The wrappers
-``CompiledSiso`` and ``CompiledClippedLqg`` have the interface of the Python reference
-controllers (``reset()``, ``step(measurements) -> normal_forces``, ``sample_time``, ``status``)
-so the plant simulation runs either. ``run`` feeds a whole input sequence through C in one call
-(a loop inside C), for back-to-back checks and step-time measurements.
+Any warning is an error (``-Werror``): the generated C compiles clean with :data:`FLAGS` or not
+at all. The headers are the one source of truth for the C interface: the benches that load the
+generated code with cffi read their declarations from the headers the generator wrote, so a
+changed template cannot leave a stale Python copy of a struct behind.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import re
 import shutil
 import subprocess
 import tempfile
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-import numpy as np
-
+from smartjoint.codegen import output
 from smartjoint.common import native
-from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.common.errors import ModelError
-from smartjoint.design.plant.simulate import Measurements
-from smartjoint.codegen import generate
 
 WARNINGS = ["-Wall", "-Wextra", "-Wpedantic", "-Wconversion", "-Wdouble-promotion", "-Wshadow", "-Werror"]
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", *WARNINGS]
 
 
-@dataclass(frozen=True)
-class Sizes:
-    joints: int
-    sensors: int
-    coordinates: int
-
-
-def _declarations(prefix: str, real: str, s: Sizes) -> str:
-    l, ny, n2 = s.joints, s.sensors, 2 * s.coordinates
-    return f"""
-typedef {real} {prefix}_real;
-typedef struct {{ {prefix}_real sliding_velocity[{l}]; {prefix}_real friction_force[{l}];
-                 {prefix}_real normal_force[{l}]; }} {prefix}_siso_input;
-typedef struct {{ {prefix}_real normal_force[{l}]; }} {prefix}_siso_output;
-typedef struct {{ {prefix}_real previous_friction[{l}]; {prefix}_real previous_normal_force[{l}]; }} {prefix}_siso_state;
-void {prefix}_siso_init({prefix}_siso_state *state);
-unsigned int {prefix}_siso_step({prefix}_siso_state *state, const {prefix}_siso_input *input, {prefix}_siso_output *output);
-unsigned int {prefix}_siso_run({prefix}_siso_state *state, const {prefix}_siso_input *input, {prefix}_siso_output *output,
-                               unsigned int *status, int count);
-typedef struct {{ {prefix}_real sensors[{ny}]; {prefix}_real friction_force[{l}]; {prefix}_real normal_force[{l}]; }} {prefix}_clqg_input;
-typedef struct {{ {prefix}_real normal_force[{l}]; {prefix}_real desired_force[{l}]; }} {prefix}_clqg_output;
-typedef struct {{ {prefix}_real estimate[{n2}]; {prefix}_real previous_force[{l}]; int started; }} {prefix}_clqg_state;
-void {prefix}_clqg_init({prefix}_clqg_state *state);
-unsigned int {prefix}_clqg_step({prefix}_clqg_state *state, const {prefix}_clqg_input *input, {prefix}_clqg_output *output);
-unsigned int {prefix}_clqg_run({prefix}_clqg_state *state, const {prefix}_clqg_input *input, {prefix}_clqg_output *output,
-                               unsigned int *status, int count);
-"""
-
-
-def _driver(prefix: str) -> str:
-    """Batch loops compiled next to the generated code (not part of the firmware)."""
-    out = [f'#include "{prefix}_siso.h"', f'#include "{prefix}_clqg.h"']
-    for law in ("siso", "clqg"):
-        out.append(f"""
-unsigned int {prefix}_{law}_run({prefix}_{law}_state *state, const {prefix}_{law}_input *input,
-                                {prefix}_{law}_output *output, unsigned int *status, int count)
-{{
-    unsigned int all = 0u;
-    int k;
-    for (k = 0; k < count; ++k) {{
-        status[k] = {prefix}_{law}_step(state, &input[k], &output[k]);
-        all |= status[k];
-    }}
-    return all;
-}}""")
-    return "\n".join(out) + "\n"
-
-
-class Controllers:
-    """The compiled module of one artefact and scalar type."""
-
-    def __init__(self, artifact: ControllerArtifact, real: str = "double", prefix: str = "smartjoint",
-                 flags: list[str] | None = None):
-        files = generate.render(artifact, real, prefix)
-        self.artifact, self.real, self.prefix, self.files = artifact, real, prefix, files
-        self.sizes = Sizes(len(artifact.joint_names), len(artifact.sensor_names), int(np.asarray(artifact.blocks).shape[0]))
-        digest = hashlib.sha256("\0".join(f"{k}\0{v}" for k, v in sorted(files.items())).encode()).hexdigest()[:16]
-        folder = native.cache_dir() / f"generated-{prefix}-{real}-{digest}"
-        if not all((folder / name).exists() and (folder / name).read_text() == text for name, text in files.items()):
-            generate.write(files, folder)
-        driver = folder / "_driver.c"
-        if not driver.exists() or driver.read_text() != _driver(prefix):
-            generate.write({"_driver.c": _driver(prefix)}, folder)
-        self.folder = folder
-        # The generated C (and the batch driver) compile alone with the strict flags — any
-        # warning fails the build; only cffi's own glue is compiled with the default flags.
-        flags = FLAGS if flags is None else flags
-        objects = tuple(compile_object(folder / name, flags) for name in
-                        (f"{prefix}_siso.c", f"{prefix}_clqg.c", "_driver.c"))
-        glue = folder / "_glue.c"
-        glue_text = f'#include "{prefix}_siso.h"\n#include "{prefix}_clqg.h"\n' + "".join(
-            f"unsigned int {prefix}_{law}_run({prefix}_{law}_state *state, const {prefix}_{law}_input *input, "
-            f"{prefix}_{law}_output *output, unsigned int *status, int count);\n" for law in ("siso", "clqg"))
-        if not glue.exists() or glue.read_text() != glue_text:
-            generate.write({"_glue.c": glue_text}, folder)
-        module = native.load(f"controllers_{real}", _declarations(prefix, real, self.sizes), glue,
-                             objects=objects, includes=(folder,))
-        self.ffi, self.lib = module.ffi, module.lib
-        self.dtype = np.float32 if real == "float" else np.float64
-
-    def siso(self) -> "CompiledSiso":
-        return CompiledSiso(self)
-
-    def clipped_lqg(self) -> "CompiledClippedLqg":
-        return CompiledClippedLqg(self)
-
-
 def compile_object(source: Path, flags: list[str]) -> Path:
-    """``cc -c`` one file with ``flags`` (+ -fPIC) next to it, named by a hash of the flags;
-    a compiler message is raised as a ModelError with the compiler's text."""
+    """``cc -c`` one file with ``flags`` (+ -fPIC) next to it, cached by a hash of flags and text.
+
+    Parameters
+    ----------
+    source : Path
+        The C file.
+    flags : list of str
+        The compiler flags (usually :data:`FLAGS`).
+
+    Returns
+    -------
+    Path
+        The object file ``<stem>-<hash>.o`` next to ``source``.
+
+    Raises
+    ------
+    ModelError
+        The compiler failed; the message carries the compiler's text.
+    """
     tag = hashlib.sha256((" ".join(flags) + source.read_text()).encode()).hexdigest()[:12]
     target = source.with_name(f"{source.stem}-{tag}.o")
     if target.exists():
@@ -135,82 +63,6 @@ def compile_object(source: Path, flags: list[str]) -> Path:
     return target
 
 
-class _Compiled:
-    law = ""
-    input_fields: tuple[str, ...] = ()
-    output_fields: tuple[str, ...] = ()
-
-    def __init__(self, controllers: Controllers):
-        self.c = controllers
-        p, ffi = controllers.prefix, controllers.ffi
-        self.sample_time = float(controllers.artifact.sample_time)
-        self._state = ffi.new(f"{p}_{self.law}_state *")
-        self._input = ffi.new(f"{p}_{self.law}_input *")
-        self._output = ffi.new(f"{p}_{self.law}_output *")
-        self._init = getattr(controllers.lib, f"{p}_{self.law}_init")
-        self._step = getattr(controllers.lib, f"{p}_{self.law}_step")
-        self._run = getattr(controllers.lib, f"{p}_{self.law}_run")
-        self.status = 0
-        self.reset()
-
-    def reset(self) -> None:
-        self._init(self._state)
-        self.status = 0
-
-    def _inputs(self, measurements: Measurements) -> list[np.ndarray]:
-        raise NotImplementedError
-
-    def step(self, measurements: Measurements) -> np.ndarray:
-        for field, values in zip(self.input_fields, self._inputs(measurements)):
-            getattr(self._input, field)[0:len(values)] = [float(v) for v in values]
-        self.status = int(self._step(self._state, self._input, self._output))
-        return np.array(list(self._output.normal_force), dtype=float)
-
-    def run(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Feed rows of inputs (fields concatenated in struct order) through C from the current
-        state; returns (outputs in struct order, status per row)."""
-        dtype = self.c.dtype
-        rows = np.ascontiguousarray(inputs, dtype=dtype)
-        count = rows.shape[0]
-        ffi, p = self.c.ffi, self.c.prefix
-        input_array = ffi.new(f"{p}_{self.law}_input[]", count)
-        output_array = ffi.new(f"{p}_{self.law}_output[]", count)
-        status = np.zeros(count, dtype=np.uintc)
-        np.frombuffer(ffi.buffer(input_array), dtype=dtype).reshape(count, -1)[:] = rows
-        self._run(self._state, input_array, output_array, ffi.from_buffer("unsigned int[]", status), count)
-        outputs = np.frombuffer(ffi.buffer(output_array), dtype=dtype).reshape(count, -1).astype(float)
-        return outputs, status
-
-
-class CompiledSiso(_Compiled):
-    """The generated SISO law (Eq. 30–31) behind the controller interface."""
-
-    law = "siso"
-    input_fields = ("sliding_velocity", "friction_force", "normal_force")
-
-    def _inputs(self, m: Measurements):
-        return [np.asarray(m.sliding_velocity), np.asarray(m.friction_force), np.asarray(m.normal_force)]
-
-
-class CompiledClippedLqg(_Compiled):
-    """The generated clipped-optimal LQG (Eq. 33–34) behind the controller interface."""
-
-    law = "clqg"
-    input_fields = ("sensors", "friction_force", "normal_force")
-
-    def _inputs(self, m: Measurements):
-        return [np.asarray(m.sensors), np.asarray(m.friction_force), np.asarray(m.normal_force)]
-
-    @property
-    def desired_force(self) -> np.ndarray:
-        return np.array(list(self._output.desired_force), dtype=float)
-
-
-def compile_controllers(artifact: ControllerArtifact, real: str = "double", prefix: str = "smartjoint",
-                        flags: list[str] | None = None) -> Controllers:
-    return Controllers(artifact, real, prefix, flags)
-
-
 def _first_error(output: str, folder: Path) -> str:
     """The compiler's first diagnostic line, with the temporary folder taken out of it."""
     lines = [line.replace(f"{folder}{os.sep}", "") for line in output.splitlines() if line.strip()]
@@ -221,10 +73,29 @@ def _first_error(output: str, folder: Path) -> str:
 
 
 def check_folder(folder: Path, flags: list[str] | None = None) -> dict:
-    """Compile everything C in ``folder`` as written: every header alone (each must be
-    self-contained), every ``.c`` with ``flags`` (default :data:`FLAGS`, any warning an error),
-    then link them into the example program. Build products go to a temporary folder of their
-    own; the first diagnostic is raised as a one-line ModelError."""
+    """Compile everything C in ``folder`` as written.
+
+    Every header alone (each must be self-contained), every ``.c`` with ``flags`` (any warning
+    an error), then link them into the example program. Build products go to a temporary folder
+    of their own.
+
+    Parameters
+    ----------
+    folder : Path
+        The folder of generated files.
+    flags : list of str, optional
+        The compiler flags; default :data:`FLAGS`.
+
+    Returns
+    -------
+    dict
+        ``compiler``, ``flags``, and the ``headers`` and ``sources`` compiled (sorted names).
+
+    Raises
+    ------
+    ModelError
+        No compiler, or the first diagnostic as one line (the temporary folders taken out).
+    """
     folder = Path(folder)
     flags = FLAGS if flags is None else flags
     compiler = os.environ.get("CC", "cc")
@@ -252,3 +123,123 @@ def check_folder(folder: Path, flags: list[str] | None = None) -> dict:
         if sources:
             run([*flags, *objects, "-o", str(work / "example"), "-lm"], f"linking {', '.join(sources)}")
     return {"compiler": compiler, "flags": list(flags), "headers": headers, "sources": sources}
+
+
+_COMMENT = re.compile(r"/\*.*?\*/|//[^\n]*", re.S)
+_LOCAL_INCLUDE = re.compile(r'^[ \t]*#[ \t]*include[ \t]+"([^"]+)"', re.M)
+_SIZE_MACRO = re.compile(r"^[ \t]*#[ \t]*define[ \t]+([A-Za-z_]\w*)[ \t]+(\d+)[ \t]*$", re.M)
+_IDENTIFIER = re.compile(r"\b[A-Za-z_]\w*\b")
+
+
+def declarations(files: Mapping[str, str], headers: Iterable[str]) -> str:
+    """The cffi declarations (``ffi.cdef`` text) of C headers, taken from the headers themselves.
+
+    Each header and the local headers it includes (``#include "…"``, from ``files``, each once,
+    included before includer) contribute their text without comments and preprocessor lines;
+    what a C++ compiler alone sees (``#ifdef __cplusplus`` blocks) is left out, and macros that
+    stand for a plain decimal number (the array sizes the generator renders from the artefact,
+    e.g. ``SMARTJOINT_SISO_JOINTS``) are replaced by that number. System headers (``<stdint.h>``)
+    need nothing: cffi knows their types.
+
+    Parameters
+    ----------
+    files : mapping of str to str
+        File name → text, holding every header named or locally included.
+    headers : iterable of str
+        The headers to declare, in order.
+
+    Returns
+    -------
+    str
+        Declarations for ``ffi.cdef``.
+
+    Raises
+    ------
+    ModelError
+        A locally included header is not among ``files``.
+
+    Examples
+    --------
+    >>> header = "#define N 3\\ntypedef struct { double x[N]; } point; /* metres */\\n"
+    >>> declarations({"point.h": header}, ["point.h"]).strip()
+    'typedef struct { double x[3]; } point;'
+    """
+    order: list[str] = []
+
+    def visit(name: str, includer: str) -> None:
+        if name in order:
+            return
+        if name not in files:
+            raise ModelError(f"{includer}: includes {name!r}, which is not among the generated files")
+        for included in _LOCAL_INCLUDE.findall(_COMMENT.sub(" ", files[name])):
+            visit(included, name)
+        order.append(name)
+
+    for header in headers:
+        visit(header, "declarations")
+    return "\n".join(_header_declarations(files[name]) for name in order)
+
+
+def _header_declarations(text: str) -> str:
+    """One header's declarations: comments, preprocessor lines and C++-only blocks removed, size
+    macros replaced by their numbers."""
+    text = _COMMENT.sub(" ", text)
+    sizes = dict(_SIZE_MACRO.findall(text))
+    kept: list[str] = []
+    cplusplus: list[bool] = []  # per open #if: whether its branch is seen by a C++ compiler only
+    for line in text.splitlines():
+        directive = line.strip()
+        if not directive.startswith("#"):
+            if not any(cplusplus) and directive:
+                kept.append(line.rstrip())
+            continue
+        words = directive[1:].split()
+        keyword = words[0] if words else ""
+        if keyword in ("if", "ifdef", "ifndef"):
+            cplusplus.append(keyword != "ifndef" and "__cplusplus" in directive)
+        elif keyword in ("else", "elif") and cplusplus:
+            cplusplus[-1] = False
+        elif keyword == "endif" and cplusplus:
+            cplusplus.pop()
+    return _IDENTIFIER.sub(lambda match: sizes.get(match.group(0), match.group(0)), "\n".join(kept))
+
+
+def load(stem: str, files: Mapping[str, str], header: str, sources: Iterable[str],
+         flags: list[str] | None = None):
+    """Compile a set of generated files in the build cache and load it with cffi.
+
+    The set goes to a cache folder named by its hash (files already there as they are stay
+    untouched, so their objects stay cached); each of ``sources`` compiles alone with the
+    strict ``flags`` — any warning fails the build — and only cffi's own glue, which includes
+    ``header``, is compiled with the default flags. The cffi declarations are those of
+    ``header`` and the local headers it includes (:func:`declarations`).
+
+    Parameters
+    ----------
+    stem : str
+        The kind of module (names the cache folder and the cffi module).
+    files : mapping of str to str
+        File name → text of every source and header.
+    header : str
+        The header that declares everything Python calls.
+    sources : iterable of str
+        The ``.c`` files linked into the module.
+    flags : list of str, optional
+        The compiler flags of the sources; default :data:`FLAGS`.
+
+    Returns
+    -------
+    tuple of (Path, module)
+        The cache folder and the cffi module (``.ffi``, ``.lib``).
+    """
+    digest = hashlib.sha256("\0".join(f"{k}\0{v}" for k, v in sorted(files.items())).encode()).hexdigest()[:16]
+    folder = native.cache_dir() / f"{stem}-{digest}"
+    glue = {"_glue.c": f'#include "{header}"\n'}
+    stale = {name: text for name, text in {**files, **glue}.items()
+             if not ((folder / name).exists() and (folder / name).read_text() == text)}
+    if stale:
+        output.write(stale, folder)
+    flags = FLAGS if flags is None else flags
+    objects = tuple(compile_object(folder / name, flags) for name in sources)
+    module = native.load(stem, declarations(files, [header]), folder / "_glue.c", objects=objects, includes=(folder,))
+    return folder, module

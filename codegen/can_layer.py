@@ -13,13 +13,13 @@ from smartjoint.common import package_data
 from smartjoint.design.network import protocol
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.common.errors import ModelError
-from smartjoint.codegen import generate, identifiers
+from smartjoint.codegen import identifiers, rendering
 
 RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
 
 
 def _signal(signal) -> dict:
-    lit = lambda value: generate.literal(float(value), "double")  # noqa: E731
+    lit = lambda value: rendering.literal(float(value), "double")  # noqa: E731
     length, signed = signal.length, signal.is_signed
     if length > 32:  # raw limits must stay exact doubles and the int64 cast defined
         raise ModelError(f"signal {signal.name}: {length} bits — the generated codec handles up to 32")
@@ -35,8 +35,24 @@ def _signal(signal) -> dict:
 
 
 def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier) -> None:
-    """What the CAN layer's C types and frames must hold, before anything is rendered (the
-    timing and the safe state come validated with the artefact)."""
+    """Refuse what the CAN layer's C types and frames cannot hold, before anything is rendered.
+
+    The timing and the safe state come validated with the artefact; this checks the names
+    against the frames' generated members, the normal-force range against the amplifier's
+    reach and every limit against what its frame carries.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact.
+    amplifier : protocol.Amplifier
+        The piezo amplifier the setpoint frames command.
+
+    Raises
+    ------
+    ModelError
+        The first field that does not fit, named as in the artefact.
+    """
     identifiers.check_names(artifact.joint_names, artifact.sensor_names, members=protocol.E2E_SIGNALS)
     db = protocol.database(artifact, amplifier)  # names, cycle times and signal ranges of the DBC
     low, high = np.asarray(artifact.normal_force_min), np.asarray(artifact.normal_force_max)
@@ -87,20 +103,12 @@ def _same_bus(db, loaded) -> bool:
     return frames(db) == frames(loaded)
 
 
-def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifier: protocol.Amplifier | None = None,
-               full_codec: bool = False, real: str = "float") -> dict[str, str]:
-    """File name → text: ``<prefix>_can.h/.c``, the E2E runtime ``sj_e2e.h/.c``, ``bus.dbc`` and
-    an example ``main.c`` with the CAN loop. The firmware packs what it sends and unpacks what it
-    receives; ``full_codec`` adds the other direction (test benches)."""
-    generate.check(artifact, real, prefix)
-    amplifier = amplifier or protocol.Amplifier(force_per_volt=artifact.piezo_force_per_volt,
-                                                preload=artifact.piezo_preload)
-    check_can(artifact, amplifier)
-    db = protocol.database(artifact, amplifier)
+def _messages(db) -> tuple[list[dict], list[dict]]:
+    """The template's frames (signals in bit order) and their layout tables: frames with
+    identical signal rows share one layout table in the C."""
     messages = [{"name": m.name, "frame_id": m.frame_id, "length": m.length,
                  "received": protocol.CONTROLLER not in (m.senders or []),
                  "signals": [_signal(s) for s in sorted(m.signals, key=lambda s: s.start)]} for m in db.messages]
-    # Frames with identical signal rows share one layout table in the C.
     layouts: list[dict] = []
     keys: list = []
     for m in messages:
@@ -110,11 +118,13 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
             keys.append(key)
             layouts.append({"signals": m["signals"]})
         m["layout"] = keys.index(key)
+    return messages, layouts
+
+
+def _inputs(db, joints: list[str], cycle_us: int) -> list[dict]:
+    """The frames the controller receives, in the order the C ages them; each must come once per
+    controller cycle, since ages count steps (design/network/protocol.py)."""
     by_name = {m.name: m for m in db.messages}
-    doubles = lambda values: ", ".join(generate.literal(float(v), "double") for v in values)  # noqa: E731
-    joints = [j.upper() for j in artifact.joint_names]
-    cycle_us = int(round(artifact.sample_time * 1e6))
-    # Every input comes once per controller cycle: ages count steps (design/network/protocol.py).
     inputs = [{"kind": "joint", "index": j, "message": f"JOINT_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
     inputs.append({"kind": "tip", "index": 0, "message": "TIP_SENSORS", "clqg_only": 1})
     inputs += [{"kind": "amp", "index": j, "message": f"AMP_STATUS_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
@@ -122,9 +132,50 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
         if int(by_name[i["message"]].cycle_time) * 1000 != cycle_us:
             raise ModelError(f"{i['message']}: cycle time {by_name[i['message']].cycle_time} ms — the CAN layer ages "
                              f"inputs in controller cycles and needs every input at Δt = {cycle_us / 1000:g} ms")
+    return inputs
+
+
+def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifier: protocol.Amplifier | None = None,
+               full_codec: bool = False, real: str = "float") -> dict[str, str]:
+    """Render the CAN message layer of the controller.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact.
+    prefix : str
+        The prefix of every C identifier and file name.
+    amplifier : protocol.Amplifier, optional
+        The piezo amplifier; default the artefact's force per volt and preload.
+    full_codec : bool
+        The firmware packs what it sends and unpacks what it receives; ``True`` adds the other
+        direction (test benches).
+    real : str
+        The scalar type of the controllers the example ``main.c`` drives.
+
+    Returns
+    -------
+    dict of str to str
+        File name → text: ``<prefix>_can.h/.c``, the E2E runtime ``sj_e2e.h/.c``, ``bus.dbc``
+        and an example ``main.c`` with the CAN loop.
+
+    Examples
+    --------
+    >>> files = render_can(artifact, full_codec=True)  # doctest: +SKIP
+    >>> protocol.load_dbc(files["bus.dbc"]).messages  # doctest: +SKIP
+    """
+    rendering.check(artifact, real, prefix)
+    amplifier = amplifier or protocol.Amplifier(force_per_volt=artifact.piezo_force_per_volt,
+                                                preload=artifact.piezo_preload)
+    check_can(artifact, amplifier)
+    db = protocol.database(artifact, amplifier)
+    messages, layouts = _messages(db)
+    doubles = lambda values: ", ".join(rendering.literal(float(v), "double") for v in values)  # noqa: E731
+    joints = [j.upper() for j in artifact.joint_names]
+    cycle_us = int(round(artifact.sample_time * 1e6))
+    inputs = _inputs(db, joints, cycle_us)
     digest = artifact.artifact_sha256
-    banner = (f"/* Generated by smartjoint {generate._version()} (codegen, CAN layer) from controller artefact sha256 "
-              f"{digest}.\n * Do not edit: regenerate with `smartjoint codegen`. */")
+    banner = rendering.banner(digest, part="codegen, CAN layer")
     context = {"prefix": prefix, "PREFIX": prefix.upper(), "name": f"{prefix}_can", "NAME": f"{prefix}_can".upper(),
                "banner": banner, "joints": joints, "sensors": [s.upper() for s in artifact.sensor_names],
                "messages": messages, "layouts": layouts, "inputs": inputs, "cycle_us": cycle_us,
@@ -135,13 +186,13 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
                "normal_force_low": doubles(artifact.measured_normal_force_min),
                "normal_force_high": doubles(artifact.measured_normal_force_max),
                "sensor_limit": doubles(artifact.sensor_limit),
-               "temperature_limit": generate.literal(artifact.amplifier_temperature_limit, "double"),
-               "current_limit": generate.literal(artifact.amplifier_current_limit, "double"),
-               "tracking_tolerance": generate.literal(artifact.tracking_tolerance, "double"),
-               "voltage_max": generate.literal(amplifier.voltage_max, "double"),
-               "force_per_volt": generate.literal(amplifier.force_per_volt, "double"),
-               "preload": generate.literal(amplifier.preload, "double")}
-    env = generate._environment()
+               "temperature_limit": rendering.literal(artifact.amplifier_temperature_limit, "double"),
+               "current_limit": rendering.literal(artifact.amplifier_current_limit, "double"),
+               "tracking_tolerance": rendering.literal(artifact.tracking_tolerance, "double"),
+               "voltage_max": rendering.literal(amplifier.voltage_max, "double"),
+               "force_per_volt": rendering.literal(amplifier.force_per_volt, "double"),
+               "preload": rendering.literal(amplifier.preload, "double")}
+    env = rendering.environment()
     files = {f"{prefix}_can.h": env.get_template("can.h.j2").render(context),
              f"{prefix}_can.c": env.get_template("can.c.j2").render(context)}
     for name in ("sj_e2e.h", "sj_e2e.c"):
@@ -153,10 +204,9 @@ def render_can(artifact: ControllerArtifact, prefix: str = "smartjoint", amplifi
     if not _same_bus(db, protocol.load_dbc(files["bus.dbc"])):
         raise ModelError("bus.dbc: the DBC text does not read back as the protocol it was written from "
                          "(names or attributes the DBC format cannot carry)")
-    lit = lambda value: generate.literal(value, real)  # noqa: E731
+    lit = lambda value: rendering.literal(value, real)  # noqa: E731
     example = {**context, "zero": lit(0.0), "amplitude": lit(1e-3), "decay": lit(0.995), "friction_scale": lit(1e4),
                "sensor_scale": lit(10.0),
-               "banner": f"/* Generated by smartjoint {generate._version()} (codegen) from controller artefact sha256 "
-                         f"{digest}.\n * Scalar type: {real}. Do not edit: regenerate with `smartjoint codegen`. */"}
+               "banner": rendering.banner(digest, real)}
     files["main.c"] = env.get_template("main_can.c.j2").render(example)
     return files

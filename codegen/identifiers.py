@@ -62,7 +62,23 @@ RUNTIME_PREFIX = "sj_e2e"  # the hand-written E2E runtime's names
 
 
 def check_prefix(prefix) -> None:
-    """``--prefix``: a lower-case identifier that cannot form a reserved or runtime name."""
+    """Refuse a ``--prefix`` that cannot form the generated identifiers.
+
+    Parameters
+    ----------
+    prefix : str
+        A lower-case identifier that cannot form a reserved or runtime name.
+
+    Raises
+    ------
+    ModelError
+        Not a lower-case word sequence of at most :data:`PREFIX_LENGTH` characters, a reserved
+        name, or the E2E runtime's own prefix.
+
+    Examples
+    --------
+    >>> check_prefix("smartjoint")
+    """
     if not (isinstance(prefix, str) and PREFIX.match(prefix) and len(prefix) <= PREFIX_LENGTH):
         raise ModelError(f"--prefix: {prefix!r} — must be lower-case letters and digits, starting with a letter, "
                          f"words joined by single underscores ([a-z][a-z0-9]*(_[a-z0-9]+)*, at most {PREFIX_LENGTH} "
@@ -80,11 +96,26 @@ DESIGN_FIELDS = ("joints[{}].name", "sensors[{}].name")  # the design file's key
 
 def check_names(joint_names: Iterable[str], sensor_names: Iterable[str], members: Iterable[str] = (),
                 fields: tuple[str, str] = ARTIFACT_FIELDS) -> None:
-    """Joint and sensor names of an artefact (fields ``joint_names[i]``, ``sensor_names[i]``).
+    """Refuse joint and sensor names of an artefact that cannot become C identifiers.
 
-    ``members`` are the other members of the sensor frame's struct (the E2E ``crc`` and
-    ``counter``), which a sensor member must not repeat. ``fields``: how errors name the i-th
-    joint and sensor (``DESIGN_FIELDS`` for a design file).
+    Parameters
+    ----------
+    joint_names, sensor_names : iterable of str
+        The names (fields ``joint_names[i]``, ``sensor_names[i]``).
+    members : iterable of str
+        The other members of the sensor frame's struct (the E2E ``crc`` and ``counter``), which a
+        sensor member must not repeat.
+    fields : tuple of (str, str)
+        How errors name the i-th joint and sensor (``DESIGN_FIELDS`` for a design file).
+
+    Raises
+    ------
+    ModelError
+        The first name that breaks a rule of the module docstring, with the rule.
+
+    Examples
+    --------
+    >>> check_names(["A1", "A2"], ["tip_y"])
     """
     members = tuple(members)
     for kind, names, template in (("joint", tuple(joint_names), fields[0]), ("sensor", tuple(sensor_names), fields[1])):

@@ -468,12 +468,13 @@ def _controller_artifact(args, design, model):
 
 def cmd_sil(args) -> dict:
     from smartjoint.bench import sil
+    from smartjoint.bench.faults import parse_fault
     from smartjoint.design.control import study as closed_loop
 
     design = _control_design(args, firmware_names=True)
     model = closed_loop.design_model(design, _progress)
     controller = _controller_artifact(args, design, model)
-    faults = [sil.parse_fault(text) for text in args.fault or []]
+    faults = [parse_fault(text) for text in args.fault or []]
     laws = ("siso", "clqg") if args.law == "both" else (args.law,)
     _progress(f"software in the loop on {design.name!r}: {', '.join(laws)}, t_e = {design.control.study_duration:g} s")
     out = sil.sil_study(closed_loop.setup(design, model), controller, laws, args.real, faults, args.log_folder,
@@ -507,7 +508,7 @@ def _bench_database(args):
 
 
 def cmd_bench(args) -> dict:
-    from smartjoint.bench import logs, sil
+    from smartjoint.bench import logs, loop
     from smartjoint.design.network import protocol
     from smartjoint.design.control import artifact
 
@@ -524,7 +525,7 @@ def cmd_bench(args) -> dict:
             print(f"DBC written to {args.output}")
         return out
     if args.bench_command == "log":
-        bus = sil.open_bus(args.interface, args.channel)
+        bus = loop.open_bus(args.interface, args.channel)
         try:
             _progress(f"recording {args.interface}:{args.channel} to {args.output} (Ctrl-C stops) …")
             out = logs.record(bus, args.output, args.duration, args.rotate_bytes, progress=_progress)
@@ -579,13 +580,14 @@ def _bench_decode(args) -> dict:
 
 def _bench_replay(args) -> dict:
     """Exit 1 (after the report) when a setpoint differs or a recorded one was not replayed."""
-    from smartjoint.bench import firmware, logs
+    from smartjoint.bench import firmware
+    from smartjoint.bench.replay import replay
     from smartjoint.design.control import artifact
     from smartjoint.common.errors import ModelError
 
     content = _bench_log(args)
     loaded = artifact.load(Path(args.artifact))
-    out = logs.replay(content, firmware.Firmware(loaded, args.law, args.real), args.tolerance)
+    out = replay(content, firmware.Firmware(loaded, args.law, args.real), args.tolerance)
     out["log_problem"] = content.problem()
     out["log"] = content.skipped()
     if out["setpoints_compared"] == 0 and out["recorded_not_replayed"] == 0:

@@ -30,7 +30,7 @@ from smartjoint import __version__
 from smartjoint import report as plots
 from smartjoint.bench import busload, safety, sil
 from smartjoint.design.network import protocol
-from smartjoint.codegen import backtoback, can_layer, generate, identifiers
+from smartjoint.codegen import backtoback, can_layer, generate, identifiers, output
 from smartjoint.control_study import control_markdown, plot_control_study
 from smartjoint.design.control import artifact
 from smartjoint.design import build_model, load_design, solve_modes, updated_design
@@ -175,7 +175,7 @@ def _stages(design_path: str | None, staging: Path, progress):
     plot_study(study, staging)
     plot_control_study(control_study, staging)
     artifact.save(controller, staging / "controller.json")
-    generate.write({**firmware_files, **can_layer.render_can(controller)}, staging / "firmware")
+    output.write({**firmware_files, **can_layer.render_can(controller)}, staging / "firmware")
     sil.plot_sil(sil_check, staging, sil_check.get("mil_runs"))
     sil.plot_faults(fault_check, staging / "sil_faults.png")
     safety.plot_matrix(safety_check, staging / "safety_cycles.png")

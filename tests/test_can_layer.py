@@ -15,6 +15,9 @@ import numpy as np
 import pytest
 
 from smartjoint.bench import e2e, firmware, logs, sil
+from smartjoint.bench.faults import Fault, check_faults, parse_fault
+from smartjoint.bench.loop import SilLoop, open_bus
+from smartjoint.bench.replay import replay
 from smartjoint.design.control import artifact
 from smartjoint.design.plant import simulate
 from smartjoint.design.control import study as closed_loop
@@ -111,7 +114,7 @@ def bench(three_type_a, reference):
 
 def _run(bench, law, faults=(), log_path=None):
     setup, reference = bench
-    loop = sil.SilLoop(firmware.Firmware(reference, law, "float"), closed_loop.PULSE_DURATION, faults=faults,
+    loop = SilLoop(firmware.Firmware(reference, law, "float"), closed_loop.PULSE_DURATION, faults=faults,
                        log_path=log_path)
     try:
         result = simulate.simulate(setup.plant, setup.laws, loop, setup.pulse(), setup.duration, setup.plant_step,
@@ -125,15 +128,15 @@ def _run(bench, law, faults=(), log_path=None):
 # plant in tests/test_safety.py): a lost input, a late one, a damaged one, the firmware's own
 # setpoint and heartbeat, an implausible value, amplifier faults, the bus off.
 FAULTS = [
-    sil.Fault("drop", 0.2, 0.3, "JOINT_A2"),
-    sil.Fault("delay", 0.2, 0.3, "JOINT_A1", delay=0.006),
-    sil.Fault("corrupt_crc", 0.2, 0.3, "TIP_SENSORS"),
-    sil.Fault("drop", 0.2, 0.3, "SETPOINT_A1"),
-    sil.Fault("corrupt_crc", 0.2, 0.3, "CONTROLLER_STATUS"),
-    sil.Fault("implausible", 0.2, 0.3, "JOINT_A1", signal="sliding_velocity", value=1.9),
-    sil.Fault("amplifier", 0.2, 0.3, "A1", amplifier_fault="over_temperature"),
-    sil.Fault("amplifier", 0.2, 0.3, "A3", amplifier_fault="stuck_output"),
-    sil.Fault("bus_off", 0.2, 0.3),
+    Fault("drop", 0.2, 0.3, "JOINT_A2"),
+    Fault("delay", 0.2, 0.3, "JOINT_A1", delay=0.006),
+    Fault("corrupt_crc", 0.2, 0.3, "TIP_SENSORS"),
+    Fault("drop", 0.2, 0.3, "SETPOINT_A1"),
+    Fault("corrupt_crc", 0.2, 0.3, "CONTROLLER_STATUS"),
+    Fault("implausible", 0.2, 0.3, "JOINT_A1", signal="sliding_velocity", value=1.9),
+    Fault("amplifier", 0.2, 0.3, "A1", amplifier_fault="over_temperature"),
+    Fault("amplifier", 0.2, 0.3, "A3", amplifier_fault="stuck_output"),
+    Fault("bus_off", 0.2, 0.3),
 ]
 
 
@@ -177,12 +180,12 @@ def test_sil_matches_the_model_in_the_loop_study(bench, tmp_path):
     # The log replays through the firmware bit-exactly.
     messages, problem = logs.read(tmp_path / "sil_siso.blf")
     assert problem is None
-    replayed = logs.replay(messages, firmware.Firmware(reference, "siso", "float"))
+    replayed = replay(messages, firmware.Firmware(reference, "siso", "float"))
     assert replayed["setpoints_compared"] == 3 * 1000 and replayed["differing"] == 0
     jitter = np.random.default_rng(4).uniform(-2e-4, 2e-4, len(messages))  # a rig's time stamps
     for message, dt in zip(messages, jitter):
         message.timestamp = max(message.timestamp + dt, 0.0)
-    assert logs.replay(messages, firmware.Firmware(reference, "siso", "float"))["differing"] == 0
+    assert replay(messages, firmware.Firmware(reference, "siso", "float"))["differing"] == 0
 
 
 def test_blf_and_asc_of_one_run_decode_to_the_same_signals(bench, tmp_path):
@@ -223,7 +226,7 @@ def test_damaged_logs_and_unknown_interfaces_get_clear_messages(bench, tmp_path)
                            "--artifact", str(REFERENCE)], capture_output=True, text=True)
     assert done.returncode == 2 and "not found" in done.stderr
     with pytest.raises(ModelError, match="bench interface 'nope'.*python-can knows"):
-        sil.open_bus("nope", "x")
+        open_bus("nope", "x")
     done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "bench", "log", "--interface", "nope", "-o",
                            str(tmp_path / "x.blf"), "--duration", "0.1"], capture_output=True, text=True)
     assert done.returncode == 2 and "python-can knows" in done.stderr and not (tmp_path / "x.blf").exists()
@@ -252,13 +255,13 @@ def test_decode_skips_and_counts_malformed_frames(reference):
 
 def test_bad_fault_specifications_are_named():
     with pytest.raises(ModelError, match="kind:target:start:end"):
-        sil.parse_fault("drop:JOINT_A1")
+        parse_fault("drop:JOINT_A1")
     with pytest.raises(ModelError, match="target 'JOINT_Z'"):
-        sil.check_faults([sil.Fault("drop", 0.1, 0.2, "JOINT_Z")], {"JOINT_A1"}, ["A1"])
+        check_faults([Fault("drop", 0.1, 0.2, "JOINT_Z")], {"JOINT_A1"}, ["A1"])
     with pytest.raises(ModelError, match="fault kind 'melt'"):
-        sil.check_faults([sil.Fault("melt", 0.1, 0.2)], set(), [])
+        check_faults([Fault("melt", 0.1, 0.2)], set(), [])
     with pytest.raises(ModelError, match="window"):
-        sil.check_faults([sil.Fault("bus_off", 0.3, 0.2)], set(), [])
+        check_faults([Fault("bus_off", 0.3, 0.2)], set(), [])
 
 
 @pytest.mark.parametrize("suffix", [".blf", ".asc"])

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from smartjoint.bench import sil
-from smartjoint.codegen import build, generate
+from smartjoint.codegen import build, controllers, generate, output, rendering
 from smartjoint.design.control import artifact, laws as control, study
 from smartjoint.design import load_design
 from smartjoint.design.plant import simulate
@@ -35,7 +35,7 @@ def reference():
 
 @pytest.fixture(scope="module")
 def builds(reference):
-    return {real: build.compile_controllers(reference, real) for real in ("double", "float")}
+    return {real: controllers.compile_controllers(reference, real) for real in ("double", "float")}
 
 
 def _sequence(a, count=3000, seed=7, faults=True):
@@ -130,7 +130,7 @@ def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
     # With the sensor range opened to the largest number they drive the estimate out of the
     # finite numbers: ESTIMATE_RESET, the safe force, the filter restarts.
     wide = artifact.loads(json.dumps(dict(json.loads(artifact.dumps(reference)), sensor_limit=[biggest] * ny)))
-    law = build.compile_controllers(wide, real).clipped_lqg()
+    law = controllers.compile_controllers(wide, real).clipped_lqg()
     statuses = []
     for _ in range(5):
         out = law.step(m)
@@ -304,9 +304,9 @@ def test_literals_parse_back_to_the_rounded_value():
     rng = np.random.default_rng(0)
     values = np.concatenate([rng.normal(0, 1, 200) * 10.0 ** rng.uniform(-40, 38, 200), [0.0, 1.0, -400.0, 1e-45]])
     for v in values:
-        text = generate.literal(v, "double")
+        text = rendering.literal(v, "double")
         assert float(text) == float(v) and ("." in text or "e" in text)
-        text = generate.literal(v, "float")
+        text = rendering.literal(v, "float")
         assert text.endswith("f") and np.float32(text[:-1]) == np.float32(v) and ("." in text or "e" in text)
 
 
@@ -338,7 +338,7 @@ def test_structure_no_dense_predictor_no_heap_no_recursion(reference):
 @pytest.mark.skipif(shutil.which("cc") is None, reason="needs a C compiler")
 def test_sanitizers_report_nothing_on_the_back_to_back_run(reference, tmp_path):
     folder = tmp_path / "gen"
-    generate.write(generate.render(reference, "double"), folder)
+    output.write(generate.render(reference, "double"), folder)
     exe = tmp_path / "replay"
     done = subprocess.run(["cc", *build.FLAGS, "-O1", "-g", "-fsanitize=address,undefined",
                            "-fno-sanitize-recover=all", "-I", str(folder), str(ROOT / "firmware" / "runtime" / "replay.c"),
@@ -368,7 +368,7 @@ def test_cppcheck_reports_nothing(reference, tmp_path, real):
     from smartjoint.codegen import can_layer
 
     files = {**generate.render(reference, real), **can_layer.render_can(reference, real=real)}
-    generate.write({k: v for k, v in files.items() if not k.endswith(".dbc")}, tmp_path)
+    output.write({k: v for k, v in files.items() if not k.endswith(".dbc")}, tmp_path)
     done = subprocess.run(["cppcheck", "--enable=all", "--std=c99", "--error-exitcode=1", "--inline-suppr",
                            "--suppress=missingIncludeSystem", "--quiet", str(tmp_path)], capture_output=True, text=True)
     assert done.returncode == 0 and done.stdout.strip() == "" and done.stderr.strip() == "", done.stderr
@@ -385,7 +385,7 @@ def test_cortex_m4f_float_build_compiles_clean(tmp_path):
 
 
 def test_example_builds_and_runs(reference, tmp_path):
-    generate.write(generate.render(reference, "float"), tmp_path)
+    output.write(generate.render(reference, "float"), tmp_path)
     done = subprocess.run(["make", "-s", "-C", str(tmp_path)], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     run = subprocess.run([str(tmp_path / "example")], capture_output=True, text=True)

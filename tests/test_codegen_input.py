@@ -213,7 +213,7 @@ def test_the_reference_regenerates_byte_identical_and_compiles(reference, tmp_pa
     assert [p.name for p in placed.untouched] == []
     for path in placed.written:
         assert path.read_bytes() == (REFERENCE / path.name).read_bytes(), path.name
-        assert path.stat().st_mode & 0o777 == 0o666 & ~generate.umask()
+        assert path.stat().st_mode & 0o777 == 0o666 & ~output.umask()
 
 
 def test_an_existing_folder_keeps_every_file_codegen_did_not_write(reference, tmp_path, capsys):

@@ -105,7 +105,7 @@ root = Path(sys.argv[1]).resolve()
 import smartjoint
 from smartjoint import pipeline
 from smartjoint.bench import e2e
-from smartjoint.codegen import can_layer, generate
+from smartjoint.codegen import can_layer, generate, rendering
 from smartjoint.common import package_data
 from smartjoint.design.control import artifact
 from smartjoint.design.friction import rig
@@ -113,7 +113,7 @@ from smartjoint.design.structure import spec
 found = {"package": smartjoint.__file__,
          "files": [str(p) for _, p in package_data.all_files()],
          "constants": [str(p) for p in (spec.REFERENCE_DESIGN, pipeline.FIG10_DESIGN, pipeline.CONTROL_DESIGN,
-                                        generate.TEMPLATES, can_layer.RUNTIME, e2e.RUNTIME)]}
+                                        rendering.TEMPLATES, can_layer.RUNTIME, e2e.RUNTIME)]}
 # Open them the way the commands do: the templates, the runtime copied into the CAN layer, the
 # E2E twin and the rig kernel compiled, the bundled design loaded.
 controller = artifact.load(Path(sys.argv[2]))

@@ -12,7 +12,10 @@ import numpy as np
 import pytest
 
 from smartjoint import cli
-from smartjoint.bench import e2e, firmware, logs, sil
+from smartjoint.bench import e2e, firmware, logs
+from smartjoint.bench.faults import Fault
+from smartjoint.bench.loop import SilLoop
+from smartjoint.bench.replay import replay
 from smartjoint.design.network import protocol
 from smartjoint.design.control import artifact
 from smartjoint.common.errors import ModelError
@@ -40,7 +43,7 @@ def _measurements(k: int, sample_time: float, joints: int, sensors: int) -> Meas
 
 def _sil_log(reference, path, law="clqg", faults=(), samples=SAMPLES):
     """Run the SIL loop directly on synthetic measurements, logging every frame to ``path``."""
-    loop = sil.SilLoop(firmware.Firmware(reference, law, "float"), faults=faults, log_path=path)
+    loop = SilLoop(firmware.Firmware(reference, law, "float"), faults=faults, log_path=path)
     loop.reset()
     try:
         for k in range(samples):
@@ -55,11 +58,11 @@ def _sil_log(reference, path, law="clqg", faults=(), samples=SAMPLES):
 def bus_off_log(reference, tmp_path_factory):
     """A SIL log (cLQG, float firmware) of 0.4 s with the bus off on [0.1, 0.2) s."""
     path = tmp_path_factory.mktemp("replay") / "bus_off.blf"
-    return path, _sil_log(reference, path, faults=[sil.Fault("bus_off", *BUS_OFF)])
+    return path, _sil_log(reference, path, faults=[Fault("bus_off", *BUS_OFF)])
 
 
 def _replay(reference, messages, **options):
-    return logs.replay(messages, firmware.Firmware(reference, "clqg", "float"), **options)
+    return replay(messages, firmware.Firmware(reference, "clqg", "float"), **options)
 
 
 def test_a_bus_off_log_replays_every_setpoint(reference, bus_off_log):
@@ -304,7 +307,7 @@ def test_replay_reproduces_a_layer_that_ages_its_inputs_by_steps(reference):
                 frames.append(can.Message(arbitration_id=frame_id, data=payload, is_fd=False, timestamp=t))
     recorded = [r[3] for r in logs.decode(frames, node.db).rows if r[2] == "voltage"]
     assert sum(v >= 10 for v in recorded) == 3  # the recovery after the silent bus is in the log
-    out = logs.replay(frames, StepAgeingFirmware(reference))
+    out = replay(frames, StepAgeingFirmware(reference))
     assert out["samples"] == 200 and out["silent_samples"] == 30
     assert out["setpoints_compared"] == 160 and out["differing"] == 0 and out["ok"]
     assert out["replayed_not_recorded_in_silent_samples"] == 30 and out["replayed_not_recorded"] == 10
@@ -313,5 +316,5 @@ def test_replay_reproduces_a_layer_that_ages_its_inputs_by_steps(reference):
     squeezed = [can.Message(arbitration_id=m.arbitration_id, data=m.data, is_fd=m.is_fd,
                             timestamp=m.timestamp - (30 * reference.sample_time if m.timestamp > 0.25 + 0.05 else 0))
                 for m in frames]
-    diverged = logs.replay(squeezed, StepAgeingFirmware(reference))
+    diverged = replay(squeezed, StepAgeingFirmware(reference))
     assert diverged["differing"] == diverged["setpoints_compared"] - 50 and not diverged["ok"]

@@ -10,7 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from smartjoint.bench import e2e, firmware, safety, sil
+from smartjoint.bench import e2e, firmware, safety
+from smartjoint.bench.faults import FRAME_FAULTS, Fault, check_faults, parse_fault
+from smartjoint.bench.loop import SilLoop
+from smartjoint.design.plant.simulate import Measurements
 from smartjoint.design.network import protocol
 from smartjoint.bench.amplifier import AmplifierModel
 from smartjoint.design.control import artifact
@@ -42,12 +45,12 @@ def test_every_fault_reaches_the_safe_force_at_every_joint_within_three_cycles(i
     of the fault (of its detection bound for delays) and keeps it while the fault lasts; the
     loop recovers within the stated cycles after it ends; a delay within the latency bound is
     used, never a timeout; power-up holds the safe force until the first valid command."""
-    loop = sil.SilLoop(image, 0.0, faults=case.faults)
+    loop = SilLoop(image, 0.0, faults=case.faults)
     loop.reset()
     applied = np.zeros(len(LOADED.joint_names))
     try:
         for m in signals[:case.cycles]:
-            applied = loop.step(sil.Measurements(m.time, m.sensors, m.sliding_velocity, m.friction_force, applied))
+            applied = loop.step(Measurements(m.time, m.sensors, m.sliding_velocity, m.friction_force, applied))
     finally:
         loop.close()
     row = safety.measure(loop.record, case.faults, LOADED, case.tolerated)
@@ -71,7 +74,7 @@ def test_every_fault_reaches_the_safe_force_at_every_joint_within_three_cycles(i
 def test_the_matrix_covers_every_frame_kind_signal_amplifier_fault_and_timing():
     frames = {m.name for m in DATABASE.messages}
     single = [c for c in CASES if len(c.faults) == 1]
-    for kind in sil.FRAME_FAULTS:
+    for kind in FRAME_FAULTS:
         for timing in safety.TIMINGS:
             assert {c.faults[0].target for c in single if c.faults[0].kind == kind and c.timing == timing} == frames
     decoded = {(m.name, s.name) for m in DATABASE.messages for s in m.signals
@@ -291,22 +294,22 @@ def reference_firmware():
 def test_fault_fields_that_mean_nothing_are_refused():
     names, joints = {m.name for m in DATABASE.messages}, list(LOADED.joint_names)
     signals = {m.name: [s.name for s in m.signals] for m in DATABASE.messages}
-    for fault, message in ((sil.Fault("bus_off", 0.1, 0.2, "JOINT_A1"), "give no target"),
-                           (sil.Fault("drop", 0.1, 0.2, "JOINT_A1", delay=0.01), "delay 0.01 — only for kind delay"),
-                           (sil.Fault("drop", 0.1, 0.2, "JOINT_A1", amplifier_fault="stuck_output"), "only for kind"),
-                           (sil.Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="speed", value=1.0), "signal 'speed'"),
-                           (sil.Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="sliding_velocity"), "value None"),
-                           (sil.Fault("amplifier", 0.1, 0.2, "A9", amplifier_fault="stuck_output"), "target 'A9'"),
-                           (sil.Fault("drop", 0.2, 0.1, "SETPOINT_A1"), "window"),
-                           (sil.Fault("drop", 0.1, math.nan, "SETPOINT_A1"), "window")):
+    for fault, message in ((Fault("bus_off", 0.1, 0.2, "JOINT_A1"), "give no target"),
+                           (Fault("drop", 0.1, 0.2, "JOINT_A1", delay=0.01), "delay 0.01 — only for kind delay"),
+                           (Fault("drop", 0.1, 0.2, "JOINT_A1", amplifier_fault="stuck_output"), "only for kind"),
+                           (Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="speed", value=1.0), "signal 'speed'"),
+                           (Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="sliding_velocity"), "value None"),
+                           (Fault("amplifier", 0.1, 0.2, "A9", amplifier_fault="stuck_output"), "target 'A9'"),
+                           (Fault("drop", 0.2, 0.1, "SETPOINT_A1"), "window"),
+                           (Fault("drop", 0.1, math.nan, "SETPOINT_A1"), "window")):
         with pytest.raises(ModelError, match=message):
-            sil.check_faults([fault], names, joints, signals)
+            check_faults([fault], names, joints, signals)
     for text, message in (("drop:SETPOINT_A1:0.1:0.2:3", "takes no detail"), ("bus_off:X:1:2", None),
                           ("melt:X:1:2", "kind 'melt'"), ("delay:JOINT_A1:1:2:soon", "the delay 'soon'")):
         if message is None:
             with pytest.raises(ModelError, match="give no target"):
-                sil.check_faults([sil.parse_fault(text)], names, joints, signals)
+                check_faults([parse_fault(text)], names, joints, signals)
         else:
             with pytest.raises(ModelError, match=message):
-                sil.parse_fault(text)
-    assert sil.parse_fault("silent:CONTROLLER_STATUS:0:inf").end == math.inf
+                parse_fault(text)
+    assert parse_fault("silent:CONTROLLER_STATUS:0:inf").end == math.inf

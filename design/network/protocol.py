@@ -123,54 +123,96 @@ def _check_ranges(db: can.Database) -> None:
                                  f"— its {signal.length}-bit field carries [{float(low):g}, {float(high):g}]")
 
 
+def _cycle_ms(sample_time: float) -> int:
+    """The frames' cycle time: the sample time in whole milliseconds, as DBC carries it."""
+    cycle = sample_time * 1000.0
+    if abs(cycle - round(cycle)) > 1e-9 or round(cycle) < 1:
+        raise ModelError(f"sample_time: {sample_time!r} s — DBC cycle times are whole milliseconds; use a "
+                         "sample time of 1 ms, 2 ms, …")
+    cycle = int(round(cycle))
+    if cycle > CYCLE_TIME_MAX_MS:
+        raise ModelError(f"sample_time: {sample_time!r} s — DBC cycle times (GenMsgCycleTime) are at most "
+                         f"{CYCLE_TIME_MAX_MS} ms")
+    return cycle
+
+
+def _joint_frames(j: int, name: str, amplifier: Amplifier, cycle: int) -> tuple[list, list]:
+    """The nodes (sensor node, amplifier) and frames (JOINT, SETPOINT, AMP_STATUS) of joint ``j``."""
+    tag = _identifier(name, "joint")
+    nodes: list = []
+    messages: list = []
+    frame_id = JOINT_BASE + j
+    signals = _e2e(frame_id, sync=12) + [
+        _scaled("sliding_velocity", 16, 32, 1e-9, True, "m/s", -2.0, 2.0, f"v of joint {name}"),
+        _scaled("friction_force", 48, 32, 1e-5, True, "N", -20000.0, 20000.0, f"u_R of joint {name}"),
+        _scaled("normal_force", 80, 16, 0.02, False, "N", 0.0, 1310.0, f"applied F_N of joint {name}")]
+    nodes.append(can.Node(f"JOINT_NODE_{tag}", comment=f"sensors of joint {name}"))
+    nodes.append(can.Node(f"AMPLIFIER_{tag}", comment=f"piezo amplifier of joint {name}"))
+    messages.append(can.Message(frame_id, f"JOINT_{tag}", 12, signals, senders=[f"JOINT_NODE_{tag}"],
+                                cycle_time=cycle, is_fd=True, comment=f"joint {name}: v, u_R, F_N"))
+    volts = _scaled("voltage", 16, 32, 1e-7, False, "V", 0.0, amplifier.voltage_max,
+                    f"piezo voltage setpoint of joint {name}: F_N = {amplifier.force_per_volt:g}*V + "
+                    f"{amplifier.preload:g} N")
+    messages.append(can.Message(SETPOINT_BASE + j, f"SETPOINT_{tag}", 6, _e2e(SETPOINT_BASE + j) + [volts],
+                                senders=[CONTROLLER], cycle_time=cycle, is_fd=True,
+                                comment=f"setpoint of amplifier {name}"))
+    status = _e2e(STATUS_BASE + j, sync=60) + [
+        _scaled("monitor_voltage", 16, 16, 0.005, False, "V", 0.0, amplifier.voltage_max, "measured output"),
+        _scaled("current", 32, 16, 1e-4, True, "A", -3.0, 3.0, "output current"),
+        can.Signal("temperature", 48, 8, conversion=conversion.BaseConversion.factory(1.0, -40.0), minimum=-40.0,
+                   maximum=215.0, unit="degC", comment="amplifier temperature"),
+    ] + [can.Signal(fault, 12 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
+         for k, fault in enumerate(AMPLIFIER_FAULTS)] + [
+        can.Signal("safe_state", 56, 1, comment="the amplifier's watchdog tripped and holds the safe force "
+                   "(no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold "
+                   "before the first command, nor following the heartbeat's mode)")]
+    messages.append(can.Message(STATUS_BASE + j, f"AMP_STATUS_{tag}", 8, status, senders=[f"AMPLIFIER_{tag}"],
+                                cycle_time=cycle, is_fd=True, comment=f"amplifier {name} status"))
+    return nodes, messages
+
+
 def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -> can.Database:
-    """The cantools database of ``artifact``'s controller bus (see the module docstring)."""
+    """The cantools database of an artefact's controller bus (frames of the module docstring).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact: joints, sensors, sample time (the cycle time of every
+        frame) and the ranges the signals carry.
+    amplifier : Amplifier
+        The piezo amplifier the setpoint frames command (force per volt, preload, voltage range).
+
+    Returns
+    -------
+    cantools.database.can.Database
+        Every frame with its identifier, length, sender, cycle time and signals.
+
+    Raises
+    ------
+    ModelError
+        Too many joints or sensors for the identifier blocks or a CAN FD frame, names the DBC
+        cannot carry, or a range beyond what a signal's field holds.
+
+    Examples
+    --------
+    >>> db = database(artifact)  # doctest: +SKIP
+    >>> db.get_message_by_name("TIP_SENSORS").frame_id  # doctest: +SKIP
+    384
+    """
     joints, sensors = list(artifact.joint_names), list(artifact.sensor_names)
     if not 1 <= len(joints) <= MAX_JOINTS:
         raise ModelError(f"joint_names: {len(joints)} joints — the protocol carries 1…{MAX_JOINTS}")
     if not 1 <= len(sensors) <= MAX_SENSORS:
         raise ModelError(f"sensor_names: {len(sensors)} sensors — one TIP_SENSORS frame carries 1…{MAX_SENSORS}")
     _check_names(joints, sensors)
-    cycle = artifact.sample_time * 1000.0
-    if abs(cycle - round(cycle)) > 1e-9 or round(cycle) < 1:
-        raise ModelError(f"sample_time: {artifact.sample_time!r} s — DBC cycle times are whole milliseconds; use a "
-                         "sample time of 1 ms, 2 ms, …")
-    cycle = int(round(cycle))
-    if cycle > CYCLE_TIME_MAX_MS:
-        raise ModelError(f"sample_time: {artifact.sample_time!r} s — DBC cycle times (GenMsgCycleTime) are at most "
-                         f"{CYCLE_TIME_MAX_MS} ms")
+    cycle = _cycle_ms(artifact.sample_time)
     nodes = [can.Node(CONTROLLER, comment="semi-active controller (generated firmware)"),
              can.Node("TIP_NODE", comment="tip deflection sensors")]
     messages = []
     for j, name in enumerate(joints):
-        tag = _identifier(name, "joint")
-        frame_id = JOINT_BASE + j
-        signals = _e2e(frame_id, sync=12) + [
-            _scaled("sliding_velocity", 16, 32, 1e-9, True, "m/s", -2.0, 2.0, f"v of joint {name}"),
-            _scaled("friction_force", 48, 32, 1e-5, True, "N", -20000.0, 20000.0, f"u_R of joint {name}"),
-            _scaled("normal_force", 80, 16, 0.02, False, "N", 0.0, 1310.0, f"applied F_N of joint {name}")]
-        nodes.append(can.Node(f"JOINT_NODE_{tag}", comment=f"sensors of joint {name}"))
-        nodes.append(can.Node(f"AMPLIFIER_{tag}", comment=f"piezo amplifier of joint {name}"))
-        messages.append(can.Message(frame_id, f"JOINT_{tag}", 12, signals, senders=[f"JOINT_NODE_{tag}"],
-                                    cycle_time=cycle, is_fd=True, comment=f"joint {name}: v, u_R, F_N"))
-        volts = _scaled("voltage", 16, 32, 1e-7, False, "V", 0.0, amplifier.voltage_max,
-                        f"piezo voltage setpoint of joint {name}: F_N = {amplifier.force_per_volt:g}*V + "
-                        f"{amplifier.preload:g} N")
-        messages.append(can.Message(SETPOINT_BASE + j, f"SETPOINT_{tag}", 6, _e2e(SETPOINT_BASE + j) + [volts],
-                                    senders=[CONTROLLER], cycle_time=cycle, is_fd=True,
-                                    comment=f"setpoint of amplifier {name}"))
-        status = _e2e(STATUS_BASE + j, sync=60) + [
-            _scaled("monitor_voltage", 16, 16, 0.005, False, "V", 0.0, amplifier.voltage_max, "measured output"),
-            _scaled("current", 32, 16, 1e-4, True, "A", -3.0, 3.0, "output current"),
-            can.Signal("temperature", 48, 8, conversion=conversion.BaseConversion.factory(1.0, -40.0), minimum=-40.0,
-                       maximum=215.0, unit="degC", comment="amplifier temperature"),
-        ] + [can.Signal(fault, 12 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
-             for k, fault in enumerate(AMPLIFIER_FAULTS)] + [
-            can.Signal("safe_state", 56, 1, comment="the amplifier's watchdog tripped and holds the safe force "
-                       "(no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold "
-                       "before the first command, nor following the heartbeat's mode)")]
-        messages.append(can.Message(STATUS_BASE + j, f"AMP_STATUS_{tag}", 8, status, senders=[f"AMPLIFIER_{tag}"],
-                                    cycle_time=cycle, is_fd=True, comment=f"amplifier {name} status"))
+        joint_nodes, joint_messages = _joint_frames(j, name, amplifier, cycle)
+        nodes += joint_nodes
+        messages += joint_messages
     tip = _e2e(TIP_ID, sync=12) + [
         _scaled(_identifier(s, "sensor").lower(), 16 + 32 * k, 32, 1e-8, True, "m", -20.0, 20.0, f"sensor {s}")
         for k, s in enumerate(sensors)]
@@ -198,10 +240,39 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
 
 
 def dbc_text(db: can.Database) -> str:
+    """The DBC text of a database (what ``smartjoint codegen`` writes as ``bus.dbc``).
+
+    Parameters
+    ----------
+    db : cantools.database.can.Database
+        The database (:func:`database`).
+
+    Returns
+    -------
+    str
+        The DBC file's text.
+    """
     return db.as_dbc_string()
 
 
 def load_dbc(text: str) -> can.Database:
+    """Read DBC text back into a cantools database.
+
+    Parameters
+    ----------
+    text : str
+        The DBC file's text.
+
+    Returns
+    -------
+    cantools.database.can.Database
+        The frames and signals it describes.
+
+    Raises
+    ------
+    ModelError
+        The text does not parse as DBC (one line, with cantools' reason).
+    """
     try:
         return cantools.database.load_string(text, database_format="dbc")
     except Exception as error:  # cantools raises several parser errors

@@ -1,0 +1,386 @@
+"""Software-in-the-loop bench: plant ↔ sensor frames ↔ compiled firmware ↔ setpoint frames ↔
+amplifier models ↔ normal forces, on a python-can bus, one controller sample at a time.
+
+Per sample t_k (the plant simulation calls ``SilLoop.step`` as its controller):
+
+1. the sensor nodes send ``JOINT_<j>`` (v, u_R, F_N) and ``TIP_SENSORS`` (y), each amplifier its
+   ``AMP_STATUS`` — all E2E-protected, echoing the last heartbeat; the fault injector may drop,
+   delay, duplicate, corrupt or fill with implausible values any frame (the firmware's too),
+   silence a node, take the bus off;
+2. the firmware takes every frame waiting for it (``rx``), runs ``step`` and sends what ``tx``
+   gives (the setpoints and the heartbeat, every sample);
+3. each amplifier checks its setpoint and the heartbeat (its own watchdog: ``bench/amplifier.py``),
+   and its output over [t_k, t_k+1) sets the normal force of its joint (the mean over the sample; F_N^max while the study's pulse acts,
+   the protocol of Section 6);
+4. a logger on the same bus writes every frame with the simulated time stamp (python-can
+   writers: .blf, .asc, .mf4 …).
+
+The default bus is python-can's in-process ``virtual`` interface; any other python-can interface
+name (and channel) runs the same code against real hardware.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from smartjoint.bench import busload, e2e
+from smartjoint.bench.amplifier import AmplifierModel
+from smartjoint.bench.faults import Fault, check_faults
+from smartjoint.common.errors import ModelError
+from smartjoint.design.plant.simulate import Measurements
+
+
+def open_bus(interface: str, channel: str, **kwargs):
+    """Open a python-can bus (CAN FD), with a clear message when the interface is not installed.
+
+    Parameters
+    ----------
+    interface : str
+        A python-can interface name (``virtual``, ``socketcan``, …).
+    channel : str
+        The channel of that interface.
+    **kwargs
+        Passed to ``can.Bus``.
+
+    Returns
+    -------
+    can.BusABC
+        The open bus.
+
+    Raises
+    ------
+    ModelError
+        The interface cannot be opened; the message lists what python-can knows.
+    """
+    import can
+
+    try:
+        return can.Bus(interface=interface, channel=channel, fd=True, **kwargs)  # the protocol is CAN FD
+    except (ImportError, can.CanInterfaceNotImplementedError, can.CanInitializationError, ValueError, OSError) as error:
+        known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
+        raise ModelError(f"bench interface {interface!r} (channel {channel!r}) cannot be opened: {error} — "
+                         f"python-can knows: {known}") from None
+
+
+@dataclass
+class SilRecord:
+    """Per controller sample: firmware safe flag, step status and fault bits, commanded F_N,
+    the F_N the amplifiers really apply, their own safe state, and F_N as the plant gets it
+    (the study's pulse protocol holds F_N^max while the pulse acts)."""
+
+    time: list = field(default_factory=list)
+    safe: list = field(default_factory=list)
+    status: list = field(default_factory=list)
+    faults: list = field(default_factory=list)
+    command: list = field(default_factory=list)
+    amplifier_force: list = field(default_factory=list)
+    amplifier_safe: list = field(default_factory=list)
+    applied: list = field(default_factory=list)
+
+
+class SilLoop:
+    """The CAN loop behind the simulation's controller interface.
+
+    Parameters
+    ----------
+    firmware : bench.firmware.Firmware
+        The compiled firmware image.
+    excitation_end : float
+        End of the study's pulse [s]: until then the plant gets ``excitation_force``.
+    excitation_force : array_like, optional
+        F_N while the pulse acts [N]; default the artefact's F_N^max.
+    faults : iterable of Fault
+        The faults to inject (``bench/faults.py``).
+    interface, channel : str
+        The python-can bus (default the in-process ``virtual`` one).
+    log_path : path, optional
+        A log file every frame is written to (python-can writers by suffix).
+    amplifier : dict, optional
+        Options of the amplifier models (``time_constant``, ``slew_rate``, ``temperature``,
+        ``voltage_max``).
+    """
+
+    def __init__(self, firmware, excitation_end: float = 0.0, excitation_force=None, faults=(),
+                 interface: str = "virtual", channel: str = "smartjoint-sil", log_path=None,
+                 amplifier: dict | None = None):
+        self.fw = firmware
+        self.db = firmware.db
+        a = firmware.artifact
+        self.sample_time = float(a.sample_time)
+        self.joints = [j.upper() for j in a.joint_names]
+        self.sensor_signals = [s.lower() for s in a.sensor_names]
+        self.excitation_end = float(excitation_end)
+        self.excitation_force = np.asarray(a.normal_force_max if excitation_force is None else excitation_force, float)
+        names = {m.name for m in self.db.messages}
+        signals = {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in self.db.messages}
+        check_faults(faults, names, [j for j in a.joint_names], signals)
+        self.faults = list(faults)
+        self.interface, self.channel, self.log_path = interface, channel, log_path
+        options = dict(amplifier or {})
+        unknown = sorted(set(options) - {"time_constant", "slew_rate", "temperature", "voltage_max"})
+        if unknown:
+            raise ModelError(f"amplifier option {unknown[0]!r} — allowed: time_constant, slew_rate, temperature, "
+                             "voltage_max")
+        self.amplifier_options = [dict(force_per_volt=a.piezo_force_per_volt, preload=a.piezo_preload,
+                                       capacitance=a.piezo_capacitance, safe_normal_force=float(a.safe_normal_force[j]),
+                                       normal_force_min=float(a.normal_force_min[j]),
+                                       normal_force_max=float(a.normal_force_max[j]),
+                                       timeout_cycles=a.timeout_cycles, recovery_cycles=a.recovery_cycles,
+                                       **options) for j in range(len(self.joints))]
+        self.frames = {m.name: m for m in self.db.messages}
+        self.buses = []
+        self.writer = None
+
+    # ------------------------------------------------------------------ set-up and tear-down
+    def reset(self) -> None:
+        """Open the buses, reset the firmware and the amplifiers: a run starts."""
+        self.close()
+        try:
+            for _ in range(3):
+                self.buses.append(open_bus(self.interface, self.channel, preserve_timestamps=True))
+        except BaseException:
+            self.close()
+            raise
+        self.node_bus, self.firmware_bus, self.log_bus = self.buses
+        self.writer = None
+        if self.log_path is not None:
+            import can
+
+            self.writer = can.Logger(str(self.log_path))
+        self.fw.reset()
+        self.amplifiers = [AmplifierModel(**options) for options in self.amplifier_options]
+        self.counters = defaultdict(int)
+        self.delayed = []  # (due time, bus, message)
+        self.frozen_counters = {}  # corrupt_counter: the counter each fault froze
+        self.node_echo = 0  # heartbeat counter the sensor nodes last saw
+        self.k = 0
+        self.record = SilRecord()
+        self.stats = defaultdict(int)
+        self.frame_counts = defaultdict(int)
+        self.amplifier_e2e_errors = 0
+
+    def close(self) -> None:
+        """Shut the buses and stop the log writer (whatever fails, the others are still closed)."""
+        buses, self.buses = self.buses, []
+        writer, self.writer = getattr(self, "writer", None), None
+        try:
+            for bus in buses:
+                try:
+                    bus.shutdown()
+                except Exception:  # keep closing the others
+                    pass
+        finally:
+            if writer is not None:
+                writer.stop()
+
+    # ------------------------------------------------------------------------------ frames
+    def _message(self, name: str, values: dict, t: float):
+        m = self.frames[name]
+        counter = self.counters[name]
+        self.counters[name] = (counter + 1) % e2e.COUNTER_MODULO
+        signals = {s.name: 0 for s in m.signals}
+        signals.update(values)
+        for s in m.signals:  # clamp to the signal's range before packing, as the firmware does
+            if signals[s.name] != signals[s.name]:  # NaN packs as raw 0
+                signals[s.name] = s.offset
+            elif s.minimum is not None:
+                signals[s.name] = min(max(signals[s.name], s.minimum), s.maximum)
+        data = e2e.protect(m.frame_id, bytearray(m.encode(signals, strict=False)), counter)
+        return self._frame(m.frame_id, bytes(data), t)
+
+    def _frame(self, frame_id: int, data: bytes, t: float):
+        import can
+
+        m = self.db.get_message_by_frame_id(frame_id)
+        return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=m.is_fd,
+                           bitrate_switch=m.is_fd, timestamp=t)
+
+    def _implausible(self, message, f: Fault, t: float):
+        """The frame with ``f.value`` in ``f.signal``, re-protected with its own counter: a sender
+        whose sensor or stage is broken, not a damaged frame."""
+        m = self.db.get_message_by_frame_id(message.arbitration_id)
+        values = m.decode(bytes(message.data), decode_choices=False, scaling=True)
+        values[f.signal] = f.value
+        signal = m.get_signal_by_name(f.signal)
+        raw = round((f.value - signal.offset) / signal.scale)
+        low = -(2 ** (signal.length - 1)) if signal.is_signed else 0
+        high = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2 ** signal.length - 1
+        if not low <= raw <= high:
+            raise ModelError(f"fault implausible: value {f.value!r} — {m.name}.{f.signal} carries "
+                             f"{low * signal.scale + signal.offset:g} … {high * signal.scale + signal.offset:g}")
+        data = bytearray(m.encode(values, strict=False, scaling=True))
+        return self._frame(m.frame_id, bytes(e2e.protect(m.frame_id, data, message.data[1] & 0x0F)), t)
+
+    def _bus_off(self, t: float) -> bool:
+        return any(f.kind == "bus_off" and f.active(t) for f in self.faults)
+
+    def _transmit(self, bus, message, t: float) -> None:
+        """Put ``message`` on the bus from ``bus``'s side, through the fault injector."""
+        import can
+
+        name = self.db.get_message_by_frame_id(message.arbitration_id).name
+        if self._bus_off(t):
+            self.stats["frames_lost_bus_off"] += 1
+            return
+        copies = 1
+        for f in self.faults:
+            if f.target != name or not f.active(t):
+                continue
+            self.stats[f"injected_{f.kind}"] += 1
+            if f.kind in ("drop", "silent"):
+                return
+            if f.kind == "delay":
+                self.delayed.append((t + f.lateness, bus, message))
+                return
+            if f.kind == "duplicate":
+                copies = 2
+            elif f.kind == "corrupt_crc":
+                data = bytearray(message.data)
+                data[-1] ^= 0x5A
+                message = self._frame(message.arbitration_id, bytes(data), t)
+            elif f.kind == "corrupt_counter":  # a sender whose counter froze: valid CRC, the same counter again
+                frozen = self.frozen_counters.setdefault(id(f), message.data[1] & 0x0F)
+                data = e2e.protect(message.arbitration_id, bytearray(message.data), frozen)
+                message = self._frame(message.arbitration_id, bytes(data), t)
+            elif f.kind == "wrong_dlc":  # the next shorter length a CAN (FD) frame can have
+                shorter = max(n for n in (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48) if n < len(message.data))
+                message = can.Message(arbitration_id=message.arbitration_id, data=bytes(message.data[:shorter]),
+                                      is_fd=message.is_fd, bitrate_switch=message.bitrate_switch, timestamp=t)
+            elif f.kind == "implausible":
+                message = self._implausible(message, f, t)
+        for _ in range(copies):
+            bus.send(message)
+            self.frame_counts[name] += 1
+
+    def _release_delayed(self, t: float, sender) -> None:
+        """Late frames of ``sender``'s side go out at the first sample after their delay."""
+        due = [(bus, m) for when, bus, m in self.delayed if bus is sender and when <= t + 1e-12]
+        self.delayed = [(w, bus, m) for w, bus, m in self.delayed if not (bus is sender and w <= t + 1e-12)]
+        for bus, message in due:
+            if self._bus_off(t):
+                self.stats["frames_lost_bus_off"] += 1
+                continue
+            message.timestamp = t
+            bus.send(message)
+            self.frame_counts[self.db.get_message_by_frame_id(message.arbitration_id).name] += 1
+
+    def _drain(self, bus) -> list:
+        out = []
+        while True:
+            message = bus.recv(timeout=0.0)
+            if message is None:
+                return out
+            out.append(message)
+
+    # ------------------------------------------------------------------------------ a sample
+    def step(self, measurements: Measurements) -> np.ndarray:
+        """One controller sample through the loop (steps 1–4 of the module docstring).
+
+        Parameters
+        ----------
+        measurements : Measurements
+            What the sensor nodes measure at this sample.
+
+        Returns
+        -------
+        numpy.ndarray
+            The normal forces the plant gets over the next sample [N].
+        """
+        t = float(measurements.time)
+        time_us = int(round(t * 1e6)) & 0xFFFFFFFF
+        # 1. The sensor nodes and the amplifiers send.
+        self._release_delayed(t, self.node_bus)  # due since the last sample: before this sample's frames
+        echo = self.node_echo  # the sensor nodes sample on the controller's heartbeat and say which
+        for j, joint in enumerate(self.joints):
+            self._transmit(self.node_bus, self._message(f"JOINT_{joint}", {
+                "sliding_velocity": float(measurements.sliding_velocity[j]),
+                "friction_force": float(measurements.friction_force[j]),
+                "normal_force": float(measurements.normal_force[j]), "sync": echo}, t), t)
+        self._transmit(self.node_bus, self._message("TIP_SENSORS", {"sync": echo, **dict(
+            zip(self.sensor_signals, map(float, measurements.sensors)))}, t), t)
+        for j, joint in enumerate(self.joints):  # amplifier status every sample: faults seen within a cycle
+            fault = next((f.amplifier_fault for f in self.faults
+                          if f.kind == "amplifier" and f.target.upper() == joint and f.active(t)), None)
+            self.amplifiers[j].fault = fault
+            status = self.amplifiers[j].status()
+            if status is not None:
+                self._transmit(self.node_bus, self._message(f"AMP_STATUS_{joint}", status, t), t)
+
+        # 2. The firmware: receive, step, send (setpoints and heartbeat).
+        for message in self._drain(self.firmware_bus):
+            self.fw.rx(message.arbitration_id, bytes(message.data), time_us)
+        status = self.fw.step(time_us)
+        self._release_delayed(t, self.firmware_bus)
+        for frame_id, data in self.fw.tx():
+            self._transmit(self.firmware_bus, self._frame(frame_id, data, t), t)
+
+        # 3. The amplifiers take their setpoint and the heartbeat, and drive their stacks.
+        heartbeat = self.frames["CONTROLLER_STATUS"]
+        mode = lambda data: heartbeat.decode(data, decode_choices=False)["mode"]  # noqa: E731
+        for message in self._drain(self.node_bus):
+            name = self.db.get_message_by_frame_id(message.arbitration_id).name
+            data = bytes(message.data)
+            if name == "CONTROLLER_STATUS":
+                for amplifier in self.amplifiers:
+                    amplifier.receive_heartbeat(message.arbitration_id, data, heartbeat.length, mode)
+                if len(data) == heartbeat.length and e2e.check(message.arbitration_id, data, None).crc_ok:
+                    self.node_echo = data[1] & 0x0F
+            elif name.startswith("SETPOINT_"):
+                j = self.joints.index(name[len("SETPOINT_"):])
+                m = self.frames[name]
+                before = self.amplifiers[j].setpoint_watch.failed
+                self.amplifiers[j].receive_setpoint(
+                    message.arbitration_id, data, m.length,
+                    lambda d, m=m: m.decode(d, decode_choices=False)["voltage"])
+                self.amplifier_e2e_errors += int(self.amplifiers[j].setpoint_watch.failed and not before)
+        amplifier_force = np.array([a.advance(self.sample_time) for a in self.amplifiers])
+        applied = amplifier_force.copy()
+        if t < self.excitation_end - 1e-12:
+            applied = self.excitation_force.copy()  # the study's protocol: F_N^max while the pulse acts
+        if self.writer is not None:
+            for message in self._drain(self.log_bus):
+                self.writer.on_message_received(message)
+        else:
+            self._drain(self.log_bus)
+        r = self.record
+        r.time.append(t)
+        r.safe.append(self.fw.safe)
+        r.status.append(status)
+        r.faults.append(self.fw.faults)
+        r.command.append(self.fw.command)
+        r.amplifier_force.append(amplifier_force)
+        r.amplifier_safe.append([a.own_safe for a in self.amplifiers])
+        r.applied.append(applied)
+        self.k += 1
+        return np.maximum(applied, 0.0)
+
+    def statistics(self, duration: float, bitrate: int, data_bitrate: int | None) -> dict:
+        """Frames per name, measured bus load over the run, E2E errors, timeouts.
+
+        Parameters
+        ----------
+        duration : float
+            The run's length [s].
+        bitrate : int
+            The nominal bitrate [bit/s].
+        data_bitrate : int or None
+            The CAN FD data bitrate [bit/s].
+
+        Returns
+        -------
+        dict
+            Frame counts, the bus load, the firmware's counters, E2E errors at the firmware and the
+            amplifiers, samples in the safe state and what the fault injector did.
+        """
+        busy = sum(count * busload.frame_time(self.frames[name].length, self.frames[name].is_fd, bitrate, data_bitrate)
+                   for name, count in self.frame_counts.items())
+        counters = self.fw.counters
+        return {"frames": dict(sorted(self.frame_counts.items())), "frames_total": int(sum(self.frame_counts.values())),
+                "bus_load": busy / duration, "bitrate": bitrate, "data_bitrate": data_bitrate,
+                "firmware": counters,
+                "e2e_errors": counters["crc_errors"] + counters["counter_errors"] + counters["length_errors"],
+                "amplifier_e2e_errors": self.amplifier_e2e_errors,
+                "safe_samples": int(sum(self.record.safe)), "injected": dict(self.stats)}

@@ -1,0 +1,173 @@
+"""Replay a CAN log through the compiled firmware and compare its setpoints with the recorded
+ones: the recorded sensor and amplifier frames go to ``rx`` on the controller's sample grid, the
+``SETPOINT_*`` frames of ``tx`` are paired with the recorded ones of the same sample.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+from smartjoint.bench import e2e
+from smartjoint.bench.logs import LogContent
+from smartjoint.common.errors import ModelError
+
+
+def _grid_origin(times, step: float) -> float:
+    """The controller sample nearest the earliest frame, on the grid whose phase is the circular
+    mean of the time stamps modulo the sample time: jitter on both sides of the true sample times
+    averages out (the earliest frame alone may be up to half a cycle early, which would shift
+    every sample by as much)."""
+    first, earliest = times[0], min(times)
+    angles = [2 * math.pi * math.fmod(t - first, step) / step for t in times]
+    phase = step * math.atan2(sum(map(math.sin, angles)), sum(map(math.cos, angles))) / (2 * math.pi)
+    grid = first + phase
+    return grid + step * math.floor((earliest - grid) / step + 0.5)
+
+
+MAX_SAMPLES = 100_000_000  # ~28 h at 1 ms: beyond that a wild time stamp is likelier than a real log
+
+
+def _samples(messages, known: dict, step: float) -> tuple[float, dict, int]:
+    """The usable frames of a log on the controller's sample grid: (t0, sample → frames, count)."""
+    usable = [m for m in messages if not (m.is_error_frame or m.is_remote_frame)]
+    bad_times = sum(1 for m in usable if not math.isfinite(float(m.timestamp)))
+    if bad_times:
+        raise ModelError(f"log: {bad_times} frame(s) with a time stamp that is not finite (NaN or infinite) — a "
+                         "replay needs every frame on the sample grid")
+    if not any(m.arbitration_id in known for m in usable):
+        raise ModelError(f"log: {len(usable)} frame(s), none with an identifier of the artefact's protocol "
+                         f"({', '.join(f'0x{k:03X}' for k in sorted(known))}) — nothing to replay")
+    start = _grid_origin([float(m.timestamp) for m in usable], step)
+    groups = defaultdict(list)
+    for message in usable:
+        groups[int(math.floor((float(message.timestamp) - start) / step + 0.5))].append(message)
+    samples = max(groups) + 1
+    if samples > MAX_SAMPLES:
+        raise ModelError(f"log: time stamps span {(samples - 1) * step:.6g} s = {samples} samples of {step:g} s "
+                         f"(at most {MAX_SAMPLES}) — a wild time stamp?")
+    return start, groups, samples
+
+
+@dataclass
+class _Comparison:
+    """What the replay has compared so far."""
+
+    compared: int = 0
+    worst: float = 0.0
+    unknown: int = 0
+    differences: list = field(default_factory=list)
+    counts: defaultdict = field(default_factory=lambda: defaultdict(int))
+
+
+def _replay_sample(firmware, known: dict, frames, time_us: int, t: float, tolerance: float, seen: _Comparison) -> None:
+    """One sample: the recorded inputs to ``rx``, ``step``, the replayed setpoints of ``tx``
+    paired with the recorded ones of the sample."""
+    recorded = defaultdict(list)
+    for message in frames:
+        m = known.get(message.arbitration_id)
+        if m is None:
+            seen.unknown += 1  # the firmware counts and rejects it, as on the bus
+        elif m.name.startswith("SETPOINT_"):
+            data = bytes(message.data)
+            if len(data) != m.length:
+                seen.counts["recorded_wrong_length"] += 1
+            elif not e2e.check(m.frame_id, data, None).crc_ok:
+                seen.counts["recorded_bad_crc"] += 1
+            else:
+                recorded[m.name].append(m.decode(data, decode_choices=False)["voltage"])
+            continue
+        elif m.name == "CONTROLLER_STATUS":  # the firmware's own frame, not an input
+            continue
+        firmware.rx(message.arbitration_id, bytes(message.data), time_us)
+    firmware.step(time_us)
+    replayed = defaultdict(list)
+    for frame_id, data in firmware.tx():
+        m = known.get(frame_id)
+        if m is not None and m.name.startswith("SETPOINT_"):
+            replayed[m.name].append(m.decode(data, decode_choices=False)["voltage"])
+    for name in sorted(set(recorded) | set(replayed)):
+        ours, theirs = replayed[name], recorded[name]
+        for a, b in zip(ours, theirs):
+            seen.compared += 1
+            deviation = abs(a - b)
+            seen.worst = max(seen.worst, deviation)
+            if not deviation <= tolerance:
+                seen.differences.append({"time": t, "frame": name, "kind": "differs", "recorded_V": b,
+                                         "replayed_V": a})
+        if len(theirs) > len(ours):
+            seen.counts["recorded_not_replayed"] += len(theirs) - len(ours)
+            seen.differences.append({"time": t, "frame": name, "kind": "recorded, not replayed",
+                                     "recorded_V": theirs[len(ours)], "replayed_V": None})
+        elif len(ours) > len(theirs):
+            key = "replayed_not_recorded_in_silent_samples" if not frames else "replayed_not_recorded"
+            seen.counts[key] += len(ours) - len(theirs)
+    if not frames:
+        seen.counts["silent_samples"] += 1
+
+
+def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None = None) -> dict:
+    """Replay a log through ``firmware`` and compare its setpoints with the recorded ones.
+
+    The controller samples are t0 + k·Δt, k = 0, 1, … (Δt: ``sample_time``, default the
+    artefact's; t0 the sample of the earliest frame on the grid that fits all time stamps best);
+    each frame belongs to its nearest sample (a rig's time stamps jitter within the cycle, the
+    SIL's sit on the grid). Every sample from the first to the last is
+    stepped, also those without any frame (a bus-off, a silent bus): the firmware's timeouts and
+    recovery then replay exactly. Per sample the recorded sensor and amplifier frames go to
+    ``rx``, then ``step``, then the ``SETPOINT_*`` frames of ``tx`` are paired with the recorded
+    ones of that sample and their voltages compared.
+
+    Only samples where the log holds a setpoint can be compared: what the firmware sent while it
+    was off the bus never reached the log. So a replayed setpoint without a recorded one is
+    counted (``replayed_not_recorded``, split into samples with and without other traffic) but is
+    no failure; a recorded setpoint without a replayed one (``recorded_not_replayed``) is.
+    Recorded setpoints that fail their length or CRC are counted and not compared.
+
+    Parameters
+    ----------
+    messages : list of can.Message or LogContent
+        The recorded frames (``load`` / ``read``).
+    firmware : bench.firmware.Firmware
+        The compiled firmware image to replay through (reset first).
+    tolerance : float
+        Largest setpoint difference [V] that still counts as equal.
+    sample_time : float, optional
+        The controller sample time [s]; default the artefact's.
+
+    Returns
+    -------
+    dict
+        Samples, setpoints compared, differing, the counts above, the largest difference and
+        the first 20 differences; ``ok`` when something was compared and nothing differs.
+
+    Raises
+    ------
+    ModelError
+        A log without frames the firmware's protocol knows, time stamps that are not finite, a
+        time span beyond ``MAX_SAMPLES`` samples.
+    """
+    if isinstance(messages, LogContent):
+        messages = messages.messages
+    known = {m.frame_id: m for m in firmware.db.messages}
+    step = float(sample_time or firmware.artifact.sample_time)
+    start, groups, samples = _samples(messages, known, step)
+    start_us = int(round(start * 1e6))
+    firmware.reset()
+    seen = _Comparison()
+    for k in range(samples):
+        _replay_sample(firmware, known, groups.get(k, ()), start_us + int(round(k * step * 1e6)), start + k * step,
+                       tolerance, seen)
+    counts, differences = seen.counts, seen.differences
+    differing = sum(1 for d in differences if d["kind"] == "differs")
+    out = {"samples": samples, "silent_samples": counts["silent_samples"], "setpoints_compared": seen.compared,
+           "differing": differing, "recorded_not_replayed": counts["recorded_not_replayed"],
+           "replayed_not_recorded": counts["replayed_not_recorded"],
+           "replayed_not_recorded_in_silent_samples": counts["replayed_not_recorded_in_silent_samples"],
+           "recorded_setpoints_bad_crc": counts["recorded_bad_crc"],
+           "recorded_setpoints_wrong_length": counts["recorded_wrong_length"],
+           "unknown_id_frames": seen.unknown, "max_difference_V": seen.worst, "tolerance_V": tolerance,
+           "first_differences": differences[:20]}
+    out["ok"] = seen.compared > 0 and differing == 0 and out["recorded_not_replayed"] == 0
+    return out
