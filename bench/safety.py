@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.plant.simulate import Measurements
+from smartjoint.design.plant.interface import Measurements
 from smartjoint.bench import sil
 from smartjoint.bench.amplifier import FAULTS as AMPLIFIER_FAULTS
 from smartjoint.bench.amplifier import OUTPUT_STAGE_FAULTS

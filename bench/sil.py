@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.plant.simulate import Measurements
+from smartjoint.design.plant.interface import Measurements
 from smartjoint.bench import e2e
 from smartjoint.bench.amplifier import FAULTS as AMPLIFIER_FAULTS
 from smartjoint.bench.amplifier import AmplifierModel
@@ -458,7 +458,7 @@ def sil_study(setup, artifact, laws=("siso", "clqg"), real: str = "float", fault
     stick–slip closed loop is chaotic: that spread bounds what any faithful re-implementation
     can match)."""
     from smartjoint.design.control import artifact as artifacts
-    from smartjoint.design.plant import simulate
+    from smartjoint.design import plant as simulate
     from smartjoint.design.control import study as closed_loop
     from smartjoint.bench import busload, firmware, safety
     from smartjoint.design.network import protocol
@@ -593,7 +593,7 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
     """One SIL run of the study with a sequence of faults (default :func:`demo_faults`): per
     fault the figures of ``bench/safety.measure``, and the largest energy after the pulse
     (bounded: the safe state is passive)."""
-    from smartjoint.design.plant import simulate
+    from smartjoint.design import plant as simulate
     from smartjoint.design.control import study as closed_loop
     from smartjoint.bench import firmware, safety
 

@@ -23,7 +23,7 @@ import numpy as np
 from smartjoint.common import native
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.common.errors import ModelError
-from smartjoint.design.plant.simulate import Measurements
+from smartjoint.design.plant.interface import Measurements
 from smartjoint.codegen import generate
 
 WARNINGS = ["-Wall", "-Wextra", "-Wpedantic", "-Wconversion", "-Wdouble-promotion", "-Wshadow", "-Werror"]

@@ -16,7 +16,7 @@ import pytest
 
 from smartjoint.bench import e2e, firmware, logs, sil
 from smartjoint.design.control import artifact
-from smartjoint.design.plant import simulate
+from smartjoint.design import plant as simulate
 from smartjoint.design.control import study as closed_loop
 from smartjoint.common.errors import ModelError
 
