@@ -158,12 +158,7 @@ def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller:
     Returns
     -------
     SimulationResult
-        The recorded rows at ``step·record_every``.
-
-    Examples
-    --------
-    >>> from smartjoint.design.plant.interface import ConstantNormalForce  # doctest: +SKIP
-    >>> r = simulate(model, laws, ConstantNormalForce(np.full(2, 100.0)), pulse, 0.1)  # doctest: +SKIP
+        The recorded rows at ``step·record_every`` (docs/simulation.md has an example).
     """
     chosen = schemes.scheme(scheme if scheme is not None else "fixed" if stick_step is None else "stick_exact")
     l, ratio = _check(model, joints, duration, step, controller, initial_state, chosen.FRICTION)
