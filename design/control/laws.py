@@ -41,7 +41,21 @@ def _vector(field: str, value, count: int, default: float) -> np.ndarray:
 
 
 def safe_force(value, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """The safe normal force per joint; default F_N^max (the design file's default, locked joints)."""
+    """The safe normal force per joint, checked against [F_N^min, F_N^max].
+
+    Parameters
+    ----------
+    value : float, array_like or None
+        The safe normal force (a number for every joint); None: F_N^max (the design file's
+        default, locked joints).
+    low, high : numpy.ndarray
+        F_N^min and F_N^max per joint.
+
+    Returns
+    -------
+    numpy.ndarray
+        The safe normal force per joint.
+    """
     safe = _vector("safe_normal_force", high if value is None else value, low.size, 0.0)
     if not np.all(np.isfinite(safe)) or np.any(safe < low) or np.any(safe > high):
         raise ModelError(f"safe_normal_force: {safe.tolist()} — must lie within [normal_force_min, normal_force_max] "
@@ -50,7 +64,22 @@ def safe_force(value, low: np.ndarray, high: np.ndarray) -> np.ndarray:
 
 
 def magnitude_limit(field: str, value, count: int) -> np.ndarray:
-    """|x| <= limit is plausible; None: no range beyond finiteness (+inf)."""
+    """The plausible magnitude of a measured value per channel: |x| <= limit is plausible.
+
+    Parameters
+    ----------
+    field : str
+        The argument's name, for the error.
+    value : float, array_like or None
+        The limit (> 0); None: no range beyond finiteness (+inf).
+    count : int
+        Number of channels.
+
+    Returns
+    -------
+    numpy.ndarray
+        The limit per channel.
+    """
     limit = _vector(field, value, count, math.inf)
     if np.any(limit <= 0):
         raise ModelError(f"{field}: {limit.tolist()} — must be > 0")
@@ -69,7 +98,23 @@ def input_status(value, low, high) -> np.ndarray:
 
 
 def any_status(*statuses: np.ndarray) -> int:
-    """The OR of every bit of the per-value statuses."""
+    """The OR of every bit of the per-value statuses.
+
+    Parameters
+    ----------
+    *statuses : numpy.ndarray
+        Status bits per value (``input_status``).
+
+    Returns
+    -------
+    int
+        The controller step's status.
+
+    Examples
+    --------
+    >>> any_status(np.array([0, 1]), np.array([8]))
+    9
+    """
     return int(np.bitwise_or.reduce(np.concatenate([np.ravel(s) for s in statuses]), initial=STATUS_OK))
 
 
@@ -157,7 +202,20 @@ class SisoLaw:
 
 
 def measured_range(low, high, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """The plausible range of a measured normal force; None: unbounded on that side."""
+    """The plausible range of a measured normal force per joint.
+
+    Parameters
+    ----------
+    low, high : float, array_like or None
+        measured_normal_force_min / _max; None: unbounded on that side.
+    count : int
+        Number of joints.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        (low, high) per joint, low <= high.
+    """
     low = _vector("measured_normal_force_min", low, count, -math.inf)
     high = _vector("measured_normal_force_max", high, count, math.inf)
     if np.any(low > high):
@@ -167,6 +225,13 @@ def measured_range(low, high, count: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_limits(low: np.ndarray, high: np.ndarray) -> None:
+    """Check the commanded normal-force range: finite, one per joint, 0 <= F_N^min <= F_N^max.
+
+    Parameters
+    ----------
+    low, high : numpy.ndarray
+        F_N^min and F_N^max per joint.
+    """
     if low.shape != high.shape or not np.all(np.isfinite(low)) or not np.all(np.isfinite(high)):
         raise ModelError(f"normal_force_min {low.tolist()} / normal_force_max {high.tolist()}: need finite values, "
                          "one per joint")

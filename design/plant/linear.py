@@ -76,7 +76,14 @@ class _LinearKernel:
 
 
 def check(run: PlantRun) -> None:
-    """The linear run's own conditions, each a named error."""
+    """The linear run's own conditions, each a named error.
+
+
+    Parameters
+    ----------
+    run : PlantRun
+        The run as ``loop.simulate`` received it.
+    """
     if len(run.joints):
         raise ModelError(f"joints: {len(run.joints)} LuGre parameter sets — the linear scheme is frictionless; "
                          "pass joints=[] (the controller's forces act in the joints)")
@@ -89,7 +96,19 @@ def check(run: PlantRun) -> None:
 
 
 def kernel(run: PlantRun) -> _LinearKernel:
-    """The kernel of a linear run (numpy)."""
+    """The kernel of a linear run (numpy).
+
+
+    Parameters
+    ----------
+    run : PlantRun
+        The run as ``loop.simulate`` received it.
+
+    Returns
+    -------
+    Kernel
+        The frictionless modal model, discretised at ``run.step``.
+    """
     return _LinearKernel(run)
 
 
