@@ -30,7 +30,7 @@ from smartjoint.bench import busload, e2e
 from smartjoint.bench.amplifier import AmplifierModel
 from smartjoint.bench.faults import Fault, check_faults
 from smartjoint.common.errors import ModelError
-from smartjoint.design.plant.simulate import Measurements
+from smartjoint.design.plant.interface import Measurements
 
 
 def open_bus(interface: str, channel: str, **kwargs):

@@ -34,7 +34,7 @@ from smartjoint.bench.amplifier import OUTPUT_STAGE_FAULTS
 from smartjoint.bench.faults import FRAME_FAULTS, Fault
 from smartjoint.bench.loop import SilLoop
 from smartjoint.common.errors import ModelError
-from smartjoint.design.plant.simulate import Measurements
+from smartjoint.design.plant.interface import Measurements
 
 DETECTION_LIMIT = 3  # cycles from a fault (or its detection bound) to the safe force at every joint
 FORCE_TOLERANCE = 1e-6  # N: "at the safe force" (the setpoint quantum is 8e-7 N)

@@ -16,7 +16,7 @@ from smartjoint.bench.loop import SilLoop
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.network import protocol
-from smartjoint.design.plant import simulate
+from smartjoint.design import plant as simulate
 
 
 def perturbed(controller, relative: float, seed: int):

@@ -41,7 +41,7 @@ import numpy as np
 
 from smartjoint.codegen import build, controllers, generate, output
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.plant.simulate import Measurements
+from smartjoint.design.plant.interface import Measurements
 
 from machine import cpu_model  # benchmarks/machine.py (the script's folder is on sys.path)
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from smartjoint.codegen import build, generate
 from smartjoint.design.control.artifact import ControllerArtifact
-from smartjoint.design.plant.simulate import Measurements
+from smartjoint.design.plant.interface import Measurements
 
 LAWS = ("siso", "clqg")
 

@@ -262,7 +262,7 @@ def cmd_simulate(args) -> dict:
     from smartjoint.design import build_model
     from smartjoint.design.structure import modal
     from smartjoint.design.reduction import krylov as reduction
-    from smartjoint.design.plant import simulate
+    from smartjoint.design import plant as simulate
     from smartjoint.studies import joint_laws, parse_normal_forces
 
     design, _ = _updated(args)

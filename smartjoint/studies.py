@@ -7,7 +7,7 @@ import numpy as np
 from smartjoint.design.friction import lugre
 from smartjoint.design.structure import modal
 from smartjoint.design.reduction import krylov as reduction
-from smartjoint.design.plant import simulate
+from smartjoint.design import plant as simulate
 from smartjoint.common.errors import ModelError
 from smartjoint.design.structure.fem import build_model
 

@@ -11,9 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from smartjoint.design.control import artifact, laws as control
+from smartjoint.design import control
+from smartjoint.design.control import artifact
 from smartjoint.design.structure import modal
-from smartjoint.design.plant import simulate
+from smartjoint.design import plant as simulate
 from smartjoint.common.errors import ModelError
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import load_design, parse_design

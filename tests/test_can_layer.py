@@ -19,7 +19,7 @@ from smartjoint.bench.faults import Fault, check_faults, parse_fault
 from smartjoint.bench.loop import SilLoop, open_bus
 from smartjoint.bench.replay import replay
 from smartjoint.design.control import artifact
-from smartjoint.design.plant import simulate
+from smartjoint.design import plant as simulate
 from smartjoint.design.control import study as closed_loop
 from smartjoint.common.errors import ModelError
 

@@ -18,7 +18,7 @@ from smartjoint.bench import sil
 from smartjoint.codegen import build, controllers, generate, output, rendering
 from smartjoint.design.control import artifact, laws as control, study
 from smartjoint.design import load_design
-from smartjoint.design.plant import simulate
+from smartjoint.design import plant as simulate
 from smartjoint.design.structure import spec
 
 ROOT = Path(__file__).resolve().parents[1]

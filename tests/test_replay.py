@@ -19,7 +19,7 @@ from smartjoint.bench.replay import replay
 from smartjoint.design.network import protocol
 from smartjoint.design.control import artifact
 from smartjoint.common.errors import ModelError
-from smartjoint.design.plant.simulate import Measurements
+from smartjoint.design.plant.interface import Measurements
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated" / "controller.json"

@@ -13,7 +13,7 @@ import pytest
 from smartjoint.bench import e2e, firmware, safety
 from smartjoint.bench.faults import FRAME_FAULTS, Fault, check_faults, parse_fault
 from smartjoint.bench.loop import SilLoop
-from smartjoint.design.plant.simulate import Measurements
+from smartjoint.design.plant.interface import Measurements
 from smartjoint.design.network import protocol
 from smartjoint.bench.amplifier import AmplifierModel
 from smartjoint.design.control import artifact

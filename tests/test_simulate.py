@@ -10,7 +10,9 @@ import scipy.linalg
 
 from smartjoint.design.friction import lugre
 from smartjoint.design.structure import modal
-from smartjoint.design.plant import simulate
+from smartjoint.common.errors import ModelError
+from smartjoint.design import plant as simulate
+from smartjoint.design.plant import discretisation, fixed_step
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import parse_design
 
@@ -161,7 +163,7 @@ def test_work_coefficients_match_quadrature_of_the_exact_motion(model):
             t = np.concatenate([0.5 * (b - a_) * nodes + 0.5 * (b + a_) for a_, b in zip(edges[:-1], edges[1:])])
             weight = np.concatenate([0.5 * (b - a_) * weights for a_, b in zip(edges[:-1], edges[1:])])
             velocity = np.array([(scipy.linalg.expm(a * tk) @ z0)[0] for tk in t])
-            m0, m1, damping = simulate._book(c[:, i], *y)
+            m0, m1, damping = discretisation.step_works(c[:, i], *y)
             scale = np.sum(weight * np.abs(velocity))
             assert abs(m0 - np.sum(weight * velocity)) < 1e-10 * scale
             assert abs(m1 - np.sum(weight * t / step * velocity)) < 1e-10 * scale
@@ -177,7 +179,7 @@ def test_energy_books_can_be_left_out(model):
     assert np.array_equal(runs[0].friction_force, runs[1].friction_force)
     assert np.array_equal(runs[0].energy, runs[1].energy)
     assert np.all(np.isnan(runs[1].work_joints))
-    with pytest.raises(simulate.ModelError, match="energy_books"):
+    with pytest.raises(ModelError, match="energy_books"):
         simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books="yes")
 
 
@@ -209,7 +211,7 @@ class _Bad:
 @pytest.mark.parametrize("value, text", [(np.array([np.nan, 1.0]), "nan"), (np.array([1.0, 2.0, 3.0]), r"\[1.0, 2.0, 3.0\]"),
                                          ("many", "many"), (None, "None")])
 def test_controller_output_is_checked(model, value, text):
-    with pytest.raises(simulate.ModelError, match=f"controller returned normal forces .*{text}.* need 2 finite"):
+    with pytest.raises(ModelError, match=f"controller returned normal forces .*{text}.* need 2 finite"):
         simulate.simulate(model, JOINTS, _Bad(value), None, 0.01, 1e-4)
 
 
@@ -217,12 +219,12 @@ def test_unstable_damping_and_rigid_joint_are_named(model):
     import dataclasses
 
     unstable = dataclasses.replace(model, damping=np.where(np.arange(model.n_coordinates) == 3, -0.01, model.damping))
-    with pytest.raises(simulate.ModelError, match=r"coordinate 'mode 4' has .* ξ = -0.01 — need ω > 0 and ξ >= 0"):
+    with pytest.raises(ModelError, match=r"coordinate 'mode 4' has .* ξ = -0.01 — need ω > 0 and ξ >= 0"):
         simulate.simulate(unstable, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
     rigid = dataclasses.replace(model, joint_input=np.column_stack([model.joint_input[:, 0], np.zeros(model.n_coordinates)]))
-    with pytest.raises(simulate.ModelError, match="joint .* no coordinate of the model moves it"):
+    with pytest.raises(ModelError, match="joint .* no coordinate of the model moves it"):
         simulate.simulate(rigid, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
-    with pytest.raises(simulate.ModelError, match="initial_state: 3 values"):
+    with pytest.raises(ModelError, match="initial_state: 3 values"):
         simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4,
                           initial_state=np.zeros(3))
 
@@ -239,7 +241,7 @@ def test_auto_backend_falls_back_to_the_mirror_once_when_c_does_not_build(model,
     forces = simulate.ConstantNormalForce(np.array([300.0, 400.0]), 1e-3)
     expected = simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="python")
     monkeypatch.setattr(native, "load", no_compiler)
-    monkeypatch.setattr(simulate, "_C_FAILURE", [])
+    monkeypatch.setattr(fixed_step, "_C_FAILURE", [])
     with pytest.warns(RuntimeWarning, match="plant simulation falls back to Python.*no compiler"):
         first = simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="auto")
     with warnings.catch_warnings():

@@ -7,7 +7,8 @@ import pytest
 
 from smartjoint.design.friction import lugre
 from smartjoint.design.structure import modal
-from smartjoint.design.plant import simulate, stick_exact
+from smartjoint.design import plant as simulate
+from smartjoint.design.plant import stick_exact
 from smartjoint.common.errors import ModelError
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import parse_design

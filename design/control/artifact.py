@@ -32,7 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from smartjoint.design.control.laws import ActiveLqg, ClippedLqg, LqgDesign, SisoLaw
+from smartjoint.design.control.filter import ActiveLqg, ClippedLqg
+from smartjoint.design.control.laws import SisoLaw
+from smartjoint.design.control.lqg import LqgDesign
 from smartjoint.common.errors import ModelError
 
 SCHEMA_VERSION = 2  # 2: the safe state and the plausibility ranges (docs/safety.md)

@@ -4,7 +4,8 @@ active LQG joints after the tip pulse, and the ε optimisation of the SISO law f
 Protocol (Section 6): the triangular tip pulse (200 N over 40 ms along every disturbance input),
 every joint at F_N^max while it acts, then the controller until t_e. The plant is the design's
 reduced model (the paper's 24 states) with the LuGre joints of Table 1, simulated at a plant step
-that divides the controller sample time (``simulate.simulate``). Everything here is
+that divides the controller sample time (``design.plant.loop.simulate``); the active LQG on
+the frictionless ``linear`` scheme of the same loop. Everything here is
 deterministic: the same inputs give bit-identical results.
 """
 
@@ -16,12 +17,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from smartjoint.design.control import laws as control
-from smartjoint.design.friction import lugre
-from smartjoint.design.structure import modal
-from smartjoint.design.reduction import krylov as reduction
-from smartjoint.design.plant import simulate
 from smartjoint.common.errors import ModelError
+from smartjoint.design.control.filter import ActiveLqg, ClippedLqg
+from smartjoint.design.control.laws import SisoLaw
+from smartjoint.design.control.lqg import LqgDesign, check_sample_time, design_lqg
+from smartjoint.design.friction import lugre
+from smartjoint.design.plant.disturbance import TriangularPulse, triangular_pulse
+from smartjoint.design.plant.interface import ConstantNormalForce, HoldDuringExcitation
+from smartjoint.design.plant.loop import simulate
+from smartjoint.design.reduction import krylov as reduction
+from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.modal import ModalModel
 
@@ -52,9 +57,8 @@ class StudySetup:
     def plant_step(self) -> float:
         return self.sample_time / PLANT_STEPS_PER_SAMPLE
 
-    def pulse(self) -> simulate.TriangularPulse:
-        return simulate.triangular_pulse(PULSE_AMPLITUDE, PULSE_DURATION,
-                                         np.ones(self.plant.disturbance_input.shape[1]))
+    def pulse(self) -> TriangularPulse:
+        return triangular_pulse(PULSE_AMPLITUDE, PULSE_DURATION, np.ones(self.plant.disturbance_input.shape[1]))
 
 
 @dataclass
@@ -116,7 +120,7 @@ def setup(design, model: ModalModel, plant: ModalModel | None = None) -> StudySe
     high = np.array(np.broadcast_to(np.asarray(c.normal_force_max, dtype=float), (count,)))
     if not (c.study_duration > PULSE_DURATION):
         raise ModelError(f"control.study_duration: {c.study_duration!r} s — must exceed the pulse ({PULSE_DURATION} s)")
-    control.check_sample_time(model, c.sample_time)
+    check_sample_time(model, c.sample_time)
     return StudySetup(model, plant if plant is not None else model, [lugre.TABLE_1[j.type] for j in design.joints],
                       float(c.sample_time), low, high, float(c.study_duration), float(c.piezo_capacitance),
                       float(c.piezo_force_per_volt), float(c.piezo_preload))
@@ -134,32 +138,34 @@ def _piezo_power(s: StudySetup, normal_force: np.ndarray) -> float:
 
 def run_semi_active(s: StudySetup, name: str, controller) -> Run:
     """Any normal-force controller, F_N^max during the pulse (Section 6)."""
-    held = control.HoldDuringExcitation(controller, PULSE_DURATION, s.normal_force_max)
-    r = simulate.simulate(s.plant, s.laws, held, s.pulse(), s.duration, s.plant_step,
+    held = HoldDuringExcitation(controller, PULSE_DURATION, s.normal_force_max)
+    r = simulate(s.plant, s.laws, held, s.pulse(), s.duration, s.plant_step,
                           record_every=PLANT_STEPS_PER_SAMPLE, energy_books=False)
     return Run(name, r.time, r.energy, r.sensors, r.normal_force, r.friction_force, r.sliding_velocity,
                _piezo_power(s, r.normal_force), "piezo charging")
 
 
 def run_passive(s: StudySetup, name: str, normal_forces) -> Run:
-    return run_semi_active(s, name, simulate.ConstantNormalForce(np.asarray(normal_forces, dtype=float),
-                                                                 s.sample_time))
+    return run_semi_active(s, name, ConstantNormalForce(np.asarray(normal_forces, dtype=float), s.sample_time))
 
 
-def run_active(s: StudySetup, design: control.LqgDesign) -> Run:
-    """The fully active reference: u_d = −K·x̂ as forces on the linear model; mean mechanical
-    actuator power Σ|u_d·v| on the sample grid."""
+def run_active(s: StudySetup, design: LqgDesign) -> Run:
+    """The fully active reference: u_d = −K·x̂ as forces on the linear model (the plant's
+    frictionless ``linear`` scheme at the sample time, zero force during the pulse); mean
+    mechanical actuator power Σ|u_d·v| on the sample grid."""
     if s.plant is not s.model:
         raise ModelError("the active LQG reference runs on the design model only")
-    r = control.simulate_active(s.model, control.ActiveLqg(design), s.pulse(), s.duration, PULSE_DURATION)
-    power = float(np.sum(np.abs(r.force * r.sliding_velocity)[:-1]) * s.sample_time / s.duration)
-    return Run("active LQG", r.time, r.energy, r.sensors, np.full_like(r.force, np.nan), r.force,
+    controller = ActiveLqg(design, hold_until=PULSE_DURATION)
+    r = simulate(s.model, [], controller, s.pulse(), s.duration, s.sample_time, energy_books=False, scheme="linear")
+    force = r.friction_force  # the linear scheme records the joint forces acting: the actuators'
+    power = float(np.sum(np.abs(force * r.sliding_velocity)[:-1]) * s.sample_time / s.duration)
+    return Run("active LQG", r.time, r.energy, r.sensors, np.full_like(force, np.nan), force,
                r.sliding_velocity, power, "actuator mechanical")
 
 
-def siso(s: StudySetup, boundary_layer) -> control.SisoLaw:
+def siso(s: StudySetup, boundary_layer) -> SisoLaw:
     width = np.broadcast_to(np.asarray(boundary_layer, dtype=float), s.normal_force_min.shape)
-    return control.SisoLaw(s.sample_time, s.normal_force_min, s.normal_force_max, width)
+    return SisoLaw(s.sample_time, s.normal_force_min, s.normal_force_max, width)
 
 
 # ------------------------------------------------------------------------------- ε optimisation
@@ -228,7 +234,7 @@ def metrics(run: Run, reference: Run) -> dict:
 @dataclass
 class Study:
     setup: StudySetup
-    lqg: control.LqgDesign
+    lqg: LqgDesign
     boundary_layer: np.ndarray  # SISO ε per joint [m/s]
     optimum: BoundaryLayerOptimum | None  # None when ε came from the design file
     clqg_boundary_layer: float
@@ -258,9 +264,9 @@ class Study:
         }
 
 
-def lqg_for(design, model: ModalModel) -> control.LqgDesign:
+def lqg_for(design, model: ModalModel) -> LqgDesign:
     c = design.control
-    return control.design_lqg(model, c.sample_time, c.state_weight, c.control_weight, c.process_noise,
+    return design_lqg(model, c.sample_time, c.state_weight, c.control_weight, c.process_noise,
                               c.measurement_noise)
 
 
@@ -283,8 +289,7 @@ def run_study(design, model: ModalModel | None = None, progress=print) -> Study:
                        ("passive F_max", lambda: run_passive(s, "passive F_max", s.normal_force_max)),
                        ("SISO", lambda: run_semi_active(s, "SISO", siso(s, width))),
                        ("cLQG", lambda: run_semi_active(
-                           s, "cLQG", control.ClippedLqg(lqg, s.normal_force_min, s.normal_force_max,
-                                                         c.clqg_boundary_layer))),
+                           s, "cLQG", ClippedLqg(lqg, s.normal_force_min, s.normal_force_max, c.clqg_boundary_layer))),
                        ("active LQG", lambda: run_active(s, lqg))):
         progress(f"      {name}: {s.duration:g} s …")
         runs.append(make())

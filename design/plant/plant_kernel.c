@@ -1,10 +1,11 @@
-/* Fixed-step plant kernel of smartjoint.design.plant.simulate (compiled on first use through cffi).
+/* Fixed-step plant kernel of smartjoint.design.plant.fixed_step (compiled on first use through cffi).
  *
- * The same algorithm as simulate._PythonKernel, statement for statement, so that the two agree
+ * The same algorithm as fixed_step._PythonKernel, statement for statement, so that the two agree
  * to round-off (tests/test_simulate.py): exact first-order-hold modal step, implicit Newton
  * solve in the joint velocities with an analytic Jacobian, exponential bristle integrator,
  * recursive step halving where a falling Stribeck branch leaves no unique root, exact energy
- * books per step (simulate.work_coefficients) and recording.  The module docstring of simulate.py documents the scheme.
+ * books per step (discretisation.work_coefficients) and recording.  The module docstring of fixed_step.py
+ * documents the scheme; the structs are declared in plant_kernel.h.
  *
  * Layout (structure of arrays, so the per-mode loops vectorise): the state is x (2, n) with rows
  * eta_dot and omega*eta; ET (l, n) and HT (m, n) are the transposed input matrices; Vy and Dy
@@ -15,29 +16,12 @@
 #include <math.h>
 #include <string.h>
 
+#include "plant_kernel.h"
+
 #define SJ_TOLERANCE 1e-12
 #define SJ_ITERATIONS 30
 #define SJ_SERIES 1e-4
 #define SJ_MAX_DISTURBANCES 64
-
-typedef struct {
-    int n, l, m, ny, levels, books;    /* books: 0 leaves the work integrals alone (NaN) */
-    double step;
-    const double *phi, *g0, *g1, *G, *book;   /* discretisation and work integrals per level */
-    const double *ET, *HT, *Vy, *Dy, *two_xi_w;
-    const double *s0, *s1, *s2, *fc, *fd, *vs, *arm, *bound;
-    double *work;                      /* scratch: 5n + 7l + l*l doubles */
-} sj_plant;
-
-typedef struct {
-    double *x, *q, *v, *phi, *u, *fn;
-    double work_in, work_joints, work_damping;
-    double failed_step, failed_residual;            /* set when a solve fails */
-} sj_state;
-
-typedef struct {
-    double *v, *u, *fn, *phi, *sensors, *energy, *works;
-} sj_record;
 
 static double level_of(const sj_plant *p, int j, double v)
 {
@@ -75,7 +59,7 @@ static int all_zero(const double *a, int n)
     return 1;
 }
 
-/* Bristle step of joint j (simulate._Joints.advance) and d phi+ / d v_end. */
+/* Bristle step of joint j (joints.JointLaws.advance) and d phi+ / d v_end. */
 static double advance_bristle(const sj_plant *p, int j, double phi, double v_start, double v_end, double h,
                               double *derivative)
 {
@@ -150,7 +134,7 @@ static double solve_small(int l, double *J, double *r)
     return det;
 }
 
-/* Newton on R(v) = v - v_free + G u_R(v) (simulate._solve_joints). 0 on success. */
+/* Newton on R(v) = v - v_free + G u_R(v) (fixed_step._solve_joints). 0 on success. */
 static int solve_joints(const sj_plant *p, sj_state *s, const double *G, const double *v_free, double h,
                         double *v_new, double *phi_new, double *u_new, double *residual_out)
 {
@@ -237,7 +221,7 @@ static void free_response(const sj_plant *p, const sj_state *s, const double *Ph
     }
 }
 
-/* Books the exact work of the step (simulate.work_coefficients, _book) from the start state
+/* Books the exact work of the step (discretisation.work_coefficients, step_works) from the start state
  * x, the modal joint force q (start) and q_new (end) and, if disturbed, p = H w at both ends;
  * then x = x_free - gamma1 q_new and q = q_new.  Four partial sums per work (vectorisable). */
 static void book_and_update(const sj_plant *p, sj_state *s, const double *c, const double *b, const double *q_new_in,
@@ -416,28 +400,6 @@ long sj_run(const sj_plant *p, sj_state *s, const double *w, long steps, long k0
  * disturbances; Gv = Cv gamma1_d and
  * Gp = gamma1_d rows of phi (l, l), row-major.  The same statements as stick_exact._StickPython. */
 #define SJ_STICK_CORRECTION 1e-5  /* relative Newton correction that ends the slip-term solve */
-
-typedef struct {
-    const double *phi, *g0, *g1, *Gv, *Gp;
-} sj_stick_step;
-
-/* Three step lengths: level 0 the long step H, level 1 H/ratio[0], level 2 (the short step)
- * H/(ratio[0] ratio[1]); a level is tried where every joint is quiet for it (kappa, beta[level]). */
-typedef struct {
-    int N, Np, n2, l, m, ny;                  /* Np: N rounded up to a multiple of four */
-    int ratio[2];
-    double kappa, beta[2];
-    sj_stick_step level[3];
-    const double *Cv, *Cy;                    /* (l, n2), (ny, n2) */
-    const double *s0, *s1, *s2, *fc, *fd, *vs, *arm;
-    double *work;                             /* scratch: 2Np + 2N + 14l + l*l doubles */
-} sj_stick;
-
-typedef struct {
-    double *z, *d, *v, *u, *fn;
-    long steps[3];                            /* steps taken per level */
-    double failed_step, failed_residual;
-} sj_stick_state;
 
 /* out[:n] (+)= sum_c M[c, :n] y_c for M stored as `columns` rows of `stride` (a transposed matrix,
  * rows padded to a multiple of four so that the loop vectorises without a remainder). */

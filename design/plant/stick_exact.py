@@ -33,9 +33,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.linalg
 
 from smartjoint.common.errors import ModelError
+from smartjoint.design.plant.discretisation import first_order_hold
+from smartjoint.design.plant.joints import JointLaws
+from smartjoint.design.plant.kernel import PlantRun, Recorder, State, native_module
 
 KAPPA = 0.05  # ρ·h below which a joint counts as stuck for a step h
 BETA = (0.3, 0.5)  # |u_R| / break-away force below which it does, for the long and the medium step
@@ -61,6 +63,10 @@ class _StickPlant:
         A, B, H, Cv, Cy = model.state_space()
         self.A, self.B, self.H = A, B, H
         self.Cv, self.Cy = np.ascontiguousarray(Cv), np.ascontiguousarray(Cy)
+        # the loop's view of the state (x as [η̇; ωη] rows, as the fixed-step scheme keeps it)
+        self.ET = np.ascontiguousarray(model.joint_input.T, dtype=float)
+        self.Vy = np.ascontiguousarray(model.velocity_output, dtype=float)
+        self.Dy = np.ascontiguousarray(model.displacement_output / model.omega, dtype=float)
         self.n2, self.l, self.m = A.shape[0], B.shape[1], H.shape[1]
         self.N = self.n2 + self.l
         self.padded = -(-self.N // 4) * 4
@@ -93,12 +99,9 @@ class _StickPlant:
         return self._cache[key]
 
     def _discretise(self, M, inputs, h) -> dict:
-        N, q, l, n2 = self.N, inputs.shape[1], self.l, self.n2
-        augmented = np.zeros((N + 2 * q, N + 2 * q))
-        augmented[:N, :N], augmented[:N, N:N + q], augmented[N:N + q, N + q:] = M * h, inputs * h, np.eye(q)
-        ex = scipy.linalg.expm(augmented)
-        gamma_b = ex[:N, N + q:]
-        out = {"phi": ex[:N, :N], "g0": ex[:N, N:N + q] - gamma_b, "g1": gamma_b}
+        N, l, n2 = self.N, self.l, self.n2
+        phi, gamma0, gamma_b = first_order_hold(M, inputs, h)
+        out = {"phi": phi, "g0": gamma0, "g1": gamma_b}
         out["Gv"] = self.Cv @ gamma_b[:n2, :l]
         out["Gp"] = gamma_b[n2:, :l]
         out = {k: np.ascontiguousarray(v) for k, v in out.items()}
@@ -121,8 +124,9 @@ class _StickPython:
 
     name = "python"
 
-    def __init__(self, plant: _StickPlant, state, recorder):
+    def __init__(self, plant: _StickPlant, state: State, recorder: Recorder):
         self.p, self.s, self.r = plant, state, recorder
+        self.recorder = recorder
         self.z = np.zeros(plant.N)
         self.z[:plant.n2] = np.column_stack([state.x[0], state.x[1]]).reshape(-1)
         self.d = np.zeros(plant.l)
@@ -143,6 +147,9 @@ class _StickPython:
         n2 = self.p.n2
         self.s.x[0], self.s.x[1] = self.z[0:n2:2], self.z[1:n2:2]
         self.s.phi[:] = self.z[n2:]
+
+    def measure(self, time: float):
+        return self.s.measure(time, self.p.Vy, self.p.Dy)
 
     def set_normal_force(self, normal_force):
         self.s.fn[:] = normal_force
@@ -239,15 +246,12 @@ class _StickC:
 
     name = "c"
 
-    def __init__(self, plant: _StickPlant, state, recorder):
-        from smartjoint.common import package_data
-        from smartjoint.common import native
-        from smartjoint.design.plant.simulate import _CKernel
-
-        module = native.load("plant", _CKernel.DECLARATIONS, package_data.path("smartjoint.design.plant", "plant_kernel.c"))
+    def __init__(self, plant: _StickPlant, state: State, recorder: Recorder):
+        module = native_module()
         self.ffi, self.lib = ffi, lib = module.ffi, module.lib
         self.mirror = _StickPython(plant, state, recorder)  # holds z, d and the discretisations
         self.p, self.s, self.r = plant, state, recorder
+        self.recorder = recorder
         self._keep = []
 
         def ptr(array):
@@ -280,6 +284,9 @@ class _StickC:
         for name, key in (("phi", "phiT"), ("g0", "g0T"), ("g1", "g1T"), ("Gv", "Gv"), ("Gp", "Gp")):
             setattr(target, name, self.ffi.cast("double *", self.ffi.from_buffer(k[key])))
 
+    def measure(self, time: float):
+        return self.mirror.measure(time)
+
     def set_normal_force(self, normal_force):
         self.mirror.set_normal_force(normal_force)  # the discretisations (numpy, cached) and u_R
         for level, discretisation in enumerate(self.mirror.levels):
@@ -307,8 +314,17 @@ class _StickC:
 _C_FAILURE: list[str] = []
 
 
-def check(model, step: float, stick_step, controller, record_every: int, energy_books: bool, duration: float) -> None:
-    """The stick-exact run's own conditions, each a named error."""
+def check(run: PlantRun) -> None:
+    """The stick-exact run's own conditions, each a named error.
+
+
+    Parameters
+    ----------
+    run : PlantRun
+        The run as ``loop.simulate`` received it.
+    """
+    model, step, stick_step, controller = run.model, run.step, run.stick_step, run.controller
+    record_every, energy_books, duration = run.record_every, run.energy_books, run.duration
     if not (isinstance(stick_step, (int, float)) and math.isfinite(stick_step) and stick_step >= step):
         raise ModelError(f"stick_step: {stick_step!r} — must be a step length >= step ({step!r} s)")
     ratio = stick_step / step
@@ -334,12 +350,32 @@ def check(model, step: float, stick_step, controller, record_every: int, energy_
                          f"most {MAX_STATES} (a reduced model); leave stick_step out for the full model")
 
 
-def kernel(backend: str, model, law, step: float, stick_step: float, state, recorder):
+def kernel(run: PlantRun):
+    """The kernel of a stick-exact run: ``sj_stick_run`` of plant_kernel.c (backend "c"), its
+    numpy mirror ("python") or the C where it builds ("auto").
+
+
+    Parameters
+    ----------
+    run : PlantRun
+        The run as ``loop.simulate`` received it.
+
+    Returns
+    -------
+    Kernel
+        The C or the Python kernel; ``counts`` the steps taken per length.
+    """
     from smartjoint.common import native
 
-    plant = _StickPlant(model, law, step, stick_step)
-    return native.choose(backend, "stick-exact simulation", lambda: _StickC(plant, state, recorder),
+    plant = _StickPlant(run.model, JointLaws(run.joints), run.step, float(run.stick_step))
+    state = State(plant.ET, run.initial_state)
+    recorder = Recorder(run.rows, plant.l, plant.Cy.shape[0])
+    return native.choose(run.backend, "stick-exact simulation", lambda: _StickC(plant, state, recorder),
                          lambda: _StickPython(plant, state, recorder), _C_FAILURE)
 
 
-__all__ = ["BETA", "KAPPA", "MAX_STATES", "check", "kernel"]
+FRICTION = True  # LuGre joints; the controller commands normal forces
+COMPACT_DISTURBANCE = True
+
+
+__all__ = ["BETA", "KAPPA", "MAX_STATES", "COMPACT_DISTURBANCE", "FRICTION", "check", "kernel"]

@@ -1,0 +1,179 @@
+"""The LQG controllers of paper Section 5.2 at run time: the Kalman filter of Eq. 33 and the
+two ways of using its desired forces.
+
+* ``ClippedLqg`` — Eq. 33–34: a Kalman filter on the tip sensors with the measured friction
+  forces as known input, the LQR forces u_d = −K·x̂ and the clipped normal-force law.
+* ``ActiveLqg`` — the fully active reference: the same LQG, u_d applied directly as forces (run
+  it on the plant's frictionless ``linear`` scheme).
+
+Both are executable specifications of the generated C (``ordered_product``: its summation order).
+The gains come from ``lqg.design_lqg``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from smartjoint.common.errors import ModelError
+from smartjoint.design.control.laws import (STATUS_ESTIMATE_RESET, STATUS_OK, any_status, boundary_layer,
+                                            check_limits, input_status, magnitude_limit, measured_range,
+                                            safe_force)
+from smartjoint.design.control.lqg import LqgDesign
+from smartjoint.design.plant.interface import Measurements
+
+
+class _Lqg:
+    """Shared Kalman filter of ``ClippedLqg`` and ``ActiveLqg``. At sample k::
+
+        x̂⁻ = Φ·x̂_k−1 − Γ0·E·u_k−1 − Γ1·E·u_k    (time update, first-order hold on the
+                                                 applied joint forces; skipped at k = 0: x̂⁻ = 0)
+        x̂_k = x̂⁻ + M·(y_k − C·x̂⁻)               (measurement update)
+        u_d = −K·x̂_k                             (Eq. 33)
+
+    u is the joint force that acts on the structure: the measured friction force for the
+    clipped controller, the previous command for the active one."""
+
+    def __init__(self, design: LqgDesign):
+        self.design = design
+        self.sample_time = design.sample_time
+        self.reset()
+
+    def reset(self) -> None:
+        n2 = self.design.output.shape[1]
+        self.estimate = np.zeros(n2)
+        self.previous_force = np.zeros(self.design.joint_input.shape[1])
+        self.started = False
+
+    def _time_update(self, force: np.ndarray) -> np.ndarray:
+        d = self.design
+        n = d.blocks.shape[0]
+        x = self.estimate.reshape(n, 2)
+        if not self.started:
+            return np.zeros(2 * n)
+        start, end = ordered_product(d.joint_input, self.previous_force), ordered_product(d.joint_input, force)
+        b = d.blocks
+        out = np.empty((n, 2))
+        out[:, 0] = (b[:, 0, 0] * x[:, 0] + b[:, 0, 1] * x[:, 1]) - d.gamma0[:, 0] * start - d.gamma1[:, 0] * end
+        out[:, 1] = (b[:, 1, 0] * x[:, 0] + b[:, 1, 1] * x[:, 1]) - d.gamma0[:, 1] * start - d.gamma1[:, 1] * end
+        return out.reshape(2 * n)
+
+    def _estimate(self, sensors: np.ndarray, force: np.ndarray) -> np.ndarray:
+        d = self.design
+        prior = self._time_update(force)
+        # Before the first sample the prediction is 0 (not C·0, whose zeros may carry a sign).
+        predicted = ordered_product(d.output, prior) if self.started else np.zeros(d.output.shape[0])
+        innovation = np.asarray(sensors, dtype=float) - predicted
+        self.estimate = prior + ordered_product(d.estimator_gain, innovation)
+        self.started = True
+        return -ordered_product(d.feedback_gain, self.estimate)
+
+
+def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """matrix @ vector summed strictly left to right over the columns, starting with the first
+    product — the order of the generated C, so the double build reproduces this reference bit
+    for bit (BLAS sums in blocks and with FMA, which differs in the last bits)."""
+    total = matrix[:, 0] * vector[0]
+    for k in range(1, matrix.shape[1]):
+        total = total + matrix[:, k] * vector[k]
+    return total
+
+
+class ClippedLqg(_Lqg):
+    """Clipped-optimal LQG, Eq. 33–34. Reading of Eq. 34, with e_j = u_d,j − u_R,j::
+
+        F_N,j = F_N^min + (F_N^max − F_N^min)·clip(e_j·sgn(u_R,j) / ε, 0, 1)
+
+    The paper's F^min + F^max·H[e_j·u_R,j] would exceed the stated bound F^max; scaling by
+    (F^max − F^min) keeps F^min ≤ F_N ≤ F^max. H[e·u_R] has the sign of e·sgn(u_R), so the
+    boundary layer is laid over that quantity and ε is a force [N]: the normal force rises when
+    the friction force is smaller than the desired force in the same direction and falls to
+    F^min when it is larger or opposes it. u_R,j = 0 counts as sgn = 0 (F^min: nothing to steer).
+
+    Faults (``status``): a measurement that is NaN/±Inf (``STATUS_INPUT_INVALID``) or a number
+    outside its plausible range (``STATUS_INPUT_IMPLAUSIBLE``; plausible are |y_r| <=
+    sensor_limit, |u_R,j| <= friction_force_limit and measured_normal_force_min <= F_N,j <=
+    measured_normal_force_max, limits included) → every joint at ``safe_normal_force``, u_d = 0,
+    and the filter restarts; an estimate or desired force that is no longer finite → the same with
+    ``STATUS_ESTIMATE_RESET``. Without the safety arguments: safe force F_N^max, no ranges
+    beyond finiteness (``clipped_lqg`` of ``design/control/artifact.py`` passes the artefact's).
+    """
+
+    def __init__(self, design: LqgDesign, normal_force_min, normal_force_max, boundary_layer_width: float, *,
+                 safe_normal_force=None, sensor_limit=None, friction_force_limit=None,
+                 measured_normal_force_min=None, measured_normal_force_max=None):
+        super().__init__(design)
+        self.normal_force_min = np.array(normal_force_min, dtype=float)
+        self.normal_force_max = np.array(normal_force_max, dtype=float)
+        check_limits(self.normal_force_min, self.normal_force_max)
+        count = design.joint_input.shape[1]
+        if self.normal_force_min.size != count:
+            raise ModelError(f"normal_force_min: {self.normal_force_min.size} values for {count} joints")
+        if not (math.isfinite(boundary_layer_width) and boundary_layer_width > 0):
+            raise ModelError(f"clqg_boundary_layer: {boundary_layer_width!r} — must be finite and > 0 [N]")
+        self.boundary_layer = float(boundary_layer_width)
+        self.normal_force_range = self.normal_force_max - self.normal_force_min
+        self.desired_force = np.zeros(self.normal_force_min.size)
+        self.safe_normal_force = safe_force(safe_normal_force, self.normal_force_min, self.normal_force_max)
+        self.sensor_limit = magnitude_limit("sensor_limit", sensor_limit, design.output.shape[0])
+        self.friction_force_limit = magnitude_limit("friction_force_limit", friction_force_limit, count)
+        self.measured_normal_force_min, self.measured_normal_force_max = measured_range(
+            measured_normal_force_min, measured_normal_force_max, count)
+
+    def reset(self) -> None:
+        super().reset()
+        self.desired_force = np.zeros(self.design.joint_input.shape[1])
+        self.status = STATUS_OK
+
+    def _fault(self, status: int) -> np.ndarray:
+        self.reset()
+        self.status = status
+        return self.safe_normal_force.copy()
+
+    def step(self, measurements: Measurements) -> np.ndarray:
+        sensors = np.asarray(measurements.sensors, dtype=float)
+        friction = np.asarray(measurements.friction_force, dtype=float)
+        applied = np.asarray(measurements.normal_force, dtype=float)
+        status = any_status(input_status(sensors, -self.sensor_limit, self.sensor_limit),
+                             input_status(friction, -self.friction_force_limit, self.friction_force_limit),
+                             input_status(applied, self.measured_normal_force_min, self.measured_normal_force_max))
+        if status != STATUS_OK:
+            return self._fault(status)
+        with np.errstate(all="ignore"):
+            self.desired_force = self._estimate(sensors, friction)
+        if not (np.all(np.isfinite(self.estimate)) and np.all(np.isfinite(self.desired_force))):
+            return self._fault(STATUS_ESTIMATE_RESET)
+        self.status = STATUS_OK
+        error = self.desired_force - friction
+        normal_force = self.normal_force_min + self.normal_force_range * boundary_layer(
+            error * np.sign(friction), self.boundary_layer)
+        # The friction force just after this sample: u_R = F_N·μ with μ continuous, so it scales
+        # with the new normal force — the start value of the next time update's first-order hold.
+        self.previous_force = np.where(applied > 0.0, friction * normal_force / np.where(applied > 0.0, applied, 1.0),
+                                       friction)
+        return normal_force
+
+
+class ActiveLqg(_Lqg):
+    """The fully active reference: u_d = −K·x̂ applied directly as joint forces (zero-order hold).
+
+    ``step`` returns the forces; run it on the plant's frictionless ``linear`` scheme. While
+    the excitation acts (t < ``hold_until``) the actuators hold zero force — the semi-active
+    runs hold F_N^max then, which the active system has no analogue of; the filter keeps
+    running, and the force it is told was applied (its ``previous_force``) is the zero held.
+    """
+
+    def __init__(self, design: LqgDesign, hold_until: float = 0.0):
+        super().__init__(design)
+        self.hold_until = float(hold_until)
+
+    def step(self, measurements: Measurements) -> np.ndarray:
+        command = self._estimate(measurements.sensors, self.previous_force)
+        if measurements.time < self.hold_until - 1e-12:
+            command = np.zeros(command.size)
+        self.previous_force = command.copy()
+        return command
+
+
+__all__ = ["ActiveLqg", "ClippedLqg", "ordered_product"]
