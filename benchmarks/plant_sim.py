@@ -39,9 +39,9 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from smartjoint.design.structure import fem, modal, spec
-from smartjoint.design.reduction import krylov as reduction
+from smartjoint.design import reduction
 from smartjoint.design.plant import simulate
-from smartjoint.studies import joint_laws
+from smartjoint.design.friction.lugre import joint_laws
 
 DESIGN = Path(__file__).resolve().parents[1] / "design" / "data" / "three_type_a.toml"
 DURATION = 10.0

@@ -226,10 +226,45 @@ def _plots(args, out: dict, draw) -> None:
         out["plots"] = [str(p) for p in draw(folder)]
 
 
+def parse_normal_forces(text: str, design):
+    """``--normal-force "400,0,0"`` → one F_N per joint, in the design's joint order.
+
+    Parameters
+    ----------
+    text : str
+        Comma-separated normal forces [N].
+    design : Design
+        The design whose joints the values are for.
+
+    Returns
+    -------
+    ndarray
+        One finite F_N ≥ 0 per joint.
+
+    Raises
+    ------
+    ModelError
+        For values that are no numbers, of the wrong count, not finite or negative.
+    """
+    import numpy as np
+
+    from smartjoint.common.errors import ModelError
+
+    try:
+        values = np.array([float(v) for v in text.split(",")], dtype=float)
+    except ValueError:
+        raise ModelError(f"--normal-force: {text!r} — expected comma-separated numbers [N], one per joint") from None
+    if values.size != len(design.joints) or not np.all(np.isfinite(values)) or np.any(values < 0):
+        raise ModelError(f"--normal-force: {text!r} — need {len(design.joints)} finite values >= 0 "
+                         f"(joints {', '.join(j.name for j in design.joints)})")
+    return values
+
+
 def cmd_reduce(args) -> dict:
     import numpy as np
 
-    from smartjoint.studies import parse_normal_forces, plot_study, reduction_study, study_summary
+    from smartjoint.design.reduction import reduction_study, study_summary
+    from smartjoint.report_reduction import plot_study
 
     design, _ = _updated(args)
     forces = parse_normal_forces(args.normal_force, design) if args.normal_force else \
@@ -251,7 +286,7 @@ def cmd_reduce(args) -> dict:
     out = study_summary(study)
     _plots(args, out, lambda folder: plot_study(study, folder))
     if not args.json:
-        from smartjoint.studies import study_markdown
+        from smartjoint.report_reduction import study_markdown
         print(study_markdown(study))
     return out
 
@@ -261,9 +296,9 @@ def cmd_simulate(args) -> dict:
 
     from smartjoint.design import build_model
     from smartjoint.design.structure import modal
-    from smartjoint.design.reduction import krylov as reduction
+    from smartjoint.design import reduction
     from smartjoint.design.plant import simulate
-    from smartjoint.studies import joint_laws, parse_normal_forces
+    from smartjoint.design.friction.lugre import joint_laws
 
     design, _ = _updated(args)
     forces = parse_normal_forces(args.normal_force, design)
@@ -327,7 +362,7 @@ def _control_design(args, *, firmware_names: bool = False):
 
 
 def cmd_study(args) -> dict:
-    from smartjoint.control_study import control_markdown, plot_control_study
+    from smartjoint.report_control import control_markdown, plot_control_study
     from smartjoint.design.control import study as closed_loop
 
     design = _control_design(args)

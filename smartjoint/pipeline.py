@@ -31,7 +31,7 @@ from smartjoint import report as plots
 from smartjoint.bench import busload, safety, sil
 from smartjoint.design.network import protocol
 from smartjoint.codegen import backtoback, can_layer, generate, identifiers
-from smartjoint.control_study import control_markdown, plot_control_study
+from smartjoint.report_control import control_markdown, plot_control_study
 from smartjoint.design.control import artifact
 from smartjoint.design import build_model, load_design, solve_modes, updated_design
 from smartjoint.design.friction import lugre, rig
@@ -39,7 +39,8 @@ from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction.identify import classify, identify
 from smartjoint.design.structure.spec import REFERENCE_DESIGN
 from smartjoint.report_folder import ReportFolder, iso, new_run_id, utc_now
-from smartjoint.studies import plot_study, reduction_study, study_markdown, study_summary
+from smartjoint.design.reduction import reduction_study, study_summary
+from smartjoint.report_reduction import plot_study, study_markdown
 
 FIG10_DESIGN = REFERENCE_DESIGN.parent / "fig10_three_joints.toml"
 CONTROL_DESIGN = REFERENCE_DESIGN.parent / "three_type_a.toml"  # Fig. 11: three type A joints

@@ -19,7 +19,7 @@ from scipy.optimize import minimize_scalar
 from smartjoint.design.control import laws as control
 from smartjoint.design.friction import lugre
 from smartjoint.design.structure import modal
-from smartjoint.design.reduction import krylov as reduction
+from smartjoint.design import reduction
 from smartjoint.design.plant import simulate
 from smartjoint.common.errors import ModelError
 from smartjoint.design.structure.fem import build_model

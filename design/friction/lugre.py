@@ -74,6 +74,22 @@ CANUDAS_1995 = LuGreParameters(sigma0=1e5, sigma1=math.sqrt(1e5), sigma2=0.4, co
                                stribeck_velocity=1e-3)
 
 
+def joint_laws(design) -> list[LuGreParameters]:
+    """LuGre parameters per joint of a design: paper Table 1 by joint type.
+
+    Parameters
+    ----------
+    design : Design
+        The design whose ``joints`` are read in order.
+
+    Returns
+    -------
+    list of LuGreParameters
+        ``TABLE_1[joint.type]`` for each joint (read at call time, so a changed table counts).
+    """
+    return [TABLE_1[j.type] for j in design.joints]
+
+
 def stribeck_level(p: LuGreParameters, velocity):
     """F_c + F_d·exp(−(v/v_s)²): the steady sliding friction coefficient without viscous part."""
     return p.coulomb + p.stribeck * np.exp(-(np.asarray(velocity, dtype=float) / p.stribeck_velocity) ** 2)
