@@ -7,7 +7,8 @@ Kept apart as in pyMOR: ``spec`` (the design file), ``beam``/``fem`` (the model)
 from smartjoint.common.errors import DesignError, ModelError, SmartjointError
 from smartjoint.design.structure.fem import FEModel, build_model
 from smartjoint.design.structure.modal import Modes, solve_modes
-from smartjoint.design.structure.spec import REFERENCE_DESIGN, Design, load_design, parse_design
+from smartjoint.design.structure.description import Design
+from smartjoint.design.structure.spec import REFERENCE_DESIGN, load_design, parse_design
 from smartjoint.design.structure.updating import UpdatingResult, update_model, updated_design
 
 __all__ = [
