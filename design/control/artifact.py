@@ -38,7 +38,12 @@ from smartjoint.design.control.laws import ActiveLqg, ClippedLqg, LqgDesign, Sis
 
 
 def installed_version() -> str:
-    """The installed smartjoint version, "unknown" when running from an uninstalled tree."""
+    """The installed smartjoint version, "unknown" when running from an uninstalled tree.
+
+    Returns
+    -------
+    str
+    """
     try:
         return importlib.metadata.version("smartjoint")
     except importlib.metadata.PackageNotFoundError:
@@ -123,8 +128,23 @@ def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> Cont
     """The artefact of ``design`` with the LQG ``lqg`` designed on the reduced modal ``model``.
 
     Controlled joints: ``design.control.joints`` in that order, else every joint of the design;
-    the model's joint/sensor order must be that order. ``siso_boundary_layer`` (ε of Eq. 30,
-    m/s, a number or one per joint) defaults to ``design.control.siso_boundary_layer``.
+    the model's joint/sensor order must be that order.
+
+    Parameters
+    ----------
+    design : Design
+        The design (limits, piezo calibration, [safety]).
+    model : ModalModel
+        The reduced modal model the LQG was designed on.
+    lqg : LqgDesign
+        The discrete LQG (Eq. 33).
+    siso_boundary_layer : float or sequence of float, optional
+        ε of Eq. 30 [m/s], a number or one per joint; default ``design.control.siso_boundary_layer``.
+
+    Returns
+    -------
+    ControllerArtifact
+        Validated.
     """
     control = design.control
     joints = tuple(control.joints) if control.joints is not None else tuple(j.name for j in design.joints)
@@ -170,7 +190,20 @@ DISPLACEMENT_FRACTION = 0.05  # default displacement plausibility: 5 % of the tr
 
 
 def safety_fields(design, joints: tuple[str, ...]) -> dict:
-    """The artefact's safe state and plausibility ranges from the design's ``[safety]``."""
+    """The artefact's safe state and plausibility ranges from the design's ``[safety]``.
+
+    Parameters
+    ----------
+    design : Design
+        The design.
+    joints : tuple of str
+        The controlled joints, in artefact order.
+
+    Returns
+    -------
+    dict
+        The safety fields of the schema.
+    """
     control, safety = design.control, design.safety
     low = _per_joint("normal_force_min", control.normal_force_min, joints)
     high = _per_joint("normal_force_max", control.normal_force_max, joints)
@@ -216,7 +249,18 @@ def _encode(value, indent: str) -> str:
 
 
 def dumps(artifact: ControllerArtifact) -> str:
-    """Canonical JSON text (see the module docstring): same artefact, same bytes."""
+    """Canonical JSON text (see the module docstring): same artefact, same bytes.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The artefact.
+
+    Returns
+    -------
+    str
+        ASCII text ending in a newline.
+    """
     data = {}
     for spec in SCHEMA:
         value = getattr(artifact, spec.name)
@@ -226,7 +270,20 @@ def dumps(artifact: ControllerArtifact) -> str:
 
 def save(artifact: ControllerArtifact, path) -> Path:
     """Write ``dumps(artifact)`` atomically: a temporary file in the same folder, then
-    ``os.replace`` — ``path`` holds either the old or the new complete text, never a part."""
+    ``os.replace`` — ``path`` holds either the old or the new complete text, never a part.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The artefact.
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     path = Path(path)
     text = dumps(artifact)
     temporary = None
@@ -255,7 +312,17 @@ def _object(pairs):
 
 
 def loads(text: str) -> ControllerArtifact:
-    """Parse and validate an artefact; every problem is a ModelError naming the field."""
+    """Parse and validate an artefact; every problem is a ModelError naming the field.
+
+    Parameters
+    ----------
+    text : str
+        The JSON text.
+
+    Returns
+    -------
+    ControllerArtifact
+    """
     try:
         data = json.loads(text, object_pairs_hook=_object)
     except json.JSONDecodeError as error:
@@ -278,7 +345,22 @@ def loads(text: str) -> ControllerArtifact:
 
 
 def load(path) -> ControllerArtifact:
-    """Read and validate an artefact file; errors are prefixed with the path."""
+    """Read and validate an artefact file; errors are prefixed with the path.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    ControllerArtifact
+
+    Examples
+    --------
+    >>> controller = load("controller.json")  # doctest: +SKIP
+    >>> law = siso_law(controller)  # doctest: +SKIP
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -294,7 +376,17 @@ def load(path) -> ControllerArtifact:
 # --------------------------------------------------------------------------- reference controllers
 def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
     """The ``LqgDesign`` of the artefact. The Riccati solutions are not stored: they are NaN
-    arrays of the right shape (the controllers and ``closed_loop_poles`` never read them)."""
+    arrays of the right shape (the controllers and ``closed_loop_poles`` never read them).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The artefact.
+
+    Returns
+    -------
+    LqgDesign
+    """
     n2 = artifact.output.shape[1]
     unknown = np.full((n2, n2), np.nan)
     return LqgDesign(artifact.sample_time, artifact.blocks, artifact.gamma0, artifact.gamma1, artifact.joint_input,
@@ -303,7 +395,17 @@ def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
 
 def siso_law(artifact: ControllerArtifact) -> SisoLaw:
     """The local Lyapunov law of Eq. 30 with μ of Eq. 31, per joint, with the artefact's safe
-    normal force and plausibility ranges (what the generated C checks)."""
+    normal force and plausibility ranges (what the generated C checks).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The artefact.
+
+    Returns
+    -------
+    SisoLaw
+    """
     return SisoLaw(artifact.sample_time, artifact.normal_force_min, artifact.normal_force_max,
                    artifact.siso_boundary_layer, safe_normal_force=artifact.safe_normal_force,
                    sliding_velocity_limit=artifact.sliding_velocity_limit,
@@ -314,7 +416,17 @@ def siso_law(artifact: ControllerArtifact) -> SisoLaw:
 
 def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
     """The clipped-optimal LQG of Eq. 33–34, with the artefact's safe normal force and
-    plausibility ranges (what the generated C checks)."""
+    plausibility ranges (what the generated C checks).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The artefact.
+
+    Returns
+    -------
+    ClippedLqg
+    """
     return ClippedLqg(lqg_design(artifact), artifact.normal_force_min, artifact.normal_force_max,
                       artifact.clqg_boundary_layer, safe_normal_force=artifact.safe_normal_force,
                       sensor_limit=artifact.sensor_limit, friction_force_limit=artifact.friction_force_limit,
@@ -323,7 +435,17 @@ def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
 
 
 def active_lqg(artifact: ControllerArtifact) -> ActiveLqg:
-    """The fully active LQG reference (u_d = −K·x̂ of Eq. 33 applied as forces)."""
+    """The fully active LQG reference (u_d = −K·x̂ of Eq. 33 applied as forces).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The artefact.
+
+    Returns
+    -------
+    ActiveLqg
+    """
     return ActiveLqg(lqg_design(artifact))
 
 

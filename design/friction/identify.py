@@ -62,11 +62,25 @@ MIN_SAMPLES = 50
 
 
 def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, initial_force: float = 0.0):
-    """û_R at the sample times for a measured velocity (midpoint exact-exponential step).
+    """û_R at the sample times for a measured velocity (midpoint exact-exponential step, Eq. 1–2).
 
     The same step as ``lugre.step`` and ``lugre.friction_coefficient``, written out on Python
     floats: the fit calls this for every sample thousands of times, and numpy's per-call
     overhead on scalars would cost about 10×.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters.
+    time, velocity, normal_force : ndarray
+        The measured series (SI).
+    initial_force : float
+        The friction force at the first sample, for a consistent start deflection.
+
+    Returns
+    -------
+    ndarray
+        û_R per sample.
     """
     s0, s1, s2 = p.sigma0, p.sigma1, p.sigma2
     fc, fd, vs = p.coulomb, p.stribeck, p.stribeck_velocity
@@ -190,7 +204,22 @@ def _check_plausible(values: dict[str, float], joint_type: str, stage: str) -> N
 
 
 def model_friction(p: lugre.LuGreParameters, record: Record, velocity) -> np.ndarray:
-    """û_R of Eq. 3 for a record, from the (possibly filtered) measured ``velocity``."""
+    """û_R of Eq. 3 for a record, from the (possibly filtered) measured ``velocity``.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters.
+    record : Record
+        The record (time, normal force, first friction force).
+    velocity : ndarray
+        The velocity fed to the model.
+
+    Returns
+    -------
+    ndarray
+        û_R per sample.
+    """
     return simulate_friction(p, record.time, velocity, record.normal_force, record.friction_force[0])
 
 
@@ -401,7 +430,19 @@ def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_erro
 
 
 def slides(record: Record, radius: float | None = None) -> bool:
-    """Gross sliding: the element moves by far more than any bristle deflection μ/σ0 could."""
+    """Gross sliding: the element moves by far more than any bristle deflection μ/σ0 could.
+
+    Parameters
+    ----------
+    record : Record
+        The record.
+    radius : float, optional
+        [m] for a type B record without one.
+
+    Returns
+    -------
+    bool
+    """
     arm = 1.0 if record.joint_type == "A" else (radius if radius is not None else record.moment_arm)
     mu = np.abs(record.friction_force / (arm * record.normal_force))
     displacement = np.ptp(np.cumsum(record.sliding_velocity) * record.sample_time)
@@ -410,7 +451,19 @@ def slides(record: Record, radius: float | None = None) -> bool:
 
 
 def classify(record: Record, radius: float | None = None) -> str:
-    """'stick-slip' or 'micro-slip': the record's ``regime`` metadata, else whether it slides."""
+    """'stick-slip' or 'micro-slip': the record's ``regime`` metadata, else whether it slides.
+
+    Parameters
+    ----------
+    record : Record
+        The record.
+    radius : float, optional
+        [m] for a type B record without one.
+
+    Returns
+    -------
+    str
+    """
     if "regime" in record.metadata:
         return record.metadata["regime"]
     return "stick-slip" if slides(record, radius) else "micro-slip"

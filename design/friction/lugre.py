@@ -91,22 +91,76 @@ def joint_laws(design) -> list[LuGreParameters]:
 
 
 def stribeck_level(p: LuGreParameters, velocity):
-    """F_c + F_d·exp(−(v/v_s)²): the steady sliding friction coefficient without viscous part."""
+    """F_c + F_d·exp(−(v/v_s)²): the steady sliding friction coefficient without viscous part.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters (per unit normal force).
+    velocity : float or ndarray
+        Sliding velocity v [m/s] (type B: [rad/s]).
+
+    Returns
+    -------
+    float or ndarray
+    """
     return p.coulomb + p.stribeck * np.exp(-(np.asarray(velocity, dtype=float) / p.stribeck_velocity) ** 2)
 
 
 def g(p: LuGreParameters, velocity):
-    """g(v) of Eq. 1 [1/s per unit φ·σ0]: |v| / (F_c + F_d·exp(−(v/v_s)²))."""
+    """g(v) of Eq. 1 [1/s per unit φ·σ0]: |v| / (F_c + F_d·exp(−(v/v_s)²)).
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters (per unit normal force).
+    velocity : float or ndarray
+        Sliding velocity v [m/s] (type B: [rad/s]).
+
+    Returns
+    -------
+    float or ndarray
+    """
     return np.abs(velocity) / stribeck_level(p, velocity)
 
 
 def rhs(p: LuGreParameters, velocity, deflection):
-    """φ̇ = f(v, φ) of Eq. 1."""
+    """φ̇ = f(v, φ) of Eq. 1.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters (per unit normal force).
+    velocity : float or ndarray
+        Sliding velocity v [m/s] (type B: [rad/s]).
+    deflection : float or ndarray
+        Bristle deflection φ [m] (type B: [rad]).
+
+    Returns
+    -------
+    float or ndarray
+        φ̇.
+    """
     return velocity - p.sigma0 * g(p, velocity) * deflection
 
 
 def rhs_jacobian(p: LuGreParameters, velocity, deflection):
-    """Analytic partial derivatives (∂f/∂φ, ∂f/∂v) of Eq. 1."""
+    """Analytic partial derivatives (∂f/∂φ, ∂f/∂v) of Eq. 1.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters (per unit normal force).
+    velocity : float or ndarray
+        Sliding velocity v [m/s] (type B: [rad/s]).
+    deflection : float or ndarray
+        Bristle deflection φ [m] (type B: [rad]).
+
+    Returns
+    -------
+    tuple
+        (∂f/∂φ, ∂f/∂v).
+    """
     v = np.asarray(velocity, dtype=float)
     level = stribeck_level(p, v)
     d_level = -2.0 * v / p.stribeck_velocity**2 * (level - p.coulomb)
@@ -115,22 +169,80 @@ def rhs_jacobian(p: LuGreParameters, velocity, deflection):
 
 
 def friction_coefficient(p: LuGreParameters, velocity, deflection):
-    """μ(v, φ) = σ0·φ + σ1·φ̇ + σ2·v of Eq. 2."""
+    """μ(v, φ) = σ0·φ + σ1·φ̇ + σ2·v of Eq. 2.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters (per unit normal force).
+    velocity : float or ndarray
+        Sliding velocity v [m/s] (type B: [rad/s]).
+    deflection : float or ndarray
+        Bristle deflection φ [m] (type B: [rad]).
+
+    Returns
+    -------
+    float or ndarray
+        μ.
+    """
     return p.sigma0 * deflection + p.sigma1 * rhs(p, velocity, deflection) + p.sigma2 * velocity
 
 
 def friction_force(p: LuGreParameters, velocity, deflection, normal_force):
-    """Generalised friction force u_R = r·F_N·μ (r = 1 for type A), Eq. 2."""
+    """Generalised friction force u_R = r·F_N·μ (r = 1 for type A), Eq. 2.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters (per unit normal force).
+    velocity : float or ndarray
+        Sliding velocity v [m/s] (type B: [rad/s]).
+    deflection : float or ndarray
+        Bristle deflection φ [m] (type B: [rad]).
+    normal_force : float or ndarray
+        F_N [N].
+
+    Returns
+    -------
+    float or ndarray
+        u_R [N] (type B: the moment [N·m]).
+    """
     return p.moment_arm * normal_force * friction_coefficient(p, velocity, deflection)
 
 
 def steady_state_deflection(p: LuGreParameters, velocity):
-    """φ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²})/σ0 (0 at v = 0)."""
+    """φ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²})/σ0 (0 at v = 0).
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters (per unit normal force).
+    velocity : float or ndarray
+        Sliding velocity v [m/s] (type B: [rad/s]).
+
+    Returns
+    -------
+    float or ndarray
+        φ_ss.
+    """
     return np.sign(velocity) * stribeck_level(p, velocity) / p.sigma0
 
 
 def steady_state_coefficient(p: LuGreParameters, velocity):
-    """Steady sliding μ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²}) + σ2·v."""
+    """Steady sliding μ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²}) + σ2·v.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters (per unit normal force).
+    velocity : float or ndarray
+        Sliding velocity v [m/s] (type B: [rad/s]).
+
+    Returns
+    -------
+    float or ndarray
+        μ_ss.
+    """
     return np.sign(velocity) * stribeck_level(p, velocity) + p.sigma2 * np.asarray(velocity, dtype=float)
 
 
@@ -139,6 +251,27 @@ def step(p: LuGreParameters, deflection, velocity, dt: float):
 
     Pass the midpoint velocity for second order accuracy (see the module docstring).
     Works elementwise on arrays (several joints at once).
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters (per unit normal force).
+    deflection : float or ndarray
+        φ at the step start [m] (type B: [rad]).
+    velocity : float or ndarray
+        The velocity held over the step [m/s] (type B: [rad/s]).
+    dt : float
+        The step [s].
+
+    Returns
+    -------
+    ndarray
+        φ at the step end, within [−φ_max, φ_max].
+
+    Examples
+    --------
+    >>> float(step(TYPE_A, 0.0, 0.0, 1e-3))  # no motion: φ stays
+    0.0
     """
     v = np.asarray(velocity, dtype=float)
     decay_rate = p.sigma0 * g(p, v)
@@ -147,3 +280,8 @@ def step(p: LuGreParameters, deflection, velocity, dt: float):
     weight = -np.expm1(-decay_rate * dt)
     moving = decay_rate > 0.0
     return np.where(moving, deflection + (target - deflection) * weight, deflection + v * dt)
+
+
+__all__ = ["CANUDAS_1995", "LuGreParameters", "TABLE_1", "TYPE_A", "TYPE_B", "friction_coefficient",
+           "friction_force", "g", "joint_laws", "rhs", "rhs_jacobian", "steady_state_coefficient",
+           "steady_state_deflection", "step", "stribeck_level"]

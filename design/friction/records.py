@@ -83,11 +83,36 @@ _SI = {"time": "s", "sliding_velocity": ("m/s", "rad/s"), "friction_force": ("N"
 
 
 def bound(quantity: str, joint_type: str) -> float:
-    """The plausible magnitude limit of ``quantity`` (a ``BOUNDS`` key) for a joint type, in SI."""
+    """The plausible magnitude limit of ``quantity`` (a ``BOUNDS`` key) for a joint type, in SI.
+
+    Parameters
+    ----------
+    quantity : str
+        A key of ``BOUNDS``.
+    joint_type : str
+        'A' or 'B'.
+
+    Returns
+    -------
+    float
+    """
     return BOUNDS[quantity][0 if joint_type == "A" else 1]
 
 
 def si_unit(quantity: str, joint_type: str) -> str:
+    """The SI unit a record quantity is stored in, for a joint type (type B: angular, moments).
+
+    Parameters
+    ----------
+    quantity : str
+        A column or metadata name.
+    joint_type : str
+        'A' or 'B'.
+
+    Returns
+    -------
+    str
+    """
     unit = _SI[quantity]
     return unit if isinstance(unit, str) else unit[0 if joint_type == "A" else 1]
 
@@ -126,7 +151,20 @@ class Record:
 
 
 def friction_from_excitation(time, velocity, excitation, inertia):
-    """u_R = F_exc − m·a, the acceleration from a Savitzky–Golay derivative of the velocity."""
+    """u_R = F_exc − m·a, the acceleration from a Savitzky–Golay derivative of the velocity.
+
+    Parameters
+    ----------
+    time, velocity, excitation : ndarray
+        The record's columns (SI).
+    inertia : float
+        m [kg] (type B: [kg·m²]).
+
+    Returns
+    -------
+    ndarray
+        The friction force u_R.
+    """
     dt = float(np.median(np.diff(time)))
     window = min(len(velocity) - (1 - len(velocity) % 2), 11)
     if window < 5:
@@ -372,6 +410,13 @@ def write_record(record: Record, path: str | Path) -> None:
     """Write a record as CSV (atomically: through a temporary file, removed on failure).
 
     A type B record must carry its radius, so that the file reads back as it was written.
+
+    Parameters
+    ----------
+    record : Record
+        The record.
+    path : str or Path
+        The file.
     """
     path = Path(path)
     rotational = record.joint_type == "B"
@@ -408,3 +453,7 @@ def write_record(record: Record, path: str | Path) -> None:
         with contextlib.suppress(OSError):
             temporary.unlink(missing_ok=True)
         raise RecordError(f"{path}: cannot write record ({error.strerror or error})") from None
+
+
+__all__ = ["BOUNDS", "COLUMNS", "MAX_BYTES", "MIN_NORMAL_FORCE", "MIN_RADIUS", "REGIMES", "Record", "RecordError",
+           "bound", "friction_from_excitation", "read_record", "si_unit", "write_record"]

@@ -447,6 +447,16 @@ def check_supported(model: FEModel) -> None:
     strain energy costs no energy. A slender but supported mast passes however low its first
     mode (a 1000-bay mast: 0.6 mHz); the largest DOF of the first such motion says where the
     structure is loose.
+
+    Parameters
+    ----------
+    model : FEModel
+        The assembled model.
+
+    Raises
+    ------
+    ModelError
+        Naming the count of such motions and where the first sits.
     """
     from smartjoint.design.structure.modal import count_zero_energy_modes
 
@@ -456,3 +466,6 @@ def check_supported(model: FEModel) -> None:
             f"{model.design.source}: structure has {count} zero-energy (rigid-body or mechanism) "
             f"motion(s), e.g. at {where}; add supports or lock the joints that free it"
         )
+
+
+__all__ = ["build_model", "check_supported", "FEModel"]
