@@ -276,10 +276,8 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised like Ctrl-C's KeyboardInterrupt so that the same clean-up runs."""
 
 
-
 def _terminate(signum, frame) -> None:
     raise Terminated()
-
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -304,7 +302,6 @@ def main(argv: list[str] | None = None) -> int:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
     return 0
-
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -83,7 +83,7 @@ def study_markdown(study: dict) -> str:
     Parameters
     ----------
     study : dict
-        A result of `reduction_study`.
+        A result of `reduction_study`; its `study_summary` fills the table.
 
     Returns
     -------

@@ -113,7 +113,6 @@ class ControllerArtifact:
         return hashlib.sha256(dumps(self).encode("ascii")).hexdigest()
 
 
-
 # --------------------------------------------------------------------------- building
 def _per_joint(field: str, value, joints: tuple[str, ...]) -> np.ndarray:
     """A number for every joint or one per joint (broadcast)."""
@@ -255,7 +254,7 @@ def dumps(artifact: ControllerArtifact) -> str:
     Parameters
     ----------
     artifact : ControllerArtifact
-        The artefact.
+        The artefact to write, every field of `SCHEMA`.
 
     Returns
     -------
@@ -276,7 +275,7 @@ def save(artifact: ControllerArtifact, path) -> Path:
     Parameters
     ----------
     artifact : ControllerArtifact
-        The artefact.
+        The artefact to write.
     path : str or Path
         The file.
 
@@ -382,7 +381,7 @@ def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
     Parameters
     ----------
     artifact : ControllerArtifact
-        The artefact.
+        Its blocks, FOH weights, E, C and the two gains.
 
     Returns
     -------
@@ -401,7 +400,7 @@ def siso_law(artifact: ControllerArtifact) -> SisoLaw:
     Parameters
     ----------
     artifact : ControllerArtifact
-        The artefact.
+        Its limits, ε per joint, safe force and plausibility ranges.
 
     Returns
     -------
@@ -422,7 +421,7 @@ def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
     Parameters
     ----------
     artifact : ControllerArtifact
-        The artefact.
+        Its LQG, limits, ε of Eq. 34, safe force and plausibility ranges.
 
     Returns
     -------
@@ -441,7 +440,7 @@ def active_lqg(artifact: ControllerArtifact) -> ActiveLqg:
     Parameters
     ----------
     artifact : ControllerArtifact
-        The artefact.
+        Its LQG (`lqg_design`).
 
     Returns
     -------

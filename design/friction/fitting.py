@@ -20,16 +20,15 @@ EXCITATION_CUTOFF = 5.0
 VELOCITY_CUTOFF = 25.0  # default of filtered_velocity, which also gives the output-error segment starts
 
 
-
 def dominant_frequency(signal, sample_time: float) -> float:
     """The strongest non-zero frequency of a signal [Hz]: the excitation frequency of a rig record.
 
     Parameters
     ----------
     signal : ndarray
-        Equally spaced samples.
+        Equally spaced samples; the mean is removed before the FFT.
     sample_time : float
-        Their spacing [s].
+        Their spacing [s], for the frequency axis.
 
     Returns
     -------
@@ -41,7 +40,6 @@ def dominant_frequency(signal, sample_time: float) -> float:
     return float(frequencies[1:][np.argmax(spectrum[1:])])
 
 
-
 def low_pass(signal, sample_time: float, cutoff_hz: float, period: float) -> np.ndarray:
     """Zero-phase 4th-order Butterworth low-pass, padded by one ``period`` [s] at both ends.
 
@@ -51,9 +49,9 @@ def low_pass(signal, sample_time: float, cutoff_hz: float, period: float) -> np.
     Parameters
     ----------
     signal : ndarray
-        Equally spaced samples.
+        The samples to filter.
     sample_time : float
-        Their spacing [s].
+        Their spacing [s]: the sample rate 1/Δt sets the filter.
     cutoff_hz : float
         The cutoff [Hz]; at or above 0.45× the sample rate the signal is returned unfiltered.
     period : float
@@ -69,7 +67,6 @@ def low_pass(signal, sample_time: float, cutoff_hz: float, period: float) -> np.
         return np.asarray(signal, dtype=float)
     sos = butter(4, cutoff_hz, fs=fs, output="sos")
     return sosfiltfilt(sos, signal, padlen=min(int(round(period * fs)), len(signal) - 1))
-
 
 
 def filtered_velocity(record: Record, cutoff_hz: float | None = None) -> np.ndarray:
@@ -93,7 +90,6 @@ def filtered_velocity(record: Record, cutoff_hz: float | None = None) -> np.ndar
     return low_pass(record.sliding_velocity, record.sample_time, cutoff_hz, 1.0 / dominant)
 
 
-
 def rms(x) -> float:
     """Root mean square of a signal.
 
@@ -108,7 +104,6 @@ def rms(x) -> float:
         √(mean x²).
     """
     return float(np.sqrt(np.mean(np.asarray(x) ** 2)))
-
 
 
 def nrmse(measured, model) -> float:
@@ -132,7 +127,6 @@ def nrmse(measured, model) -> float:
     return float(np.sqrt(np.mean((measured - model) ** 2)) / np.sqrt(np.mean(measured**2)))
 
 
-
 @dataclass
 class StepResult:
     """One identification step: the values, 95 % intervals and correlation of its parameters."""
@@ -151,7 +145,6 @@ class StepResult:
         with np.errstate(over="ignore"):  # an unbounded interval is simply weak
             width = (self.upper - self.lower) / (2.0 * self.values)
         return [n for n, w in zip(self.names, width) if not w <= WEAK_RELATIVE_WIDTH]
-
 
 
 def step_result(names, solution, errors: dict[str, float], evaluations: int, clusters=None) -> StepResult:

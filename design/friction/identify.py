@@ -60,7 +60,6 @@ ROUNDS = 2
 MIN_SAMPLES = 50
 
 
-
 def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, initial_force: float = 0.0):
     """û_R at the sample times for a measured velocity (midpoint exact-exponential step, Eq. 1–2).
 
@@ -104,7 +103,6 @@ def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, in
         out[k] = arm * float(normal_force[k]) * (s0 * phi + s1 * phidot + s2 * v)
         previous_v = v
     return out
-
 
 
 @dataclass
@@ -153,7 +151,6 @@ class Identification:
         return out
 
 
-
 def _initial_guess(micro: list[Record], stick: list[Record], radius: float | None, velocities,
                    joint_type: str) -> dict[str, float]:
     arm = radius if radius is not None else 1.0
@@ -191,7 +188,6 @@ def _initial_guess(micro: list[Record], stick: list[Record], radius: float | Non
     return guess
 
 
-
 def _check_plausible(values: dict[str, float], joint_type: str, stage: str) -> None:
     """``RecordError`` when a start or result leaves the plausible range (``rig.PARAMETER_BOUNDS``):
     the records then do not determine the parameters (e.g. a velocity of 1e-300 m/s)."""
@@ -200,7 +196,6 @@ def _check_plausible(values: dict[str, float], joint_type: str, stage: str) -> N
         if not (math.isfinite(value) and lower < value <= upper):
             raise RecordError(f"identify: the records give {name} = {value:.6g} as {stage} — plausible: > {lower:g} "
                               f"and <= {upper:g}; the records do not determine the LuGre parameters")
-
 
 
 def model_friction(p: lugre.LuGreParameters, record: Record, velocity) -> np.ndarray:
@@ -221,7 +216,6 @@ def model_friction(p: lugre.LuGreParameters, record: Record, velocity) -> np.nda
         û_R per sample.
     """
     return simulate_friction(p, record.time, velocity, record.normal_force, record.friction_force[0])
-
 
 
 def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]], radius, velocities, progress, label,
@@ -266,7 +260,6 @@ def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]]
     return step_result(names, best, errors, evaluations), p
 
 
-
 def _joint_radius(records: list[Record], joint_type: str, radius: float | None) -> float | None:
     """The radius of type B records: ``radius`` if given, else the one every record carries.
 
@@ -300,7 +293,6 @@ def _joint_radius(records: list[Record], joint_type: str, radius: float | None) 
     return next(iter(carried))
 
 
-
 def _check_records(records: list[Record]) -> None:
     """One-line errors for records the fit cannot use (too short, nothing measured)."""
     for record in records:
@@ -317,7 +309,6 @@ def _check_records(records: list[Record]) -> None:
             raise RecordError(f"{record.name}: column 'time' must be finite and increase")
         if not np.all(np.isfinite(record.normal_force) & (record.normal_force > 0.0)):
             raise RecordError(f"{record.name}: column 'normal_force': F_N must be > 0 and finite")
-
 
 
 def identify(micro: list[Record], stick: list[Record], radius: float | None = None, progress=None,
@@ -378,7 +369,6 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
                           "stick-slip records must slide)") from None
 
 
-
 def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error) -> Identification:
     # The raw velocity unless a cutoff is given: a low-pass also cuts the bristle resonance
     # that the measured force contains, which biases the fit more than the noise does.
@@ -428,16 +418,15 @@ def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_erro
                           {r.name: r for r in micro + stick}, velocities, refined, steps)
 
 
-
 def slides(record: Record, radius: float | None = None) -> bool:
     """Gross sliding: the element moves by far more than any bristle deflection μ/σ0 could.
 
     Parameters
     ----------
     record : Record
-        The record.
+        Its velocity gives the displacement, its friction and normal force μ.
     radius : float, optional
-        [m] for a type B record without one.
+        [m]: the moment arm r of μ = u_R/(r·F_N) for a type B record that carries none.
 
     Returns
     -------
@@ -449,16 +438,15 @@ def slides(record: Record, radius: float | None = None) -> bool:
     return bool(displacement * 1e4 > mu.max() and displacement > 1e-4)
 
 
-
 def classify(record: Record, radius: float | None = None) -> str:
     """'stick-slip' or 'micro-slip': the record's ``regime`` metadata, else whether it slides.
 
     Parameters
     ----------
     record : Record
-        The record.
+        A record with or without ``# regime = …``.
     radius : float, optional
-        [m] for a type B record without one.
+        Passed to `slides` when the record names no regime.
 
     Returns
     -------

@@ -96,13 +96,14 @@ def stribeck_level(p: LuGreParameters, velocity):
     Parameters
     ----------
     p : LuGreParameters
-        The parameters (per unit normal force).
+        Reads F_c, F_d and v_s.
     velocity : float or ndarray
-        Sliding velocity v [m/s] (type B: [rad/s]).
+        v [m/s] (type B: [rad/s]); arrays work elementwise.
 
     Returns
     -------
     float or ndarray
+        The level, dimensionless.
     """
     return p.coulomb + p.stribeck * np.exp(-(np.asarray(velocity, dtype=float) / p.stribeck_velocity) ** 2)
 
@@ -113,13 +114,14 @@ def g(p: LuGreParameters, velocity):
     Parameters
     ----------
     p : LuGreParameters
-        The parameters (per unit normal force).
+        Its Stribeck level (`stribeck_level`).
     velocity : float or ndarray
-        Sliding velocity v [m/s] (type B: [rad/s]).
+        v [m/s] (type B: [rad/s]); arrays work elementwise.
 
     Returns
     -------
     float or ndarray
+        g(v), zero at v = 0.
     """
     return np.abs(velocity) / stribeck_level(p, velocity)
 
@@ -130,11 +132,9 @@ def rhs(p: LuGreParameters, velocity, deflection):
     Parameters
     ----------
     p : LuGreParameters
-        The parameters (per unit normal force).
-    velocity : float or ndarray
-        Sliding velocity v [m/s] (type B: [rad/s]).
-    deflection : float or ndarray
-        Bristle deflection φ [m] (type B: [rad]).
+        σ0 and g(v).
+    velocity, deflection : float or ndarray
+        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
 
     Returns
     -------
@@ -150,11 +150,9 @@ def rhs_jacobian(p: LuGreParameters, velocity, deflection):
     Parameters
     ----------
     p : LuGreParameters
-        The parameters (per unit normal force).
-    velocity : float or ndarray
-        Sliding velocity v [m/s] (type B: [rad/s]).
-    deflection : float or ndarray
-        Bristle deflection φ [m] (type B: [rad]).
+        σ0, and F_c, F_d, v_s for ∂g/∂v.
+    velocity, deflection : float or ndarray
+        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
 
     Returns
     -------
@@ -174,11 +172,9 @@ def friction_coefficient(p: LuGreParameters, velocity, deflection):
     Parameters
     ----------
     p : LuGreParameters
-        The parameters (per unit normal force).
-    velocity : float or ndarray
-        Sliding velocity v [m/s] (type B: [rad/s]).
-    deflection : float or ndarray
-        Bristle deflection φ [m] (type B: [rad]).
+        σ0, σ1, σ2, and f of Eq. 1 for φ̇.
+    velocity, deflection : float or ndarray
+        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
 
     Returns
     -------
@@ -194,11 +190,9 @@ def friction_force(p: LuGreParameters, velocity, deflection, normal_force):
     Parameters
     ----------
     p : LuGreParameters
-        The parameters (per unit normal force).
-    velocity : float or ndarray
-        Sliding velocity v [m/s] (type B: [rad/s]).
-    deflection : float or ndarray
-        Bristle deflection φ [m] (type B: [rad]).
+        μ of Eq. 2 and the moment arm r.
+    velocity, deflection : float or ndarray
+        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
     normal_force : float or ndarray
         F_N [N].
 
@@ -216,14 +210,14 @@ def steady_state_deflection(p: LuGreParameters, velocity):
     Parameters
     ----------
     p : LuGreParameters
-        The parameters (per unit normal force).
+        σ0 and the Stribeck level.
     velocity : float or ndarray
-        Sliding velocity v [m/s] (type B: [rad/s]).
+        v [m/s] (type B: [rad/s]); arrays work elementwise.
 
     Returns
     -------
     float or ndarray
-        φ_ss.
+        φ_ss, the deflection of steady sliding.
     """
     return np.sign(velocity) * stribeck_level(p, velocity) / p.sigma0
 
@@ -234,14 +228,14 @@ def steady_state_coefficient(p: LuGreParameters, velocity):
     Parameters
     ----------
     p : LuGreParameters
-        The parameters (per unit normal force).
+        σ2 and the Stribeck level.
     velocity : float or ndarray
-        Sliding velocity v [m/s] (type B: [rad/s]).
+        The steady sliding velocity v [m/s] (type B: [rad/s]); arrays work elementwise.
 
     Returns
     -------
     float or ndarray
-        μ_ss.
+        μ_ss, the friction curve of steady sliding.
     """
     return np.sign(velocity) * stribeck_level(p, velocity) + p.sigma2 * np.asarray(velocity, dtype=float)
 
@@ -255,11 +249,11 @@ def step(p: LuGreParameters, deflection, velocity, dt: float):
     Parameters
     ----------
     p : LuGreParameters
-        The parameters (per unit normal force).
+        σ0, g(v) and φ_ss(v).
     deflection : float or ndarray
-        φ at the step start [m] (type B: [rad]).
+        φ at the step start.
     velocity : float or ndarray
-        The velocity held over the step [m/s] (type B: [rad/s]).
+        The velocity held over the step.
     dt : float
         The step [s].
 

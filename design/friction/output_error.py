@@ -21,7 +21,6 @@ from smartjoint.design.friction.records import Record, RecordError
 P3 = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")  # output error: all six
 
 
-
 @dataclass
 class Shooting:
     """A stick-slip record prepared for the output-error step (multiple shooting)."""
@@ -33,7 +32,6 @@ class Shooting:
     start_velocity: np.ndarray  # measured velocity there, from a local quadratic fit
     measured: np.ndarray  # measured velocity of the samples the segments predict
     scale: float  # RMS velocity · √samples: every record counts alike
-
 
 
 def output_error_gap(record: Record) -> str | None:
@@ -54,7 +52,6 @@ def output_error_gap(record: Record) -> str | None:
     if not record.inertia:
         return f"{record.name}: no '# inertia = …' metadata (or inertia 0)"
     return None
-
 
 
 def prepare_shooting(record: Record, arm: float) -> Shooting:
@@ -102,7 +99,6 @@ def prepare_shooting(record: Record, arm: float) -> Shooting:
                      rms(record.sliding_velocity) * math.sqrt(measured.size))
 
 
-
 def shoot(p: lugre.LuGreParameters, shooting: Shooting) -> np.ndarray:
     """Simulated velocity of the rig model (Eq. 1–2) for ``shooting.measured``.
 
@@ -132,7 +128,6 @@ def shoot(p: lugre.LuGreParameters, shooting: Shooting) -> np.ndarray:
                                     float(lugre.steady_state_deflection(p, velocity0)), backend="c")
         parts.append(velocity[1:])
     return np.concatenate(parts)
-
 
 
 def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple[StepResult, lugre.LuGreParameters]:
@@ -184,7 +179,6 @@ def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple
         progress(f"step 3 (output error: σ0, σ1, σ2, F_c, F_d, v_s, {len(stick)} stick-slip records, "
                  f"{sum(s.starts.size for s in shootings)} segments): cost {solution.cost:.4g}")
     return step_result(P3, solution, errors, solution.nfev, np.repeat(np.arange(lengths.size), lengths)), p
-
 
 
 def output_error_blocker(stick: list[Record], enabled: bool) -> str | None:

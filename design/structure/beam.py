@@ -83,7 +83,7 @@ def local_stiffness_terms(length: np.ndarray) -> dict[str, np.ndarray]:
     Parameters
     ----------
     length : ndarray
-        Element lengths (n,) [m].
+        Element lengths L (n,) [m]; the terms go with 1/L (axial, torsion) and 1/L³ … 1/L (bending).
 
     Returns
     -------
@@ -106,7 +106,7 @@ def local_mass_terms(length: np.ndarray) -> dict[str, np.ndarray]:
     Parameters
     ----------
     length : ndarray
-        Element lengths (n,) [m].
+        Element lengths L (n,) [m]; the consistent mass goes with L … L³.
 
     Returns
     -------

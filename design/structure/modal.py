@@ -97,9 +97,9 @@ def gross_energy(stiffness: sp.spmatrix, vectors: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     stiffness : sparse matrix
-        K.
+        K, taken entry by entry in magnitude.
     vectors : ndarray
-        Mode shapes, one per column.
+        Mode shapes φ, one per column, in any scaling.
 
     Returns
     -------
@@ -117,9 +117,9 @@ def zero_energy(stiffness: sp.spmatrix, vectors: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     stiffness : sparse matrix
-        K.
+        K of the model the modes were solved for.
     vectors : ndarray
-        Mode shapes, one per column.
+        The computed modes, one per column.
 
     Returns
     -------
@@ -167,7 +167,7 @@ def probe_zero_energy(model, probe: int = 8) -> tuple[np.ndarray, np.ndarray, np
     Parameters
     ----------
     model : FEModel
-        The FE model.
+        The FE model; when all ``probe`` are zero-energy: every mode (up to DENSE_LIMIT DOFs), else 64.
     probe : int
         Modes solved at first.
 
@@ -193,9 +193,9 @@ def count_zero_energy_modes(model, probe: int = 8) -> tuple[int, str]:
     Parameters
     ----------
     model : FEModel
-        The FE model.
+        The FE model whose support is checked.
     probe : int
-        Modes solved at first.
+        Modes solved at first (`probe_zero_energy`).
 
     Returns
     -------
