@@ -16,7 +16,7 @@ from smartjoint.bench.loop import SilLoop
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.network import protocol
-from smartjoint.design import plant as simulate
+from smartjoint.design import plant
 
 
 def perturbed(controller, relative: float, seed: int):
@@ -70,7 +70,7 @@ def _mil_runs(setup, law: str, controller, spread_runs: int) -> tuple:
 def _simulate(setup, loop: SilLoop):
     """The study's plant with the CAN loop as its controller; the buses closed whatever happens."""
     try:
-        return simulate.simulate(setup.plant, setup.laws, loop, setup.pulse(), setup.duration, setup.plant_step,
+        return plant.simulate(setup.plant, setup.laws, loop, setup.pulse(), setup.duration, setup.plant_step,
                                  record_every=closed_loop.PLANT_STEPS_PER_SAMPLE, energy_books=False)
     finally:
         loop.close()

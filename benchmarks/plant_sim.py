@@ -39,9 +39,9 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from smartjoint.design.structure import fem, modal, spec
-from smartjoint.design.reduction import krylov as reduction
-from smartjoint.design import plant as simulate
-from smartjoint.studies import joint_laws
+from smartjoint.design import reduction
+from smartjoint.design import plant
+from smartjoint.design.friction.lugre import joint_laws
 
 DESIGN = Path(__file__).resolve().parents[1] / "design" / "data" / "three_type_a.toml"
 DURATION = 10.0
@@ -56,10 +56,10 @@ def friction_error(u, u_ref) -> float:
 
 
 def ours(model, laws, pulse, duration, step, record=1e-3, books=True, stick_step=None):
-    controller = simulate.ConstantNormalForce(np.full(len(laws), NORMAL_FORCE), 1e-3)
+    controller = plant.ConstantNormalForce(np.full(len(laws), NORMAL_FORCE), 1e-3)
     every = int(round(record / step))
     start = time.perf_counter()
-    result = simulate.simulate(model, laws, controller, pulse, duration, step, record_every=every, backend="c",
+    result = plant.simulate(model, laws, controller, pulse, duration, step, record_every=every, backend="c",
                                  energy_books=books and stick_step is None, stick_step=stick_step)
     return result, time.perf_counter() - start
 
@@ -72,7 +72,7 @@ def lsoda(model, laws, pulse, duration, times, rtol, budget):
     """solve_ivp(LSODA, analytic Jacobian) in windows (restarts at the pulse kinks, then every
     0.5 s) until done or the wall-clock budget is spent. Returns (u at the times reached, seconds,
     simulated time reached, ½xᵀx at the times reached)."""
-    rhs, jac, ns, friction = simulate.reference_system(model, laws, np.full(len(laws), NORMAL_FORCE), pulse)
+    rhs, jac, ns, friction = plant.reference_system(model, laws, np.full(len(laws), NORMAL_FORCE), pulse)
     edges = sorted({0.0, duration, *[e for e in (*pulse.breakpoints, *np.arange(0.5, duration, 0.5)) if e < duration]})
     z = np.zeros(ns + len(laws))
     out, energy, reached = [], [], 0.0
@@ -152,7 +152,7 @@ def work_precision(model, laws, pulse, budget: float) -> dict:
     u_ref = reference.friction_force
     # The reference itself: our scheme at 3.125 µs against Radau rtol 1e-10 on the first 0.2 s.
     early = times <= WINDOW + 1e-12
-    _, u_radau, _ = simulate.reference_simulation(model, laws, np.full(len(laws), NORMAL_FORCE), pulse, WINDOW,
+    _, u_radau, _ = plant.reference_simulation(model, laws, np.full(len(laws), NORMAL_FORCE), pulse, WINDOW,
                                                   times[early])
     check = friction_error(u_ref[early], u_radau)
     print(f"  work-precision reference: ours at {DIAGRAM_REFERENCE_STEP:g} s, {100 * check:.3f} % from Radau "
@@ -234,7 +234,7 @@ def main() -> None:
     design = spec.load_design(DESIGN)
     fe = fem.build_model(design, joints="released")
     laws = joint_laws(design)
-    pulse = simulate.triangular_pulse(directions=np.ones(len(design.disturbances)))
+    pulse = plant.triangular_pulse(directions=np.ones(len(design.disturbances)))
     models = {
         "full": modal.modal_model(fe, modal.solve_modes(fe, 600)),
         "24": reduction.reduce(fe, modal.solve_modes(fe, 100), 9, 1, krylov_joints=[0, 1, 2]).model,
@@ -246,7 +246,7 @@ def main() -> None:
         print(f"[{name}] {model.n_states} states, highest frequency {model.omega.max() / 2 / np.pi:.0f} Hz")
         # Accuracy on the first 0.2 s.
         if name == "24":
-            _, u_ref, _ = simulate.reference_simulation(model, laws, np.full(3, NORMAL_FORCE), pulse, WINDOW,
+            _, u_ref, _ = plant.reference_simulation(model, laws, np.full(3, NORMAL_FORCE), pulse, WINDOW,
                                                         window_times)
             reference = "Radau rtol 1e-10"
         else:

@@ -22,7 +22,9 @@ import json
 import os
 import re
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +33,7 @@ from smartjoint import report as plots
 from smartjoint.bench import busload, safety, sil
 from smartjoint.design.network import protocol
 from smartjoint.codegen import backtoback, can_layer, generate, identifiers, output
-from smartjoint.control_study import control_markdown, plot_control_study
+from smartjoint.report_control import control_markdown, plot_control_study
 from smartjoint.design.control import artifact
 from smartjoint.design import build_model, load_design, solve_modes, updated_design
 from smartjoint.design.friction import lugre, rig
@@ -39,7 +41,8 @@ from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction.identify import classify, identify
 from smartjoint.design.structure.spec import REFERENCE_DESIGN
 from smartjoint.report_folder import ReportFolder, iso, new_run_id, utc_now
-from smartjoint.studies import plot_study, reduction_study, study_markdown, study_summary
+from smartjoint.design.reduction import reduction_study, study_summary
+from smartjoint.report_reduction import plot_study, study_markdown
 
 FIG10_DESIGN = REFERENCE_DESIGN.parent / "fig10_three_joints.toml"
 CONTROL_DESIGN = REFERENCE_DESIGN.parent / "three_type_a.toml"  # Fig. 11: three type A joints
@@ -86,9 +89,47 @@ def _paths(value) -> list[str]:
     return []
 
 
+@dataclass
+class _Results:
+    """What the stages produce, filled stage by stage; the report and the summary read it."""
+
+    design: Any = None
+    model: Any = None
+    result: Any = None  # the updating result, None without [updating]
+    modes: Any = None
+    released: Any = None  # modes with the joints released, None without joints
+    identification: Any = None
+    study: Any = None  # the reduction study
+    controlled: Any = None  # the design the controllers are built for
+    control_study: Any = None
+    controller: Any = None
+    firmware_files: dict = field(default_factory=dict)
+    firmware_check: Any = None
+    sil_check: Any = None
+    sil_logs: list = field(default_factory=list)
+    bus_load: Any = None
+    fault_check: Any = None
+    safety_check: Any = None
+    hysteresis: list = field(default_factory=list)
+
+
 def _stages(design_path: str | None, staging: Path, progress):
     """Stages 1–9 into the folder ``staging``: the summary (without the run's id and times) and a
     function of the final summary that gives report.md."""
+    r = _Results()
+    _structure_stages(r, design_path, progress)
+    _friction_stage(r, progress)
+    _reduction_stage(r, progress)
+    _control_stage(r, progress)
+    _firmware_stage(r, progress)
+    _sil_stage(r, staging, progress)
+    progress("[9/9] report")
+    _write_report_files(r, staging)
+    return _summary(r), lambda final: _report_markdown(r, final)
+
+
+def _structure_stages(r: _Results, design_path: str | None, progress) -> None:
+    """Stages 1–3: the design, its FE model, model updating and the modes (locked and released)."""
     design = load_design(design_path)
     # Stage 7 generates C from these names: refuse them now, not after minutes of work.
     identifiers.check_names([j.name for j in design.joints], [s.name for s in design.sensors],
@@ -112,16 +153,24 @@ def _stages(design_path: str | None, staging: Path, progress):
     if design.joints:
         released_model = build_model(design, joints="released")
         released = solve_modes(released_model, min(REPORT_MODES, released_model.n_dof))
+    r.design, r.model, r.result, r.modes, r.released = design, model, result, modes, released
 
+
+def _friction_stage(r: _Results, progress) -> None:
+    """Stage 4: isolated-rig records of a type B joint, then the LuGre identification."""
     progress("[4/9] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3 + output "
              "error)")
     records = [rig.simulate(test) for test in rig.campaign("B", noise=0.01, cycles=8)]
-    micro = [r for r in records if classify(r) == "micro-slip"]
-    stick = [r for r in records if classify(r) == "stick-slip"]
-    identification = identify(micro, stick, progress=lambda message: progress(f"      {message}"))
+    micro = [record for record in records if classify(record) == "micro-slip"]
+    stick = [record for record in records if classify(record) == "stick-slip"]
+    r.identification = identify(micro, stick, progress=lambda message: progress(f"      {message}"))
 
-    # Reduction (Section 4.3): on the design's own joints, or — for a design without joints such
-    # as the bundled reference — on the Fig. 10 example (the same truss plus joints B1, A2, A3).
+
+def _reduction_stage(r: _Results, progress) -> None:
+    """Stage 5, reduction (Section 4.3): on the design's own joints, or — for a design without
+    joints such as the bundled reference — on the Fig. 10 example (the same truss plus joints
+    B1, A2, A3)."""
+    design, result = r.design, r.result
     example = design if design.joints else load_design(FIG10_DESIGN)
     if result is not None and not design.joints:
         example = example.with_parameters(result.parameters)
@@ -130,75 +179,96 @@ def _stages(design_path: str | None, staging: Path, progress):
     forces = np.array([400.0 if j.type == "B" else 0.0 for j in example.joints])
     if not forces.any():
         forces[0] = 400.0
-    study = reduction_study(example, forces, krylov_joints=[int(np.argmax(forces))],
-                            progress=lambda message: progress(message))
+    r.study = reduction_study(example, forces, krylov_joints=[int(np.argmax(forces))],
+                              progress=lambda message: progress(message))
 
-    # Control (Sections 5–6): on the design's joints, or for the reference truss on Fig. 11's.
+
+def _control_stage(r: _Results, progress) -> None:
+    """Stage 6, control (Sections 5–6): on the design's joints, or for the reference truss on Fig. 11's."""
+    design, result = r.design, r.result
     controlled = design if design.joints else load_design(CONTROL_DESIGN)
     if result is not None and not design.joints:
         controlled = controlled.with_parameters(result.parameters)
     progress(f"[6/9] semi-active control (Sections 5–6) on {controlled.name!r}: joints "
              f"{', '.join(j.name for j in controlled.joints)}, t_e = {controlled.control.study_duration:g} s")
     control_study = closed_loop.run_study(controlled, progress=lambda message: progress(message))
-    controller = artifact.from_design(controlled, control_study.setup.model, control_study.lqg,
-                                      control_study.boundary_layer)
+    r.controlled, r.control_study = controlled, control_study
+    r.controller = artifact.from_design(controlled, control_study.setup.model, control_study.lqg,
+                                        control_study.boundary_layer)
 
+
+def _firmware_stage(r: _Results, progress) -> None:
+    """Stage 7: the generated C and its back-to-back check against the Python reference."""
     progress("[7/9] firmware: generated C (float and double), back-to-back on the study")
-    firmware_files = generate.render(controller, "float")
-    firmware_check = backtoback.back_to_back(control_study.setup, controller, progress=progress,
-                                            study=control_study)
+    r.firmware_files = generate.render(r.controller, "float")
+    r.firmware_check = backtoback.back_to_back(r.control_study.setup, r.controller, progress=progress,
+                                              study=r.control_study)
 
+
+def _sil_stage(r: _Results, staging: Path, progress) -> None:
+    """Stage 8: the study through the CAN loop, the demo faults and the safe-state fault matrix."""
+    controller, control_study = r.controller, r.control_study
     progress("[8/9] software in the loop: the study through CAN (firmware, bus, amplifier models)")
     # The bus logs go straight into the report (no temporary folder to leave behind).
     sil_check = sil.sil_study(control_study.setup, controller, spread_runs=4, log_folder=staging / "can",
                               progress=progress)
-    sil_logs = sorted(p.name for p in (staging / "can").iterdir())
+    r.sil_logs = sorted(p.name for p in (staging / "can").iterdir())
     for law in sil_check["laws"].values():
         if law.get("log") is not None:
             law["log"] = Path(law["log"]).relative_to(staging).as_posix()
-    bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
+    r.sil_check = sil_check
+    r.bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
     demo = sil.demo_faults(controller, control_study.setup.duration)
     progress("      injected faults in the study: " + ", ".join(f.label() for f in demo))
-    fault_check = sil.fault_run(control_study.setup, controller, faults=demo)
+    r.fault_check = sil.fault_run(control_study.setup, controller, faults=demo)
     progress("      safe state under every fault kind on every frame (docs/safety.md) …")
     safety_check = safety.fault_matrix(controller, progress=progress)
     progress(f"      {safety_check['cases']} fault cases: worst {safety_check['worst_joints']} cycles to the safe force "
              f"at every joint, {len(safety_check['failed'])} failing")
+    r.safety_check = safety_check
 
-    progress("[9/9] report")
-    plots.plot_mode_shapes(model, modes, staging / "mode_shapes.png")
+
+def _write_report_files(r: _Results, staging: Path) -> None:
+    """Stage 9: the plots, the artefact, the firmware and the fault tables into the report."""
+    design = r.design
+    plots.plot_mode_shapes(r.model, r.modes, staging / "mode_shapes.png")
     measured = [(m.mode, m.frequency_hz) for m in design.updating.measured] if design.updating else []
-    plots.plot_spectrum(modes, measured, staging / "spectrum.png")
-    if result is not None:
-        plots.plot_updating(result, staging / "updating.png")
-    hysteresis = [p.name for p in plots.plot_hysteresis(identification, staging)]
-    plot_study(study, staging)
-    plot_control_study(control_study, staging)
-    artifact.save(controller, staging / "controller.json")
-    output.write({**firmware_files, **can_layer.render_can(controller)}, staging / "firmware")
-    sil.plot_sil(sil_check, staging, sil_check.get("mil_runs"))
-    sil.plot_faults(fault_check, staging / "sil_faults.png")
-    safety.plot_matrix(safety_check, staging / "safety_cycles.png")
-    (staging / "safety_cases.md").write_text(safety.matrix_markdown(safety_check), encoding="utf-8")
+    plots.plot_spectrum(r.modes, measured, staging / "spectrum.png")
+    if r.result is not None:
+        plots.plot_updating(r.result, staging / "updating.png")
+    r.hysteresis = [p.name for p in plots.plot_hysteresis(r.identification, staging)]
+    plot_study(r.study, staging)
+    plot_control_study(r.control_study, staging)
+    artifact.save(r.controller, staging / "controller.json")
+    output.write({**r.firmware_files, **can_layer.render_can(r.controller)}, staging / "firmware")
+    sil.plot_sil(r.sil_check, staging, r.sil_check.get("mil_runs"))
+    sil.plot_faults(r.fault_check, staging / "sil_faults.png")
+    safety.plot_matrix(r.safety_check, staging / "safety_cycles.png")
+    (staging / "safety_cases.md").write_text(safety.matrix_markdown(r.safety_check), encoding="utf-8")
+
+
+def _summary(r: _Results) -> dict:
+    """summary.json without the run's id and times."""
+    design, model, sil_check, safety_check = r.design, r.model, r.sil_check, r.safety_check
     source = os.path.abspath(design.source) if os.path.isfile(design.source) else design.source
-    summary = {
+    return {
         "smartjoint_version": __version__,
         "design": {"name": design.name, "source": source, "sha256": design.sha256},
         "fe_model": {"n_dof": model.n_dof, "elements": len(model.element_kind), "mass_kg": model.total_mass},
-        "updating": result.as_dict() if result is not None else None,
-        "modes_hz": [float(f) for f in modes.frequencies_hz],
-        "modes_released_hz": [float(f) for f in released.frequencies_hz] if released is not None else None,
-        "friction_identification": identification.as_dict(),
-        "reduction": study_summary(study),
-        "control": {**closed_loop.summary(control_study), "design": controlled.name,
-                    "artifact": "controller.json", "artifact_sha256": controller.artifact_sha256},
-        "firmware": {"folder": "firmware", "real": "float", "files": [f"firmware/{n}" for n in sorted(firmware_files)],
-                     "back_to_back": firmware_check},
+        "updating": r.result.as_dict() if r.result is not None else None,
+        "modes_hz": [float(f) for f in r.modes.frequencies_hz],
+        "modes_released_hz": [float(f) for f in r.released.frequencies_hz] if r.released is not None else None,
+        "friction_identification": r.identification.as_dict(),
+        "reduction": study_summary(r.study),
+        "control": {**closed_loop.summary(r.control_study), "design": r.controlled.name,
+                    "artifact": "controller.json", "artifact_sha256": r.controller.artifact_sha256},
+        "firmware": {"folder": "firmware", "real": "float", "files": [f"firmware/{n}" for n in sorted(r.firmware_files)],
+                     "back_to_back": r.firmware_check},
         "sil": {**{k: v for k, v in sil_check.items() if k not in ("laws", "mil_runs")},
                 "laws": {law: {k: v for k, v in f.items() if k not in ("record", "result")}
                          for law, f in sil_check["laws"].items()},
-                "logs": [f"can/{name}" for name in sil_logs],
-                "faults": {k: v for k, v in fault_check.items() if k not in ("result", "record")},
+                "logs": [f"can/{name}" for name in r.sil_logs],
+                "faults": {k: v for k, v in r.fault_check.items() if k not in ("result", "record")},
                 "safety": {"cases": safety_check["cases"], "failed": safety_check["failed"],
                            "worst_firmware_cycles": safety_check["worst_firmware"],
                            "worst_joint_cycles": safety_check["worst_joints"],
@@ -206,22 +276,22 @@ def _stages(design_path: str | None, staging: Path, progress):
                            "plot": "safety_cycles.png"}},
     }
 
-    def markdown(final: dict) -> str:
-        return (_markdown(design, model, modes, released, result, final)
-                + _friction_markdown(identification, hysteresis) + "\n"
-                + study_markdown(study) + "\n" + _control_section(control_study, controller) + "\n"
-                + backtoback.markdown(firmware_check, controller)
-                + "\nFiles (float build for the Cortex-M4F): `firmware/` — "
-                + ", ".join(f"`{name}`" for name in sorted(firmware_files)) + ".\n\n"
-                + sil.sil_markdown(sil_check) + "\n![SIL energy](sil_energy.png)\n\n"
-                + bus_load.table() + "\n\n" + sil.fault_markdown(fault_check)
-                + "\n![faults](sil_faults.png)\n\n" + safety.summary_markdown(safety_check, "safety_cases.md")
-                + "\n![cycles to the safe state](safety_cycles.png)\n\n"
-                + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
-                "`bench replay`): " + ", ".join(f"`can/{n}`" for n in sil_logs)
-                + "; protocol: `firmware/bus.dbc`.\n")
 
-    return summary, markdown
+def _report_markdown(r: _Results, final: dict) -> str:
+    """report.md from the stages' results and the final summary."""
+    return (_markdown(r.design, r.model, r.modes, r.released, r.result, final)
+            + _friction_markdown(r.identification, r.hysteresis) + "\n"
+            + study_markdown(r.study) + "\n" + _control_section(r.control_study, r.controller) + "\n"
+            + backtoback.markdown(r.firmware_check, r.controller)
+            + "\nFiles (float build for the Cortex-M4F): `firmware/` — "
+            + ", ".join(f"`{name}`" for name in sorted(r.firmware_files)) + ".\n\n"
+            + sil.sil_markdown(r.sil_check) + "\n![SIL energy](sil_energy.png)\n\n"
+            + r.bus_load.table() + "\n\n" + sil.fault_markdown(r.fault_check)
+            + "\n![faults](sil_faults.png)\n\n" + safety.summary_markdown(r.safety_check, "safety_cases.md")
+            + "\n![cycles to the safe state](safety_cycles.png)\n\n"
+            + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
+            "`bench replay`): " + ", ".join(f"`can/{n}`" for n in r.sil_logs)
+            + "; protocol: `firmware/bus.dbc`.\n")
 
 
 def _markdown(design, model, modes, released, result, summary) -> str:

@@ -14,7 +14,7 @@ import pytest
 from smartjoint.design import control
 from smartjoint.design.control import artifact
 from smartjoint.design.structure import modal
-from smartjoint.design import plant as simulate
+from smartjoint.design import plant
 from smartjoint.common.errors import ModelError
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import load_design, parse_design
@@ -63,7 +63,7 @@ def test_rebuilt_controllers_match_the_originals_bit_for_bit(setup, tmp_path):
              (control.ClippedLqg(lqg, low, high, design.control.clqg_boundary_layer), artifact.clipped_lqg(loaded)),
              (control.ActiveLqg(lqg), artifact.active_lqg(loaded))]
     rng = np.random.default_rng(7)
-    steps = [simulate.Measurements(k * 1e-3, 1e-3 * rng.standard_normal(2), 1e-2 * rng.standard_normal(2),
+    steps = [plant.Measurements(k * 1e-3, 1e-3 * rng.standard_normal(2), 1e-2 * rng.standard_normal(2),
                                    50.0 * rng.standard_normal(2), rng.uniform(40.0, 400.0, 2)) for k in range(200)]
     for original, rebuilt in pairs:
         original.reset(), rebuilt.reset()

@@ -18,7 +18,7 @@ from smartjoint.bench import sil
 from smartjoint.codegen import build, controllers, generate, output, rendering
 from smartjoint.design.control import artifact, laws as control, study
 from smartjoint.design import load_design
-from smartjoint.design import plant as simulate
+from smartjoint.design import plant
 from smartjoint.design.structure import spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,7 +46,7 @@ def _sequence(a, count=3000, seed=7, faults=True):
     out = []
     for k in range(count):
         scale = 10.0 ** rng.uniform(-3, 1)
-        m = simulate.Measurements(k * a.sample_time, rng.normal(0, 1e-2 * scale, ny), rng.normal(0, 1e-3 * scale, l),
+        m = plant.Measurements(k * a.sample_time, rng.normal(0, 1e-2 * scale, ny), rng.normal(0, 1e-3 * scale, l),
                                   rng.normal(0, 50 * scale, l), rng.uniform(0, 400, l))
         if faults and k % 250 == 249:
             bad = [np.nan, np.inf, -np.inf, 1e30, -1e300, 0.0][(k // 250) % 6]
@@ -124,7 +124,7 @@ def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
     # Absurd but finite sensor values are implausible: the safe force, the filter restarts.
     biggest = float(np.finfo(np.float64 if real == "double" else np.float32).max)
     l, ny = len(reference.joint_names), len(reference.sensor_names)
-    m = simulate.Measurements(0.0, np.full(ny, biggest), np.zeros(l), np.ones(l), np.full(l, 100.0))
+    m = plant.Measurements(0.0, np.full(ny, biggest), np.zeros(l), np.ones(l), np.full(l, 100.0))
     law = builds[real].clipped_lqg()
     assert np.array_equal(law.step(m), safe) and law.status == control.STATUS_INPUT_IMPLAUSIBLE
     # With the sensor range opened to the largest number they drive the estimate out of the
@@ -167,12 +167,12 @@ def _plausible_run(a, count, seed):
     """Measurements well inside every range, with the stick-slip scales of the study."""
     rng = np.random.default_rng(seed)
     l, ny = len(a.joint_names), len(a.sensor_names)
-    return [simulate.Measurements(k * a.sample_time, rng.normal(0, 1e-2, ny), rng.normal(0, 1e-2, l),
+    return [plant.Measurements(k * a.sample_time, rng.normal(0, 1e-2, ny), rng.normal(0, 1e-2, l),
                                   rng.normal(0, 100, l), rng.uniform(10, 400, l)) for k in range(count)]
 
 
 def _inject(m, field, index, value):
-    out = simulate.Measurements(m.time, m.sensors.copy(), m.sliding_velocity.copy(), m.friction_force.copy(),
+    out = plant.Measurements(m.time, m.sensors.copy(), m.sliding_velocity.copy(), m.friction_force.copy(),
                                 m.normal_force.copy())
     getattr(out, field)[index] = value
     return out

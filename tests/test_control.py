@@ -10,7 +10,7 @@ import scipy.linalg
 from smartjoint.design import control
 from smartjoint.design.friction import lugre
 from smartjoint.design.structure import modal
-from smartjoint.design import plant as simulate
+from smartjoint.design import plant
 from smartjoint.common.errors import DesignError, ModelError
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import parse_design
@@ -27,7 +27,7 @@ def model():
 
 
 def _measure(t, v, u, fn, y=(0.0,)):
-    return simulate.Measurements(t, np.array(y, float), np.array(v, float), np.array(u, float), np.array(fn, float))
+    return plant.Measurements(t, np.array(y, float), np.array(v, float), np.array(u, float), np.array(fn, float))
 
 
 def test_siso_law_follows_eq_30_with_mu_of_the_previous_sample():
@@ -83,10 +83,10 @@ def test_lqg_gains_equal_python_control_and_the_loop_is_stable(model):
 
 def test_active_lqg_damps_the_linear_model_far_more_than_structural_damping(model):
     d = control.design_lqg(model, 1e-3)
-    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
-    active = simulate.simulate(model, [], control.ActiveLqg(d, hold_until=0.04), pulse, 0.5, 1e-3, energy_books=False,
+    pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
+    active = plant.simulate(model, [], control.ActiveLqg(d, hold_until=0.04), pulse, 0.5, 1e-3, energy_books=False,
                                scheme="linear")
-    free = simulate.simulate(model, [], control.ActiveLqg(d, hold_until=10.0), pulse, 0.5, 1e-3, energy_books=False,
+    free = plant.simulate(model, [], control.ActiveLqg(d, hold_until=10.0), pulse, 0.5, 1e-3, energy_books=False,
                              scheme="linear")  # never acts
     assert np.allclose(free.friction_force, 0.0)
     assert active.energy[-1] < 1e-2 * free.energy[-1]  # measured 1.9e-3
@@ -95,8 +95,8 @@ def test_active_lqg_damps_the_linear_model_far_more_than_structural_damping(mode
 def test_study_runs_are_deterministic(model):
     d = control.design_lqg(model, 1e-3)
     laws = [lugre.TYPE_A, lugre.TYPE_B]
-    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
-    runs = [simulate.simulate(model, laws, simulate.HoldDuringExcitation(
+    pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
+    runs = [plant.simulate(model, laws, plant.HoldDuringExcitation(
         control.ClippedLqg(d, np.full(2, 20.0), np.full(2, 300.0), 5.0), 0.04, np.full(2, 300.0)), pulse, 0.1, 1e-4)
         for _ in range(2)]
     assert np.array_equal(runs[0].friction_force, runs[1].friction_force)

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from smartjoint.design.friction import lugre, rig
-from smartjoint.design.friction.identify import classify, model_friction, nrmse
+from smartjoint.design.friction.fitting import nrmse
+from smartjoint.design.friction.identify import classify, model_friction
 
 
 @pytest.mark.numerics
@@ -112,7 +113,7 @@ def test_identification_recovers_table_1_from_noisy_rig_records(joint_type):
 @pytest.mark.parametrize("joint_type", ["A", "B"])
 def test_output_error_model_reproduces_a_noise_free_stick_slip_record(joint_type):
     """shoot(): segments from the velocity peaks, low-passed force, same integrator as the rig."""
-    from smartjoint.design.friction.identify import _prepare_shooting, shoot
+    from smartjoint.design.friction.output_error import prepare_shooting as _prepare_shooting, shoot
 
     p = lugre.TABLE_1[joint_type]
     record = rig.simulate(rig.campaign(joint_type, cycles=2)[1])  # stick-slip, 1.1× break-away
@@ -125,7 +126,7 @@ def test_output_error_model_reproduces_a_noise_free_stick_slip_record(joint_type
 
 
 def test_output_error_step_needs_excitation_force_and_inertia():
-    from smartjoint.design.friction.identify import _output_error_blocker, output_error_gap
+    from smartjoint.design.friction.output_error import output_error_blocker as _output_error_blocker, output_error_gap
 
     record = rig.simulate(rig.campaign("A", cycles=1)[2])
     assert output_error_gap(record) is None and _output_error_blocker([record], True) is None

@@ -6,7 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from smartjoint.design.structure import fem, modal, placement, spec
+# `fem` is the design package: its folder holds data/ (the bundled designs), and it exports build_model.
+from smartjoint import design as fem
+from smartjoint.design.structure import modal, placement, spec
 from smartjoint.common.errors import ModelError
 
 pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)

@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from smartjoint.design.structure import modal
-from smartjoint.design.reduction import krylov as reduction
+from smartjoint.design import reduction
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import parse_design
 

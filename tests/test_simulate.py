@@ -11,7 +11,7 @@ import scipy.linalg
 from smartjoint.design.friction import lugre
 from smartjoint.design.structure import modal
 from smartjoint.common.errors import ModelError
-from smartjoint.design import plant as simulate
+from smartjoint.design import plant
 from smartjoint.design.plant import discretisation, fixed_step
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import parse_design
@@ -36,7 +36,7 @@ def test_free_decay_is_exact_for_any_step(model):
     w, xi = model.omega[0], model.damping[0]
     wd = w * np.sqrt(1 - xi**2)
     for step in (1e-3, 5e-3):
-        result = simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(np.zeros(2), step), None, 0.5, step,
+        result = plant.simulate(model, JOINTS, plant.ConstantNormalForce(np.zeros(2), step), None, 0.5, step,
                                    initial_state=x0)
         t = result.time
         eta = (1 / w) * np.exp(-xi * w * t) * (np.cos(wd * t) + xi * w / wd * np.sin(wd * t))
@@ -54,10 +54,10 @@ def _velocity(w, xi, t):
 @pytest.mark.numerics
 def test_energy_balance_and_dissipation(model):
     """e(t) − e(0) = W_in − W_joints − W_damping to round-off at any step; the joints dissipate net."""
-    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
     errors = []
     for step in (2e-4, 1e-4):
-        result = simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(np.array([20.0, 20.0]), 1e-3), pulse,
+        result = plant.simulate(model, JOINTS, plant.ConstantNormalForce(np.array([20.0, 20.0]), 1e-3), pulse,
                                    0.2, step)
         errors.append(result.balance_error())
         # Net dissipation in the joints (u_R·v itself may dip below zero while the bristles unload).
@@ -68,13 +68,13 @@ def test_energy_balance_and_dissipation(model):
 
 def test_agrees_with_radau_reference(model):
     """Friction force and energy against solve_ivp(Radau, analytic Jacobian), 60 ms after the pulse starts."""
-    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
     normal_force = np.array([300.0, 400.0])
     times = np.arange(0.0, 0.06 + 1e-12, 1e-3)
-    v_ref, u_ref, e_ref = simulate.reference_simulation(model, JOINTS, normal_force, pulse, 0.06, times)
+    v_ref, u_ref, e_ref = plant.reference_simulation(model, JOINTS, normal_force, pulse, 0.06, times)
     errors, energy_errors = [], []
     for step in (5e-5, 2.5e-5):
-        result = simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(normal_force, 1e-3), pulse, 0.06, step)
+        result = plant.simulate(model, JOINTS, plant.ConstantNormalForce(normal_force, 1e-3), pulse, 0.06, step)
         index = np.round(times / step).astype(int)
         u = result.friction_force[index]
         errors.append(np.sqrt(np.mean((u - u_ref) ** 2, axis=0)) / np.sqrt(np.mean(u_ref**2, axis=0)))
@@ -87,11 +87,11 @@ def test_agrees_with_radau_reference(model):
 
 def test_bad_inputs_are_named(model):
     with pytest.raises(Exception, match="whole multiple"):
-        simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(np.zeros(2), 1.5e-4), None, 0.1, 1e-4)
+        plant.simulate(model, JOINTS, plant.ConstantNormalForce(np.zeros(2), 1.5e-4), None, 0.1, 1e-4)
     with pytest.raises(Exception, match="joints: 1 LuGre"):
-        simulate.simulate(model, JOINTS[:1], simulate.ConstantNormalForce(np.zeros(1), 1e-3), None, 0.1, 1e-4)
+        plant.simulate(model, JOINTS[:1], plant.ConstantNormalForce(np.zeros(1), 1e-3), None, 0.1, 1e-4)
     with pytest.raises(Exception, match="normal forces"):
-        simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(np.array([-1.0, 0.0]), 1e-3), None, 0.1, 1e-4)
+        plant.simulate(model, JOINTS, plant.ConstantNormalForce(np.array([-1.0, 0.0]), 1e-3), None, 0.1, 1e-4)
 
 
 def test_simulate_command_names_a_wrong_normal_force_list():
@@ -123,8 +123,8 @@ class _Switching:
 @pytest.mark.numerics
 def test_c_kernel_matches_numpy_mirror_with_switching_forces(model):
     """plant_kernel.c and its numpy mirror take the same steps (halvings included) to round-off."""
-    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
-    runs = [simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.08, 1e-4, backend=b)
+    pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
+    runs = [plant.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.08, 1e-4, backend=b)
             for b in ("python", "c")]
     for name in ("friction_force", "sliding_velocity", "deflection", "energy", "sensors", "work_joints",
                  "work_damping", "work_in"):
@@ -138,9 +138,9 @@ def test_energy_balance_with_switching_normal_forces(model):
     (issue 4: 1e-3 of the input work). The three works are integrated exactly per step,
     independently of e(t), so the balance closes to round-off at any step — measured 2e-13 at
     100, 50 and 25 µs — including the halved steps and the F_N jumps."""
-    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
     for step in (1e-4, 2.5e-5):
-        result = simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.3, step)
+        result = plant.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.3, step)
         assert np.any(np.diff(result.normal_force[:, 0]) != 0)
         residual = result.energy - result.energy[0] - (result.work_in - result.work_joints - result.work_damping)
         assert np.max(np.abs(residual)) < 1e-9 * result.work_in[-1]
@@ -151,7 +151,7 @@ def test_work_coefficients_match_quadrature_of_the_exact_motion(model):
     """The per-step work integrals (Van Loan) against Gauss–Legendre quadrature of the exact
     modal motion under a linear force, for a slow, a mid and the fastest mode and ω·h up to 30."""
     for step in (1e-4, 2e-3):
-        c = simulate.work_coefficients(model, step)
+        c = plant.work_coefficients(model, step)
         nodes, weights = np.polynomial.legendre.leggauss(60)
         for i in (0, model.n_coordinates // 2, model.n_coordinates - 1):
             w, xi = model.omega[i], model.damping[i]
@@ -173,23 +173,23 @@ def test_work_coefficients_match_quadrature_of_the_exact_motion(model):
 
 def test_energy_books_can_be_left_out(model):
     """energy_books=False: the same trajectory, the works NaN (not zeros that look like data)."""
-    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
-    runs = [simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books=books)
+    pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
+    runs = [plant.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books=books)
             for books in (True, False)]
     assert np.array_equal(runs[0].friction_force, runs[1].friction_force)
     assert np.array_equal(runs[0].energy, runs[1].energy)
     assert np.all(np.isnan(runs[1].work_joints))
     with pytest.raises(ModelError, match="energy_books"):
-        simulate.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books="yes")
+        plant.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books="yes")
 
 
 @pytest.mark.numerics
 def test_stable_at_the_controller_sample_time_for_any_normal_force(model):
     """Plant step = controller sample time (1 ms) with F_N jumping anywhere in [0, 800 N]: no
     blow-up — the energy never exceeds what the pulse put in, and the joints never feed energy."""
-    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
+    pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
     for seed in range(3):
-        result = simulate.simulate(model, JOINTS, _Switching(2, 1e-3, seed=seed), pulse, 1.0, 1e-3)
+        result = plant.simulate(model, JOINTS, _Switching(2, 1e-3, seed=seed), pulse, 1.0, 1e-3)
         assert np.all(np.isfinite(result.energy))
         assert np.max(result.energy) <= 1.01 * np.max(result.work_in)
         assert result.energy[-1] < result.energy.max()
@@ -212,7 +212,7 @@ class _Bad:
                                          ("many", "many"), (None, "None")])
 def test_controller_output_is_checked(model, value, text):
     with pytest.raises(ModelError, match=f"controller returned normal forces .*{text}.* need 2 finite"):
-        simulate.simulate(model, JOINTS, _Bad(value), None, 0.01, 1e-4)
+        plant.simulate(model, JOINTS, _Bad(value), None, 0.01, 1e-4)
 
 
 def test_unstable_damping_and_rigid_joint_are_named(model):
@@ -220,12 +220,12 @@ def test_unstable_damping_and_rigid_joint_are_named(model):
 
     unstable = dataclasses.replace(model, damping=np.where(np.arange(model.n_coordinates) == 3, -0.01, model.damping))
     with pytest.raises(ModelError, match=r"coordinate 'mode 4' has .* ξ = -0.01 — need ω > 0 and ξ >= 0"):
-        simulate.simulate(unstable, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
+        plant.simulate(unstable, JOINTS, plant.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
     rigid = dataclasses.replace(model, joint_input=np.column_stack([model.joint_input[:, 0], np.zeros(model.n_coordinates)]))
     with pytest.raises(ModelError, match="joint .* no coordinate of the model moves it"):
-        simulate.simulate(rigid, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
+        plant.simulate(rigid, JOINTS, plant.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
     with pytest.raises(ModelError, match="initial_state: 3 values"):
-        simulate.simulate(model, JOINTS, simulate.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4,
+        plant.simulate(model, JOINTS, plant.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4,
                           initial_state=np.zeros(3))
 
 
@@ -237,19 +237,19 @@ def test_auto_backend_falls_back_to_the_mirror_once_when_c_does_not_build(model,
     def no_compiler(*args, **kwargs):
         raise ModelError("compiling plant_kernel.c failed: no compiler")
 
-    pulse = simulate.triangular_pulse(200.0, 0.04, (1.0,))
-    forces = simulate.ConstantNormalForce(np.array([300.0, 400.0]), 1e-3)
-    expected = simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="python")
+    pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
+    forces = plant.ConstantNormalForce(np.array([300.0, 400.0]), 1e-3)
+    expected = plant.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="python")
     monkeypatch.setattr(native, "load", no_compiler)
     monkeypatch.setattr(fixed_step, "_C_FAILURE", [])
     with pytest.warns(RuntimeWarning, match="plant simulation falls back to Python.*no compiler"):
-        first = simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="auto")
+        first = plant.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="auto")
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the second run goes straight to the mirror, silently
-        second = simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="auto")
+        second = plant.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="auto")
     for run in (first, second):
         assert np.array_equal(run.friction_force, expected.friction_force)
     with pytest.raises(ModelError, match="no compiler"):
-        simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="c")
+        plant.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="c")
     with pytest.raises(ModelError, match="backend: 'fortran' — must be 'auto', 'c' or 'python'"):
-        simulate.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="fortran")
+        plant.simulate(model, JOINTS, forces, pulse, 0.02, 1e-4, backend="fortran")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from smartjoint.design import build_model, load_design, parse_design, solve_modes, update_model
-from smartjoint.design.structure.spec import MeasuredMode, Updating
+from smartjoint.design.structure.description import MeasuredMode, Updating
 
 from conftest import small_truss
 

@@ -7,7 +7,7 @@ file, its SHA-256, package version). The C generator reads only this file, and
 alone, so firmware and reference are checked against the same numbers.
 
 Schema (``schema_version`` 2, documented in ``docs/controller-artifact.md``): a flat JSON
-object whose keys are the fields of :data:`SCHEMA`, SI units. Sizes: l controlled joints
+object whose keys are the fields of :data:`SCHEMA` (``artifact_schema``), SI units. Sizes: l controlled joints
 (``joint_names``: the column order of E and K and the order of every per-joint vector),
 n_y sensors (``sensor_names``: the rows of C), n retained coordinates, state
 x = [η̇_1, ω_1η_1, η̇_2, ω_2η_2, …] (2n, mode-interleaved). Arrays are nested lists, row-major.
@@ -18,6 +18,7 @@ and nothing that depends on the time of writing — the same inputs give the sam
 ``artifact_sha256`` is the SHA-256 of those bytes (= ``sha256sum`` of a saved file).
 """
 
+
 from __future__ import annotations
 
 import hashlib
@@ -25,91 +26,27 @@ import importlib.metadata
 import json
 import math
 import os
-import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from smartjoint.common.errors import ModelError
+from smartjoint.design.control.artifact_schema import (FIELDS, SCHEMA, SCHEMA_VERSION, check_version, field_error,
+                                                       validated)
 from smartjoint.design.control.filter import ActiveLqg, ClippedLqg
 from smartjoint.design.control.laws import SisoLaw
 from smartjoint.design.control.lqg import LqgDesign
-from smartjoint.common.errors import ModelError
-
-SCHEMA_VERSION = 2  # 2: the safe state and the plausibility ranges (docs/safety.md)
-# Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo
-# stacks block at ~100 kN; 1 MN is a typing error (an exponent too many), not a design.
-NORMAL_FORCE_LIMIT = 1e6  # N
-
-
-@dataclass(frozen=True)
-class FieldSpec:
-    """One key of the artefact: its kind, shape (symbols n, 2n, l, n_y), unit and meaning."""
-
-    name: str
-    kind: str  # "integer" | "string" | "names" (unique) | "strings" | "number" | "array"
-    shape: tuple = ()
-    unit: str = ""
-    meaning: str = ""
-
-
-SCHEMA: tuple[FieldSpec, ...] = (
-    FieldSpec("schema_version", "integer", meaning="format version of this file (1)"),
-    FieldSpec("name", "string", meaning="design name"),
-    FieldSpec("sample_time", "number", unit="s", meaning="controller sample time Δt (> 0)"),
-    FieldSpec("joint_names", "names", ("l",), meaning="controlled joints: order of E/K columns and per-joint vectors"),
-    FieldSpec("sensor_names", "names", ("ny",), meaning="sensors: order of the rows of C and of y"),
-    FieldSpec("normal_force_min", "array", ("l",), "N", "F_N^min per joint, Eq. 30/34 (> 0)"),
-    FieldSpec("normal_force_max", "array", ("l",), "N", "F_N^max per joint, Eq. 30/34 (>= F_N^min)"),
-    FieldSpec("siso_boundary_layer", "array", ("l",), "m/s", "ε_j of the SISO law, Eq. 30 (> 0)"),
-    FieldSpec("clqg_boundary_layer", "number", unit="N", meaning="ε of the clipped LQG, Eq. 34 (> 0)"),
-    FieldSpec("blocks", "array", ("n", 2, 2), meaning="Φ_i: 2×2 diagonal blocks of the discrete state matrix"),
-    FieldSpec("gamma0", "array", ("n", 2), meaning="γ0_i: first-order-hold input weight of u_k"),
-    FieldSpec("gamma1", "array", ("n", 2), meaning="γ1_i: first-order-hold input weight of u_k+1"),
-    FieldSpec("joint_input", "array", ("n", "l"), meaning="E: modal joint input, friction acts as −E·u_R"),
-    FieldSpec("output", "array", ("ny", "2n"), meaning="C: y = C·x, Eq. 10"),
-    FieldSpec("feedback_gain", "array", ("l", "2n"), meaning="K: LQR gain, u_d = −K·x̂, Eq. 33"),
-    FieldSpec("estimator_gain", "array", ("2n", "ny"), meaning="M: current-form Kalman gain, Eq. 33"),
-    FieldSpec("modal_frequencies", "array", ("n",), "Hz", "ω_i/2π of the retained coordinates (information)"),
-    FieldSpec("piezo_capacitance", "number", unit="F", meaning="capacitance of one piezo stack"),
-    FieldSpec("piezo_force_per_volt", "number", unit="N/V", meaning="F_N = force_per_volt·V + preload"),
-    FieldSpec("piezo_preload", "number", unit="N", meaning="normal force at 0 V (>= 0, <= F_N^min)"),
-    FieldSpec("sensor_quantities", "strings", ("ny",), meaning="per sensor: displacement (m) or velocity (m/s)"),
-    FieldSpec("safe_normal_force", "array", ("l",), "N", "F_N of every joint while the controller cannot act "
-              "(within [F_N^min, F_N^max]; docs/safety.md)"),
-    FieldSpec("sliding_velocity_limit", "array", ("l",), "m/s", "|v| above is implausible (> 0)"),
-    FieldSpec("friction_force_limit", "array", ("l",), "N", "|u_R| above is implausible (> 0)"),
-    FieldSpec("measured_normal_force_min", "array", ("l",), "N", "a measured F_N below is implausible (<= 0)"),
-    FieldSpec("measured_normal_force_max", "array", ("l",), "N", "a measured F_N above is implausible "
-              "(>= F_N^max)"),
-    FieldSpec("sensor_limit", "array", ("ny",), "m or m/s", "|y| above is implausible (> 0)"),
-    FieldSpec("amplifier_temperature_limit", "number", unit="degC", meaning="amplifier temperature above is a fault"),
-    FieldSpec("amplifier_current_limit", "number", unit="A", meaning="|amplifier current| above is a fault (> 0)"),
-    FieldSpec("tracking_tolerance", "number", unit="V", meaning="|monitor voltage − setpoint| above is a tracking "
-              "fault (> 0)"),
-    FieldSpec("timeout_cycles", "integer", meaning="an input whose newest frame is this many cycles old is missing "
-              "(a whole number 2 … 7; firmware and amplifiers)"),
-    FieldSpec("recovery_cycles", "integer", meaning="fault-free cycles in a row before the safe state ends (1 … 255)"),
-    FieldSpec("design_source", "string", meaning="file name of the design (no folder: the text must not depend on where it lies)"),
-    FieldSpec("design_sha256", "string", meaning="SHA-256 of the design file bytes (\"\" for in-memory designs)"),
-    FieldSpec("package_version", "string", meaning="smartjoint version that wrote the artefact"),
-)
-FIELDS = {spec.name: spec for spec in SCHEMA}
-_HEX64 = re.compile(r"[0-9a-f]{64}")
-
-
-def _shown(value) -> str:
-    text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _error(field: str, value, allowed: str) -> ModelError:
-    return ModelError(f"{field}: {_shown(value)} — {allowed}")
 
 
 def installed_version() -> str:
-    """The installed smartjoint version, "unknown" when running from an uninstalled tree."""
+    """The installed smartjoint version, "unknown" when running from an uninstalled tree.
+
+    Returns
+    -------
+    str
+    """
     try:
         return importlib.metadata.version("smartjoint")
     except importlib.metadata.PackageNotFoundError:
@@ -158,7 +95,7 @@ class ControllerArtifact:
     package_version: str
 
     def __post_init__(self):
-        for field, value in _validated(self.__dict__).items():
+        for field, value in validated(self.__dict__).items():
             object.__setattr__(self, field, value)
 
     def __eq__(self, other) -> bool:
@@ -178,178 +115,6 @@ class ControllerArtifact:
         return hashlib.sha256(dumps(self).encode("ascii")).hexdigest()
 
 
-# --------------------------------------------------------------------------- validation
-def _validated(values: dict) -> dict:
-    """Check every field (kind, shape, finiteness, limits); return them in stored form."""
-    out = {"schema_version": _version(values["schema_version"])}
-    for spec in SCHEMA:
-        value = values[spec.name]
-        if spec.kind == "string":
-            if not isinstance(value, str):
-                raise _error(spec.name, value, "expected a string")
-            out[spec.name] = value
-        elif spec.kind == "number":
-            out[spec.name] = _number(spec.name, value)
-        elif spec.kind == "names":
-            out[spec.name] = _names(spec.name, value)
-        elif spec.kind == "strings":
-            out[spec.name] = _strings(spec.name, value)
-        elif spec.kind == "integer" and spec.name != "schema_version":
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-                raise _error(spec.name, value, "expected a whole number")
-            out[spec.name] = int(value)
-        elif spec.kind == "array":
-            out[spec.name] = _array(spec.name, value)
-    for field in ("name", "package_version"):
-        if not out[field]:
-            raise _error(field, out[field], "expected a non-empty string")
-    if out["design_sha256"] and not _HEX64.fullmatch(out["design_sha256"]):
-        raise _error("design_sha256", out["design_sha256"], "expected 64 lowercase hex digits or \"\"")
-    for field in ("sample_time", "clqg_boundary_layer", "piezo_capacitance", "piezo_force_per_volt"):
-        if out[field] <= 0:
-            raise _error(field, out[field], f"must be > 0 [{FIELDS[field].unit}]")
-    if out["piezo_preload"] < 0:
-        raise _error("piezo_preload", out["piezo_preload"], "must be >= 0 [N]")
-
-    blocks = out["blocks"]
-    if blocks.ndim != 3 or blocks.shape[0] < 1 or blocks.shape[1:] != (2, 2):
-        raise ModelError(f"blocks: shape {blocks.shape} — expected (n, 2, 2) with n >= 1 retained coordinates")
-    n, l, ny = blocks.shape[0], len(out["joint_names"]), len(out["sensor_names"])
-    sizes = {"n": n, "2n": 2 * n, "l": l, "ny": ny}
-    if len(out["sensor_quantities"]) != ny:
-        raise ModelError(f"sensor_quantities: {len(out['sensor_quantities'])} entries — expected one per sensor "
-                         f"(n_y = {ny})")
-    for spec in SCHEMA:
-        if spec.kind == "array":
-            expected = tuple(sizes.get(s, s) for s in spec.shape)
-            if out[spec.name].shape != expected:
-                symbols = ", ".join(str(s) for s in spec.shape) + ("," if len(spec.shape) == 1 else "")
-                raise ModelError(f"{spec.name}: shape {out[spec.name].shape} — expected {expected} = ({symbols}) "
-                                 f"with n = {n} coordinates, l = {l} joints, n_y = {ny} sensors")
-
-    low, high = out["normal_force_min"], out["normal_force_max"]
-    for j, joint in enumerate(out["joint_names"]):
-        if not 0 < low[j] <= high[j]:
-            raise ModelError(f"normal_force_min/normal_force_max: {float(low[j])!r}/{float(high[j])!r} N for joint "
-                             f"{joint!r} — need 0 < F_N^min <= F_N^max")
-        if high[j] > NORMAL_FORCE_LIMIT:
-            raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — at most "
-                             f"{NORMAL_FORCE_LIMIT:g} N (1 MN: far beyond any piezo-clamped friction joint)")
-        if out["piezo_preload"] > low[j]:
-            raise ModelError(f"piezo_preload: {out['piezo_preload']!r} N — above normal_force_min[{j}] = "
-                             f"{float(low[j])!r} N of joint {joint!r}: at 0 V the stack already presses with the "
-                             "preload, so F_N^min is out of reach; need piezo_preload <= F_N^min")
-        if out["siso_boundary_layer"][j] <= 0:
-            raise ModelError(f"siso_boundary_layer: {float(out['siso_boundary_layer'][j])!r} for joint {joint!r} "
-                             "— ε must be > 0 [m/s] (Eq. 30)")
-    if np.any(out["modal_frequencies"] <= 0):
-        raise _error("modal_frequencies", out["modal_frequencies"], "must be > 0 [Hz]")
-    _check_safety(out)
-    return out
-
-
-SENSOR_QUANTITIES = ("displacement", "velocity")
-
-
-def _check_safety(out: dict) -> None:
-    """The safe force within the limits, the plausibility ranges around what the law can see."""
-    for i, quantity in enumerate(out["sensor_quantities"]):
-        if quantity not in SENSOR_QUANTITIES:
-            raise _error(f"sensor_quantities[{i}]", quantity, "allowed: " + ", ".join(SENSOR_QUANTITIES))
-    low, high = out["normal_force_min"], out["normal_force_max"]
-    for j, joint in enumerate(out["joint_names"]):
-        safe = float(out["safe_normal_force"][j])
-        if not low[j] <= safe <= high[j]:
-            raise ModelError(f"safe_normal_force[{j}]: {safe!r} N for joint {joint!r} — must lie within "
-                             f"[normal_force_min, normal_force_max] = [{float(low[j])!r}, {float(high[j])!r}] N")
-        for field in ("sliding_velocity_limit", "friction_force_limit"):
-            if out[field][j] <= 0:
-                raise ModelError(f"{field}[{j}]: {float(out[field][j])!r} for joint {joint!r} — must be > 0 "
-                                 f"[{FIELDS[field].unit}]")
-        if out["measured_normal_force_min"][j] > 0:
-            raise ModelError(f"measured_normal_force_min[{j}]: {float(out['measured_normal_force_min'][j])!r} N for "
-                             f"joint {joint!r} — must be <= 0 N (an unloaded joint reads 0 N)")
-        if out["measured_normal_force_max"][j] < high[j]:
-            raise ModelError(f"measured_normal_force_max[{j}]: {float(out['measured_normal_force_max'][j])!r} N for "
-                             f"joint {joint!r} — must be >= normal_force_max = {float(high[j])!r} N")
-    if np.any(out["sensor_limit"] <= 0):
-        raise _error("sensor_limit", out["sensor_limit"], "must be > 0 [m or m/s]")
-    for field in ("amplifier_current_limit", "tracking_tolerance"):
-        if out[field] <= 0:
-            raise _error(field, out[field], f"must be > 0 [{FIELDS[field].unit}]")
-    for field, low, high in (("timeout_cycles", 2, 7), ("recovery_cycles", 1, 255)):
-        if not low <= out[field] <= high:
-            raise _error(field, out[field], f"a whole number {low} … {high}")
-
-
-def _version(value) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value != SCHEMA_VERSION:
-        hint = (" — schema_version 1 has no safe state or plausibility ranges: re-run `smartjoint design` to write "
-                "version 2" if value == 1 and not isinstance(value, bool) else "")
-        raise _error("schema_version", value, f"unknown; this version reads schema_version {SCHEMA_VERSION}{hint}")
-    return value
-
-
-def _number(field: str, value) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise _error(field, value, "expected a number")
-    try:
-        number = float(value)
-    except OverflowError:
-        number = math.inf
-    if not math.isfinite(number):
-        raise _error(field, value, "expected a finite number")
-    return number
-
-
-def _names(field: str, value) -> tuple[str, ...]:
-    if not isinstance(value, (list, tuple)) or not value:
-        raise _error(field, value, "expected a non-empty list of names")
-    for i, name in enumerate(value):
-        if not isinstance(name, str) or not name:
-            raise _error(f"{field}[{i}]", name, "expected a non-empty string")
-        if value.index(name) != i:
-            raise _error(f"{field}[{i}]", name, f"duplicate name (also {field}[{value.index(name)}])")
-    return tuple(value)
-
-
-def _strings(field: str, value) -> tuple[str, ...]:
-    if not isinstance(value, (list, tuple)):
-        raise _error(field, value, "expected a list of strings")
-    for i, item in enumerate(value):
-        if not isinstance(item, str):
-            raise _error(f"{field}[{i}]", item, "expected a string")
-    return tuple(value)
-
-
-def _array(field: str, value) -> np.ndarray:
-    """A finite float64 array from an ndarray or nested lists of numbers; read-only."""
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind not in "fiu":
-            raise _error(field, value, "expected numbers")
-    else:
-        def check(item):
-            if isinstance(item, list):
-                for element in item:
-                    check(element)
-            elif isinstance(item, bool) or not isinstance(item, (int, float)):
-                raise _error(field, item, "expected a (nested) list of numbers")
-        if isinstance(value, tuple):
-            value = list(value)
-        check(value)
-    try:
-        array = np.array(value, dtype=np.float64, order="C")
-    except OverflowError:
-        raise _error(field, value, "every entry must be a finite number") from None
-    except ValueError:
-        raise _error(field, value, "expected a rectangular (nested) list of numbers") from None
-    if not np.all(np.isfinite(array)):
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(array))[0])
-        raise ModelError(f"{field}: {float(array[bad])!r} at index {bad} — every entry must be a finite number")
-    array.setflags(write=False)
-    return array
-
-
 # --------------------------------------------------------------------------- building
 def _per_joint(field: str, value, joints: tuple[str, ...]) -> np.ndarray:
     """A number for every joint or one per joint (broadcast)."""
@@ -357,7 +122,7 @@ def _per_joint(field: str, value, joints: tuple[str, ...]) -> np.ndarray:
     if array.ndim == 0:
         return np.full(len(joints), float(array))
     if array.shape != (len(joints),):
-        raise _error(field, value, f"expected a number or {len(joints)} numbers, one per joint ({', '.join(joints)})")
+        raise field_error(field, value, f"expected a number or {len(joints)} numbers, one per joint ({', '.join(joints)})")
     return array
 
 
@@ -365,8 +130,23 @@ def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> Cont
     """The artefact of ``design`` with the LQG ``lqg`` designed on the reduced modal ``model``.
 
     Controlled joints: ``design.control.joints`` in that order, else every joint of the design;
-    the model's joint/sensor order must be that order. ``siso_boundary_layer`` (ε of Eq. 30,
-    m/s, a number or one per joint) defaults to ``design.control.siso_boundary_layer``.
+    the model's joint/sensor order must be that order.
+
+    Parameters
+    ----------
+    design : Design
+        The design (limits, piezo calibration, [safety]).
+    model : ModalModel
+        The reduced modal model the LQG was designed on.
+    lqg : LqgDesign
+        The discrete LQG (Eq. 33).
+    siso_boundary_layer : float or sequence of float, optional
+        ε of Eq. 30 [m/s], a number or one per joint; default ``design.control.siso_boundary_layer``.
+
+    Returns
+    -------
+    ControllerArtifact
+        Validated.
     """
     control = design.control
     joints = tuple(control.joints) if control.joints is not None else tuple(j.name for j in design.joints)
@@ -412,7 +192,20 @@ DISPLACEMENT_FRACTION = 0.05  # default displacement plausibility: 5 % of the tr
 
 
 def safety_fields(design, joints: tuple[str, ...]) -> dict:
-    """The artefact's safe state and plausibility ranges from the design's ``[safety]``."""
+    """The artefact's safe state and plausibility ranges from the design's ``[safety]``.
+
+    Parameters
+    ----------
+    design : Design
+        The design.
+    joints : tuple of str
+        The controlled joints, in artefact order.
+
+    Returns
+    -------
+    dict
+        The safety fields of the schema.
+    """
     control, safety = design.control, design.safety
     low = _per_joint("normal_force_min", control.normal_force_min, joints)
     high = _per_joint("normal_force_max", control.normal_force_max, joints)
@@ -458,7 +251,18 @@ def _encode(value, indent: str) -> str:
 
 
 def dumps(artifact: ControllerArtifact) -> str:
-    """Canonical JSON text (see the module docstring): same artefact, same bytes."""
+    """Canonical JSON text (see the module docstring): same artefact, same bytes.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The artefact to write, every field of `SCHEMA`.
+
+    Returns
+    -------
+    str
+        ASCII text ending in a newline.
+    """
     data = {}
     for spec in SCHEMA:
         value = getattr(artifact, spec.name)
@@ -468,7 +272,20 @@ def dumps(artifact: ControllerArtifact) -> str:
 
 def save(artifact: ControllerArtifact, path) -> Path:
     """Write ``dumps(artifact)`` atomically: a temporary file in the same folder, then
-    ``os.replace`` — ``path`` holds either the old or the new complete text, never a part."""
+    ``os.replace`` — ``path`` holds either the old or the new complete text, never a part.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The artefact to write.
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     path = Path(path)
     text = dumps(artifact)
     temporary = None
@@ -492,12 +309,22 @@ def _object(pairs):
     keys = [key for key, _ in pairs]
     for i, key in enumerate(keys):
         if keys.index(key) != i:
-            raise _error(key, pairs[i][1], "duplicate key")
+            raise field_error(key, pairs[i][1], "duplicate key")
     return dict(pairs)
 
 
 def loads(text: str) -> ControllerArtifact:
-    """Parse and validate an artefact; every problem is a ModelError naming the field."""
+    """Parse and validate an artefact; every problem is a ModelError naming the field.
+
+    Parameters
+    ----------
+    text : str
+        The JSON text.
+
+    Returns
+    -------
+    ControllerArtifact
+    """
     try:
         data = json.loads(text, object_pairs_hook=_object)
     except json.JSONDecodeError as error:
@@ -505,22 +332,37 @@ def loads(text: str) -> ControllerArtifact:
     except RecursionError:
         raise ModelError("<artefact>: not valid JSON (nested too deeply)") from None
     if not isinstance(data, dict):
-        raise _error("<artefact>", data, "expected a JSON object")
+        raise field_error("<artefact>", data, "expected a JSON object")
     if "schema_version" not in data:
         raise ModelError(f"schema_version: missing — required field; this version reads {SCHEMA_VERSION}")
-    _version(data["schema_version"])  # first: another version may have other fields
+    check_version(data["schema_version"])  # first: another version may have other fields
     missing = [spec.name for spec in SCHEMA if spec.name not in data]
     if missing:
         raise ModelError(f"{missing[0]}: missing — required field" + (
             f" (also missing: {', '.join(missing[1:])})" if len(missing) > 1 else ""))
     unknown = sorted(set(data) - set(FIELDS))
     if unknown:
-        raise _error(unknown[0], data[unknown[0]], f"unknown field in schema_version {SCHEMA_VERSION}")
+        raise field_error(unknown[0], data[unknown[0]], f"unknown field in schema_version {SCHEMA_VERSION}")
     return ControllerArtifact(**data)
 
 
 def load(path) -> ControllerArtifact:
-    """Read and validate an artefact file; errors are prefixed with the path."""
+    """Read and validate an artefact file; errors are prefixed with the path.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    ControllerArtifact
+
+    Examples
+    --------
+    >>> controller = load("controller.json")  # doctest: +SKIP
+    >>> law = siso_law(controller)  # doctest: +SKIP
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -536,7 +378,17 @@ def load(path) -> ControllerArtifact:
 # --------------------------------------------------------------------------- reference controllers
 def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
     """The ``LqgDesign`` of the artefact. The Riccati solutions are not stored: they are NaN
-    arrays of the right shape (the controllers and ``closed_loop_poles`` never read them)."""
+    arrays of the right shape (the controllers and ``closed_loop_poles`` never read them).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        Its blocks, FOH weights, E, C and the two gains.
+
+    Returns
+    -------
+    LqgDesign
+    """
     n2 = artifact.output.shape[1]
     unknown = np.full((n2, n2), np.nan)
     return LqgDesign(artifact.sample_time, artifact.blocks, artifact.gamma0, artifact.gamma1, artifact.joint_input,
@@ -545,7 +397,17 @@ def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
 
 def siso_law(artifact: ControllerArtifact) -> SisoLaw:
     """The local Lyapunov law of Eq. 30 with μ of Eq. 31, per joint, with the artefact's safe
-    normal force and plausibility ranges (what the generated C checks)."""
+    normal force and plausibility ranges (what the generated C checks).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        Its limits, ε per joint, safe force and plausibility ranges.
+
+    Returns
+    -------
+    SisoLaw
+    """
     return SisoLaw(artifact.sample_time, artifact.normal_force_min, artifact.normal_force_max,
                    artifact.siso_boundary_layer, safe_normal_force=artifact.safe_normal_force,
                    sliding_velocity_limit=artifact.sliding_velocity_limit,
@@ -556,7 +418,17 @@ def siso_law(artifact: ControllerArtifact) -> SisoLaw:
 
 def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
     """The clipped-optimal LQG of Eq. 33–34, with the artefact's safe normal force and
-    plausibility ranges (what the generated C checks)."""
+    plausibility ranges (what the generated C checks).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        Its LQG, limits, ε of Eq. 34, safe force and plausibility ranges.
+
+    Returns
+    -------
+    ClippedLqg
+    """
     return ClippedLqg(lqg_design(artifact), artifact.normal_force_min, artifact.normal_force_max,
                       artifact.clqg_boundary_layer, safe_normal_force=artifact.safe_normal_force,
                       sensor_limit=artifact.sensor_limit, friction_force_limit=artifact.friction_force_limit,
@@ -565,5 +437,19 @@ def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
 
 
 def active_lqg(artifact: ControllerArtifact) -> ActiveLqg:
-    """The fully active LQG reference (u_d = −K·x̂ of Eq. 33 applied as forces)."""
+    """The fully active LQG reference (u_d = −K·x̂ of Eq. 33 applied as forces).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        Its LQG (`lqg_design`).
+
+    Returns
+    -------
+    ActiveLqg
+    """
     return ActiveLqg(lqg_design(artifact))
+
+
+__all__ = ["ControllerArtifact", "DISPLACEMENT_FRACTION", "active_lqg", "clipped_lqg", "dumps", "from_design",
+           "installed_version", "load", "loads", "lqg_design", "safety_fields", "save", "siso_law"]

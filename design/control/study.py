@@ -25,7 +25,7 @@ from smartjoint.design.friction import lugre
 from smartjoint.design.plant.disturbance import TriangularPulse, triangular_pulse
 from smartjoint.design.plant.interface import ConstantNormalForce, HoldDuringExcitation
 from smartjoint.design.plant.loop import simulate
-from smartjoint.design.reduction import krylov as reduction
+from smartjoint.design import reduction
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.modal import ModalModel

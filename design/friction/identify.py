@@ -23,7 +23,7 @@ relaxes the simulated bristles during sticking and biases F_d (errors-in-variabl
 (rig records do), a third step refines all six parameters by output error: the rig model
 m·v̇ = F_exc − r·F_N·μ(v, φ) with Eq. 1, driven by the measured excitation force
 (``rig_kernel.c``, 8 implicit trapezoidal substeps per sample), fitted to the measured
-velocity segment by segment (``_refine``, ``shoot``).
+velocity segment by segment (``output_error``).
 
 Uncertainty: for the Eq. 3 steps the covariance s²·(JᵀJ)⁻¹ at the optimum with the residual
 variance s² inflated by (1 + ρ)/(1 − ρ), ρ the lag-1 autocorrelation of the residuals
@@ -45,61 +45,41 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.optimize
-from scipy.signal import butter, find_peaks, savgol_filter, sosfiltfilt
 
+from smartjoint.common.errors import SmartjointError
 from smartjoint.design.friction import lugre, rig
-from smartjoint.common.errors import ModelError, SmartjointError
+from smartjoint.design.friction.fitting import StepResult, filtered_velocity, nrmse, rms, step_result
+from smartjoint.design.friction.output_error import P3, output_error_blocker, refine
 from smartjoint.design.friction.records import MIN_RADIUS, Record, RecordError, bound
 
 P1 = ("sigma0", "sigma1")
 P2 = ("coulomb", "stribeck", "stribeck_velocity", "sigma2")
-P3 = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")  # output error: all six
 ROUNDS = 2
-WEAK_RELATIVE_WIDTH = 0.5  # 95 % interval wider than ±50 % of the value: weakly identifiable
-# Low-pass of the measured excitation force that drives the output-error model, in multiples
-# of the excitation frequency: keeps the 4th harmonic, removes the sensor noise at the bristle
-# resonance (20–40× the excitation frequency on the rig).
-EXCITATION_CUTOFF = 5.0
-VELOCITY_CUTOFF = 25.0  # default of filtered_velocity, which also gives the output-error segment starts
 # Fewest samples per record: the 11-point Savitzky–Golay window of the friction column and the
 # spectrum that finds the excitation frequency need a few times that.
 MIN_SAMPLES = 50
 
 
-def dominant_frequency(signal, sample_time: float) -> float:
-    """The strongest non-zero frequency of a signal [Hz]: the excitation frequency of a rig record."""
-    spectrum = np.abs(np.fft.rfft(signal - np.mean(signal)))
-    frequencies = np.fft.rfftfreq(len(signal), sample_time)
-    return float(frequencies[1:][np.argmax(spectrum[1:])])
-
-
-def low_pass(signal, sample_time: float, cutoff_hz: float, period: float) -> np.ndarray:
-    """Zero-phase 4th-order Butterworth low-pass, padded by one ``period`` [s] at both ends.
-
-    scipy's default padding (a few samples) leaves end transients of the filter's own time
-    constant: 150 N on a 330 N sine at 5× its frequency, against 0.01 N with one period.
-    """
-    fs = 1.0 / sample_time
-    if cutoff_hz >= 0.45 * fs:
-        return np.asarray(signal, dtype=float)
-    sos = butter(4, cutoff_hz, fs=fs, output="sos")
-    return sosfiltfilt(sos, signal, padlen=min(int(round(period * fs)), len(signal) - 1))
-
-
-def filtered_velocity(record: Record, cutoff_hz: float | None = None) -> np.ndarray:
-    """Zero-phase low-pass of the measured velocity (default cutoff: 25× the dominant frequency)."""
-    dominant = dominant_frequency(record.sliding_velocity, record.sample_time)
-    if cutoff_hz is None:
-        cutoff_hz = VELOCITY_CUTOFF * dominant
-    return low_pass(record.sliding_velocity, record.sample_time, cutoff_hz, 1.0 / dominant)
-
-
 def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, initial_force: float = 0.0):
-    """û_R at the sample times for a measured velocity (midpoint exact-exponential step).
+    """û_R at the sample times for a measured velocity (midpoint exact-exponential step, Eq. 1–2).
 
     The same step as ``lugre.step`` and ``lugre.friction_coefficient``, written out on Python
     floats: the fit calls this for every sample thousands of times, and numpy's per-call
     overhead on scalars would cost about 10×.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters.
+    time, velocity, normal_force : ndarray
+        The measured series (SI).
+    initial_force : float
+        The friction force at the first sample, for a consistent start deflection.
+
+    Returns
+    -------
+    ndarray
+        û_R per sample.
     """
     s0, s1, s2 = p.sigma0, p.sigma1, p.sigma2
     fc, fd, vs = p.coulomb, p.stribeck, p.stribeck_velocity
@@ -123,29 +103,6 @@ def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, in
         out[k] = arm * float(normal_force[k]) * (s0 * phi + s1 * phidot + s2 * v)
         previous_v = v
     return out
-
-
-def nrmse(measured, model) -> float:
-    """‖u − û‖_rms / ‖u‖_rms."""
-    return float(np.sqrt(np.mean((measured - model) ** 2)) / np.sqrt(np.mean(measured**2)))
-
-
-@dataclass
-class StepResult:
-    names: tuple[str, ...]
-    values: np.ndarray
-    lower: np.ndarray  # 95 % interval
-    upper: np.ndarray
-    correlation: np.ndarray
-    nrmse: dict[str, float]  # per record: friction force (Eq. 3 steps), sliding velocity (output error)
-    cost: float
-    evaluations: int
-
-    @property
-    def weak(self) -> list[str]:
-        with np.errstate(over="ignore"):  # an unbounded interval is simply weak
-            width = (self.upper - self.lower) / (2.0 * self.values)
-        return [n for n, w in zip(self.names, width) if not w <= WEAK_RELATIVE_WIDTH]
 
 
 @dataclass
@@ -241,12 +198,23 @@ def _check_plausible(values: dict[str, float], joint_type: str, stage: str) -> N
                               f"and <= {upper:g}; the records do not determine the LuGre parameters")
 
 
-def _rms(x) -> float:
-    return float(np.sqrt(np.mean(np.asarray(x) ** 2)))
-
-
 def model_friction(p: lugre.LuGreParameters, record: Record, velocity) -> np.ndarray:
-    """û_R of Eq. 3 for a record, from the (possibly filtered) measured ``velocity``."""
+    """û_R of Eq. 3 for a record, from the (possibly filtered) measured ``velocity``.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        The parameters.
+    record : Record
+        The record (time, normal force, first friction force).
+    velocity : ndarray
+        The velocity fed to the model.
+
+    Returns
+    -------
+    ndarray
+        û_R per sample.
+    """
     return simulate_friction(p, record.time, velocity, record.normal_force, record.friction_force[0])
 
 
@@ -264,7 +232,7 @@ def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]]
         parts = []
         for r, n in zip(records, count):
             friction = model_friction(p, r, velocities[r.name])
-            parts.append((friction - r.friction_force) / (_rms(r.friction_force) * n))
+            parts.append((friction - r.friction_force) / (rms(r.friction_force) * n))
         return np.concatenate(parts)
 
     evaluations = 0
@@ -289,162 +257,7 @@ def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]]
             progress(f"{label}: start {k + 1}/{len(starts)}, cost {best.cost:.4g}")
     p = parameters(best.x)
     errors = {r.name: nrmse(r.friction_force, model_friction(p, r, velocities[r.name])) for r in records}
-    return _step_result(names, best, errors, evaluations), p
-
-
-def _step_result(names, solution, errors: dict[str, float], evaluations: int, clusters=None) -> StepResult:
-    """Values, 95 % intervals and correlation of a log-parameter least-squares ``solution``.
-
-    ``clusters``: a group label per residual (output-error segments) for the cluster-robust
-    (sandwich) covariance; without it s²·(JᵀJ)⁻¹ with s² inflated for autocorrelation.
-    A parameter the residuals do not see (a null direction of J) or held at a bound gets an
-    unbounded interval rather than the zero width a pseudo-inverse would give it.
-    """
-    J, r = solution.jac, solution.fun
-    _, singular, vt = np.linalg.svd(J, full_matrices=False)
-    seen = singular > singular[0] * 1e-8
-    inverse = (vt[seen].T / singular[seen] ** 2) @ vt[seen]  # (JᵀJ)⁻¹ on the directions J sees
-    if clusters is None:
-        dof = max(r.size - len(names), 1)
-        # Residuals of neighbouring samples are correlated (smooth signals, filtered inputs):
-        # inflate the variance by (1 + ρ)/(1 − ρ), ρ the lag-1 autocorrelation, i.e. count
-        # effective rather than nominal samples.
-        e = r - r.mean()
-        rho = float(np.clip(np.dot(e[1:], e[:-1]) / max(np.dot(e, e), 1e-300), 0.0, 0.999))
-        covariance = 2.0 * solution.cost / dof * (1.0 + rho) / (1.0 - rho) * inverse
-    else:
-        # Errors within a segment share its start value and integrated force noise: each
-        # segment is one independent observation of the gradient.
-        count = int(clusters.max()) + 1
-        gradients = np.zeros((count, len(names)))
-        np.add.at(gradients, clusters, J * r[:, None])
-        covariance = inverse @ (gradients.T @ gradients) @ inverse * count / max(count - len(names), 1)
-    sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    sigma[np.any(np.abs(vt[~seen]) > 1e-6, axis=0) | (solution.active_mask != 0)] = np.inf
-    with np.errstate(invalid="ignore"):
-        correlation = np.nan_to_num(covariance / np.outer(np.maximum(sigma, 1e-300), np.maximum(sigma, 1e-300)))
-    np.fill_diagonal(correlation, 1.0)
-    return StepResult(tuple(names), np.exp(solution.x), np.exp(np.clip(solution.x - 1.96 * sigma, -700, 700)),
-                      np.exp(np.clip(solution.x + 1.96 * sigma, -700, 700)), correlation, errors,
-                      float(solution.cost), evaluations)
-
-
-@dataclass
-class _Shooting:
-    """A stick-slip record prepared for the output-error step (multiple shooting)."""
-
-    record: Record
-    force: np.ndarray  # low-passed excitation at the integrator's substep nodes
-    gain: np.ndarray  # r·F_N at the nodes
-    starts: np.ndarray  # sample index of every segment start: the sliding-velocity peaks
-    start_velocity: np.ndarray  # measured velocity there, from a local quadratic fit
-    measured: np.ndarray  # measured velocity of the samples the segments predict
-    scale: float  # RMS velocity · √samples: every record counts alike
-
-
-def output_error_gap(record: Record) -> str | None:
-    """Why ``record`` cannot enter the output-error step (None when it can)."""
-    if record.excitation_force is None:
-        return f"{record.name}: no column 'excitation_force'"
-    if not record.inertia:
-        return f"{record.name}: no '# inertia = …' metadata (or inertia 0)"
-    return None
-
-
-def _prepare_shooting(record: Record, arm: float) -> _Shooting:
-    frequency = dominant_frequency(record.excitation_force, record.sample_time)
-    period = 1.0 / frequency
-    force = low_pass(record.excitation_force, record.sample_time, EXCITATION_CUTOFF * frequency, period)
-    smoothed = low_pass(record.sliding_velocity, record.sample_time, VELOCITY_CUTOFF * frequency, period)
-    half_period = 0.5 * period / record.sample_time
-    peaks, _ = find_peaks(np.abs(smoothed), distance=max(int(0.6 * half_period), 1),
-                          height=0.5 * np.abs(smoothed).max())
-    peaks = peaks[peaks < record.time.size - 1]
-    if peaks.size == 0:
-        raise RecordError(f"{record.name}: column 'sliding_velocity' has no sliding peak to start the output-error "
-                          "segments from")
-    # The start values: a quadratic fit to the raw velocity over ±0.1 half period. Reading the
-    # low-passed velocity at its own maxima would pick the noise's ups (type B: σ2 +15 %, not +10 %).
-    half_window = min(max(int(0.1 * half_period), 2), (record.time.size - 1) // 2)
-    start_velocity = savgol_filter(record.sliding_velocity, 2 * half_window + 1, 2)[peaks]
-    # Linear interpolation between samples: the substep nodes of rig.integrate.
-    substep = np.diff(record.time)[:, None] / rig.SUBSTEPS * np.arange(rig.SUBSTEPS)[None, :]
-    nodes = np.append((record.time[:-1, None] + substep).ravel(), record.time[-1])
-    measured = record.sliding_velocity[peaks[0] + 1:]
-    return _Shooting(record, np.interp(nodes, record.time, force),
-                     arm * np.interp(nodes, record.time, record.normal_force), peaks, start_velocity, measured,
-                     _rms(record.sliding_velocity) * math.sqrt(measured.size))
-
-
-def shoot(p: lugre.LuGreParameters, shooting: _Shooting) -> np.ndarray:
-    """Simulated velocity of the rig model (Eq. 1–2) for ``shooting.measured``.
-
-    Each segment runs from one sliding-velocity peak to the next, from the measured velocity
-    (local quadratic fit) and the steady-state deflection φ_ss(v) of Eq. 1 (at a peak the element slides
-    steadily, and φ relaxes within F_c/(σ0·|v|) ≈ 0.1 ms).
-    """
-    record, step = shooting.record, rig.SUBSTEPS
-    bounds = np.append(shooting.starts, record.time.size - 1)
-    parts = []
-    for start, end, velocity0 in zip(bounds[:-1], bounds[1:], shooting.start_velocity):
-        nodes = slice(start * step, end * step + 1)
-        velocity, _ = rig.integrate(p, shooting.gain[nodes], record.inertia, shooting.force[nodes],
-                                    record.time[start:end + 1], step, velocity0,
-                                    float(lugre.steady_state_deflection(p, velocity0)), backend="c")
-        parts.append(velocity[1:])
-    return np.concatenate(parts)
-
-
-def _refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple[StepResult, lugre.LuGreParameters]:
-    """Output-error step: all six parameters from the stick-slip velocities, started at ``start``.
-
-    The rig model m·v̇ = F_exc − r·F_N·μ(v, φ) (Eq. 1–2) is driven by the measured excitation
-    force, so velocity noise is output noise only, which least squares averages out, where in
-    Eq. 3 it is input noise that biases F_d. Two details keep the force noise from biasing it
-    instead: the force is low-passed at ``EXCITATION_CUTOFF``× its frequency (its noise near the
-    lightly damped bristle resonance would shake the simulated bristles during sticking), and
-    the records are cut into segments from one velocity peak to the next (a sliding element's
-    velocity is neutrally stable, so integrated force noise drifts over a whole record).
-    Micro-slip records stay out: their velocity is the bristle resonance's response, and the
-    force noise alone drives that far above the signal (velocity NRMSE 2.5–7.6 at the truth).
-    """
-    shootings = [_prepare_shooting(r, start.moment_arm) for r in stick]
-
-    def parameters(theta):
-        return lugre.LuGreParameters(radius=start.radius, **{n: float(math.exp(t)) for n, t in zip(P3, theta)})
-
-    def residual(theta):
-        p = parameters(theta)
-        parts = [(shoot(p, s) - s.measured) / s.scale for s in shootings]
-        # A wild trial point can make the Newton solve diverge: a large finite residual
-        # sends the optimiser back instead of stopping it.
-        return np.nan_to_num(np.concatenate(parts), nan=1e3, posinf=1e3, neginf=-1e3)
-
-    theta0 = np.log([getattr(start, n) for n in P3])
-    solution = scipy.optimize.least_squares(residual, theta0, bounds=(theta0 - math.log(1e3), theta0 + math.log(1e3)),
-                                            x_scale=1.0, diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=100)
-    p = parameters(solution.x)
-    errors = {s.record.name: nrmse(s.measured, shoot(p, s)) for s in shootings}
-    lengths = np.concatenate([np.diff(np.append(s.starts, s.record.time.size - 1)) for s in shootings])
-    if progress:
-        progress(f"step 3 (output error: σ0, σ1, σ2, F_c, F_d, v_s, {len(stick)} stick-slip records, "
-                 f"{sum(s.starts.size for s in shootings)} segments): cost {solution.cost:.4g}")
-    return _step_result(P3, solution, errors, solution.nfev, np.repeat(np.arange(lengths.size), lengths)), p
-
-
-def _output_error_blocker(stick: list[Record], enabled: bool) -> str | None:
-    """Why the output-error step cannot run (None when it can)."""
-    if not enabled:
-        return "switched off"
-    for record in stick:
-        gap = output_error_gap(record)
-        if gap:
-            return gap
-    try:
-        rig.kernel()
-    except ModelError as error:  # the Python reference loop would take hours here
-        return f"rig kernel unavailable ({error})"
-    return None
+    return step_result(names, best, errors, evaluations), p
 
 
 def _joint_radius(records: list[Record], joint_type: str, radius: float | None) -> float | None:
@@ -501,12 +314,35 @@ def _check_records(records: list[Record]) -> None:
 def identify(micro: list[Record], stick: list[Record], radius: float | None = None, progress=None,
              cutoff_hz: float | None = None, output_error: bool = True) -> Identification:
     """Two-step identification of Eq. 3 from micro-slip and stick-slip records, then the
-    output-error step (``_refine``) when every stick-slip record has its excitation force and
+    output-error step (`output_error.refine`) when every stick-slip record has its excitation force and
     inertia and ``output_error`` is on; ``Identification.steps`` lists what ran.
 
     Type B records need their radius (``radius``, or ``Record.radius`` of every record).
     Records the fit cannot use raise ``RecordError``; so does a numerical failure inside the fit
     (degenerate data that passed the checks), as one line instead of a traceback.
+
+    Parameters
+    ----------
+    micro, stick : list of Record
+        Micro-slip records (step 1: σ0, σ1) and stick-slip records (step 2: F_c, F_d, v_s, σ2).
+    radius : float, optional
+        [m] of type B records that do not carry one.
+    progress : callable, optional
+        Receives one line per start and step.
+    cutoff_hz : float, optional
+        Low-pass the measured velocity at this cutoff before Eq. 3 (default: the raw velocity).
+    output_error : bool
+        Run the output-error step where the records allow it.
+
+    Returns
+    -------
+    Identification
+        The parameters and every step's result.
+
+    Raises
+    ------
+    RecordError
+        For records the fit cannot use, or a fit that fails numerically.
     """
     if not micro:
         raise RecordError("identify: no micro-slip records (step 1 needs at least one)")
@@ -565,9 +401,9 @@ def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_erro
     steps = [f"equation error (Eq. 3), {ROUNDS} rounds: step 1 σ0, σ1 on {len(micro)} micro-slip records, step 2 "
              f"F_c, F_d, v_s, σ2, σ1 on {len(stick)} stick-slip records"]
     refined = None
-    blocker = _output_error_blocker(stick, output_error)
+    blocker = output_error_blocker(stick, output_error)
     if blocker is None:
-        refined, parameters = _refine(stick, parameters, progress)
+        refined, parameters = refine(stick, parameters, progress)
         steps.append(f"output error (rig model driven by the excitation force): σ0, σ1, σ2, F_c, F_d, v_s on "
                      f"{len(stick)} stick-slip records")
     else:
@@ -583,7 +419,19 @@ def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_erro
 
 
 def slides(record: Record, radius: float | None = None) -> bool:
-    """Gross sliding: the element moves by far more than any bristle deflection μ/σ0 could."""
+    """Gross sliding: the element moves by far more than any bristle deflection μ/σ0 could.
+
+    Parameters
+    ----------
+    record : Record
+        Its velocity gives the displacement, its friction and normal force μ.
+    radius : float, optional
+        [m]: the moment arm r of μ = u_R/(r·F_N) for a type B record that carries none.
+
+    Returns
+    -------
+    bool
+    """
     arm = 1.0 if record.joint_type == "A" else (radius if radius is not None else record.moment_arm)
     mu = np.abs(record.friction_force / (arm * record.normal_force))
     displacement = np.ptp(np.cumsum(record.sliding_velocity) * record.sample_time)
@@ -591,11 +439,22 @@ def slides(record: Record, radius: float | None = None) -> bool:
 
 
 def classify(record: Record, radius: float | None = None) -> str:
-    """'stick-slip' or 'micro-slip': the record's ``regime`` metadata, else whether it slides."""
+    """'stick-slip' or 'micro-slip': the record's ``regime`` metadata, else whether it slides.
+
+    Parameters
+    ----------
+    record : Record
+        A record with or without ``# regime = …``.
+    radius : float, optional
+        Passed to `slides` when the record names no regime.
+
+    Returns
+    -------
+    str
+    """
     if "regime" in record.metadata:
         return record.metadata["regime"]
     return "stick-slip" if slides(record, radius) else "micro-slip"
 
 
-__all__ = ["Identification", "classify", "slides", "identify", "model_friction", "nrmse", "output_error_gap", "shoot",
-           "simulate_friction"]
+__all__ = ["Identification", "classify", "identify", "model_friction", "simulate_friction", "slides"]

@@ -74,23 +74,91 @@ CANUDAS_1995 = LuGreParameters(sigma0=1e5, sigma1=math.sqrt(1e5), sigma2=0.4, co
                                stribeck_velocity=1e-3)
 
 
+def joint_laws(design) -> list[LuGreParameters]:
+    """LuGre parameters per joint of a design: paper Table 1 by joint type.
+
+    Parameters
+    ----------
+    design : Design
+        The design whose ``joints`` are read in order.
+
+    Returns
+    -------
+    list of LuGreParameters
+        ``TABLE_1[joint.type]`` for each joint (read at call time, so a changed table counts).
+    """
+    return [TABLE_1[j.type] for j in design.joints]
+
+
 def stribeck_level(p: LuGreParameters, velocity):
-    """F_c + F_d·exp(−(v/v_s)²): the steady sliding friction coefficient without viscous part."""
+    """F_c + F_d·exp(−(v/v_s)²): the steady sliding friction coefficient without viscous part.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        Reads F_c, F_d and v_s.
+    velocity : float or ndarray
+        v [m/s] (type B: [rad/s]); arrays work elementwise.
+
+    Returns
+    -------
+    float or ndarray
+        The level, dimensionless.
+    """
     return p.coulomb + p.stribeck * np.exp(-(np.asarray(velocity, dtype=float) / p.stribeck_velocity) ** 2)
 
 
 def g(p: LuGreParameters, velocity):
-    """g(v) of Eq. 1 [1/s per unit φ·σ0]: |v| / (F_c + F_d·exp(−(v/v_s)²))."""
+    """g(v) of Eq. 1 [1/s per unit φ·σ0]: |v| / (F_c + F_d·exp(−(v/v_s)²)).
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        Its Stribeck level (`stribeck_level`).
+    velocity : float or ndarray
+        v [m/s] (type B: [rad/s]); arrays work elementwise.
+
+    Returns
+    -------
+    float or ndarray
+        g(v), zero at v = 0.
+    """
     return np.abs(velocity) / stribeck_level(p, velocity)
 
 
 def rhs(p: LuGreParameters, velocity, deflection):
-    """φ̇ = f(v, φ) of Eq. 1."""
+    """φ̇ = f(v, φ) of Eq. 1.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        σ0 and g(v).
+    velocity, deflection : float or ndarray
+        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
+
+    Returns
+    -------
+    float or ndarray
+        φ̇.
+    """
     return velocity - p.sigma0 * g(p, velocity) * deflection
 
 
 def rhs_jacobian(p: LuGreParameters, velocity, deflection):
-    """Analytic partial derivatives (∂f/∂φ, ∂f/∂v) of Eq. 1."""
+    """Analytic partial derivatives (∂f/∂φ, ∂f/∂v) of Eq. 1.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        σ0, and F_c, F_d, v_s for ∂g/∂v.
+    velocity, deflection : float or ndarray
+        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
+
+    Returns
+    -------
+    tuple
+        (∂f/∂φ, ∂f/∂v).
+    """
     v = np.asarray(velocity, dtype=float)
     level = stribeck_level(p, v)
     d_level = -2.0 * v / p.stribeck_velocity**2 * (level - p.coulomb)
@@ -99,22 +167,76 @@ def rhs_jacobian(p: LuGreParameters, velocity, deflection):
 
 
 def friction_coefficient(p: LuGreParameters, velocity, deflection):
-    """μ(v, φ) = σ0·φ + σ1·φ̇ + σ2·v of Eq. 2."""
+    """μ(v, φ) = σ0·φ + σ1·φ̇ + σ2·v of Eq. 2.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        σ0, σ1, σ2, and f of Eq. 1 for φ̇.
+    velocity, deflection : float or ndarray
+        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
+
+    Returns
+    -------
+    float or ndarray
+        μ.
+    """
     return p.sigma0 * deflection + p.sigma1 * rhs(p, velocity, deflection) + p.sigma2 * velocity
 
 
 def friction_force(p: LuGreParameters, velocity, deflection, normal_force):
-    """Generalised friction force u_R = r·F_N·μ (r = 1 for type A), Eq. 2."""
+    """Generalised friction force u_R = r·F_N·μ (r = 1 for type A), Eq. 2.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        μ of Eq. 2 and the moment arm r.
+    velocity, deflection : float or ndarray
+        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
+    normal_force : float or ndarray
+        F_N [N].
+
+    Returns
+    -------
+    float or ndarray
+        u_R [N] (type B: the moment [N·m]).
+    """
     return p.moment_arm * normal_force * friction_coefficient(p, velocity, deflection)
 
 
 def steady_state_deflection(p: LuGreParameters, velocity):
-    """φ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²})/σ0 (0 at v = 0)."""
+    """φ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²})/σ0 (0 at v = 0).
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        σ0 and the Stribeck level.
+    velocity : float or ndarray
+        v [m/s] (type B: [rad/s]); arrays work elementwise.
+
+    Returns
+    -------
+    float or ndarray
+        φ_ss, the deflection of steady sliding.
+    """
     return np.sign(velocity) * stribeck_level(p, velocity) / p.sigma0
 
 
 def steady_state_coefficient(p: LuGreParameters, velocity):
-    """Steady sliding μ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²}) + σ2·v."""
+    """Steady sliding μ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²}) + σ2·v.
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        σ2 and the Stribeck level.
+    velocity : float or ndarray
+        The steady sliding velocity v [m/s] (type B: [rad/s]); arrays work elementwise.
+
+    Returns
+    -------
+    float or ndarray
+        μ_ss, the friction curve of steady sliding.
+    """
     return np.sign(velocity) * stribeck_level(p, velocity) + p.sigma2 * np.asarray(velocity, dtype=float)
 
 
@@ -123,6 +245,27 @@ def step(p: LuGreParameters, deflection, velocity, dt: float):
 
     Pass the midpoint velocity for second order accuracy (see the module docstring).
     Works elementwise on arrays (several joints at once).
+
+    Parameters
+    ----------
+    p : LuGreParameters
+        σ0, g(v) and φ_ss(v).
+    deflection : float or ndarray
+        φ at the step start.
+    velocity : float or ndarray
+        The velocity held over the step.
+    dt : float
+        The step [s].
+
+    Returns
+    -------
+    ndarray
+        φ at the step end, within [−φ_max, φ_max].
+
+    Examples
+    --------
+    >>> float(step(TYPE_A, 0.0, 0.0, 1e-3))  # no motion: φ stays
+    0.0
     """
     v = np.asarray(velocity, dtype=float)
     decay_rate = p.sigma0 * g(p, v)
@@ -131,3 +274,8 @@ def step(p: LuGreParameters, deflection, velocity, dt: float):
     weight = -np.expm1(-decay_rate * dt)
     moving = decay_rate > 0.0
     return np.where(moving, deflection + (target - deflection) * weight, deflection + v * dt)
+
+
+__all__ = ["CANUDAS_1995", "LuGreParameters", "TABLE_1", "TYPE_A", "TYPE_B", "friction_coefficient",
+           "friction_force", "g", "joint_laws", "rhs", "rhs_jacobian", "steady_state_coefficient",
+           "steady_state_deflection", "step", "stribeck_level"]

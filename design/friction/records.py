@@ -83,11 +83,36 @@ _SI = {"time": "s", "sliding_velocity": ("m/s", "rad/s"), "friction_force": ("N"
 
 
 def bound(quantity: str, joint_type: str) -> float:
-    """The plausible magnitude limit of ``quantity`` (a ``BOUNDS`` key) for a joint type, in SI."""
+    """The plausible magnitude limit of ``quantity`` (a ``BOUNDS`` key) for a joint type, in SI.
+
+    Parameters
+    ----------
+    quantity : str
+        A key of ``BOUNDS``.
+    joint_type : str
+        'A' or 'B'.
+
+    Returns
+    -------
+    float
+    """
     return BOUNDS[quantity][0 if joint_type == "A" else 1]
 
 
 def si_unit(quantity: str, joint_type: str) -> str:
+    """The SI unit a record quantity is stored in, for a joint type (type B: angular, moments).
+
+    Parameters
+    ----------
+    quantity : str
+        A column or metadata name.
+    joint_type : str
+        'A' or 'B'.
+
+    Returns
+    -------
+    str
+    """
     unit = _SI[quantity]
     return unit if isinstance(unit, str) else unit[0 if joint_type == "A" else 1]
 
@@ -126,7 +151,20 @@ class Record:
 
 
 def friction_from_excitation(time, velocity, excitation, inertia):
-    """u_R = F_exc − m·a, the acceleration from a Savitzky–Golay derivative of the velocity."""
+    """u_R = F_exc − m·a, the acceleration from a Savitzky–Golay derivative of the velocity.
+
+    Parameters
+    ----------
+    time, velocity, excitation : ndarray
+        The record's columns (SI).
+    inertia : float
+        m [kg] (type B: [kg·m²]).
+
+    Returns
+    -------
+    ndarray
+        The friction force u_R.
+    """
     dt = float(np.median(np.diff(time)))
     window = min(len(velocity) - (1 - len(velocity) % 2), 11)
     if window < 5:
@@ -193,96 +231,36 @@ def _metadata_length(metadata, key: str, joint_type: str, name: str, lower: floa
 def read_record(path: str | Path, radius: float | None = None) -> Record:
     """Read and check a record (module docstring); ``RecordError`` names what is wrong and where.
 
-    ``radius`` [m]: the joint radius of a type B record that does not give one itself (a
-    record that does must agree with it). No radius at all for a type B record is an error.
+    Parameters
+    ----------
+    path : str or Path
+        The record file (CSV).
+    radius : float, optional
+        [m]: the joint radius of a type B record that does not give one itself (a record that
+        does must agree with it). No radius at all for a type B record is an error.
+
+    Returns
+    -------
+    Record
+        The series in SI units; the friction force from the excitation when the record gives
+        that instead.
+
+    Raises
+    ------
+    RecordError
+        Naming the file, the row, the column, the value and what is allowed.
     """
     path = Path(path)
     name = str(path)
     text = _read_text(path, name)
-    metadata: dict[str, tuple[str, str]] = {}
     lines = text.splitlines()
-    body_start = 0
-    for number, line in enumerate(lines):
-        if line.startswith("#"):
-            if "=" in line:
-                key, _, value = line[1:].partition("=")
-                metadata[key.strip()] = tuple((value.strip().split(None, 1) + [""])[:2])
-            continue
-        body_start = number
-        break
-    else:
-        raise RecordError(f"{name}: no header line (expected e.g. 'time [s],sliding_velocity [m/s],…')")
-    joint_type = metadata.get("joint_type", ("A", ""))[0]
-    if joint_type not in ("A", "B"):
-        raise RecordError(f"{name}: metadata joint_type: {joint_type!r} — allowed: A, B")
-    regime = " ".join(metadata["regime"]).strip() if "regime" in metadata else None
-    if regime is not None and regime not in REGIMES:
-        raise RecordError(f"{name}: metadata regime: {regime!r} — allowed: {', '.join(REGIMES)} (or no regime line: "
-                          "then identify classifies the record by whether it slides)")
-    inertia = _metadata_length(metadata, "inertia", joint_type, name, 0.0, bound("inertia", joint_type), True, "mass")
-    given = radius
-    radius = _metadata_length(metadata, "radius", joint_type, name, MIN_RADIUS, bound("radius", joint_type), True,
-                              "length")
-    if joint_type == "A" and (radius is not None or given is not None):
-        raise RecordError(f"{name}: {'metadata radius' if radius is not None else f'radius {given!r} m given'}: a "
-                          "type A joint has no radius — allowed only with '# joint_type = B'")
-    if joint_type == "B" and given is not None:
-        if not (math.isfinite(given) and MIN_RADIUS <= given <= bound("radius", "B")):
-            raise RecordError(f"{name}: radius {given!r} m given — allowed: {MIN_RADIUS:g} … "
-                              f"{bound('radius', 'B'):g} m")
-        if radius is not None and radius != given:
-            raise RecordError(f"{name}: metadata radius: {radius!r} m, but radius {given!r} m was given — the record's "
-                              "own radius and the given one must agree (or give none)")
-        radius = float(given)
-    if joint_type == "B" and radius is None:
-        raise RecordError(f"{name}: metadata radius: missing — a type B record must give its joint radius, e.g. "
-                          f"'# radius = 0.011 m' (allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m), or pass "
-                          "it (identify --radius); no default is assumed")
+    metadata, body_start = _metadata(lines, name)
+    joint_type, inertia, radius = _joint_properties(metadata, name, radius)
     reader = csv.reader(lines[body_start:])
     header = next(reader)
     header_row = body_start + 1
-    columns: dict[str, tuple[int, float, str]] = {}
-    for index, cell in enumerate(header):
-        cell = cell.strip()
-        if "[" not in cell or not cell.endswith("]"):
-            raise RecordError(f"{name}: row {header_row}: column {cell!r} has no unit — write it as 'name [unit]'")
-        column, unit = cell[:-1].split("[", 1)
-        column, unit = column.strip(), unit.strip()
-        if column not in COLUMNS:
-            continue  # extra columns are allowed and ignored
-        if column in columns:
-            raise RecordError(f"{name}: row {header_row}: column {column!r} appears twice — allowed: once")
-        allowed = _UNITS[COLUMNS[column]]
-        if unit not in allowed:
-            raise RecordError(f"{name}: row {header_row}, column {column!r}: unit {unit!r} unknown; allowed: "
-                              f"{', '.join(allowed)}")
-        columns[column] = (index, allowed[unit], unit)
-    for required in ("time", "sliding_velocity", "normal_force"):
-        if required not in columns:
-            raise RecordError(f"{name}: row {header_row}: column {required!r} missing; header has "
-                              f"{', '.join(h.strip() for h in header)}")
-    if "friction_force" not in columns and "excitation_force" not in columns:
-        raise RecordError(f"{name}: row {header_row}: needs column 'friction_force' or 'excitation_force' "
-                          "(with '# inertia = …')")
-    # Column by column into float arrays as the rows come: no cell strings are kept, so a
-    # record of MAX_BYTES needs a few hundred MB at most.
-    values = {column: array("d") for column in columns}
-    row_numbers = array("q")
-    for row in reader:
-        if not row or all(not c.strip() for c in row):
-            continue
-        line_number = body_start + reader.line_num
-        if len(row) != len(header):
-            raise RecordError(f"{name}: row {line_number} has {len(row)} fields, the header {len(header)}")
-        for column, (index, _, _) in columns.items():
-            try:
-                values[column].append(float(row[index]))
-            except ValueError:
-                raise RecordError(f"{name}: row {line_number}, column {column!r}: {row[index].strip()} — not a "
-                                  "number (allowed: a finite number)") from None
-        row_numbers.append(line_number)
-    if len(row_numbers) < 3:
-        raise RecordError(f"{name}: {len(row_numbers)} data rows — need at least 3")
+    columns = _header_columns(header, header_row, name)
+    values, row_numbers = _read_rows(reader, header, columns, body_start, name)
 
     def cell(column: str, k: int) -> str:
         """The text of data row ``k`` in ``column``, as written (for the messages)."""
@@ -312,6 +290,105 @@ def read_record(path: str | Path, radius: float | None = None) -> Record:
                   radius)
 
 
+def _metadata(lines: list[str], name: str) -> tuple[dict[str, tuple[str, str]], int]:
+    """The ``# key = value unit`` lines before the header, and the header's line index."""
+    metadata: dict[str, tuple[str, str]] = {}
+    body_start = 0
+    for number, line in enumerate(lines):
+        if line.startswith("#"):
+            if "=" in line:
+                key, _, value = line[1:].partition("=")
+                metadata[key.strip()] = tuple((value.strip().split(None, 1) + [""])[:2])
+            continue
+        body_start = number
+        break
+    else:
+        raise RecordError(f"{name}: no header line (expected e.g. 'time [s],sliding_velocity [m/s],…')")
+    return metadata, body_start
+
+
+def _joint_properties(metadata, name: str, given: float | None) -> tuple[str, float | None, float | None]:
+    """Joint type, inertia and radius from the metadata; ``given`` is the radius passed in."""
+    joint_type = metadata.get("joint_type", ("A", ""))[0]
+    if joint_type not in ("A", "B"):
+        raise RecordError(f"{name}: metadata joint_type: {joint_type!r} — allowed: A, B")
+    regime = " ".join(metadata["regime"]).strip() if "regime" in metadata else None
+    if regime is not None and regime not in REGIMES:
+        raise RecordError(f"{name}: metadata regime: {regime!r} — allowed: {', '.join(REGIMES)} (or no regime line: "
+                          "then identify classifies the record by whether it slides)")
+    inertia = _metadata_length(metadata, "inertia", joint_type, name, 0.0, bound("inertia", joint_type), True, "mass")
+    radius = _metadata_length(metadata, "radius", joint_type, name, MIN_RADIUS, bound("radius", joint_type), True,
+                              "length")
+    if joint_type == "A" and (radius is not None or given is not None):
+        raise RecordError(f"{name}: {'metadata radius' if radius is not None else f'radius {given!r} m given'}: a "
+                          "type A joint has no radius — allowed only with '# joint_type = B'")
+    if joint_type == "B" and given is not None:
+        if not (math.isfinite(given) and MIN_RADIUS <= given <= bound("radius", "B")):
+            raise RecordError(f"{name}: radius {given!r} m given — allowed: {MIN_RADIUS:g} … "
+                              f"{bound('radius', 'B'):g} m")
+        if radius is not None and radius != given:
+            raise RecordError(f"{name}: metadata radius: {radius!r} m, but radius {given!r} m was given — the record's "
+                              "own radius and the given one must agree (or give none)")
+        radius = float(given)
+    if joint_type == "B" and radius is None:
+        raise RecordError(f"{name}: metadata radius: missing — a type B record must give its joint radius, e.g. "
+                          f"'# radius = 0.011 m' (allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m), or pass "
+                          "it (identify --radius); no default is assumed")
+    return joint_type, inertia, radius
+
+
+def _header_columns(header: list[str], header_row: int, name: str) -> dict[str, tuple[int, float, str]]:
+    """The known columns of the header: (index, factor to SI, unit) by column name."""
+    columns: dict[str, tuple[int, float, str]] = {}
+    for index, cell in enumerate(header):
+        cell = cell.strip()
+        if "[" not in cell or not cell.endswith("]"):
+            raise RecordError(f"{name}: row {header_row}: column {cell!r} has no unit — write it as 'name [unit]'")
+        column, unit = cell[:-1].split("[", 1)
+        column, unit = column.strip(), unit.strip()
+        if column not in COLUMNS:
+            continue  # extra columns are allowed and ignored
+        if column in columns:
+            raise RecordError(f"{name}: row {header_row}: column {column!r} appears twice — allowed: once")
+        allowed = _UNITS[COLUMNS[column]]
+        if unit not in allowed:
+            raise RecordError(f"{name}: row {header_row}, column {column!r}: unit {unit!r} unknown; allowed: "
+                              f"{', '.join(allowed)}")
+        columns[column] = (index, allowed[unit], unit)
+    for required in ("time", "sliding_velocity", "normal_force"):
+        if required not in columns:
+            raise RecordError(f"{name}: row {header_row}: column {required!r} missing; header has "
+                              f"{', '.join(h.strip() for h in header)}")
+    if "friction_force" not in columns and "excitation_force" not in columns:
+        raise RecordError(f"{name}: row {header_row}: needs column 'friction_force' or 'excitation_force' "
+                          "(with '# inertia = …')")
+    return columns
+
+
+def _read_rows(reader, header: list[str], columns, body_start: int, name: str):
+    """The data rows, column by column, and the file line number of each row."""
+    # Column by column into float arrays as the rows come: no cell strings are kept, so a
+    # record of MAX_BYTES needs a few hundred MB at most.
+    values = {column: array("d") for column in columns}
+    row_numbers = array("q")
+    for row in reader:
+        if not row or all(not c.strip() for c in row):
+            continue
+        line_number = body_start + reader.line_num
+        if len(row) != len(header):
+            raise RecordError(f"{name}: row {line_number} has {len(row)} fields, the header {len(header)}")
+        for column, (index, _, _) in columns.items():
+            try:
+                values[column].append(float(row[index]))
+            except ValueError:
+                raise RecordError(f"{name}: row {line_number}, column {column!r}: {row[index].strip()} — not a "
+                                  "number (allowed: a finite number)") from None
+        row_numbers.append(line_number)
+    if len(row_numbers) < 3:
+        raise RecordError(f"{name}: {len(row_numbers)} data rows — need at least 3")
+    return values, row_numbers
+
+
 def _check_column(name, column, values, unit, factor, joint_type, row_numbers, cells=None) -> None:
     """Finite values within ``BOUNDS``; F_N > 0. Names the first offending row."""
     limit = bound(column, joint_type)
@@ -333,6 +410,13 @@ def write_record(record: Record, path: str | Path) -> None:
     """Write a record as CSV (atomically: through a temporary file, removed on failure).
 
     A type B record must carry its radius, so that the file reads back as it was written.
+
+    Parameters
+    ----------
+    record : Record
+        The record.
+    path : str or Path
+        The file.
     """
     path = Path(path)
     rotational = record.joint_type == "B"
@@ -369,3 +453,7 @@ def write_record(record: Record, path: str | Path) -> None:
         with contextlib.suppress(OSError):
             temporary.unlink(missing_ok=True)
         raise RecordError(f"{path}: cannot write record ({error.strerror or error})") from None
+
+
+__all__ = ["BOUNDS", "COLUMNS", "MAX_BYTES", "MIN_NORMAL_FORCE", "MIN_RADIUS", "REGIMES", "Record", "RecordError",
+           "bound", "friction_from_excitation", "read_record", "si_unit", "write_record"]

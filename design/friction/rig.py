@@ -78,8 +78,18 @@ class ParameterSet:
 def parameter_set(joint_type: str, values: dict | None = None, source: str = "command line") -> ParameterSet:
     """Check a LuGre parameter set for the rig: all six parameters, plus ``radius`` [m] for type B.
 
-    ``values`` None gives the paper's Table 1 — only then. ``source`` names the origin in the
-    errors (``joint.toml``, ``command line``).
+    Parameters
+    ----------
+    joint_type : str
+        'A' or 'B'.
+    values : dict, optional
+        The parameters by name; None gives the paper's Table 1 — only then.
+    source : str
+        The origin named in the errors (``joint.toml``, ``command line``).
+
+    Returns
+    -------
+    ParameterSet
     """
     if joint_type not in ("A", "B"):
         raise RigError(f"{source}: joint_type: {joint_type!r} — allowed: 'A', 'B'")
@@ -114,7 +124,19 @@ def parameter_set(joint_type: str, values: dict | None = None, source: str = "co
 
 def load_parameter_set(path: str | Path, joint_type: str | None = None) -> ParameterSet:
     """A parameter set from a TOML file: the six LuGre keys, ``radius`` for type B and an
-    optional ``joint_type`` (must agree with ``joint_type`` when both are given)."""
+    optional ``joint_type`` (must agree with ``joint_type`` when both are given).
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+    joint_type : str, optional
+        'A' or 'B'.
+
+    Returns
+    -------
+    ParameterSet
+    """
     path = Path(path)
     source = str(path)
     if path.exists() and not path.is_file():
@@ -158,12 +180,33 @@ class RigTest:
 
 
 def breakaway(parameters: lugre.LuGreParameters, normal_force: float) -> float:
-    """Static friction level r·F_N·(F_c + F_d): the excitation amplitude between the regimes."""
+    """Static friction level r·F_N·(F_c + F_d): the excitation amplitude between the regimes.
+
+    Parameters
+    ----------
+    parameters : LuGreParameters
+        The joint.
+    normal_force : float
+        F_N [N].
+
+    Returns
+    -------
+    float
+        [N] (type B: [N·m]).
+    """
     return parameters.moment_arm * normal_force * (parameters.coulomb + parameters.stribeck)
 
 
 def check_test(test: RigTest, parameters: lugre.LuGreParameters) -> None:
-    """``RigError`` unless the test can be run and its record written (finite, positive, bounded)."""
+    """``RigError`` unless the test can be run and its record written (finite, positive, bounded).
+
+    Parameters
+    ----------
+    test : RigTest
+        The test.
+    parameters : LuGreParameters
+        The joint it runs on.
+    """
     if test.joint_type not in ("A", "B"):
         raise RigError(f"joint_type: {test.joint_type!r} — allowed: 'A', 'B'")
     for name in ("normal_force", "amplitude", "frequency", "cycles", "inertia", "sample_rate"):
@@ -196,8 +239,18 @@ def check_test(test: RigTest, parameters: lugre.LuGreParameters) -> None:
 def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None, source: str | None = None) -> Record:
     """Run the rig and return the (noisy) record; the friction column is F_exc − m·a.
 
-    ``parameters`` None: the paper's Table 1 for the test's joint type. ``source`` names the
-    parameter set in the record's metadata (default: Table 1 or "given").
+    Parameters
+    ----------
+    test : RigTest
+        The test.
+    parameters : LuGreParameters, optional
+        None: the paper's Table 1 for the test's joint type.
+    source : str, optional
+        The parameter set's name in the record's metadata (default: Table 1 or "given").
+
+    Returns
+    -------
+    Record
     """
     if test.joint_type not in ("A", "B"):
         raise RigError(f"joint_type: {test.joint_type!r} — allowed: 'A', 'B'")
@@ -244,10 +297,29 @@ def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, d
               backend: str = "auto"):
     """Implicit trapezoidal rule for (v, φ) of the rig (Eq. 1–2) under an excitation ``force``.
 
-    ``force`` holds the excitation at every substep node: (len(time) − 1)·substeps + 1 values;
-    ``gain`` = r·F_N, a number or one value per node. Returns velocity and bristle deflection at
-    the sample times (x is not needed). ``backend``: 'c' (rig_kernel.c), 'python' (the
-    reference loop) or 'auto' (C, else Python with a warning).
+    Parameters
+    ----------
+    p : LuGreParameters
+        The joint.
+    gain : float or ndarray
+        r·F_N, a number or one value per substep node.
+    inertia : float
+        The moving inertia [kg] (type B: [kg·m²]).
+    force : ndarray
+        The excitation at every substep node: (len(time) − 1)·substeps + 1 values.
+    time : ndarray
+        The sample times [s].
+    substeps : int
+        Substeps per sample.
+    velocity0, deflection0 : float
+        The start.
+    backend : str
+        'c' (rig_kernel.c), 'python' (the reference loop) or 'auto' (C, else Python with a warning).
+
+    Returns
+    -------
+    tuple of ndarray
+        Velocity and bristle deflection at the sample times (x is not needed).
     """
     time = np.ascontiguousarray(time, dtype=float)
     nodes = (time.size - 1) * substeps + 1
@@ -267,7 +339,13 @@ def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, d
 
 
 def kernel():
-    """The compiled rig kernel (cffi module; ``ModelError`` when it cannot be built)."""
+    """The compiled rig kernel (cffi module; ``ModelError`` when it cannot be built).
+
+    Returns
+    -------
+    module
+        The cffi module of ``rig_kernel.c``.
+    """
     from smartjoint.common import package_data
     from smartjoint.common import native
 
@@ -349,6 +427,23 @@ def campaign(joint_type: str, parameters: lugre.LuGreParameters | None = None, n
     break-away amplitude at 10 and 20 Hz, with the moving inertia chosen so that the joint
     slides at about 5·v_s — the velocities where the Stribeck parameters show (a heavier or a
     faster-sliding element hides F_d and v_s under the velocity noise).
+
+    Parameters
+    ----------
+    joint_type : str
+        'A' or 'B'.
+    parameters : LuGreParameters, optional
+        Default: Table 1.
+    noise : float
+        Measurement noise relative to RMS.
+    seed : int
+        Of the noise.
+    cycles : float
+        Excitation cycles per test.
+
+    Returns
+    -------
+    list of RigTest
     """
     p = parameters or lugre.TABLE_1[joint_type]
     if not p.stribeck > 0.0:
@@ -366,3 +461,8 @@ def campaign(joint_type: str, parameters: lugre.LuGreParameters | None = None, n
             tests.append(RigTest(joint_type, normal_force, factor * level, frequency, cycles, inertia, noise=noise,
                                  seed=seed))
     return tests
+
+
+__all__ = ["DECLARATIONS", "ITERATIONS", "LUGRE_NAMES", "MAX_SAMPLES", "PARAMETER_BOUNDS", "PARAMETER_UNITS",
+           "ParameterSet", "RigError", "RigTest", "SUBSTEPS", "TABLE_1_SOURCE", "breakaway", "campaign",
+           "check_test", "integrate", "kernel", "load_parameter_set", "parameter_set", "simulate"]

@@ -1,2 +1,21 @@
-"""Model reduction of the linear subsystem (paper Section 4): balanced mode selection and Krylov
-correction vectors."""
+"""Model reduction of the linear subsystem (paper Section 4).
+
+``selection`` scores the modes by their closed-form Hankel singular values (Eq. 16–18),
+``krylov`` adds the Krylov correction vectors and builds the reduced model (Eq. 24–29),
+``metrics`` compares a reduced model with the full one (frequency responses, static compliance,
+band-limited H2/H∞), and ``study`` runs the reduction example of Section 4.3 (Fig. 10).
+Every function here raises `ModelError` (exported too) for a request the model cannot meet.
+"""
+
+from smartjoint.common.errors import ModelError
+from smartjoint.design.reduction.krylov import Reduction, krylov_vectors, reduce
+from smartjoint.design.reduction.metrics import (band_norms, error_metrics, frequency_grid, frequency_response,
+                                                 modal_compliance, static_compliance)
+from smartjoint.design.reduction.selection import PATHS, hankel_values, select_modes
+from smartjoint.design.reduction.study import WINDOWS, reduction_study, study_summary
+
+__all__ = [
+    "ModelError", "PATHS", "Reduction", "WINDOWS", "band_norms", "error_metrics", "frequency_grid", "frequency_response",
+    "hankel_values", "krylov_vectors", "modal_compliance", "reduce", "reduction_study", "select_modes",
+    "static_compliance", "study_summary",
+]

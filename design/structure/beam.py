@@ -79,6 +79,16 @@ def local_stiffness_terms(length: np.ndarray) -> dict[str, np.ndarray]:
 
     Multiply ``axial`` by EA [N], ``torsion`` by GJ [N·m²], ``bending_y`` by EI_y and
     ``bending_z`` by EI_z [N·m²].
+
+    Parameters
+    ----------
+    length : ndarray
+        Element lengths L (n,) [m]; the terms go with 1/L (axial, torsion) and 1/L³ … 1/L (bending).
+
+    Returns
+    -------
+    dict of str to ndarray
+        One (n, 12, 12) matrix per term.
     """
     length = np.asarray(length, dtype=float)
     n = length.size
@@ -91,7 +101,18 @@ def local_stiffness_terms(length: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def local_mass_terms(length: np.ndarray) -> dict[str, np.ndarray]:
-    """Unit consistent-mass terms: ``translation`` × ρA [kg/m], ``torsion`` × ρI_p [kg·m]."""
+    """Unit consistent-mass terms: ``translation`` × ρA [kg/m], ``torsion`` × ρI_p [kg·m].
+
+    Parameters
+    ----------
+    length : ndarray
+        Element lengths L (n,) [m]; the consistent mass goes with L … L³.
+
+    Returns
+    -------
+    dict of str to ndarray
+        One (n, 12, 12) matrix per term of :data:`MASS_TERMS`.
+    """
     length = np.asarray(length, dtype=float)
     n = length.size
     terms = {name: np.zeros((n, 12, 12)) for name in MASS_TERMS}
@@ -108,7 +129,19 @@ def element_frames(start: np.ndarray, end: np.ndarray, reference: np.ndarray | N
 
     The local x axis runs from ``start`` to ``end``. The local y axis is the component of the
     ``reference`` vector (default: global z, or global y for elements nearly parallel to z)
-    normal to x; local z = x × y. Returns ``(length (n,), R (n, 3, 3))``.
+    normal to x; local z = x × y.
+
+    Parameters
+    ----------
+    start, end : ndarray
+        End points (n, 3) [m].
+    reference : ndarray, optional
+        A vector per element (n, 3) that fixes the local y axis.
+
+    Returns
+    -------
+    tuple
+        ``(length (n,), R (n, 3, 3))``.
     """
     start = np.atleast_2d(np.asarray(start, dtype=float))
     end = np.atleast_2d(np.asarray(end, dtype=float))
@@ -130,10 +163,27 @@ def element_frames(start: np.ndarray, end: np.ndarray, reference: np.ndarray | N
 
 
 def to_global(local: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """Transform element matrices (n, 12, 12) from element to global frame: Tᵀ·K·T."""
+    """Transform element matrices (n, 12, 12) from element to global frame: Tᵀ·K·T.
+
+    Parameters
+    ----------
+    local : ndarray
+        Element matrices (n, 12, 12) in the element frame.
+    rotation : ndarray
+        R (n, 3, 3) of `element_frames`.
+
+    Returns
+    -------
+    ndarray
+        The matrices (n, 12, 12) in global coordinates.
+    """
     n = rotation.shape[0]
     transform = np.zeros((n, 12, 12))
     for block in range(4):
         s = slice(3 * block, 3 * block + 3)
         transform[:, s, s] = rotation
     return np.einsum("nji,njk,nkl->nil", transform, local, transform, optimize=True)
+
+
+__all__ = ["element_frames", "local_mass_terms", "local_stiffness_terms", "MASS_TERMS", "STIFFNESS_TERMS",
+           "to_global"]

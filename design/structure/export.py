@@ -14,7 +14,19 @@ SCHEMA = "smartjoint-model/1"
 
 
 def export_model(model: FEModel) -> dict:
-    """The model as a JSON-ready dictionary (see ``docs/model-format.md``)."""
+    """The model as a JSON-ready dictionary (see ``docs/model-format.md``).
+
+    Parameters
+    ----------
+    model : FEModel
+        The FE model.
+
+    Returns
+    -------
+    dict
+        Points, elements with their properties and frames, rigid links with their releases,
+        lumped masses and the DOF labels, under the schema ``SCHEMA``.
+    """
     design = model.design
     properties = model.element_properties
     elements = []
@@ -45,3 +57,6 @@ def export_model(model: FEModel) -> dict:
                     for s in design.sensors],
         "disturbances": [{"name": d.name, "node": d.node, "direction": list(d.direction)} for d in design.disturbances],
     }
+
+
+__all__ = ["export_model", "SCHEMA"]

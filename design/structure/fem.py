@@ -38,7 +38,7 @@ import scipy.sparse as sp
 
 from smartjoint.design.structure import beam
 from smartjoint.common.errors import ModelError
-from smartjoint.design.structure.spec import DOF_NAMES, Design
+from smartjoint.design.structure.description import DOF_NAMES, Design
 
 _TERM_INDEX = {name: i for i, name in enumerate(beam.STIFFNESS_TERMS)}
 
@@ -105,27 +105,117 @@ def _parameter_key(table: str, name: str, attribute: str) -> str:
 
 
 def build_model(design: Design, *, joints: str = "released", allow_mechanisms: bool = False) -> FEModel:
-    """Assemble M, K (by parts), S, E, F, V, W for a design.
+    """Assemble M, K (by parts), S, E, F, V, W for a design (Eq. 4–5, 9–10).
 
-    ``joints="released"`` gives each friction joint its DOF (the frictionless linear subsystem
-    of Eq. 12, F_N = 0); ``joints="locked"`` builds the conventional rigid truss, as measured
-    in the modal survey. ``allow_mechanisms`` is for tests of unsupported structures.
+    Parameters
+    ----------
+    design : Design
+        The truss, its joints, sensors and disturbances.
+    joints : {"released", "locked"}
+        ``"released"`` gives each friction joint its DOF (the frictionless linear subsystem of
+        Eq. 12, F_N = 0); ``"locked"`` builds the conventional rigid truss, as measured in the
+        modal survey.
+    allow_mechanisms : bool
+        For tests of unsupported structures: skip `check_supported`.
+
+    Returns
+    -------
+    FEModel
+        The model in independent coordinates z.
+
+    Raises
+    ------
+    ModelError
+        For a structure with zero-energy motions (unless ``allow_mechanisms``).
+
+    Examples
+    --------
+    >>> model = build_model(load_design(), joints="locked")  # doctest: +SKIP
     """
     if joints not in ("released", "locked"):
         raise ValueError(f"joints: {joints!r} — allowed: 'released', 'locked'")
     nodes = design.nodes
     node_names = list(nodes)
     node_index = {name: i for i, name in enumerate(node_names)}
-    points = [np.array(nodes[n].position, dtype=float) for n in node_names]
-    point_names = list(node_names)
+    mesh = _discretise(design, node_index)
+    points_array = np.array(mesh.points)
+    element_points = np.column_stack([mesh.element_a, mesh.element_b]).astype(np.int64)
+    lengths, rotation = beam.element_frames(points_array[element_points[:, 0]],
+                                            points_array[element_points[:, 1]],
+                                            np.array(mesh.element_reference))
+    n_points = len(mesh.points)
+    n_bar = 6 * n_points
+    rows, cols = _element_entries(element_points)
 
+    coefficients, parameter_values, global_terms = _stiffness_terms(design, mesh.element_terms, lengths, rotation)
+    masses = np.array(mesh.element_mass)
+    local_mass = beam.local_mass_terms(lengths)
+    element_m = masses[:, 0, None, None] * local_mass["translation"] + masses[:, 1, None, None] * local_mass["torsion"]
+    element_m = beam.to_global(element_m, rotation)
+    mass_bar = sp.coo_matrix((element_m.ravel(), (rows, cols)), shape=(n_bar, n_bar)).tocsr()
+    lumped_bar, lumped = _lumped_masses(design, node_names, node_index, n_bar)
+    mass_bar = mass_bar + lumped_bar  # the node and point masses
+
+    seat_points = {point: (node, axis, key) for key, (point, node, axis) in mesh.seats.items()}
+    active_joints = list(design.joints) if joints == "released" else []
+    column, labels, joint_column = _independent_dofs(design, node_names, node_index, mesh.point_names, n_points,
+                                                     seat_points, active_joints)
+    S, rigid_links, joint_pairs = _constraints(points_array, mesh.point_names, node_names, seat_points, column,
+                                               labels, active_joints, joint_column)
+    St = S.T.tocsr()
+
+    stiffness_parts = {}
+    for key, coefficient in coefficients.items():
+        data = np.einsum("et,etij->eij", coefficient, global_terms).ravel()
+        part_bar = sp.coo_matrix((data, (rows, cols)), shape=(n_bar, n_bar)).tocsr()
+        stiffness_parts[key] = (St @ part_bar @ S).tocsr()
+    mass = (St @ mass_bar @ S).tocsr()
+    E, F, V, W = _inputs_outputs(design, node_index, S, St, joint_pairs, active_joints)
+
+    model = FEModel(
+        design=design, joints_released=joints == "released", points=points_array, point_names=mesh.point_names,
+        element_points=element_points, element_member=mesh.element_member, element_kind=mesh.element_kind,
+        element_properties=_element_properties(coefficients, parameter_values, masses),
+        element_rotation=rotation, S=S, mass=mass, stiffness_parts=stiffness_parts,
+        parameters=parameter_values, E=E, F=F, V=V, W=W, dof_labels=labels,
+        joint_names=[j.name for j in active_joints], sensor_names=[s.name for s in design.sensors],
+        disturbance_names=[d.name for d in design.disturbances], rigid_links=rigid_links, lumped_masses=lumped,
+    )
+    if not allow_mechanisms:
+        check_supported(model)
+    return model
+
+
+def _element_entries(element_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column in z̄ of every entry of every 12 × 12 element matrix, for one COO assembly."""
+    element_dofs = np.concatenate([6 * element_points[:, [0]] + np.arange(6), 6 * element_points[:, [1]] + np.arange(6)], axis=1)
+    rows = np.repeat(element_dofs, 12, axis=1).ravel()
+    cols = np.tile(element_dofs, (1, 12)).ravel()
+    return rows, cols
+
+
+@dataclass
+class _Mesh:
+    """The points and beam elements of every member (paper Fig. 6), before any matrix."""
+
+    points: list[np.ndarray]  # node centres first, then the beam nodes of each member
+    point_names: list[str]
     # Seats of every member end: (member, end) -> (point index, node index, axis into member).
-    seats: dict[tuple[str, str], tuple[int, int, np.ndarray]] = {}
-    element_a, element_b, element_member, element_kind = [], [], [], []
-    element_terms: list[list[tuple[str, str, float]]] = []
-    element_mass: list[tuple[float, float]] = []
-    element_reference: list[np.ndarray] = []
+    seats: dict[tuple[str, str], tuple[int, int, np.ndarray]] = field(default_factory=dict)
+    element_a: list[int] = field(default_factory=list)
+    element_b: list[int] = field(default_factory=list)
+    element_member: list[str] = field(default_factory=list)
+    element_kind: list[str] = field(default_factory=list)
+    element_terms: list[list[tuple[str, str, float]]] = field(default_factory=list)
+    element_mass: list[tuple[float, float]] = field(default_factory=list)
+    element_reference: list[np.ndarray] = field(default_factory=list)
 
+
+def _discretise(design: Design, node_index: dict[str, int]) -> _Mesh:
+    """Node centre → seat → connector → tube elements → connector → seat → node centre, per member."""
+    nodes = design.nodes
+    mesh = _Mesh([np.array(nodes[n].position, dtype=float) for n in nodes], list(nodes))
+    points, point_names = mesh.points, mesh.point_names
     for member in design.members.values():
         start = np.array(nodes[member.start].position, dtype=float)
         end = np.array(nodes[member.end].position, dtype=float)
@@ -151,52 +241,51 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
             points.append(position)
             point_names.append(f"{member.name}:{k}")
         last = len(points) - 1
-        seats[(member.name, "start")] = (first, node_index[member.start], axis)
-        seats[(member.name, "end")] = (last, node_index[member.end], -axis)
+        mesh.seats[(member.name, "start")] = (first, node_index[member.start], axis)
+        mesh.seats[(member.name, "end")] = (last, node_index[member.end], -axis)
+        _add_elements(design, mesh, member, connector, first, len(stations) - 1, axis)
+    return mesh
 
-        section = design.sections[member.section]
-        material = design.materials[section.material]
-        tube_terms = [
-            (_parameter_key("materials", material.name, "youngs_modulus"), "axial", section.area),
-            (_parameter_key("materials", material.name, "youngs_modulus"), "bending_y", section.second_moment),
-            (_parameter_key("materials", material.name, "youngs_modulus"), "bending_z", section.second_moment),
-            (_parameter_key("materials", material.name, "shear_modulus"), "torsion", section.polar_moment),
-        ]
-        tube_mass = (material.density * section.area, material.density * section.polar_moment)
-        n_segments = len(stations) - 1
-        for k in range(n_segments):
-            is_connector = connector is not None and (k == 0 or k == n_segments - 1)
-            element_a.append(first + k)
-            element_b.append(first + k + 1)
-            element_member.append(member.name)
-            element_reference.append(_member_reference(axis))
-            if is_connector:
-                element_kind.append("connector")
-                element_terms.append([
-                    (_parameter_key("connectors", connector.name, "axial_stiffness"), "axial", 1.0),
-                    (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_y", 1.0),
-                    (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_z", 1.0),
-                    (_parameter_key("connectors", connector.name, "torsional_stiffness"), "torsion", 1.0),
-                ])
-                per_length = connector.mass / connector.length
-                element_mass.append((per_length, per_length * connector.diameter**2 / 8.0))
-            else:
-                element_kind.append("tube")
-                element_terms.append(tube_terms)
-                element_mass.append(tube_mass)
 
-    points_array = np.array(points)
-    element_points = np.column_stack([element_a, element_b]).astype(np.int64)
-    lengths, rotation = beam.element_frames(points_array[element_points[:, 0]],
-                                            points_array[element_points[:, 1]],
-                                            np.array(element_reference))
-    n_points = len(points)
-    n_bar = 6 * n_points
-    element_dofs = np.concatenate([6 * element_points[:, [0]] + np.arange(6), 6 * element_points[:, [1]] + np.arange(6)], axis=1)
-    rows = np.repeat(element_dofs, 12, axis=1).ravel()
-    cols = np.tile(element_dofs, (1, 12)).ravel()
+def _add_elements(design: Design, mesh: _Mesh, member, connector, first: int, n_segments: int,
+                  axis: np.ndarray) -> None:
+    """The beam elements of one member: the end connectors (if any) and the tube between them."""
+    section = design.sections[member.section]
+    material = design.materials[section.material]
+    tube_terms = [
+        (_parameter_key("materials", material.name, "youngs_modulus"), "axial", section.area),
+        (_parameter_key("materials", material.name, "youngs_modulus"), "bending_y", section.second_moment),
+        (_parameter_key("materials", material.name, "youngs_modulus"), "bending_z", section.second_moment),
+        (_parameter_key("materials", material.name, "shear_modulus"), "torsion", section.polar_moment),
+    ]
+    tube_mass = (material.density * section.area, material.density * section.polar_moment)
+    for k in range(n_segments):
+        is_connector = connector is not None and (k == 0 or k == n_segments - 1)
+        mesh.element_a.append(first + k)
+        mesh.element_b.append(first + k + 1)
+        mesh.element_member.append(member.name)
+        mesh.element_reference.append(_member_reference(axis))
+        if is_connector:
+            mesh.element_kind.append("connector")
+            mesh.element_terms.append([
+                (_parameter_key("connectors", connector.name, "axial_stiffness"), "axial", 1.0),
+                (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_y", 1.0),
+                (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_z", 1.0),
+                (_parameter_key("connectors", connector.name, "torsional_stiffness"), "torsion", 1.0),
+            ])
+            per_length = connector.mass / connector.length
+            mesh.element_mass.append((per_length, per_length * connector.diameter**2 / 8.0))
+        else:
+            mesh.element_kind.append("tube")
+            mesh.element_terms.append(tube_terms)
+            mesh.element_mass.append(tube_mass)
 
-    # Stiffness: one unit global matrix per element and term, scaled per parameter.
+
+def _stiffness_terms(design: Design, element_terms, lengths, rotation):
+    """Stiffness: one unit global matrix per element and term, scaled per parameter (K = Σ_p p·K_p).
+
+    Returns the coefficient of every term per element and parameter key, the parameters' current
+    values and the unit global element matrices (n_elements, 4, 12, 12)."""
     parameter_values: dict[str, float] = {}
     coefficients: dict[str, np.ndarray] = {}
     for e, terms in enumerate(element_terms):
@@ -208,14 +297,12 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
             coefficients[key][e, _TERM_INDEX[term]] += factor
     local_terms = beam.local_stiffness_terms(lengths)
     global_terms = np.stack([beam.to_global(local_terms[t], rotation) for t in beam.STIFFNESS_TERMS], axis=1)
-    del local_terms
+    return coefficients, parameter_values, global_terms
 
-    masses = np.array(element_mass)
-    local_mass = beam.local_mass_terms(lengths)
-    element_m = masses[:, 0, None, None] * local_mass["translation"] + masses[:, 1, None, None] * local_mass["torsion"]
-    element_m = beam.to_global(element_m, rotation)
-    mass_bar = sp.coo_matrix((element_m.ravel(), (rows, cols)), shape=(n_bar, n_bar)).tocsr()
 
+def _lumped_masses(design: Design, node_names: list[str], node_index: dict[str, int], n_bar: int):
+    """The node and point masses lumped at the node centres, and their list for the export."""
+    nodes = design.nodes
     lumped_rows, lumped_values, lumped = [], [], []
     for name in node_names:
         node = nodes[name]
@@ -231,15 +318,19 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
         lumped_rows += list(range(6 * i, 6 * i + 6))
         lumped_values += [point_mass.mass] * 3 + [point_mass.inertia] * 3
         lumped.append({"node": point_mass.node, "mass": point_mass.mass, "inertia": point_mass.inertia, "source": "point_masses"})
-    mass_bar = mass_bar + sp.coo_matrix((lumped_values, (lumped_rows, lumped_rows)), shape=(n_bar, n_bar)).tocsr()
+    return sp.coo_matrix((lumped_values, (lumped_rows, lumped_rows)), shape=(n_bar, n_bar)).tocsr(), lumped
 
-    # Independent DOFs: free node-centre DOFs, beam nodes that are not seats, joint DOFs.
+
+def _independent_dofs(design: Design, node_names, node_index, point_names, n_points, seat_points, active_joints):
+    """Independent DOFs: free node-centre DOFs, beam nodes that are not seats, joint DOFs.
+
+    Returns the column of z per unconstrained DOF (−1: none), the label of every z and the
+    column of each joint DOF by (member, end)."""
     supported = np.zeros((len(node_names), 6), dtype=bool)
     for support in design.supports:
         for dof in support.dofs:
             supported[node_index[support.node], DOF_NAMES.index(dof)] = True
-    seat_points = {point: (node, axis, key) for key, (point, node, axis) in seats.items()}
-    column = np.full(n_bar, -1, dtype=np.int64)
+    column = np.full(6 * n_points, -1, dtype=np.int64)
     labels: list[tuple[str, str]] = []
     for i, name in enumerate(node_names):
         for d in range(6):
@@ -252,13 +343,18 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
         for d in range(6):
             column[6 * p + d] = len(labels)
             labels.append((point_names[p], DOF_NAMES[d]))
-    active_joints = list(design.joints) if joints == "released" else []
     joint_column = {}
     for joint in active_joints:
         joint_column[(joint.member, joint.end)] = len(labels)
         labels.append((joint.name, "slip" if joint.type == "A" else "rotation"))
-    n_dof = len(labels)
+    return column, labels, joint_column
 
+
+def _constraints(points_array, point_names, node_names, seat_points, column, labels, active_joints, joint_column):
+    """S of z̄ = S·z (Eq. 4): seats move with their node, released joints add their DOF; with the
+    rigid links (for the export) and Ē, the action–reaction pair of each joint force."""
+    n_bar = column.size
+    n_dof = len(labels)
     s_rows, s_cols, s_vals = [], [], []
 
     def tie(row: int, col: int, value: float) -> None:
@@ -299,16 +395,12 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
                 joint_pairs[6 * node + 3:6 * node + 6, k] -= np.cross(offset, direction)
             link["release"] = {"joint": joint.name, "type": joint.type, "direction": direction.tolist()}
         rigid_links.append(link)
-    S = sp.csr_matrix((s_vals, (s_rows, s_cols)), shape=(n_bar, n_dof))
-    St = S.T.tocsr()
+    return sp.csr_matrix((s_vals, (s_rows, s_cols)), shape=(n_bar, n_dof)), rigid_links, joint_pairs
 
-    stiffness_parts = {}
-    for key, coefficient in coefficients.items():
-        data = np.einsum("et,etij->eij", coefficient, global_terms).ravel()
-        part_bar = sp.coo_matrix((data, (rows, cols)), shape=(n_bar, n_bar)).tocsr()
-        stiffness_parts[key] = (St @ part_bar @ S).tocsr()
-    mass = (St @ mass_bar @ S).tocsr()
 
+def _inputs_outputs(design: Design, node_index, S, St, joint_pairs, active_joints):
+    """E = SᵀĒ (joints), F = SᵀF̄ (disturbances), V and W (displacement and velocity sensors)."""
+    n_bar, n_dof = S.shape
     E = np.asarray(St @ joint_pairs) if active_joints else np.zeros((n_dof, 0))
     F_bar = np.zeros((n_bar, len(design.disturbances)))
     for k, disturbance in enumerate(design.disturbances):
@@ -321,19 +413,7 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
         i = node_index[sensor.node]
         row = np.asarray(S[6 * i:6 * i + 6].T @ np.array(sensor.direction)).ravel()
         (V if sensor.quantity == "displacement" else W)[k] = row
-
-    model = FEModel(
-        design=design, joints_released=joints == "released", points=points_array, point_names=point_names,
-        element_points=element_points, element_member=element_member, element_kind=element_kind,
-        element_properties=_element_properties(coefficients, parameter_values, masses),
-        element_rotation=rotation, S=S, mass=mass, stiffness_parts=stiffness_parts,
-        parameters=parameter_values, E=E, F=F, V=V, W=W, dof_labels=labels,
-        joint_names=[j.name for j in active_joints], sensor_names=[s.name for s in design.sensors],
-        disturbance_names=[d.name for d in design.disturbances], rigid_links=rigid_links, lumped_masses=lumped,
-    )
-    if not allow_mechanisms:
-        check_supported(model)
-    return model
+    return E, F, V, W
 
 
 def _seat_radius(design: Design, node_name: str) -> float:
@@ -367,6 +447,16 @@ def check_supported(model: FEModel) -> None:
     strain energy costs no energy. A slender but supported mast passes however low its first
     mode (a 1000-bay mast: 0.6 mHz); the largest DOF of the first such motion says where the
     structure is loose.
+
+    Parameters
+    ----------
+    model : FEModel
+        The assembled model.
+
+    Raises
+    ------
+    ModelError
+        Naming the count of such motions and where the first sits.
     """
     from smartjoint.design.structure.modal import count_zero_energy_modes
 
@@ -376,3 +466,6 @@ def check_supported(model: FEModel) -> None:
             f"{model.design.source}: structure has {count} zero-energy (rigid-body or mechanism) "
             f"motion(s), e.g. at {where}; add supports or lock the joints that free it"
         )
+
+
+__all__ = ["build_model", "check_supported", "FEModel"]

@@ -47,7 +47,20 @@ class Modes:
 
 
 def eigensolve(stiffness: sp.spmatrix, mass: sp.spmatrix, n_modes: int) -> tuple[np.ndarray, np.ndarray]:
-    """Lowest ``n_modes`` eigenpairs (ω², Φ) of K φ = ω² M φ, Φ mass-normalised."""
+    """Lowest ``n_modes`` eigenpairs (ω², Φ) of K φ = ω² M φ, Φ mass-normalised (Eq. 5).
+
+    Parameters
+    ----------
+    stiffness, mass : sparse matrix
+        K and M (N × N).
+    n_modes : int
+        How many pairs, from the lowest.
+
+    Returns
+    -------
+    tuple of ndarray
+        (ω² (n_modes,), Φ (N, n_modes)).
+    """
     n_dof = stiffness.shape[0]
     if not 1 <= n_modes <= n_dof:
         raise ModelError(f"n_modes: {n_modes} — must be between 1 and the number of DOFs ({n_dof})")
@@ -79,20 +92,66 @@ def eigensolve(stiffness: sp.spmatrix, mass: sp.spmatrix, n_modes: int) -> tuple
 
 
 def gross_energy(stiffness: sp.spmatrix, vectors: np.ndarray) -> np.ndarray:
-    """|φ|ᵀ|K||φ| per column: the energy scale against which round-off in φᵀKφ is measured."""
+    """|φ|ᵀ|K||φ| per column: the energy scale against which round-off in φᵀKφ is measured.
+
+    Parameters
+    ----------
+    stiffness : sparse matrix
+        K, taken entry by entry in magnitude.
+    vectors : ndarray
+        Mode shapes φ, one per column, in any scaling.
+
+    Returns
+    -------
+    ndarray
+        One value per column.
+    """
     magnitude = np.abs(vectors)
     return np.einsum("ij,ij->j", magnitude, abs(stiffness) @ magnitude)
 
 
 def zero_energy(stiffness: sp.spmatrix, vectors: np.ndarray) -> np.ndarray:
     """Which computed modes are zero-energy motions: |φᵀKφ| ≤ eps·|φ|ᵀ|K||φ| (see
-    :data:`ZERO_ENERGY_RELATIVE`), independent of units, size and the modes' scaling."""
+    :data:`ZERO_ENERGY_RELATIVE`), independent of units, size and the modes' scaling.
+
+    Parameters
+    ----------
+    stiffness : sparse matrix
+        K of the model the modes were solved for.
+    vectors : ndarray
+        The computed modes, one per column.
+
+    Returns
+    -------
+    ndarray of bool
+        One flag per column.
+    """
     energy = np.einsum("ij,ij->j", vectors, stiffness @ vectors)
     return np.abs(energy) <= ZERO_ENERGY_RELATIVE * gross_energy(stiffness, vectors)
 
 
 def solve_modes(model, n_modes: int, parameters: dict[str, float] | None = None) -> Modes:
-    """The ``n_modes`` lowest modes of an :class:`~smartjoint.design.structure.fem.FEModel`."""
+    """The ``n_modes`` lowest modes of an :class:`~smartjoint.design.structure.fem.FEModel` (Eq. 5).
+
+    Parameters
+    ----------
+    model : FEModel
+        The FE model.
+    n_modes : int
+        How many modes.
+    parameters : dict of str to float, optional
+        Stiffness parameters that replace the model's own (model updating).
+
+    Returns
+    -------
+    Modes
+        ω, mass-normalised shapes and the design's modal damping.
+
+    Examples
+    --------
+    >>> modes = solve_modes(build_model(load_design(), joints="locked"), 6)  # doctest: +SKIP
+    >>> modes.frequencies_hz  # doctest: +SKIP
+    """
     stiffness = model.stiffness_with(parameters or {})
     values, vectors = eigensolve(stiffness, model.mass, n_modes)
     if zero_energy(stiffness, vectors[:, :1])[0]:
@@ -103,7 +162,20 @@ def solve_modes(model, n_modes: int, parameters: dict[str, float] | None = None)
 
 def probe_zero_energy(model, probe: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The lowest ``probe`` modes (ω², Φ) and which of them are zero-energy motions; more modes
-    when all of those are (a structure with more than ``probe`` of them)."""
+    when all of those are (a structure with more than ``probe`` of them).
+
+    Parameters
+    ----------
+    model : FEModel
+        The FE model; when all ``probe`` are zero-energy: every mode (up to DENSE_LIMIT DOFs), else 64.
+    probe : int
+        Modes solved at first.
+
+    Returns
+    -------
+    tuple of ndarray
+        (ω², Φ, zero-energy flags).
+    """
     n = min(probe, model.n_dof)
     stiffness = model.stiffness
     values, vectors = eigensolve(stiffness, model.mass, n)
@@ -116,7 +188,20 @@ def probe_zero_energy(model, probe: int = 8) -> tuple[np.ndarray, np.ndarray, np
 
 
 def count_zero_energy_modes(model, probe: int = 8) -> tuple[int, str]:
-    """Number of zero-energy motions among the lowest ``probe`` modes and where the first sits."""
+    """Number of zero-energy motions among the lowest ``probe`` modes and where the first sits.
+
+    Parameters
+    ----------
+    model : FEModel
+        The FE model whose support is checked.
+    probe : int
+        Modes solved at first (`probe_zero_energy`).
+
+    Returns
+    -------
+    tuple
+        (count, the label of the first motion's largest DOF, "" when none).
+    """
     _, vectors, zero_mask = probe_zero_energy(model, probe)
     zero = np.flatnonzero(zero_mask)
     if zero.size == 0:
@@ -181,7 +266,22 @@ class ModalModel:
 
 
 def modal_model(model, modes: Modes, indices=None) -> ModalModel:
-    """The modal model of an FE model's (released-joint) modes, optionally a subset ``indices``."""
+    """The modal model of an FE model's (released-joint) modes, optionally a subset ``indices``.
+
+    Parameters
+    ----------
+    model : FEModel
+        The FE model the modes belong to.
+    modes : Modes
+        Its modes (Eq. 5).
+    indices : array_like of int, optional
+        The modes kept (0-based, default: all).
+
+    Returns
+    -------
+    ModalModel
+        ω, damping, the modal joint and disturbance inputs and the sensor outputs (Eq. 11).
+    """
     indices = np.arange(len(modes)) if indices is None else np.asarray(indices, dtype=int)
     shapes = modes.shapes[:, indices]
     return ModalModel(
@@ -190,3 +290,7 @@ def modal_model(model, modes: Modes, indices=None) -> ModalModel:
         displacement_output=model.V @ shapes, velocity_output=model.W @ shapes,
         labels=[f"mode {i + 1}" for i in indices], joint_names=list(model.joint_names),
         sensor_names=list(model.sensor_names), disturbance_names=list(model.disturbance_names), basis=shapes)
+
+
+__all__ = ["count_zero_energy_modes", "DENSE_LIMIT", "eigensolve", "gross_energy", "modal_model", "ModalModel",
+           "Modes", "probe_zero_energy", "SHIFT", "solve_modes", "zero_energy", "ZERO_ENERGY_RELATIVE"]

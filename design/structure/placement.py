@@ -32,7 +32,22 @@ class Candidate:
 
 def connector_energy(fe, modes, targets) -> list[Candidate]:
     """Axial strain-energy fraction of every end connector of the locked truss ``fe`` for the
-    target mode indices (0-based) of ``modes`` (from ``modal.solve_modes(fe, …)``)."""
+    target mode indices (0-based) of ``modes`` (from ``modal.solve_modes(fe, …)``).
+
+    Parameters
+    ----------
+    fe : FEModel
+        The locked truss.
+    modes : Modes
+        Its modes.
+    targets : list of int
+        The modes to damp (0-based).
+
+    Returns
+    -------
+    list of Candidate
+        One per connector end, with its score (the sum over the targets) and per-mode fractions.
+    """
     targets = [int(i) for i in targets]
     if not targets or min(targets) < 0 or max(targets) >= len(modes):
         raise ModelError(f"target modes: {[i + 1 for i in targets]} — must be between 1 and {len(modes)}")
@@ -63,7 +78,17 @@ truss differ by 3.6e-5 relative or more, so 1e-8 separates the two by three orde
 
 
 def tied(first: float, second: float) -> bool:
-    """Whether two scores are equal within :data:`TIE_TOLERANCE` (relative to the larger)."""
+    """Whether two scores are equal within :data:`TIE_TOLERANCE` (relative to the larger).
+
+    Parameters
+    ----------
+    first, second : float
+        The scores.
+
+    Returns
+    -------
+    bool
+    """
     return abs(first - second) <= TIE_TOLERANCE * max(abs(first), abs(second))
 
 
@@ -74,6 +99,16 @@ def rank(candidates: list[Candidate]) -> list[Candidate]:
     (a chain, so a group can be wider than the tolerance only if the scores are that dense);
     the groups stay in score order and inside a group the candidates go in (member, end)
     order — never by the last bits of their scores.
+
+    Parameters
+    ----------
+    candidates : list of Candidate
+        From `connector_energy`.
+
+    Returns
+    -------
+    list of Candidate
+        Ranked.
     """
     by_score = sorted(candidates, key=lambda c: (-c.score, c.member, c.end))
     groups: list[list[Candidate]] = []
@@ -86,7 +121,20 @@ def rank(candidates: list[Candidate]) -> list[Candidate]:
 
 
 def choose(candidates: list[Candidate], count: int) -> list[Candidate]:
-    """The ``count`` best connectors, at most one joint per member."""
+    """The ``count`` best connectors, at most one joint per member.
+
+    Parameters
+    ----------
+    candidates : list of Candidate
+        From `connector_energy`.
+    count : int
+        Joints to place.
+
+    Returns
+    -------
+    list of Candidate
+        In rank order.
+    """
     chosen, members = [], set()
     for candidate in rank(candidates):
         if candidate.member in members:
@@ -100,7 +148,26 @@ def choose(candidates: list[Candidate], count: int) -> list[Candidate]:
 
 def design_text(base: str, name: str, chosen: list[Candidate], targets: list[int], prefix: str = "A") -> str:
     """A design file that extends ``base`` (path relative to the new file) by type A joints at
-    the ``chosen`` connectors, named ``A1, A2, …`` in rank order, with the scores as comments."""
+    the ``chosen`` connectors, named ``A1, A2, …`` in rank order, with the scores as comments.
+
+    Parameters
+    ----------
+    base : str
+        The design extended (``base = …``).
+    name : str
+        The new design's name.
+    chosen : list of Candidate
+        From `choose`.
+    targets : list of int
+        The modes damped (0-based), for the comment.
+    prefix : str
+        The joint names' prefix.
+
+    Returns
+    -------
+    str
+        TOML text.
+    """
     lines = [f"# Joint placement by modal strain energy (paper Section 6): modes "
              f"{', '.join(str(i + 1) for i in targets)}; written by `smartjoint place`.",
              f"base = {_quote(base)}", f"name = {_quote(name)}",
@@ -116,3 +183,6 @@ def design_text(base: str, name: str, chosen: list[Candidate], targets: list[int
 def _quote(text: str) -> str:
     """A TOML basic string."""
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+__all__ = ["Candidate", "choose", "connector_energy", "design_text", "rank", "TIE_TOLERANCE", "tied"]

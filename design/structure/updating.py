@@ -84,8 +84,9 @@ def _frequencies(model: FEModel, names, values, n_modes):
     return np.sqrt(eigenvalues) / (2.0 * np.pi), shapes
 
 
-def update_model(model: FEModel, progress=None) -> UpdatingResult:
-    """Fit the design's ``[updating]`` parameters to its measured frequencies."""
+def _updating_inputs(model: FEModel):
+    """The [updating] section, its parameters with their values in the model, the measured
+    mode numbers and frequencies, and how many modes to solve — each checked against the model."""
     spec = model.design.updating
     if spec is None:
         raise ModelError(f"{model.design.source}: the design has no [updating] section")
@@ -99,6 +100,25 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
     n_modes = int(modes.max())
     if n_modes > model.n_dof:
         raise ModelError(f"updating.measured: mode {n_modes} exceeds the model's {model.n_dof} DOFs")
+    return spec, names, initial, modes, measured, n_modes
+
+
+def update_model(model: FEModel, progress=None) -> UpdatingResult:
+    """Fit the design's ``[updating]`` parameters to its measured frequencies.
+
+    Parameters
+    ----------
+    model : FEModel
+        The locked truss of a design with ``[updating]``.
+    progress : callable, optional
+        ``progress(k, n, worst_error_pct)`` after each polished start.
+
+    Returns
+    -------
+    UpdatingResult
+        The fitted parameters, the frequencies before and after, the errors and sensitivities.
+    """
+    spec, names, initial, modes, measured, n_modes = _updating_inputs(model)
     index = modes - 1
     # Trust in each measured mode: its MAC against the FE shape where the EMA gives one.
     weight = np.array([m.mac if m.mac is not None else 1.0 for m in spec.measured])
@@ -160,6 +180,18 @@ def updated_design(design, progress=None):
 
     Updating always runs on the conventional truss (joints locked): that is what the modal
     survey measured, whatever joint setting the caller then builds its model with.
+
+    Parameters
+    ----------
+    design : Design
+        The design.
+    progress : callable, optional
+        As for `update_model`.
+
+    Returns
+    -------
+    tuple
+        (Design with the fitted parameters, UpdatingResult or None).
     """
     from smartjoint.design.structure.fem import build_model
 
@@ -167,3 +199,6 @@ def updated_design(design, progress=None):
         return design, None
     result = update_model(build_model(design, joints="locked"), progress=progress)
     return design.with_parameters(result.parameters), result
+
+
+__all__ = ["POLISHED_STARTS", "SCREENING_SAMPLES", "SEED", "update_model", "updated_design", "UpdatingResult"]

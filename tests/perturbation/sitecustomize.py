@@ -57,6 +57,7 @@ def perturb_design(design, relative: float):
 def install(relative: float) -> None:
     """Perturb every design parsed from now on and Table 1, by about ``relative``. Idempotent."""
     import smartjoint.design as package
+    import smartjoint.design.structure as structure
     from smartjoint.design.friction import lugre
     from smartjoint.design.structure import spec
 
@@ -69,7 +70,7 @@ def install(relative: float) -> None:
 
     parse_design.__doc__ = original.__doc__
     parse_design.perturbation = relative
-    spec.parse_design = package.parse_design = parse_design
+    spec.parse_design = package.parse_design = structure.parse_design = parse_design
     for joint_type, parameters in list(lugre.TABLE_1.items()):
         lugre.TABLE_1[joint_type] = _scaled(parameters, relative, "lugre", joint_type)
     lugre.TYPE_A, lugre.TYPE_B = lugre.TABLE_1["A"], lugre.TABLE_1["B"]

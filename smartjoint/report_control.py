@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.design.control import study as closed_loop
-from smartjoint.studies import _save
+from smartjoint.report_reduction import save_figure
 
 COLOURS = {"passive F_min": "tab:gray", "passive F_max": "k", "SISO": "tab:blue", "cLQG": "tab:red",
            "active LQG": "tab:green"}
@@ -27,7 +27,7 @@ def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
     for r in study.runs:
         ax.semilogy(r.time, np.maximum(r.energy, 1e-12), color=COLOURS[r.name], lw=1.0, label=r.name)
     ax.axvline(closed_loop.PULSE_DURATION, color="0.7", lw=0.6)
-    written.append(_save(fig, ax, folder / "control_energy.png", "t [s]", "½xᵀx [J]",
+    written.append(save_figure(fig, ax, folder / "control_energy.png", "t [s]", "½xᵀx [J]",
                          "System energy after the tip pulse (Figs. 12–13)"))
 
     fig, axes = plt.subplots(1, len(study.sensor_names), figsize=(10, 3.6), squeeze=False)
@@ -51,7 +51,7 @@ def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
         if r.name in ("SISO", "cLQG"):
             ax.plot(r.time[window], r.normal_force[window, 0], color=COLOURS[r.name], lw=0.7,
                     label=f"{r.name}, joint {study.joint_names[0]}")
-    written.append(_save(fig, ax, folder / "control_normal_force.png", "t [s]", "F_N [N]",
+    written.append(save_figure(fig, ax, folder / "control_normal_force.png", "t [s]", "F_N [N]",
                          "Normal force commands (first 0.5 s)"))
 
     if study.optimum is not None:
@@ -61,7 +61,7 @@ def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
         ax.semilogx([p[0] for p in points], [p[1] for p in points], ".-", color="tab:blue", label="E(t_e), Eq. 32")
         ax.semilogx([o.boundary_layer], [o.energy_measure], "o", mfc="none", ms=10, color="tab:red",
                     label=f"optimum ε = {o.boundary_layer:.3g} m/s")
-        written.append(_save(fig, ax, folder / "siso_boundary_layer.png", "ε [m/s]", "E(t_e) [J·s]",
+        written.append(save_figure(fig, ax, folder / "siso_boundary_layer.png", "ε [m/s]", "E(t_e) [J·s]",
                              "SISO boundary layer optimisation (Eq. 30, 32)"))
     return written
 
