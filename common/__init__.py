@@ -1,2 +1,7 @@
-"""Infrastructure every stage may import, and that imports no stage: the error types, the native
-(cffi) build cache and the package's data files."""
+"""Infrastructure every stage may import, and that imports no stage: the error types
+(``errors``), the native (cffi) build cache (``native``) and the package's data files
+(``package_data``)."""
+
+from smartjoint.common.errors import DesignError, ModelError, SmartjointError
+
+__all__ = ["DesignError", "ModelError", "SmartjointError"]

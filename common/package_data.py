@@ -14,6 +14,7 @@ from pathlib import Path
 
 # Import package → the files it owns, relative to the package folder.
 FILES: dict[str, tuple[str, ...]] = {
+    "smartjoint": ("py.typed",),
     "smartjoint.design.plant": ("plant_kernel.c", "plant_kernel.h"),
     "smartjoint.design.friction": ("rig_kernel.c",),
     "smartjoint.design": (

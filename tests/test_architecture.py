@@ -40,7 +40,9 @@ LAYERS = (
     ("smartjoint",),  # the command line, the pipeline and the report
 )
 # The stages of smartjoint.design in pipeline order; a stage imports its own or earlier ones.
-STAGES = ("structure", "friction", "reduction", "plant", "control", "network")
+# The plant simulates any modal model, full or reduced; the reduction study (Fig. 10) runs both
+# through it, so reduction comes after plant.
+STAGES = ("structure", "friction", "plant", "reduction", "control", "network")
 # Stage pairs that are allowed only through the named modules.
 NARROW = {("network", "control"): {"smartjoint.design.control.artifact"}}
 
@@ -398,7 +400,8 @@ def init_problems() -> list[str]:
         assigned = [
             node.value
             for node in tree.body
-            if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets)
+            if (isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets))
+            or (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.target.id == "__all__")
         ]
         if not assigned:
             problems.append(f"{name} ({_relative(path)}): no __all__")
