@@ -26,8 +26,9 @@ def test_true_parameters_reproduce_noise_free_records(joint_type, inertia):
     assert nrmse(micro.friction_force, model_friction(p, micro, micro.sliding_velocity)) < 0.01
     assert nrmse(stick.friction_force, model_friction(p, stick, stick.sliding_velocity)) < 0.01
     # A wrong Coulomb level is visible in the error: the measure discriminates.
-    wrong = lugre.LuGreParameters(p.sigma0, p.sigma1, p.sigma2, 1.1 * p.coulomb, p.stribeck, p.stribeck_velocity,
-                                  p.radius)
+    wrong = lugre.LuGreParameters(
+        p.sigma0, p.sigma1, p.sigma2, 1.1 * p.coulomb, p.stribeck, p.stribeck_velocity, p.radius
+    )
     assert nrmse(stick.friction_force, model_friction(wrong, stick, stick.sliding_velocity)) > 0.03
 
 
@@ -53,9 +54,31 @@ def test_rig_kernel_matches_the_python_reference(joint_type):
 
 def test_rig_command_writes_a_readable_record(tmp_path):
     target = tmp_path / "r.csv"
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "rig", "--type", "A", "--normal-force", "400",
-                           "--amplitude", "150", "--frequency", "10", "--cycles", "1", "--noise", "0.01",
-                           "-o", str(target), "--json"], capture_output=True, text=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "rig",
+            "--type",
+            "A",
+            "--normal-force",
+            "400",
+            "--amplitude",
+            "150",
+            "--frequency",
+            "10",
+            "--cycles",
+            "1",
+            "--noise",
+            "0.01",
+            "-o",
+            str(target),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["records"][0]["regime"] == "micro-slip"
@@ -67,12 +90,30 @@ def test_rig_command_writes_a_readable_record(tmp_path):
 
 def test_identify_refuses_missing_regime(tmp_path):
     target = tmp_path / "micro.csv"
-    subprocess.run([sys.executable, "-m", "smartjoint.cli", "rig", "--normal-force", "400", "--amplitude", "150",
-                    "--frequency", "10", "--cycles", "1", "-o", str(target)], check=True, capture_output=True)
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "identify", str(target)], capture_output=True,
-                          text=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "rig",
+            "--normal-force",
+            "400",
+            "--amplitude",
+            "150",
+            "--frequency",
+            "10",
+            "--cycles",
+            "1",
+            "-o",
+            str(target),
+        ],
+        check=True,
+        capture_output=True,
+    )
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "identify", str(target)], capture_output=True, text=True
+    )
     assert done.returncode == 2 and "no stick-slip records" in done.stderr
-
 
 
 @pytest.mark.parametrize("joint_type", ["A", "B"])
@@ -113,20 +154,23 @@ def test_identification_recovers_table_1_from_noisy_rig_records(joint_type):
 @pytest.mark.parametrize("joint_type", ["A", "B"])
 def test_output_error_model_reproduces_a_noise_free_stick_slip_record(joint_type):
     """shoot(): segments from the velocity peaks, low-passed force, same integrator as the rig."""
-    from smartjoint.design.friction.output_error import prepare_shooting as _prepare_shooting, shoot
+    from smartjoint.design.friction.output_error import prepare_shooting as _prepare_shooting
+    from smartjoint.design.friction.output_error import shoot
 
     p = lugre.TABLE_1[joint_type]
     record = rig.simulate(rig.campaign(joint_type, cycles=2)[1])  # stick-slip, 1.1× break-away
     shooting = _prepare_shooting(record, p.moment_arm)
     assert shooting.starts.size == 4  # one velocity peak per half period
     assert nrmse(shooting.measured, shoot(p, shooting)) < 5e-4
-    wrong = lugre.LuGreParameters(p.sigma0, p.sigma1, p.sigma2, p.coulomb, 1.05 * p.stribeck, p.stribeck_velocity,
-                                  p.radius)
+    wrong = lugre.LuGreParameters(
+        p.sigma0, p.sigma1, p.sigma2, p.coulomb, 1.05 * p.stribeck, p.stribeck_velocity, p.radius
+    )
     assert nrmse(shooting.measured, shoot(wrong, shooting)) > 1e-2
 
 
 def test_output_error_step_needs_excitation_force_and_inertia():
-    from smartjoint.design.friction.output_error import output_error_blocker as _output_error_blocker, output_error_gap
+    from smartjoint.design.friction.output_error import output_error_blocker as _output_error_blocker
+    from smartjoint.design.friction.output_error import output_error_gap
 
     record = rig.simulate(rig.campaign("A", cycles=1)[2])
     assert output_error_gap(record) is None and _output_error_blocker([record], True) is None

@@ -6,11 +6,10 @@ import dataclasses
 
 import numpy as np
 import pytest
+from conftest import small_truss
 
 from smartjoint.design import build_model, load_design, parse_design, solve_modes, update_model
 from smartjoint.design.structure.description import MeasuredMode, Updating
-
-from conftest import small_truss
 
 PARAMETERS = ("connectors.c.axial_stiffness", "connectors.c.bending_stiffness", "materials.aluminium.youngs_modulus")
 
@@ -23,8 +22,11 @@ def _with_measurements(truth: dict[str, float], modes=(1, 2, 3, 4, 6)):
 
 
 def test_recovers_known_parameters():
-    truth = {"connectors.c.axial_stiffness": 2.0e6, "connectors.c.bending_stiffness": 1500.0,
-             "materials.aluminium.youngs_modulus": 66.0e9}
+    truth = {
+        "connectors.c.axial_stiffness": 2.0e6,
+        "connectors.c.bending_stiffness": 1500.0,
+        "materials.aluminium.youngs_modulus": 66.0e9,
+    }
     design = _with_measurements(truth)
     result = update_model(build_model(design, joints="locked"))
     assert np.max(np.abs(result.error_pct)) < 1e-6

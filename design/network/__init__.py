@@ -7,9 +7,27 @@ bench (``smartjoint.bench``) both read, so neither imports the other for it. May
 """
 
 from smartjoint.design.network.protocol import (
-    AMPLIFIER_FAULTS, CONTROLLER, CONTROLLER_FAULTS, E2E_SIGNALS, MODE_SAFE, MODES, Amplifier, database, dbc_text,
+    AMPLIFIER_FAULTS,
+    CONTROLLER,
+    CONTROLLER_FAULTS,
+    E2E_SIGNALS,
+    MODE_SAFE,
+    MODES,
+    Amplifier,
+    database,
+    dbc_text,
     load_dbc,
 )
 
-__all__ = ["AMPLIFIER_FAULTS", "CONTROLLER", "CONTROLLER_FAULTS", "E2E_SIGNALS", "MODES", "MODE_SAFE", "Amplifier",
-           "database", "dbc_text", "load_dbc"]
+__all__ = [
+    "AMPLIFIER_FAULTS",
+    "CONTROLLER",
+    "CONTROLLER_FAULTS",
+    "E2E_SIGNALS",
+    "MODES",
+    "MODE_SAFE",
+    "Amplifier",
+    "database",
+    "dbc_text",
+    "load_dbc",
+]

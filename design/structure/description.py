@@ -253,7 +253,7 @@ class Design:
         table, name, attribute = split_parameter(key)
         return float(getattr(getattr(self, table)[name], attribute))
 
-    def with_parameters(self, values: dict[str, float]) -> "Design":
+    def with_parameters(self, values: dict[str, float]) -> Design:
         """A copy with updatable parameters replaced (used by model updating)."""
         tables = {t: dict(getattr(self, t)) for t in ("materials", "connectors")}
         for key, value in values.items():
@@ -293,6 +293,26 @@ def split_parameter(key: str) -> tuple[str, str, str]:
     return parts[0], parts[1], parts[2]
 
 
-__all__ = ["Connector", "Control", "DOF_NAMES", "Design", "Disturbance", "JOINT_TYPES", "Joint", "Material",
-           "MeasuredMode", "Member", "Node", "NodeType", "PointMass", "SENSOR_QUANTITIES", "Safety", "Sensor", "Support",
-           "TubeSection", "UPDATABLE", "Updating", "split_parameter"]
+__all__ = [
+    "Connector",
+    "Control",
+    "DOF_NAMES",
+    "Design",
+    "Disturbance",
+    "JOINT_TYPES",
+    "Joint",
+    "Material",
+    "MeasuredMode",
+    "Member",
+    "Node",
+    "NodeType",
+    "PointMass",
+    "SENSOR_QUANTITIES",
+    "Safety",
+    "Sensor",
+    "Support",
+    "TubeSection",
+    "UPDATABLE",
+    "Updating",
+    "split_parameter",
+]
