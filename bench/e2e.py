@@ -64,7 +64,7 @@ def crc8(data: bytes, initial: int = INITIAL, final_xor: int = FINAL_XOR) -> int
     return crc ^ final_xor
 
 
-def frame_crc(frame_id: int, payload: bytes) -> int:
+def frame_crc(frame_id: int, payload: bytes | bytearray) -> int:
     """The CRC of byte 0 of a frame.
 
     Parameters

@@ -15,6 +15,7 @@ import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TextIO, cast
 
 import numpy as np
 
@@ -195,7 +196,7 @@ def _read_asc(path: Path, out: LogContent) -> None:
         source = _Lines(lines, prelude, start)
         done = source.index
         try:
-            for message in can.ASCReader(source):
+            for message in can.ASCReader(cast(TextIO, source)):  # the reader only iterates its file
                 passed_over(done, source.index - 1)
                 out.messages.append(message)
                 done = source.index
@@ -448,7 +449,7 @@ def plot(decoded: Decoded, folder, frames=None) -> list[Path]:
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    series = defaultdict(lambda: defaultdict(list))
+    series: defaultdict[str, defaultdict[str, list]] = defaultdict(lambda: defaultdict(list))
     for t, frame, signal, value in decoded.rows:
         if signal in ("crc", "counter"):
             continue

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -149,8 +150,8 @@ class SilLoop:
             for j in range(len(self.joints))
         ]
         self.frames = {m.name: m for m in self.db.messages}
-        self.buses = []
-        self.writer = None
+        self.buses: list = []
+        self.writer: Any = None  # a python-can writer while a log is kept
 
     # ------------------------------------------------------------------ set-up and tear-down
     def reset(self) -> None:
@@ -170,14 +171,14 @@ class SilLoop:
             self.writer = can.Logger(str(self.log_path))
         self.fw.reset()
         self.amplifiers = [AmplifierModel(**options) for options in self.amplifier_options]
-        self.counters = defaultdict(int)
-        self.delayed = []  # (due time, bus, message)
-        self.frozen_counters = {}  # corrupt_counter: the counter each fault froze
+        self.counters: defaultdict[str, int] = defaultdict(int)
+        self.delayed: list[tuple] = []  # (due time, bus, message)
+        self.frozen_counters: dict = {}  # corrupt_counter: the counter each fault froze
         self.node_echo = 0  # heartbeat counter the sensor nodes last saw
         self.k = 0
         self.record = SilRecord()
-        self.stats = defaultdict(int)
-        self.frame_counts = defaultdict(int)
+        self.stats: defaultdict[str, int] = defaultdict(int)
+        self.frame_counts: defaultdict[str, int] = defaultdict(int)
         self.amplifier_e2e_errors = 0
 
     def close(self) -> None:
@@ -294,7 +295,7 @@ class SilLoop:
             self.frame_counts[self.db.get_message_by_frame_id(message.arbitration_id).name] += 1
 
     def _drain(self, bus) -> list:
-        out = []
+        out: list = []
         while True:
             message = bus.recv(timeout=0.0)
             if message is None:

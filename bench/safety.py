@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -122,8 +123,8 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     for (frame, signal), value in implausible_values(artifact, db).items():
         single.append(("implausible", dict(target=frame, signal=signal, value=value)))
     for joint in joints:
-        for fault in AMPLIFIER_FAULTS:
-            single.append(("amplifier", dict(target=joint, amplifier_fault=fault)))
+        for amplifier_fault in AMPLIFIER_FAULTS:
+            single.append(("amplifier", dict(target=joint, amplifier_fault=amplifier_fault)))
     single.append(("bus_off", {}))
     windows = {
         "mid-run": (START, END, LENGTH),
@@ -276,7 +277,7 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
     dt = float(artifact.sample_time)
     safe = np.array(r.safe, dtype=bool)
     force = np.array(r.amplifier_force)
-    own_safe = np.array(r.amplifier_safe, dtype=bool).any(axis=1)
+    own_safe = np.asarray(np.array(r.amplifier_safe, dtype=bool).any(axis=1))
     target = np.asarray(artifact.safe_normal_force, dtype=float)
     failed_stage = sorted(
         {f.target for f in faults if f.kind == "amplifier" and f.amplifier_fault in OUTPUT_STAGE_FAULTS}
@@ -301,7 +302,7 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
         hits = np.flatnonzero(flags[frm:])
         return int(hits[0]) if hits.size else None
 
-    row = {
+    row: dict[str, Any] = {
         "start": start,
         "end": end,
         "tolerated": tolerated,

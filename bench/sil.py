@@ -7,6 +7,7 @@ controllers (:func:`sil_study`), a run with a sequence of injected faults (:func
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -147,7 +148,7 @@ def sil_study(
         {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in db.messages},
     )
     planned = busload.check(db, bitrate, data_bitrate)
-    out = {
+    out: dict[str, Any] = {
         "bitrate": bitrate,
         "data_bitrate": data_bitrate,
         "planned_bus_load": planned.load,

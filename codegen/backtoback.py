@@ -66,12 +66,12 @@ def back_to_back(
         the loop against the reference's; with ``study``, ``float_orderings``.
     """
     builds = {real: controllers.compile_controllers(artifact, real) for real in ("double", "float")}
-    out = {}
+    out: dict[str, dict] = {}
     for name, python, wrapper in (("SISO", artifacts.siso_law, "siso"), ("cLQG", artifacts.clipped_lqg, "clipped_lqg")):
         progress(f"      {name}: reference run, replay through the double and float builds, float build in the loop")
         recorder = Recorder(python(artifact))
         reference = closed_loop.run_semi_active(setup, name, recorder)
-        figures = {"samples": len(recorder.log), "energy_measure_reference": reference.energy_measure()}
+        figures: dict = {"samples": len(recorder.log), "energy_measure_reference": reference.energy_measure()}
         for real in ("double", "float"):
             law = getattr(builds[real], wrapper)()
             law.reset()

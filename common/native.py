@@ -88,6 +88,8 @@ def _load(stem: str, declarations: str, source: Path, objects: tuple[Path, ...],
         finally:
             shutil.rmtree(build, ignore_errors=True)
     spec = importlib.util.spec_from_file_location(name, target)
+    if spec is None or spec.loader is None:  # a path ending in an extension suffix always has one
+        raise ModelError(f"{target}: not loadable as an extension module")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

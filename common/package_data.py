@@ -17,11 +17,7 @@ FILES: dict[str, tuple[str, ...]] = {
     "smartjoint": ("py.typed",),
     "smartjoint.design.plant": ("plant_kernel.c", "plant_kernel.h"),
     "smartjoint.design.friction": ("rig_kernel.c",),
-    "smartjoint.design": (
-        "data/meroform_10bay.toml",
-        "data/fig10_three_joints.toml",
-        "data/three_type_a.toml",
-    ),
+    "smartjoint.design": ("data/meroform_10bay.toml", "data/fig10_three_joints.toml", "data/three_type_a.toml"),
     "smartjoint.codegen": tuple(
         f"templates/{name}"
         for name in (
@@ -38,11 +34,7 @@ FILES: dict[str, tuple[str, ...]] = {
             "types.h.j2",
         )
     ),
-    "smartjoint.firmware": (
-        "runtime/sj_e2e.c",
-        "runtime/sj_e2e.h",
-        "runtime/replay.c",
-    ),
+    "smartjoint.firmware": ("runtime/sj_e2e.c", "runtime/sj_e2e.h", "runtime/replay.c"),
 }
 
 

@@ -22,7 +22,7 @@ def updating_table(result: UpdatingResult) -> str:
         "|---:|---:|---:|---:|---:|---:|",
     ]
     for i, mode in enumerate(result.modes):
-        mac = "" if np.isnan(result.mac[i]) else f"{result.mac[i]:.2f}"
+        mac = "" if result.mac is None or np.isnan(result.mac[i]) else f"{result.mac[i]:.2f}"
         lines.append(
             f"| {mode} | {result.measured_hz[i]:.2f} | {result.initial_hz[i]:.3f} | "
             f"{result.updated_hz[i]:.3f} | {result.error_pct[i]:+.2f} | {mac} |"
@@ -82,9 +82,9 @@ def member_polylines(model: FEModel) -> dict[str, list[int]]:
         chain.append(b)
     node_index = {name: i for i, name in enumerate(model.design.nodes)}
     for name, chain in by_member.items():
-        member = model.design.members[name]
-        chain.insert(0, node_index[member.start])
-        chain.append(node_index[member.end])
+        ends = model.design.members[name]
+        chain.insert(0, node_index[ends.start])
+        chain.append(node_index[ends.end])
     return by_member
 
 

@@ -226,7 +226,7 @@ def clean_stale(output: Path) -> list[str]:
     """Remove what killed runs to ``output`` left beside it (see the module docstring); the names removed."""
     parent = output.parent
     pattern = re.compile(rf"\.{re.escape(output.name)}\.smartjoint-({_RUN_ID})\.run")
-    removed = []
+    removed: list[str] = []
     try:
         candidates = sorted(parent.iterdir()) if parent.is_dir() else []
     except OSError:

@@ -118,34 +118,10 @@ def test_parameter_file_that_is_not_text_or_missing(tmp_path, capsys):
             "command line: sigma0: inf — must be a finite number",
         ),
         (("--parameters", "joint.toml", "--sigma0", "1e5"), "--sigma0 together with --parameters"),
-        (
-            (
-                "--noise",
-                "-0.01",
-            ),
-            "noise: -0.01 — allowed: 0 … 1",
-        ),
-        (
-            (
-                "--noise",
-                "nan",
-            ),
-            "noise: nan — allowed: 0 … 1",
-        ),
-        (
-            (
-                "--cycles",
-                "1e9",
-            ),
-            "allowed: at most 500000 samples per record",
-        ),
-        (
-            (
-                "--inertia",
-                "inf",
-            ),
-            "inertia: inf — must be a finite number > 0",
-        ),
+        (("--noise", "-0.01"), "noise: -0.01 — allowed: 0 … 1"),
+        (("--noise", "nan"), "noise: nan — allowed: 0 … 1"),
+        (("--cycles", "1e9"), "allowed: at most 500000 samples per record"),
+        (("--inertia", "inf"), "inertia: inf — must be a finite number > 0"),
     ],
 )
 def test_bad_rig_options_are_one_line_errors(tmp_path, capsys, monkeypatch, arguments, expected):
