@@ -21,18 +21,6 @@ from smartjoint.bench.safety import fault_matrix
 from smartjoint.bench.sil import fault_run, sil_study
 
 __all__ = [
-    "AmplifierModel",
-    "BusLoad",
-    "Fault",
-    "Firmware",
-    "LogContent",
-    "SilLoop",
-    "SilRecord",
-    "bus_load",
-    "check_faults",
-    "fault_matrix",
-    "fault_run",
-    "open_bus",
-    "parse_fault",
-    "sil_study",
+    "AmplifierModel", "BusLoad", "Fault", "Firmware", "LogContent", "SilLoop", "SilRecord", "bus_load", "check_faults",
+    "fault_matrix", "fault_run", "open_bus", "parse_fault", "sil_study",
 ]

@@ -58,22 +58,12 @@ def test_rebuilt_controllers_match_the_originals_bit_for_bit(setup, tmp_path):
     design, _, lqg, built = setup
     loaded = artifact.load(artifact.save(built, tmp_path / "c.json"))
     low, high = np.full(2, design.control.normal_force_min), np.full(2, design.control.normal_force_max)
-    pairs = [
-        (control.SisoLaw(lqg.sample_time, low, high, [1e-3, 2e-3]), artifact.siso_law(loaded)),
-        (control.ClippedLqg(lqg, low, high, design.control.clqg_boundary_layer), artifact.clipped_lqg(loaded)),
-        (control.ActiveLqg(lqg), artifact.active_lqg(loaded)),
-    ]
+    pairs = [(control.SisoLaw(lqg.sample_time, low, high, [1e-3, 2e-3]), artifact.siso_law(loaded)),
+             (control.ClippedLqg(lqg, low, high, design.control.clqg_boundary_layer), artifact.clipped_lqg(loaded)),
+             (control.ActiveLqg(lqg), artifact.active_lqg(loaded))]
     rng = np.random.default_rng(7)
-    steps = [
-        plant.Measurements(
-            k * 1e-3,
-            1e-3 * rng.standard_normal(2),
-            1e-2 * rng.standard_normal(2),
-            50.0 * rng.standard_normal(2),
-            rng.uniform(40.0, 400.0, 2),
-        )
-        for k in range(200)
-    ]
+    steps = [plant.Measurements(k * 1e-3, 1e-3 * rng.standard_normal(2), 1e-2 * rng.standard_normal(2),
+                                   50.0 * rng.standard_normal(2), rng.uniform(40.0, 400.0, 2)) for k in range(200)]
     for original, rebuilt in pairs:
         original.reset(), rebuilt.reset()
         for m in steps:
@@ -107,12 +97,8 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
 
     design, model, lqg, _ = setup
     data = small_truss()
-    data["control"] = {
-        "joints": ["JB", "JA"],
-        "normal_force_min": [10.0, 20.0],
-        "normal_force_max": 300.0,
-        "siso_boundary_layer": 4e-3,
-    }
+    data["control"] = {"joints": ["JB", "JA"], "normal_force_min": [10.0, 20.0], "normal_force_max": 300.0,
+                       "siso_boundary_layer": 4e-3}
     swapped = parse_design(data)
     with pytest.raises(ModelError, match="model: joints.*'JB', 'JA'"):
         artifact.from_design(swapped, model, lqg)
@@ -132,45 +118,31 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
         artifact.from_design(dataclasses.replace(design, sensors=design.sensors[:1]), model, lqg, 1e-3)
 
 
-@pytest.mark.parametrize(
-    "change, message",
-    [
-        (lambda d: d.update(schema_version=3), r"schema_version: 3 — unknown; this version reads schema_version 2"),
-        (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
-        (
-            lambda d: d.update(safe_normal_force=[5.0, 400.0]),
-            r"safe_normal_force\[0\]: 5.0 N for joint 'JA' — must lie "
-            r"within \[normal_force_min, normal_force_max\]",
-        ),
-        (lambda d: d.update(sensor_quantities=["displacement", "speed"]), r"sensor_quantities\[1\]: 'speed' — allowed"),
-        (
-            lambda d: d.update(sensor_quantities=["displacement"]),
-            r"sensor_quantities: 1 entries — expected one per sensor",
-        ),
-        (lambda d: d.update(measured_normal_force_max=[100.0, 500.0]), r"measured_normal_force_max\[0\]: 100.0 N"),
-        (lambda d: d.update(sliding_velocity_limit=[0.0, 1.0]), r"sliding_velocity_limit\[0\]: 0.0 for joint 'JA'"),
-        (lambda d: d.pop("schema_version"), r"schema_version: missing"),
-        (lambda d: d.pop("feedback_gain"), r"feedback_gain: missing — required field"),
-        (
-            lambda d: d.update(feedback_gain=[row[:-1] for row in d["feedback_gain"]]),
-            r"feedback_gain: shape \(2, 15\) — expected \(2, 16\) = \(l, 2n\)",
-        ),
-        (lambda d: d["estimator_gain"][3].__setitem__(1, float("nan")), r"estimator_gain: nan at index \(3, 1\)"),
-        (
-            lambda d: d.update(normal_force_min=[500.0, 40.0]),
-            r"normal_force_min/normal_force_max: 500.0/400.0 N .*'JA'",
-        ),
-        (lambda d: d.update(joint_names=["JA", "JA"]), r"joint_names\[1\]: 'JA' — duplicate"),
-        (lambda d: d.update(sensor_names=["tip_y", ""]), r"sensor_names\[1\]: '' — expected a non-empty string"),
-        (lambda d: d.update(sample_time=0.0), r"sample_time: 0.0 — must be > 0 \[s\]"),
-        (lambda d: d.update(sample_time="1e-3"), r"sample_time: '1e-3' — expected a number"),
-        (lambda d: d.update(siso_boundary_layer=[1e-3, -1.0]), r"siso_boundary_layer: -1.0 for joint 'JB'"),
-        (lambda d: d.update(gamma0=[[1.0, 2.0], [3.0]]), r"gamma0: .* rectangular"),
-        (lambda d: d["blocks"][0][0].__setitem__(0, True), r"blocks: True — expected a \(nested\) list of numbers"),
-        (lambda d: d.update(extra=1), r"extra: 1 — unknown field"),
-        (lambda d: d.update(design_sha256="abc"), r"design_sha256: 'abc'"),
-    ],
-)
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.update(schema_version=3), r"schema_version: 3 — unknown; this version reads schema_version 2"),
+    (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
+    (lambda d: d.update(safe_normal_force=[5.0, 400.0]), r"safe_normal_force\[0\]: 5.0 N for joint 'JA' — must lie "
+                                                         r"within \[normal_force_min, normal_force_max\]"),
+    (lambda d: d.update(sensor_quantities=["displacement", "speed"]), r"sensor_quantities\[1\]: 'speed' — allowed"),
+    (lambda d: d.update(sensor_quantities=["displacement"]), r"sensor_quantities: 1 entries — expected one per sensor"),
+    (lambda d: d.update(measured_normal_force_max=[100.0, 500.0]), r"measured_normal_force_max\[0\]: 100.0 N"),
+    (lambda d: d.update(sliding_velocity_limit=[0.0, 1.0]), r"sliding_velocity_limit\[0\]: 0.0 for joint 'JA'"),
+    (lambda d: d.pop("schema_version"), r"schema_version: missing"),
+    (lambda d: d.pop("feedback_gain"), r"feedback_gain: missing — required field"),
+    (lambda d: d.update(feedback_gain=[row[:-1] for row in d["feedback_gain"]]),
+     r"feedback_gain: shape \(2, 15\) — expected \(2, 16\) = \(l, 2n\)"),
+    (lambda d: d["estimator_gain"][3].__setitem__(1, float("nan")), r"estimator_gain: nan at index \(3, 1\)"),
+    (lambda d: d.update(normal_force_min=[500.0, 40.0]), r"normal_force_min/normal_force_max: 500.0/400.0 N .*'JA'"),
+    (lambda d: d.update(joint_names=["JA", "JA"]), r"joint_names\[1\]: 'JA' — duplicate"),
+    (lambda d: d.update(sensor_names=["tip_y", ""]), r"sensor_names\[1\]: '' — expected a non-empty string"),
+    (lambda d: d.update(sample_time=0.0), r"sample_time: 0.0 — must be > 0 \[s\]"),
+    (lambda d: d.update(sample_time="1e-3"), r"sample_time: '1e-3' — expected a number"),
+    (lambda d: d.update(siso_boundary_layer=[1e-3, -1.0]), r"siso_boundary_layer: -1.0 for joint 'JB'"),
+    (lambda d: d.update(gamma0=[[1.0, 2.0], [3.0]]), r"gamma0: .* rectangular"),
+    (lambda d: d["blocks"][0][0].__setitem__(0, True), r"blocks: True — expected a \(nested\) list of numbers"),
+    (lambda d: d.update(extra=1), r"extra: 1 — unknown field"),
+    (lambda d: d.update(design_sha256="abc"), r"design_sha256: 'abc'"),
+])
 def test_invalid_artefacts_are_named(setup, change, message):
     with pytest.raises(ModelError, match=message):
         artifact.loads(_mutated(setup[3], change))
@@ -178,11 +150,8 @@ def test_invalid_artefacts_are_named(setup, change, message):
 
 def test_bad_text_and_files_raise_model_errors(setup, tmp_path, monkeypatch):
     built = setup[3]
-    for text, message in (
-        ('{"schema_version": 1,', "not valid JSON"),
-        ("[1, 2]", "expected a JSON object"),
-        ('{"schema_version": 2, "schema_version": 2}', "schema_version: 2 — duplicate key"),
-    ):
+    for text, message in (("{\"schema_version\": 1,", "not valid JSON"), ("[1, 2]", "expected a JSON object"),
+                          ("{\"schema_version\": 2, \"schema_version\": 2}", "schema_version: 2 — duplicate key")):
         with pytest.raises(ModelError, match=message):
             artifact.loads(text)
     with pytest.raises(ModelError, match="missing.json: cannot read"):

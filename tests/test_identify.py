@@ -26,9 +26,8 @@ def test_true_parameters_reproduce_noise_free_records(joint_type, inertia):
     assert nrmse(micro.friction_force, model_friction(p, micro, micro.sliding_velocity)) < 0.01
     assert nrmse(stick.friction_force, model_friction(p, stick, stick.sliding_velocity)) < 0.01
     # A wrong Coulomb level is visible in the error: the measure discriminates.
-    wrong = lugre.LuGreParameters(
-        p.sigma0, p.sigma1, p.sigma2, 1.1 * p.coulomb, p.stribeck, p.stribeck_velocity, p.radius
-    )
+    wrong = lugre.LuGreParameters(p.sigma0, p.sigma1, p.sigma2, 1.1 * p.coulomb, p.stribeck, p.stribeck_velocity,
+                                  p.radius)
     assert nrmse(stick.friction_force, model_friction(wrong, stick, stick.sliding_velocity)) > 0.03
 
 
@@ -54,31 +53,9 @@ def test_rig_kernel_matches_the_python_reference(joint_type):
 
 def test_rig_command_writes_a_readable_record(tmp_path):
     target = tmp_path / "r.csv"
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "rig",
-            "--type",
-            "A",
-            "--normal-force",
-            "400",
-            "--amplitude",
-            "150",
-            "--frequency",
-            "10",
-            "--cycles",
-            "1",
-            "--noise",
-            "0.01",
-            "-o",
-            str(target),
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
-    )
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "rig", "--type", "A", "--normal-force", "400",
+                           "--amplitude", "150", "--frequency", "10", "--cycles", "1", "--noise", "0.01",
+                           "-o", str(target), "--json"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["records"][0]["regime"] == "micro-slip"
@@ -90,30 +67,12 @@ def test_rig_command_writes_a_readable_record(tmp_path):
 
 def test_identify_refuses_missing_regime(tmp_path):
     target = tmp_path / "micro.csv"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "rig",
-            "--normal-force",
-            "400",
-            "--amplitude",
-            "150",
-            "--frequency",
-            "10",
-            "--cycles",
-            "1",
-            "-o",
-            str(target),
-        ],
-        check=True,
-        capture_output=True,
-    )
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "identify", str(target)], capture_output=True, text=True
-    )
+    subprocess.run([sys.executable, "-m", "smartjoint.cli", "rig", "--normal-force", "400", "--amplitude", "150",
+                    "--frequency", "10", "--cycles", "1", "-o", str(target)], check=True, capture_output=True)
+    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "identify", str(target)], capture_output=True,
+                          text=True)
     assert done.returncode == 2 and "no stick-slip records" in done.stderr
+
 
 
 @pytest.mark.parametrize("joint_type", ["A", "B"])
@@ -162,9 +121,8 @@ def test_output_error_model_reproduces_a_noise_free_stick_slip_record(joint_type
     shooting = _prepare_shooting(record, p.moment_arm)
     assert shooting.starts.size == 4  # one velocity peak per half period
     assert nrmse(shooting.measured, shoot(p, shooting)) < 5e-4
-    wrong = lugre.LuGreParameters(
-        p.sigma0, p.sigma1, p.sigma2, p.coulomb, 1.05 * p.stribeck, p.stribeck_velocity, p.radius
-    )
+    wrong = lugre.LuGreParameters(p.sigma0, p.sigma1, p.sigma2, p.coulomb, 1.05 * p.stribeck, p.stribeck_velocity,
+                                  p.radius)
     assert nrmse(shooting.measured, shoot(wrong, shooting)) > 1e-2
 
 

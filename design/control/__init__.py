@@ -10,28 +10,16 @@ these, so this package does not import them).
 
 from smartjoint.design.control.filter import ActiveLqg, ClippedLqg, ordered_product
 from smartjoint.design.control.laws import (
-    STATUS_ESTIMATE_RESET,
-    STATUS_INPUT_IMPLAUSIBLE,
-    STATUS_INPUT_INVALID,
-    STATUS_OK,
-    SisoLaw,
-    boundary_layer,
-    input_status,
+                                            STATUS_ESTIMATE_RESET,
+                                            STATUS_INPUT_IMPLAUSIBLE,
+                                            STATUS_INPUT_INVALID,
+                                            STATUS_OK,
+                                            SisoLaw,
+                                            boundary_layer,
+                                            input_status,
 )
 from smartjoint.design.control.lqg import LqgDesign, check_sample_time, design_lqg
 
-__all__ = [
-    "STATUS_ESTIMATE_RESET",
-    "STATUS_INPUT_IMPLAUSIBLE",
-    "STATUS_INPUT_INVALID",
-    "STATUS_OK",
-    "ActiveLqg",
-    "ClippedLqg",
-    "LqgDesign",
-    "SisoLaw",
-    "boundary_layer",
-    "check_sample_time",
-    "design_lqg",
-    "input_status",
-    "ordered_product",
-]
+__all__ = ["STATUS_ESTIMATE_RESET", "STATUS_INPUT_IMPLAUSIBLE", "STATUS_INPUT_INVALID", "STATUS_OK", "ActiveLqg",
+           "ClippedLqg", "LqgDesign", "SisoLaw", "boundary_layer", "check_sample_time", "design_lqg",
+           "input_status", "ordered_product"]

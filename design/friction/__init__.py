@@ -15,17 +15,6 @@ from smartjoint.design.friction.lugre import TABLE_1, LuGreParameters, joint_law
 from smartjoint.design.friction.records import Record, RecordError, read_record, write_record
 
 __all__ = [
-    "Identification",
-    "LuGreParameters",
-    "Record",
-    "RecordError",
-    "StepResult",
-    "TABLE_1",
-    "classify",
-    "joint_laws",
-    "model_friction",
-    "nrmse",
-    "read_record",
-    "simulate_friction",
-    "write_record",
+    "Identification", "LuGreParameters", "Record", "RecordError", "StepResult", "TABLE_1", "classify",
+    "joint_laws", "model_friction", "nrmse", "read_record", "simulate_friction", "write_record",
 ]

@@ -78,15 +78,8 @@ BOUNDS = {
 }
 MIN_RADIUS = 1e-4  # [m]
 MIN_NORMAL_FORCE = 1e-3  # [N]: μ = u_R/F_N is meaningless below (and a zero F_N divides by zero)
-_SI = {
-    "time": "s",
-    "sliding_velocity": ("m/s", "rad/s"),
-    "friction_force": ("N", "N*m"),
-    "excitation_force": ("N", "N*m"),
-    "normal_force": "N",
-    "inertia": ("kg", "kg*m^2"),
-    "radius": "m",
-}
+_SI = {"time": "s", "sliding_velocity": ("m/s", "rad/s"), "friction_force": ("N", "N*m"),
+       "excitation_force": ("N", "N*m"), "normal_force": "N", "inertia": ("kg", "kg*m^2"), "radius": "m"}
 
 
 def bound(quantity: str, joint_type: str) -> float:
@@ -152,10 +145,8 @@ class Record:
         if self.joint_type == "A":
             return 1.0
         if self.radius is None:
-            raise RecordError(
-                f"{self.name}: type B record without a radius — add '# radius = <r> m' to the "
-                "record (or pass the radius to identify / --radius)"
-            )
+            raise RecordError(f"{self.name}: type B record without a radius — add '# radius = <r> m' to the "
+                              "record (or pass the radius to identify / --radius)")
         return self.radius
 
 
@@ -193,19 +184,15 @@ def _read_text(path: Path, name: str) -> str:
     except OSError as error:
         raise RecordError(f"{name}: cannot read record ({error.strerror or error})") from None
     if len(data) > MAX_BYTES:
-        raise RecordError(
-            f"{name}: larger than {MAX_BYTES // 2**20} MiB — allowed: records up to that size "
-            "(split a longer measurement)"
-        )
+        raise RecordError(f"{name}: larger than {MAX_BYTES // 2**20} MiB — allowed: records up to that size "
+                          "(split a longer measurement)")
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as error:
         line = data.count(b"\n", 0, error.start) + 1
         column = error.start - (data.rfind(b"\n", 0, error.start) + 1) + 1
-        raise RecordError(
-            f"{name}: row {line}, character {column}: byte 0x{data[error.start]:02x} is not UTF-8 — "
-            "a record must be UTF-8 text (CSV; re-save it as UTF-8)"
-        ) from None
+        raise RecordError(f"{name}: row {line}, character {column}: byte 0x{data[error.start]:02x} is not UTF-8 — "
+                          "a record must be UTF-8 text (CSV; re-save it as UTF-8)") from None
     del data
     if "\x00" in text:
         line = text.count("\n", 0, text.index("\x00")) + 1
@@ -223,26 +210,21 @@ def _number(text: str, unit: str, what: str, name: str) -> float:
     return value
 
 
-def _metadata_length(
-    metadata, key: str, joint_type: str, name: str, lower: float, upper: float, lower_inclusive: bool, kind: str
-) -> float | None:
+def _metadata_length(metadata, key: str, joint_type: str, name: str, lower: float, upper: float,
+                     lower_inclusive: bool, kind: str) -> float | None:
     if key not in metadata:
         return None
     value, unit = metadata[key]
     allowed = _UNITS[kind]
     if unit not in allowed:
-        raise RecordError(
-            f"{name}: metadata {key}: unit {unit!r} unknown — write '# {key} = <value> <unit>' "
-            f"with unit one of {', '.join(allowed)}"
-        )
+        raise RecordError(f"{name}: metadata {key}: unit {unit!r} unknown — write '# {key} = <value> <unit>' "
+                          f"with unit one of {', '.join(allowed)}")
     number = _number(value, unit, f"metadata {key}", name) * allowed[unit]
     low_ok = number >= lower if lower_inclusive else number > lower
     if not (low_ok and number <= upper):
         relation = ">=" if lower_inclusive else ">"
-        raise RecordError(
-            f"{name}: metadata {key}: {value} {unit} — allowed: {relation} {lower:g} and <= "
-            f"{upper:g} {si_unit(key, joint_type)}"
-        )
+        raise RecordError(f"{name}: metadata {key}: {value} {unit} — allowed: {relation} {lower:g} and <= "
+                          f"{upper:g} {si_unit(key, joint_type)}")
     return number
 
 
@@ -287,37 +269,25 @@ def read_record(path: str | Path, radius: float | None = None) -> Record:
     data = {}
     for column, (_, factor, unit) in columns.items():
         column_values = np.frombuffer(values.pop(column), dtype=float) * factor
-        _check_column(
-            name, column, column_values, unit, factor, joint_type, row_numbers, lambda k, column=column: cell(column, k)
-        )
+        _check_column(name, column, column_values, unit, factor, joint_type, row_numbers,
+                      lambda k, column=column: cell(column, k))
         data[column] = column_values
     steps = np.diff(data["time"])
     smallest = bound("time_step", joint_type)
     if np.any(steps < smallest):
         first = int(np.flatnonzero(steps < smallest)[0]) + 1
-        raise RecordError(
-            f"{name}: row {row_numbers[first]}, column 'time': {cell('time', first)} after "
-            f"{cell('time', first - 1)} — time does not increase (allowed: each row at least "
-            f"{smallest:g} s after the one before)"
-        )
+        raise RecordError(f"{name}: row {row_numbers[first]}, column 'time': {cell('time', first)} after "
+                          f"{cell('time', first - 1)} — time does not increase (allowed: each row at least "
+                          f"{smallest:g} s after the one before)")
     if "friction_force" in data:
         friction = data["friction_force"]
     else:
         if inertia is None:
             raise RecordError(f"{name}: column 'excitation_force' needs the '# inertia = <value> kg' metadata line")
         friction = friction_from_excitation(data["time"], data["sliding_velocity"], data["excitation_force"], inertia)
-    return Record(
-        path.stem,
-        data["time"],
-        data["sliding_velocity"],
-        friction,
-        data["normal_force"],
-        joint_type,
-        inertia,
-        data.get("excitation_force"),
-        {k: " ".join(v).strip() for k, v in metadata.items()},
-        radius,
-    )
+    return Record(path.stem, data["time"], data["sliding_velocity"], friction, data["normal_force"], joint_type,
+                  inertia, data.get("excitation_force"), {k: " ".join(v).strip() for k, v in metadata.items()},
+                  radius)
 
 
 def _metadata(lines: list[str], name: str) -> tuple[dict[str, tuple[str, str]], int]:
@@ -344,36 +314,26 @@ def _joint_properties(metadata, name: str, given: float | None) -> tuple[str, fl
         raise RecordError(f"{name}: metadata joint_type: {joint_type!r} — allowed: A, B")
     regime = " ".join(metadata["regime"]).strip() if "regime" in metadata else None
     if regime is not None and regime not in REGIMES:
-        raise RecordError(
-            f"{name}: metadata regime: {regime!r} — allowed: {', '.join(REGIMES)} (or no regime line: "
-            "then identify classifies the record by whether it slides)"
-        )
+        raise RecordError(f"{name}: metadata regime: {regime!r} — allowed: {', '.join(REGIMES)} (or no regime line: "
+                          "then identify classifies the record by whether it slides)")
     inertia = _metadata_length(metadata, "inertia", joint_type, name, 0.0, bound("inertia", joint_type), True, "mass")
-    radius = _metadata_length(
-        metadata, "radius", joint_type, name, MIN_RADIUS, bound("radius", joint_type), True, "length"
-    )
+    radius = _metadata_length(metadata, "radius", joint_type, name, MIN_RADIUS, bound("radius", joint_type), True,
+                              "length")
     if joint_type == "A" and (radius is not None or given is not None):
-        raise RecordError(
-            f"{name}: {'metadata radius' if radius is not None else f'radius {given!r} m given'}: a "
-            "type A joint has no radius — allowed only with '# joint_type = B'"
-        )
+        raise RecordError(f"{name}: {'metadata radius' if radius is not None else f'radius {given!r} m given'}: a "
+                          "type A joint has no radius — allowed only with '# joint_type = B'")
     if joint_type == "B" and given is not None:
         if not (math.isfinite(given) and MIN_RADIUS <= given <= bound("radius", "B")):
-            raise RecordError(
-                f"{name}: radius {given!r} m given — allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m"
-            )
+            raise RecordError(f"{name}: radius {given!r} m given — allowed: {MIN_RADIUS:g} … "
+                              f"{bound('radius', 'B'):g} m")
         if radius is not None and radius != given:
-            raise RecordError(
-                f"{name}: metadata radius: {radius!r} m, but radius {given!r} m was given — the record's "
-                "own radius and the given one must agree (or give none)"
-            )
+            raise RecordError(f"{name}: metadata radius: {radius!r} m, but radius {given!r} m was given — the record's "
+                              "own radius and the given one must agree (or give none)")
         radius = float(given)
     if joint_type == "B" and radius is None:
-        raise RecordError(
-            f"{name}: metadata radius: missing — a type B record must give its joint radius, e.g. "
-            f"'# radius = 0.011 m' (allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m), or pass "
-            "it (identify --radius); no default is assumed"
-        )
+        raise RecordError(f"{name}: metadata radius: missing — a type B record must give its joint radius, e.g. "
+                          f"'# radius = 0.011 m' (allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m), or pass "
+                          "it (identify --radius); no default is assumed")
     return joint_type, inertia, radius
 
 
@@ -392,20 +352,16 @@ def _header_columns(header: list[str], header_row: int, name: str) -> dict[str, 
             raise RecordError(f"{name}: row {header_row}: column {column!r} appears twice — allowed: once")
         allowed = _UNITS[COLUMNS[column]]
         if unit not in allowed:
-            raise RecordError(
-                f"{name}: row {header_row}, column {column!r}: unit {unit!r} unknown; allowed: {', '.join(allowed)}"
-            )
+            raise RecordError(f"{name}: row {header_row}, column {column!r}: unit {unit!r} unknown; allowed: "
+                              f"{', '.join(allowed)}")
         columns[column] = (index, allowed[unit], unit)
     for required in ("time", "sliding_velocity", "normal_force"):
         if required not in columns:
-            raise RecordError(
-                f"{name}: row {header_row}: column {required!r} missing; header has "
-                f"{', '.join(h.strip() for h in header)}"
-            )
+            raise RecordError(f"{name}: row {header_row}: column {required!r} missing; header has "
+                              f"{', '.join(h.strip() for h in header)}")
     if "friction_force" not in columns and "excitation_force" not in columns:
-        raise RecordError(
-            f"{name}: row {header_row}: needs column 'friction_force' or 'excitation_force' (with '# inertia = …')"
-        )
+        raise RecordError(f"{name}: row {header_row}: needs column 'friction_force' or 'excitation_force' "
+                          "(with '# inertia = …')")
     return columns
 
 
@@ -425,10 +381,8 @@ def _read_rows(reader, header: list[str], columns, body_start: int, name: str):
             try:
                 values[column].append(float(row[index]))
             except ValueError:
-                raise RecordError(
-                    f"{name}: row {line_number}, column {column!r}: {row[index].strip()} — not a "
-                    "number (allowed: a finite number)"
-                ) from None
+                raise RecordError(f"{name}: row {line_number}, column {column!r}: {row[index].strip()} — not a "
+                                  "number (allowed: a finite number)") from None
         row_numbers.append(line_number)
     if len(row_numbers) < 3:
         raise RecordError(f"{name}: {len(row_numbers)} data rows — need at least 3")
@@ -448,7 +402,8 @@ def _check_column(name, column, values, unit, factor, joint_type, row_numbers, c
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
         shown_value = cells(first) if cells is not None else repr(float(values[first] / factor))
-        raise RecordError(f"{name}: row {row_numbers[first]}, column {column!r}: {shown_value} {unit} — {allowed}")
+        raise RecordError(f"{name}: row {row_numbers[first]}, column {column!r}: {shown_value} {unit} — "
+                          f"{allowed}")
 
 
 def write_record(record: Record, path: str | Path) -> None:
@@ -484,17 +439,10 @@ def write_record(record: Record, path: str | Path) -> None:
     columns.append(("normal_force [N]", record.normal_force))
     lines.append(",".join(c for c, _ in columns))
     first_row = len(lines) + 1
-    for title, values in columns:
+    for (title, values) in columns:
         column, unit = title[:-1].split(" [")
-        _check_column(
-            str(path),
-            column,
-            np.asarray(values, dtype=float),
-            unit,
-            1.0,
-            record.joint_type,
-            range(first_row, first_row + len(values)),
-        )
+        _check_column(str(path), column, np.asarray(values, dtype=float), unit, 1.0, record.joint_type,
+                      range(first_row, first_row + len(values)))
     matrix = np.column_stack([v for _, v in columns])
     lines += [",".join(repr(float(x)) for x in row) for row in matrix]
     temporary = path.with_name(path.name + ".partial")
@@ -507,18 +455,5 @@ def write_record(record: Record, path: str | Path) -> None:
         raise RecordError(f"{path}: cannot write record ({error.strerror or error})") from None
 
 
-__all__ = [
-    "BOUNDS",
-    "COLUMNS",
-    "MAX_BYTES",
-    "MIN_NORMAL_FORCE",
-    "MIN_RADIUS",
-    "REGIMES",
-    "Record",
-    "RecordError",
-    "bound",
-    "friction_from_excitation",
-    "read_record",
-    "si_unit",
-    "write_record",
-]
+__all__ = ["BOUNDS", "COLUMNS", "MAX_BYTES", "MIN_NORMAL_FORCE", "MIN_RADIUS", "REGIMES", "Record", "RecordError",
+           "bound", "friction_from_excitation", "read_record", "si_unit", "write_record"]

@@ -50,14 +50,8 @@ PARAMETER_BOUNDS = {
     "stribeck": ((0.0, 10.0, True), (0.0, 10.0, True)),
     "stribeck_velocity": ((0.0, bound("sliding_velocity", "A"), False), (0.0, bound("sliding_velocity", "B"), False)),
 }
-PARAMETER_UNITS = {
-    "sigma0": ("1/m", "1/rad"),
-    "sigma1": ("s/m", "s/rad"),
-    "sigma2": ("s/m", "s/rad"),
-    "coulomb": ("", ""),
-    "stribeck": ("", ""),
-    "stribeck_velocity": ("m/s", "rad/s"),
-}
+PARAMETER_UNITS = {"sigma0": ("1/m", "1/rad"), "sigma1": ("s/m", "s/rad"), "sigma2": ("s/m", "s/rad"),
+                   "coulomb": ("", ""), "stribeck": ("", ""), "stribeck_velocity": ("m/s", "rad/s")}
 LUGRE_NAMES = tuple(PARAMETER_BOUNDS)
 TABLE_1_SOURCE = "paper Table 1"
 
@@ -110,9 +104,8 @@ def parameter_set(joint_type: str, values: dict | None = None, source: str = "co
     checked = {}
     for key in allowed:
         if key not in values:
-            raise RigError(
-                f"{source}: {key}: missing — give all of {', '.join(allowed)} (or none for {TABLE_1_SOURCE})"
-            )
+            raise RigError(f"{source}: {key}: missing — give all of {', '.join(allowed)} (or none for "
+                           f"{TABLE_1_SOURCE})")
         value = values[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise RigError(f"{source}: {key}: {value!r} — must be a finite number")
@@ -123,10 +116,8 @@ def parameter_set(joint_type: str, values: dict | None = None, source: str = "co
             unit = PARAMETER_UNITS[key][0 if joint_type == "A" else 1]
         if not ((value >= lower if inclusive else value > lower) and value <= upper):
             relation = ">=" if inclusive else ">"
-            raise RigError(
-                f"{source}: {key}: {value!r} — allowed: {relation} {lower:g} and <= {upper:g}"
-                f"{' ' + unit if unit else ''}"
-            )
+            raise RigError(f"{source}: {key}: {value!r} — allowed: {relation} {lower:g} and <= {upper:g}"
+                           f"{' ' + unit if unit else ''}")
         checked[key] = float(value)
     return ParameterSet(joint_type, lugre.LuGreParameters(**checked), source)
 
@@ -225,27 +216,20 @@ def check_test(test: RigTest, parameters: lugre.LuGreParameters) -> None:
     if test.normal_force > bound("normal_force", test.joint_type):
         raise RigError(f"normal_force: {test.normal_force!r} — allowed: <= {bound('normal_force', 'A'):g} N")
     if test.amplitude > bound("excitation_force", test.joint_type):
-        raise RigError(
-            f"amplitude: {test.amplitude!r} — allowed: <= {bound('excitation_force', test.joint_type):g} "
-            f"{'N' if test.joint_type == 'A' else 'N*m'}"
-        )
+        raise RigError(f"amplitude: {test.amplitude!r} — allowed: <= {bound('excitation_force', test.joint_type):g} "
+                       f"{'N' if test.joint_type == 'A' else 'N*m'}")
     if test.inertia > bound("inertia", test.joint_type):
-        raise RigError(
-            f"inertia: {test.inertia!r} — allowed: <= {bound('inertia', test.joint_type):g} "
-            f"{'kg' if test.joint_type == 'A' else 'kg*m^2'}"
-        )
+        raise RigError(f"inertia: {test.inertia!r} — allowed: <= {bound('inertia', test.joint_type):g} "
+                       f"{'kg' if test.joint_type == 'A' else 'kg*m^2'}")
     if not (math.isfinite(test.noise) and 0.0 <= test.noise <= 1.0):
         raise RigError(f"noise: {test.noise!r} — allowed: 0 … 1 (relative to each signal's RMS)")
     samples = test.cycles / test.frequency * test.sample_rate
     if not samples <= MAX_SAMPLES:
-        raise RigError(
-            f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples at "
-            f"{test.sample_rate:g} Hz — allowed: at most {MAX_SAMPLES} samples per record"
-        )
+        raise RigError(f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples at "
+                       f"{test.sample_rate:g} Hz — allowed: at most {MAX_SAMPLES} samples per record")
     if samples < 3:
-        raise RigError(
-            f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples — need at least 3"
-        )
+        raise RigError(f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples — need at "
+                       "least 3")
     if test.joint_type == "B" and parameters.radius is None:
         raise RigError("radius: missing — a type B joint needs its radius in the parameter set")
     if test.joint_type == "A" and parameters.radius is not None:
@@ -287,23 +271,12 @@ def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None, sou
         velocity = velocity + test.noise * np.sqrt(np.mean(velocity**2)) * rng.standard_normal(time.size)
         force = force + test.noise * np.sqrt(np.mean(force**2)) * rng.standard_normal(time.size)
     friction = friction_from_excitation(time, velocity, force, test.inertia)
-    return Record(
-        test.name,
-        time,
-        velocity,
-        friction,
-        np.full(time.size, test.normal_force),
-        test.joint_type,
-        test.inertia,
-        force,
-        {
-            "regime": "micro-slip" if test.amplitude < breakaway(p, test.normal_force) else "stick-slip",
-            "noise": f"{test.noise:g}",
-            "parameter_set": source,
-            "true_friction_rms": f"{np.sqrt(np.mean(true_friction**2)):.6g}",
-        },
-        radius=p.radius if test.joint_type == "B" else None,
-    )
+    return Record(test.name, time, velocity, friction, np.full(time.size, test.normal_force), test.joint_type,
+                  test.inertia, force, {"regime": "micro-slip" if test.amplitude < breakaway(p, test.normal_force)
+                                        else "stick-slip", "noise": f"{test.noise:g}",
+                                        "parameter_set": source,
+                                        "true_friction_rms": f"{np.sqrt(np.mean(true_friction**2)):.6g}"},
+                  radius=p.radius if test.joint_type == "B" else None)
 
 
 SUBSTEPS = 8
@@ -320,9 +293,8 @@ long sj_rig_integrate(const sj_rig *p, const double *time, long samples, int sub
 """
 
 
-def integrate(
-    p, gain, inertia, force, time, substeps, velocity0: float = 0.0, deflection0: float = 0.0, backend: str = "auto"
-):
+def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, deflection0: float = 0.0,
+              backend: str = "auto"):
     """Implicit trapezoidal rule for (v, φ) of the rig (Eq. 1–2) under an excitation ``force``.
 
     Parameters
@@ -381,37 +353,17 @@ def kernel():
 
 def _integrate_c(module, p, gain, inertia, force, time, substeps, velocity0, deflection0):
     ffi, lib = module.ffi, module.lib
-    rig = ffi.new(
-        "sj_rig *",
-        dict(
-            sigma0=p.sigma0,
-            sigma1=p.sigma1,
-            sigma2=p.sigma2,
-            coulomb=p.coulomb,
-            stribeck=p.stribeck,
-            stribeck_velocity=p.stribeck_velocity,
-            max_deflection=p.max_deflection,
-            inertia=float(inertia),
-        ),
-    )
+    rig = ffi.new("sj_rig *", dict(sigma0=p.sigma0, sigma1=p.sigma1, sigma2=p.sigma2, coulomb=p.coulomb,
+                                   stribeck=p.stribeck, stribeck_velocity=p.stribeck_velocity,
+                                   max_deflection=p.max_deflection, inertia=float(inertia)))
     velocity = np.empty(time.size)
     deflection = np.empty(time.size)
 
     def pointer(array):
         return ffi.cast("double *", ffi.from_buffer(array))
 
-    lib.sj_rig_integrate(
-        rig,
-        pointer(time),
-        time.size,
-        int(substeps),
-        pointer(force),
-        pointer(gain),
-        float(velocity0),
-        float(deflection0),
-        pointer(velocity),
-        pointer(deflection),
-    )
+    lib.sj_rig_integrate(rig, pointer(time), time.size, int(substeps), pointer(force), pointer(gain),
+                         float(velocity0), float(deflection0), pointer(velocity), pointer(deflection))
     return velocity, deflection
 
 
@@ -466,13 +418,8 @@ def _integrate_python(p, gain, inertia, force, time, substeps, velocity0, deflec
     return velocity, deflection
 
 
-def campaign(
-    joint_type: str,
-    parameters: lugre.LuGreParameters | None = None,
-    noise: float = 0.0,
-    seed: int = 0,
-    cycles: float = 4.0,
-) -> list[RigTest]:
+def campaign(joint_type: str, parameters: lugre.LuGreParameters | None = None, noise: float = 0.0, seed: int = 0,
+             cycles: float = 4.0) -> list[RigTest]:
     """The standard two-regime test set of Section 3.2 at two normal forces.
 
     Micro-slip: half the break-away amplitude at 10 Hz. Stick-slip: 1.1× and 1.3× the
@@ -499,45 +446,22 @@ def campaign(
     """
     p = parameters or lugre.TABLE_1[joint_type]
     if not p.stribeck > 0.0:
-        raise RigError(
-            f"stribeck: {p.stribeck!r} — the campaign sizes the stick-slip inertia from F_d "
-            "(sliding at about 5·v_s); must be > 0"
-        )
+        raise RigError(f"stribeck: {p.stribeck!r} — the campaign sizes the stick-slip inertia from F_d "
+                       "(sliding at about 5·v_s); must be > 0")
     micro_inertia = 1.0 if joint_type == "A" else 2e-3
     tests = []
     for normal_force in (200.0, 400.0):
         level = breakaway(p, normal_force)
         seed += 1
-        tests.append(
-            RigTest(joint_type, normal_force, 0.5 * level, 10.0, cycles, micro_inertia, noise=noise, seed=seed)
-        )
+        tests.append(RigTest(joint_type, normal_force, 0.5 * level, 10.0, cycles, micro_inertia, noise=noise, seed=seed))
         for factor, frequency in ((1.1, 10.0), (1.3, 20.0)):
             inertia = p.moment_arm * normal_force * p.stribeck / (2.0 * np.pi * frequency * 5.0 * p.stribeck_velocity)
             seed += 1
-            tests.append(
-                RigTest(joint_type, normal_force, factor * level, frequency, cycles, inertia, noise=noise, seed=seed)
-            )
+            tests.append(RigTest(joint_type, normal_force, factor * level, frequency, cycles, inertia, noise=noise,
+                                 seed=seed))
     return tests
 
 
-__all__ = [
-    "DECLARATIONS",
-    "ITERATIONS",
-    "LUGRE_NAMES",
-    "MAX_SAMPLES",
-    "PARAMETER_BOUNDS",
-    "PARAMETER_UNITS",
-    "ParameterSet",
-    "RigError",
-    "RigTest",
-    "SUBSTEPS",
-    "TABLE_1_SOURCE",
-    "breakaway",
-    "campaign",
-    "check_test",
-    "integrate",
-    "kernel",
-    "load_parameter_set",
-    "parameter_set",
-    "simulate",
-]
+__all__ = ["DECLARATIONS", "ITERATIONS", "LUGRE_NAMES", "MAX_SAMPLES", "PARAMETER_BOUNDS", "PARAMETER_UNITS",
+           "ParameterSet", "RigError", "RigTest", "SUBSTEPS", "TABLE_1_SOURCE", "breakaway", "campaign",
+           "check_test", "integrate", "kernel", "load_parameter_set", "parameter_set", "simulate"]

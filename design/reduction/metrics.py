@@ -107,14 +107,8 @@ def band_norms(full: ModalModel, reduced: ModalModel, band: float, path: str) ->
     def hinf(X):
         return float(np.max(np.linalg.svd(X, compute_uv=False)))
 
-    return {
-        "h2": h2(G),
-        "h2_error": h2(G - R),
-        "hinf": hinf(G),
-        "hinf_error": hinf(G - R),
-        "h2_relative": h2(G - R) / max(h2(G), 1e-300),
-        "hinf_relative": hinf(G - R) / max(hinf(G), 1e-300),
-    }
+    return {"h2": h2(G), "h2_error": h2(G - R), "hinf": hinf(G), "hinf_error": hinf(G - R),
+            "h2_relative": h2(G - R) / max(h2(G), 1e-300), "hinf_relative": hinf(G - R) / max(hinf(G), 1e-300)}
 
 
 def static_compliance(fe_model) -> np.ndarray:
@@ -170,16 +164,9 @@ def error_metrics(fe_model, full: ModalModel, reduced: ModalModel, band: float) 
     """
     exact = static_compliance(fe_model)
     approx = modal_compliance(reduced)
-    out = {
-        "static_compliance": {
-            "full": exact.tolist(),
-            "reduced": approx.tolist(),
-            "relative_error": float(np.linalg.norm(exact - approx) / np.linalg.norm(exact)),
-        }
-        if exact.size
-        else None,
-        "band_hz": band / (2.0 * np.pi),
-    }
+    out = {"static_compliance": {"full": exact.tolist(), "reduced": approx.tolist(),
+                                 "relative_error": float(np.linalg.norm(exact - approx) / np.linalg.norm(exact))}
+           if exact.size else None, "band_hz": band / (2.0 * np.pi)}
     if full.joint_input.shape[1]:
         out["uv"] = band_norms(full, reduced, band, "uv")
     if full.disturbance_input.shape[1] and full.displacement_output.shape[0]:
@@ -187,11 +174,5 @@ def error_metrics(fe_model, full: ModalModel, reduced: ModalModel, band: float) 
     return out
 
 
-__all__ = [
-    "band_norms",
-    "error_metrics",
-    "frequency_grid",
-    "frequency_response",
-    "modal_compliance",
-    "static_compliance",
-]
+__all__ = ["band_norms", "error_metrics", "frequency_grid", "frequency_response", "modal_compliance",
+           "static_compliance"]

@@ -16,18 +16,6 @@ from smartjoint.design.structure.spec import REFERENCE_DESIGN, load_design, pars
 from smartjoint.design.structure.updating import UpdatingResult, update_model, updated_design
 
 __all__ = [
-    "Design",
-    "FEModel",
-    "ModalModel",
-    "Modes",
-    "REFERENCE_DESIGN",
-    "UpdatingResult",
-    "build_model",
-    "export_model",
-    "load_design",
-    "modal_model",
-    "parse_design",
-    "solve_modes",
-    "update_model",
-    "updated_design",
+    "Design", "FEModel", "ModalModel", "Modes", "REFERENCE_DESIGN", "UpdatingResult", "build_model", "export_model",
+    "load_design", "modal_model", "parse_design", "solve_modes", "update_model", "updated_design",
 ]

@@ -293,26 +293,6 @@ def split_parameter(key: str) -> tuple[str, str, str]:
     return parts[0], parts[1], parts[2]
 
 
-__all__ = [
-    "Connector",
-    "Control",
-    "DOF_NAMES",
-    "Design",
-    "Disturbance",
-    "JOINT_TYPES",
-    "Joint",
-    "Material",
-    "MeasuredMode",
-    "Member",
-    "Node",
-    "NodeType",
-    "PointMass",
-    "SENSOR_QUANTITIES",
-    "Safety",
-    "Sensor",
-    "Support",
-    "TubeSection",
-    "UPDATABLE",
-    "Updating",
-    "split_parameter",
-]
+__all__ = ["Connector", "Control", "DOF_NAMES", "Design", "Disturbance", "JOINT_TYPES", "Joint", "Material",
+           "MeasuredMode", "Member", "Node", "NodeType", "PointMass", "SENSOR_QUANTITIES", "Safety", "Sensor", "Support",
+           "TubeSection", "UPDATABLE", "Updating", "split_parameter"]

@@ -95,9 +95,7 @@ class FEModel:
 
 
 def _rigid_mass(model: FEModel) -> float:
-    lengths = np.linalg.norm(
-        model.points[model.element_points[:, 1]] - model.points[model.element_points[:, 0]], axis=1
-    )
+    lengths = np.linalg.norm(model.points[model.element_points[:, 1]] - model.points[model.element_points[:, 0]], axis=1)
     members = float(np.sum(model.element_properties[:, 4] * lengths))
     return members + sum(m["mass"] for m in model.lumped_masses)
 
@@ -142,9 +140,9 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
     mesh = _discretise(design, node_index)
     points_array = np.array(mesh.points)
     element_points = np.column_stack([mesh.element_a, mesh.element_b]).astype(np.int64)
-    lengths, rotation = beam.element_frames(
-        points_array[element_points[:, 0]], points_array[element_points[:, 1]], np.array(mesh.element_reference)
-    )
+    lengths, rotation = beam.element_frames(points_array[element_points[:, 0]],
+                                            points_array[element_points[:, 1]],
+                                            np.array(mesh.element_reference))
     n_points = len(mesh.points)
     n_bar = 6 * n_points
     rows, cols = _element_entries(element_points)
@@ -160,12 +158,10 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
 
     seat_points = {point: (node, axis, key) for key, (point, node, axis) in mesh.seats.items()}
     active_joints = list(design.joints) if joints == "released" else []
-    column, labels, joint_column = _independent_dofs(
-        design, node_names, node_index, mesh.point_names, n_points, seat_points, active_joints
-    )
-    S, rigid_links, joint_pairs = _constraints(
-        points_array, mesh.point_names, node_names, seat_points, column, labels, active_joints, joint_column
-    )
+    column, labels, joint_column = _independent_dofs(design, node_names, node_index, mesh.point_names, n_points,
+                                                     seat_points, active_joints)
+    S, rigid_links, joint_pairs = _constraints(points_array, mesh.point_names, node_names, seat_points, column,
+                                               labels, active_joints, joint_column)
     St = S.T.tocsr()
 
     stiffness_parts = {}
@@ -177,29 +173,13 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
     E, F, V, W = _inputs_outputs(design, node_index, S, St, joint_pairs, active_joints)
 
     model = FEModel(
-        design=design,
-        joints_released=joints == "released",
-        points=points_array,
-        point_names=mesh.point_names,
-        element_points=element_points,
-        element_member=mesh.element_member,
-        element_kind=mesh.element_kind,
+        design=design, joints_released=joints == "released", points=points_array, point_names=mesh.point_names,
+        element_points=element_points, element_member=mesh.element_member, element_kind=mesh.element_kind,
         element_properties=_element_properties(coefficients, parameter_values, masses),
-        element_rotation=rotation,
-        S=S,
-        mass=mass,
-        stiffness_parts=stiffness_parts,
-        parameters=parameter_values,
-        E=E,
-        F=F,
-        V=V,
-        W=W,
-        dof_labels=labels,
-        joint_names=[j.name for j in active_joints],
-        sensor_names=[s.name for s in design.sensors],
-        disturbance_names=[d.name for d in design.disturbances],
-        rigid_links=rigid_links,
-        lumped_masses=lumped,
+        element_rotation=rotation, S=S, mass=mass, stiffness_parts=stiffness_parts,
+        parameters=parameter_values, E=E, F=F, V=V, W=W, dof_labels=labels,
+        joint_names=[j.name for j in active_joints], sensor_names=[s.name for s in design.sensors],
+        disturbance_names=[d.name for d in design.disturbances], rigid_links=rigid_links, lumped_masses=lumped,
     )
     if not allow_mechanisms:
         check_supported(model)
@@ -208,9 +188,7 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
 
 def _element_entries(element_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Row and column in z̄ of every entry of every 12 × 12 element matrix, for one COO assembly."""
-    element_dofs = np.concatenate(
-        [6 * element_points[:, [0]] + np.arange(6), 6 * element_points[:, [1]] + np.arange(6)], axis=1
-    )
+    element_dofs = np.concatenate([6 * element_points[:, [0]] + np.arange(6), 6 * element_points[:, [1]] + np.arange(6)], axis=1)
     rows = np.repeat(element_dofs, 12, axis=1).ravel()
     cols = np.tile(element_dofs, (1, 12)).ravel()
     return rows, cols
@@ -269,9 +247,8 @@ def _discretise(design: Design, node_index: dict[str, int]) -> _Mesh:
     return mesh
 
 
-def _add_elements(
-    design: Design, mesh: _Mesh, member, connector, first: int, n_segments: int, axis: np.ndarray
-) -> None:
+def _add_elements(design: Design, mesh: _Mesh, member, connector, first: int, n_segments: int,
+                  axis: np.ndarray) -> None:
     """The beam elements of one member: the end connectors (if any) and the tube between them."""
     section = design.sections[member.section]
     material = design.materials[section.material]
@@ -290,14 +267,12 @@ def _add_elements(
         mesh.element_reference.append(_member_reference(axis))
         if is_connector:
             mesh.element_kind.append("connector")
-            mesh.element_terms.append(
-                [
-                    (_parameter_key("connectors", connector.name, "axial_stiffness"), "axial", 1.0),
-                    (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_y", 1.0),
-                    (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_z", 1.0),
-                    (_parameter_key("connectors", connector.name, "torsional_stiffness"), "torsion", 1.0),
-                ]
-            )
+            mesh.element_terms.append([
+                (_parameter_key("connectors", connector.name, "axial_stiffness"), "axial", 1.0),
+                (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_y", 1.0),
+                (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_z", 1.0),
+                (_parameter_key("connectors", connector.name, "torsional_stiffness"), "torsion", 1.0),
+            ])
             per_length = connector.mass / connector.length
             mesh.element_mass.append((per_length, per_length * connector.diameter**2 / 8.0))
         else:
@@ -337,16 +312,12 @@ def _lumped_masses(design: Design, node_names: list[str], node_index: dict[str, 
         i = node_index[name]
         lumped_rows += list(range(6 * i, 6 * i + 6))
         lumped_values += [node_type.mass] * 3 + [node_type.inertia] * 3
-        lumped.append(
-            {"node": name, "mass": node_type.mass, "inertia": node_type.inertia, "source": f"node_types.{node.type}"}
-        )
+        lumped.append({"node": name, "mass": node_type.mass, "inertia": node_type.inertia, "source": f"node_types.{node.type}"})
     for point_mass in design.point_masses:
         i = node_index[point_mass.node]
         lumped_rows += list(range(6 * i, 6 * i + 6))
         lumped_values += [point_mass.mass] * 3 + [point_mass.inertia] * 3
-        lumped.append(
-            {"node": point_mass.node, "mass": point_mass.mass, "inertia": point_mass.inertia, "source": "point_masses"}
-        )
+        lumped.append({"node": point_mass.node, "mass": point_mass.mass, "inertia": point_mass.inertia, "source": "point_masses"})
     return sp.coo_matrix((lumped_values, (lumped_rows, lumped_rows)), shape=(n_bar, n_bar)).tocsr(), lumped
 
 
@@ -418,10 +389,10 @@ def _constraints(points_array, point_names, node_names, seat_points, column, lab
             for a in range(3):
                 tie(6 * point + block + a, q, float(direction[a]))
             # Ē: the joint force pair, on the seat and (reaction) on the node centre.
-            joint_pairs[6 * point + block : 6 * point + block + 3, k] = direction
-            joint_pairs[6 * node + block : 6 * node + block + 3, k] -= direction
+            joint_pairs[6 * point + block:6 * point + block + 3, k] = direction
+            joint_pairs[6 * node + block:6 * node + block + 3, k] -= direction
             if block == 0:
-                joint_pairs[6 * node + 3 : 6 * node + 6, k] -= np.cross(offset, direction)
+                joint_pairs[6 * node + 3:6 * node + 6, k] -= np.cross(offset, direction)
             link["release"] = {"joint": joint.name, "type": joint.type, "direction": direction.tolist()}
         rigid_links.append(link)
     return sp.csr_matrix((s_vals, (s_rows, s_cols)), shape=(n_bar, n_dof)), rigid_links, joint_pairs
@@ -434,13 +405,13 @@ def _inputs_outputs(design: Design, node_index, S, St, joint_pairs, active_joint
     F_bar = np.zeros((n_bar, len(design.disturbances)))
     for k, disturbance in enumerate(design.disturbances):
         i = node_index[disturbance.node]
-        F_bar[6 * i : 6 * i + 6, k] = disturbance.direction
+        F_bar[6 * i:6 * i + 6, k] = disturbance.direction
     F = np.asarray(St @ F_bar)
     V = np.zeros((len(design.sensors), n_dof))
     W = np.zeros((len(design.sensors), n_dof))
     for k, sensor in enumerate(design.sensors):
         i = node_index[sensor.node]
-        row = np.asarray(S[6 * i : 6 * i + 6].T @ np.array(sensor.direction)).ravel()
+        row = np.asarray(S[6 * i:6 * i + 6].T @ np.array(sensor.direction)).ravel()
         (V if sensor.quantity == "displacement" else W)[k] = row
     return E, F, V, W
 

@@ -151,27 +151,10 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
     safety = parse_safety(root.table("safety", {}), control, joints)
 
     root.finish()
-    return Design(
-        name,
-        description,
-        materials,
-        sections,
-        connectors,
-        node_types,
-        nodes,
-        members,
-        tuple(point_masses),
-        tuple(supports),
-        tuple(joints),
-        tuple(sensors),
-        tuple(disturbances),
-        modal_damping,
-        updating,
-        control,
-        safety,
-        source=source,
-        truss=truss_settings,
-    )
+    return Design(name, description, materials, sections, connectors, node_types, nodes, members,
+                  tuple(point_masses), tuple(supports), tuple(joints), tuple(sensors),
+                  tuple(disturbances), modal_damping, updating, control, safety, source=source,
+                  truss=truss_settings)
 
 
 def _parse_components(root: DesignTable):
@@ -264,22 +247,16 @@ def _parse_geometry(root: DesignTable, node_types, sections, connectors):
         connector = t.string("connector", None)
         if connector is not None:
             reference(t, "connector", connector, connectors, "connector")
-        members[member_name] = Member(
-            member_name, start, end, section, connector, t.integer("elements", default_elements, maximum=MAX_ELEMENTS)
-        )
+        members[member_name] = Member(member_name, start, end, section, connector,
+                                      t.integer("elements", default_elements, maximum=MAX_ELEMENTS))
         t.finish()
     if not members:
         raise root.error("members", [], "the design has no members (give [truss] or [[members]])")
     joint_entries = root.data.get("joints", [])
     dofs = estimated_dofs(nodes, members, len(joint_entries) if isinstance(joint_entries, list) else 0)
     if dofs > MAX_DOFS:
-        raise DesignError(
-            "<model>",
-            f"{dofs} DOFs",
-            f"at most {MAX_DOFS} DOFs (6 per node and per inner beam node, "
-            "1 per joint); use fewer bays, members or [mesh] tube_elements",
-            root.source,
-        )
+        raise DesignError("<model>", f"{dofs} DOFs", f"at most {MAX_DOFS} DOFs (6 per node and per inner beam node, "
+                          "1 per joint); use fewer bays, members or [mesh] tube_elements", root.source)
     check_member_lengths(members, nodes, node_types, connectors)
     return nodes, members, truss_settings, dofs
 
@@ -290,9 +267,8 @@ def _parse_attachments(root: DesignTable, nodes, truss_settings):
     point_masses = []
     for t in root.tables("point_masses"):
         node = reference(t, "node", t.string("node"), nodes, "node")
-        point_masses.append(
-            PointMass(node, t.number("mass", non_negative=True), t.number("inertia", 0.0, non_negative=True))
-        )
+        point_masses.append(PointMass(node, t.number("mass", non_negative=True),
+                                      t.number("inertia", 0.0, non_negative=True)))
         t.finish()
 
     supports = []
@@ -329,12 +305,7 @@ def _parse_joints(root: DesignTable, members, nodes) -> list[Joint]:
     ends = [(j.member, j.end) for j in joints]
     for i, joint_end in enumerate(ends):
         if ends.index(joint_end) != i:
-            raise DesignError(
-                f"joints[{i}].end",
-                joint_end[1],
-                f"member {joint_end[0]!r} already has a joint at that end",
-                root.source,
-            )
+            raise DesignError(f"joints[{i}].end", joint_end[1], f"member {joint_end[0]!r} already has a joint at that end", root.source)
     return joints
 
 
@@ -343,14 +314,8 @@ def _parse_signals(root: DesignTable, nodes):
     sensors = []
     for t in root.tables("sensors"):
         node = reference(t, "node", t.string("node"), nodes, "node")
-        sensors.append(
-            Sensor(
-                t.string("name"),
-                node,
-                direction(t, "direction"),
-                t.string("quantity", "displacement", choices=SENSOR_QUANTITIES),
-            )
-        )
+        sensors.append(Sensor(t.string("name"), node, direction(t, "direction"),
+                              t.string("quantity", "displacement", choices=SENSOR_QUANTITIES)))
         t.finish()
     unique([s.name for s in sensors], "sensors", root.source)
 
@@ -430,61 +395,42 @@ def _check_control_limits(t: DesignTable, control: Control, count: int, dofs: in
     """Ranges of [control] that single keys cannot express: sizes the study allocates or runs
     through, and the normal forces a piezo joint can set (F_N = force_per_volt·V + preload)."""
     if control.sample_time < MIN_SAMPLE_TIME:
-        raise t.error(
-            "sample_time",
-            control.sample_time,
-            f"must be >= {MIN_SAMPLE_TIME:g} s (the firmware counts its cycle in whole microseconds)",
-        )
+        raise t.error("sample_time", control.sample_time, f"must be >= {MIN_SAMPLE_TIME:g} s (the firmware counts "
+                      "its cycle in whole microseconds)")
     if control.study_duration > MAX_STUDY_DURATION:
         raise t.error("study_duration", control.study_duration, f"must be 0 < t_e <= {MAX_STUDY_DURATION:g} s")
     steps = control.study_duration / control.sample_time
     if steps > MAX_CONTROLLER_STEPS:
-        raise t.error(
-            "study_duration",
-            control.study_duration,
-            f"at most {MAX_CONTROLLER_STEPS} controller steps: t_e <= {MAX_CONTROLLER_STEPS:g} × "
-            f"sample_time = {MAX_CONTROLLER_STEPS * control.sample_time:g} s",
-        )
+        raise t.error("study_duration", control.study_duration,
+                      f"at most {MAX_CONTROLLER_STEPS} controller steps: t_e <= {MAX_CONTROLLER_STEPS:g} × "
+                      f"sample_time = {MAX_CONTROLLER_STEPS * control.sample_time:g} s")
     lanczos_modes = MAX_LANCZOS_BYTES // (16 * max(dofs, 1))
     if min(control.considered_modes, dofs) > lanczos_modes:
-        raise t.error(
-            "considered_modes",
-            control.considered_modes,
-            f"with about {dofs} DOFs at most {lanczos_modes} (the Lanczos basis of 2 × considered_modes "
-            f"vectors must stay under {MAX_LANCZOS_BYTES // 1024**3} GiB)",
-        )
+        raise t.error("considered_modes", control.considered_modes,
+                      f"with about {dofs} DOFs at most {lanczos_modes} (the Lanczos basis of 2 × considered_modes "
+                      f"vectors must stay under {MAX_LANCZOS_BYTES // 1024**3} GiB)")
     if control.modes > control.considered_modes:
         raise t.error("modes", control.modes, f"must be <= considered_modes ({control.considered_modes})")
     # A number applies to every joint and is checked even when the design has none yet.
-    count = count or int(
-        not isinstance(control.normal_force_min, tuple) and not isinstance(control.normal_force_max, tuple)
-    )
+    count = count or int(not isinstance(control.normal_force_min, tuple)
+                         and not isinstance(control.normal_force_max, tuple))
     low = np.broadcast_to(np.asarray(control.normal_force_min, dtype=float), (count,))
     high = np.broadcast_to(np.asarray(control.normal_force_max, dtype=float), (count,))
     for i in range(count):
         joint = f" (entry {i})" if isinstance(control.normal_force_max, tuple) else ""
         if high[i] > MAX_NORMAL_FORCE:
-            raise t.error(
-                "normal_force_max",
-                float(high[i]),
-                f"must be 0 < F_N^max <= {MAX_NORMAL_FORCE:g} N{joint}: more than the largest piezo "
-                "stacks push and the joint bolt holds",
-            )
+            raise t.error("normal_force_max", float(high[i]),
+                          f"must be 0 < F_N^max <= {MAX_NORMAL_FORCE:g} N{joint}: more than the largest piezo "
+                          "stacks push and the joint bolt holds")
     for i in range(count):
-        joint = (
-            f" (entry {i})"
-            if isinstance(control.normal_force_min, tuple) or isinstance(control.normal_force_max, tuple)
-            else ""
-        )
+        joint = f" (entry {i})" if isinstance(control.normal_force_min, tuple) or isinstance(control.normal_force_max, tuple) else ""
         if low[i] > high[i]:
-            raise t.error("normal_force_min", float(low[i]), f"must be 0 <= F_N^min <= F_N^max = {high[i]:g} N{joint}")
+            raise t.error("normal_force_min", float(low[i]),
+                          f"must be 0 <= F_N^min <= F_N^max = {high[i]:g} N{joint}")
     if count and control.piezo_preload > float(low.min()):
-        raise t.error(
-            "piezo_preload",
-            control.piezo_preload,
-            f"must be 0 <= preload <= F_N^min = {float(low.min()):g} N (at 0 V the stack "
-            "already presses with the preload, so no setting could reach F_N^min)",
-        )
+        raise t.error("piezo_preload", control.piezo_preload,
+                      f"must be 0 <= preload <= F_N^min = {float(low.min()):g} N (at 0 V the stack "
+                      "already presses with the preload, so no setting could reach F_N^min)")
 
 
 def _generate_mast(t: DesignTable, nodes, members, node_types, sections, connectors, default_elements) -> None:
@@ -513,17 +459,12 @@ def _generate_mast(t: DesignTable, nodes, members, node_types, sections, connect
     # The mast's size before any of it is made (the same count as estimated_dofs).
     tip_spokes = {"none": 0, "cross": 4, "diagonal": 2}[tip_node]
     generated_nodes = 4 * (bays + 1) + (tip_node != "none")
-    generated_members = (
-        12 * bays + 4 * root_battens + tip_spokes + (bays - (tip_node == "diagonal") if frame_diagonals else 0)
-    )
+    generated_members = 12 * bays + 4 * root_battens + tip_spokes + (
+        bays - (tip_node == "diagonal") if frame_diagonals else 0)
     dofs = 6 * (generated_nodes + generated_members * (elements - 1 + (2 if connector else 0)))
     if dofs > MAX_DOFS:
-        raise t.error(
-            "bays",
-            bays,
-            f"the mast would have {dofs} DOFs ({generated_nodes} nodes, {generated_members} "
-            f"members of {elements} tube elements); at most {MAX_DOFS}: fewer bays or tube_elements",
-        )
+        raise t.error("bays", bays, f"the mast would have {dofs} DOFs ({generated_nodes} nodes, {generated_members} "
+                      f"members of {elements} tube elements); at most {MAX_DOFS}: fewer bays or tube_elements")
 
     corners = [(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)]
     for i in range(bays + 1):
@@ -555,18 +496,5 @@ def _generate_mast(t: DesignTable, nodes, members, node_types, sections, connect
             add(f"T{c}", f"N{bays}_{c}", "TIP")
 
 
-__all__ = [
-    "MAX_BASE_DEPTH",
-    "MAX_BAYS",
-    "MAX_DOFS",
-    "MAX_ELEMENTS",
-    "MAX_FILE_BYTES",
-    "MAX_MEMBERS",
-    "MAX_NODES",
-    "MAX_NORMAL_FORCE",
-    "REFERENCE_DESIGN",
-    "SCHEMA",
-    "estimated_dofs",
-    "load_design",
-    "parse_design",
-]
+__all__ = ["MAX_BASE_DEPTH", "MAX_BAYS", "MAX_DOFS", "MAX_ELEMENTS", "MAX_FILE_BYTES", "MAX_MEMBERS", "MAX_NODES",
+           "MAX_NORMAL_FORCE", "REFERENCE_DESIGN", "SCHEMA", "estimated_dofs", "load_design", "parse_design"]

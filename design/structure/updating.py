@@ -61,26 +61,14 @@ class UpdatingResult:
     def as_dict(self) -> dict:
         return {
             "parameters": [
-                {
-                    "name": n,
-                    "initial": float(p0),
-                    "updated": float(p),
-                    "ratio": float(p / p0),
-                    "sensitivity": float(np.linalg.norm(self.sensitivity[:, k])),
-                }
+                {"name": n, "initial": float(p0), "updated": float(p), "ratio": float(p / p0),
+                 "sensitivity": float(np.linalg.norm(self.sensitivity[:, k]))}
                 for k, (n, p0, p) in enumerate(zip(self.parameter_names, self.initial, self.updated))
             ],
             "modes": [
-                {
-                    "index": int(i),
-                    "ema_hz": float(m),
-                    "fem_initial_hz": float(f0),
-                    "fem_hz": float(f),
-                    "error_pct": float(e),
-                }
-                for i, m, f0, f, e in zip(
-                    self.modes, self.measured_hz, self.initial_hz, self.updated_hz, self.error_pct
-                )
+                {"index": int(i), "ema_hz": float(m), "fem_initial_hz": float(f0), "fem_hz": float(f),
+                 "error_pct": float(e)}
+                for i, m, f0, f, e in zip(self.modes, self.measured_hz, self.initial_hz, self.updated_hz, self.error_pct)
             ],
             "max_abs_error_pct": float(np.max(np.abs(self.error_pct))),
             "evaluations": self.evaluations,
@@ -170,17 +158,8 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
     starts = [np.zeros(len(names))] + [samples[i] for i in np.argsort(scores)[:POLISHED_STARTS]]
     best = None
     for k, start in enumerate(starts):
-        solution = scipy.optimize.least_squares(
-            residual,
-            start,
-            jac=jacobian,
-            bounds=(-bound, bound),
-            method="trf",
-            x_scale=1.0,
-            xtol=1e-10,
-            ftol=1e-12,
-            max_nfev=60,
-        )
+        solution = scipy.optimize.least_squares(residual, start, jac=jacobian, bounds=(-bound, bound),
+                                                method="trf", x_scale=1.0, xtol=1e-10, ftol=1e-12, max_nfev=60)
         if best is None or solution.cost < best.cost:
             best = solution
         if progress:
@@ -191,19 +170,9 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
     updated = initial * np.exp(best.x)
     updated_hz, _ = evaluate(best.x)
     sensitivity = jacobian(best.x) * (measured / updated_hz[index] / weight)[:, None]
-    return UpdatingResult(
-        names,
-        initial,
-        updated,
-        modes,
-        measured,
-        initial_hz[index],
-        updated_hz[index],
-        sensitivity,
-        calls["n"],
-        k + 1,
-        np.array([m.mac if m.mac is not None else np.nan for m in spec.measured]),
-    )
+    return UpdatingResult(names, initial, updated, modes, measured, initial_hz[index], updated_hz[index],
+                          sensitivity, calls["n"], k + 1,
+                          np.array([m.mac if m.mac is not None else np.nan for m in spec.measured]))
 
 
 def updated_design(design, progress=None):
