@@ -196,7 +196,8 @@ class _CKernel(_Kernel):
     def __init__(self, plant: _Plant, state: State, recorder: Recorder):
         super().__init__(plant, state, recorder)
         module = native_module()
-        self.ffi, self.lib = ffi = module.ffi, module.lib
+        self.ffi, self.lib = module.ffi, module.lib
+        ffi = self.ffi
         self._keep = []  # arrays whose memory the C structs point into
 
         def ptr(array):

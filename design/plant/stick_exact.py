@@ -250,7 +250,8 @@ class _StickC:
 
     def __init__(self, plant: _StickPlant, state: State, recorder: Recorder):
         module = native_module()
-        self.ffi, self.lib = ffi = module.ffi, module.lib
+        self.ffi, self.lib = module.ffi, module.lib
+        ffi = self.ffi
         self.mirror = _StickPython(plant, state, recorder)  # holds z, d and the discretisations
         self.p, self.s, self.r = plant, state, recorder
         self.recorder = recorder
