@@ -45,7 +45,7 @@ def cmd_study(args) -> dict:
 
 
 def cmd_design(args) -> dict:
-    from smartjoint.design.control import artifact
+    from smartjoint.design.control import artifact, artifact_building
     from smartjoint.design.control import study as closed_loop
 
     design = _control_design(args, firmware_names=True)
@@ -59,7 +59,7 @@ def cmd_design(args) -> dict:
         report_progress("SISO boundary layer ε: optimising E(t_e) of Eq. 32 …")
         optimum = closed_loop.optimise_boundary_layer(s, lambda m: report_progress(m))
         width = optimum.boundary_layer
-    result = artifact.from_design(design, model, lqg, width)
+    result = artifact_building.from_design(design, model, lqg, width)
     from smartjoint.bench import busload
     from smartjoint.design.network import protocol
 
@@ -138,7 +138,7 @@ def cmd_codegen(args) -> dict:
 def _controller_artifact(args, design, model):
     """--artifact FILE (checked against the design), else designed now (ε optimised if absent)."""
     from smartjoint.common.errors import ModelError
-    from smartjoint.design.control import artifact
+    from smartjoint.design.control import artifact, artifact_building
     from smartjoint.design.control import study as closed_loop
 
     if getattr(args, "artifact", None):
@@ -154,7 +154,7 @@ def _controller_artifact(args, design, model):
     if width is None:
         report_progress("SISO boundary layer ε: optimising E(t_e) of Eq. 32 …")
         width = closed_loop.optimise_boundary_layer(s, report_progress).boundary_layer
-    return artifact.from_design(design, model, closed_loop.lqg_for(design, model), width)
+    return artifact_building.from_design(design, model, closed_loop.lqg_for(design, model), width)
 
 
 def cmd_sil(args) -> dict:

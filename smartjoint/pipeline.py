@@ -35,7 +35,7 @@ from smartjoint import report as plots
 from smartjoint.bench import busload, safety, sil
 from smartjoint.codegen import backtoback, can_layer, generate, identifiers, output
 from smartjoint.design import build_model, load_design, solve_modes, updated_design
-from smartjoint.design.control import artifact
+from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction import lugre, rig
 from smartjoint.design.friction.identify import classify, identify
@@ -217,7 +217,7 @@ def _control_stage(r: _Results, progress) -> None:
     )
     control_study = closed_loop.run_study(controlled, progress=lambda message: progress(message))
     r.controlled, r.control_study = controlled, control_study
-    r.controller = artifact.from_design(
+    r.controller = artifact_building.from_design(
         controlled, control_study.setup.model, control_study.lqg, control_study.boundary_layer
     )
 

@@ -13,7 +13,7 @@ import pytest
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design import control, plant
-from smartjoint.design.control import artifact
+from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import load_design, parse_design
@@ -29,7 +29,7 @@ def setup():
     fe = build_model(design, joints="released")
     model = modal.modal_model(fe, modal.solve_modes(fe, 8))
     lqg = control.design_lqg(model, design.control.sample_time)
-    return design, model, lqg, artifact.from_design(design, model, lqg, [1e-3, 2e-3])
+    return design, model, lqg, artifact_building.from_design(design, model, lqg, [1e-3, 2e-3])
 
 
 def _mutated(built, change) -> str:
@@ -91,7 +91,7 @@ def test_design_file_changes_reach_both_hashes(setup, tmp_path):
 
     def build(data):
         path.write_text(tomli_w.dumps(data))
-        return artifact.from_design(load_design(path), model, lqg, 1e-3)
+        return artifact_building.from_design(load_design(path), model, lqg, 1e-3)
 
     data = small_truss()
     first, again = build(data), build(data)
@@ -115,21 +115,21 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
     }
     swapped = parse_design(data)
     with pytest.raises(ModelError, match="model: joints.*'JB', 'JA'"):
-        artifact.from_design(swapped, model, lqg)
+        artifact_building.from_design(swapped, model, lqg)
     order = [1, 0]
     reordered = dataclasses.replace(model, joint_input=model.joint_input[:, order], joint_names=["JB", "JA"])
-    built = artifact.from_design(swapped, reordered, control.design_lqg(reordered, 1e-3))
+    built = artifact_building.from_design(swapped, reordered, control.design_lqg(reordered, 1e-3))
     assert built.joint_names == ("JB", "JA")
     assert built.normal_force_min.tolist() == [10.0, 20.0] and built.normal_force_max.tolist() == [300.0, 300.0]
     assert built.siso_boundary_layer.tolist() == [4e-3, 4e-3]
     with pytest.raises(ModelError, match="siso_boundary_layer: missing"):
-        artifact.from_design(design, model, lqg)
+        artifact_building.from_design(design, model, lqg)
     with pytest.raises(ModelError, match="siso_boundary_layer.*one per joint"):
-        artifact.from_design(design, model, lqg, [1e-3, 1e-3, 1e-3])
+        artifact_building.from_design(design, model, lqg, [1e-3, 1e-3, 1e-3])
     with pytest.raises(ModelError, match="lqg.sample_time"):
-        artifact.from_design(design, model, control.design_lqg(model, 5e-4), 1e-3)
+        artifact_building.from_design(design, model, control.design_lqg(model, 5e-4), 1e-3)
     with pytest.raises(ModelError, match="lqg.output.*one per sensor"):
-        artifact.from_design(dataclasses.replace(design, sensors=design.sensors[:1]), model, lqg, 1e-3)
+        artifact_building.from_design(dataclasses.replace(design, sensors=design.sensors[:1]), model, lqg, 1e-3)
 
 
 @pytest.mark.parametrize(

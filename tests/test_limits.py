@@ -22,7 +22,7 @@ import pytest
 from conftest import small_truss
 
 from smartjoint.design import DesignError, ModelError, build_model, load_design, parse_design
-from smartjoint.design.structure import spec
+from smartjoint.design.structure import control_section, spec
 from smartjoint.design.structure.modal import count_zero_energy_modes, gross_energy, probe_zero_energy
 
 SECONDS = 2.0
@@ -211,10 +211,13 @@ def _control_error(**control) -> str:
 
 def test_normal_force_max_above_what_a_piezo_joint_can_set_is_refused():
     message = _control_error(normal_force_max=1e12)
-    assert "control.normal_force_max: 1000000000000.0" in message and f"<= {spec.MAX_NORMAL_FORCE:g} N" in message
+    assert (
+        "control.normal_force_max: 1000000000000.0" in message
+        and f"<= {control_section.MAX_NORMAL_FORCE:g} N" in message
+    )
     message = _control_error(normal_force_max=[400.0, 2e5])
     assert "control.normal_force_max: 200000.0" in message and "entry 1" in message
-    parse_design({**small_truss(), "control": {"normal_force_max": spec.MAX_NORMAL_FORCE}})
+    parse_design({**small_truss(), "control": {"normal_force_max": control_section.MAX_NORMAL_FORCE}})
     no_joints = {**small_truss(), "joints": [], "control": {"normal_force_max": 1e12}}
     with pytest.raises(DesignError, match="control.normal_force_max: 1000000000000.0"):
         parse_design(no_joints)  # a number for every joint is checked before there are any

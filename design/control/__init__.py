@@ -1,11 +1,12 @@
 """Control design (paper Section 5): the SISO law (``laws``), the LQG design (``lqg``), the
 controllers that run it (``filter``: clipped-optimal and fully active LQG), the controller
-artefact (``artifact``) and the closed-loop study of Section 6 (``study``).
+artefact (``artifact``, built from a design by ``artifact_building``) and the closed-loop study
+of Section 6 (``study``).
 
 The controllers implement ``design.plant.interface.Controller``; they depend on the plant's
 interface and discretisation only, never on the simulator. The names below are the
-controllers and their design; ``artifact`` and ``study`` are imported as modules (they import
-these, so this package does not import them).
+controllers and their design; ``artifact``, ``artifact_building`` and ``study`` are
+imported as modules (they import these, so this package does not import them).
 """
 
 from smartjoint.design.control.filter import ActiveLqg, ClippedLqg, ordered_product
