@@ -292,7 +292,8 @@ def cmd_rig(args) -> dict:
 
 
 def cmd_identify(args) -> dict:
-    from smartjoint.design.friction.identify import classify, identify
+    from smartjoint.design.friction.identify import identify
+    from smartjoint.design.friction.record_screening import classify
     from smartjoint.design.friction.records import read_record
     from smartjoint.report import identification_table, plot_hysteresis
 

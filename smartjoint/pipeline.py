@@ -38,7 +38,8 @@ from smartjoint.design import build_model, load_design, solve_modes, updated_des
 from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction import lugre, rig
-from smartjoint.design.friction.identify import classify, identify
+from smartjoint.design.friction.identify import identify
+from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.network import protocol
 from smartjoint.design.reduction import reduction_study, study_summary
 from smartjoint.design.structure.spec import REFERENCE_DESIGN

@@ -116,7 +116,7 @@ from smartjoint.bench import e2e
 from smartjoint.codegen import can_layer, generate, rendering
 from smartjoint.common import package_data
 from smartjoint.design.control import artifact
-from smartjoint.design.friction import rig
+from smartjoint.design.friction import rig_integration
 from smartjoint.design.structure import spec
 found = {"package": smartjoint.__file__,
          "files": [str(p) for _, p in package_data.all_files()],
@@ -128,7 +128,7 @@ controller = artifact.load(Path(sys.argv[2]))
 files = {**generate.render(controller, "float"), **can_layer.render_can(controller)}
 found["rendered"] = sorted(files)
 found["crc"] = e2e.compiled().lib.sj_crc8_j1850(b"123456789", 9, 0xFF) ^ 0xFF
-rig.kernel()
+rig_integration.kernel()
 found["nodes"] = len(spec.load_design().nodes)
 print(json.dumps(found))
 """

@@ -253,7 +253,7 @@ def test_write_record_refuses_what_it_could_not_read_back(tmp_path):
 
 
 def _records(joint_type="A", cycles=0.5, normal_forces=(200.0, 400.0)):
-    from smartjoint.design.friction.identify import classify
+    from smartjoint.design.friction.record_screening import classify
 
     records = [rig.simulate(t) for t in rig.campaign(joint_type, cycles=cycles) if t.normal_force in normal_forces]
     return ([r for r in records if classify(r) == "micro-slip"], [r for r in records if classify(r) == "stick-slip"])

@@ -226,9 +226,9 @@ class _Run:
     """``smartjoint run`` in a child process; its stderr read line by line on a thread (so no wait blocks)."""
 
     def __init__(self, design: Path, output: Path, temporary: Path):
-        from smartjoint.design.friction import rig
+        from smartjoint.design.friction import rig_integration
 
-        rig.kernel()  # compiled beforehand: a signal must not land in a compiler the child started
+        rig_integration.kernel()  # compiled beforehand: a signal must not land in a compiler the child started
         temporary.mkdir(exist_ok=True)
         env = {**os.environ, "TMPDIR": str(temporary)}  # where a temporary folder would appear
         self.process = subprocess.Popen(

@@ -6,7 +6,8 @@ velocity) and compared with the measured friction force::
 
     min_p  J(p) = ½ Σ_records Σ_k [(u_R(t_k) − û_R(v(t_k), F_N, p)) / (rms_r·√N_r)]²     (Eq. 3)
 
-Each record is normalised by its RMS force and length so that every record counts alike.
+Each record is normalised by its RMS force and length so that every record counts alike. The records
+are screened first (``record_screening``: usable samples, one joint's radius, the regime).
 As in the paper the problem is split in two:
 
 1. p1 = [σ0, σ1] from micro-slip records (p2 held fixed),
@@ -50,14 +51,12 @@ from smartjoint.common.errors import SmartjointError
 from smartjoint.design.friction import lugre, rig
 from smartjoint.design.friction.fitting import StepResult, filtered_velocity, nrmse, rms, step_result
 from smartjoint.design.friction.output_error import P3, output_error_blocker, refine
-from smartjoint.design.friction.records import MIN_RADIUS, Record, RecordError, bound
+from smartjoint.design.friction.record_screening import check_records, joint_radius, slides
+from smartjoint.design.friction.records import Record, RecordError
 
 P1 = ("sigma0", "sigma1")
 P2 = ("coulomb", "stribeck", "stribeck_velocity", "sigma2")
 ROUNDS = 2
-# Fewest samples per record: the 11-point Savitzky–Golay window of the friction column and the
-# spectrum that finds the excitation frequency need a few times that.
-MIN_SAMPLES = 50
 
 
 def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, initial_force: float = 0.0):
@@ -292,66 +291,6 @@ def _fit(
     return step_result(names, best, errors, evaluations), p
 
 
-def _joint_radius(records: list[Record], joint_type: str, radius: float | None) -> float | None:
-    """The radius of type B records: ``radius`` if given, else the one every record carries.
-
-    Never a default: a type B record without a radius is refused (Table 1's 11 mm would put
-    σ0, F_c and σ2 off by the ratio of the radii).
-    """
-    if joint_type == "A":
-        if radius is not None:
-            raise RecordError(
-                f"identify: radius {radius!r} m given, but the records are type A — a type A joint has no radius"
-            )
-        return None
-    if radius is not None:
-        if not (
-            isinstance(radius, (int, float)) and math.isfinite(radius) and MIN_RADIUS <= radius <= bound("radius", "B")
-        ):
-            raise RecordError(f"identify: radius {radius!r} m — allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m")
-        for record in records:
-            if record.radius is not None and record.radius != radius:
-                raise RecordError(
-                    f"identify: radius {radius!r} m given, but record {record.name} carries "
-                    f"radius = {record.radius!r} m — give one radius"
-                )
-        return float(radius)
-    carried = {}
-    for record in records:
-        if record.radius is None:
-            raise RecordError(
-                f"{record.name}: type B record without a radius — add '# radius = <r> m' to the record "
-                "(or pass the radius to identify / --radius); no default is assumed"
-            )
-        carried.setdefault(record.radius, record.name)
-    if len(carried) > 1:
-        (first, one), (second, other) = list(carried.items())[:2]
-        raise RecordError(
-            f"identify: records {one} (radius {first!r} m) and {other} (radius {second!r} m) are not "
-            "of one joint — identify one joint's records at a time"
-        )
-    return next(iter(carried))
-
-
-def _check_records(records: list[Record]) -> None:
-    """One-line errors for records the fit cannot use (too short, nothing measured)."""
-    for record in records:
-        if record.time.size < MIN_SAMPLES:
-            raise RecordError(
-                f"{record.name}: {record.time.size} samples — identify needs at least {MIN_SAMPLES} per record"
-            )
-        for column in ("sliding_velocity", "friction_force"):
-            values = getattr(record, column)
-            if not np.all(np.isfinite(values)):
-                raise RecordError(f"{record.name}: column {column!r}: not finite — allowed: finite numbers")
-            if not np.any(values != 0.0):
-                raise RecordError(f"{record.name}: column {column!r} is zero throughout — nothing to identify from")
-        if not (np.all(np.isfinite(record.time)) and np.all(np.diff(record.time) > 0.0)):
-            raise RecordError(f"{record.name}: column 'time' must be finite and increase")
-        if not np.all(np.isfinite(record.normal_force) & (record.normal_force > 0.0)):
-            raise RecordError(f"{record.name}: column 'normal_force': F_N must be > 0 and finite")
-
-
 def identify(
     micro: list[Record],
     stick: list[Record],
@@ -399,11 +338,11 @@ def identify(
     if len(types) != 1:
         raise RecordError(f"identify: records mix joint types {sorted(types)}")
     joint_type = types.pop()
-    radius = _joint_radius(micro + stick, joint_type, radius)
+    radius = joint_radius(micro + stick, joint_type, radius)
     names = [r.name for r in micro + stick]
     if len(set(names)) != len(names):
         raise RecordError("identify: two records share a name; rename the files")
-    _check_records(micro + stick)
+    check_records(micro + stick)
     try:
         with np.errstate(all="ignore"):
             return _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error)
@@ -497,43 +436,4 @@ def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_erro
     )
 
 
-def slides(record: Record, radius: float | None = None) -> bool:
-    """Gross sliding: the element moves by far more than any bristle deflection μ/σ0 could.
-
-    Parameters
-    ----------
-    record : Record
-        Its velocity gives the displacement, its friction and normal force μ.
-    radius : float, optional
-        [m]: the moment arm r of μ = u_R/(r·F_N) for a type B record that carries none.
-
-    Returns
-    -------
-    bool
-    """
-    arm = 1.0 if record.joint_type == "A" else (radius if radius is not None else record.moment_arm)
-    mu = np.abs(record.friction_force / (arm * record.normal_force))
-    displacement = np.ptp(np.cumsum(record.sliding_velocity) * record.sample_time)
-    return bool(displacement * 1e4 > mu.max() and displacement > 1e-4)
-
-
-def classify(record: Record, radius: float | None = None) -> str:
-    """'stick-slip' or 'micro-slip': the record's ``regime`` metadata, else whether it slides.
-
-    Parameters
-    ----------
-    record : Record
-        A record with or without ``# regime = …``.
-    radius : float, optional
-        Passed to `slides` when the record names no regime.
-
-    Returns
-    -------
-    str
-    """
-    if "regime" in record.metadata:
-        return record.metadata["regime"]
-    return "stick-slip" if slides(record, radius) else "micro-slip"
-
-
-__all__ = ["Identification", "classify", "identify", "model_friction", "simulate_friction", "slides"]
+__all__ = ["Identification", "identify", "model_friction", "simulate_friction"]

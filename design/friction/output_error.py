@@ -13,7 +13,7 @@ import scipy.optimize
 from scipy.signal import find_peaks, savgol_filter
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction import lugre, rig_integration
 from smartjoint.design.friction.fitting import (
     EXCITATION_CUTOFF,
     VELOCITY_CUTOFF,
@@ -100,8 +100,8 @@ def prepare_shooting(record: Record, arm: float) -> Shooting:
     # low-passed velocity at its own maxima would pick the noise's ups (type B: σ2 +15 %, not +10 %).
     half_window = min(max(int(0.1 * half_period), 2), (record.time.size - 1) // 2)
     start_velocity = savgol_filter(record.sliding_velocity, 2 * half_window + 1, 2)[peaks]
-    # Linear interpolation between samples: the substep nodes of rig.integrate.
-    substep = np.diff(record.time)[:, None] / rig.SUBSTEPS * np.arange(rig.SUBSTEPS)[None, :]
+    # Linear interpolation between samples: the substep nodes of rig_integration.integrate.
+    substep = np.diff(record.time)[:, None] / rig_integration.SUBSTEPS * np.arange(rig_integration.SUBSTEPS)[None, :]
     nodes = np.append((record.time[:-1, None] + substep).ravel(), record.time[-1])
     measured = record.sliding_velocity[peaks[0] + 1 :]
     return Shooting(
@@ -134,12 +134,12 @@ def shoot(p: lugre.LuGreParameters, shooting: Shooting) -> np.ndarray:
     ndarray
         The simulated velocity at the samples of ``shooting.measured``.
     """
-    record, step = shooting.record, rig.SUBSTEPS
+    record, step = shooting.record, rig_integration.SUBSTEPS
     bounds = np.append(shooting.starts, record.time.size - 1)
     parts = []
     for start, end, velocity0 in zip(bounds[:-1], bounds[1:], shooting.start_velocity):
         nodes = slice(start * step, end * step + 1)
-        velocity, _ = rig.integrate(
+        velocity, _ = rig_integration.integrate(
             p,
             shooting.gain[nodes],
             record.inertia,
@@ -237,7 +237,7 @@ def output_error_blocker(stick: list[Record], enabled: bool) -> str | None:
         if gap:
             return gap
     try:
-        rig.kernel()
+        rig_integration.kernel()
     except ModelError as error:  # the Python reference loop would take hours here
         return f"rig kernel unavailable ({error})"
     return None
