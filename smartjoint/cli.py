@@ -15,16 +15,15 @@ from types import SimpleNamespace
 from smartjoint import __version__
 from smartjoint.commands import (
     cmd_export_model,
-    cmd_identify,
     cmd_modes,
     cmd_place,
     cmd_reduce,
-    cmd_rig,
     cmd_run,
     cmd_simulate,
     cmd_update,
 )
 from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_sil, cmd_study
+from smartjoint.commands_friction import cmd_identify, cmd_rig
 from smartjoint.common.errors import SmartjointError
 
 

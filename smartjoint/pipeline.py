@@ -32,7 +32,7 @@ import numpy as np
 
 from smartjoint import __version__
 from smartjoint import report as plots
-from smartjoint.bench import busload, safety, sil
+from smartjoint.bench import busload, safety, safety_report, sil
 from smartjoint.codegen import backtoback, can_layer, generate, identifiers, output
 from smartjoint.design import build_model, load_design, solve_modes, updated_design
 from smartjoint.design.control import artifact, artifact_building
@@ -273,8 +273,8 @@ def _write_report_files(r: _Results, staging: Path) -> None:
     output.write({**r.firmware_files, **can_layer.render_can(r.controller)}, staging / "firmware")
     sil.plot_sil(r.sil_check, staging, r.sil_check.get("mil_runs"))
     sil.plot_faults(r.fault_check, staging / "sil_faults.png")
-    safety.plot_matrix(r.safety_check, staging / "safety_cycles.png")
-    (staging / "safety_cases.md").write_text(safety.matrix_markdown(r.safety_check), encoding="utf-8")
+    safety_report.plot_matrix(r.safety_check, staging / "safety_cycles.png")
+    (staging / "safety_cases.md").write_text(safety_report.matrix_markdown(r.safety_check), encoding="utf-8")
 
 
 def _summary(r: _Results) -> dict:
@@ -343,7 +343,7 @@ def _report_markdown(r: _Results, final: dict) -> str:
         + "\n\n"
         + sil.fault_markdown(r.fault_check)
         + "\n![faults](sil_faults.png)\n\n"
-        + safety.summary_markdown(r.safety_check, "safety_cases.md")
+        + safety_report.summary_markdown(r.safety_check, "safety_cases.md")
         + "\n![cycles to the safe state](safety_cycles.png)\n\n"
         + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
         "`bench replay`): " + ", ".join(f"`can/{n}`" for n in r.sil_logs) + "; protocol: `firmware/bus.dbc`.\n"
