@@ -92,6 +92,39 @@ def implausible_values(artifact, db) -> dict:
     return values
 
 
+def _pairs(artifact, joints: list[str], dt: float, late: float) -> list[tuple[Fault, Fault]]:
+    """Faults two at once: an input and an output frame, the bus with an amplifier, a late and an
+    implausible input, an output stage with the heartbeat, and bus-off with a silent amplifier
+    from power-up on."""
+    tag, other = joints[0].upper(), joints[-1].upper()
+    return [
+        (
+            Fault("drop", START * dt, END * dt, f"JOINT_{tag}"),
+            Fault("corrupt_crc", START * dt, END * dt, f"SETPOINT_{other}"),
+        ),
+        (
+            Fault("bus_off", START * dt, END * dt),
+            Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="over_temperature"),
+        ),
+        (
+            Fault("delay", START * dt, END * dt, "TIP_SENSORS", delay=late),
+            Fault(
+                "implausible",
+                START * dt,
+                END * dt,
+                f"AMP_STATUS_{other}",
+                signal="temperature",
+                value=artifact.amplifier_temperature_limit + 20.0,
+            ),
+        ),
+        (
+            Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="stuck_output"),
+            Fault("drop", START * dt, END * dt, "CONTROLLER_STATUS"),
+        ),
+        (Fault("bus_off", 0.0, math.inf), Fault("amplifier", 0.0, math.inf, joints[-1], amplifier_fault="no_response")),
+    ]
+
+
 def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     """Every fault kind on every frame, each signal, amplifier and the bus, in each timing.
 
@@ -141,35 +174,7 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     for frame in frames:  # late, but within the bound: used, never a timeout
         fault = Fault("delay", START * dt, END * dt, frame, delay=bound)
         out.append(Case(fault.label(), "within the latency bound", (fault,), LENGTH, tolerated=True))
-    tag = joints[0].upper()
-    other = joints[-1].upper()
-    pairs = [
-        (
-            Fault("drop", START * dt, END * dt, f"JOINT_{tag}"),
-            Fault("corrupt_crc", START * dt, END * dt, f"SETPOINT_{other}"),
-        ),
-        (
-            Fault("bus_off", START * dt, END * dt),
-            Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="over_temperature"),
-        ),
-        (
-            Fault("delay", START * dt, END * dt, "TIP_SENSORS", delay=late),
-            Fault(
-                "implausible",
-                START * dt,
-                END * dt,
-                f"AMP_STATUS_{other}",
-                signal="temperature",
-                value=artifact.amplifier_temperature_limit + 20.0,
-            ),
-        ),
-        (
-            Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="stuck_output"),
-            Fault("drop", START * dt, END * dt, "CONTROLLER_STATUS"),
-        ),
-        (Fault("bus_off", 0.0, math.inf), Fault("amplifier", 0.0, math.inf, joints[-1], amplifier_fault="no_response")),
-    ]
-    for pair in pairs:
+    for pair in _pairs(artifact, joints, dt, late):
         length = LENGTH if math.isfinite(pair[0].end) else END + 10
         timing = "two at once" if math.isfinite(pair[0].end) else "two at once, from t = 0, never ending"
         out.append(Case(" + ".join(f.label() for f in pair), timing, pair, length))
@@ -252,6 +257,30 @@ def run_case(firmware, case: Case, measurements) -> dict:
     return {"case": case.name, "timing": case.timing, **measure(loop.record, case.faults, artifact, case.tolerated)}
 
 
+def _gain_error_shows(record, artifact, force, start: int, stop: int) -> int:
+    """The cycle a gain error shows: no bit tells, so once the output is off its setpoint by more
+    than the tracking tolerance (a small command halved is within it, and harmless)."""
+
+    def volts(value):
+        return (value - artifact.piezo_preload) / artifact.piezo_force_per_volt
+
+    off = np.any(np.abs(volts(force) - volts(np.array(record.command))) > artifact.tracking_tolerance, axis=1)
+    seen = np.flatnonzero(off[start:stop])
+    return start + int(seen[0]) if seen.size else stop
+
+
+def _first(flags, start: int) -> int | None:
+    """Cycles from ``start`` to the first raised flag (None: never)."""
+    hits = np.flatnonzero(flags[start:])
+    return int(hits[0]) if hits.size else None
+
+
+def _settled(flags, reference: int, stop: int) -> int | None:
+    """Cycles from the reference until the flag holds for the rest of the fault (None: never)."""
+    off = np.flatnonzero(~flags[reference:stop])
+    return 0 if not off.size else (int(off[-1]) + 1 if off[-1] + 1 < stop - reference else None)
+
+
 def measure(record, faults, artifact, tolerated: bool = False) -> dict:
     """The figures of the module docstring for faults acting together in a SIL record.
 
@@ -291,17 +320,7 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
     reference = start + max(bound, 0)
     stop = len(safe) if end is None else min(end, len(safe))
     if any(f.kind == "amplifier" and f.amplifier_fault == "gain_error" for f in faults):
-        # No bit tells: the fault shows once the output is off its setpoint by more than the
-        # tracking tolerance (a small command halved is within it, and harmless).
-        volts = lambda value: (value - artifact.piezo_preload) / artifact.piezo_force_per_volt  # noqa: E731
-        off = np.any(np.abs(volts(force) - volts(np.array(r.command))) > artifact.tracking_tolerance, axis=1)
-        seen = np.flatnonzero(off[start:stop])
-        reference = start + int(seen[0]) if seen.size else stop
-
-    def first(flags, frm):
-        hits = np.flatnonzero(flags[frm:])
-        return int(hits[0]) if hits.size else None
-
+        reference = _gain_error_shows(r, artifact, force, start, stop)
     row: dict[str, Any] = {
         "start": start,
         "end": end,
@@ -325,18 +344,13 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
     if reference >= stop:  # a fault that never showed (a gain error on commands within the tolerance)
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
         return row
-
-    def settled(flags):  # cycles from the reference until the flag holds for the rest of the fault
-        off = np.flatnonzero(~flags[reference:stop])
-        return 0 if not off.size else (int(off[-1]) + 1 if off[-1] + 1 < stop - reference else None)
-
-    row["firmware"] = settled(safe)
-    row["joints"] = settled(at_safe)
+    row["firmware"] = _settled(safe, reference, stop)
+    row["joints"] = _settled(at_safe, reference, stop)
     row["holds"] = row["joints"] is not None
     # Recovery counts from the fault's end; for a delay, from its last late frame.
     over = None if end is None else end + max((int(math.ceil(f.lateness / dt - 1e-9)) for f in faults), default=0)
-    row["recovery"] = first(~safe & ~own_safe, over) if over is not None and over < len(safe) else None
-    running = first(~safe, 0)  # until the first valid command the joints hold the safe force
+    row["recovery"] = _first(~safe & ~own_safe, over) if over is not None and over < len(safe) else None
+    running = _first(~safe, 0)  # until the first valid command the joints hold the safe force
     row["power_up_safe"] = bool(np.all(at_safe[: len(safe) if running is None else running]))
     row["ok"] = bool(
         row["joints"] is not None
