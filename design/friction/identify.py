@@ -134,7 +134,7 @@ class Identification:
         return list(dict.fromkeys(self.micro.weak + self.stick.weak))
 
     def as_dict(self) -> dict:
-        out = {
+        out: dict = {
             "joint_type": self.joint_type,
             "parameters": {},
             "nrmse": {**self.micro.nrmse, **self.stick.nrmse},
@@ -287,6 +287,7 @@ def _fit(
             best = solution
         if progress:
             progress(f"{label}: start {k + 1}/{len(starts)}, cost {best.cost:.4g}")
+    assert best is not None  # every caller passes at least one start
     p = parameters(best.x)
     errors = {r.name: nrmse(r.friction_force, model_friction(p, r, velocities[r.name])) for r in records}
     return step_result(names, best, errors, evaluations), p
@@ -316,7 +317,7 @@ def _joint_radius(records: list[Record], joint_type: str, radius: float | None) 
                     f"radius = {record.radius!r} m — give one radius"
                 )
         return float(radius)
-    carried = {}
+    carried: dict[float, str] = {}
     for record in records:
         if record.radius is None:
             raise RecordError(
