@@ -112,7 +112,7 @@ class ControllerArtifact:
                 return False
         return True
 
-    __hash__ = None  # arrays: equal artefacts need not share a hash
+    # Unhashable, as a class defining __eq__ is (arrays: equal artefacts need not share a hash)
 
     @property
     def artifact_sha256(self) -> str:

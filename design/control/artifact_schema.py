@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -130,7 +131,7 @@ def validated(values: dict) -> dict:
     ModelError
         Naming the first field that is wrong and what it accepts.
     """
-    out = {"schema_version": check_version(values["schema_version"])}
+    out: dict[str, Any] = {"schema_version": check_version(values["schema_version"])}
     for spec in SCHEMA:
         value = values[spec.name]
         if spec.kind == "string":

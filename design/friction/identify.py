@@ -133,7 +133,7 @@ class Identification:
         return list(dict.fromkeys(self.micro.weak + self.stick.weak))
 
     def as_dict(self) -> dict:
-        out = {
+        out: dict = {
             "joint_type": self.joint_type,
             "parameters": {},
             "nrmse": {**self.micro.nrmse, **self.stick.nrmse},
@@ -286,6 +286,7 @@ def _fit(
             best = solution
         if progress:
             progress(f"{label}: start {k + 1}/{len(starts)}, cost {best.cost:.4g}")
+    assert best is not None  # every caller passes at least one start
     p = parameters(best.x)
     errors = {r.name: nrmse(r.friction_force, model_friction(p, r, velocities[r.name])) for r in records}
     return step_result(names, best, errors, evaluations), p

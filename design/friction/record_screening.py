@@ -65,7 +65,7 @@ def joint_radius(records: list[Record], joint_type: str, radius: float | None) -
                     f"radius = {record.radius!r} m — give one radius"
                 )
         return float(radius)
-    carried = {}
+    carried: dict[float, str] = {}
     for record in records:
         if record.radius is None:
             raise RecordError(

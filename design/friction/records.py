@@ -245,9 +245,9 @@ def read_record(path: str | Path, radius: float | None = None) -> Record:
     )
 
 
-def _metadata(lines: list[str], name: str) -> tuple[dict[str, tuple[str, str]], int]:
+def _metadata(lines: list[str], name: str) -> tuple[dict[str, tuple[str, ...]], int]:
     """The ``# key = value unit`` lines before the header, and the header's line index."""
-    metadata: dict[str, tuple[str, str]] = {}
+    metadata: dict[str, tuple[str, ...]] = {}
     body_start = 0
     for number, line in enumerate(lines):
         if line.startswith("#"):

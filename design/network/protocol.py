@@ -68,7 +68,9 @@ SYNC_COMMENT = (
     "the alive counter of the last controller heartbeat this node saw: the controller tells from it "
     "how many of its cycles the frame is old (docs/safety.md)"
 )
-CYCLE_TIME_MAX_MS = ATTRIBUTE_DEFINITION_GENMSGCYCLETIME.maximum  # the DBC attribute is an INT of this range
+_CYCLE_TIME_MAX = ATTRIBUTE_DEFINITION_GENMSGCYCLETIME.maximum
+assert isinstance(_CYCLE_TIME_MAX, int)  # cantools gives GenMsgCycleTime its range
+CYCLE_TIME_MAX_MS: int = _CYCLE_TIME_MAX  # the DBC attribute is an INT of this range
 
 
 @dataclass(frozen=True)
@@ -147,18 +149,20 @@ def _check_ranges(db: can.Database) -> None:
                 continue
             raw_min = -(2 ** (signal.length - 1)) if signal.is_signed else 0
             raw_max = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2**signal.length - 1
-            low, high = sorted(
-                (
-                    signal.conversion.raw_to_scaled(raw_min, decode_choices=False),
-                    signal.conversion.raw_to_scaled(raw_max, decode_choices=False),
-                )
-            )
+            low, high = sorted((_physical(signal, raw_min), _physical(signal, raw_max)))
             if signal.minimum < low or signal.maximum > high:
                 unit = f" {signal.unit}" if signal.unit else ""
                 raise ModelError(
                     f"{message.name}.{signal.name}: range [{signal.minimum:g}, {signal.maximum:g}]{unit} "
                     f"— its {signal.length}-bit field carries [{float(low):g}, {float(high):g}]"
                 )
+
+
+def _physical(signal: can.Signal, raw: int) -> float:
+    """A raw value in the signal's physical units: a number, as choices are not decoded."""
+    value = signal.conversion.raw_to_scaled(raw, decode_choices=False)
+    assert isinstance(value, (int, float))
+    return value
 
 
 def _cycle_ms(sample_time: float) -> int:
@@ -338,7 +342,7 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
         minimum=0,
         maximum=3,
         comment="0 init, 1 SISO, 2 cLQG, 3 safe state",
-        conversion=conversion.BaseConversion.factory(1, 0, dict(MODES)),
+        conversion=conversion.BaseConversion.factory(1, 0, OrderedDict(MODES)),
     )
     controller = _e2e(CONTROLLER_ID) + [
         mode,
@@ -414,6 +418,8 @@ def load_dbc(text: str) -> can.Database:
         The text does not parse as DBC (one line, with cantools' reason).
     """
     try:
-        return cantools.database.load_string(text, database_format="dbc")
+        db = cantools.database.load_string(text, database_format="dbc")
     except Exception as error:  # cantools raises several parser errors
         raise ModelError(f"DBC: cannot parse ({type(error).__name__}: {error})") from None
+    assert isinstance(db, can.Database)  # the DBC format always loads a CAN database
+    return db

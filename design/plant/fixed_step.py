@@ -196,9 +196,9 @@ class _CKernel(_Kernel):
     def __init__(self, plant: _Plant, state: State, recorder: Recorder):
         super().__init__(plant, state, recorder)
         module = native_module()
-        self.ffi, self.lib = module.ffi, module.lib
-        ffi = self.ffi
-        self._keep = []  # arrays whose memory the C structs point into
+        ffi = self.ffi = module.ffi
+        self.lib = module.lib
+        self._keep: list[np.ndarray] = []  # arrays whose memory the C structs point into
 
         def ptr(array):
             array = np.ascontiguousarray(array, dtype=float)

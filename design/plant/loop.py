@@ -91,7 +91,7 @@ def _check(model: ModalModel, joints, duration, step, controller, initial_state,
             f"modal model: coordinate {model.labels[i]!r} has ω = {float(model.omega[i])!r} rad/s, "
             f"ξ = {float(model.damping[i])!r} — need ω > 0 and ξ >= 0 (a stable structure)"
         )
-    still = np.flatnonzero(~np.any(model.joint_input != 0.0, axis=0)) if l and friction else []
+    still: np.ndarray | list[int] = np.flatnonzero(~np.any(model.joint_input != 0.0, axis=0)) if l and friction else []
     if len(still):
         raise ModelError(
             f"joint {model.joint_names[still[0]]!r}: no coordinate of the model moves it (its column of "

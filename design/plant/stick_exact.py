@@ -95,7 +95,8 @@ class _StickPlant:
             inputs[:n2, :l] = self.B * slip[None, :]
             inputs[n2:, :l] = -np.eye(l)
             inputs[:n2, l:] = self.H
-            self._cache[key] = tuple(self._discretise(M, inputs, h) for h in self.lengths)
+            long, medium, short = (self._discretise(M, inputs, h) for h in self.lengths)
+            self._cache[key] = long, medium, short
         return self._cache[key]
 
     def _discretise(self, M, inputs, h) -> dict:
@@ -250,12 +251,12 @@ class _StickC:
 
     def __init__(self, plant: _StickPlant, state: State, recorder: Recorder):
         module = native_module()
-        self.ffi, self.lib = module.ffi, module.lib
-        ffi = self.ffi
+        ffi = self.ffi = module.ffi
+        self.lib = module.lib
         self.mirror = _StickPython(plant, state, recorder)  # holds z, d and the discretisations
         self.p, self.s, self.r = plant, state, recorder
         self.recorder = recorder
-        self._keep = []
+        self._keep: list[np.ndarray] = []
 
         def ptr(array):
             array = np.ascontiguousarray(array, dtype=float)
@@ -416,6 +417,7 @@ def kernel(run: PlantRun):
     """
     from smartjoint.common import native
 
+    assert run.stick_step is not None  # the scheme runs only with a stick step (see check)
     plant = _StickPlant(run.model, JointLaws(run.joints), run.step, float(run.stick_step))
     state = State(plant.ET, run.initial_state)
     recorder = Recorder(run.rows, plant.l, plant.Cy.shape[0])

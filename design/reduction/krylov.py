@@ -147,6 +147,7 @@ def reduce(
     kept = select_modes(considered, n_keep, paths)
     reduced = modal_model(fe_model, modes, kept)
     if krylov_per_joint and fe_model.E.shape[1]:
+        assert reduced.basis is not None  # modal_model always keeps the shapes
         stiffness = fe_model.stiffness
         psi, omega_hat, labels = krylov_vectors(
             stiffness, fe_model.mass, fe_model.E, reduced.basis, krylov_per_joint, krylov_joints

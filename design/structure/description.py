@@ -259,7 +259,7 @@ class Design:
         for key, value in values.items():
             table, name, attribute = split_parameter(key)
             tables[table][name] = dataclasses.replace(tables[table][name], **{attribute: float(value)})
-        return dataclasses.replace(self, **tables)
+        return dataclasses.replace(self, materials=tables["materials"], connectors=tables["connectors"])
 
 
 UPDATABLE = {

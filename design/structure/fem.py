@@ -82,10 +82,9 @@ class FEModel:
     def stiffness_with(self, parameters: dict[str, float]) -> sp.csr_matrix:
         """K = Σ_p p·K_p for the given parameter values (missing keys keep their value)."""
         values = {**self.parameters, **parameters}
-        total = None
-        for key, part in self.stiffness_parts.items():
-            term = part * values[key]
-            total = term if total is None else total + term
+        total, *rest = [part * values[key] for key, part in self.stiffness_parts.items()]
+        for term in rest:
+            total = total + term
         return total.tocsr()
 
     @property

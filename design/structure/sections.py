@@ -190,7 +190,7 @@ def joint_axis(t: DesignTable, member: Member, nodes: dict[str, Node]) -> tuple[
             [float(a) for a in axis],
             f"type B rotates about an axis perpendicular to the member (member direction {np.round(rod, 4).tolist()})",
         )
-    return tuple(float(a) for a in axis)
+    return float(axis[0]), float(axis[1]), float(axis[2])
 
 
 def check_member_lengths(members, nodes, node_types, connectors) -> None:

@@ -232,7 +232,7 @@ def _parse_geometry(root: DesignTable, node_types, sections, connectors):
         node_type = t.string("type", None)
         if node_type is not None:
             reference(t, "type", node_type, node_types, "node type")
-        nodes[node_name] = Node(node_name, t.vector("position", 3), node_type)
+        nodes[node_name] = Node(node_name, t.vector3("position"), node_type)
         t.finish()
 
     explicit_members = root.tables("members")

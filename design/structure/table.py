@@ -114,6 +114,11 @@ class DesignTable:
             raise self.error(name, value, f"expected a list of {size} finite numbers")
         return tuple(float(v) for v in value)
 
+    def vector3(self, name: str) -> tuple[float, float, float]:
+        """A required list of three finite numbers, such as a position (see :meth:`vector`)."""
+        x, y, z = self.vector(name, 3)
+        return x, y, z
+
     def table(self, name: str, default: object = MISSING) -> DesignTable:
         value = self.get(name, default)
         return DesignTable(value, self.key(name), self.source)

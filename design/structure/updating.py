@@ -168,6 +168,34 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
     if progress:
         progress(0, POLISHED_STARTS + 1, float(scores.min()) * 100.0)
     starts = [np.zeros(len(names))] + [samples[i] for i in np.argsort(scores)[:POLISHED_STARTS]]
+    best, polished = _polish(residual, jacobian, starts, bound, weight, progress)
+    initial_hz, _ = _frequencies(model, names, initial, n_modes)
+    updated = initial * np.exp(best.x)
+    updated_hz, _ = evaluate(best.x)
+    sensitivity = jacobian(best.x) * (measured / updated_hz[index] / weight)[:, None]
+    return UpdatingResult(
+        names,
+        initial,
+        updated,
+        modes,
+        measured,
+        initial_hz[index],
+        updated_hz[index],
+        sensitivity,
+        calls["n"],
+        polished,
+        np.array([m.mac if m.mac is not None else np.nan for m in spec.measured]),
+    )
+
+
+def _polish(residual, jacobian, starts, bound, weight, progress):
+    """Least squares from each start in turn until every mode is within 0.2 %.
+
+    Returns
+    -------
+    tuple
+        (The best solution, the number of starts polished).
+    """
     best = None
     for k, start in enumerate(starts):
         solution = scipy.optimize.least_squares(
@@ -187,23 +215,8 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
             progress(k + 1, len(starts), float(np.max(np.abs(best.fun / weight))) * 100.0)
         if np.max(np.abs(best.fun / weight)) < 0.002:  # within 0.2 % on every mode: no further start helps
             break
-    initial_hz, _ = _frequencies(model, names, initial, n_modes)
-    updated = initial * np.exp(best.x)
-    updated_hz, _ = evaluate(best.x)
-    sensitivity = jacobian(best.x) * (measured / updated_hz[index] / weight)[:, None]
-    return UpdatingResult(
-        names,
-        initial,
-        updated,
-        modes,
-        measured,
-        initial_hz[index],
-        updated_hz[index],
-        sensitivity,
-        calls["n"],
-        k + 1,
-        np.array([m.mac if m.mac is not None else np.nan for m in spec.measured]),
-    )
+    assert best is not None  # starts always holds the nominal point
+    return best, k + 1
 
 
 def updated_design(design, progress=None):
