@@ -320,6 +320,24 @@ class SilLoop:
         time_us = int(round(t * 1e6)) & 0xFFFFFFFF
         # 1. The sensor nodes and the amplifiers send.
         self._release_delayed(t, self.node_bus)  # due since the last sample: before this sample's frames
+        self._send_sensor_frames(measurements, t)
+        self._send_amplifier_status(t)
+
+        # 2. The firmware: receive, step, send (setpoints and heartbeat).
+        status = self._firmware_sample(t, time_us)
+
+        # 3. The amplifiers take their setpoint and the heartbeat, and drive their stacks.
+        self._deliver_to_amplifiers()
+        amplifier_force = np.array([a.advance(self.sample_time) for a in self.amplifiers])
+        applied = amplifier_force.copy()
+        if t < self.excitation_end - 1e-12:
+            applied = self.excitation_force.copy()  # the study's protocol: F_N^max while the pulse acts
+        self._drain_log()
+        self._record_sample(t, status, amplifier_force, applied)
+        self.k += 1
+        return np.maximum(applied, 0.0)
+
+    def _send_sensor_frames(self, measurements: Measurements, t: float) -> None:
         echo = self.node_echo  # the sensor nodes sample on the controller's heartbeat and say which
         for j, joint in enumerate(self.joints):
             self._transmit(
@@ -343,6 +361,8 @@ class SilLoop:
             ),
             t,
         )
+
+    def _send_amplifier_status(self, t: float) -> None:
         for j, joint in enumerate(self.joints):  # amplifier status every sample: faults seen within a cycle
             fault = next(
                 (
@@ -357,15 +377,16 @@ class SilLoop:
             if status is not None:
                 self._transmit(self.node_bus, self._message(f"AMP_STATUS_{joint}", status, t), t)
 
-        # 2. The firmware: receive, step, send (setpoints and heartbeat).
+    def _firmware_sample(self, t: float, time_us: int):
         for message in self._drain(self.firmware_bus):
             self.fw.rx(message.arbitration_id, bytes(message.data), time_us)
         status = self.fw.step(time_us)
         self._release_delayed(t, self.firmware_bus)
         for frame_id, data in self.fw.tx():
             self._transmit(self.firmware_bus, self._frame(frame_id, data, t), t)
+        return status
 
-        # 3. The amplifiers take their setpoint and the heartbeat, and drive their stacks.
+    def _deliver_to_amplifiers(self) -> None:
         heartbeat = self.frames["CONTROLLER_STATUS"]
         mode = lambda data: heartbeat.decode(data, decode_choices=False)["mode"]  # noqa: E731
         for message in self._drain(self.node_bus):
@@ -384,15 +405,15 @@ class SilLoop:
                     message.arbitration_id, data, m.length, lambda d, m=m: m.decode(d, decode_choices=False)["voltage"]
                 )
                 self.amplifier_e2e_errors += int(self.amplifiers[j].setpoint_watch.failed and not before)
-        amplifier_force = np.array([a.advance(self.sample_time) for a in self.amplifiers])
-        applied = amplifier_force.copy()
-        if t < self.excitation_end - 1e-12:
-            applied = self.excitation_force.copy()  # the study's protocol: F_N^max while the pulse acts
+
+    def _drain_log(self) -> None:
         if self.writer is not None:
             for message in self._drain(self.log_bus):
                 self.writer.on_message_received(message)
         else:
             self._drain(self.log_bus)
+
+    def _record_sample(self, t: float, status, amplifier_force: np.ndarray, applied: np.ndarray) -> None:
         r = self.record
         r.time.append(t)
         r.safe.append(self.fw.safe)
@@ -402,8 +423,6 @@ class SilLoop:
         r.amplifier_force.append(amplifier_force)
         r.amplifier_safe.append([a.own_safe for a in self.amplifiers])
         r.applied.append(applied)
-        self.k += 1
-        return np.maximum(applied, 0.0)
 
     def statistics(self, duration: float, bitrate: int, data_bitrate: int | None) -> dict:
         """Frames per name, measured bus load over the run, E2E errors, timeouts.

@@ -85,6 +85,67 @@ def _simulate(setup, loop: SilLoop):
         loop.close()
 
 
+def _check_faults_against(db, artifact, faults) -> None:
+    """Refuse faults that mean nothing on the artefact's bus: its frames, joints and signals."""
+    check_faults(
+        faults,
+        {m.name for m in db.messages},
+        list(artifact.joint_names),
+        {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in db.messages},
+    )
+
+
+def _study_header(db, bitrate: int, data_bitrate: int | None, real: str, amplifier: dict | None) -> dict[str, Any]:
+    """The study's figures before any run: the bus's bitrates and planned load, the scalar type."""
+    planned = busload.check(db, bitrate, data_bitrate)
+    return {
+        "bitrate": bitrate,
+        "data_bitrate": data_bitrate,
+        "planned_bus_load": planned.load,
+        "real": real,
+        "amplifier": dict(amplifier or {}),
+        "laws": {},
+    }
+
+
+def _sil_run(setup, artifact, law, real, faults, log_folder, amplifier, interface, channel):
+    """One law's compiled firmware through the CAN loop: the loop, the plant's result, the log path."""
+    image = firmware.Firmware(artifact, law, real)
+    log_path = None if log_folder is None else Path(log_folder) / f"sil_{law}.blf"
+    if log_path is not None:
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+    loop = SilLoop(
+        image,
+        closed_loop.PULSE_DURATION,
+        faults=faults,
+        interface=interface,
+        channel=channel,
+        log_path=log_path,
+        amplifier=amplifier,
+    )
+    result = _simulate(setup, loop)
+    return loop, result, log_path
+
+
+def _law_figures(setup, artifact, faults, mil, spread, loop, result, log_path, bitrate, data_bitrate) -> dict:
+    """One law's MIL against SIL figures (Eq. 32), bus statistics and injected faults' figures."""
+    energy_measure = float(np.trapezoid(2.0 * result.energy, result.time))
+    return {
+        "energy_measure_mil": mil.energy_measure(),
+        "energy_measure_sil": energy_measure,
+        "energy_measure_difference": energy_measure / mil.energy_measure() - 1.0,
+        "energy_end_mil": float(mil.energy[-1]),
+        "energy_end_sil": float(result.energy[-1]),
+        "mil_spread_under_float_rounding": [min(spread), max(spread)] if spread else None,
+        "max_energy_sil": float(result.energy.max()),
+        "bus": loop.statistics(setup.duration, bitrate, data_bitrate),
+        "log": None if log_path is None else str(log_path),
+        "faults": [{"fault": f.label(), **safety.measure(loop.record, (f,), artifact)} for f in faults],
+        "record": loop.record,
+        "result": result,
+    }
+
+
 def sil_study(
     setup,
     artifact,
@@ -141,21 +202,8 @@ def sil_study(
     """
     python = {"siso": artifacts.siso_law, "clqg": artifacts.clipped_lqg}
     db = protocol.database(artifact)
-    check_faults(
-        faults,
-        {m.name for m in db.messages},
-        list(artifact.joint_names),
-        {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in db.messages},
-    )
-    planned = busload.check(db, bitrate, data_bitrate)
-    out: dict[str, Any] = {
-        "bitrate": bitrate,
-        "data_bitrate": data_bitrate,
-        "planned_bus_load": planned.load,
-        "real": real,
-        "amplifier": dict(amplifier or {}),
-        "laws": {},
-    }
+    _check_faults_against(db, artifact, faults)
+    out = _study_header(db, bitrate, data_bitrate, real, amplifier)
     for law in laws:
         progress(f"      {law}: model in the loop (Python reference) …")
         mil, spread = _mil_runs(setup, law, lambda law=law: python[law](artifact), spread_runs)
@@ -163,36 +211,11 @@ def sil_study(
             f"      {law}: software in the loop ({real} firmware, CAN {bitrate / 1e6:g}"
             f"{'' if data_bitrate is None else f'/{data_bitrate / 1e6:g}'} Mbit/s) …"
         )
-        image = firmware.Firmware(artifact, law, real)
-        log_path = None if log_folder is None else Path(log_folder) / f"sil_{law}.blf"
-        if log_path is not None:
-            log_path.parent.mkdir(parents=True, exist_ok=True)
-        loop = SilLoop(
-            image,
-            closed_loop.PULSE_DURATION,
-            faults=faults,
-            interface=interface,
-            channel=channel,
-            log_path=log_path,
-            amplifier=amplifier,
-        )
-        result = _simulate(setup, loop)
-        energy_measure = float(np.trapezoid(2.0 * result.energy, result.time))
+        loop, result, log_path = _sil_run(setup, artifact, law, real, faults, log_folder, amplifier, interface, channel)
         out.setdefault("mil_runs", {})[law] = mil
-        out["laws"][law] = {
-            "energy_measure_mil": mil.energy_measure(),
-            "energy_measure_sil": energy_measure,
-            "energy_measure_difference": energy_measure / mil.energy_measure() - 1.0,
-            "energy_end_mil": float(mil.energy[-1]),
-            "energy_end_sil": float(result.energy[-1]),
-            "mil_spread_under_float_rounding": [min(spread), max(spread)] if spread else None,
-            "max_energy_sil": float(result.energy.max()),
-            "bus": loop.statistics(setup.duration, bitrate, data_bitrate),
-            "log": None if log_path is None else str(log_path),
-            "faults": [{"fault": f.label(), **safety.measure(loop.record, (f,), artifact)} for f in faults],
-            "record": loop.record,
-            "result": result,
-        }
+        out["laws"][law] = _law_figures(
+            setup, artifact, faults, mil, spread, loop, result, log_path, bitrate, data_bitrate
+        )
     return out
 
 

@@ -190,6 +190,61 @@ def _inputs(db, joints: list[str], cycle_us: int) -> list[dict]:
     return inputs
 
 
+def _limit_literals(artifact: ControllerArtifact, amplifier: protocol.Amplifier) -> dict[str, str]:
+    """The safe state's force, the plausibility limits and the amplifier's scaling as C literals."""
+    doubles = lambda values: ", ".join(rendering.literal(float(v), "double") for v in values)  # noqa: E731
+    return {
+        "safe_normal_force": doubles(artifact.safe_normal_force),
+        "sliding_velocity_limit": doubles(artifact.sliding_velocity_limit),
+        "friction_force_limit": doubles(artifact.friction_force_limit),
+        "normal_force_low": doubles(artifact.measured_normal_force_min),
+        "normal_force_high": doubles(artifact.measured_normal_force_max),
+        "sensor_limit": doubles(artifact.sensor_limit),
+        "temperature_limit": rendering.literal(artifact.amplifier_temperature_limit, "double"),
+        "current_limit": rendering.literal(artifact.amplifier_current_limit, "double"),
+        "tracking_tolerance": rendering.literal(artifact.tracking_tolerance, "double"),
+        "voltage_max": rendering.literal(amplifier.voltage_max, "double"),
+        "force_per_volt": rendering.literal(amplifier.force_per_volt, "double"),
+        "preload": rendering.literal(amplifier.preload, "double"),
+    }
+
+
+def _runtime_sources() -> dict[str, str]:
+    """The E2E runtime the generated layer links against, copied from ``firmware/runtime``."""
+    files = {}
+    for name in ("sj_e2e.h", "sj_e2e.c"):
+        source = RUNTIME / name
+        if not source.exists():
+            raise ModelError(f"{source}: the firmware runtime is missing (it ships with the source tree)")
+        files[name] = source.read_text()
+    return files
+
+
+def _checked_dbc(db) -> str:
+    """The DBC text of the bus, checked to read back as the protocol it was written from."""
+    text = protocol.dbc_text(db)
+    if not _same_bus(db, protocol.load_dbc(text)):
+        raise ModelError(
+            "bus.dbc: the DBC text does not read back as the protocol it was written from "
+            "(names or attributes the DBC format cannot carry)"
+        )
+    return text
+
+
+def _example_context(context: dict, real: str, digest: str) -> dict:
+    """The example ``main.c``'s context: the layer's, with its stimulus in the controllers' scalar."""
+    lit = lambda value: rendering.literal(value, real)  # noqa: E731
+    return {
+        **context,
+        "zero": lit(0.0),
+        "amplitude": lit(1e-3),
+        "decay": lit(0.995),
+        "friction_scale": lit(1e4),
+        "sensor_scale": lit(10.0),
+        "banner": rendering.banner(digest, real),
+    }
+
+
 def render_can(
     artifact: ControllerArtifact,
     prefix: str = "smartjoint",
@@ -231,7 +286,6 @@ def render_can(
     check_can(artifact, amplifier)
     db = protocol.database(artifact, amplifier)
     messages, layouts = _messages(db)
-    doubles = lambda values: ", ".join(rendering.literal(float(v), "double") for v in values)  # noqa: E731
     joints = [j.upper() for j in artifact.joint_names]
     cycle_us = int(round(artifact.sample_time * 1e6))
     inputs = _inputs(db, joints, cycle_us)
@@ -253,44 +307,15 @@ def render_can(
         "recovery_cycles": artifact.recovery_cycles,
         "full_codec": full_codec,
         "mode_safe": protocol.MODE_SAFE,
-        "safe_normal_force": doubles(artifact.safe_normal_force),
-        "sliding_velocity_limit": doubles(artifact.sliding_velocity_limit),
-        "friction_force_limit": doubles(artifact.friction_force_limit),
-        "normal_force_low": doubles(artifact.measured_normal_force_min),
-        "normal_force_high": doubles(artifact.measured_normal_force_max),
-        "sensor_limit": doubles(artifact.sensor_limit),
-        "temperature_limit": rendering.literal(artifact.amplifier_temperature_limit, "double"),
-        "current_limit": rendering.literal(artifact.amplifier_current_limit, "double"),
-        "tracking_tolerance": rendering.literal(artifact.tracking_tolerance, "double"),
-        "voltage_max": rendering.literal(amplifier.voltage_max, "double"),
-        "force_per_volt": rendering.literal(amplifier.force_per_volt, "double"),
-        "preload": rendering.literal(amplifier.preload, "double"),
+        **_limit_literals(artifact, amplifier),
     }
     env = rendering.environment()
     files = {
         f"{prefix}_can.h": env.get_template("can.h.j2").render(context),
         f"{prefix}_can.c": env.get_template("can.c.j2").render(context),
     }
-    for name in ("sj_e2e.h", "sj_e2e.c"):
-        source = RUNTIME / name
-        if not source.exists():
-            raise ModelError(f"{source}: the firmware runtime is missing (it ships with the source tree)")
-        files[name] = source.read_text()
-    files["bus.dbc"] = protocol.dbc_text(db)
-    if not _same_bus(db, protocol.load_dbc(files["bus.dbc"])):
-        raise ModelError(
-            "bus.dbc: the DBC text does not read back as the protocol it was written from "
-            "(names or attributes the DBC format cannot carry)"
-        )
-    lit = lambda value: rendering.literal(value, real)  # noqa: E731
-    example = {
-        **context,
-        "zero": lit(0.0),
-        "amplitude": lit(1e-3),
-        "decay": lit(0.995),
-        "friction_scale": lit(1e4),
-        "sensor_scale": lit(10.0),
-        "banner": rendering.banner(digest, real),
-    }
+    files.update(_runtime_sources())
+    files["bus.dbc"] = _checked_dbc(db)
+    example = _example_context(context, real, digest)
     files["main.c"] = env.get_template("main_can.c.j2").render(example)
     return files

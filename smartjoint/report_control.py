@@ -19,30 +19,55 @@ COLOURS = {
 
 
 def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
-    """control_energy.png (Figs. 12–13), control_tip.png (Fig. 14), control_normal_force.png,
-    and siso_boundary_layer.png when ε was optimised."""
+    """Plot the closed-loop study (paper Section 6, Figs. 12–14).
+
+    Parameters
+    ----------
+    study : closed_loop.Study
+        The passive and controlled runs of the study.
+    folder : path
+        Where the figures go.
+
+    Returns
+    -------
+    list of Path
+        control_energy.png (Figs. 12–13), control_tip.png (Fig. 14), control_normal_force.png,
+        and siso_boundary_layer.png when ε was optimised.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     folder = Path(folder)
-    written = []
+    written = [
+        _plot_energy(plt, study, folder),
+        _plot_tip(plt, study, folder),
+        _plot_normal_force(plt, study, folder),
+    ]
+    if study.optimum is not None:
+        written.append(_plot_boundary_layer(plt, study.optimum, folder))
+    return written
+
+
+def _plot_energy(plt, study: closed_loop.Study, folder: Path) -> Path:
+    """control_energy.png: the system energy of every run after the tip pulse (Figs. 12–13)."""
     fig, ax = plt.subplots(figsize=(7, 3.8))
     for r in study.runs:
         ax.semilogy(r.time, np.maximum(r.energy, 1e-12), color=COLOURS[r.name], lw=1.0, label=r.name)
     ax.axvline(closed_loop.PULSE_DURATION, color="0.7", lw=0.6)
-    written.append(
-        save_figure(
-            fig,
-            ax,
-            folder / "control_energy.png",
-            "t [s]",
-            "½xᵀx [J]",
-            "System energy after the tip pulse (Figs. 12–13)",
-        )
+    return save_figure(
+        fig,
+        ax,
+        folder / "control_energy.png",
+        "t [s]",
+        "½xᵀx [J]",
+        "System energy after the tip pulse (Figs. 12–13)",
     )
 
+
+def _plot_tip(plt, study: closed_loop.Study, folder: Path) -> Path:
+    """control_tip.png: the tip deflections of the runs, one panel per sensor (Fig. 14)."""
     fig, axes = plt.subplots(1, len(study.sensor_names), figsize=(10, 3.6), squeeze=False)
     for i, (ax, sensor) in enumerate(zip(axes[0], study.sensor_names)):
         for r in study.runs:
@@ -56,8 +81,11 @@ def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
     fig.tight_layout()
     fig.savefig(folder / "control_tip.png", dpi=110)
     plt.close(fig)
-    written.append(folder / "control_tip.png")
+    return folder / "control_tip.png"
 
+
+def _plot_normal_force(plt, study: closed_loop.Study, folder: Path) -> Path:
+    """control_normal_force.png: the controllers' normal force commands at the first joint."""
     fig, ax = plt.subplots(figsize=(7, 3.5))
     window = study.runs[0].time <= min(0.5, study.setup.duration)
     for r in study.runs:
@@ -69,37 +97,33 @@ def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
                 lw=0.7,
                 label=f"{r.name}, joint {study.joint_names[0]}",
             )
-    written.append(
-        save_figure(
-            fig, ax, folder / "control_normal_force.png", "t [s]", "F_N [N]", "Normal force commands (first 0.5 s)"
-        )
+    return save_figure(
+        fig, ax, folder / "control_normal_force.png", "t [s]", "F_N [N]", "Normal force commands (first 0.5 s)"
     )
 
-    if study.optimum is not None:
-        o = study.optimum
-        points = sorted(o.evaluations)
-        fig, ax = plt.subplots(figsize=(7, 3.5))
-        ax.semilogx([p[0] for p in points], [p[1] for p in points], ".-", color="tab:blue", label="E(t_e), Eq. 32")
-        ax.semilogx(
-            [o.boundary_layer],
-            [o.energy_measure],
-            "o",
-            mfc="none",
-            ms=10,
-            color="tab:red",
-            label=f"optimum ε = {o.boundary_layer:.3g} m/s",
-        )
-        written.append(
-            save_figure(
-                fig,
-                ax,
-                folder / "siso_boundary_layer.png",
-                "ε [m/s]",
-                "E(t_e) [J·s]",
-                "SISO boundary layer optimisation (Eq. 30, 32)",
-            )
-        )
-    return written
+
+def _plot_boundary_layer(plt, optimum, folder: Path) -> Path:
+    """siso_boundary_layer.png: E(t_e) against the SISO boundary layer ε (Eq. 30, 32)."""
+    points = sorted(optimum.evaluations)
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.semilogx([p[0] for p in points], [p[1] for p in points], ".-", color="tab:blue", label="E(t_e), Eq. 32")
+    ax.semilogx(
+        [optimum.boundary_layer],
+        [optimum.energy_measure],
+        "o",
+        mfc="none",
+        ms=10,
+        color="tab:red",
+        label=f"optimum ε = {optimum.boundary_layer:.3g} m/s",
+    )
+    return save_figure(
+        fig,
+        ax,
+        folder / "siso_boundary_layer.png",
+        "ε [m/s]",
+        "E(t_e) [J·s]",
+        "SISO boundary layer optimisation (Eq. 30, 32)",
+    )
 
 
 def control_markdown(study: closed_loop.Study) -> str:

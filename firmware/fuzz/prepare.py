@@ -42,6 +42,12 @@ def _reference_sources(artifact, can_layer, generate) -> dict[str, str]:
 
 def _layout(db, artifact) -> tuple[str, str]:
     """fuzz_reference.h and fuzz_reference.c: the bus table and the limits of the artefact."""
+    messages = sorted(db.messages, key=lambda m: m.frame_id)
+    return "\n".join(_header_lines(messages, artifact)), "\n".join(_source_lines(messages, artifact)) + "\n"
+
+
+def _header_lines(messages, artifact) -> list[str]:
+    """fuzz_reference.h: the sizes of the bus and the artefact, and the tables' declarations."""
     header = [
         "/* Written by firmware/fuzz/prepare.py from bus.dbc and controller.json of firmware/generated. */",
         "#ifndef FUZZ_REFERENCE_H",
@@ -50,12 +56,6 @@ def _layout(db, artifact) -> tuple[str, str]:
         '#include "fuzz_support.h"',
         "",
     ]
-    source = [
-        "/* Written by firmware/fuzz/prepare.py from bus.dbc and controller.json of firmware/generated. */",
-        '#include "fuzz_reference.h"',
-        "",
-    ]
-    messages = sorted(db.messages, key=lambda m: m.frame_id)
     most = max(len(m.signals) for m in messages)
     longest = max(m.length for m in messages)
     header.append(f"#define FUZZ_MAX_SIGNALS {most}u")
@@ -90,28 +90,43 @@ def _layout(db, artifact) -> tuple[str, str]:
         "#endif /* FUZZ_REFERENCE_H */",
         "",
     ]
-    for m in messages:
-        rows = []
-        for s in sorted(m.signals, key=lambda s: s.start):
-            if s.byte_order != "little_endian" or s.is_float:
-                raise SystemExit(
-                    f"prepare.py: signal {m.name}.{s.name}: only little-endian integer signals are modelled"
-                )
-            ranged = s.minimum is not None and s.maximum is not None
-            rows.append(
-                f'    {{"{s.name}", {s.start}u, {s.length}u, {int(s.is_signed)}, {int(ranged)}, '
-                f"{_number(s.conversion.scale)}, {_number(s.conversion.offset)}, "
-                f"{_number(s.minimum if ranged else 0.0)}, {_number(s.maximum if ranged else 0.0)}}},"
-            )
-        lower = m.name.lower()
-        source.append(f"static const fuzz_signal signals_{lower}[{len(rows)}] = {{")
-        source += rows
-        source.append("};")
-        source.append(
-            f'const fuzz_message fuzz_message_{lower} = {{"{m.name}", 0x{m.frame_id:03X}u, {m.length}u, '
-            f"{len(rows)}u, signals_{lower}}};"
+    return header
+
+
+def _message_table(m) -> list[str]:
+    """One frame's signal rows and its fuzz_message in fuzz_reference.c."""
+    rows = []
+    lines: list[str] = []
+    for s in sorted(m.signals, key=lambda s: s.start):
+        if s.byte_order != "little_endian" or s.is_float:
+            raise SystemExit(f"prepare.py: signal {m.name}.{s.name}: only little-endian integer signals are modelled")
+        ranged = s.minimum is not None and s.maximum is not None
+        rows.append(
+            f'    {{"{s.name}", {s.start}u, {s.length}u, {int(s.is_signed)}, {int(ranged)}, '
+            f"{_number(s.conversion.scale)}, {_number(s.conversion.offset)}, "
+            f"{_number(s.minimum if ranged else 0.0)}, {_number(s.maximum if ranged else 0.0)}}},"
         )
-        source.append("")
+    lower = m.name.lower()
+    lines.append(f"static const fuzz_signal signals_{lower}[{len(rows)}] = {{")
+    lines += rows
+    lines.append("};")
+    lines.append(
+        f'const fuzz_message fuzz_message_{lower} = {{"{m.name}", 0x{m.frame_id:03X}u, {m.length}u, '
+        f"{len(rows)}u, signals_{lower}}};"
+    )
+    lines.append("")
+    return lines
+
+
+def _source_lines(messages, artifact) -> list[str]:
+    """fuzz_reference.c: every frame's table, the setpoint ids and the artefact's limits."""
+    source = [
+        "/* Written by firmware/fuzz/prepare.py from bus.dbc and controller.json of firmware/generated. */",
+        '#include "fuzz_reference.h"',
+        "",
+    ]
+    for m in messages:
+        source += _message_table(m)
     source.append(
         "const fuzz_message *const fuzz_bus[FUZZ_MESSAGE_COUNT] = {"
         + ", ".join(f"&fuzz_message_{m.name.lower()}" for m in messages)
@@ -140,7 +155,7 @@ def _layout(db, artifact) -> tuple[str, str]:
         source.append(f"const double fuzz_{name}[{size}] = {{" + ", ".join(_number(v) for v in values) + "};")
     for name in ("amplifier_temperature_limit", "amplifier_current_limit", "tracking_tolerance"):
         source.append(f"const double fuzz_{name} = {_number(getattr(artifact, name))};")
-    return "\n".join(header), "\n".join(source) + "\n"
+    return source
 
 
 def main(argv: list[str]) -> int:
