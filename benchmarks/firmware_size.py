@@ -361,31 +361,8 @@ def mark(value: int, limit: int) -> str:
     return "✔" if value <= limit else "✘"
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--artifact", default=str(ROOT / "firmware" / "generated" / "controller.json"))
-    parser.add_argument("--json", default=str(Path(__file__).with_name("firmware_size.json")))
-    args = parser.parse_args()
-    check_tools()
-    a = artifacts.load(Path(args.artifact))
-    facts = machine()
-    print(f"machine: {facts['platform']}, {facts['cpu']}; compiler: {facts['compiler']}")
-    print(
-        f"artefact: {args.artifact} (sha256 {a.artifact_sha256[:12]}…, n = {len(a.blocks)} coordinates, "
-        f"l = {len(a.joint_names)} joints, n_y = {len(a.sensor_names)} sensors)"
-    )
-    with tempfile.TemporaryDirectory(prefix="firmware_size-") as temporary:
-        root = Path(temporary)
-        callgraph = supports_callgraph_info(root)
-        print(
-            f"flags: arm-none-eabi-gcc {' '.join(TARGET)} <-O2|-O0> -fstack-usage"
-            f"{' -fcallgraph-info=su' if callgraph else ''} {' '.join(BASE_FLAGS)}"
-        )
-        print(f"call graph from: {'gcc -fcallgraph-info' if callgraph else 'objdump bl targets'}")
-        results = {
-            f"{real} {level}": measure(a, real, level, root / f"{real}{level}", callgraph) for real, level in BUILDS
-        }
-
+def _print_table(results: dict) -> None:
+    """One line per controller law and build: sections, flash, caller-owned structs, RAM and stack."""
     header = (
         f"{'controller':12s} {'build':10s} {'.text':>6s} {'.rodata':>7s} {'.data':>5s} {'.bss':>4s} "
         f"{'flash obj':>9s} {'flash linked':>12s} {'structs':>7s} {'RAM':>5s} {'stack':>5s}"
@@ -400,7 +377,10 @@ def main() -> int:
                 f"{r['flash_module']:9d} {r['flash_linked']:12d} {sum(r['structs'].values()):7d} {r['ram']:5d} "
                 f"{r['stack']:5d}"
             )
-    ours, baselines = "float -O2", ("double -O2", "float -O0")
+
+
+def _print_targets(results: dict, ours: str, baselines: tuple[str, ...]) -> dict:
+    """Our build of each law against the limits and the baseline builds; which targets it meets."""
     verdict = {}
     print(
         f"\ntargets (float -O2 build; flash = linked image incl. library routines, RAM = .data + .bss + "
@@ -432,8 +412,11 @@ def main() -> int:
                 for what, field in (("flash", "flash_linked"), ("RAM", "ram"), ("stack", "stack"))
             )
             print(f"  baseline {base}: {ratios}")
-    with tempfile.TemporaryDirectory(prefix="firmware_image-") as temporary:
-        whole = measure_image(a, Path(temporary) / "image", callgraph)
+    return verdict
+
+
+def _print_whole_image(whole: dict) -> None:
+    """Flash, RAM and stack of the whole linked firmware image."""
     print("\nwhole firmware image (float -O2: SISO + clipped LQG + CAN layer + E2E, linked from the CAN entry points):")
     print(
         f"  flash {whole['flash']:5d} B  (modules .text: "
@@ -446,6 +429,39 @@ def main() -> int:
         "frame buffers)"
     )
     print(f"  stack {whole['stack']:5d} B  ({' → '.join(whole['stack_chain'])})")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--artifact", default=str(ROOT / "firmware" / "generated" / "controller.json"))
+    parser.add_argument("--json", default=str(Path(__file__).with_name("firmware_size.json")))
+    args = parser.parse_args()
+    check_tools()
+    a = artifacts.load(Path(args.artifact))
+    facts = machine()
+    print(f"machine: {facts['platform']}, {facts['cpu']}; compiler: {facts['compiler']}")
+    print(
+        f"artefact: {args.artifact} (sha256 {a.artifact_sha256[:12]}…, n = {len(a.blocks)} coordinates, "
+        f"l = {len(a.joint_names)} joints, n_y = {len(a.sensor_names)} sensors)"
+    )
+    with tempfile.TemporaryDirectory(prefix="firmware_size-") as temporary:
+        root = Path(temporary)
+        callgraph = supports_callgraph_info(root)
+        print(
+            f"flags: arm-none-eabi-gcc {' '.join(TARGET)} <-O2|-O0> -fstack-usage"
+            f"{' -fcallgraph-info=su' if callgraph else ''} {' '.join(BASE_FLAGS)}"
+        )
+        print(f"call graph from: {'gcc -fcallgraph-info' if callgraph else 'objdump bl targets'}")
+        results = {
+            f"{real} {level}": measure(a, real, level, root / f"{real}{level}", callgraph) for real, level in BUILDS
+        }
+
+    _print_table(results)
+    ours, baselines = "float -O2", ("double -O2", "float -O0")
+    verdict = _print_targets(results, ours, baselines)
+    with tempfile.TemporaryDirectory(prefix="firmware_image-") as temporary:
+        whole = measure_image(a, Path(temporary) / "image", callgraph)
+    _print_whole_image(whole)
     Path(args.json).write_text(
         json.dumps(
             {

@@ -268,6 +268,50 @@ def plot_work_precision(rows: dict, target: Path) -> None:
     plt.close(fig)
 
 
+def _accuracy(name: str, model, laws, pulse, window_times: np.ndarray):
+    """Friction error of ours (fixed step) and LSODA on the first WINDOW seconds, against Radau
+    (the 24-state model) or ours at an eighth of the step (the full model)."""
+    # Accuracy on the first 0.2 s.
+    if name == "24":
+        _, u_ref, _ = plant.reference_simulation(model, laws, np.full(3, NORMAL_FORCE), pulse, WINDOW, window_times)
+        reference = "Radau rtol 1e-10"
+    else:
+        fine, _ = ours(model, laws, pulse, WINDOW, STEP / 8)
+        u_ref, reference = fine.friction_force, f"ours at {STEP / 8:g} s"
+    short, _ = ours(model, laws, pulse, WINDOW, STEP)
+    u_lsoda, _, _, _ = lsoda(model, laws, pulse, WINDOW, window_times, RTOL, float("inf"))
+    error_ours, error_lsoda = friction_error(short.friction_force, u_ref), friction_error(u_lsoda, u_ref)
+    print(
+        f"  accuracy 0–{WINDOW} s vs {reference}: ours (step {STEP:g} s) {100 * error_ours:.2f} %, "
+        f"LSODA (rtol {RTOL:g}) {100 * error_lsoda:.2f} %"
+    )
+    return u_ref, reference, error_ours, error_lsoda
+
+
+def _stick_exact_row(model, laws, pulse, u_ref: np.ndarray, lsoda_seconds: float) -> dict:
+    """Accuracy and speed of the stick-exact scheme, and its speed-up over LSODA."""
+    # Stick-exact steps (stick_exact.py): 1 ms while the joints stick, 50 µs elsewhere.
+    stick, _ = ours(model, laws, pulse, WINDOW, STEP, stick_step=STICK_STEP)
+    error_stick = friction_error(stick.friction_force, u_ref)
+    runs = [ours(model, laws, pulse, DURATION, STEP, stick_step=STICK_STEP)[1] for _ in range(STICK_RUNS)]
+    stick_seconds = float(np.median(runs))
+    print(
+        f"  stick-exact steps ({STICK_STEP:g} s while the joints stick, else {STEP:g} s): "
+        f"accuracy 0–{WINDOW} s "
+        f"{100 * error_stick:.2f} %; {DURATION:g} s simulated in {stick_seconds * 1e3:.1f} ms (median of "
+        f"{STICK_RUNS}; fastest {min(runs) * 1e3:.1f} ms) = {DURATION / stick_seconds:.0f}x real time, "
+        f"{lsoda_seconds / stick_seconds:.0f}x faster than LSODA"
+    )
+    return dict(
+        stick_step=STICK_STEP,
+        friction_error_stick=error_stick,
+        stick_seconds=stick_seconds,
+        stick_seconds_fastest=min(runs),
+        stick_real_time_factor=DURATION / stick_seconds,
+        stick_speedup=lsoda_seconds / stick_seconds,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--budget", type=float, default=600.0, help="LSODA wall-clock budget per model [s]")
@@ -287,20 +331,7 @@ def main() -> None:
     rows = {}
     for name, model in models.items():
         print(f"[{name}] {model.n_states} states, highest frequency {model.omega.max() / 2 / np.pi:.0f} Hz")
-        # Accuracy on the first 0.2 s.
-        if name == "24":
-            _, u_ref, _ = plant.reference_simulation(model, laws, np.full(3, NORMAL_FORCE), pulse, WINDOW, window_times)
-            reference = "Radau rtol 1e-10"
-        else:
-            fine, _ = ours(model, laws, pulse, WINDOW, STEP / 8)
-            u_ref, reference = fine.friction_force, f"ours at {STEP / 8:g} s"
-        short, _ = ours(model, laws, pulse, WINDOW, STEP)
-        u_lsoda, _, _, _ = lsoda(model, laws, pulse, WINDOW, window_times, RTOL, float("inf"))
-        error_ours, error_lsoda = friction_error(short.friction_force, u_ref), friction_error(u_lsoda, u_ref)
-        print(
-            f"  accuracy 0–{WINDOW} s vs {reference}: ours (step {STEP:g} s) {100 * error_ours:.2f} %, "
-            f"LSODA (rtol {RTOL:g}) {100 * error_lsoda:.2f} %"
-        )
+        u_ref, reference, error_ours, error_lsoda = _accuracy(name, model, laws, pulse, window_times)
         # Speed over 10 s (ours: median of 3), trajectory only like LSODA; then with the exact energy books.
         seconds = sorted(ours(model, laws, pulse, DURATION, STEP, books=False)[1] for _ in range(3))[1]
         seconds_books = sorted(ours(model, laws, pulse, DURATION, STEP)[1] for _ in range(3))[1]
@@ -328,26 +359,7 @@ def main() -> None:
             speedup_is_lower_bound=not finished,
         )
         if name == "24":
-            # Stick-exact steps (stick_exact.py): 1 ms while the joints stick, 50 µs elsewhere.
-            stick, _ = ours(model, laws, pulse, WINDOW, STEP, stick_step=STICK_STEP)
-            error_stick = friction_error(stick.friction_force, u_ref)
-            runs = [ours(model, laws, pulse, DURATION, STEP, stick_step=STICK_STEP)[1] for _ in range(STICK_RUNS)]
-            stick_seconds = float(np.median(runs))
-            print(
-                f"  stick-exact steps ({STICK_STEP:g} s while the joints stick, else {STEP:g} s): "
-                f"accuracy 0–{WINDOW} s "
-                f"{100 * error_stick:.2f} %; {DURATION:g} s simulated in {stick_seconds * 1e3:.1f} ms (median of "
-                f"{STICK_RUNS}; fastest {min(runs) * 1e3:.1f} ms) = {DURATION / stick_seconds:.0f}x real time, "
-                f"{lsoda_seconds / stick_seconds:.0f}x faster than LSODA"
-            )
-            rows[name].update(
-                stick_step=STICK_STEP,
-                friction_error_stick=error_stick,
-                stick_seconds=stick_seconds,
-                stick_seconds_fastest=min(runs),
-                stick_real_time_factor=DURATION / stick_seconds,
-                stick_speedup=lsoda_seconds / stick_seconds,
-            )
+            rows[name].update(_stick_exact_row(model, laws, pulse, u_ref, lsoda_seconds))
     diagram = None if args.no_diagram else work_precision(models["24"], laws, pulse, args.budget)
     out = dict(
         command="python benchmarks/plant_sim.py",

@@ -272,11 +272,8 @@ def callgrind(a, rows: dict[str, np.ndarray], compiler: str, folder: Path) -> di
     }
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--artifact", default=str(ROOT / "firmware" / "generated" / "controller.json"))
-    parser.add_argument("--json", default=str(Path(__file__).with_name("step_time.json")))
-    args = parser.parse_args()
+def _check_tools() -> str:
+    """valgrind and callgrind_annotate on PATH, and the C compiler ($CC, else cc), which it returns."""
     missing = [t for t in ("valgrind", "callgrind_annotate") if shutil.which(t) is None]
     if missing:
         raise SystemExit(
@@ -286,6 +283,58 @@ def main() -> int:
     compiler = os.environ.get("CC", "cc")
     if shutil.which(compiler) is None:
         raise SystemExit(f"error: C compiler {compiler!r} not found (set CC)")
+    return compiler
+
+
+def _print_table(timing: dict, counts: dict, macs: dict, python: dict) -> dict:
+    """One line per law: C time per step, instructions per step and per multiply-add, Python
+    time and the C speed-up; the last two per law as the summary."""
+    header = (
+        f"{'controller':12s} {'C run() [ns]':>12s} {'C bare loop [ns]':>16s} {'Ir/step':>8s} {'min MACs':>8s} "
+        f"{'Ir/MAC':>6s} {'Python [µs]':>11s} {'C vs Python':>11s}"
+    )
+    print(header + "\n" + "-" * len(header))
+    summary = {}
+    for law, title in (("siso", "SISO"), ("clqg", "clipped LQG")):
+        ir = counts[f"{law}_ir_per_step"]
+        per_mac = ir / macs[law]["total"]
+        speedup = python[law]["ns_per_step"] / timing[law]["run_ns_per_step"]
+        summary[law] = {"instructions_per_mac": per_mac, "c_vs_python_speedup": speedup}
+        print(
+            f"{title:12s} {timing[law]['run_ns_per_step']:12.1f} {timing[law]['bare_loop_ns_per_step']:16.1f} "
+            f"{ir:8.1f} {macs[law]['total']:8d} {per_mac:6.2f} {python[law]['ns_per_step'] / 1e3:11.2f} "
+            f"{speedup:10.0f}×"
+        )
+    return summary
+
+
+def _print_structural_minimum(macs: dict, n: int, l: int, ny: int) -> None:
+    """The multiply-adds a step of each law needs at least, term by term."""
+    print(f"\nstructural minimum per step (multiply-adds), n = {n}, l = {l}, n_y = {ny}:")
+    for law, title in (("clqg", "cLQG"), ("siso", "SISO")):
+        terms = " + ".join(f"{v}" for v in macs[law]["terms"].values())
+        terms = f" = {terms}" if len(macs[law]["terms"]) > 1 else ""
+        print(f"  {title}: {macs[law]['formula']}{terms} = {macs[law]['total']}")
+        for name, value in macs[law]["terms"].items():
+            print(f"      {value:4d}  {name}")
+
+
+def _print_target(summary: dict) -> bool:
+    """Whether the clipped LQG meets the instructions-per-multiply-add target, printed."""
+    met = summary["clqg"]["instructions_per_mac"] <= INSTRUCTIONS_PER_MAC_TARGET
+    print(
+        f"target: cLQG instructions per multiply-add ≤ {INSTRUCTIONS_PER_MAC_TARGET:g} at -O2 on x86-64 — "
+        f"{summary['clqg']['instructions_per_mac']:.2f} {'✔' if met else '✘'}"
+    )
+    return met
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--artifact", default=str(ROOT / "firmware" / "generated" / "controller.json"))
+    parser.add_argument("--json", default=str(Path(__file__).with_name("step_time.json")))
+    args = parser.parse_args()
+    compiler = _check_tools()
     a = artifacts.load(Path(args.artifact))
     n, l, ny = len(a.blocks), len(a.joint_names), len(a.sensor_names)
     facts = machine(compiler)
@@ -319,38 +368,13 @@ def main() -> int:
         f"{PY_ROWS} rows, best of 3, bit-identical to C: "
         f"{all(p['bit_identical_to_c'] for p in python.values())}"
     )
-    header = (
-        f"{'controller':12s} {'C run() [ns]':>12s} {'C bare loop [ns]':>16s} {'Ir/step':>8s} {'min MACs':>8s} "
-        f"{'Ir/MAC':>6s} {'Python [µs]':>11s} {'C vs Python':>11s}"
-    )
-    print(header + "\n" + "-" * len(header))
-    summary = {}
-    for law, title in (("siso", "SISO"), ("clqg", "clipped LQG")):
-        ir = counts[f"{law}_ir_per_step"]
-        per_mac = ir / macs[law]["total"]
-        speedup = python[law]["ns_per_step"] / timing[law]["run_ns_per_step"]
-        summary[law] = {"instructions_per_mac": per_mac, "c_vs_python_speedup": speedup}
-        print(
-            f"{title:12s} {timing[law]['run_ns_per_step']:12.1f} {timing[law]['bare_loop_ns_per_step']:16.1f} "
-            f"{ir:8.1f} {macs[law]['total']:8d} {per_mac:6.2f} {python[law]['ns_per_step'] / 1e3:11.2f} "
-            f"{speedup:10.0f}×"
-        )
-    print(f"\nstructural minimum per step (multiply-adds), n = {n}, l = {l}, n_y = {ny}:")
-    for law, title in (("clqg", "cLQG"), ("siso", "SISO")):
-        terms = " + ".join(f"{v}" for v in macs[law]["terms"].values())
-        terms = f" = {terms}" if len(macs[law]["terms"]) > 1 else ""
-        print(f"  {title}: {macs[law]['formula']}{terms} = {macs[law]['total']}")
-        for name, value in macs[law]["terms"].items():
-            print(f"      {value:4d}  {name}")
+    summary = _print_table(timing, counts, macs, python)
+    _print_structural_minimum(macs, n, l, ny)
     print(
         f"whole bench program: ΔIr/ΔN = {counts['program_ir_per_step_both_laws']:.1f} per step of both laws "
         f"(loop, checksum and row indexing included); callgrind steps {CALLGRIND_STEPS}"
     )
-    met = summary["clqg"]["instructions_per_mac"] <= INSTRUCTIONS_PER_MAC_TARGET
-    print(
-        f"target: cLQG instructions per multiply-add ≤ {INSTRUCTIONS_PER_MAC_TARGET:g} at -O2 on x86-64 — "
-        f"{summary['clqg']['instructions_per_mac']:.2f} {'✔' if met else '✘'}"
-    )
+    met = _print_target(summary)
     Path(args.json).write_text(
         json.dumps(
             {

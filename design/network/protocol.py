@@ -181,31 +181,28 @@ def _cycle_ms(sample_time: float) -> int:
     return cycle
 
 
-def _joint_frames(j: int, name: str, amplifier: Amplifier, cycle: int) -> tuple[list, list]:
-    """The nodes (sensor node, amplifier) and frames (JOINT, SETPOINT, AMP_STATUS) of joint ``j``."""
-    tag = _identifier(name, "joint")
-    nodes: list = []
-    messages: list = []
+def _joint_message(j: int, name: str, tag: str, cycle: int) -> can.Message:
+    """The JOINT frame of joint ``j``: sliding velocity, friction and applied normal force."""
     frame_id = JOINT_BASE + j
     signals = _e2e(frame_id, sync=12) + [
         _scaled("sliding_velocity", 16, 32, 1e-9, True, "m/s", -2.0, 2.0, f"v of joint {name}"),
         _scaled("friction_force", 48, 32, 1e-5, True, "N", -20000.0, 20000.0, f"u_R of joint {name}"),
         _scaled("normal_force", 80, 16, 0.02, False, "N", 0.0, 1310.0, f"applied F_N of joint {name}"),
     ]
-    nodes.append(can.Node(f"JOINT_NODE_{tag}", comment=f"sensors of joint {name}"))
-    nodes.append(can.Node(f"AMPLIFIER_{tag}", comment=f"piezo amplifier of joint {name}"))
-    messages.append(
-        can.Message(
-            frame_id,
-            f"JOINT_{tag}",
-            12,
-            signals,
-            senders=[f"JOINT_NODE_{tag}"],
-            cycle_time=cycle,
-            is_fd=True,
-            comment=f"joint {name}: v, u_R, F_N",
-        )
+    return can.Message(
+        frame_id,
+        f"JOINT_{tag}",
+        12,
+        signals,
+        senders=[f"JOINT_NODE_{tag}"],
+        cycle_time=cycle,
+        is_fd=True,
+        comment=f"joint {name}: v, u_R, F_N",
     )
+
+
+def _setpoint_message(j: int, name: str, tag: str, amplifier: Amplifier, cycle: int) -> can.Message:
+    """The SETPOINT frame the controller sends amplifier ``j``: the piezo voltage."""
     volts = _scaled(
         "voltage",
         16,
@@ -217,18 +214,20 @@ def _joint_frames(j: int, name: str, amplifier: Amplifier, cycle: int) -> tuple[
         amplifier.voltage_max,
         f"piezo voltage setpoint of joint {name}: F_N = {amplifier.force_per_volt:g}*V + {amplifier.preload:g} N",
     )
-    messages.append(
-        can.Message(
-            SETPOINT_BASE + j,
-            f"SETPOINT_{tag}",
-            6,
-            _e2e(SETPOINT_BASE + j) + [volts],
-            senders=[CONTROLLER],
-            cycle_time=cycle,
-            is_fd=True,
-            comment=f"setpoint of amplifier {name}",
-        )
+    return can.Message(
+        SETPOINT_BASE + j,
+        f"SETPOINT_{tag}",
+        6,
+        _e2e(SETPOINT_BASE + j) + [volts],
+        senders=[CONTROLLER],
+        cycle_time=cycle,
+        is_fd=True,
+        comment=f"setpoint of amplifier {name}",
     )
+
+
+def _amplifier_status_message(j: int, name: str, tag: str, amplifier: Amplifier, cycle: int) -> can.Message:
+    """The AMP_STATUS frame amplifier ``j`` sends: monitor voltage, current, temperature, faults."""
     status = (
         _e2e(STATUS_BASE + j, sync=60)
         + [
@@ -260,19 +259,94 @@ def _joint_frames(j: int, name: str, amplifier: Amplifier, cycle: int) -> tuple[
             )
         ]
     )
-    messages.append(
-        can.Message(
-            STATUS_BASE + j,
-            f"AMP_STATUS_{tag}",
-            8,
-            status,
-            senders=[f"AMPLIFIER_{tag}"],
-            cycle_time=cycle,
-            is_fd=True,
-            comment=f"amplifier {name} status",
-        )
+    return can.Message(
+        STATUS_BASE + j,
+        f"AMP_STATUS_{tag}",
+        8,
+        status,
+        senders=[f"AMPLIFIER_{tag}"],
+        cycle_time=cycle,
+        is_fd=True,
+        comment=f"amplifier {name} status",
     )
+
+
+def _joint_frames(j: int, name: str, amplifier: Amplifier, cycle: int) -> tuple[list, list]:
+    """The nodes (sensor node, amplifier) and frames (JOINT, SETPOINT, AMP_STATUS) of joint ``j``."""
+    tag = _identifier(name, "joint")
+    nodes = [
+        can.Node(f"JOINT_NODE_{tag}", comment=f"sensors of joint {name}"),
+        can.Node(f"AMPLIFIER_{tag}", comment=f"piezo amplifier of joint {name}"),
+    ]
+    messages = [
+        _joint_message(j, name, tag, cycle),
+        _setpoint_message(j, name, tag, amplifier, cycle),
+        _amplifier_status_message(j, name, tag, amplifier, cycle),
+    ]
     return nodes, messages
+
+
+def _tip_message(sensors: list[str], cycle: int) -> can.Message:
+    """The TIP_SENSORS frame: one signal per sensor of the design's y."""
+    tip = _e2e(TIP_ID, sync=12) + [
+        _scaled(_identifier(s, "sensor").lower(), 16 + 32 * k, 32, 1e-8, True, "m", -20.0, 20.0, f"sensor {s}")
+        for k, s in enumerate(sensors)
+    ]
+    return can.Message(
+        TIP_ID,
+        "TIP_SENSORS",
+        _fd_length(2 + 4 * len(sensors)),
+        tip,
+        senders=["TIP_NODE"],
+        cycle_time=cycle,
+        is_fd=True,
+        comment="tip sensors y",
+    )
+
+
+def _controller_status_message(cycle: int) -> can.Message:
+    """The CONTROLLER_STATUS heartbeat: mode, step status, missing inputs and fault bits."""
+    mode = can.Signal(
+        "mode",
+        16,
+        4,
+        minimum=0,
+        maximum=3,
+        comment="0 init, 1 SISO, 2 cLQG, 3 safe state",
+        conversion=conversion.BaseConversion.factory(1, 0, OrderedDict(MODES)),
+    )
+    controller = _e2e(CONTROLLER_ID) + [
+        mode,
+        can.Signal("step_status", 24, 8, comment="status bits of the last step"),
+        can.Signal("missing_inputs", 20, 4, comment="inputs in timeout or invalid"),
+        can.Signal(
+            "faults",
+            32,
+            16,
+            comment="why the safe state holds: bits "
+            + ", ".join(f"{k} {name}" for k, name in enumerate(CONTROLLER_FAULTS)),
+        ),
+    ]
+    return can.Message(
+        CONTROLLER_ID,
+        "CONTROLLER_STATUS",
+        8,
+        controller,
+        senders=[CONTROLLER],
+        cycle_time=cycle,
+        is_fd=True,
+        comment="controller heartbeat: the amplifiers go to the safe force without it",
+    )
+
+
+def _fd_specifics() -> DbcSpecifics:
+    """The DBC specifics that mark the bus as CAN FD."""
+    # BusType "CAN FD" makes cantools write VFrameFormat per frame, so is_fd survives the DBC.
+    bus_type = DbcAttributeDefinition("BusType", default_value="CAN", kind=None, type_name="STRING")
+    return DbcSpecifics(
+        attributes=OrderedDict(BusType=DbcAttribute("CAN FD", bus_type)),
+        attribute_definitions=OrderedDict(BusType=bus_type),
+    )
 
 
 def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -> can.Database:
@@ -319,64 +393,11 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
         joint_nodes, joint_messages = _joint_frames(j, name, amplifier, cycle)
         nodes += joint_nodes
         messages += joint_messages
-    tip = _e2e(TIP_ID, sync=12) + [
-        _scaled(_identifier(s, "sensor").lower(), 16 + 32 * k, 32, 1e-8, True, "m", -20.0, 20.0, f"sensor {s}")
-        for k, s in enumerate(sensors)
-    ]
-    messages.append(
-        can.Message(
-            TIP_ID,
-            "TIP_SENSORS",
-            _fd_length(2 + 4 * len(sensors)),
-            tip,
-            senders=["TIP_NODE"],
-            cycle_time=cycle,
-            is_fd=True,
-            comment="tip sensors y",
-        )
-    )
-    mode = can.Signal(
-        "mode",
-        16,
-        4,
-        minimum=0,
-        maximum=3,
-        comment="0 init, 1 SISO, 2 cLQG, 3 safe state",
-        conversion=conversion.BaseConversion.factory(1, 0, OrderedDict(MODES)),
-    )
-    controller = _e2e(CONTROLLER_ID) + [
-        mode,
-        can.Signal("step_status", 24, 8, comment="status bits of the last step"),
-        can.Signal("missing_inputs", 20, 4, comment="inputs in timeout or invalid"),
-        can.Signal(
-            "faults",
-            32,
-            16,
-            comment="why the safe state holds: bits "
-            + ", ".join(f"{k} {name}" for k, name in enumerate(CONTROLLER_FAULTS)),
-        ),
-    ]
-    messages.append(
-        can.Message(
-            CONTROLLER_ID,
-            "CONTROLLER_STATUS",
-            8,
-            controller,
-            senders=[CONTROLLER],
-            cycle_time=cycle,
-            is_fd=True,
-            comment="controller heartbeat: the amplifiers go to the safe force without it",
-        )
-    )
+    messages.append(_tip_message(sensors, cycle))
+    messages.append(_controller_status_message(cycle))
     messages.sort(key=lambda m: m.frame_id)
-    # BusType "CAN FD" makes cantools write VFrameFormat per frame, so is_fd survives the DBC.
-    bus_type = DbcAttributeDefinition("BusType", default_value="CAN", kind=None, type_name="STRING")
-    specifics = DbcSpecifics(
-        attributes=OrderedDict(BusType=DbcAttribute("CAN FD", bus_type)),
-        attribute_definitions=OrderedDict(BusType=bus_type),
-    )
     db = can.Database(
-        messages, nodes, version=f"smartjoint artefact {artifact.artifact_sha256[:16]}", dbc_specifics=specifics
+        messages, nodes, version=f"smartjoint artefact {artifact.artifact_sha256[:16]}", dbc_specifics=_fd_specifics()
     )
     db.refresh()
     _check_ranges(db)

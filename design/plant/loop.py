@@ -125,6 +125,55 @@ def _commands(raw, l: int, t: float, model: ModalModel, friction: bool) -> np.nd
     return new.reshape(l)
 
 
+def _check_options(record_every, energy_books) -> None:
+    """The recording options: a whole ``record_every`` >= 1 and a boolean ``energy_books``."""
+    if not (isinstance(record_every, int) and record_every >= 1):
+        raise ModelError(f"record_every: {record_every!r} — must be a whole number >= 1")
+    if not isinstance(energy_books, bool):
+        raise ModelError(f"energy_books: {energy_books!r} — must be True or False")
+
+
+def _run_loop(run: PlantRun, kernel, w: np.ndarray, l: int, friction: bool, ratio: int, progress) -> None:
+    """Step the kernel through the run: a controller call every ``ratio`` plant steps (once
+    for a controller that holds constant), a progress line about every tenth of the run."""
+    model, controller, steps, step = run.model, run.controller, run.steps, run.step
+    duration, record_every = run.duration, run.record_every
+    controller.reset()
+    kernel.start(w[0] if w.shape[0] else np.zeros(model.disturbance_input.shape[1]))
+    chunk = steps if getattr(controller, "holds_constant", False) else ratio
+    report_every = max(steps // 10, 1)
+    next_report = report_every
+    for k0 in range(0, steps, chunk):
+        t = k0 * step
+        kernel.set_normal_force(_commands(controller.step(kernel.measure(t)), l, t, model, friction))
+        n = min(chunk, steps - k0)
+        kernel.run(w[k0 : k0 + n + 1], n, k0, record_every)
+        if progress and k0 + n >= next_report:
+            progress(f"t = {(k0 + n) * step:.3f} s of {duration:g} s")
+            next_report = (k0 + n) // report_every * report_every + report_every
+    if steps % record_every == 0:
+        kernel.record_row(steps // record_every)
+
+
+def _result(r, model: ModalModel, step: float, record_every: int) -> SimulationResult:
+    """The kernel's recorded rows as a :class:`SimulationResult` on the time grid ``step·record_every``."""
+    time = np.arange(r.energy.size) * step * record_every
+    return SimulationResult(
+        time,
+        r.sensors,
+        r.v,
+        r.u,
+        r.fn,
+        r.phi,
+        r.energy,
+        r.works[:, 0],
+        r.works[:, 1],
+        r.works[:, 2],
+        list(model.joint_names),
+        list(model.sensor_names),
+    )
+
+
 def simulate(
     model: ModalModel,
     joints: list[lugre.LuGreParameters],
@@ -182,10 +231,7 @@ def simulate(
     """
     chosen = schemes.scheme(scheme if scheme is not None else "fixed" if stick_step is None else "stick_exact")
     l, ratio = _check(model, joints, duration, step, controller, initial_state, chosen.FRICTION)
-    if not (isinstance(record_every, int) and record_every >= 1):
-        raise ModelError(f"record_every: {record_every!r} — must be a whole number >= 1")
-    if not isinstance(energy_books, bool):
-        raise ModelError(f"energy_books: {energy_books!r} — must be True or False")
+    _check_options(record_every, energy_books)
     run = PlantRun(
         model, joints, controller, duration, step, initial_state, record_every, backend, energy_books, stick_step
     )
@@ -195,37 +241,8 @@ def simulate(
     w = disturbances.at_steps(
         disturbance, steps, step, model.disturbance_input.shape[1], compact=chosen.COMPACT_DISTURBANCE
     )
-    controller.reset()
-    kernel.start(w[0] if w.shape[0] else np.zeros(model.disturbance_input.shape[1]))
-    chunk = steps if getattr(controller, "holds_constant", False) else ratio
-    report_every = max(steps // 10, 1)
-    next_report = report_every
-    for k0 in range(0, steps, chunk):
-        t = k0 * step
-        kernel.set_normal_force(_commands(controller.step(kernel.measure(t)), l, t, model, chosen.FRICTION))
-        n = min(chunk, steps - k0)
-        kernel.run(w[k0 : k0 + n + 1], n, k0, record_every)
-        if progress and k0 + n >= next_report:
-            progress(f"t = {(k0 + n) * step:.3f} s of {duration:g} s")
-            next_report = (k0 + n) // report_every * report_every + report_every
-    if steps % record_every == 0:
-        kernel.record_row(steps // record_every)
-    r = kernel.recorder
-    time = np.arange(r.energy.size) * step * record_every
-    return SimulationResult(
-        time,
-        r.sensors,
-        r.v,
-        r.u,
-        r.fn,
-        r.phi,
-        r.energy,
-        r.works[:, 0],
-        r.works[:, 1],
-        r.works[:, 2],
-        list(model.joint_names),
-        list(model.sensor_names),
-    )
+    _run_loop(run, kernel, w, l, chosen.FRICTION, ratio, progress)
+    return _result(kernel.recorder, model, step, record_every)
 
 
 __all__ = ["SimulationResult", "simulate"]

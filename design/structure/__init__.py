@@ -3,10 +3,11 @@ updating, joint placement and the neutral model export.
 
 In pipeline order: ``spec`` reads a design file (through ``files`` and ``table``) into the
 dataclasses of ``description`` (``control_section`` reads [control], ``sections`` [safety] and
-[updating]); ``beam`` is the 12-DOF element and ``fem`` assembles M, K, S, E, F, V, W
-(Eq. 4–10); ``modal`` solves the
-modes and builds the modal model (Eq. 5, 11); ``updating`` fits the model to the measured
-frequencies; ``placement`` ranks the connectors for joints; ``export`` writes the model out.
+[updating]); ``beam`` is the
+12-DOF element, ``mesh`` discretises the members (Fig. 6) and ``fem`` assembles M, K, S, E, F, V,
+W (Eq. 4–10); ``modal`` solves the modes and builds the modal model (Eq. 5, 11); ``updating``
+fits the model to the measured frequencies; ``placement`` ranks the connectors for joints;
+``export`` writes the model out.
 """
 
 from smartjoint.design.structure.description import Design

@@ -115,6 +115,42 @@ def _updating_inputs(model: FEModel):
     return spec, names, initial, modes, measured, n_modes
 
 
+def _multistart_fit(residual, jacobian, weight: np.ndarray, bound: np.ndarray, n_parameters: int, progress):
+    """The least-squares fit of the log-parameters θ within ±``bound`` from several starts.
+
+    Returns the best solution and how many starts were polished."""
+    # Paired by mode number the objective is only piecewise smooth (modes cross), so local
+    # descent alone stalls: screen a scrambled Sobol sample of the log-parameter box, then
+    # polish the nominal point and the best samples with least squares.
+    sampler = scipy.stats.qmc.Sobol(n_parameters, scramble=True, seed=SEED)
+    samples = (2.0 * sampler.random(SCREENING_SAMPLES) - 1.0) * bound
+    scores = np.array([np.max(np.abs(residual(theta) / weight)) for theta in samples])
+    if progress:
+        progress(0, POLISHED_STARTS + 1, float(scores.min()) * 100.0)
+    starts = [np.zeros(n_parameters)] + [samples[i] for i in np.argsort(scores)[:POLISHED_STARTS]]
+    best = None
+    for k, start in enumerate(starts):
+        solution = scipy.optimize.least_squares(
+            residual,
+            start,
+            jac=jacobian,
+            bounds=(-bound, bound),
+            method="trf",
+            x_scale=1.0,
+            xtol=1e-10,
+            ftol=1e-12,
+            max_nfev=60,
+        )
+        if best is None or solution.cost < best.cost:
+            best = solution
+        if progress:
+            progress(k + 1, len(starts), float(np.max(np.abs(best.fun / weight))) * 100.0)
+        if np.max(np.abs(best.fun / weight)) < 0.002:  # within 0.2 % on every mode: no further start helps
+            break
+    assert best is not None  # starts always holds the nominal point
+    return best, k + 1
+
+
 def update_model(model: FEModel, progress=None) -> UpdatingResult:
     """Fit the design's ``[updating]`` parameters to its measured frequencies.
 
@@ -159,16 +195,7 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
         f = frequencies[index]
         return weight[:, None] * d_lambda * values[None, :] / (8.0 * np.pi**2 * f[:, None] * measured[:, None])
 
-    # Paired by mode number the objective is only piecewise smooth (modes cross), so local
-    # descent alone stalls: screen a scrambled Sobol sample of the log-parameter box, then
-    # polish the nominal point and the best samples with least squares.
-    sampler = scipy.stats.qmc.Sobol(len(names), scramble=True, seed=SEED)
-    samples = (2.0 * sampler.random(SCREENING_SAMPLES) - 1.0) * bound
-    scores = np.array([np.max(np.abs(residual(theta) / weight)) for theta in samples])
-    if progress:
-        progress(0, POLISHED_STARTS + 1, float(scores.min()) * 100.0)
-    starts = [np.zeros(len(names))] + [samples[i] for i in np.argsort(scores)[:POLISHED_STARTS]]
-    best, polished = _polish(residual, jacobian, starts, bound, weight, progress)
+    best, polished = _multistart_fit(residual, jacobian, weight, bound, len(names), progress)
     initial_hz, _ = _frequencies(model, names, initial, n_modes)
     updated = initial * np.exp(best.x)
     updated_hz, _ = evaluate(best.x)
@@ -186,37 +213,6 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
         polished,
         np.array([m.mac if m.mac is not None else np.nan for m in spec.measured]),
     )
-
-
-def _polish(residual, jacobian, starts, bound, weight, progress):
-    """Least squares from each start in turn until every mode is within 0.2 %.
-
-    Returns
-    -------
-    tuple
-        (The best solution, the number of starts polished).
-    """
-    best = None
-    for k, start in enumerate(starts):
-        solution = scipy.optimize.least_squares(
-            residual,
-            start,
-            jac=jacobian,
-            bounds=(-bound, bound),
-            method="trf",
-            x_scale=1.0,
-            xtol=1e-10,
-            ftol=1e-12,
-            max_nfev=60,
-        )
-        if best is None or solution.cost < best.cost:
-            best = solution
-        if progress:
-            progress(k + 1, len(starts), float(np.max(np.abs(best.fun / weight))) * 100.0)
-        if np.max(np.abs(best.fun / weight)) < 0.002:  # within 0.2 % on every mode: no further start helps
-            break
-    assert best is not None  # starts always holds the nominal point
-    return best, k + 1
 
 
 def updated_design(design, progress=None):
