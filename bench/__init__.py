@@ -4,8 +4,9 @@ sensor nodes and amplifier models around it.
 Owns the E2E protection and its C twin loaded (``e2e``), the bus load (``busload``), the
 amplifier nodes (``amplifier``), the compiled firmware image (``firmware``), the faults the bench
 injects (``faults``), the per-sample CAN loop behind the controller interface (``loop``), the
-safe-state fault matrix (``safety``), the paper's study through the loop (``sil``), CAN logs
-(``logs``) and their replay through the firmware (``replay``).
+safe-state fault matrix (``safety``) and its table and figure (``safety_report``), the paper's
+study through the loop (``sil``), CAN logs (``logs``) and their replay through the firmware
+(``replay``).
 
 May import ``smartjoint.common``, ``smartjoint.design`` and ``smartjoint.codegen`` (it compiles
 and runs the generated C); only the command line builds on it.
@@ -21,6 +22,18 @@ from smartjoint.bench.safety import fault_matrix
 from smartjoint.bench.sil import fault_run, sil_study
 
 __all__ = [
-    "AmplifierModel", "BusLoad", "Fault", "Firmware", "LogContent", "SilLoop", "SilRecord", "bus_load", "check_faults",
-    "fault_matrix", "fault_run", "open_bus", "parse_fault", "sil_study",
+    "AmplifierModel",
+    "BusLoad",
+    "Fault",
+    "Firmware",
+    "LogContent",
+    "SilLoop",
+    "SilRecord",
+    "bus_load",
+    "check_faults",
+    "fault_matrix",
+    "fault_run",
+    "open_bus",
+    "parse_fault",
+    "sil_study",
 ]

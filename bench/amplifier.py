@@ -184,8 +184,9 @@ class AmplifierModel:
         if self.fault == "stuck_output":
             self.current = 0.0
             return self.force_per_volt * start + self.preload
-        holds_safe = (self.own_safe or self.controller_mode == MODE_SAFE
-                      or self.fault in ("over_temperature", "over_current"))
+        holds_safe = (
+            self.own_safe or self.controller_mode == MODE_SAFE or self.fault in ("over_temperature", "over_current")
+        )
         target = self.safe_voltage if holds_safe else self.setpoint
         if self.fault == "gain_error":
             target *= GAIN_ERROR
@@ -207,10 +208,14 @@ class AmplifierModel:
         """Signals of the AMP_STATUS frame, or None while not responding."""
         if not self.listening:
             return None
-        return {"monitor_voltage": self.voltage,
-                "current": HIGH_CURRENT if self.fault == "over_current" else self.current,
-                "temperature": HOT_TEMPERATURE if self.fault == "over_temperature" else self.temperature,
-                "over_temperature": int(self.fault == "over_temperature"), "no_response": 0,
-                "stuck_output": int(self.fault == "stuck_output"), "over_current": int(self.fault == "over_current"),
-                "safe_state": int(self.own_safe and (self.started or self.waiting >= self.timeout_cycles)),
-                "sync": self.heartbeat_watch.counter or 0}
+        return {
+            "monitor_voltage": self.voltage,
+            "current": HIGH_CURRENT if self.fault == "over_current" else self.current,
+            "temperature": HOT_TEMPERATURE if self.fault == "over_temperature" else self.temperature,
+            "over_temperature": int(self.fault == "over_temperature"),
+            "no_response": 0,
+            "stuck_output": int(self.fault == "stuck_output"),
+            "over_current": int(self.fault == "over_current"),
+            "safe_state": int(self.own_safe and (self.started or self.waiting >= self.timeout_cycles)),
+            "sync": self.heartbeat_watch.counter or 0,
+        }

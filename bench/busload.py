@@ -94,11 +94,17 @@ class BusLoad:
     def table(self) -> str:
         """The Markdown table of the frames' loads and the total."""
         kind = "classical CAN" if self.data_bitrate is None else f"CAN FD, data {self.data_bitrate / 1e6:g} Mbit/s"
-        lines = [f"bus load at {self.bitrate / 1e6:g} Mbit/s ({kind}), worst-case bit stuffing:", "",
-                 "| frame | id | bytes | cycle [ms] | worst-case time [µs] | load |", "|---|---|---:|---:|---:|---:|"]
+        lines = [
+            f"bus load at {self.bitrate / 1e6:g} Mbit/s ({kind}), worst-case bit stuffing:",
+            "",
+            "| frame | id | bytes | cycle [ms] | worst-case time [µs] | load |",
+            "|---|---|---:|---:|---:|---:|",
+        ]
         for f in self.frames:
-            lines.append(f"| {f.name} | 0x{f.frame_id:03X} | {f.length} | {1e3 * f.cycle_time:g} | "
-                         f"{1e6 * f.frame_time:.1f} | {100 * f.load:.1f} % |")
+            lines.append(
+                f"| {f.name} | 0x{f.frame_id:03X} | {f.length} | {1e3 * f.cycle_time:g} | "
+                f"{1e6 * f.frame_time:.1f} | {100 * f.load:.1f} % |"
+            )
         lines.append(f"| **total** | | | | | **{100 * self.load:.1f} %** |")
         return "\n".join(lines)
 
@@ -173,8 +179,15 @@ def bus_load(db, bitrate: int, data_bitrate: int | None = None) -> BusLoad:
     for m in db.messages:
         if m.cycle_time is None:
             continue
-        frames.append(FrameLoad(m.name, m.frame_id, m.length, m.cycle_time / 1000.0,
-                                frame_time(m.length, m.is_fd, bitrate, data_bitrate)))
+        frames.append(
+            FrameLoad(
+                m.name,
+                m.frame_id,
+                m.length,
+                m.cycle_time / 1000.0,
+                frame_time(m.length, m.is_fd, bitrate, data_bitrate),
+            )
+        )
     return BusLoad(bitrate, data_bitrate, tuple(frames))
 
 
@@ -209,17 +222,22 @@ def check(db, bitrate: int, data_bitrate: int | None = None, limit: float = DEFA
         return result
     fits = []
     if data_bitrate is None:
-        fits += [f"classical {r / 1e6:g} Mbit/s" for r in CLASSICAL_RATES
-                 if r > bitrate and _fits(db, r, None, limit)]
+        fits += [f"classical {r / 1e6:g} Mbit/s" for r in CLASSICAL_RATES if r > bitrate and _fits(db, r, None, limit)]
     for data in FD_DATA_RATES:
         if _fits(db, bitrate, data, limit):
             fits.append(f"CAN FD {bitrate / 1e6:g}/{data / 1e6:g} Mbit/s")
     slower = max((f.cycle_time for f in result.frames), default=0.0)
-    hint = ("; it fits at " + ", ".join(fits)) if fits else \
-        f"; no standard bitrate carries it — lengthen the sample time (factor {result.load / limit:.2f}) or drop frames"
-    raise ModelError(f"bus load {100 * result.load:.1f} % at {bitrate / 1e6:g} Mbit/s"
-                     f"{'' if data_bitrate is None else f' (data {data_bitrate / 1e6:g} Mbit/s)'} exceeds the limit "
-                     f"{100 * limit:.0f} %{hint}" + ("" if slower else ""))
+    hint = (
+        ("; it fits at " + ", ".join(fits))
+        if fits
+        else "; no standard bitrate carries it — lengthen the sample time "
+        f"(factor {result.load / limit:.2f}) or drop frames"
+    )
+    raise ModelError(
+        f"bus load {100 * result.load:.1f} % at {bitrate / 1e6:g} Mbit/s"
+        f"{'' if data_bitrate is None else f' (data {data_bitrate / 1e6:g} Mbit/s)'} exceeds the limit "
+        f"{100 * limit:.0f} %{hint}" + ("" if slower else "")
+    )
 
 
 def _fits(db, bitrate, data_bitrate, limit) -> bool:

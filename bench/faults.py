@@ -52,8 +52,11 @@ class Fault:
 
     def label(self) -> str:
         """A short human-readable name, e.g. ``drop JOINT_A1`` or ``delay JOINT_A1 5 ms``."""
-        detail = {"delay": f" {1e3 * self.lateness:g} ms", "amplifier": f" {self.amplifier_fault}",
-                  "implausible": f".{self.signal} = {self.value:g}" if self.value is not None else ""}.get(self.kind, "")
+        detail = {
+            "delay": f" {1e3 * self.lateness:g} ms",
+            "amplifier": f" {self.amplifier_fault}",
+            "implausible": f".{self.signal} = {self.value:g}" if self.value is not None else "",
+        }.get(self.kind, "")
         return f"{self.kind} {self.target or 'bus'}{detail}"
 
 
@@ -89,8 +92,10 @@ def check_faults(faults, frame_names, joint_names, signals=None) -> None:
                 raise ModelError(f"{what}: target {f.target!r} — a frame on the bus: {', '.join(sorted(frame_names))}")
         elif f.kind == "amplifier":
             if f.target not in joint_names or f.amplifier_fault not in AMPLIFIER_FAULTS:
-                raise ModelError(f"{what}: target {f.target!r} / {f.amplifier_fault!r} — a joint "
-                                 f"({', '.join(joint_names)}) and one of {', '.join(AMPLIFIER_FAULTS)}")
+                raise ModelError(
+                    f"{what}: target {f.target!r} / {f.amplifier_fault!r} — a joint "
+                    f"({', '.join(joint_names)}) and one of {', '.join(AMPLIFIER_FAULTS)}"
+                )
         elif f.target:
             raise ModelError(f"{what}: target {f.target!r} — bus_off takes the whole bus off: give no target")
         if f.amplifier_fault and f.kind != "amplifier":
@@ -137,8 +142,10 @@ def parse_fault(text: str) -> Fault:
     'drop JOINT_A1'
     """
     parts = text.split(":")
-    example = ("e.g. drop:JOINT_A1:1.0:1.2, delay:JOINT_A1:1.0:1.2:0.002, amplifier:A1:1.0:inf:over_temperature, "
-               "implausible:JOINT_A1.sliding_velocity:1.0:1.2:2.1, bus_off::1.0:1.05")
+    example = (
+        "e.g. drop:JOINT_A1:1.0:1.2, delay:JOINT_A1:1.0:1.2:0.002, amplifier:A1:1.0:inf:over_temperature, "
+        "implausible:JOINT_A1.sliding_velocity:1.0:1.2:2.1, bus_off::1.0:1.05"
+    )
     if len(parts) not in (4, 5):
         raise ModelError(f"--fault {text!r}: expected kind:target:start:end[:detail], {example}")
     kind, target, detail = parts[0], parts[1], parts[4] if len(parts) == 5 else None

@@ -46,7 +46,9 @@ void {n}_set_steps(uint8_t *state, uint32_t steps);
 def _driver(prefix: str) -> str:
     """Opaque-state accessors for Python (not part of the firmware)."""
     n = f"{prefix}_can"
-    return f'#include "_{n}_driver.h"\n' + f"""
+    return (
+        f'#include "_{n}_driver.h"\n'
+        + f"""
 
 size_t {n}_state_size(void) {{ return sizeof({n}_state); }}
 int {n}_init_opaque(uint8_t *state, int law) {{ return {n}_init(({n}_state *)(void *)state, ({n}_law)law); }}
@@ -54,14 +56,16 @@ unsigned int {n}_rx_opaque(uint8_t *state, uint32_t id, const uint8_t *data, uin
 {{
     return {n}_rx(({n}_state *)(void *)state, id, data, length, time_us);
 }}
-unsigned int {n}_step_opaque(uint8_t *state, uint32_t time_us) {{ return {n}_step(({n}_state *)(void *)state, time_us); }}
+unsigned int {n}_step_opaque(uint8_t *state, uint32_t time_us)
+{{ return {n}_step(({n}_state *)(void *)state, time_us); }}
 int {n}_tx_opaque(uint8_t *state, uint32_t *id, uint8_t *data, uint8_t *length)
 {{
     return {n}_tx(({n}_state *)(void *)state, id, data, length);
 }}
 int {n}_safe(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->safe; }}
 unsigned int {n}_faults(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->faults; }}
-double {n}_command(const uint8_t *state, int joint) {{ return ((const {n}_state *)(const void *)state)->command[joint]; }}
+double {n}_command(const uint8_t *state, int joint)
+{{ return ((const {n}_state *)(const void *)state)->command[joint]; }}
 void {n}_set_steps(uint8_t *state, uint32_t steps) {{ (({n}_state *)(void *)state)->steps = steps; }}
 uint32_t {n}_counter(const uint8_t *state, int which)
 {{
@@ -78,10 +82,19 @@ uint32_t {n}_counter(const uint8_t *state, int which)
     }}
 }}
 """
+    )
 
 
-COUNTERS = ("rx_frames", "crc_errors", "counter_errors", "length_errors", "unknown_ids", "timeouts",
-            "implausible_frames", "steps")
+COUNTERS = (
+    "rx_frames",
+    "crc_errors",
+    "counter_errors",
+    "length_errors",
+    "unknown_ids",
+    "timeouts",
+    "implausible_frames",
+    "steps",
+)
 
 
 class Firmware:
@@ -101,19 +114,30 @@ class Firmware:
         Passed to ``codegen.can_layer.render_can`` (``amplifier``).
     """
 
-    def __init__(self, artifact: ControllerArtifact, law: str = "siso", real: str = "float",
-                 prefix: str = "smartjoint", **can_options):
+    def __init__(
+        self,
+        artifact: ControllerArtifact,
+        law: str = "siso",
+        real: str = "float",
+        prefix: str = "smartjoint",
+        **can_options,
+    ):
         if law not in LAWS:
             raise ModelError(f"law: {law!r} — allowed: {', '.join(LAWS)}")
-        files = {**generate.render(artifact, real, prefix),
-                 **can_layer.render_can(artifact, prefix, full_codec=True, **can_options)}
+        files = {
+            **generate.render(artifact, real, prefix),
+            **can_layer.render_can(artifact, prefix, full_codec=True, **can_options),
+        }
         files[f"_{prefix}_can_driver.h"] = _driver_header(prefix)
         files[f"_{prefix}_can_driver.c"] = _driver(prefix)
         # The generated sources and the driver compile with the strict flags; the declarations
         # come from the generated headers through the driver's header.
-        folder, module = build.load(f"firmware_{prefix}_{real}", files, f"_{prefix}_can_driver.h",
-                                    (f"{prefix}_siso.c", f"{prefix}_clqg.c", f"{prefix}_can.c", "sj_e2e.c",
-                                     f"_{prefix}_can_driver.c"))
+        folder, module = build.load(
+            f"firmware_{prefix}_{real}",
+            files,
+            f"_{prefix}_can_driver.h",
+            (f"{prefix}_siso.c", f"{prefix}_clqg.c", f"{prefix}_can.c", "sj_e2e.c", f"_{prefix}_can_driver.c"),
+        )
         self.db = protocol.load_dbc(files["bus.dbc"])
         self.ffi, self.lib, self.prefix, self.artifact, self.law = module.ffi, module.lib, prefix, artifact, law
         self.folder, self.files = folder, files
@@ -149,8 +173,11 @@ class Firmware:
         int
             The RX result bits of the generated header.
         """
-        return int(self._call("rx_opaque", self._state, frame_id & 0xFFFFFFFF, bytes(data), len(data) & 0xFF,
-                              time_us & 0xFFFFFFFF))
+        return int(
+            self._call(
+                "rx_opaque", self._state, frame_id & 0xFFFFFFFF, bytes(data), len(data) & 0xFF, time_us & 0xFFFFFFFF
+            )
+        )
 
     def step(self, time_us: int) -> int:
         """One controller sample (``<prefix>_can_step``): the law or the safe state; returns its status bits."""

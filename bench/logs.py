@@ -61,11 +61,13 @@ def record(bus, path, duration: float | None = None, max_bytes: int = 0, stop=No
     try:
         writer = can.SizedRotatingLogger(str(path), max_bytes=max_bytes) if max_bytes > 0 else can.Logger(str(path))
     except ValueError as error:
-        raise ModelError(f"log file {path}: {error} — use a suffix python-can writes (.blf, .asc, .mf4, .csv, .log, "
-                         ".trc)") from None
+        raise ModelError(
+            f"log file {path}: {error} — use a suffix python-can writes (.blf, .asc, .mf4, .csv, .log, .trc)"
+        ) from None
     except (ImportError, NotImplementedError) as error:  # .mf4 needs asammdf
-        raise ModelError(f"log file {path}: {error} — `pip install 'smartjoint[mf4]'` (asammdf) for MF4, or use "
-                         ".blf / .asc") from None
+        raise ModelError(
+            f"log file {path}: {error} — `pip install 'smartjoint[mf4]'` (asammdf) for MF4, or use .blf / .asc"
+        ) from None
     count, started = 0, time.monotonic()
     try:
         while True:
@@ -88,8 +90,9 @@ def record(bus, path, duration: float | None = None, max_bytes: int = 0, stop=No
 
 _HEADER = re.compile(r"\s*(date\s|base\s|//|(no)?\s*internal\s+events\s+logged)", re.IGNORECASE)
 _EVENTS_LINE = re.compile(r"\s*(no)?\s*internal\s+events\s+logged", re.IGNORECASE)
-_STRUCTURE = re.compile(r"\s*($|//|begin\s+triggerblock|end\s+triggerblock|\d+\.\d+\s+start\s+of\s+measurement)",
-                        re.IGNORECASE)
+_STRUCTURE = re.compile(
+    r"\s*($|//|begin\s+triggerblock|end\s+triggerblock|\d+\.\d+\s+start\s+of\s+measurement)", re.IGNORECASE
+)
 _END = re.compile(r"\s*end\s+triggerblock", re.IGNORECASE)
 
 
@@ -111,21 +114,30 @@ class LogContent:
 
     def skipped(self) -> dict:
         """The counts by kind (all of them, zeros included, so a report shows what was checked)."""
-        return {"frames": len(self.messages), "truncated": self.truncated,
-                "unparseable_lines": self.unparseable_lines, "first_unparseable": self.first_unparseable,
-                "cut_frames": self.cut_frames, "non_finite_times": self.non_finite_times,
-                "negative_times": self.negative_times, "backwards_times": self.backwards_times,
-                "error_frames": self.error_frames, "remote_frames": self.remote_frames}
+        return {
+            "frames": len(self.messages),
+            "truncated": self.truncated,
+            "unparseable_lines": self.unparseable_lines,
+            "first_unparseable": self.first_unparseable,
+            "cut_frames": self.cut_frames,
+            "non_finite_times": self.non_finite_times,
+            "negative_times": self.negative_times,
+            "backwards_times": self.backwards_times,
+            "error_frames": self.error_frames,
+            "remote_frames": self.remote_frames,
+        }
 
     def problem(self) -> str | None:
         """One line naming every kind of damage with its count, or None for a clean log."""
         parts = [f"truncated: {self.truncated}"] if self.truncated else []
         if self.unparseable_lines:
             parts.append(f"{self.unparseable_lines} unparseable line(s) skipped (first: {self.first_unparseable})")
-        for count, what in ((self.cut_frames, "frame(s) cut short"),
-                            (self.non_finite_times, "non-finite time stamp(s)"),
-                            (self.negative_times, "negative time stamp(s)"),
-                            (self.backwards_times, "time stamp(s) earlier than the frame before")):
+        for count, what in (
+            (self.cut_frames, "frame(s) cut short"),
+            (self.non_finite_times, "non-finite time stamp(s)"),
+            (self.negative_times, "negative time stamp(s)"),
+            (self.backwards_times, "time stamp(s) earlier than the frame before"),
+        ):
             if count:
                 parts.append(f"{count} {what}")
         return "; ".join(parts) or None
@@ -253,8 +265,9 @@ def _read_generic(path: Path, out: LogContent) -> None:
     expected = getattr(reader, "object_count", None)
     size = getattr(reader, "file_size", None)
     if out.truncated is None and size and path.stat().st_size < size:
-        out.truncated = (f"{path.stat().st_size} of {size} bytes, the reader stopped after {len(out.messages)} of "
-                         f"{expected} frames")
+        out.truncated = (
+            f"{path.stat().st_size} of {size} bytes, the reader stopped after {len(out.messages)} of {expected} frames"
+        )
     elif out.truncated is None and expected and len(out.messages) < expected:
         out.truncated = f"incomplete: {len(out.messages)} of {expected} frames read"
 
@@ -300,6 +313,7 @@ def read(path) -> tuple[list, str | None]:
 @dataclass
 class Decoded:
     """Signal values of a decoded log and the frames it skipped, counted by kind."""
+
     rows: list = field(default_factory=list)  # (time, frame, signal, value)
     frames: int = 0
     unknown_ids: dict = field(default_factory=lambda: defaultdict(int))
@@ -313,16 +327,30 @@ class Decoded:
 
     def skipped(self) -> int:
         """Frames not decoded, whatever the reason."""
-        return (sum(self.unknown_ids.values()) + sum(self.wrong_length.values()) + sum(self.bad_e2e.values())
-                + self.error_frames + self.remote_frames + self.non_finite_times)
+        return (
+            sum(self.unknown_ids.values())
+            + sum(self.wrong_length.values())
+            + sum(self.bad_e2e.values())
+            + self.error_frames
+            + self.remote_frames
+            + self.non_finite_times
+        )
 
     def summary(self) -> dict:
         """The counts as a JSON-ready dict."""
-        return {"frames": self.frames, "signal_values": len(self.rows), "frames_skipped": self.skipped(),
-                "unknown_ids": {f"0x{k:03X}": v for k, v in sorted(self.unknown_ids.items())},
-                "wrong_length": dict(self.wrong_length), "bad_e2e": dict(self.bad_e2e),
-                "error_frames": self.error_frames, "remote_frames": self.remote_frames,
-                "non_finite_times": self.non_finite_times, "log_problem": self.problem, "log": self.log}
+        return {
+            "frames": self.frames,
+            "signal_values": len(self.rows),
+            "frames_skipped": self.skipped(),
+            "unknown_ids": {f"0x{k:03X}": v for k, v in sorted(self.unknown_ids.items())},
+            "wrong_length": dict(self.wrong_length),
+            "bad_e2e": dict(self.bad_e2e),
+            "error_frames": self.error_frames,
+            "remote_frames": self.remote_frames,
+            "non_finite_times": self.non_finite_times,
+            "log_problem": self.problem,
+            "log": self.log,
+        }
 
 
 def decode(messages, db, problem: str | None = None) -> Decoded:

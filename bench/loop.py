@@ -10,8 +10,8 @@ Per sample t_k (the plant simulation calls ``SilLoop.step`` as its controller):
 2. the firmware takes every frame waiting for it (``rx``), runs ``step`` and sends what ``tx``
    gives (the setpoints and the heartbeat, every sample);
 3. each amplifier checks its setpoint and the heartbeat (its own watchdog: ``bench/amplifier.py``),
-   and its output over [t_k, t_k+1) sets the normal force of its joint (the mean over the sample; F_N^max while the study's pulse acts,
-   the protocol of Section 6);
+   and its output over [t_k, t_k+1) sets the normal force of its joint (the mean over the sample;
+   F_N^max while the study's pulse acts, the protocol of Section 6);
 4. a logger on the same bus writes every frame with the simulated time stamp (python-can
    writers: .blf, .asc, .mf4 …).
 
@@ -62,8 +62,9 @@ def open_bus(interface: str, channel: str, **kwargs):
         return can.Bus(interface=interface, channel=channel, fd=True, **kwargs)  # the protocol is CAN FD
     except (ImportError, can.CanInterfaceNotImplementedError, can.CanInitializationError, ValueError, OSError) as error:
         known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
-        raise ModelError(f"bench interface {interface!r} (channel {channel!r}) cannot be opened: {error} — "
-                         f"python-can knows: {known}") from None
+        raise ModelError(
+            f"bench interface {interface!r} (channel {channel!r}) cannot be opened: {error} — python-can knows: {known}"
+        ) from None
 
 
 @dataclass
@@ -104,9 +105,17 @@ class SilLoop:
         ``voltage_max``).
     """
 
-    def __init__(self, firmware, excitation_end: float = 0.0, excitation_force=None, faults=(),
-                 interface: str = "virtual", channel: str = "smartjoint-sil", log_path=None,
-                 amplifier: dict | None = None):
+    def __init__(
+        self,
+        firmware,
+        excitation_end: float = 0.0,
+        excitation_force=None,
+        faults=(),
+        interface: str = "virtual",
+        channel: str = "smartjoint-sil",
+        log_path=None,
+        amplifier: dict | None = None,
+    ):
         self.fw = firmware
         self.db = firmware.db
         a = firmware.artifact
@@ -123,14 +132,23 @@ class SilLoop:
         options = dict(amplifier or {})
         unknown = sorted(set(options) - {"time_constant", "slew_rate", "temperature", "voltage_max"})
         if unknown:
-            raise ModelError(f"amplifier option {unknown[0]!r} — allowed: time_constant, slew_rate, temperature, "
-                             "voltage_max")
-        self.amplifier_options = [dict(force_per_volt=a.piezo_force_per_volt, preload=a.piezo_preload,
-                                       capacitance=a.piezo_capacitance, safe_normal_force=float(a.safe_normal_force[j]),
-                                       normal_force_min=float(a.normal_force_min[j]),
-                                       normal_force_max=float(a.normal_force_max[j]),
-                                       timeout_cycles=a.timeout_cycles, recovery_cycles=a.recovery_cycles,
-                                       **options) for j in range(len(self.joints))]
+            raise ModelError(
+                f"amplifier option {unknown[0]!r} — allowed: time_constant, slew_rate, temperature, voltage_max"
+            )
+        self.amplifier_options = [
+            dict(
+                force_per_volt=a.piezo_force_per_volt,
+                preload=a.piezo_preload,
+                capacitance=a.piezo_capacitance,
+                safe_normal_force=float(a.safe_normal_force[j]),
+                normal_force_min=float(a.normal_force_min[j]),
+                normal_force_max=float(a.normal_force_max[j]),
+                timeout_cycles=a.timeout_cycles,
+                recovery_cycles=a.recovery_cycles,
+                **options,
+            )
+            for j in range(len(self.joints))
+        ]
         self.frames = {m.name: m for m in self.db.messages}
         self.buses: list = []
         self.writer: Any = None  # a python-can writer while a log is kept
@@ -196,8 +214,9 @@ class SilLoop:
         import can
 
         m = self.db.get_message_by_frame_id(frame_id)
-        return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=m.is_fd,
-                           bitrate_switch=m.is_fd, timestamp=t)
+        return can.Message(
+            arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=m.is_fd, bitrate_switch=m.is_fd, timestamp=t
+        )
 
     def _implausible(self, message, f: Fault, t: float):
         """The frame with ``f.value`` in ``f.signal``, re-protected with its own counter: a sender
@@ -208,10 +227,12 @@ class SilLoop:
         signal = m.get_signal_by_name(f.signal)
         raw = round((f.value - signal.offset) / signal.scale)
         low = -(2 ** (signal.length - 1)) if signal.is_signed else 0
-        high = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2 ** signal.length - 1
+        high = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2**signal.length - 1
         if not low <= raw <= high:
-            raise ModelError(f"fault implausible: value {f.value!r} — {m.name}.{f.signal} carries "
-                             f"{low * signal.scale + signal.offset:g} … {high * signal.scale + signal.offset:g}")
+            raise ModelError(
+                f"fault implausible: value {f.value!r} — {m.name}.{f.signal} carries "
+                f"{low * signal.scale + signal.offset:g} … {high * signal.scale + signal.offset:g}"
+            )
         data = bytearray(m.encode(values, strict=False, scaling=True))
         return self._frame(m.frame_id, bytes(e2e.protect(m.frame_id, data, message.data[1] & 0x0F)), t)
 
@@ -248,8 +269,13 @@ class SilLoop:
                 message = self._frame(message.arbitration_id, bytes(data), t)
             elif f.kind == "wrong_dlc":  # the next shorter length a CAN (FD) frame can have
                 shorter = max(n for n in (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48) if n < len(message.data))
-                message = can.Message(arbitration_id=message.arbitration_id, data=bytes(message.data[:shorter]),
-                                      is_fd=message.is_fd, bitrate_switch=message.bitrate_switch, timestamp=t)
+                message = can.Message(
+                    arbitration_id=message.arbitration_id,
+                    data=bytes(message.data[:shorter]),
+                    is_fd=message.is_fd,
+                    bitrate_switch=message.bitrate_switch,
+                    timestamp=t,
+                )
             elif f.kind == "implausible":
                 message = self._implausible(message, f, t)
         for _ in range(copies):
@@ -294,31 +320,73 @@ class SilLoop:
         time_us = int(round(t * 1e6)) & 0xFFFFFFFF
         # 1. The sensor nodes and the amplifiers send.
         self._release_delayed(t, self.node_bus)  # due since the last sample: before this sample's frames
+        self._send_sensor_frames(measurements, t)
+        self._send_amplifier_status(t)
+
+        # 2. The firmware: receive, step, send (setpoints and heartbeat).
+        status = self._firmware_sample(t, time_us)
+
+        # 3. The amplifiers take their setpoint and the heartbeat, and drive their stacks.
+        self._deliver_to_amplifiers()
+        amplifier_force = np.array([a.advance(self.sample_time) for a in self.amplifiers])
+        applied = amplifier_force.copy()
+        if t < self.excitation_end - 1e-12:
+            applied = self.excitation_force.copy()  # the study's protocol: F_N^max while the pulse acts
+        self._drain_log()
+        self._record_sample(t, status, amplifier_force, applied)
+        self.k += 1
+        return np.maximum(applied, 0.0)
+
+    def _send_sensor_frames(self, measurements: Measurements, t: float) -> None:
         echo = self.node_echo  # the sensor nodes sample on the controller's heartbeat and say which
         for j, joint in enumerate(self.joints):
-            self._transmit(self.node_bus, self._message(f"JOINT_{joint}", {
-                "sliding_velocity": float(measurements.sliding_velocity[j]),
-                "friction_force": float(measurements.friction_force[j]),
-                "normal_force": float(measurements.normal_force[j]), "sync": echo}, t), t)
-        self._transmit(self.node_bus, self._message("TIP_SENSORS", {"sync": echo, **dict(
-            zip(self.sensor_signals, map(float, measurements.sensors)))}, t), t)
+            self._transmit(
+                self.node_bus,
+                self._message(
+                    f"JOINT_{joint}",
+                    {
+                        "sliding_velocity": float(measurements.sliding_velocity[j]),
+                        "friction_force": float(measurements.friction_force[j]),
+                        "normal_force": float(measurements.normal_force[j]),
+                        "sync": echo,
+                    },
+                    t,
+                ),
+                t,
+            )
+        self._transmit(
+            self.node_bus,
+            self._message(
+                "TIP_SENSORS", {"sync": echo, **dict(zip(self.sensor_signals, map(float, measurements.sensors)))}, t
+            ),
+            t,
+        )
+
+    def _send_amplifier_status(self, t: float) -> None:
         for j, joint in enumerate(self.joints):  # amplifier status every sample: faults seen within a cycle
-            fault = next((f.amplifier_fault for f in self.faults
-                          if f.kind == "amplifier" and f.target.upper() == joint and f.active(t)), None)
+            fault = next(
+                (
+                    f.amplifier_fault
+                    for f in self.faults
+                    if f.kind == "amplifier" and f.target.upper() == joint and f.active(t)
+                ),
+                None,
+            )
             self.amplifiers[j].fault = fault
             status = self.amplifiers[j].status()
             if status is not None:
                 self._transmit(self.node_bus, self._message(f"AMP_STATUS_{joint}", status, t), t)
 
-        # 2. The firmware: receive, step, send (setpoints and heartbeat).
+    def _firmware_sample(self, t: float, time_us: int):
         for message in self._drain(self.firmware_bus):
             self.fw.rx(message.arbitration_id, bytes(message.data), time_us)
         status = self.fw.step(time_us)
         self._release_delayed(t, self.firmware_bus)
         for frame_id, data in self.fw.tx():
             self._transmit(self.firmware_bus, self._frame(frame_id, data, t), t)
+        return status
 
-        # 3. The amplifiers take their setpoint and the heartbeat, and drive their stacks.
+    def _deliver_to_amplifiers(self) -> None:
         heartbeat = self.frames["CONTROLLER_STATUS"]
         mode = lambda data: heartbeat.decode(data, decode_choices=False)["mode"]  # noqa: E731
         for message in self._drain(self.node_bus):
@@ -330,22 +398,22 @@ class SilLoop:
                 if len(data) == heartbeat.length and e2e.check(message.arbitration_id, data, None).crc_ok:
                     self.node_echo = data[1] & 0x0F
             elif name.startswith("SETPOINT_"):
-                j = self.joints.index(name[len("SETPOINT_"):])
+                j = self.joints.index(name[len("SETPOINT_") :])
                 m = self.frames[name]
                 before = self.amplifiers[j].setpoint_watch.failed
                 self.amplifiers[j].receive_setpoint(
-                    message.arbitration_id, data, m.length,
-                    lambda d, m=m: m.decode(d, decode_choices=False)["voltage"])
+                    message.arbitration_id, data, m.length, lambda d, m=m: m.decode(d, decode_choices=False)["voltage"]
+                )
                 self.amplifier_e2e_errors += int(self.amplifiers[j].setpoint_watch.failed and not before)
-        amplifier_force = np.array([a.advance(self.sample_time) for a in self.amplifiers])
-        applied = amplifier_force.copy()
-        if t < self.excitation_end - 1e-12:
-            applied = self.excitation_force.copy()  # the study's protocol: F_N^max while the pulse acts
+
+    def _drain_log(self) -> None:
         if self.writer is not None:
             for message in self._drain(self.log_bus):
                 self.writer.on_message_received(message)
         else:
             self._drain(self.log_bus)
+
+    def _record_sample(self, t: float, status, amplifier_force: np.ndarray, applied: np.ndarray) -> None:
         r = self.record
         r.time.append(t)
         r.safe.append(self.fw.safe)
@@ -355,8 +423,6 @@ class SilLoop:
         r.amplifier_force.append(amplifier_force)
         r.amplifier_safe.append([a.own_safe for a in self.amplifiers])
         r.applied.append(applied)
-        self.k += 1
-        return np.maximum(applied, 0.0)
 
     def statistics(self, duration: float, bitrate: int, data_bitrate: int | None) -> dict:
         """Frames per name, measured bus load over the run, E2E errors, timeouts.
@@ -376,12 +442,20 @@ class SilLoop:
             Frame counts, the bus load, the firmware's counters, E2E errors at the firmware and the
             amplifiers, samples in the safe state and what the fault injector did.
         """
-        busy = sum(count * busload.frame_time(self.frames[name].length, self.frames[name].is_fd, bitrate, data_bitrate)
-                   for name, count in self.frame_counts.items())
+        busy = sum(
+            count * busload.frame_time(self.frames[name].length, self.frames[name].is_fd, bitrate, data_bitrate)
+            for name, count in self.frame_counts.items()
+        )
         counters = self.fw.counters
-        return {"frames": dict(sorted(self.frame_counts.items())), "frames_total": int(sum(self.frame_counts.values())),
-                "bus_load": busy / duration, "bitrate": bitrate, "data_bitrate": data_bitrate,
-                "firmware": counters,
-                "e2e_errors": counters["crc_errors"] + counters["counter_errors"] + counters["length_errors"],
-                "amplifier_e2e_errors": self.amplifier_e2e_errors,
-                "safe_samples": int(sum(self.record.safe)), "injected": dict(self.stats)}
+        return {
+            "frames": dict(sorted(self.frame_counts.items())),
+            "frames_total": int(sum(self.frame_counts.values())),
+            "bus_load": busy / duration,
+            "bitrate": bitrate,
+            "data_bitrate": data_bitrate,
+            "firmware": counters,
+            "e2e_errors": counters["crc_errors"] + counters["counter_errors"] + counters["length_errors"],
+            "amplifier_e2e_errors": self.amplifier_e2e_errors,
+            "safe_samples": int(sum(self.record.safe)),
+            "injected": dict(self.stats),
+        }

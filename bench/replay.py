@@ -34,19 +34,25 @@ def _samples(messages, known: dict, step: float) -> tuple[float, dict, int]:
     usable = [m for m in messages if not (m.is_error_frame or m.is_remote_frame)]
     bad_times = sum(1 for m in usable if not math.isfinite(float(m.timestamp)))
     if bad_times:
-        raise ModelError(f"log: {bad_times} frame(s) with a time stamp that is not finite (NaN or infinite) — a "
-                         "replay needs every frame on the sample grid")
+        raise ModelError(
+            f"log: {bad_times} frame(s) with a time stamp that is not finite (NaN or infinite) — a "
+            "replay needs every frame on the sample grid"
+        )
     if not any(m.arbitration_id in known for m in usable):
-        raise ModelError(f"log: {len(usable)} frame(s), none with an identifier of the artefact's protocol "
-                         f"({', '.join(f'0x{k:03X}' for k in sorted(known))}) — nothing to replay")
+        raise ModelError(
+            f"log: {len(usable)} frame(s), none with an identifier of the artefact's protocol "
+            f"({', '.join(f'0x{k:03X}' for k in sorted(known))}) — nothing to replay"
+        )
     start = _grid_origin([float(m.timestamp) for m in usable], step)
     groups = defaultdict(list)
     for message in usable:
         groups[int(math.floor((float(message.timestamp) - start) / step + 0.5))].append(message)
     samples = max(groups) + 1
     if samples > MAX_SAMPLES:
-        raise ModelError(f"log: time stamps span {(samples - 1) * step:.6g} s = {samples} samples of {step:g} s "
-                         f"(at most {MAX_SAMPLES}) — a wild time stamp?")
+        raise ModelError(
+            f"log: time stamps span {(samples - 1) * step:.6g} s = {samples} samples of {step:g} s "
+            f"(at most {MAX_SAMPLES}) — a wild time stamp?"
+        )
     return start, groups, samples
 
 
@@ -94,12 +100,18 @@ def _replay_sample(firmware, known: dict, frames, time_us: int, t: float, tolera
             deviation = abs(a - b)
             seen.worst = max(seen.worst, deviation)
             if not deviation <= tolerance:
-                seen.differences.append({"time": t, "frame": name, "kind": "differs", "recorded_V": b,
-                                         "replayed_V": a})
+                seen.differences.append({"time": t, "frame": name, "kind": "differs", "recorded_V": b, "replayed_V": a})
         if len(theirs) > len(ours):
             seen.counts["recorded_not_replayed"] += len(theirs) - len(ours)
-            seen.differences.append({"time": t, "frame": name, "kind": "recorded, not replayed",
-                                     "recorded_V": theirs[len(ours)], "replayed_V": None})
+            seen.differences.append(
+                {
+                    "time": t,
+                    "frame": name,
+                    "kind": "recorded, not replayed",
+                    "recorded_V": theirs[len(ours)],
+                    "replayed_V": None,
+                }
+            )
         elif len(ours) > len(theirs):
             key = "replayed_not_recorded_in_silent_samples" if not frames else "replayed_not_recorded"
             seen.counts[key] += len(ours) - len(theirs)
@@ -157,17 +169,25 @@ def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None
     firmware.reset()
     seen = _Comparison()
     for k in range(samples):
-        _replay_sample(firmware, known, groups.get(k, ()), start_us + int(round(k * step * 1e6)), start + k * step,
-                       tolerance, seen)
+        _replay_sample(
+            firmware, known, groups.get(k, ()), start_us + int(round(k * step * 1e6)), start + k * step, tolerance, seen
+        )
     counts, differences = seen.counts, seen.differences
     differing = sum(1 for d in differences if d["kind"] == "differs")
-    out = {"samples": samples, "silent_samples": counts["silent_samples"], "setpoints_compared": seen.compared,
-           "differing": differing, "recorded_not_replayed": counts["recorded_not_replayed"],
-           "replayed_not_recorded": counts["replayed_not_recorded"],
-           "replayed_not_recorded_in_silent_samples": counts["replayed_not_recorded_in_silent_samples"],
-           "recorded_setpoints_bad_crc": counts["recorded_bad_crc"],
-           "recorded_setpoints_wrong_length": counts["recorded_wrong_length"],
-           "unknown_id_frames": seen.unknown, "max_difference_V": seen.worst, "tolerance_V": tolerance,
-           "first_differences": differences[:20]}
+    out = {
+        "samples": samples,
+        "silent_samples": counts["silent_samples"],
+        "setpoints_compared": seen.compared,
+        "differing": differing,
+        "recorded_not_replayed": counts["recorded_not_replayed"],
+        "replayed_not_recorded": counts["replayed_not_recorded"],
+        "replayed_not_recorded_in_silent_samples": counts["replayed_not_recorded_in_silent_samples"],
+        "recorded_setpoints_bad_crc": counts["recorded_bad_crc"],
+        "recorded_setpoints_wrong_length": counts["recorded_wrong_length"],
+        "unknown_id_frames": seen.unknown,
+        "max_difference_V": seen.worst,
+        "tolerance_V": tolerance,
+        "first_differences": differences[:20],
+    }
     out["ok"] = seen.compared > 0 and differing == 0 and out["recorded_not_replayed"] == 0
     return out

@@ -17,8 +17,8 @@ detection bound (the latency of ``timeout_cycles − 1`` cycles a frame may have
 The plant is replaced by replayed signals (:func:`signals`: an oscillation of the design's
 size, or a recorded run), except that each joint's measured F_N is what its amplifier applied
 — the safety logic sees values of the design's ranges, and a case takes milliseconds
-(tests/test_can_layer.py repeats representative faults with the plant in the loop). Policy and
-figures: docs/safety.md.
+(tests/test_can_layer.py repeats representative faults with the plant in the loop). The matrix's
+table, paragraph and figure for the report: ``safety_report``. Policy and figures: docs/safety.md.
 """
 
 from __future__ import annotations
@@ -87,9 +87,42 @@ def implausible_values(artifact, db) -> dict:
     for (frame, signal), value in values.items():  # within what the frame's raw field carries
         s = db.get_message_by_name(frame).get_signal_by_name(signal)
         low = -(2 ** (s.length - 1)) if s.is_signed else 0
-        high = 2 ** (s.length - 1) - 1 if s.is_signed else 2 ** s.length - 1
+        high = 2 ** (s.length - 1) - 1 if s.is_signed else 2**s.length - 1
         values[(frame, signal)] = min(max(value, low * s.scale + s.offset), high * s.scale + s.offset)
     return values
+
+
+def _pairs(artifact, joints: list[str], dt: float, late: float) -> list[tuple[Fault, Fault]]:
+    """Faults two at once: an input and an output frame, the bus with an amplifier, a late and an
+    implausible input, an output stage with the heartbeat, and bus-off with a silent amplifier
+    from power-up on."""
+    tag, other = joints[0].upper(), joints[-1].upper()
+    return [
+        (
+            Fault("drop", START * dt, END * dt, f"JOINT_{tag}"),
+            Fault("corrupt_crc", START * dt, END * dt, f"SETPOINT_{other}"),
+        ),
+        (
+            Fault("bus_off", START * dt, END * dt),
+            Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="over_temperature"),
+        ),
+        (
+            Fault("delay", START * dt, END * dt, "TIP_SENSORS", delay=late),
+            Fault(
+                "implausible",
+                START * dt,
+                END * dt,
+                f"AMP_STATUS_{other}",
+                signal="temperature",
+                value=artifact.amplifier_temperature_limit + 20.0,
+            ),
+        ),
+        (
+            Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="stuck_output"),
+            Fault("drop", START * dt, END * dt, "CONTROLLER_STATUS"),
+        ),
+        (Fault("bus_off", 0.0, math.inf), Fault("amplifier", 0.0, math.inf, joints[-1], amplifier_fault="no_response")),
+    ]
 
 
 def cases(artifact, db, timings=TIMINGS) -> list[Case]:
@@ -126,8 +159,11 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
         for amplifier_fault in AMPLIFIER_FAULTS:
             single.append(("amplifier", dict(target=joint, amplifier_fault=amplifier_fault)))
     single.append(("bus_off", {}))
-    windows = {"mid-run": (START, END, LENGTH), "from t = 0": (0, END - START, LENGTH - START),
-               "never ending": (START, None, END + 10)}
+    windows = {
+        "mid-run": (START, END, LENGTH),
+        "from t = 0": (0, END - START, LENGTH - START),
+        "never ending": (START, None, END + 10),
+    }
     out = []
     for timing in timings:
         first, last, length = windows[timing]
@@ -138,22 +174,7 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     for frame in frames:  # late, but within the bound: used, never a timeout
         fault = Fault("delay", START * dt, END * dt, frame, delay=bound)
         out.append(Case(fault.label(), "within the latency bound", (fault,), LENGTH, tolerated=True))
-    tag = joints[0].upper()
-    other = joints[-1].upper()
-    pairs = [
-        (Fault("drop", START * dt, END * dt, f"JOINT_{tag}"),
-         Fault("corrupt_crc", START * dt, END * dt, f"SETPOINT_{other}")),
-        (Fault("bus_off", START * dt, END * dt),
-         Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="over_temperature")),
-        (Fault("delay", START * dt, END * dt, "TIP_SENSORS", delay=late),
-         Fault("implausible", START * dt, END * dt, f"AMP_STATUS_{other}", signal="temperature",
-                   value=artifact.amplifier_temperature_limit + 20.0)),
-        (Fault("amplifier", START * dt, END * dt, joints[0], amplifier_fault="stuck_output"),
-         Fault("drop", START * dt, END * dt, "CONTROLLER_STATUS")),
-        (Fault("bus_off", 0.0, math.inf), Fault("amplifier", 0.0, math.inf, joints[-1],
-                                                        amplifier_fault="no_response")),
-    ]
-    for pair in pairs:
+    for pair in _pairs(artifact, joints, dt, late):
         length = LENGTH if math.isfinite(pair[0].end) else END + 10
         timing = "two at once" if math.isfinite(pair[0].end) else "two at once, from t = 0, never ending"
         out.append(Case(" + ".join(f.label() for f in pair), timing, pair, length))
@@ -228,12 +249,36 @@ def run_case(firmware, case: Case, measurements) -> dict:
     loop.reset()
     applied = np.zeros(len(artifact.joint_names))
     try:
-        for m in measurements[:case.cycles]:
+        for m in measurements[: case.cycles]:
             # The joint's measured F_N is what its amplifier applied over the last sample.
             applied = loop.step(Measurements(m.time, m.sensors, m.sliding_velocity, m.friction_force, applied))
     finally:
         loop.close()
     return {"case": case.name, "timing": case.timing, **measure(loop.record, case.faults, artifact, case.tolerated)}
+
+
+def _gain_error_shows(record, artifact, force, start: int, stop: int) -> int:
+    """The cycle a gain error shows: no bit tells, so once the output is off its setpoint by more
+    than the tracking tolerance (a small command halved is within it, and harmless)."""
+
+    def volts(value):
+        return (value - artifact.piezo_preload) / artifact.piezo_force_per_volt
+
+    off = np.any(np.abs(volts(force) - volts(np.array(record.command))) > artifact.tracking_tolerance, axis=1)
+    seen = np.flatnonzero(off[start:stop])
+    return start + int(seen[0]) if seen.size else stop
+
+
+def _first(flags, start: int) -> int | None:
+    """Cycles from ``start`` to the first raised flag (None: never)."""
+    hits = np.flatnonzero(flags[start:])
+    return int(hits[0]) if hits.size else None
+
+
+def _settled(flags, reference: int, stop: int) -> int | None:
+    """Cycles from the reference until the flag holds for the rest of the fault (None: never)."""
+    off = np.flatnonzero(~flags[reference:stop])
+    return 0 if not off.size else (int(off[-1]) + 1 if off[-1] + 1 < stop - reference else None)
 
 
 def measure(record, faults, artifact, tolerated: bool = False) -> dict:
@@ -263,7 +308,9 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
     force = np.array(r.amplifier_force)
     own_safe = np.asarray(np.array(r.amplifier_safe, dtype=bool).any(axis=1))
     target = np.asarray(artifact.safe_normal_force, dtype=float)
-    failed_stage = sorted({f.target for f in faults if f.kind == "amplifier" and f.amplifier_fault in OUTPUT_STAGE_FAULTS})
+    failed_stage = sorted(
+        {f.target for f in faults if f.kind == "amplifier" and f.amplifier_fault in OUTPUT_STAGE_FAULTS}
+    )
     free = np.array([j not in failed_stage for j in artifact.joint_names])
     at_safe = np.all(np.abs(force - target)[:, free] <= FORCE_TOLERANCE, axis=1)
     start = min(int(round(f.start / dt)) for f in faults)
@@ -273,49 +320,50 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
     reference = start + max(bound, 0)
     stop = len(safe) if end is None else min(end, len(safe))
     if any(f.kind == "amplifier" and f.amplifier_fault == "gain_error" for f in faults):
-        # No bit tells: the fault shows once the output is off its setpoint by more than the
-        # tracking tolerance (a small command halved is within it, and harmless).
-        volts = lambda value: (value - artifact.piezo_preload) / artifact.piezo_force_per_volt  # noqa: E731
-        off = np.any(np.abs(volts(force) - volts(np.array(r.command))) > artifact.tracking_tolerance, axis=1)
-        seen = np.flatnonzero(off[start:stop])
-        reference = start + int(seen[0]) if seen.size else stop
-
-    def first(flags, frm):
-        hits = np.flatnonzero(flags[frm:])
-        return int(hits[0]) if hits.size else None
-
-    row: dict[str, Any] = {"start": start, "end": end, "tolerated": tolerated, "failed_output_stage": failed_stage,
-           "safe_samples": int(safe.sum()), "observable": True}
+        reference = _gain_error_shows(r, artifact, force, start, stop)
+    row: dict[str, Any] = {
+        "start": start,
+        "end": end,
+        "tolerated": tolerated,
+        "failed_output_stage": failed_stage,
+        "safe_samples": int(safe.sum()),
+        "observable": True,
+    }
     if start >= len(safe):
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
         return row
     if tolerated:
-        row.update(firmware=None, joints=None, holds=None, recovery=None,
-                   ok=not safe[start:].any() and not own_safe[start:].any())
+        row.update(
+            firmware=None,
+            joints=None,
+            holds=None,
+            recovery=None,
+            ok=not safe[start:].any() and not own_safe[start:].any(),
+        )
         return row
     if reference >= stop:  # a fault that never showed (a gain error on commands within the tolerance)
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
         return row
-
-    def settled(flags):  # cycles from the reference until the flag holds for the rest of the fault
-        off = np.flatnonzero(~flags[reference:stop])
-        return 0 if not off.size else (int(off[-1]) + 1 if off[-1] + 1 < stop - reference else None)
-
-    row["firmware"] = settled(safe)
-    row["joints"] = settled(at_safe)
+    row["firmware"] = _settled(safe, reference, stop)
+    row["joints"] = _settled(at_safe, reference, stop)
     row["holds"] = row["joints"] is not None
     # Recovery counts from the fault's end; for a delay, from its last late frame.
     over = None if end is None else end + max((int(math.ceil(f.lateness / dt - 1e-9)) for f in faults), default=0)
-    row["recovery"] = first(~safe & ~own_safe, over) if over is not None and over < len(safe) else None
-    running = first(~safe, 0)  # until the first valid command the joints hold the safe force
-    row["power_up_safe"] = bool(np.all(at_safe[:len(safe) if running is None else running]))
-    row["ok"] = bool(row["joints"] is not None and row["joints"] <= DETECTION_LIMIT and row["power_up_safe"]
-                     and (end is None or end >= len(safe) or row["recovery"] is not None))
+    row["recovery"] = _first(~safe & ~own_safe, over) if over is not None and over < len(safe) else None
+    running = _first(~safe, 0)  # until the first valid command the joints hold the safe force
+    row["power_up_safe"] = bool(np.all(at_safe[: len(safe) if running is None else running]))
+    row["ok"] = bool(
+        row["joints"] is not None
+        and row["joints"] <= DETECTION_LIMIT
+        and row["power_up_safe"]
+        and (end is None or end >= len(safe) or row["recovery"] is not None)
+    )
     return row
 
 
-def fault_matrix(artifact, law: str = "clqg", real: str = "float", measurements=None, timings=TIMINGS,
-                 progress=None) -> dict:
+def fault_matrix(
+    artifact, law: str = "clqg", real: str = "float", measurements=None, timings=TIMINGS, progress=None
+) -> dict:
     """Every case of :func:`cases` on one compiled firmware: rows and the worst figures.
 
     Parameters
@@ -354,115 +402,13 @@ def fault_matrix(artifact, law: str = "clqg", real: str = "float", measurements=
         if progress and (i + 1) % 50 == 0:
             progress(f"        {i + 1}/{len(todo)} fault cases")
     checked = [r for r in rows if not r["tolerated"]]
-    return {"law": law, "real": real, "rows": rows, "cases": len(rows),
-            "failed": [r["case"] + " (" + r["timing"] + ")" for r in rows if not r["ok"]],
-            "worst_firmware": max((r["firmware"] for r in checked if r["firmware"] is not None), default=None),
-            "worst_joints": max((r["joints"] for r in checked if r["joints"] is not None), default=None),
-            "worst_recovery": max((r["recovery"] for r in checked if r["recovery"] is not None), default=None)}
-
-
-def matrix_markdown(out: dict) -> str:
-    """The table of all cases (grouped per timing) and the worst figures.
-
-    Parameters
-    ----------
-    out : dict
-        What :func:`fault_matrix` returned.
-
-    Returns
-    -------
-    str
-        Markdown.
-    """
-    def cell(value):
-        return "—" if value is None else str(value)
-
-    lines = [f"### Safe state under every fault ({out['law']}, {out['real']} firmware, SIL bench)", "",
-             f"{out['cases']} cases; worst cycles to the safe state: firmware {cell(out['worst_firmware'])}, "
-             f"force at every joint {cell(out['worst_joints'])} (limit {DETECTION_LIMIT}); worst recovery "
-             f"{cell(out['worst_recovery'])} cycles after the fault ends; "
-             + ("every case passes." if not out["failed"] else f"**{len(out['failed'])} fail**: "
-                + "; ".join(out["failed"][:10])), "",
-             "| fault | timing | firmware safe [cycles] | joints at F_safe [cycles] | holds | recovery [cycles] | ok |",
-             "|---|---|---:|---:|---|---:|---|"]
-    for r in out["rows"]:
-        note = f" (output stage of {', '.join(r['failed_output_stage'])} failed: that joint cannot)" \
-            if r["failed_output_stage"] else ""
-        if r["tolerated"]:
-            lines.append(f"| {r['case']} | {r['timing']} | no safe state (used late) | — | — | — | "
-                         f"{'yes' if r['ok'] else '**no**'} |")
-            continue
-        lines.append(f"| {r['case']}{note} | {r['timing']} | {cell(r['firmware'])} | {cell(r['joints'])} | "
-                     f"{'yes' if r['holds'] else '**no**'} | {cell(r['recovery'])} | {'yes' if r['ok'] else '**no**'} |")
-    return "\n".join(lines) + "\n"
-
-
-def summary_markdown(out: dict, table: str) -> str:
-    """The report's paragraph: what was run, the worst figures, the failing cases (if any).
-
-    Parameters
-    ----------
-    out : dict
-        What :func:`fault_matrix` returned.
-    table : str
-        The file of the full table (linked).
-
-    Returns
-    -------
-    str
-        Markdown.
-    """
-    def cell(value):
-        return "—" if value is None else str(value)
-
-    timings = sorted({r["timing"] for r in out["rows"]})
-    lines = [f"### Safe state under every fault ({out['law']}, {out['real']} firmware, SIL bench)", "",
-             f"{out['cases']} cases — every fault kind on every frame, every implausible signal, every amplifier "
-             f"fault and the bus off, timed {', '.join(timings)}. Worst cycles until the safe state holds: "
-             f"firmware {cell(out['worst_firmware'])}, the force at every joint {cell(out['worst_joints'])} (limit "
-             f"{DETECTION_LIMIT}); worst recovery {cell(out['worst_recovery'])} cycles after a fault ends. "
-             + ("Every case passes." if not out["failed"] else f"**{len(out['failed'])} cases fail:** "
-                + "; ".join(out["failed"][:20]) + ".") + f" All cases: [{table}]({table}).", ""]
-    return "\n".join(lines)
-
-
-def plot_matrix(out: dict, path):
-    """Plot safety_cycles.png: how many cases reach the safe state or recover after how many cycles.
-
-    Parameters
-    ----------
-    out : dict
-        What :func:`fault_matrix` returned.
-    path : path
-        The figure file.
-
-    Returns
-    -------
-    path
-        ``path``.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    checked = [r for r in out["rows"] if not r["tolerated"] and r.get("observable", True)]
-    fig, ax = plt.subplots(figsize=(7, 3.4))
-    width = 0.27
-    for offset, key, label in ((-width, "firmware", "firmware safe"), (0.0, "joints", "F_safe at every joint"),
-                               (width, "recovery", "recovered after the fault")):
-        values = [r[key] for r in checked if r[key] is not None]
-        if not values:
-            continue
-        counts = np.bincount(values)
-        ax.bar(np.arange(counts.size) + offset, counts, width, label=f"{label} ({len(values)} cases)")
-    ax.axvline(DETECTION_LIMIT + 0.5, color="k", lw=0.8, ls="--")
-    ax.text(DETECTION_LIMIT + 0.55, ax.get_ylim()[1] * 0.9, "limit", fontsize=8)
-    ax.set_xlabel("controller cycles after the fault (or its end, for recovery)")
-    ax.set_ylabel("cases")
-    ax.set_title(f"{out['cases']} fault cases on the SIL bench ({out['law']})")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return {
+        "law": law,
+        "real": real,
+        "rows": rows,
+        "cases": len(rows),
+        "failed": [r["case"] + " (" + r["timing"] + ")" for r in rows if not r["ok"]],
+        "worst_firmware": max((r["firmware"] for r in checked if r["firmware"] is not None), default=None),
+        "worst_joints": max((r["joints"] for r in checked if r["joints"] is not None), default=None),
+        "worst_recovery": max((r["recovery"] for r in checked if r["recovery"] is not None), default=None),
+    }

@@ -71,15 +71,96 @@ def _mil_runs(setup, law: str, controller, spread_runs: int) -> tuple:
 def _simulate(setup, loop: SilLoop):
     """The study's plant with the CAN loop as its controller; the buses closed whatever happens."""
     try:
-        return plant.simulate(setup.plant, setup.laws, loop, setup.pulse(), setup.duration, setup.plant_step,
-                                 record_every=closed_loop.PLANT_STEPS_PER_SAMPLE, energy_books=False)
+        return plant.simulate(
+            setup.plant,
+            setup.laws,
+            loop,
+            setup.pulse(),
+            setup.duration,
+            setup.plant_step,
+            record_every=closed_loop.PLANT_STEPS_PER_SAMPLE,
+            energy_books=False,
+        )
     finally:
         loop.close()
 
 
-def sil_study(setup, artifact, laws=("siso", "clqg"), real: str = "float", faults=(), log_folder=None,
-              amplifier: dict | None = None, bitrate: int = 1_000_000, data_bitrate: int | None = 5_000_000,
-              spread_runs: int = 6, interface: str = "virtual", channel: str = "smartjoint-sil", progress=print) -> dict:
+def _check_faults_against(db, artifact, faults) -> None:
+    """Refuse faults that mean nothing on the artefact's bus: its frames, joints and signals."""
+    check_faults(
+        faults,
+        {m.name for m in db.messages},
+        list(artifact.joint_names),
+        {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in db.messages},
+    )
+
+
+def _study_header(db, bitrate: int, data_bitrate: int | None, real: str, amplifier: dict | None) -> dict[str, Any]:
+    """The study's figures before any run: the bus's bitrates and planned load, the scalar type."""
+    planned = busload.check(db, bitrate, data_bitrate)
+    return {
+        "bitrate": bitrate,
+        "data_bitrate": data_bitrate,
+        "planned_bus_load": planned.load,
+        "real": real,
+        "amplifier": dict(amplifier or {}),
+        "laws": {},
+    }
+
+
+def _sil_run(setup, artifact, law, real, faults, log_folder, amplifier, interface, channel):
+    """One law's compiled firmware through the CAN loop: the loop, the plant's result, the log path."""
+    image = firmware.Firmware(artifact, law, real)
+    log_path = None if log_folder is None else Path(log_folder) / f"sil_{law}.blf"
+    if log_path is not None:
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+    loop = SilLoop(
+        image,
+        closed_loop.PULSE_DURATION,
+        faults=faults,
+        interface=interface,
+        channel=channel,
+        log_path=log_path,
+        amplifier=amplifier,
+    )
+    result = _simulate(setup, loop)
+    return loop, result, log_path
+
+
+def _law_figures(setup, artifact, faults, mil, spread, loop, result, log_path, bitrate, data_bitrate) -> dict:
+    """One law's MIL against SIL figures (Eq. 32), bus statistics and injected faults' figures."""
+    energy_measure = float(np.trapezoid(2.0 * result.energy, result.time))
+    return {
+        "energy_measure_mil": mil.energy_measure(),
+        "energy_measure_sil": energy_measure,
+        "energy_measure_difference": energy_measure / mil.energy_measure() - 1.0,
+        "energy_end_mil": float(mil.energy[-1]),
+        "energy_end_sil": float(result.energy[-1]),
+        "mil_spread_under_float_rounding": [min(spread), max(spread)] if spread else None,
+        "max_energy_sil": float(result.energy.max()),
+        "bus": loop.statistics(setup.duration, bitrate, data_bitrate),
+        "log": None if log_path is None else str(log_path),
+        "faults": [{"fault": f.label(), **safety.measure(loop.record, (f,), artifact)} for f in faults],
+        "record": loop.record,
+        "result": result,
+    }
+
+
+def sil_study(
+    setup,
+    artifact,
+    laws=("siso", "clqg"),
+    real: str = "float",
+    faults=(),
+    log_folder=None,
+    amplifier: dict | None = None,
+    bitrate: int = 1_000_000,
+    data_bitrate: int | None = 5_000_000,
+    spread_runs: int = 6,
+    interface: str = "virtual",
+    channel: str = "smartjoint-sil",
+    progress=print,
+) -> dict:
     """The paper's study through the CAN loop, per law against the model-in-the-loop run.
 
     The Python reference controllers run the study (MIL), then the compiled firmware through the
@@ -121,36 +202,20 @@ def sil_study(setup, artifact, laws=("siso", "clqg"), real: str = "float", fault
     """
     python = {"siso": artifacts.siso_law, "clqg": artifacts.clipped_lqg}
     db = protocol.database(artifact)
-    check_faults(faults, {m.name for m in db.messages}, list(artifact.joint_names),
-                 {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in db.messages})
-    planned = busload.check(db, bitrate, data_bitrate)
-    out: dict[str, Any] = {"bitrate": bitrate, "data_bitrate": data_bitrate, "planned_bus_load": planned.load, "real": real,
-           "amplifier": dict(amplifier or {}), "laws": {}}
+    _check_faults_against(db, artifact, faults)
+    out = _study_header(db, bitrate, data_bitrate, real, amplifier)
     for law in laws:
         progress(f"      {law}: model in the loop (Python reference) …")
         mil, spread = _mil_runs(setup, law, lambda law=law: python[law](artifact), spread_runs)
-        progress(f"      {law}: software in the loop ({real} firmware, CAN {bitrate / 1e6:g}"
-                 f"{'' if data_bitrate is None else f'/{data_bitrate / 1e6:g}'} Mbit/s) …")
-        image = firmware.Firmware(artifact, law, real)
-        log_path = None if log_folder is None else Path(log_folder) / f"sil_{law}.blf"
-        if log_path is not None:
-            log_path.parent.mkdir(parents=True, exist_ok=True)
-        loop = SilLoop(image, closed_loop.PULSE_DURATION, faults=faults, interface=interface, channel=channel,
-                       log_path=log_path, amplifier=amplifier)
-        result = _simulate(setup, loop)
-        energy_measure = float(np.trapezoid(2.0 * result.energy, result.time))
+        progress(
+            f"      {law}: software in the loop ({real} firmware, CAN {bitrate / 1e6:g}"
+            f"{'' if data_bitrate is None else f'/{data_bitrate / 1e6:g}'} Mbit/s) …"
+        )
+        loop, result, log_path = _sil_run(setup, artifact, law, real, faults, log_folder, amplifier, interface, channel)
         out.setdefault("mil_runs", {})[law] = mil
-        out["laws"][law] = {
-            "energy_measure_mil": mil.energy_measure(), "energy_measure_sil": energy_measure,
-            "energy_measure_difference": energy_measure / mil.energy_measure() - 1.0,
-            "energy_end_mil": float(mil.energy[-1]), "energy_end_sil": float(result.energy[-1]),
-            "mil_spread_under_float_rounding": [min(spread), max(spread)] if spread else None,
-            "max_energy_sil": float(result.energy.max()),
-            "bus": loop.statistics(setup.duration, bitrate, data_bitrate),
-            "log": None if log_path is None else str(log_path),
-            "faults": [{"fault": f.label(), **safety.measure(loop.record, (f,), artifact)} for f in faults],
-            "record": loop.record, "result": result,
-        }
+        out["laws"][law] = _law_figures(
+            setup, artifact, faults, mil, spread, loop, result, log_path, bitrate, data_bitrate
+        )
     return out
 
 
@@ -170,17 +235,21 @@ def fault_lines(rows: list) -> list[str]:
     list of str
         The table's lines.
     """
+
     def cell(value):
         return "—" if value is None else str(value)
 
-    lines = ["| fault | window [cycles] | firmware safe [cycles] | joints at F_safe [cycles] | recovery [cycles] |",
-             "|---|---|---:|---:|---:|"]
+    lines = [
+        "| fault | window [cycles] | firmware safe [cycles] | joints at F_safe [cycles] | recovery [cycles] |",
+        "|---|---|---:|---:|---:|",
+    ]
     for r in rows:
         window = f"{r['start']}–{'∞' if r['end'] is None else r['end']}"
         note = "" if r.get("observable", True) else " (never showed)"
         note += f" (output stage of {', '.join(r['failed_output_stage'])} failed)" if r["failed_output_stage"] else ""
-        lines.append(f"| {r['fault']}{note} | {window} | {cell(r['firmware'])} | {cell(r['joints'])} | "
-                     f"{cell(r['recovery'])} |")
+        lines.append(
+            f"| {r['fault']}{note} | {window} | {cell(r['firmware'])} | {cell(r['joints'])} | {cell(r['recovery'])} |"
+        )
     return lines
 
 
@@ -197,19 +266,26 @@ def sil_markdown(out: dict) -> str:
     str
         Markdown: one table row per law, then the injected faults per law.
     """
-    lines = ["## Software in the loop: the study through CAN (firmware + bus + amplifiers)", "",
-             f"{out['real']} firmware, CAN FD {out['bitrate'] / 1e6:g}/{(out['data_bitrate'] or 0) / 1e6:g} Mbit/s, "
-             f"planned worst-case bus load {100 * out['planned_bus_load']:.1f} %.", "",
-             "| law | E(t_e) MIL | E(t_e) SIL | difference | MIL spread under 6e-8 perturbations | e(t_e) MIL / SIL | "
-             "frames | bus load | E2E errors | timeouts | safe samples |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "## Software in the loop: the study through CAN (firmware + bus + amplifiers)",
+        "",
+        f"{out['real']} firmware, CAN FD {out['bitrate'] / 1e6:g}/{(out['data_bitrate'] or 0) / 1e6:g} Mbit/s, "
+        f"planned worst-case bus load {100 * out['planned_bus_load']:.1f} %.",
+        "",
+        "| law | E(t_e) MIL | E(t_e) SIL | difference | MIL spread under 6e-8 perturbations | e(t_e) MIL / SIL | "
+        "frames | bus load | E2E errors | timeouts | safe samples |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for law, f in out["laws"].items():
         bus = f["bus"]
         spread = f["mil_spread_under_float_rounding"]
         band = "—" if spread is None else f"{100 * spread[0]:+.1f} … {100 * spread[1]:+.1f} %"
-        lines.append(f"| {law} | {f['energy_measure_mil']:.4g} | {f['energy_measure_sil']:.4g} | "
-                     f"{100 * f['energy_measure_difference']:+.2f} % | {band} | {f['energy_end_mil']:.3g} / "
-                     f"{f['energy_end_sil']:.3g} | {bus['frames_total']} | {100 * bus['bus_load']:.1f} % | "
-                     f"{bus['e2e_errors']} | {bus['firmware']['timeouts']} | {bus['safe_samples']} |")
+        lines.append(
+            f"| {law} | {f['energy_measure_mil']:.4g} | {f['energy_measure_sil']:.4g} | "
+            f"{100 * f['energy_measure_difference']:+.2f} % | {band} | {f['energy_end_mil']:.3g} / "
+            f"{f['energy_end_sil']:.3g} | {bus['frames_total']} | {100 * bus['bus_load']:.1f} % | "
+            f"{bus['e2e_errors']} | {bus['firmware']['timeouts']} | {bus['safe_samples']} |"
+        )
     for law, f in out["laws"].items():
         if f.get("faults"):
             lines += ["", f"Injected faults ({law}):", ""] + fault_lines(f["faults"])
@@ -244,12 +320,18 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     colours = {"siso": "tab:blue", "clqg": "tab:red"}
     for law, f in out["laws"].items():
         r = f["result"]
-        ax.semilogy(r.time, np.maximum(r.energy, 1e-12), color=colours.get(law, "k"), lw=1.0,
-                    label=f"{law} SIL ({100 * f['energy_measure_difference']:+.2f} % E(t_e))")
+        ax.semilogy(
+            r.time,
+            np.maximum(r.energy, 1e-12),
+            color=colours.get(law, "k"),
+            lw=1.0,
+            label=f"{law} SIL ({100 * f['energy_measure_difference']:+.2f} % E(t_e))",
+        )
         if mil_runs and law in mil_runs:
             m = mil_runs[law]
-            ax.semilogy(m.time, np.maximum(m.energy, 1e-12), "--", color=colours.get(law, "k"), lw=0.8,
-                        label=f"{law} MIL")
+            ax.semilogy(
+                m.time, np.maximum(m.energy, 1e-12), "--", color=colours.get(law, "k"), lw=0.8, label=f"{law} MIL"
+            )
         safe = np.array(f["record"].safe)
         if safe.any():
             t = np.array(f["record"].time)
@@ -285,10 +367,12 @@ def demo_faults(artifact, duration: float) -> tuple:
     """
     joints = list(artifact.joint_names)
     at = lambda fraction, length: (fraction * duration, fraction * duration + length)  # noqa: E731
-    return (Fault("drop", *at(0.125, 0.1), f"JOINT_{joints[0].upper()}"),
-            Fault("corrupt_crc", *at(0.25, 0.05), "TIP_SENSORS"),
-            Fault("amplifier", *at(0.375, 0.1), joints[len(joints) // 2], amplifier_fault="over_temperature"),
-            Fault("bus_off", *at(0.5, 0.05)))
+    return (
+        Fault("drop", *at(0.125, 0.1), f"JOINT_{joints[0].upper()}"),
+        Fault("corrupt_crc", *at(0.25, 0.05), "TIP_SENSORS"),
+        Fault("amplifier", *at(0.375, 0.1), joints[len(joints) // 2], amplifier_fault="over_temperature"),
+        Fault("bus_off", *at(0.5, 0.05)),
+    )
 
 
 def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "float") -> dict:
@@ -316,12 +400,28 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
     faults = demo_faults(artifact, setup.duration) if faults is None else tuple(faults)
     loop = SilLoop(firmware.Firmware(artifact, law, real), closed_loop.PULSE_DURATION, faults=faults)
     result = _simulate(setup, loop)
-    rows = [{"fault": f.label(), "kind": f.kind, "target": f.target or "bus", "start_s": f.start, "end_s": f.end,
-             **safety.measure(loop.record, (f,), artifact)} for f in faults]
+    rows = [
+        {
+            "fault": f.label(),
+            "kind": f.kind,
+            "target": f.target or "bus",
+            "start_s": f.start,
+            "end_s": f.end,
+            **safety.measure(loop.record, (f,), artifact),
+        }
+        for f in faults
+    ]
     after = result.time > closed_loop.PULSE_DURATION
-    return {"law": law, "faults": rows, "max_energy_after_pulse": float(result.energy[after].max()),
-            "energy_end": float(result.energy[-1]), "safe_samples": int(np.sum(loop.record.safe)), "result": result,
-            "record": loop.record, "statistics": loop.statistics(setup.duration, 1_000_000, 5_000_000)}
+    return {
+        "law": law,
+        "faults": rows,
+        "max_energy_after_pulse": float(result.energy[after].max()),
+        "energy_end": float(result.energy[-1]),
+        "safe_samples": int(np.sum(loop.record.safe)),
+        "result": result,
+        "record": loop.record,
+        "statistics": loop.statistics(setup.duration, 1_000_000, 5_000_000),
+    }
 
 
 def fault_markdown(run: dict) -> str:
@@ -340,10 +440,14 @@ def fault_markdown(run: dict) -> str:
     lines = [f"### Injected faults in the study (SIL, {run['law']}): safe state and recovery", ""]
     lines += fault_lines(run["faults"])
     s = run["statistics"]
-    lines += ["", f"Largest energy after the pulse {run['max_energy_after_pulse']:.3g} J (bounded; e(t_e) = "
-              f"{run['energy_end']:.3g} J); {run['safe_samples']} samples in the safe state; firmware counters: "
-              f"CRC errors {s['firmware']['crc_errors']}, counter errors {s['firmware']['counter_errors']}, "
-              f"timeouts {s['firmware']['timeouts']}, implausible frames {s['firmware']['implausible_frames']}.", ""]
+    lines += [
+        "",
+        f"Largest energy after the pulse {run['max_energy_after_pulse']:.3g} J (bounded; e(t_e) = "
+        f"{run['energy_end']:.3g} J); {run['safe_samples']} samples in the safe state; firmware counters: "
+        f"CRC errors {s['firmware']['crc_errors']}, counter errors {s['firmware']['counter_errors']}, "
+        f"timeouts {s['firmware']['timeouts']}, implausible frames {s['firmware']['implausible_frames']}.",
+        "",
+    ]
     return "\n".join(lines)
 
 

@@ -59,15 +59,23 @@ def measure(bays: int, dense: bool) -> dict:
     assembled, cpu_assembled = time.perf_counter(), time.process_time()
     values, _ = eigensolve(model.stiffness, model.mass, MODES)
     solved, cpu_solved = time.perf_counter(), time.process_time()
-    result = {"bays": bays, "n_dof": model.n_dof, "assembly_s": assembled - start, "eigen_s": solved - assembled,
-              "total_s": solved - start, "assembly_cpu_s": cpu_assembled - cpu_start,
-              "eigen_cpu_s": cpu_solved - cpu_assembled, "total_cpu_s": cpu_solved - cpu_start,
-              "f1_hz": float(values[0] ** 0.5 / 6.283185307179586),
-              "f100_hz": float(values[-1] ** 0.5 / 6.283185307179586)}
+    result = {
+        "bays": bays,
+        "n_dof": model.n_dof,
+        "assembly_s": assembled - start,
+        "eigen_s": solved - assembled,
+        "total_s": solved - start,
+        "assembly_cpu_s": cpu_assembled - cpu_start,
+        "eigen_cpu_s": cpu_solved - cpu_assembled,
+        "total_cpu_s": cpu_solved - cpu_start,
+        "f1_hz": float(values[0] ** 0.5 / 6.283185307179586),
+        "f100_hz": float(values[-1] ** 0.5 / 6.283185307179586),
+    }
     if dense:
         begin = time.perf_counter()
-        reference = scipy.linalg.eigh(model.stiffness.toarray(), model.mass.toarray(), subset_by_index=[0, MODES - 1],
-                                      eigvals_only=True)
+        reference = scipy.linalg.eigh(
+            model.stiffness.toarray(), model.mass.toarray(), subset_by_index=[0, MODES - 1], eigvals_only=True
+        )
         result["dense_eigen_s"] = time.perf_counter() - begin
         result["dense_max_rel_diff"] = float(abs(reference / values - 1).max())
     result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -98,27 +106,45 @@ def main() -> int:
             continue
         rows.append(json.loads(done.stdout))
         row = rows[-1]
-        print(f"{bays:4d} bays  {row['n_dof']:7d} DOFs  assembly {row['assembly_s']:6.2f} s  "
-              f"100 modes {row['eigen_s']:6.2f} s  total {row['total_s']:6.2f} s (CPU {row['total_cpu_s']:6.2f} s)  "
-              f"peak RSS {row['peak_rss_mb']:7.0f} MB  f1 {row['f1_hz']:.4g} Hz", flush=True)
+        print(
+            f"{bays:4d} bays  {row['n_dof']:7d} DOFs  assembly {row['assembly_s']:6.2f} s  "
+            f"100 modes {row['eigen_s']:6.2f} s  total {row['total_s']:6.2f} s (CPU {row['total_cpu_s']:6.2f} s)  "
+            f"peak RSS {row['peak_rss_mb']:7.0f} MB  f1 {row['f1_hz']:.4g} Hz",
+            flush=True,
+        )
         if "dense_eigen_s" in row:
-            print(f"      baseline dense LAPACK eigh (same K, M): {row['dense_eigen_s']:.2f} s → sparse is "
-                  f"{row['dense_eigen_s'] / row['eigen_s']:.1f}× faster; max rel. eigenvalue difference "
-                  f"{row['dense_max_rel_diff']:.1e}")
+            print(
+                f"      baseline dense LAPACK eigh (same K, M): {row['dense_eigen_s']:.2f} s → sparse is "
+                f"{row['dense_eigen_s'] / row['eigen_s']:.1f}× faster; max rel. eigenvalue difference "
+                f"{row['dense_max_rel_diff']:.1e}"
+            )
     for bays, limit in TARGETS.items():
         target = next((r for r in rows if r["bays"] == bays), None)
         if target:
-            print(f"target {bays} bays ≤ {limit:g} s: {target['total_s']:.2f} s → "
-                  f"{'met' if target['total_s'] <= limit else 'MISSED'}")
+            print(
+                f"target {bays} bays ≤ {limit:g} s: {target['total_s']:.2f} s → "
+                f"{'met' if target['total_s'] <= limit else 'MISSED'}"
+            )
     import numpy
     import scipy
     from machine import cpu_model
 
-    machine = {"python": platform.python_version(), "numpy": numpy.__version__, "scipy": scipy.__version__,
-               "machine": platform.machine(), "cpu": cpu_model(), "cpus": os.cpu_count(),
-               "blas_threads": environment["OPENBLAS_NUM_THREADS"], "load_average_1min": os.getloadavg()[0]}
-    Path(args.json).write_text(json.dumps({"benchmark": "fe_scale", "modes": MODES, "machine": machine, "rows": rows,
-                                           "failed": failed}, indent=1) + "\n")
+    machine = {
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "scipy": scipy.__version__,
+        "machine": platform.machine(),
+        "cpu": cpu_model(),
+        "cpus": os.cpu_count(),
+        "blas_threads": environment["OPENBLAS_NUM_THREADS"],
+        "load_average_1min": os.getloadavg()[0],
+    }
+    Path(args.json).write_text(
+        json.dumps(
+            {"benchmark": "fe_scale", "modes": MODES, "machine": machine, "rows": rows, "failed": failed}, indent=1
+        )
+        + "\n"
+    )
     return 1 if failed else 0
 
 

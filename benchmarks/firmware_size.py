@@ -23,7 +23,8 @@ modules in the double build at -O2 (every double operation a libgcc soft-float c
 single-precision FPU — the alternative a firmware author would actually choose: the ratio
 shows what the float build buys), and the float build at -O0 (what the optimiser buys).
 
-    python benchmarks/firmware_size.py [--artifact firmware/generated/controller.json] [--json benchmarks/firmware_size.json]
+    python benchmarks/firmware_size.py [--artifact firmware/generated/controller.json] \
+        [--json benchmarks/firmware_size.json]
 """
 
 from __future__ import annotations
@@ -46,7 +47,13 @@ from smartjoint.design.control import artifact as artifacts
 ROOT = Path(__file__).resolve().parents[1]
 TARGET = ["-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"]
 BASE_FLAGS = [f for f in build.FLAGS if f != "-O2"]
-TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "arm-none-eabi-objdump", "arm-none-eabi-objcopy", "arm-none-eabi-nm")
+TOOLS = (
+    "arm-none-eabi-gcc",
+    "arm-none-eabi-size",
+    "arm-none-eabi-objdump",
+    "arm-none-eabi-objcopy",
+    "arm-none-eabi-nm",
+)
 LAWS = (("siso", "SISO"), ("clqg", "clipped LQG"))
 BUILDS = (("float", "-O2"), ("double", "-O2"), ("float", "-O0"))  # ours first, then the two baselines
 LIMITS = {"flash": 8 * 1024, "ram": 1024, "stack": 512}
@@ -62,16 +69,22 @@ def run(command: list[str], cwd: Path | None = None) -> str:
 def check_tools() -> None:
     missing = [t for t in TOOLS if shutil.which(t) is None]
     if missing:
-        raise SystemExit(f"error: {', '.join(missing)} not found on PATH — this benchmark needs the GNU Arm "
-                         "Embedded toolchain with newlib (Debian/Ubuntu: apt-get install gcc-arm-none-eabi "
-                         "binutils-arm-none-eabi libnewlib-arm-none-eabi)")
+        raise SystemExit(
+            f"error: {', '.join(missing)} not found on PATH — this benchmark needs the GNU Arm "
+            "Embedded toolchain with newlib (Debian/Ubuntu: apt-get install gcc-arm-none-eabi "
+            "binutils-arm-none-eabi libnewlib-arm-none-eabi)"
+        )
 
 
 def supports_callgraph_info(folder: Path) -> bool:
     probe = folder / "cg_probe.c"
     probe.write_text("int cg_probe(void);\nint cg_probe(void) { return 0; }\n")
-    done = subprocess.run(["arm-none-eabi-gcc", *TARGET, "-fcallgraph-info=su", "-c", str(probe), "-o",
-                           str(folder / "cg_probe.o")], cwd=folder, capture_output=True, text=True)
+    done = subprocess.run(
+        ["arm-none-eabi-gcc", *TARGET, "-fcallgraph-info=su", "-c", str(probe), "-o", str(folder / "cg_probe.o")],
+        cwd=folder,
+        capture_output=True,
+        text=True,
+    )
     return done.returncode == 0
 
 
@@ -202,13 +215,16 @@ def struct_sizes(folder: Path, prefix: str) -> dict[str, dict[str, int]]:
     """sizeof of every caller-owned struct, compiled for the target and read back from .rodata."""
     names = [(law, kind) for law, _ in LAWS for kind in ("state", "input", "output")]
     text = "".join(f'#include "{prefix}_{law}.h"\n' for law, _ in LAWS)
-    text += (f"extern const unsigned long size_probe[{len(names)}];\nconst unsigned long size_probe[{len(names)}] = {{"
-             + ", ".join(f"sizeof({prefix}_{law}_{kind})" for law, kind in names) + "};\n")
+    text += (
+        f"extern const unsigned long size_probe[{len(names)}];\nconst unsigned long size_probe[{len(names)}] = {{"
+        + ", ".join(f"sizeof({prefix}_{law}_{kind})" for law, kind in names)
+        + "};\n"
+    )
     (folder / "size_probe.c").write_text(text)
     run(["arm-none-eabi-gcc", *TARGET, "-O2", *BASE_FLAGS, "-c", "size_probe.c", "-o", "size_probe.o"], cwd=folder)
     run(["arm-none-eabi-objcopy", "-O", "binary", "-j", ".rodata", "size_probe.o", "size_probe.bin"], cwd=folder)
     data = (folder / "size_probe.bin").read_bytes()
-    values = [int.from_bytes(data[4 * i:4 * i + 4], "little") for i in range(len(names))]
+    values = [int.from_bytes(data[4 * i : 4 * i + 4], "little") for i in range(len(names))]
     out: dict[str, dict[str, int]] = {}
     for (law, kind), value in zip(names, values):
         out.setdefault(law, {})[kind] = value
@@ -223,10 +239,23 @@ def measure(a, real: str, level: str, folder: Path, callgraph: bool, prefix: str
     for law, _ in LAWS:
         name = f"{prefix}_{law}"
         extra = ["-fstack-usage"] + (["-fcallgraph-info=su"] if callgraph else [])
-        run(["arm-none-eabi-gcc", *TARGET, level, *extra, *BASE_FLAGS, "-c", f"{name}.c", "-o", f"{name}.o"],
-            cwd=folder)
-        run(["arm-none-eabi-gcc", *TARGET, "-nostartfiles", "-Wl,--gc-sections", f"-Wl,--entry={name}_step",
-             f"-Wl,--undefined={name}_init", f"{name}.o", "-o", f"{name}.elf"], cwd=folder)
+        run(
+            ["arm-none-eabi-gcc", *TARGET, level, *extra, *BASE_FLAGS, "-c", f"{name}.c", "-o", f"{name}.o"], cwd=folder
+        )
+        run(
+            [
+                "arm-none-eabi-gcc",
+                *TARGET,
+                "-nostartfiles",
+                "-Wl,--gc-sections",
+                f"-Wl,--entry={name}_step",
+                f"-Wl,--undefined={name}_init",
+                f"{name}.o",
+                "-o",
+                f"{name}.elf",
+            ],
+            cwd=folder,
+        )
         image = Disassembly(folder / f"{name}.elf")
         su = stack_usage(folder / f"{name}.su")
         if callgraph:
@@ -270,12 +299,25 @@ def measure_image(a, folder: Path, callgraph: bool, prefix: str = "smartjoint") 
     sources = [f"{prefix}_siso", f"{prefix}_clqg", f"{prefix}_can", "sj_e2e"]
     extra = ["-fstack-usage"] + (["-fcallgraph-info=su"] if callgraph else [])
     for name in sources:
-        run(["arm-none-eabi-gcc", *TARGET, "-O2", *extra, *BASE_FLAGS, "-c", f"{name}.c", "-o", f"{name}.o"],
-            cwd=folder)
+        run(
+            ["arm-none-eabi-gcc", *TARGET, "-O2", *extra, *BASE_FLAGS, "-c", f"{name}.c", "-o", f"{name}.o"], cwd=folder
+        )
     entries = [f"{prefix}_can_{e}" for e in ("step", "rx", "tx", "init")]
-    run(["arm-none-eabi-gcc", *TARGET, "-nostartfiles", "-Wl,--gc-sections", f"-Wl,--entry={entries[0]}",
-         *[f"-Wl,--undefined={e}" for e in entries[1:]], *[f"{n}.o" for n in sources], "-lm", "-o", "image.elf"],
-        cwd=folder)
+    run(
+        [
+            "arm-none-eabi-gcc",
+            *TARGET,
+            "-nostartfiles",
+            "-Wl,--gc-sections",
+            f"-Wl,--entry={entries[0]}",
+            *[f"-Wl,--undefined={e}" for e in entries[1:]],
+            *[f"{n}.o" for n in sources],
+            "-lm",
+            "-o",
+            "image.elf",
+        ],
+        cwd=folder,
+    )
     image = Disassembly(folder / "image.elf")
     su: dict = {}
     graph: dict = {}
@@ -287,25 +329,106 @@ def measure_image(a, folder: Path, callgraph: bool, prefix: str = "smartjoint") 
     frames = {f: size for f, (size, _) in su.items()}
     stacks = {e: worst_stack(e, frames, graph, image)[:2] for e in entries}
     worst = max(stacks, key=lambda e: stacks[e][0])
-    (folder / "probe.c").write_text(f'#include "{prefix}_can.h"\nextern const unsigned long probe;\n'
-                                    f"const unsigned long probe = sizeof({prefix}_can_state);\n")
+    (folder / "probe.c").write_text(
+        f'#include "{prefix}_can.h"\nextern const unsigned long probe;\n'
+        f"const unsigned long probe = sizeof({prefix}_can_state);\n"
+    )
     run(["arm-none-eabi-gcc", *TARGET, "-O2", *BASE_FLAGS, "-c", "probe.c", "-o", "probe.o"], cwd=folder)
     run(["arm-none-eabi-objcopy", "-O", "binary", "-j", ".rodata", "probe.o", "probe.bin"], cwd=folder)
     state = int.from_bytes((folder / "probe.bin").read_bytes()[:4], "little")
     elf = berkeley(folder / "image.elf")
-    return {"flash": elf["text"] + elf["data"], "static_ram": elf["data"] + elf["bss"], "state": state,
-            "ram": elf["data"] + elf["bss"] + state + 64 + 64,  # + one rx and one tx frame buffer
-            "stack": stacks[worst][0], "stack_chain": stacks[worst][1],
-            "modules": {n: berkeley(folder / f"{n}.o")["text"] for n in sources}}
+    return {
+        "flash": elf["text"] + elf["data"],
+        "static_ram": elf["data"] + elf["bss"],
+        "state": state,
+        "ram": elf["data"] + elf["bss"] + state + 64 + 64,  # + one rx and one tx frame buffer
+        "stack": stacks[worst][0],
+        "stack_chain": stacks[worst][1],
+        "modules": {n: berkeley(folder / f"{n}.o")["text"] for n in sources},
+    }
 
 
 def machine() -> dict:
-    return {"platform": platform.platform(), "cpu": cpu_model(), "python": platform.python_version(),
-            "compiler": run(["arm-none-eabi-gcc", "--version"]).splitlines()[0]}
+    return {
+        "platform": platform.platform(),
+        "cpu": cpu_model(),
+        "python": platform.python_version(),
+        "compiler": run(["arm-none-eabi-gcc", "--version"]).splitlines()[0],
+    }
 
 
 def mark(value: int, limit: int) -> str:
     return "✔" if value <= limit else "✘"
+
+
+def _print_table(results: dict) -> None:
+    """One line per controller law and build: sections, flash, caller-owned structs, RAM and stack."""
+    header = (
+        f"{'controller':12s} {'build':10s} {'.text':>6s} {'.rodata':>7s} {'.data':>5s} {'.bss':>4s} "
+        f"{'flash obj':>9s} {'flash linked':>12s} {'structs':>7s} {'RAM':>5s} {'stack':>5s}"
+    )
+    print("\n" + header + "\n" + "-" * len(header))
+    for law, title in LAWS:
+        for key in results:
+            r = results[key][law]
+            s = r["sections"]
+            print(
+                f"{title:12s} {key:10s} {s['.text']:6d} {s['.rodata']:7d} {s['.data']:5d} {s['.bss']:4d} "
+                f"{r['flash_module']:9d} {r['flash_linked']:12d} {sum(r['structs'].values()):7d} {r['ram']:5d} "
+                f"{r['stack']:5d}"
+            )
+
+
+def _print_targets(results: dict, ours: str, baselines: tuple[str, ...]) -> dict:
+    """Our build of each law against the limits and the baseline builds; which targets it meets."""
+    verdict = {}
+    print(
+        f"\ntargets (float -O2 build; flash = linked image incl. library routines, RAM = .data + .bss + "
+        f"caller-owned structs): flash ≤ {LIMITS['flash']} B, RAM ≤ {LIMITS['ram']} B, stack ≤ {LIMITS['stack']} B"
+    )
+    for law, title in LAWS:
+        r = results[ours][law]
+        st = r["structs"]
+        verdict[law] = {
+            "flash": r["flash_linked"] <= LIMITS["flash"],
+            "ram": r["ram"] <= LIMITS["ram"],
+            "stack": r["stack"] <= LIMITS["stack"],
+        }
+        print(f"{title}:")
+        print(
+            f"  flash {r['flash_linked']:5d} B {mark(r['flash_linked'], LIMITS['flash'])}  (module "
+            f"{r['flash_module']} B: .text {r['sections']['.text']} + .rodata {r['sections']['.rodata']} + .data "
+            f"{r['sections']['.data']}; library: {', '.join(r['library_routines']) or 'none'})"
+        )
+        print(
+            f"  RAM   {r['ram']:5d} B {mark(r['ram'], LIMITS['ram'])}  (static {r['static_ram']} B + state "
+            f"{st['state']} + input {st['input']} + output {st['output']} B)"
+        )
+        print(f"  stack {r['stack']:5d} B {mark(r['stack'], LIMITS['stack'])}  ({' → '.join(r['stack_chain'])})")
+        for base in baselines:
+            b = results[base][law]
+            ratios = ", ".join(
+                f"{what} {b[field]} B ({b[field] / r[field]:.2f}×)"
+                for what, field in (("flash", "flash_linked"), ("RAM", "ram"), ("stack", "stack"))
+            )
+            print(f"  baseline {base}: {ratios}")
+    return verdict
+
+
+def _print_whole_image(whole: dict) -> None:
+    """Flash, RAM and stack of the whole linked firmware image."""
+    print("\nwhole firmware image (float -O2: SISO + clipped LQG + CAN layer + E2E, linked from the CAN entry points):")
+    print(
+        f"  flash {whole['flash']:5d} B  (modules .text: "
+        + ", ".join(f"{k} {v}" for k, v in whole["modules"].items())
+        + "; the rest: libgcc soft-float for the "
+        "double codec, libm floor)"
+    )
+    print(
+        f"  RAM   {whole['ram']:5d} B  (static {whole['static_ram']} B + state {whole['state']} B + two 64-byte "
+        "frame buffers)"
+    )
+    print(f"  stack {whole['stack']:5d} B  ({' → '.join(whole['stack_chain'])})")
 
 
 def main() -> int:
@@ -317,63 +440,48 @@ def main() -> int:
     a = artifacts.load(Path(args.artifact))
     facts = machine()
     print(f"machine: {facts['platform']}, {facts['cpu']}; compiler: {facts['compiler']}")
-    print(f"artefact: {args.artifact} (sha256 {a.artifact_sha256[:12]}…, n = {len(a.blocks)} coordinates, "
-          f"l = {len(a.joint_names)} joints, n_y = {len(a.sensor_names)} sensors)")
+    print(
+        f"artefact: {args.artifact} (sha256 {a.artifact_sha256[:12]}…, n = {len(a.blocks)} coordinates, "
+        f"l = {len(a.joint_names)} joints, n_y = {len(a.sensor_names)} sensors)"
+    )
     with tempfile.TemporaryDirectory(prefix="firmware_size-") as temporary:
         root = Path(temporary)
         callgraph = supports_callgraph_info(root)
-        print(f"flags: arm-none-eabi-gcc {' '.join(TARGET)} <-O2|-O0> -fstack-usage"
-              f"{' -fcallgraph-info=su' if callgraph else ''} {' '.join(BASE_FLAGS)}")
+        print(
+            f"flags: arm-none-eabi-gcc {' '.join(TARGET)} <-O2|-O0> -fstack-usage"
+            f"{' -fcallgraph-info=su' if callgraph else ''} {' '.join(BASE_FLAGS)}"
+        )
         print(f"call graph from: {'gcc -fcallgraph-info' if callgraph else 'objdump bl targets'}")
-        results = {f"{real} {level}": measure(a, real, level, root / f"{real}{level}", callgraph)
-                   for real, level in BUILDS}
+        results = {
+            f"{real} {level}": measure(a, real, level, root / f"{real}{level}", callgraph) for real, level in BUILDS
+        }
 
-    header = (f"{'controller':12s} {'build':10s} {'.text':>6s} {'.rodata':>7s} {'.data':>5s} {'.bss':>4s} "
-              f"{'flash obj':>9s} {'flash linked':>12s} {'structs':>7s} {'RAM':>5s} {'stack':>5s}")
-    print("\n" + header + "\n" + "-" * len(header))
-    for law, title in LAWS:
-        for key in results:
-            r = results[key][law]
-            s = r["sections"]
-            print(f"{title:12s} {key:10s} {s['.text']:6d} {s['.rodata']:7d} {s['.data']:5d} {s['.bss']:4d} "
-                  f"{r['flash_module']:9d} {r['flash_linked']:12d} {sum(r['structs'].values()):7d} {r['ram']:5d} "
-                  f"{r['stack']:5d}")
+    _print_table(results)
     ours, baselines = "float -O2", ("double -O2", "float -O0")
-    verdict = {}
-    print(f"\ntargets (float -O2 build; flash = linked image incl. library routines, RAM = .data + .bss + "
-          f"caller-owned structs): flash ≤ {LIMITS['flash']} B, RAM ≤ {LIMITS['ram']} B, stack ≤ {LIMITS['stack']} B")
-    for law, title in LAWS:
-        r = results[ours][law]
-        st = r["structs"]
-        verdict[law] = {"flash": r["flash_linked"] <= LIMITS["flash"], "ram": r["ram"] <= LIMITS["ram"],
-                        "stack": r["stack"] <= LIMITS["stack"]}
-        print(f"{title}:")
-        print(f"  flash {r['flash_linked']:5d} B {mark(r['flash_linked'], LIMITS['flash'])}  (module "
-              f"{r['flash_module']} B: .text {r['sections']['.text']} + .rodata {r['sections']['.rodata']} + .data "
-              f"{r['sections']['.data']}; library: {', '.join(r['library_routines']) or 'none'})")
-        print(f"  RAM   {r['ram']:5d} B {mark(r['ram'], LIMITS['ram'])}  (static {r['static_ram']} B + state "
-              f"{st['state']} + input {st['input']} + output {st['output']} B)")
-        print(f"  stack {r['stack']:5d} B {mark(r['stack'], LIMITS['stack'])}  ({' → '.join(r['stack_chain'])})")
-        for base in baselines:
-            b = results[base][law]
-            ratios = ", ".join(f"{what} {b[field]} B ({b[field] / r[field]:.2f}×)" for what, field in
-                               (("flash", "flash_linked"), ("RAM", "ram"), ("stack", "stack")))
-            print(f"  baseline {base}: {ratios}")
+    verdict = _print_targets(results, ours, baselines)
     with tempfile.TemporaryDirectory(prefix="firmware_image-") as temporary:
         whole = measure_image(a, Path(temporary) / "image", callgraph)
-    print("\nwhole firmware image (float -O2: SISO + clipped LQG + CAN layer + E2E, linked from the CAN entry points):")
-    print(f"  flash {whole['flash']:5d} B  (modules .text: "
-          + ", ".join(f"{k} {v}" for k, v in whole["modules"].items()) + "; the rest: libgcc soft-float for the "
-          "double codec, libm floor)")
-    print(f"  RAM   {whole['ram']:5d} B  (static {whole['static_ram']} B + state {whole['state']} B + two 64-byte "
-          "frame buffers)")
-    print(f"  stack {whole['stack']:5d} B  ({' → '.join(whole['stack_chain'])})")
-    Path(args.json).write_text(json.dumps({
-        "whole_image": whole,
-        "benchmark": "firmware_size", "machine": facts, "artifact": str(args.artifact),
-        "artifact_sha256": a.artifact_sha256, "target_flags": TARGET + BASE_FLAGS, "limits_bytes": LIMITS,
-        "call_graph_source": "gcc -fcallgraph-info" if callgraph else "objdump bl targets",
-        "builds": results, "ours": ours, "baselines": list(baselines), "targets_met": verdict}, indent=1) + "\n")
+    _print_whole_image(whole)
+    Path(args.json).write_text(
+        json.dumps(
+            {
+                "whole_image": whole,
+                "benchmark": "firmware_size",
+                "machine": facts,
+                "artifact": str(args.artifact),
+                "artifact_sha256": a.artifact_sha256,
+                "target_flags": TARGET + BASE_FLAGS,
+                "limits_bytes": LIMITS,
+                "call_graph_source": "gcc -fcallgraph-info" if callgraph else "objdump bl targets",
+                "builds": results,
+                "ours": ours,
+                "baselines": list(baselines),
+                "targets_met": verdict,
+            },
+            indent=1,
+        )
+        + "\n"
+    )
     print(f"\nwrote {args.json}")
     return 0
 

@@ -66,8 +66,10 @@ def main() -> int:
     euler_h = largest_stable(euler, t, v)
     peak_rate = P.sigma0 * float(np.max(lugre.g(P, v)))
     print(f"type A, F_N = {NORMAL_FORCE:g} N, stick-slip history with |v| up to {np.abs(v).max():.3g} m/s")
-    print(f"largest stable step: exact-exponential ≥ {exact_h:.3g} s (all tested), explicit Euler {euler_h:.3g} s "
-          f"(theory 2/(σ0·g_max) = {2 / peak_rate:.3g} s) → ratio ≥ {exact_h / euler_h:.3g}")
+    print(
+        f"largest stable step: exact-exponential ≥ {exact_h:.3g} s (all tested), explicit Euler {euler_h:.3g} s "
+        f"(theory 2/(σ0·g_max) = {2 / peak_rate:.3g} s) → ratio ≥ {exact_h / euler_h:.3g}"
+    )
     rows = {}
     for joints in (3, 1000):
         phi = np.zeros(joints)
@@ -75,14 +77,25 @@ def main() -> int:
         for name, stepper in (("exact", lugre.step), ("euler", euler)):
             count, total = timeit.Timer(lambda: stepper(P, phi, velocity, 1e-4)).autorange()
             rows[f"{name}_{joints}"] = total / count
-        print(f"{joints:5d} joints per call: exact {rows[f'exact_{joints}'] * 1e6:8.2f} µs, "
-              f"Euler {rows[f'euler_{joints}'] * 1e6:8.2f} µs per step → exact/Euler cost "
-              f"{rows[f'exact_{joints}'] / rows[f'euler_{joints}']:.2f}")
+        print(
+            f"{joints:5d} joints per call: exact {rows[f'exact_{joints}'] * 1e6:8.2f} µs, "
+            f"Euler {rows[f'euler_{joints}'] * 1e6:8.2f} µs per step → exact/Euler cost "
+            f"{rows[f'exact_{joints}'] / rows[f'euler_{joints}']:.2f}"
+        )
     print("per-step cost ratio is paid once; the step-size ratio above is what it buys")
     machine = {"python": platform.python_version(), "machine": platform.machine(), "cpus": os.cpu_count()}
-    Path(args.json).write_text(json.dumps({"benchmark": "lugre_step", "machine": machine,
-                                           "largest_stable_step_s": {"exact": exact_h, "euler": euler_h},
-                                           "seconds_per_call": rows}, indent=1) + "\n")
+    Path(args.json).write_text(
+        json.dumps(
+            {
+                "benchmark": "lugre_step",
+                "machine": machine,
+                "largest_stable_step_s": {"exact": exact_h, "euler": euler_h},
+                "seconds_per_call": rows,
+            },
+            indent=1,
+        )
+        + "\n"
+    )
     return 0
 
 

@@ -120,9 +120,14 @@ def run(command: list[str], cwd: Path | None = None) -> subprocess.CompletedProc
 
 
 def machine(compiler: str) -> dict:
-    return {"platform": platform.platform(), "cpu": cpu_model(), "cpus": os.cpu_count(),
-            "python": platform.python_version(), "numpy": np.__version__,
-            "compiler": run([compiler, "--version"]).stdout.splitlines()[0]}
+    return {
+        "platform": platform.platform(),
+        "cpu": cpu_model(),
+        "cpus": os.cpu_count(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "compiler": run([compiler, "--version"]).stdout.splitlines()[0],
+    }
 
 
 def inputs(a, count: int, seed: int = 11):
@@ -138,13 +143,24 @@ def inputs(a, count: int, seed: int = 11):
 
 
 def structural_macs(n: int, l: int, ny: int) -> dict:
-    clqg = {"blocks Φ_i (2×2 per coordinate)": 4 * n, "E·u_k and E·u_k+1": 2 * n * l, "γ0, γ1 terms": 4 * n,
-            "C·x̂⁻": ny * 2 * n, "M·innovation": 2 * n * ny, "K·x̂": l * 2 * n,
-            "clipped law (e·sgn/ε, F^min + ΔF·r, u_R·F_N/F_applied)": 3 * l}
+    clqg = {
+        "blocks Φ_i (2×2 per coordinate)": 4 * n,
+        "E·u_k and E·u_k+1": 2 * n * l,
+        "γ0, γ1 terms": 4 * n,
+        "C·x̂⁻": ny * 2 * n,
+        "M·innovation": 2 * n * ny,
+        "K·x̂": l * 2 * n,
+        "clipped law (e·sgn/ε, F^min + ΔF·r, u_R·F_N/F_applied)": 3 * l,
+    }
     siso = {"μ = u_R/F_N, μ·v/ε, F^min + ΔF·r": 3 * l}
-    return {"clqg": {"terms": clqg, "total": sum(clqg.values()),
-                     "formula": "4n + 2·n·l + 4n + n_y·2n + 2n·n_y + l·2n + 3l"},
-            "siso": {"terms": siso, "total": sum(siso.values()), "formula": "3l"}}
+    return {
+        "clqg": {
+            "terms": clqg,
+            "total": sum(clqg.values()),
+            "formula": "4n + 2·n·l + 4n + n_y·2n + 2n·n_y + l·2n + 3l",
+        },
+        "siso": {"terms": siso, "total": sum(siso.values()), "formula": "3l"},
+    }
 
 
 def best_time(action, repeats: int) -> float:
@@ -180,7 +196,10 @@ def c_timing(c, rows: dict[str, np.ndarray]) -> dict:
             init(state)
             loop(state, in_buffer, out_buffer, status, count)
 
-        out[law] = {"run_ns_per_step": wrapped / count * 1e9, "bare_loop_ns_per_step": best_time(bare, REPEATS) / count * 1e9}
+        out[law] = {
+            "run_ns_per_step": wrapped / count * 1e9,
+            "bare_loop_ns_per_step": best_time(bare, REPEATS) / count * 1e9,
+        }
     return out
 
 
@@ -199,11 +218,13 @@ def python_timing(a, measurements: list[Measurements], c, rows: dict[str, np.nda
 
         seconds = best_time(steps, 3)
         controller = compiled()
-        outputs, _ = controller.run(rows[law][:len(measurements)])
+        outputs, _ = controller.run(rows[law][: len(measurements)])
         identical = np.asarray(results).tobytes() == np.ascontiguousarray(outputs[:, :l]).tobytes()
         if not identical:
-            raise SystemExit(f"error: {law}: the C double build and the Python reference differ on these inputs — "
-                             "the timings would not compare the same computation")
+            raise SystemExit(
+                f"error: {law}: the C double build and the Python reference differ on these inputs — "
+                "the timings would not compare the same computation"
+            )
         out[law] = {"ns_per_step": seconds / len(measurements) * 1e9, "bit_identical_to_c": identical}
     return out
 
@@ -212,14 +233,26 @@ def callgrind(a, rows: dict[str, np.ndarray], compiler: str, folder: Path) -> di
     output.write(generate.render(a, "double", PREFIX), folder)
     (folder / "bench_main.c").write_text(BENCH_MAIN.replace("PREFIX", PREFIX))
     for law in ("siso", "clqg"):
-        np.ascontiguousarray(rows[law][:max(CALLGRIND_STEPS)], dtype=np.float64).tofile(folder / f"{law}.bin")
-    run([compiler, *build.FLAGS, "-o", "bench", f"{PREFIX}_siso.c", f"{PREFIX}_clqg.c", "bench_main.c", "-lm"],
-        cwd=folder)
+        np.ascontiguousarray(rows[law][: max(CALLGRIND_STEPS)], dtype=np.float64).tofile(folder / f"{law}.bin")
+    run(
+        [compiler, *build.FLAGS, "-o", "bench", f"{PREFIX}_siso.c", f"{PREFIX}_clqg.c", "bench_main.c", "-lm"],
+        cwd=folder,
+    )
     counts = {}
     for steps in CALLGRIND_STEPS:
         out = folder / f"callgrind.{steps}"
-        run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", "./bench", str(steps), "siso.bin",
-             "clqg.bin"], cwd=folder)
+        run(
+            [
+                "valgrind",
+                "--tool=callgrind",
+                f"--callgrind-out-file={out}",
+                "./bench",
+                str(steps),
+                "siso.bin",
+                "clqg.bin",
+            ],
+            cwd=folder,
+        )
         text = run(["callgrind_annotate", "--inclusive=yes", "--threshold=100", str(out)]).stdout
         total = int(re.search(r"^\s*([\d,]+)\s.*PROGRAM TOTALS", text, re.M).group(1).replace(",", ""))
         counts[steps] = {"total": total}
@@ -230,50 +263,36 @@ def callgrind(a, rows: dict[str, np.ndarray], compiler: str, folder: Path) -> di
             counts[steps][law] = int(m.group(1).replace(",", ""))
     low, high = CALLGRIND_STEPS
     delta = high - low
-    return {"steps": list(CALLGRIND_STEPS), "ir": {str(k): v for k, v in counts.items()},
-            "siso_ir_per_step": (counts[high]["siso"] - counts[low]["siso"]) / delta,
-            "clqg_ir_per_step": (counts[high]["clqg"] - counts[low]["clqg"]) / delta,
-            "program_ir_per_step_both_laws": (counts[high]["total"] - counts[low]["total"]) / delta}
+    return {
+        "steps": list(CALLGRIND_STEPS),
+        "ir": {str(k): v for k, v in counts.items()},
+        "siso_ir_per_step": (counts[high]["siso"] - counts[low]["siso"]) / delta,
+        "clqg_ir_per_step": (counts[high]["clqg"] - counts[low]["clqg"]) / delta,
+        "program_ir_per_step_both_laws": (counts[high]["total"] - counts[low]["total"]) / delta,
+    }
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--artifact", default=str(ROOT / "firmware" / "generated" / "controller.json"))
-    parser.add_argument("--json", default=str(Path(__file__).with_name("step_time.json")))
-    args = parser.parse_args()
+def _check_tools() -> str:
+    """valgrind and callgrind_annotate on PATH, and the C compiler ($CC, else cc), which it returns."""
     missing = [t for t in ("valgrind", "callgrind_annotate") if shutil.which(t) is None]
     if missing:
-        raise SystemExit(f"error: {', '.join(missing)} not found on PATH — the instruction counts need valgrind "
-                         "(Debian/Ubuntu: apt-get install valgrind)")
+        raise SystemExit(
+            f"error: {', '.join(missing)} not found on PATH — the instruction counts need valgrind "
+            "(Debian/Ubuntu: apt-get install valgrind)"
+        )
     compiler = os.environ.get("CC", "cc")
     if shutil.which(compiler) is None:
         raise SystemExit(f"error: C compiler {compiler!r} not found (set CC)")
-    a = artifacts.load(Path(args.artifact))
-    n, l, ny = len(a.blocks), len(a.joint_names), len(a.sensor_names)
-    facts = machine(compiler)
-    print(f"machine: {facts['platform']}, {facts['cpu']} ({facts['cpus']} CPUs); compiler: {facts['compiler']}; "
-          f"Python {facts['python']}, numpy {facts['numpy']}")
-    print(f"artefact: {args.artifact} (n = {n} coordinates, l = {l} joints, n_y = {ny} sensors); double build, "
-          f"{' '.join(build.FLAGS)}")
+    return compiler
 
-    sensors, velocity, friction, normal = inputs(a, ROWS)
-    rows = {"siso": np.hstack([velocity, friction, normal]), "clqg": np.hstack([sensors, friction, normal])}
-    c = controllers.compile_controllers(a, "double", PREFIX)
-    timing = c_timing(c, rows)
-    statuses = {law: int(np.count_nonzero(make().run(rows[law])[1])) for law, make in
-                (("siso", c.siso), ("clqg", c.clipped_lqg))}
-    measurements = [Measurements(k * a.sample_time, sensors[k], velocity[k], friction[k], normal[k])
-                    for k in range(PY_ROWS)]
-    python = python_timing(a, measurements, c, rows)
-    with tempfile.TemporaryDirectory(prefix="step_time-") as temporary:
-        counts = callgrind(a, rows, compiler, Path(temporary))
-    macs = structural_macs(n, l, ny)
 
-    print(f"\n{ROWS} steps per run, best of {REPEATS} (steps with a non-OK status: {statuses}); Python on the first "
-          f"{PY_ROWS} rows, best of 3, bit-identical to C: "
-          f"{all(p['bit_identical_to_c'] for p in python.values())}")
-    header = (f"{'controller':12s} {'C run() [ns]':>12s} {'C bare loop [ns]':>16s} {'Ir/step':>8s} {'min MACs':>8s} "
-              f"{'Ir/MAC':>6s} {'Python [µs]':>11s} {'C vs Python':>11s}")
+def _print_table(timing: dict, counts: dict, macs: dict, python: dict) -> dict:
+    """One line per law: C time per step, instructions per step and per multiply-add, Python
+    time and the C speed-up; the last two per law as the summary."""
+    header = (
+        f"{'controller':12s} {'C run() [ns]':>12s} {'C bare loop [ns]':>16s} {'Ir/step':>8s} {'min MACs':>8s} "
+        f"{'Ir/MAC':>6s} {'Python [µs]':>11s} {'C vs Python':>11s}"
+    )
     print(header + "\n" + "-" * len(header))
     summary = {}
     for law, title in (("siso", "SISO"), ("clqg", "clipped LQG")):
@@ -281,9 +300,16 @@ def main() -> int:
         per_mac = ir / macs[law]["total"]
         speedup = python[law]["ns_per_step"] / timing[law]["run_ns_per_step"]
         summary[law] = {"instructions_per_mac": per_mac, "c_vs_python_speedup": speedup}
-        print(f"{title:12s} {timing[law]['run_ns_per_step']:12.1f} {timing[law]['bare_loop_ns_per_step']:16.1f} "
-              f"{ir:8.1f} {macs[law]['total']:8d} {per_mac:6.2f} {python[law]['ns_per_step'] / 1e3:11.2f} "
-              f"{speedup:10.0f}×")
+        print(
+            f"{title:12s} {timing[law]['run_ns_per_step']:12.1f} {timing[law]['bare_loop_ns_per_step']:16.1f} "
+            f"{ir:8.1f} {macs[law]['total']:8d} {per_mac:6.2f} {python[law]['ns_per_step'] / 1e3:11.2f} "
+            f"{speedup:10.0f}×"
+        )
+    return summary
+
+
+def _print_structural_minimum(macs: dict, n: int, l: int, ny: int) -> None:
+    """The multiply-adds a step of each law needs at least, term by term."""
     print(f"\nstructural minimum per step (multiply-adds), n = {n}, l = {l}, n_y = {ny}:")
     for law, title in (("clqg", "cLQG"), ("siso", "SISO")):
         terms = " + ".join(f"{v}" for v in macs[law]["terms"].values())
@@ -291,18 +317,89 @@ def main() -> int:
         print(f"  {title}: {macs[law]['formula']}{terms} = {macs[law]['total']}")
         for name, value in macs[law]["terms"].items():
             print(f"      {value:4d}  {name}")
-    print(f"whole bench program: ΔIr/ΔN = {counts['program_ir_per_step_both_laws']:.1f} per step of both laws "
-          f"(loop, checksum and row indexing included); callgrind steps {CALLGRIND_STEPS}")
+
+
+def _print_target(summary: dict) -> bool:
+    """Whether the clipped LQG meets the instructions-per-multiply-add target, printed."""
     met = summary["clqg"]["instructions_per_mac"] <= INSTRUCTIONS_PER_MAC_TARGET
-    print(f"target: cLQG instructions per multiply-add ≤ {INSTRUCTIONS_PER_MAC_TARGET:g} at -O2 on x86-64 — "
-          f"{summary['clqg']['instructions_per_mac']:.2f} {'✔' if met else '✘'}")
-    Path(args.json).write_text(json.dumps({
-        "benchmark": "step_time", "machine": facts, "artifact": str(args.artifact),
-        "artifact_sha256": a.artifact_sha256, "flags": build.FLAGS, "sizes": {"n": n, "l": l, "n_y": ny},
-        "rows": ROWS, "repeats": REPEATS, "python_rows": PY_ROWS, "non_ok_status_steps": statuses,
-        "c_ns_per_step": timing, "callgrind": counts, "structural_macs": macs, "python_ns_per_step": python,
-        "summary": summary, "instructions_per_mac_target": INSTRUCTIONS_PER_MAC_TARGET,
-        "target_met": met}, indent=1) + "\n")
+    print(
+        f"target: cLQG instructions per multiply-add ≤ {INSTRUCTIONS_PER_MAC_TARGET:g} at -O2 on x86-64 — "
+        f"{summary['clqg']['instructions_per_mac']:.2f} {'✔' if met else '✘'}"
+    )
+    return met
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--artifact", default=str(ROOT / "firmware" / "generated" / "controller.json"))
+    parser.add_argument("--json", default=str(Path(__file__).with_name("step_time.json")))
+    args = parser.parse_args()
+    compiler = _check_tools()
+    a = artifacts.load(Path(args.artifact))
+    n, l, ny = len(a.blocks), len(a.joint_names), len(a.sensor_names)
+    facts = machine(compiler)
+    print(
+        f"machine: {facts['platform']}, {facts['cpu']} ({facts['cpus']} CPUs); compiler: {facts['compiler']}; "
+        f"Python {facts['python']}, numpy {facts['numpy']}"
+    )
+    print(
+        f"artefact: {args.artifact} (n = {n} coordinates, l = {l} joints, n_y = {ny} sensors); double build, "
+        f"{' '.join(build.FLAGS)}"
+    )
+
+    sensors, velocity, friction, normal = inputs(a, ROWS)
+    rows = {"siso": np.hstack([velocity, friction, normal]), "clqg": np.hstack([sensors, friction, normal])}
+    c = controllers.compile_controllers(a, "double", PREFIX)
+    timing = c_timing(c, rows)
+    statuses = {
+        law: int(np.count_nonzero(make().run(rows[law])[1]))
+        for law, make in (("siso", c.siso), ("clqg", c.clipped_lqg))
+    }
+    measurements = [
+        Measurements(k * a.sample_time, sensors[k], velocity[k], friction[k], normal[k]) for k in range(PY_ROWS)
+    ]
+    python = python_timing(a, measurements, c, rows)
+    with tempfile.TemporaryDirectory(prefix="step_time-") as temporary:
+        counts = callgrind(a, rows, compiler, Path(temporary))
+    macs = structural_macs(n, l, ny)
+
+    print(
+        f"\n{ROWS} steps per run, best of {REPEATS} (steps with a non-OK status: {statuses}); Python on the first "
+        f"{PY_ROWS} rows, best of 3, bit-identical to C: "
+        f"{all(p['bit_identical_to_c'] for p in python.values())}"
+    )
+    summary = _print_table(timing, counts, macs, python)
+    _print_structural_minimum(macs, n, l, ny)
+    print(
+        f"whole bench program: ΔIr/ΔN = {counts['program_ir_per_step_both_laws']:.1f} per step of both laws "
+        f"(loop, checksum and row indexing included); callgrind steps {CALLGRIND_STEPS}"
+    )
+    met = _print_target(summary)
+    Path(args.json).write_text(
+        json.dumps(
+            {
+                "benchmark": "step_time",
+                "machine": facts,
+                "artifact": str(args.artifact),
+                "artifact_sha256": a.artifact_sha256,
+                "flags": build.FLAGS,
+                "sizes": {"n": n, "l": l, "n_y": ny},
+                "rows": ROWS,
+                "repeats": REPEATS,
+                "python_rows": PY_ROWS,
+                "non_ok_status_steps": statuses,
+                "c_ns_per_step": timing,
+                "callgrind": counts,
+                "structural_macs": macs,
+                "python_ns_per_step": python,
+                "summary": summary,
+                "instructions_per_mac_target": INSTRUCTIONS_PER_MAC_TARGET,
+                "target_met": met,
+            },
+            indent=1,
+        )
+        + "\n"
+    )
     print(f"\nwrote {args.json}")
     return 0
 

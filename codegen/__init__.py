@@ -23,7 +23,24 @@ from smartjoint.codegen.output import Placed, place, write
 from smartjoint.codegen.rendering import banner, environment, literal
 
 __all__ = [
-    "FLAGS", "CompiledClippedLqg", "CompiledSiso", "Controllers", "Placed", "back_to_back", "banner", "check_can",
-    "check_folder", "check_names", "check_prefix", "compile_controllers", "compile_object", "declarations",
-    "environment", "literal", "place", "render", "render_can", "write",
+    "FLAGS",
+    "CompiledClippedLqg",
+    "CompiledSiso",
+    "Controllers",
+    "Placed",
+    "back_to_back",
+    "banner",
+    "check_can",
+    "check_folder",
+    "check_names",
+    "check_prefix",
+    "compile_controllers",
+    "compile_object",
+    "declarations",
+    "environment",
+    "literal",
+    "place",
+    "render",
+    "render_can",
+    "write",
 ]

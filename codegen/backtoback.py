@@ -38,8 +38,12 @@ class Recorder:
         return out
 
 
-def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerArtifact, progress=print,
-                 study: closed_loop.Study | None = None) -> dict:
+def back_to_back(
+    setup: closed_loop.StudySetup,
+    artifact: artifacts.ControllerArtifact,
+    progress=print,
+    study: closed_loop.Study | None = None,
+) -> dict:
     """Back-to-back check of the generated controllers on the closed-loop study (SIL vs MIL).
 
     Parameters
@@ -87,10 +91,23 @@ def back_to_back(setup: closed_loop.StudySetup, artifact: artifacts.ControllerAr
             figures["float_run"] = in_loop
         out[name] = figures
     if study is not None:
-        runs = [study.run("passive F_min"), study.run("passive F_max"), out["SISO"].pop("float_run"),
-                out["cLQG"].pop("float_run"), study.run("active LQG")]
-        float_study = closed_loop.Study(study.setup, study.lqg, study.boundary_layer, None, study.clqg_boundary_layer,
-                                        runs, study.sensor_names, study.joint_names)
+        runs = [
+            study.run("passive F_min"),
+            study.run("passive F_max"),
+            out["SISO"].pop("float_run"),
+            out["cLQG"].pop("float_run"),
+            study.run("active LQG"),
+        ]
+        float_study = closed_loop.Study(
+            study.setup,
+            study.lqg,
+            study.boundary_layer,
+            None,
+            study.clqg_boundary_layer,
+            runs,
+            study.sensor_names,
+            study.joint_names,
+        )
         out["float_orderings"] = float_study.orderings()
     return out
 
@@ -111,21 +128,30 @@ def markdown(figures: dict, artifact: artifacts.ControllerArtifact) -> str:
         A Markdown section with one table row per law.
     """
     span = float(np.min(artifact.normal_force_max - artifact.normal_force_min))
-    lines = ["## Generated firmware: back-to-back on the study (SIL vs MIL)", "",
-             "The C of `firmware/` (`smartjoint codegen`) fed with exactly the measurements the Python reference "
-             "controllers saw in the closed-loop study; then the float build in the loop.", "",
-             "| law | samples | double: bit-identical samples | double max abs(ΔF_N) [N] | float max abs(ΔF_N) [N] "
-             "(of the F_N span) | E(t_e) float in the loop vs reference |",
-             "|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        "## Generated firmware: back-to-back on the study (SIL vs MIL)",
+        "",
+        "The C of `firmware/` (`smartjoint codegen`) fed with exactly the measurements the Python reference "
+        "controllers saw in the closed-loop study; then the float build in the loop.",
+        "",
+        "| law | samples | double: bit-identical samples | double max abs(ΔF_N) [N] | float max abs(ΔF_N) [N] "
+        "(of the F_N span) | E(t_e) float in the loop vs reference |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     for name, f in figures.items():
         if name == "float_orderings":
             continue
-        lines.append(f"| {name} | {f['samples']} | {f['double_identical_samples']} | {f['double_max_deviation']:.3g} | "
-                     f"{f['float_max_deviation']:.3g} ({f['float_max_deviation'] / span:.1e}) | "
-                     f"{100 * f['energy_measure_float_relative_error']:+.2f} % |")
+        lines.append(
+            f"| {name} | {f['samples']} | {f['double_identical_samples']} | {f['double_max_deviation']:.3g} | "
+            f"{f['float_max_deviation']:.3g} ({f['float_max_deviation'] / span:.1e}) | "
+            f"{100 * f['energy_measure_float_relative_error']:+.2f} % |"
+        )
     orderings = figures.get("float_orderings")
     if orderings is not None:
         held = all(v for k, v in orderings.items() if k != "power_ratio_active_to_clqg")
-        lines += ["", f"The paper's orderings with the float build in the loop: {'all hold' if held else '**not all hold**'} "
-                  f"({', '.join(k for k, v in orderings.items() if v is True)})."]
+        lines += [
+            "",
+            f"The paper's orderings with the float build in the loop: {'all hold' if held else '**not all hold**'} "
+            f"({', '.join(k for k, v in orderings.items() if v is True)}).",
+        ]
     return "\n".join(lines) + "\n"

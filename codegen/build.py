@@ -54,8 +54,9 @@ def compile_object(source: Path, flags: list[str]) -> Path:
         return target
     compiler = os.environ.get("CC", "cc")
     temporary = target.with_name(f".{target.name}.{os.getpid()}")
-    done = subprocess.run([compiler, *flags, "-fPIC", "-c", str(source), "-o", str(temporary)],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [compiler, *flags, "-fPIC", "-c", str(source), "-o", str(temporary)], capture_output=True, text=True
+    )
     if done.returncode != 0:
         temporary.unlink(missing_ok=True)
         raise ModelError(f"compiling {source.name} with {' '.join(flags)} failed:\n{done.stderr.strip()}")
@@ -204,8 +205,7 @@ def _header_declarations(text: str) -> str:
     return _IDENTIFIER.sub(lambda match: sizes.get(match.group(0), match.group(0)), "\n".join(kept))
 
 
-def load(stem: str, files: Mapping[str, str], header: str, sources: Iterable[str],
-         flags: list[str] | None = None):
+def load(stem: str, files: Mapping[str, str], header: str, sources: Iterable[str], flags: list[str] | None = None):
     """Compile a set of generated files in the build cache and load it with cffi.
 
     The set goes to a cache folder named by its hash (files already there as they are stay
@@ -235,8 +235,11 @@ def load(stem: str, files: Mapping[str, str], header: str, sources: Iterable[str
     digest = hashlib.sha256("\0".join(f"{k}\0{v}" for k, v in sorted(files.items())).encode()).hexdigest()[:16]
     folder = native.cache_dir() / f"{stem}-{digest}"
     glue = {"_glue.c": f'#include "{header}"\n'}
-    stale = {name: text for name, text in {**files, **glue}.items()
-             if not ((folder / name).exists() and (folder / name).read_text() == text)}
+    stale = {
+        name: text
+        for name, text in {**files, **glue}.items()
+        if not ((folder / name).exists() and (folder / name).read_text() == text)
+    }
     if stale:
         output.write(stale, folder)
     flags = FLAGS if flags is None else flags

@@ -27,10 +27,13 @@ def _driver_header(prefix: str) -> str:
     prototypes = "".join(
         f"unsigned int {prefix}_{law}_run({prefix}_{law}_state *state, const {prefix}_{law}_input *input,\n"
         f"                                {prefix}_{law}_output *output, unsigned int *status, int count);\n"
-        for law in LAWS)
-    return (f"/* Batch loops compiled next to the generated controllers (not part of the firmware). */\n"
-            f"#ifndef {guard}\n#define {guard}\n\n"
-            f'#include "{prefix}_siso.h"\n#include "{prefix}_clqg.h"\n\n{prototypes}\n#endif\n')
+        for law in LAWS
+    )
+    return (
+        f"/* Batch loops compiled next to the generated controllers (not part of the firmware). */\n"
+        f"#ifndef {guard}\n#define {guard}\n\n"
+        f'#include "{prefix}_siso.h"\n#include "{prefix}_clqg.h"\n\n{prototypes}\n#endif\n'
+    )
 
 
 def _driver(prefix: str) -> str:
@@ -67,13 +70,23 @@ class Controllers:
         The compiler flags of the generated C; default ``build.FLAGS``.
     """
 
-    def __init__(self, artifact: ControllerArtifact, real: str = "double", prefix: str = "smartjoint",
-                 flags: list[str] | None = None):
+    def __init__(
+        self,
+        artifact: ControllerArtifact,
+        real: str = "double",
+        prefix: str = "smartjoint",
+        flags: list[str] | None = None,
+    ):
         files = generate.render(artifact, real, prefix)
         self.artifact, self.real, self.prefix, self.files = artifact, real, prefix, files
         batch = {**files, "_driver.h": _driver_header(prefix), "_driver.c": _driver(prefix)}
-        self.folder, module = build.load(f"controllers_{prefix}_{real}", batch, "_driver.h",
-                                         (f"{prefix}_siso.c", f"{prefix}_clqg.c", "_driver.c"), flags)
+        self.folder, module = build.load(
+            f"controllers_{prefix}_{real}",
+            batch,
+            "_driver.h",
+            (f"{prefix}_siso.c", f"{prefix}_clqg.c", "_driver.c"),
+            flags,
+        )
         self.ffi, self.lib = module.ffi, module.lib
         self.dtype = np.float32 if real == "float" else np.float64
 
@@ -126,7 +139,7 @@ class _Compiled:
             The commanded normal forces F_N,j [N]; ``status`` holds the step's status bits.
         """
         for field, values in zip(self.input_fields, self._inputs(measurements)):
-            getattr(self._input, field)[0:len(values)] = [float(v) for v in values]
+            getattr(self._input, field)[0 : len(values)] = [float(v) for v in values]
         self.status = int(self._step(self._state, self._input, self._output))
         return np.array(list(self._output.normal_force), dtype=float)
 
@@ -181,8 +194,9 @@ class CompiledClippedLqg(_Compiled):
         return np.array(list(self._output.desired_force), dtype=float)
 
 
-def compile_controllers(artifact: ControllerArtifact, real: str = "double", prefix: str = "smartjoint",
-                        flags: list[str] | None = None) -> Controllers:
+def compile_controllers(
+    artifact: ControllerArtifact, real: str = "double", prefix: str = "smartjoint", flags: list[str] | None = None
+) -> Controllers:
     """Render, compile and load the controllers of an artefact.
 
     Parameters

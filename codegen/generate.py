@@ -24,6 +24,49 @@ from smartjoint.codegen import build, can_layer, output, rendering
 from smartjoint.design.control import artifact as artifacts
 
 
+def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: str, lit, row) -> dict:
+    """What every template sees: names, the banner, the sample time and the ranges both laws check."""
+    banner = rendering.banner(artifact.artifact_sha256, real)
+    return {
+        "prefix": prefix,
+        "PREFIX": prefix.upper(),
+        "real": real,
+        "banner": banner,
+        "banner_hash": "# " + banner[3:-3].replace("\n * ", "\n# "),
+        "zero": lit(0.0),
+        "one": lit(1.0),
+        "sample_time": lit(artifact.sample_time),
+        "joints": list(artifact.joint_names),
+        "sensors": list(artifact.sensor_names),
+        "normal_force_min": row(artifact.normal_force_min),
+        "normal_force_range": row(np.asarray(artifact.normal_force_max) - np.asarray(artifact.normal_force_min)),
+        # The safe state and the plausibility ranges (docs/safety.md): checked by both laws.
+        "safe_normal_force": row(artifact.safe_normal_force),
+        "friction_force_limit": row(artifact.friction_force_limit),
+        "measured_normal_force_min": row(artifact.measured_normal_force_min),
+        "measured_normal_force_max": row(artifact.measured_normal_force_max),
+    }
+
+
+def _clqg_context(common: dict, artifact: artifacts.ControllerArtifact, prefix: str, lit, row) -> dict:
+    """The clipped LQG's context (Eq. 33–34): the 2×2 predictor blocks per coordinate and the gains."""
+    return {
+        **common,
+        "name": f"{prefix}_clqg",
+        "NAME": f"{prefix}_clqg".upper(),
+        "coordinates": int(np.asarray(artifact.blocks).shape[0]),
+        "blocks": [row(b) for b in artifact.blocks],
+        "gamma0": [row(g) for g in artifact.gamma0],
+        "gamma1": [row(g) for g in artifact.gamma1],
+        "joint_input": [row(e) for e in artifact.joint_input],
+        "output": [row(c) for c in artifact.output],
+        "estimator_gain": [row(m) for m in artifact.estimator_gain],
+        "feedback_gain": [row(k) for k in artifact.feedback_gain],
+        "clqg_boundary_layer": lit(artifact.clqg_boundary_layer),
+        "sensor_limit": row(artifact.sensor_limit),
+    }
+
+
 def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: str = "smartjoint") -> dict[str, str]:
     """Render the controllers of an artefact (Eq. 30–31 and Eq. 33–34) into C99 text.
 
@@ -54,47 +97,45 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
     rendering.check(artifact, real, prefix)
     lit = lambda value: rendering.literal(value, real)  # noqa: E731
     row = lambda values: ", ".join(lit(v) for v in np.asarray(values, dtype=float).reshape(-1))  # noqa: E731
-    banner = rendering.banner(artifact.artifact_sha256, real)
-    common = {
-        "prefix": prefix, "PREFIX": prefix.upper(), "real": real, "banner": banner,
-        "banner_hash": "# " + banner[3:-3].replace("\n * ", "\n# "),
-        "zero": lit(0.0), "one": lit(1.0), "sample_time": lit(artifact.sample_time),
-        "joints": list(artifact.joint_names), "sensors": list(artifact.sensor_names),
-        "normal_force_min": row(artifact.normal_force_min),
-        "normal_force_range": row(np.asarray(artifact.normal_force_max) - np.asarray(artifact.normal_force_min)),
-        # The safe state and the plausibility ranges (docs/safety.md): checked by both laws.
-        "safe_normal_force": row(artifact.safe_normal_force),
-        "friction_force_limit": row(artifact.friction_force_limit),
-        "measured_normal_force_min": row(artifact.measured_normal_force_min),
-        "measured_normal_force_max": row(artifact.measured_normal_force_max),
-    }
+    common = _common_context(artifact, real, prefix, lit, row)
     env = rendering.environment()
     files: dict[str, str] = {}
     files[f"{prefix}_types.h"] = env.get_template("types.h.j2").render(common)
-    siso = {**common, "name": f"{prefix}_siso", "NAME": f"{prefix}_siso".upper(),
-            "boundary_layer": row(artifact.siso_boundary_layer),
-            "sliding_velocity_limit": row(artifact.sliding_velocity_limit)}
+    siso = {
+        **common,
+        "name": f"{prefix}_siso",
+        "NAME": f"{prefix}_siso".upper(),
+        "boundary_layer": row(artifact.siso_boundary_layer),
+        "sliding_velocity_limit": row(artifact.sliding_velocity_limit),
+    }
     files[f"{prefix}_siso.h"] = env.get_template("siso.h.j2").render(siso)
     files[f"{prefix}_siso.c"] = env.get_template("siso.c.j2").render(siso)
-    clqg = {**common, "name": f"{prefix}_clqg", "NAME": f"{prefix}_clqg".upper(),
-            "coordinates": int(np.asarray(artifact.blocks).shape[0]),
-            "blocks": [row(b) for b in artifact.blocks], "gamma0": [row(g) for g in artifact.gamma0],
-            "gamma1": [row(g) for g in artifact.gamma1], "joint_input": [row(e) for e in artifact.joint_input],
-            "output": [row(c) for c in artifact.output], "estimator_gain": [row(m) for m in artifact.estimator_gain],
-            "feedback_gain": [row(k) for k in artifact.feedback_gain],
-            "clqg_boundary_layer": lit(artifact.clqg_boundary_layer), "sensor_limit": row(artifact.sensor_limit)}
+    clqg = _clqg_context(common, artifact, prefix, lit, row)
     files[f"{prefix}_clqg.h"] = env.get_template("clqg.h.j2").render(clqg)
     files[f"{prefix}_clqg.c"] = env.get_template("clqg.c.j2").render(clqg)
-    example = {**common, "amplitude": lit(1e-3), "decay": lit(0.995), "friction_scale": lit(1e4),
-               "sensor_scale": lit(10.0)}
+    example = {
+        **common,
+        "amplitude": lit(1e-3),
+        "decay": lit(0.995),
+        "friction_scale": lit(1e4),
+        "sensor_scale": lit(10.0),
+    }
     files["main.c"] = env.get_template("main.c.j2").render(example)
     files["Makefile"] = env.get_template("Makefile.j2").render(common)
     files["CMakeLists.txt"] = env.get_template("CMakeLists.txt.j2").render(common)
     return files
 
 
-def generate(source, folder, real: str = "float", prefix: str = "smartjoint", can: bool = True,
-             check: bool = False, progress=None, **can_options):
+def generate(
+    source,
+    folder,
+    real: str = "float",
+    prefix: str = "smartjoint",
+    can: bool = True,
+    check: bool = False,
+    progress=None,
+    **can_options,
+):
     """The ``smartjoint codegen`` pipeline: render, optionally compile, and place the folder.
 
     The artefact is loaded and validated, the controllers and (``can``) the CAN layer are

@@ -32,31 +32,39 @@ NAME_LENGTH = 32  # keeps identifiers readable; longer DBC symbols get cantools'
 PREFIX_LENGTH = 24
 NAME = re.compile(r"^[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*$")
 PREFIX = re.compile(r"^[a-z][a-z0-9]*(?:_[a-z0-9]+)*$")
-NAME_RULE = ("letters and digits, starting with a letter, words joined by single underscores "
-             f"([A-Za-z][A-Za-z0-9]*(_[A-Za-z0-9]+)*, at most {NAME_LENGTH} characters)")
+NAME_RULE = (
+    "letters and digits, starting with a letter, words joined by single underscores "
+    f"([A-Za-z][A-Za-z0-9]*(_[A-Za-z0-9]+)*, at most {NAME_LENGTH} characters)"
+)
 
 # C89–C23 keywords (C23's lower-case spellings too: bool, true, false, static_assert, …).
-C_KEYWORDS = frozenset("""auto break case char const continue default do double else enum extern float for goto if
+C_KEYWORDS = frozenset(
+    """auto break case char const continue default do double else enum extern float for goto if
 inline int long register restrict return short signed sizeof static struct switch typedef union unsigned void
 volatile while _Alignas _Alignof _Atomic _Bool _Complex _Generic _Imaginary _Noreturn _Static_assert _Thread_local
 _BitInt _Decimal32 _Decimal64 _Decimal128 alignas alignof bool constexpr false nullptr static_assert thread_local
-true typeof typeof_unqual""".split())
+true typeof typeof_unqual""".split()
+)
 # The headers are wrapped in extern "C" for C++ callers: a member named like a C++ keyword breaks them.
-CPP_KEYWORDS = frozenset("""and and_eq asm bitand bitor catch char8_t char16_t char32_t class co_await co_return
+CPP_KEYWORDS = frozenset(
+    """and and_eq asm bitand bitor catch char8_t char16_t char32_t class co_await co_return
 co_yield compl concept const_cast consteval constinit decltype delete dynamic_cast explicit export friend mutable
 namespace new noexcept not not_eq operator or or_eq private protected public reinterpret_cast requires static_cast
-template this throw try typeid typename using virtual wchar_t xor xor_eq""".split())
+template this throw try typeid typename using virtual wchar_t xor xor_eq""".split()
+)
 # Object-like macros and type names of the standard headers the generated code includes (stdint.h,
 # stddef.h, math.h, stdio.h in main.c) or a firmware commonly does (errno.h, assert.h, stdbool.h,
 # complex.h, stdarg.h, setjmp.h, iso646.h), and GCC's predefined lower-case macros outside strict
 # ISO mode (a gnu99 build of `double linux;` reads `double 1;`).
-STANDARD_NAMES = frozenset("""errno assert stdin stdout stderr offsetof setjmp longjmp va_arg va_start va_end va_copy
+STANDARD_NAMES = frozenset(
+    """errno assert stdin stdout stderr offsetof setjmp longjmp va_arg va_start va_end va_copy
 va_list jmp_buf complex imaginary noreturn math_errhandling fpclassify isfinite isinf isnan isnormal signbit
 isgreater isgreaterequal isless islessequal islessgreater isunordered size_t ptrdiff_t max_align_t wint_t
 float_t double_t fpos_t int8_t int16_t int32_t int64_t uint8_t uint16_t uint32_t uint64_t intptr_t uintptr_t
 intmax_t uintmax_t int_least8_t int_least16_t int_least32_t int_least64_t uint_least8_t uint_least16_t
 uint_least32_t uint_least64_t int_fast8_t int_fast16_t int_fast32_t int_fast64_t uint_fast8_t uint_fast16_t
-uint_fast32_t uint_fast64_t linux unix i386""".split())
+uint_fast32_t uint_fast64_t linux unix i386""".split()
+)
 RESERVED = C_KEYWORDS | CPP_KEYWORDS | STANDARD_NAMES
 RUNTIME_PREFIX = "sj_e2e"  # the hand-written E2E runtime's names
 
@@ -80,22 +88,30 @@ def check_prefix(prefix) -> None:
     >>> check_prefix("smartjoint")
     """
     if not (isinstance(prefix, str) and PREFIX.match(prefix) and len(prefix) <= PREFIX_LENGTH):
-        raise ModelError(f"--prefix: {prefix!r} — must be lower-case letters and digits, starting with a letter, "
-                         f"words joined by single underscores ([a-z][a-z0-9]*(_[a-z0-9]+)*, at most {PREFIX_LENGTH} "
-                         "characters)")
+        raise ModelError(
+            f"--prefix: {prefix!r} — must be lower-case letters and digits, starting with a letter, "
+            f"words joined by single underscores ([a-z][a-z0-9]*(_[a-z0-9]+)*, at most {PREFIX_LENGTH} "
+            "characters)"
+        )
     if prefix in RESERVED:
         raise ModelError(f"--prefix: {prefix!r} — a C/C++ keyword or standard library name; choose another prefix")
     if prefix == RUNTIME_PREFIX or prefix.startswith(RUNTIME_PREFIX + "_"):
-        raise ModelError(f"--prefix: {prefix!r} — {RUNTIME_PREFIX}_* names belong to the E2E runtime "
-                         "(firmware/runtime/sj_e2e.h); choose another prefix")
+        raise ModelError(
+            f"--prefix: {prefix!r} — {RUNTIME_PREFIX}_* names belong to the E2E runtime "
+            "(firmware/runtime/sj_e2e.h); choose another prefix"
+        )
 
 
 ARTIFACT_FIELDS = ("joint_names[{}]", "sensor_names[{}]")
 DESIGN_FIELDS = ("joints[{}].name", "sensors[{}].name")  # the design file's keys, checked before any work
 
 
-def check_names(joint_names: Iterable[str], sensor_names: Iterable[str], members: Iterable[str] = (),
-                fields: tuple[str, str] = ARTIFACT_FIELDS) -> None:
+def check_names(
+    joint_names: Iterable[str],
+    sensor_names: Iterable[str],
+    members: Iterable[str] = (),
+    fields: tuple[str, str] = ARTIFACT_FIELDS,
+) -> None:
     """Refuse joint and sensor names of an artefact that cannot become C identifiers.
 
     Parameters
@@ -123,19 +139,27 @@ def check_names(joint_names: Iterable[str], sensor_names: Iterable[str], members
         for i, name in enumerate(names):
             where = template.format(i)
             if not (isinstance(name, str) and NAME.match(name) and len(name) <= NAME_LENGTH):
-                raise ModelError(f"{where}: {name!r} — a {kind} name becomes part of C identifiers: {NAME_RULE}; "
-                                 f"rename {kind} {name!r} in the design file")
+                raise ModelError(
+                    f"{where}: {name!r} — a {kind} name becomes part of C identifiers: {NAME_RULE}; "
+                    f"rename {kind} {name!r} in the design file"
+                )
             key = name.upper()
             if key in seen:
-                raise ModelError(f"{where}: {name!r} — equal to {template.format(seen[key])} {names[seen[key]]!r} but for "
-                                 f"case; the generated macros upper-case names, so they must differ in more than case")
+                raise ModelError(
+                    f"{where}: {name!r} — equal to {template.format(seen[key])} {names[seen[key]]!r} but for "
+                    f"case; the generated macros upper-case names, so they must differ in more than case"
+                )
             seen[key] = i
             if kind == "sensor":
                 member = name.lower()
                 if member in RESERVED:
-                    raise ModelError(f"{where}: {name!r} — becomes the struct member {member!r} of the CAN layer, a "
-                                     "C/C++ keyword or standard library name; rename the sensor in the design file")
+                    raise ModelError(
+                        f"{where}: {name!r} — becomes the struct member {member!r} of the CAN layer, a "
+                        "C/C++ keyword or standard library name; rename the sensor in the design file"
+                    )
                 if member in members:
-                    raise ModelError(f"{where}: {name!r} — becomes the struct member {member!r} of the CAN layer, "
-                                     f"which the sensor frame already has (generated: {', '.join(members)}); rename "
-                                     "the sensor in the design file")
+                    raise ModelError(
+                        f"{where}: {name!r} — becomes the struct member {member!r} of the CAN layer, "
+                        f"which the sensor frame already has (generated: {', '.join(members)}); rename "
+                        "the sensor in the design file"
+                    )

@@ -145,8 +145,10 @@ def inspect(files: dict[str, str], target: Path) -> list[Path]:
     for name, text in files.items():
         path = target / name
         if (path.exists() or path.is_symlink()) and not written_by_codegen(path, text):
-            raise ModelError(f"{path}: not written by smartjoint codegen — codegen replaces only files it generated; "
-                             "move it away or choose another output folder")
+            raise ModelError(
+                f"{path}: not written by smartjoint codegen — codegen replaces only files it generated; "
+                "move it away or choose another output folder"
+            )
     return sorted(p for p in target.iterdir() if p.name not in files)
 
 
@@ -189,8 +191,9 @@ def place(files: dict[str, str], target, check: Callable[[Path], object] | None 
             else:
                 _move_into(files, staging, target)
         except OSError as error:
-            raise ModelError(f"{target}: cannot move the generated files into place ({error.strerror or error}); "
-                             "nothing was changed") from None
+            raise ModelError(
+                f"{target}: cannot move the generated files into place ({error.strerror or error}); nothing was changed"
+            ) from None
     finally:
         if staging is not None:
             shutil.rmtree(staging, ignore_errors=True)

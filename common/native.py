@@ -42,7 +42,9 @@ def cache_dir() -> Path:
 _LOADED: dict[tuple, object] = {}  # per process: a short simulation should not re-hash the source
 
 
-def load(stem: str, declarations: str, source: Path, *, objects: tuple[Path, ...] = (), includes: tuple[Path, ...] = ()):
+def load(
+    stem: str, declarations: str, source: Path, *, objects: tuple[Path, ...] = (), includes: tuple[Path, ...] = ()
+):
     """The cffi module (``.ffi``, ``.lib``) of ``source`` with the C ``declarations``; ``objects``:
     compiled object files linked into it, ``includes``: header folders."""
     stamp = tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) for p in (Path(source), *map(Path, objects)))
@@ -56,8 +58,9 @@ def _load(stem: str, declarations: str, source: Path, objects: tuple[Path, ...],
     text = source.read_text()
     flags = FLAGS
     extra = [f"{p.name}\0{p.read_bytes().hex()}" for p in objects]
-    key = hashlib.sha256("\0".join([declarations, text, " ".join(flags), sys.version, *extra,
-                                    sysconfig.get_platform(), _cpu()]).encode()).hexdigest()[:16]
+    key = hashlib.sha256(
+        "\0".join([declarations, text, " ".join(flags), sys.version, *extra, sysconfig.get_platform(), _cpu()]).encode()
+    ).hexdigest()[:16]
     name = f"_sj_{stem}_{key}"
     target_dir = cache_dir()
     suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"
@@ -67,8 +70,14 @@ def _load(stem: str, declarations: str, source: Path, objects: tuple[Path, ...],
 
         ffi = cffi.FFI()
         ffi.cdef(declarations)
-        ffi.set_source(name, text, extra_objects=[str(p) for p in objects], include_dirs=[str(p) for p in includes],
-                       extra_compile_args=flags, libraries=["m"])
+        ffi.set_source(
+            name,
+            text,
+            extra_objects=[str(p) for p in objects],
+            include_dirs=[str(p) for p in includes],
+            extra_compile_args=flags,
+            libraries=["m"],
+        )
         target_dir.mkdir(parents=True, exist_ok=True)
         build = Path(tempfile.mkdtemp(prefix=f"{name}-", dir=target_dir))
         try:
@@ -102,6 +111,7 @@ def choose(backend: str, what: str, compiled, mirror, failures: list[str], stack
         if backend == "c":
             raise
         failures.append(str(error))
-        warnings.warn(f"{what} falls back to Python (about 100x slower): {error}", RuntimeWarning,
-                      stacklevel=stacklevel + 1)
+        warnings.warn(
+            f"{what} falls back to Python (about 100x slower): {error}", RuntimeWarning, stacklevel=stacklevel + 1
+        )
         return mirror()

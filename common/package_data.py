@@ -17,19 +17,24 @@ FILES: dict[str, tuple[str, ...]] = {
     "smartjoint": ("py.typed",),
     "smartjoint.design.plant": ("plant_kernel.c", "plant_kernel.h"),
     "smartjoint.design.friction": ("rig_kernel.c",),
-    "smartjoint.design": (
-        "data/meroform_10bay.toml",
-        "data/fig10_three_joints.toml",
-        "data/three_type_a.toml",
+    "smartjoint.design": ("data/meroform_10bay.toml", "data/fig10_three_joints.toml", "data/three_type_a.toml"),
+    "smartjoint.codegen": tuple(
+        f"templates/{name}"
+        for name in (
+            "CMakeLists.txt.j2",
+            "Makefile.j2",
+            "can.c.j2",
+            "can.h.j2",
+            "clqg.c.j2",
+            "clqg.h.j2",
+            "main.c.j2",
+            "main_can.c.j2",
+            "siso.c.j2",
+            "siso.h.j2",
+            "types.h.j2",
+        )
     ),
-    "smartjoint.codegen": tuple(f"templates/{name}" for name in (
-        "CMakeLists.txt.j2", "Makefile.j2", "can.c.j2", "can.h.j2", "clqg.c.j2", "clqg.h.j2", "main.c.j2",
-        "main_can.c.j2", "siso.c.j2", "siso.h.j2", "types.h.j2")),
-    "smartjoint.firmware": (
-        "runtime/sj_e2e.c",
-        "runtime/sj_e2e.h",
-        "runtime/replay.c",
-    ),
+    "smartjoint.firmware": ("runtime/sj_e2e.c", "runtime/sj_e2e.h", "runtime/replay.c"),
 }
 
 
@@ -39,8 +44,9 @@ def _root(package: str) -> Path:
     try:
         root = resources.files(package)
     except ModuleNotFoundError:
-        raise ModuleNotFoundError(f"{package} is not installed: the installed smartjoint predates it; "
-                                  "reinstall it (pip install -e .)") from None
+        raise ModuleNotFoundError(
+            f"{package} is not installed: the installed smartjoint predates it; reinstall it (pip install -e .)"
+        ) from None
     # Regular packages on disk (a wheel or an editable install): the traversable is a Path.
     return Path(str(root))
 
@@ -60,6 +66,10 @@ def folder(package: str, name: str) -> Path:
 
 
 def all_files() -> list[tuple[str, Path]]:
-    """Every data file as (path inside the package tree, e.g. ``smartjoint/design/friction/rig_kernel.c``, path on disk)."""
-    return [(f"{package.replace('.', '/')}/{name}", path(package, name))
-            for package, names in FILES.items() for name in names]
+    """Every data file as (path inside the package tree, e.g.
+    ``smartjoint/design/friction/rig_kernel.c``, path on disk)."""
+    return [
+        (f"{package.replace('.', '/')}/{name}", path(package, name))
+        for package, names in FILES.items()
+        for name in names
+    ]

@@ -16,6 +16,18 @@ from smartjoint.design.structure.spec import REFERENCE_DESIGN, load_design, pars
 from smartjoint.design.structure.updating import UpdatingResult, update_model, updated_design
 
 __all__ = [
-    "Design", "DesignError", "FEModel", "ModelError", "Modes", "REFERENCE_DESIGN", "SmartjointError",
-    "UpdatingResult", "build_model", "updated_design", "load_design", "parse_design", "solve_modes", "update_model",
+    "Design",
+    "DesignError",
+    "FEModel",
+    "ModelError",
+    "Modes",
+    "REFERENCE_DESIGN",
+    "SmartjointError",
+    "UpdatingResult",
+    "build_model",
+    "updated_design",
+    "load_design",
+    "parse_design",
+    "solve_modes",
+    "update_model",
 ]

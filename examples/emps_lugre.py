@@ -59,8 +59,14 @@ def coulomb_viscous(force, velocity, acceleration):
 def initial_guess(baseline: dict) -> dict:
     """LuGre start from the Coulomb + viscous fit: stiff bristles, a modest Stribeck bump."""
     coulomb = max(baseline["coulomb"], 1.0)
-    return {"sigma0": 1e6, "sigma1": 1e3, "sigma2": max(baseline["viscous"], 1.0), "coulomb": coulomb,
-            "stribeck": 0.2 * coulomb, "stribeck_velocity": 0.01}
+    return {
+        "sigma0": 1e6,
+        "sigma1": 1e3,
+        "sigma2": max(baseline["viscous"], 1.0),
+        "coulomb": coulomb,
+        "stribeck": 0.2 * coulomb,
+        "stribeck_velocity": 0.01,
+    }
 
 
 def lugre_fit(t, force, velocity, acceleration, start, max_nfev: int = 300):
@@ -83,8 +89,9 @@ def lugre_fit(t, force, velocity, acceleration, start, max_nfev: int = 300):
         return (model - force) / np.sqrt(np.mean(force**2))
 
     theta0 = np.log([start[n] for n in names])
-    solution = scipy.optimize.least_squares(residual, theta0, bounds=(theta0 - 7.0, theta0 + 7.0), diff_step=1e-6,
-                                            max_nfev=max_nfev)
+    solution = scipy.optimize.least_squares(
+        residual, theta0, bounds=(theta0 - 7.0, theta0 + 7.0), diff_step=1e-6, max_nfev=max_nfev
+    )
     p = split(solution.x)
     model, (mass, offset) = solve_linear(p)
     return p, float(mass), float(offset), model
@@ -101,20 +108,32 @@ def main() -> int:
     result = {
         "samples": int(t.size),
         "coulomb_viscous": {**baseline, "nrmse": nrmse(force, baseline_model)},
-        "lugre": {"sigma0": p.sigma0, "sigma1": p.sigma1, "sigma2": p.sigma2, "coulomb": p.coulomb,
-                  "stribeck": p.stribeck, "stribeck_velocity": p.stribeck_velocity, "mass": mass, "offset": offset,
-                  "nrmse": nrmse(force, model)},
+        "lugre": {
+            "sigma0": p.sigma0,
+            "sigma1": p.sigma1,
+            "sigma2": p.sigma2,
+            "coulomb": p.coulomb,
+            "stribeck": p.stribeck,
+            "stribeck_velocity": p.stribeck_velocity,
+            "mass": mass,
+            "offset": offset,
+            "nrmse": nrmse(force, model),
+        },
     }
     if args.json:
         print(json.dumps(result, indent=1))
     else:
         b, lg = result["coulomb_viscous"], result["lugre"]
         print(f"EMPS estimation record, {t.size} samples")
-        print(f"Coulomb + viscous: M = {b['mass']:.2f} kg, Fv = {b['viscous']:.1f} N·s/m, Fc = {b['coulomb']:.2f} N, "
-              f"offset = {b['offset']:.2f} N  →  force NRMSE {b['nrmse']:.4f}")
-        print(f"LuGre (F_N = 1):   M = {lg['mass']:.2f} kg, σ0 = {lg['sigma0']:.3g} N/m, σ1 = {lg['sigma1']:.3g}, "
-              f"σ2 = {lg['sigma2']:.1f}, Fc = {lg['coulomb']:.2f} N, Fd = {lg['stribeck']:.2f} N, "
-              f"vs = {lg['stribeck_velocity']:.3g} m/s, offset = {lg['offset']:.2f} N  →  force NRMSE {lg['nrmse']:.4f}")
+        print(
+            f"Coulomb + viscous: M = {b['mass']:.2f} kg, Fv = {b['viscous']:.1f} N·s/m, Fc = {b['coulomb']:.2f} N, "
+            f"offset = {b['offset']:.2f} N  →  force NRMSE {b['nrmse']:.4f}"
+        )
+        print(
+            f"LuGre (F_N = 1):   M = {lg['mass']:.2f} kg, σ0 = {lg['sigma0']:.3g} N/m, σ1 = {lg['sigma1']:.3g}, "
+            f"σ2 = {lg['sigma2']:.1f}, Fc = {lg['coulomb']:.2f} N, Fd = {lg['stribeck']:.2f} N, "
+            f"vs = {lg['stribeck_velocity']:.3g} m/s, offset = {lg['offset']:.2f} N  →  force NRMSE {lg['nrmse']:.4f}"
+        )
     return 0
 
 

@@ -15,16 +15,15 @@ from types import SimpleNamespace
 from smartjoint import __version__
 from smartjoint.commands import (
     cmd_export_model,
-    cmd_identify,
     cmd_modes,
     cmd_place,
     cmd_reduce,
-    cmd_rig,
     cmd_run,
     cmd_simulate,
     cmd_update,
 )
 from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_sil, cmd_study
+from smartjoint.commands_friction import cmd_identify, cmd_rig
 from smartjoint.common.errors import SmartjointError
 
 
@@ -64,8 +63,9 @@ def _bus_channel(interface_help: str | None = None) -> argparse.ArgumentParser:
 def _shared_options() -> SimpleNamespace:
     """The options several commands take with the same meaning and help text."""
     return SimpleNamespace(
-        design=_parent("design", nargs="?", default=None,
-                       help="design file (TOML); default: the bundled 10-bay reference truss"),
+        design=_parent(
+            "design", nargs="?", default=None, help="design file (TOML); default: the bundled 10-bay reference truss"
+        ),
         no_update=_parent("--no-update", action="store_true", help="use the design's nominal parameters"),
         json_results=_parent("--json", action="store_true", help="print the results as JSON"),
         json_summary=_parent("--json", action="store_true", help="print the summary as JSON"),
@@ -76,42 +76,70 @@ def _shared_options() -> SimpleNamespace:
 
 def _add_model_commands(sub, o: SimpleNamespace) -> None:
     """run, modes, update, export-model."""
-    p = sub.add_parser("run", parents=[o.design, o.json_results],
-                       help="run the whole pipeline on a design and write a report")
-    p.add_argument("-o", "--output", default="smartjoint-report",
-                   help="report folder: new, empty, or the report of an earlier run, which is replaced; anything "
-                        "else is refused (default: %(default)s)")
+    p = sub.add_parser(
+        "run", parents=[o.design, o.json_results], help="run the whole pipeline on a design and write a report"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        default="smartjoint-report",
+        help="report folder: new, empty, or the report of an earlier run, which is replaced; anything "
+        "else is refused (default: %(default)s)",
+    )
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("modes", parents=[o.design, o.no_update, o.json_results],
-                       help="eigenfrequencies, and the EMA comparison where the design has one")
+    p = sub.add_parser(
+        "modes",
+        parents=[o.design, o.no_update, o.json_results],
+        help="eigenfrequencies, and the EMA comparison where the design has one",
+    )
     p.add_argument("-n", "--count", type=_positive_int, default=20, help="number of modes (default: %(default)s)")
     p.set_defaults(func=cmd_modes)
 
-    p = sub.add_parser("update", parents=[o.design, o.json_results],
-                       help="fit the design's [updating] parameters to its measured frequencies")
+    p = sub.add_parser(
+        "update",
+        parents=[o.design, o.json_results],
+        help="fit the design's [updating] parameters to its measured frequencies",
+    )
     p.set_defaults(func=cmd_update)
 
-    p = sub.add_parser("export-model", parents=[o.design, o.json_summary],
-                       help="write the FE model in the neutral JSON format (docs/model-format.md)")
+    p = sub.add_parser(
+        "export-model",
+        parents=[o.design, o.json_summary],
+        help="write the FE model in the neutral JSON format (docs/model-format.md)",
+    )
     p.add_argument("-o", "--output", required=True, help="output file (JSON)")
-    p.add_argument("--joints", choices=("locked", "released"), default="locked",
-                   help="locked: conventional truss; released: joint DOFs free (default: %(default)s)")
+    p.add_argument(
+        "--joints",
+        choices=("locked", "released"),
+        default="locked",
+        help="locked: conventional truss; released: joint DOFs free (default: %(default)s)",
+    )
     p.add_argument("--no-update", action="store_true", help="export the nominal (not updated) model")
     p.set_defaults(func=cmd_export_model)
 
 
 def _add_friction_commands(sub, o: SimpleNamespace) -> None:
     """rig, identify."""
-    p = sub.add_parser("rig", parents=[o.json_summary],
-                       help="simulate the isolated-joint test rig (Section 3.2) and write friction records")
-    p.add_argument("--type", choices=("A", "B"), default=None,
-                   help="joint type (default: the parameter file's joint_type, else A)")
-    p.add_argument("--parameters", metavar="FILE", help="LuGre parameter set (TOML: sigma0, sigma1, sigma2, coulomb, "
-                                                        "stribeck, stribeck_velocity, radius for type B, optional "
-                                                        "joint_type; docs/identification.md)")
-    lugre_flags = p.add_argument_group("LuGre parameter set as flags (all six, and --radius for type B; "
-                                       "without flags or --parameters: the paper's Table 1)")
+    p = sub.add_parser(
+        "rig",
+        parents=[o.json_summary],
+        help="simulate the isolated-joint test rig (Section 3.2) and write friction records",
+    )
+    p.add_argument(
+        "--type", choices=("A", "B"), default=None, help="joint type (default: the parameter file's joint_type, else A)"
+    )
+    p.add_argument(
+        "--parameters",
+        metavar="FILE",
+        help="LuGre parameter set (TOML: sigma0, sigma1, sigma2, coulomb, "
+        "stribeck, stribeck_velocity, radius for type B, optional "
+        "joint_type; docs/identification.md)",
+    )
+    lugre_flags = p.add_argument_group(
+        "LuGre parameter set as flags (all six, and --radius for type B; "
+        "without flags or --parameters: the paper's Table 1)"
+    )
     lugre_flags.add_argument("--sigma0", type=float, help="bristle stiffness σ0 [1/m] (type B: [1/rad])")
     lugre_flags.add_argument("--sigma1", type=float, help="bristle damping σ1 [s/m]")
     lugre_flags.add_argument("--sigma2", type=float, help="viscous friction σ2 [s/m]")
@@ -130,23 +158,34 @@ def _add_friction_commands(sub, o: SimpleNamespace) -> None:
     p.add_argument("-o", "--output", required=True, help="record file (CSV), or folder with --campaign")
     p.set_defaults(func=cmd_rig)
 
-    p = sub.add_parser("identify", parents=[o.json_results],
-                       help="LuGre identification from friction records: two Eq. 3 steps, then output error on the "
-                            "rig model")
+    p = sub.add_parser(
+        "identify",
+        parents=[o.json_results],
+        help="LuGre identification from friction records: two Eq. 3 steps, then output error on the rig model",
+    )
     p.add_argument("records", nargs="+", help="record files (CSV, docs/identification.md)")
-    p.add_argument("--radius", type=float, help="joint radius r [m] of type B records that do not carry "
-                                                "'# radius = … m' (no default)")
-    p.add_argument("--no-output-error", action="store_true",
-                   help="stop after the two Eq. 3 steps (by default an output-error step follows when the "
-                        "stick-slip records carry excitation_force and inertia)")
+    p.add_argument(
+        "--radius",
+        type=float,
+        help="joint radius r [m] of type B records that do not carry '# radius = … m' (no default)",
+    )
+    p.add_argument(
+        "--no-output-error",
+        action="store_true",
+        help="stop after the two Eq. 3 steps (by default an output-error step follows when the "
+        "stick-slip records carry excitation_force and inertia)",
+    )
     p.add_argument("--plots", help="folder for hysteresis plots (PNG)")
     p.set_defaults(func=cmd_identify)
 
 
 def _add_dynamics_commands(sub, o: SimpleNamespace) -> None:
     """reduce, simulate, place."""
-    p = sub.add_parser("reduce", parents=[o.design, o.plant_step, o.no_update, o.json_results],
-                       help="balanced mode selection + Krylov vectors (Section 4), checked against the full model")
+    p = sub.add_parser(
+        "reduce",
+        parents=[o.design, o.plant_step, o.no_update, o.json_results],
+        help="balanced mode selection + Krylov vectors (Section 4), checked against the full model",
+    )
     p.add_argument("--modes", type=_positive_int, default=60, help="modes to keep (default: %(default)s)")
     p.add_argument("--considered", type=_positive_int, default=100, help="modes to choose from (default: %(default)s)")
     p.add_argument("--krylov", type=int, default=2, help="Krylov vectors per joint (default: %(default)s)")
@@ -156,19 +195,29 @@ def _add_dynamics_commands(sub, o: SimpleNamespace) -> None:
     p.add_argument("--plots", help="folder for hankel.png, friction_moment.png, energy.png")
     p.set_defaults(func=cmd_reduce)
 
-    p = sub.add_parser("simulate", parents=[o.design, o.plant_step, o.no_update, o.json_results],
-                       help="passive closed-loop run under the paper's tip pulse")
+    p = sub.add_parser(
+        "simulate",
+        parents=[o.design, o.plant_step, o.no_update, o.json_results],
+        help="passive closed-loop run under the paper's tip pulse",
+    )
     p.add_argument("--normal-force", required=True, help="F_N per joint, comma-separated [N]")
     p.add_argument("--duration", type=float, default=1.0, help="simulated time [s] (default: %(default)s)")
     p.add_argument("--sample-time", type=float, default=1e-3, help="controller sample time [s] (default: %(default)s)")
-    p.add_argument("--stick-step", type=float, help="stick-exact scheme (reduced models): this long step while the "
-                   "joints stick, --step elsewhere; records every long step; no energy books")
+    p.add_argument(
+        "--stick-step",
+        type=float,
+        help="stick-exact scheme (reduced models): this long step while the "
+        "joints stick, --step elsewhere; records every long step; no energy books",
+    )
     p.add_argument("--reduced", help="KEEP:KRYLOV, e.g. 9:1, for a reduced model (default: the full model)")
     p.add_argument("--considered", type=_positive_int, default=100, help="modes to choose from with --reduced")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("place", parents=[o.design, o.no_update, o.json_results],
-                       help="rank end connectors by modal strain energy and place type A joints (Section 6)")
+    p = sub.add_parser(
+        "place",
+        parents=[o.design, o.no_update, o.json_results],
+        help="rank end connectors by modal strain energy and place type A joints (Section 6)",
+    )
     p.add_argument("--modes", default="1,2", help="modes to damp, comma-separated numbers (default: %(default)s)")
     p.add_argument("--count", type=_positive_int, default=3, help="joints to place (default: %(default)s)")
     p.add_argument("--top", type=_positive_int, default=10, help="ranking rows to show (default: %(default)s)")
@@ -179,44 +228,68 @@ def _add_dynamics_commands(sub, o: SimpleNamespace) -> None:
 def _add_control_commands(sub, o: SimpleNamespace) -> None:
     """design, codegen, sil."""
     rates = _bus_rates("CAN (arbitration) bitrate (default: %(default)s)", "CAN FD data bitrate, 0: classical CAN")
-    p = sub.add_parser("design", parents=[o.design, rates, o.no_update, o.json_summary],
-                       help="design the controllers (Section 5) and write the artefact codegen consumes")
+    p = sub.add_parser(
+        "design",
+        parents=[o.design, rates, o.no_update, o.json_summary],
+        help="design the controllers (Section 5) and write the artefact codegen consumes",
+    )
     p.add_argument("-o", "--output", default="controller.json", help="artefact file (default: %(default)s)")
     p.add_argument("--duration", type=float, help="t_e of Eq. 32 for the ε optimisation [s] (default: design file)")
     p.add_argument("--max-load", type=float, default=0.7, help="refuse a bus load above this (default: %(default)s)")
     p.set_defaults(func=cmd_design)
 
-    p = sub.add_parser("codegen", parents=[o.json_summary],
-                       help="generate the C99 controllers (SISO, clipped LQG) from a controller artefact")
+    p = sub.add_parser(
+        "codegen",
+        parents=[o.json_summary],
+        help="generate the C99 controllers (SISO, clipped LQG) from a controller artefact",
+    )
     p.add_argument("artifact", help="controller design artefact (JSON, from `smartjoint design`)")
-    p.add_argument("-o", "--output", required=True,
-                   help="folder for the generated files: created, or one where codegen replaces only files it "
-                        "generated (others are left untouched)")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="folder for the generated files: created, or one where codegen replaces only files it "
+        "generated (others are left untouched)",
+    )
     p.add_argument("--real", choices=("float", "double"), default="float", help="scalar type (default: %(default)s)")
     p.add_argument("--prefix", default="smartjoint", help="C name prefix of the modules (default: %(default)s)")
-    p.add_argument("--check", action="store_true",
-                   help="compile everything generated (headers alone, every .c, linked) with the strict warning set "
-                        "before it is moved into place")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="compile everything generated (headers alone, every .c, linked) with the strict warning set "
+        "before it is moved into place",
+    )
     p.add_argument("--no-can", action="store_true", help="controllers only, without the CAN message layer and DBC")
     p.set_defaults(func=cmd_codegen)
 
-    bus = [_bus_rates(data_help="CAN FD data phase [bit/s]"), _bus_channel("python-can interface (default: %(default)s)")]
-    p = sub.add_parser("sil", parents=[o.design, *bus, o.no_update, o.json_results],
-                       help="the paper's study through the CAN loop: firmware, bus, amplifiers (software in the loop)")
+    bus = [
+        _bus_rates(data_help="CAN FD data phase [bit/s]"),
+        _bus_channel("python-can interface (default: %(default)s)"),
+    ]
+    p = sub.add_parser(
+        "sil",
+        parents=[o.design, *bus, o.no_update, o.json_results],
+        help="the paper's study through the CAN loop: firmware, bus, amplifiers (software in the loop)",
+    )
     p.add_argument("--artifact", help="controller artefact (default: designed from DESIGN now)")
     p.add_argument("--law", choices=("siso", "clqg", "both"), default="both")
     p.add_argument("--real", choices=("float", "double"), default="float", help="firmware build (default: %(default)s)")
     p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
-    p.add_argument("--fault", action="append",
-                   help="inject kind:target:start:end[:detail], repeatable; kinds: drop, delay (detail: seconds), "
-                        "duplicate, corrupt_crc, corrupt_counter, wrong_dlc, silent on any frame (the firmware's "
-                        "SETPOINT_* and CONTROLLER_STATUS too), implausible (target FRAME.signal, detail: the "
-                        "value), amplifier (target a joint, detail: over_temperature, no_response, stuck_output, "
-                        "over_current, gain_error), bus_off (no target); end may be inf")
+    p.add_argument(
+        "--fault",
+        action="append",
+        help="inject kind:target:start:end[:detail], repeatable; kinds: drop, delay (detail: seconds), "
+        "duplicate, corrupt_crc, corrupt_counter, wrong_dlc, silent on any frame (the firmware's "
+        "SETPOINT_* and CONTROLLER_STATUS too), implausible (target FRAME.signal, detail: the "
+        "value), amplifier (target a joint, detail: over_temperature, no_response, stuck_output, "
+        "over_current, gain_error), bus_off (no target); end may be inf",
+    )
     p.add_argument("--log-folder", help="write the bus of each run as sil_<law>.blf here")
     p.add_argument("--plots", help="folder for sil_energy.png")
     p.add_argument("--amplifier-lag", type=float, default=0.0, help="amplifier time constant [s] (default 0: ideal)")
-    p.add_argument("--spread", type=int, default=6, help="perturbed MIL runs for the sensitivity band (default: %(default)s)")
+    p.add_argument(
+        "--spread", type=int, default=6, help="perturbed MIL runs for the sensitivity band (default: %(default)s)"
+    )
     p.set_defaults(func=cmd_sil)
 
 
@@ -224,13 +297,15 @@ def _add_bench_commands(sub, o: SimpleNamespace) -> None:
     """bench dbc, log, decode, replay."""
     p = sub.add_parser("bench", help="CAN bench tools: dbc, log, decode, replay")
     bench = p.add_subparsers(dest="bench_command", required=True, metavar="TOOL")
-    q = bench.add_parser("dbc", parents=[_bus_rates(), o.json],
-                         help="write the DBC of a controller artefact after the bus-load check")
+    q = bench.add_parser(
+        "dbc", parents=[_bus_rates(), o.json], help="write the DBC of a controller artefact after the bus-load check"
+    )
     q.add_argument("artifact")
     q.add_argument("-o", "--output", required=True)
     q.add_argument("--max-load", type=float, default=0.7, help="refuse above this load (default: %(default)s)")
-    q = bench.add_parser("log", parents=[_bus_channel(), o.json],
-                         help="record a python-can bus to ASC/BLF/MF4 (by suffix)")
+    q = bench.add_parser(
+        "log", parents=[_bus_channel(), o.json], help="record a python-can bus to ASC/BLF/MF4 (by suffix)"
+    )
     q.add_argument("-o", "--output", required=True)
     q.add_argument("--duration", type=float, help="seconds (default: until Ctrl-C)")
     q.add_argument("--rotate-bytes", type=int, default=0, help="rotate the file at this size (0: never)")
@@ -240,8 +315,9 @@ def _add_bench_commands(sub, o: SimpleNamespace) -> None:
     q.add_argument("--artifact")
     q.add_argument("-o", "--output", help="CSV file (time_s, frame, signal, value)")
     q.add_argument("--plots", help="folder for one PNG per frame")
-    q = bench.add_parser("replay", parents=[o.json],
-                         help="feed a log's sensor frames through the firmware; compare its setpoints")
+    q = bench.add_parser(
+        "replay", parents=[o.json], help="feed a log's sensor frames through the firmware; compare its setpoints"
+    )
     q.add_argument("log")
     q.add_argument("--artifact", required=True)
     q.add_argument("--law", choices=("siso", "clqg"), default="siso")
@@ -253,8 +329,11 @@ def _add_bench_commands(sub, o: SimpleNamespace) -> None:
 
 def _add_study_command(sub, o: SimpleNamespace) -> None:
     """study."""
-    p = sub.add_parser("study", parents=[o.design, o.no_update, o.json_results],
-                       help="the paper's closed-loop study (Section 6): passive, SISO, cLQG, active LQG")
+    p = sub.add_parser(
+        "study",
+        parents=[o.design, o.no_update, o.json_results],
+        help="the paper's closed-loop study (Section 6): passive, SISO, cLQG, active LQG",
+    )
     p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
     p.add_argument("--plots", help="folder for control_energy.png, control_tip.png, … (PNG)")
     p.set_defaults(func=cmd_study)

@@ -1,6 +1,7 @@
-"""The commands of the structure, friction and reduction stages (``modes``, ``update``,
-``export-model``, ``run``, ``rig``, ``identify``, ``reduce``, ``simulate``, ``place``) and the
-helpers every command shares: progress on stderr, the updated design, plots and atomic writes.
+"""The commands of the structure and reduction stages (``modes``, ``update``, ``export-model``,
+``run``, ``reduce``, ``simulate``, ``place``) and the helpers every command shares: progress on
+stderr, the updated design, plots and atomic writes (the friction stage's commands are in
+``commands_friction``).
 """
 
 from __future__ import annotations
@@ -48,7 +49,9 @@ def load_updated(args, *, firmware_names: bool = False):
         check_firmware_names(design)
     if design.updating is None or getattr(args, "no_update", False):
         return design, None
-    report_progress(f"updating {len(design.updating.parameters)} parameters to {len(design.updating.measured)} measured modes …")
+    report_progress(
+        f"updating {len(design.updating.parameters)} parameters to {len(design.updating.measured)} measured modes …"
+    )
     return updated_design(design, lambda k, n, err: report_progress(f"  start {k}/{n}: worst error {err:.2f} %"))
 
 
@@ -69,8 +72,12 @@ def check_firmware_names(design) -> None:
     from smartjoint.codegen import identifiers
     from smartjoint.design.network import protocol
 
-    identifiers.check_names([j.name for j in design.joints], [s.name for s in design.sensors],
-                            members=protocol.E2E_SIGNALS, fields=identifiers.DESIGN_FIELDS)
+    identifiers.check_names(
+        [j.name for j in design.joints],
+        [s.name for s in design.sensors],
+        members=protocol.E2E_SIGNALS,
+        fields=identifiers.DESIGN_FIELDS,
+    )
 
 
 def write_plots(args, out: dict, draw) -> None:
@@ -120,15 +127,23 @@ def cmd_modes(args) -> dict:
 
     model, result = _model(args)
     modes = solve_modes(model, min(args.count, model.n_dof))
-    out = {"design": model.design.name, "n_dof": model.n_dof, "updated": result is not None,
-           "modes": [{"index": i + 1, "frequency_hz": float(f)} for i, f in enumerate(modes.frequencies_hz)]}
+    out = {
+        "design": model.design.name,
+        "n_dof": model.n_dof,
+        "updated": result is not None,
+        "modes": [{"index": i + 1, "frequency_hz": float(f)} for i, f in enumerate(modes.frequencies_hz)],
+    }
     spec = model.design.updating
     if spec is not None:
         n = max(m.mode for m in spec.measured)
         frequencies = modes.frequencies_hz if n <= len(modes) else solve_modes(model, n).frequencies_hz
         out["ema_comparison"] = [
-            {"index": m.mode, "ema_hz": m.frequency_hz, "fem_hz": float(frequencies[m.mode - 1]),
-             "error_pct": float(100.0 * (frequencies[m.mode - 1] - m.frequency_hz) / m.frequency_hz)}
+            {
+                "index": m.mode,
+                "ema_hz": m.frequency_hz,
+                "fem_hz": float(frequencies[m.mode - 1]),
+                "error_pct": float(100.0 * (frequencies[m.mode - 1] - m.frequency_hz) / m.frequency_hz),
+            }
             for m in spec.measured
         ]
     if not args.json:
@@ -161,11 +176,18 @@ def cmd_export_model(args) -> dict:
     model, _ = _model(args, joints=args.joints)
     document = export_model(model)
     write_atomic(Path(args.output), json.dumps(document, indent=1, sort_keys=True) + "\n")
-    summary = {"output": str(args.output), "points": len(document["points"]), "elements": len(document["elements"]),
-               "rigid_links": len(document["rigid_links"]), "n_dof": model.n_dof}
+    summary = {
+        "output": str(args.output),
+        "points": len(document["points"]),
+        "elements": len(document["elements"]),
+        "rigid_links": len(document["rigid_links"]),
+        "n_dof": model.n_dof,
+    }
     if not args.json:
-        print(f"wrote {args.output}: {summary['points']} points, {summary['elements']} elements, "
-              f"{summary['rigid_links']} rigid links, {summary['n_dof']} independent DOFs")
+        print(
+            f"wrote {args.output}: {summary['points']} points, {summary['elements']} elements, "
+            f"{summary['rigid_links']} rigid links, {summary['n_dof']} independent DOFs"
+        )
     return summary
 
 
@@ -179,100 +201,6 @@ def cmd_run(args) -> dict:
     if not args.json:
         print(f"report: {result['report']}")
     return result
-
-
-_LUGRE_FLAGS = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity", "radius")
-
-
-def _rig_parameters(args):
-    """The rig's parameter set: --parameters FILE, or all the LuGre flags, or (neither) Table 1."""
-    from smartjoint.design.friction import rig
-
-    flags = {n: getattr(args, n) for n in _LUGRE_FLAGS if getattr(args, n) is not None}
-    if args.parameters is not None:
-        if flags:
-            raise SmartjointError(f"--{next(iter(flags)).replace('_', '-')} together with --parameters — give "
-                                  "the parameter set either as flags or as a file")
-        return rig.load_parameter_set(args.parameters, args.type)
-    joint_type = args.type or "A"
-    if not flags:
-        return rig.parameter_set(joint_type)
-    values = {n: v for n, v in flags.items()}
-    for name in _LUGRE_FLAGS:
-        if name not in values and (name != "radius" or joint_type == "B"):
-            raise SmartjointError(f"--{name.replace('_', '-')} missing — give all of --sigma0, --sigma1, "
-                                  "--sigma2, --coulomb, --stribeck, --stribeck-velocity"
-                                  f"{', --radius' if joint_type == 'B' else ''} (or --parameters FILE, or none of "
-                                  f"them for {rig.TABLE_1_SOURCE})")
-    if "radius" in values and joint_type == "A":
-        raise SmartjointError("--radius: a type A joint has no radius — allowed only with --type B")
-    return rig.parameter_set(joint_type, values, "command line")
-
-
-def _rig_test(args, joint_type, normal_force, amplitude, frequency, seed):
-    from smartjoint.design.friction.rig import RigTest
-
-    inertia = args.inertia if args.inertia is not None else (1.0 if joint_type == "A" else 2e-3)
-    return RigTest(joint_type, normal_force, amplitude, frequency, cycles=args.cycles, inertia=inertia,
-                   noise=args.noise, seed=seed)
-
-
-def cmd_rig(args) -> dict:
-    from smartjoint.design.friction import rig
-    from smartjoint.design.friction.records import write_record
-
-    output = Path(args.output)
-    chosen = _rig_parameters(args)
-    parameters, joint_type = chosen.parameters, chosen.joint_type
-    if args.campaign:
-        if output.exists() and not output.is_dir():
-            raise SmartjointError(f"-o {output}: exists and is not a folder — --campaign writes its records "
-                                  "into a folder")
-        tests = rig.campaign(joint_type, parameters, noise=args.noise, seed=args.seed, cycles=args.cycles)
-        paths = [output / f"{t.name}.csv" for t in tests]
-    else:
-        missing = [n for n in ("normal_force", "amplitude", "frequency") if getattr(args, n) is None]
-        if missing:
-            raise SmartjointError(f"give --{missing[0].replace('_', '-')} (or --campaign)")
-        if output.is_dir():
-            raise SmartjointError(f"-o {output}: is a folder — give a record file name (or --campaign)")
-        tests = [_rig_test(args, joint_type, args.normal_force, args.amplitude, args.frequency, args.seed)]
-        paths = [output]
-    for test in tests:  # every test is checked before anything is written
-        rig.check_test(test, parameters)
-    if not args.json:
-        print(chosen.describe())
-    if args.campaign:
-        try:
-            output.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise SmartjointError(f"-o {output}: cannot create folder ({error.strerror or error})") from None
-    written = []
-    for test, path in zip(tests, paths):
-        record = rig.simulate(test, parameters, chosen.source)
-        write_record(record, path)
-        written.append({"file": str(path), "regime": record.metadata["regime"], "samples": int(record.time.size),
-                        "max_velocity": float(abs(record.sliding_velocity).max())})
-        if not args.json:
-            print(f"wrote {path} ({record.metadata['regime']}, {record.time.size} samples)")
-    return {"parameters": chosen.as_dict(), "records": written}
-
-
-def cmd_identify(args) -> dict:
-    from smartjoint.design.friction.identify import classify, identify
-    from smartjoint.design.friction.records import read_record
-    from smartjoint.report import identification_table, plot_hysteresis
-
-    records = [read_record(path, args.radius) for path in args.records]
-    micro = [r for r in records if classify(r, args.radius) == "micro-slip"]
-    stick = [r for r in records if classify(r, args.radius) == "stick-slip"]
-    result = identify(micro, stick, radius=args.radius, progress=report_progress, output_error=not args.no_output_error)
-    out = result.as_dict()
-    write_plots(args, out, lambda folder: plot_hysteresis(result, folder))
-    if not args.json:
-        print("\n".join(f"step: {step}" for step in result.steps) + "\n")
-        print(identification_table(result))
-    return out
 
 
 def parse_normal_forces(text: str, design):
@@ -304,8 +232,10 @@ def parse_normal_forces(text: str, design):
     except ValueError:
         raise ModelError(f"--normal-force: {text!r} — expected comma-separated numbers [N], one per joint") from None
     if values.size != len(design.joints) or not np.all(np.isfinite(values)) or np.any(values < 0):
-        raise ModelError(f"--normal-force: {text!r} — need {len(design.joints)} finite values >= 0 "
-                         f"(joints {', '.join(j.name for j in design.joints)})")
+        raise ModelError(
+            f"--normal-force: {text!r} — need {len(design.joints)} finite values >= 0 "
+            f"(joints {', '.join(j.name for j in design.joints)})"
+        )
     return values
 
 
@@ -316,8 +246,13 @@ def cmd_reduce(args) -> dict:
     from smartjoint.report_reduction import plot_study
 
     design, _ = load_updated(args)
-    forces = parse_normal_forces(args.normal_force, design) if args.normal_force else \
-        np.array([400.0 if j.type == "B" else 0.0 for j in design.joints]) if design.joints else None
+    forces = (
+        parse_normal_forces(args.normal_force, design)
+        if args.normal_force
+        else np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
+        if design.joints
+        else None
+    )
     if forces is not None and not forces.any():
         forces[0] = 400.0
     joints = None
@@ -326,16 +261,27 @@ def cmd_reduce(args) -> dict:
         unknown = [n for n in args.krylov_joints.split(",") if n not in names]
         if unknown:
             from smartjoint.common.errors import ModelError
+
             raise ModelError(f"--krylov-joints: {unknown[0]!r} — joints are {', '.join(names)}")
         joints = [names.index(n) for n in args.krylov_joints.split(",")]
     elif forces is not None:
         joints = [int(np.argmax(forces))]
-    study = reduction_study(design, forces if forces is not None else np.zeros(0), args.considered, args.modes,
-                            tuple(sorted({0, args.krylov})), joints, args.duration, args.step, report_progress)
+    study = reduction_study(
+        design,
+        forces if forces is not None else np.zeros(0),
+        args.considered,
+        args.modes,
+        tuple(sorted({0, args.krylov})),
+        joints,
+        args.duration,
+        args.step,
+        report_progress,
+    )
     out = study_summary(study)
     write_plots(args, out, lambda folder: plot_study(study, folder))
     if not args.json:
         from smartjoint.report_reduction import study_markdown
+
         print(study_markdown(study))
     return out
 
@@ -357,22 +303,49 @@ def cmd_simulate(args) -> dict:
         model = modal.modal_model(fe, modal.solve_modes(fe, fe.n_dof))
     scheme = f"stick-exact, {args.stick_step:g} s while the joints stick" if args.stick_step else "fixed step"
     report_progress(f"simulating {model.n_states} states for {args.duration:g} s at {args.step:g} s ({scheme}) …")
-    stick = {} if args.stick_step is None else {"stick_step": args.stick_step, "energy_books": False,
-                                                 "record_every": int(round(args.stick_step / args.step))}
-    result = plant.simulate(model, joint_laws(design), plant.ConstantNormalForce(forces, args.sample_time),
-                               plant.triangular_pulse(directions=np.ones(len(design.disturbances))), args.duration,
-                               args.step, progress=report_progress, **stick)
+    stick = (
+        {}
+        if args.stick_step is None
+        else {
+            "stick_step": args.stick_step,
+            "energy_books": False,
+            "record_every": int(round(args.stick_step / args.step)),
+        }
+    )
+    result = plant.simulate(
+        model,
+        joint_laws(design),
+        plant.ConstantNormalForce(forces, args.sample_time),
+        plant.triangular_pulse(directions=np.ones(len(design.disturbances))),
+        args.duration,
+        args.step,
+        progress=report_progress,
+        **stick,
+    )
     after = result.time >= 0.04
     books = args.stick_step is None  # the stick-exact scheme keeps no energy books
-    out = {"design": design.name, "states": model.n_states, "normal_forces": forces.tolist(), "scheme": scheme,
-           "energy_measure_eq32": result.energy_measure(), "final_energy": float(result.energy[-1]),
-           "peak_energy": float(result.energy.max()), "energy_balance_error": result.balance_error() if books else None,
-           "dissipated_by_joints": float(result.work_joints[-1]) if books else None,
-           "input_work": float(result.work_in[-1]) if books else None,
-           "tip_rms_after_pulse": dict(zip(result.sensor_names, np.sqrt(np.mean(result.sensors[after] ** 2, axis=0)).tolist())),
-           "joints": {name: {"peak_friction": float(np.abs(result.friction_force[:, j]).max()),
-                             "peak_sliding_velocity": float(np.abs(result.sliding_velocity[:, j]).max())}
-                      for j, name in enumerate(result.joint_names)}}
+    out = {
+        "design": design.name,
+        "states": model.n_states,
+        "normal_forces": forces.tolist(),
+        "scheme": scheme,
+        "energy_measure_eq32": result.energy_measure(),
+        "final_energy": float(result.energy[-1]),
+        "peak_energy": float(result.energy.max()),
+        "energy_balance_error": result.balance_error() if books else None,
+        "dissipated_by_joints": float(result.work_joints[-1]) if books else None,
+        "input_work": float(result.work_in[-1]) if books else None,
+        "tip_rms_after_pulse": dict(
+            zip(result.sensor_names, np.sqrt(np.mean(result.sensors[after] ** 2, axis=0)).tolist())
+        ),
+        "joints": {
+            name: {
+                "peak_friction": float(np.abs(result.friction_force[:, j]).max()),
+                "peak_sliding_velocity": float(np.abs(result.sliding_velocity[:, j]).max()),
+            }
+            for j, name in enumerate(result.joint_names)
+        },
+    }
     if not args.json:
         for key, value in out.items():
             print(f"{key}: {value}")
@@ -388,8 +361,10 @@ def cmd_place(args) -> dict:
 
     design, _ = load_updated(args)
     if design.joints:
-        raise ModelError(f"design {design.name!r} already has joints ({', '.join(j.name for j in design.joints)}): "
-                         "place joints on the conventional truss (a design without [[joints]])")
+        raise ModelError(
+            f"design {design.name!r} already has joints ({', '.join(j.name for j in design.joints)}): "
+            "place joints on the conventional truss (a design without [[joints]])"
+        )
     try:
         targets = sorted({int(v) - 1 for v in args.modes.split(",")})
     except ValueError:
@@ -398,12 +373,16 @@ def cmd_place(args) -> dict:
     modes = solve_modes(fe, max(targets) + 1 if targets and targets[0] >= 0 else 1)
     candidates = placement.connector_energy(fe, modes, targets)
     chosen = placement.choose(candidates, args.count)
-    ranking = placement.rank(candidates)[:args.top]
-    out = {"design": design.name, "target_modes": [i + 1 for i in targets],
-           "target_frequencies_hz": [float(modes.frequencies_hz[i]) for i in targets],
-           "chosen": [{"member": c.member, "end": c.end, "score": c.score, "fractions": list(c.fractions)}
-                      for c in chosen],
-           "ranking": [{"member": c.member, "end": c.end, "score": c.score} for c in ranking]}
+    ranking = placement.rank(candidates)[: args.top]
+    out = {
+        "design": design.name,
+        "target_modes": [i + 1 for i in targets],
+        "target_frequencies_hz": [float(modes.frequencies_hz[i]) for i in targets],
+        "chosen": [
+            {"member": c.member, "end": c.end, "score": c.score, "fractions": list(c.fractions)} for c in chosen
+        ],
+        "ranking": [{"member": c.member, "end": c.end, "score": c.score} for c in ranking],
+    }
     if args.output:
         target = Path(args.output)
         source = Path(design.source)
@@ -411,8 +390,10 @@ def cmd_place(args) -> dict:
         write_atomic(target, placement.design_text(base, f"{design.name}-placed", chosen, targets))
         out["written"] = str(target)
     if not args.json:
-        print(f"modes {', '.join(str(i + 1) for i in targets)} "
-              f"({', '.join(f'{f:.2f}' for f in out['target_frequencies_hz'])} Hz): best end connectors")
+        print(
+            f"modes {', '.join(str(i + 1) for i in targets)} "
+            f"({', '.join(f'{f:.2f}' for f in out['target_frequencies_hz'])} Hz): best end connectors"
+        )
         print("| rank | member | end | strain-energy fraction (sum over the modes) |\n|---:|---|---|---:|")
         for k, c in enumerate(ranking, start=1):
             mark = " ← joint" if any(c.member == j.member and c.end == j.end for j in chosen) else ""

@@ -23,6 +23,7 @@ def _control_design(args, *, firmware_names: bool = False):
 
         if not (args.duration > 0):
             from smartjoint.common.errors import ModelError
+
             raise ModelError(f"--duration: {args.duration!r} — must be > 0 [s]")
         design = dataclasses.replace(design, control=dataclasses.replace(design.control, study_duration=args.duration))
     return design
@@ -44,7 +45,7 @@ def cmd_study(args) -> dict:
 
 
 def cmd_design(args) -> dict:
-    from smartjoint.design.control import artifact
+    from smartjoint.design.control import artifact, artifact_building
     from smartjoint.design.control import study as closed_loop
 
     design = _control_design(args, firmware_names=True)
@@ -58,24 +59,39 @@ def cmd_design(args) -> dict:
         report_progress("SISO boundary layer ε: optimising E(t_e) of Eq. 32 …")
         optimum = closed_loop.optimise_boundary_layer(s, lambda m: report_progress(m))
         width = optimum.boundary_layer
-    result = artifact.from_design(design, model, lqg, width)
+    result = artifact_building.from_design(design, model, lqg, width)
     from smartjoint.bench import busload
     from smartjoint.design.network import protocol
 
     load = busload.check(protocol.database(result), args.bitrate, args.data_bitrate or None, args.max_load)
-    report_progress(f"CAN bus load {100 * load.load:.1f} % at {args.bitrate / 1e6:g}"
-              f"{'' if not args.data_bitrate else f'/{args.data_bitrate / 1e6:g}'} Mbit/s (limit {100 * args.max_load:.0f} %)")
+    report_progress(
+        f"CAN bus load {100 * load.load:.1f} % at {args.bitrate / 1e6:g}"
+        f"{'' if not args.data_bitrate else f'/{args.data_bitrate / 1e6:g}'} Mbit/s (limit {100 * args.max_load:.0f} %)"
+    )
     artifact.save(result, Path(args.output))
     poles = lqg.closed_loop_poles()
-    out = {"artifact": args.output, "artifact_sha256": result.artifact_sha256, "design_sha256": design.sha256,
-           "states": model.n_states, "joints": list(result.joint_names), "sensors": list(result.sensor_names),
-           "sample_time": result.sample_time, "siso_boundary_layer": result.siso_boundary_layer.tolist(),
-           "clqg_boundary_layer": result.clqg_boundary_layer,
-           "lqg_max_pole_magnitude": float(abs(poles).max()), "lqg_stability_margin": float(1 - abs(poles).max()),
-           "bus_load": load.load,
-           "boundary_layer_optimisation": None if optimum is None else {
-               "optimum": optimum.boundary_layer, "energy_measure": optimum.energy_measure,
-               "energy_measure_tenth": optimum.tenth, "energy_measure_tenfold": optimum.tenfold}}
+    out = {
+        "artifact": args.output,
+        "artifact_sha256": result.artifact_sha256,
+        "design_sha256": design.sha256,
+        "states": model.n_states,
+        "joints": list(result.joint_names),
+        "sensors": list(result.sensor_names),
+        "sample_time": result.sample_time,
+        "siso_boundary_layer": result.siso_boundary_layer.tolist(),
+        "clqg_boundary_layer": result.clqg_boundary_layer,
+        "lqg_max_pole_magnitude": float(abs(poles).max()),
+        "lqg_stability_margin": float(1 - abs(poles).max()),
+        "bus_load": load.load,
+        "boundary_layer_optimisation": None
+        if optimum is None
+        else {
+            "optimum": optimum.boundary_layer,
+            "energy_measure": optimum.energy_measure,
+            "energy_measure_tenth": optimum.tenth,
+            "energy_measure_tenfold": optimum.tenfold,
+        },
+    }
     if not args.json:
         for key, value in out.items():
             print(f"{key}: {value}")
@@ -87,17 +103,31 @@ def cmd_codegen(args) -> dict:
     from smartjoint.design.control import artifact
 
     loaded = artifact.load(Path(args.artifact))
-    placed = generate.generate(loaded, Path(args.output), args.real, args.prefix, can=not args.no_can,
-                               check=args.check, progress=report_progress)
-    out = {"artifact": args.artifact, "artifact_sha256": loaded.artifact_sha256, "real": args.real,
-           "prefix": args.prefix, "files": [str(p) for p in placed.written],
-           "untouched": [str(p) for p in placed.untouched]}
+    placed = generate.generate(
+        loaded,
+        Path(args.output),
+        args.real,
+        args.prefix,
+        can=not args.no_can,
+        check=args.check,
+        progress=report_progress,
+    )
+    out = {
+        "artifact": args.artifact,
+        "artifact_sha256": loaded.artifact_sha256,
+        "real": args.real,
+        "prefix": args.prefix,
+        "files": [str(p) for p in placed.written],
+        "untouched": [str(p) for p in placed.untouched],
+    }
     if args.check:
         out["compiled"] = True
         out["check"] = placed.compiled
     if not args.json:
-        print(f"{len(placed.written)} files in {args.output} ({args.real}, artefact {loaded.artifact_sha256[:16]}…"
-              f"{', compiled' if args.check else ''})")
+        print(
+            f"{len(placed.written)} files in {args.output} ({args.real}, artefact {loaded.artifact_sha256[:16]}…"
+            f"{', compiled' if args.check else ''})"
+        )
         for path in placed.written:
             print(f"  {path}")
         if placed.untouched:
@@ -108,21 +138,23 @@ def cmd_codegen(args) -> dict:
 def _controller_artifact(args, design, model):
     """--artifact FILE (checked against the design), else designed now (ε optimised if absent)."""
     from smartjoint.common.errors import ModelError
-    from smartjoint.design.control import artifact
+    from smartjoint.design.control import artifact, artifact_building
     from smartjoint.design.control import study as closed_loop
 
     if getattr(args, "artifact", None):
         loaded = artifact.load(Path(args.artifact))
         if loaded.design_sha256 != design.sha256:
-            raise ModelError(f"--artifact {args.artifact}: designed from design sha256 {loaded.design_sha256[:16]}…, "
-                             f"but {design.source} has {design.sha256[:16]}… — run `smartjoint design` again")
+            raise ModelError(
+                f"--artifact {args.artifact}: designed from design sha256 {loaded.design_sha256[:16]}…, "
+                f"but {design.source} has {design.sha256[:16]}… — run `smartjoint design` again"
+            )
         return loaded
     s = closed_loop.setup(design, model)
     width = design.control.siso_boundary_layer
     if width is None:
         report_progress("SISO boundary layer ε: optimising E(t_e) of Eq. 32 …")
         width = closed_loop.optimise_boundary_layer(s, report_progress).boundary_layer
-    return artifact.from_design(design, model, closed_loop.lqg_for(design, model), width)
+    return artifact_building.from_design(design, model, closed_loop.lqg_for(design, model), width)
 
 
 def cmd_sil(args) -> dict:
@@ -135,10 +167,24 @@ def cmd_sil(args) -> dict:
     controller = _controller_artifact(args, design, model)
     faults = [parse_fault(text) for text in args.fault or []]
     laws = ("siso", "clqg") if args.law == "both" else (args.law,)
-    report_progress(f"software in the loop on {design.name!r}: {', '.join(laws)}, t_e = {design.control.study_duration:g} s")
-    out = sil.sil_study(closed_loop.setup(design, model), controller, laws, args.real, faults, args.log_folder,
-                        {"time_constant": args.amplifier_lag}, args.bitrate, args.data_bitrate, args.spread,
-                        args.interface, args.channel, report_progress)
+    report_progress(
+        f"software in the loop on {design.name!r}: {', '.join(laws)}, t_e = {design.control.study_duration:g} s"
+    )
+    out = sil.sil_study(
+        closed_loop.setup(design, model),
+        controller,
+        laws,
+        args.real,
+        faults,
+        args.log_folder,
+        {"time_constant": args.amplifier_lag},
+        args.bitrate,
+        args.data_bitrate,
+        args.spread,
+        args.interface,
+        args.channel,
+        report_progress,
+    )
     if not args.json:
         print(sil.sil_markdown(out))
     write_plots(args, out, lambda folder: sil.plot_sil(out, folder, out.get("mil_runs")))
@@ -205,13 +251,18 @@ def _bench_log(args):
 
     content = logs.load(args.log)
     if not content.messages:
-        raise ModelError(f"log file {args.log}: no frames"
-                         + (f" ({content.problem()})" if content.problem() else "") + " — nothing to "
-                         + args.bench_command)
+        raise ModelError(
+            f"log file {args.log}: no frames"
+            + (f" ({content.problem()})" if content.problem() else "")
+            + " — nothing to "
+            + args.bench_command
+        )
     problem = content.problem()
     if problem:
         early = " ends early and" if content.truncated else ""
-        report_progress(f"warning: {args.log}{early} is damaged — {problem}; using the {len(content.messages)} frames read")
+        report_progress(
+            f"warning: {args.log}{early} is damaged — {problem}; using the {len(content.messages)} frames read"
+        )
     return content
 
 
@@ -226,11 +277,13 @@ def _bench_decode(args) -> dict:
         out["csv"] = args.output
     write_plots(args, out, lambda folder: logs.plot(decoded, folder))
     if decoded.skipped():
-        report_progress(f"warning: {decoded.skipped()} of {decoded.frames} frames not decoded: "
-                  f"unknown ids {sum(decoded.unknown_ids.values())}, "
-                  f"wrong length {sum(decoded.wrong_length.values())}, "
-                  f"bad CRC {sum(decoded.bad_e2e.values())}, error frames {decoded.error_frames}, remote frames "
-                  f"{decoded.remote_frames}, non-finite time stamps {decoded.non_finite_times}")
+        report_progress(
+            f"warning: {decoded.skipped()} of {decoded.frames} frames not decoded: "
+            f"unknown ids {sum(decoded.unknown_ids.values())}, "
+            f"wrong length {sum(decoded.wrong_length.values())}, "
+            f"bad CRC {sum(decoded.bad_e2e.values())}, error frames {decoded.error_frames}, remote frames "
+            f"{decoded.remote_frames}, non-finite time stamps {decoded.non_finite_times}"
+        )
     if not args.json:
         for key, value in out.items():
             print(f"{key}: {value}")
@@ -250,17 +303,23 @@ def _bench_replay(args) -> dict:
     out["log_problem"] = content.problem()
     out["log"] = content.skipped()
     if out["setpoints_compared"] == 0 and out["recorded_not_replayed"] == 0:
-        raise ModelError(f"log file {args.log}: no recorded SETPOINT_* frame to compare "
-                         f"({out['samples']} samples replayed) — a log of the controller's bus is needed")
-    line = (f"{out['samples']} samples ({out['silent_samples']} without frames), {out['setpoints_compared']} "
-            f"setpoints compared, {out['differing']} differ beyond {args.tolerance:g} V (max "
-            f"{out['max_difference_V']:.3g} V), {out['recorded_not_replayed']} recorded but not replayed, "
-            f"{out['replayed_not_recorded'] + out['replayed_not_recorded_in_silent_samples']} replayed but not "
-            f"recorded ({out['replayed_not_recorded_in_silent_samples']} of them in samples without frames)")
+        raise ModelError(
+            f"log file {args.log}: no recorded SETPOINT_* frame to compare "
+            f"({out['samples']} samples replayed) — a log of the controller's bus is needed"
+        )
+    line = (
+        f"{out['samples']} samples ({out['silent_samples']} without frames), {out['setpoints_compared']} "
+        f"setpoints compared, {out['differing']} differ beyond {args.tolerance:g} V (max "
+        f"{out['max_difference_V']:.3g} V), {out['recorded_not_replayed']} recorded but not replayed, "
+        f"{out['replayed_not_recorded'] + out['replayed_not_recorded_in_silent_samples']} replayed but not "
+        f"recorded ({out['replayed_not_recorded_in_silent_samples']} of them in samples without frames)"
+    )
     skipped = out["recorded_setpoints_bad_crc"] + out["recorded_setpoints_wrong_length"]
     if skipped:
-        line += (f"; {skipped} recorded setpoints not compared (bad CRC {out['recorded_setpoints_bad_crc']}, wrong "
-                 f"length {out['recorded_setpoints_wrong_length']})")
+        line += (
+            f"; {skipped} recorded setpoints not compared (bad CRC {out['recorded_setpoints_bad_crc']}, wrong "
+            f"length {out['recorded_setpoints_wrong_length']})"
+        )
     if out["ok"]:
         if not args.json:  # main prints the JSON
             print(line)
@@ -269,6 +328,8 @@ def _bench_replay(args) -> dict:
     print(f"smartjoint bench replay: FAILED: {line}", file=sys.stderr)
     for d in out["first_differences"][:10]:
         replayed = "nothing" if d["replayed_V"] is None else f"{d['replayed_V']:.9g} V"
-        print(f"  t = {d['time']:.6f} s {d['frame']} {d['kind']}: recorded {d['recorded_V']:.9g} V, replayed "
-              f"{replayed}", file=sys.stderr)
+        print(
+            f"  t = {d['time']:.6f} s {d['frame']} {d['kind']}: recorded {d['recorded_V']:.9g} V, replayed {replayed}",
+            file=sys.stderr,
+        )
     raise SystemExit(1)

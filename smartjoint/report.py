@@ -17,19 +17,27 @@ from smartjoint.design.structure.updating import UpdatingResult  # noqa: E402
 
 def updating_table(result: UpdatingResult) -> str:
     """Markdown tables: per mode EMA / FEM / error, per parameter initial / updated / sensitivity."""
-    lines = ["| mode | EMA [Hz] | FEM initial [Hz] | FEM updated [Hz] | error [%] | EMA MAC |",
-             "|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| mode | EMA [Hz] | FEM initial [Hz] | FEM updated [Hz] | error [%] | EMA MAC |",
+        "|---:|---:|---:|---:|---:|---:|",
+    ]
     for i, mode in enumerate(result.modes):
         mac = "" if result.mac is None or np.isnan(result.mac[i]) else f"{result.mac[i]:.2f}"
-        lines.append(f"| {mode} | {result.measured_hz[i]:.2f} | {result.initial_hz[i]:.3f} | "
-                     f"{result.updated_hz[i]:.3f} | {result.error_pct[i]:+.2f} | {mac} |")
-    lines += ["", "| parameter | initial | updated | ratio | sensitivity ‖∂ln f/∂ln p‖ |",
-              "|---|---:|---:|---:|---:|"]
+        lines.append(
+            f"| {mode} | {result.measured_hz[i]:.2f} | {result.initial_hz[i]:.3f} | "
+            f"{result.updated_hz[i]:.3f} | {result.error_pct[i]:+.2f} | {mac} |"
+        )
+    lines += ["", "| parameter | initial | updated | ratio | sensitivity ‖∂ln f/∂ln p‖ |", "|---|---:|---:|---:|---:|"]
     for k, name in enumerate(result.parameter_names):
-        lines.append(f"| `{name}` | {result.initial[k]:.4g} | {result.updated[k]:.4g} | "
-                     f"{result.updated[k] / result.initial[k]:.3f} | {np.linalg.norm(result.sensitivity[:, k]):.3f} |")
-    lines += ["", f"Worst error {np.max(np.abs(result.error_pct)):.2f} % "
-              f"({result.evaluations} eigen solutions, {result.starts} polished starts)."]
+        lines.append(
+            f"| `{name}` | {result.initial[k]:.4g} | {result.updated[k]:.4g} | "
+            f"{result.updated[k] / result.initial[k]:.3f} | {np.linalg.norm(result.sensitivity[:, k]):.3f} |"
+        )
+    lines += [
+        "",
+        f"Worst error {np.max(np.abs(result.error_pct)):.2f} % "
+        f"({result.evaluations} eigen solutions, {result.starts} polished starts).",
+    ]
     return "\n".join(lines)
 
 
@@ -138,8 +146,10 @@ def identification_table(result) -> str:
         lines.append(f"| {name} | {entry['value']:.4g} | {interval}{weak} | {entry['step']} |")
     velocity = data.get("velocity_nrmse", {})
     lines += ["", "| record | friction NRMSE (Eq. 3) | velocity NRMSE (output error) |", "|---|---:|---:|"]
-    lines += [f"| {name} | {value:.4f} | {velocity[name]:.4f} |" if name in velocity else f"| {name} | {value:.4f} | — |"
-              for name, value in data["nrmse"].items()]
+    lines += [
+        f"| {name} | {value:.4f} | {velocity[name]:.4f} |" if name in velocity else f"| {name} | {value:.4f} | — |"
+        for name, value in data["nrmse"].items()
+    ]
     return "\n".join(lines)
 
 
@@ -152,8 +162,12 @@ def plot_hysteresis(result, folder: Path) -> list[Path]:
     for name, record in result.records.items():
         stick = name in stick_names
         model = model_friction(result.parameters, record, result.filtered[name])
-        displacement = np.concatenate([[0.0], np.cumsum(0.5 * (record.sliding_velocity[1:] + record.sliding_velocity[:-1])
-                                                        * np.diff(record.time))])
+        displacement = np.concatenate(
+            [
+                [0.0],
+                np.cumsum(0.5 * (record.sliding_velocity[1:] + record.sliding_velocity[:-1]) * np.diff(record.time)),
+            ]
+        )
         x = record.sliding_velocity if stick else (displacement - displacement.mean()) * 1e6
         fig, ax = plt.subplots(figsize=(5.5, 4))
         ax.plot(x, record.friction_force, color="0.6", lw=0.8, label="measured")

@@ -9,27 +9,65 @@ import numpy as np
 from smartjoint.design.control import study as closed_loop
 from smartjoint.report_reduction import save_figure
 
-COLOURS = {"passive F_min": "tab:gray", "passive F_max": "k", "SISO": "tab:blue", "cLQG": "tab:red",
-           "active LQG": "tab:green"}
+COLOURS = {
+    "passive F_min": "tab:gray",
+    "passive F_max": "k",
+    "SISO": "tab:blue",
+    "cLQG": "tab:red",
+    "active LQG": "tab:green",
+}
 
 
 def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
-    """control_energy.png (Figs. 12–13), control_tip.png (Fig. 14), control_normal_force.png,
-    and siso_boundary_layer.png when ε was optimised."""
+    """Plot the closed-loop study (paper Section 6, Figs. 12–14).
+
+    Parameters
+    ----------
+    study : closed_loop.Study
+        The passive and controlled runs of the study.
+    folder : path
+        Where the figures go.
+
+    Returns
+    -------
+    list of Path
+        control_energy.png (Figs. 12–13), control_tip.png (Fig. 14), control_normal_force.png,
+        and siso_boundary_layer.png when ε was optimised.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     folder = Path(folder)
-    written = []
+    written = [
+        _plot_energy(plt, study, folder),
+        _plot_tip(plt, study, folder),
+        _plot_normal_force(plt, study, folder),
+    ]
+    if study.optimum is not None:
+        written.append(_plot_boundary_layer(plt, study.optimum, folder))
+    return written
+
+
+def _plot_energy(plt, study: closed_loop.Study, folder: Path) -> Path:
+    """control_energy.png: the system energy of every run after the tip pulse (Figs. 12–13)."""
     fig, ax = plt.subplots(figsize=(7, 3.8))
     for r in study.runs:
         ax.semilogy(r.time, np.maximum(r.energy, 1e-12), color=COLOURS[r.name], lw=1.0, label=r.name)
     ax.axvline(closed_loop.PULSE_DURATION, color="0.7", lw=0.6)
-    written.append(save_figure(fig, ax, folder / "control_energy.png", "t [s]", "½xᵀx [J]",
-                         "System energy after the tip pulse (Figs. 12–13)"))
+    return save_figure(
+        fig,
+        ax,
+        folder / "control_energy.png",
+        "t [s]",
+        "½xᵀx [J]",
+        "System energy after the tip pulse (Figs. 12–13)",
+    )
 
+
+def _plot_tip(plt, study: closed_loop.Study, folder: Path) -> Path:
+    """control_tip.png: the tip deflections of the runs, one panel per sensor (Fig. 14)."""
     fig, axes = plt.subplots(1, len(study.sensor_names), figsize=(10, 3.6), squeeze=False)
     for i, (ax, sensor) in enumerate(zip(axes[0], study.sensor_names)):
         for r in study.runs:
@@ -43,66 +81,107 @@ def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
     fig.tight_layout()
     fig.savefig(folder / "control_tip.png", dpi=110)
     plt.close(fig)
-    written.append(folder / "control_tip.png")
+    return folder / "control_tip.png"
 
+
+def _plot_normal_force(plt, study: closed_loop.Study, folder: Path) -> Path:
+    """control_normal_force.png: the controllers' normal force commands at the first joint."""
     fig, ax = plt.subplots(figsize=(7, 3.5))
     window = study.runs[0].time <= min(0.5, study.setup.duration)
     for r in study.runs:
         if r.name in ("SISO", "cLQG"):
-            ax.plot(r.time[window], r.normal_force[window, 0], color=COLOURS[r.name], lw=0.7,
-                    label=f"{r.name}, joint {study.joint_names[0]}")
-    written.append(save_figure(fig, ax, folder / "control_normal_force.png", "t [s]", "F_N [N]",
-                         "Normal force commands (first 0.5 s)"))
+            ax.plot(
+                r.time[window],
+                r.normal_force[window, 0],
+                color=COLOURS[r.name],
+                lw=0.7,
+                label=f"{r.name}, joint {study.joint_names[0]}",
+            )
+    return save_figure(
+        fig, ax, folder / "control_normal_force.png", "t [s]", "F_N [N]", "Normal force commands (first 0.5 s)"
+    )
 
-    if study.optimum is not None:
-        o = study.optimum
-        points = sorted(o.evaluations)
-        fig, ax = plt.subplots(figsize=(7, 3.5))
-        ax.semilogx([p[0] for p in points], [p[1] for p in points], ".-", color="tab:blue", label="E(t_e), Eq. 32")
-        ax.semilogx([o.boundary_layer], [o.energy_measure], "o", mfc="none", ms=10, color="tab:red",
-                    label=f"optimum ε = {o.boundary_layer:.3g} m/s")
-        written.append(save_figure(fig, ax, folder / "siso_boundary_layer.png", "ε [m/s]", "E(t_e) [J·s]",
-                             "SISO boundary layer optimisation (Eq. 30, 32)"))
-    return written
+
+def _plot_boundary_layer(plt, optimum, folder: Path) -> Path:
+    """siso_boundary_layer.png: E(t_e) against the SISO boundary layer ε (Eq. 30, 32)."""
+    points = sorted(optimum.evaluations)
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.semilogx([p[0] for p in points], [p[1] for p in points], ".-", color="tab:blue", label="E(t_e), Eq. 32")
+    ax.semilogx(
+        [optimum.boundary_layer],
+        [optimum.energy_measure],
+        "o",
+        mfc="none",
+        ms=10,
+        color="tab:red",
+        label=f"optimum ε = {optimum.boundary_layer:.3g} m/s",
+    )
+    return save_figure(
+        fig,
+        ax,
+        folder / "siso_boundary_layer.png",
+        "ε [m/s]",
+        "E(t_e) [J·s]",
+        "SISO boundary layer optimisation (Eq. 30, 32)",
+    )
 
 
 def control_markdown(study: closed_loop.Study) -> str:
     s = closed_loop.summary(study)
     o = s["boundary_layer_optimisation"]
     runs = s["runs"]
-    lines = ["## Semi-active control (paper Sections 5–6, Figs. 12–14)", "",
-             f"Design model {s['states']} states; controller sample time {1e3 * s['sample_time']:g} ms, plant step "
-             f"{1e6 * s['plant_step']:g} µs; F_N^min/F_N^max = {s['normal_force_min']} / {s['normal_force_max']} N; "
-             f"tip pulse 200 N over 40 ms in every disturbance direction with F_N^max during the pulse; "
-             f"t_e = {s['duration']:g} s.", "",
-             f"- LQG (Eq. 33): linear closed loop max|λ| = {s['lqg_max_pole_magnitude']:.6f} "
-             f"(stability margin {s['lqg_stability_margin']:.2e}).",
-             f"- cLQG boundary layer (Eq. 34): {s['clqg_boundary_layer']:g} N."]
+    lines = [
+        "## Semi-active control (paper Sections 5–6, Figs. 12–14)",
+        "",
+        f"Design model {s['states']} states; controller sample time {1e3 * s['sample_time']:g} ms, plant step "
+        f"{1e6 * s['plant_step']:g} µs; F_N^min/F_N^max = {s['normal_force_min']} / {s['normal_force_max']} N; "
+        f"tip pulse 200 N over 40 ms in every disturbance direction with F_N^max during the pulse; "
+        f"t_e = {s['duration']:g} s.",
+        "",
+        f"- LQG (Eq. 33): linear closed loop max|λ| = {s['lqg_max_pole_magnitude']:.6f} "
+        f"(stability margin {s['lqg_stability_margin']:.2e}).",
+        f"- cLQG boundary layer (Eq. 34): {s['clqg_boundary_layer']:g} N.",
+    ]
     if o is not None:
-        lines.append(f"- SISO boundary layer (Eq. 30) optimised for E(t_e): ε = {o['optimum']:.3g} m/s, "
-                     f"E = {o['energy_measure']:.4g} J·s; at ε/10 {o['energy_measure_tenth']:.4g}, at 10ε "
-                     f"{o['energy_measure_tenfold']:.4g} ({len(o['evaluations'])} simulations).")
+        lines.append(
+            f"- SISO boundary layer (Eq. 30) optimised for E(t_e): ε = {o['optimum']:.3g} m/s, "
+            f"E = {o['energy_measure']:.4g} J·s; at ε/10 {o['energy_measure_tenth']:.4g}, at 10ε "
+            f"{o['energy_measure_tenfold']:.4g} ({len(o['evaluations'])} simulations)."
+        )
     else:
         lines.append(f"- SISO boundary layer (Eq. 30) from the design file: ε = {s['siso_boundary_layer']} m/s.")
     sensors = s["sensors"]
-    lines += ["", "| run | e(t_e) [J] | e(t_e) / passive F^max | E(t_e) Eq. 32 [J·s] | "
-              + " | ".join(f"RMS {n} [mm]" for n in sensors) + " | peak tip [mm] | settling to 10 % [s] | "
-              "mean control power [W] |", "|---|" + "---:|" * (6 + len(sensors))]
+    lines += [
+        "",
+        "| run | e(t_e) [J] | e(t_e) / passive F^max | E(t_e) Eq. 32 [J·s] | "
+        + " | ".join(f"RMS {n} [mm]" for n in sensors)
+        + " | peak tip [mm] | settling to 10 % [s] | "
+        "mean control power [W] |",
+        "|---|" + "---:|" * (6 + len(sensors)),
+    ]
     for name, m in runs.items():
         settle = "—" if m["settling_time"] is None else f"{m['settling_time']:.3f}"
-        lines.append(f"| {name} | {m['energy_end']:.3g} | {m['energy_end_relative']:.3g} | {m['energy_measure']:.4g} | "
-                     + " | ".join(f"{1e3 * v:.2f}" for v in m["tip_rms"])
-                     + f" | {1e3 * max(m['tip_peak']):.1f} | {settle} | {m['control_power']:.3g} ({m['power_kind']}) |")
+        lines.append(
+            f"| {name} | {m['energy_end']:.3g} | {m['energy_end_relative']:.3g} | {m['energy_measure']:.4g} | "
+            + " | ".join(f"{1e3 * v:.2f}" for v in m["tip_rms"])
+            + f" | {1e3 * max(m['tip_peak']):.1f} | {settle} | {m['control_power']:.3g} ({m['power_kind']}) |"
+        )
     c = s["orderings"]
     mark = {True: "yes", False: "**no**"}
-    lines += ["", "Orderings of the paper (Section 6):", "",
-              f"- SISO ends below both passive settings: {mark[c['siso_below_both_passive']]}",
-              f"- cLQG ends below both passive settings: {mark[c['clqg_below_both_passive']]}",
-              f"- cLQG RMS tip deflection below SISO: {mark[c['clqg_tip_rms_below_siso']]}",
-              f"- active LQG better than cLQG (energy, RMS tip): "
-              f"{mark[c['active_energy_below_clqg'] and c['active_tip_rms_below_clqg']]}; control power ratio "
-              f"active / cLQG = {c['power_ratio_active_to_clqg']:.2f}", "",
-              "Control power: semi-active runs — electrical energy to charge the piezo stacks, "
-              "½C·max(0, V_k² − V_k−1²) with V = (F_N − preload)/k, no charge recovered; active LQG — mechanical "
-              "actuator power Σ|u_d·v| (a lower bound for any actuator that delivers u_d).", ""]
+    lines += [
+        "",
+        "Orderings of the paper (Section 6):",
+        "",
+        f"- SISO ends below both passive settings: {mark[c['siso_below_both_passive']]}",
+        f"- cLQG ends below both passive settings: {mark[c['clqg_below_both_passive']]}",
+        f"- cLQG RMS tip deflection below SISO: {mark[c['clqg_tip_rms_below_siso']]}",
+        f"- active LQG better than cLQG (energy, RMS tip): "
+        f"{mark[c['active_energy_below_clqg'] and c['active_tip_rms_below_clqg']]}; control power ratio "
+        f"active / cLQG = {c['power_ratio_active_to_clqg']:.2f}",
+        "",
+        "Control power: semi-active runs — electrical energy to charge the piezo stacks, "
+        "½C·max(0, V_k² − V_k−1²) with V = (F_N − preload)/k, no charge recovered; active LQG — mechanical "
+        "actuator power Σ|u_d·v| (a lower bound for any actuator that delivers u_d).",
+        "",
+    ]
     return "\n".join(lines)

@@ -152,8 +152,10 @@ def signals_held():
     arrived meanwhile is delivered again at the end (its usual handler then runs)."""
     caught: list[int] = []
     try:
-        previous = {number: signal.signal(number, lambda n, _frame: caught.append(n))
-                    for number in (signal.SIGINT, signal.SIGTERM)}
+        previous = {
+            number: signal.signal(number, lambda n, _frame: caught.append(n))
+            for number in (signal.SIGINT, signal.SIGTERM)
+        }
     except ValueError:  # not the main thread: no handlers to swap, and nothing can interrupt us here
         yield
         return
@@ -182,12 +184,17 @@ def _process_start(pid: int) -> str | None:
         stat = Path(f"/proc/{pid}/stat").read_text()
     except OSError:
         return None
-    return stat[stat.rindex(")") + 2:].split()[19]  # field 22 of proc(5), counted after "pid (comm)"
+    return stat[stat.rindex(")") + 2 :].split()[19]  # field 22 of proc(5), counted after "pid (comm)"
 
 
 def _claim() -> dict:
-    return {"kind": "smartjoint run claim", "pid": os.getpid(), "host": socket.gethostname(),
-            "boot_id": _boot_id(), "process_start": _process_start(os.getpid())}
+    return {
+        "kind": "smartjoint run claim",
+        "pid": os.getpid(),
+        "host": socket.gethostname(),
+        "boot_id": _boot_id(),
+        "process_start": _process_start(os.getpid()),
+    }
 
 
 def _gone(claim: dict) -> bool:
@@ -288,8 +295,9 @@ class ReportFolder:
                 self.staging.mkdir()
         except OSError as error:
             self._discard()
-            raise ReportFolderError(f"-o {self.output}: cannot write beside it ({error.strerror}) — give a "
-                                    "folder in a writable place") from None
+            raise ReportFolderError(
+                f"-o {self.output}: cannot write beside it ({error.strerror}) — give a folder in a writable place"
+            ) from None
         except BaseException:  # a signal held back above: __exit__ does not run when __enter__ raises
             self._discard()
             raise
@@ -304,8 +312,9 @@ class ReportFolder:
                 try:
                     os.rmdir(self.output)
                 except OSError as error:  # filled up in between
-                    raise ReportFolderError(f"-o {self.output}: is no longer empty ({error.strerror}) — "
-                                            "nothing was changed") from None
+                    raise ReportFolderError(
+                        f"-o {self.output}: is no longer empty ({error.strerror}) — nothing was changed"
+                    ) from None
             elif kind == "report":
                 os.rename(self.output, self.previous)
                 reason = _foreign(self.previous)
@@ -317,7 +326,9 @@ class ReportFolder:
             except OSError as error:
                 if os.path.isdir(self.previous) and not os.path.lexists(self.output):
                     os.rename(self.previous, self.output)
-                raise ReportFolderError(f"-o {self.output}: cannot put the report in place ({error.strerror})") from None
+                raise ReportFolderError(
+                    f"-o {self.output}: cannot put the report in place ({error.strerror})"
+                ) from None
             self.committed = True
             _remove_folder(self.previous)
             self.claim.unlink(missing_ok=True)

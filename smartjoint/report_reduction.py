@@ -27,25 +27,54 @@ def plot_study(study: dict, folder) -> list:
     for j, name in enumerate(study["joint_names"]):
         ax.semilogy(np.arange(1, first.omega.size + 1), control_u[:, j], ".", label=f"joint {name}")
     kept = study["runs"][0]["reduction"].kept_modes
-    ax.semilogy(kept + 1, hankel_values(considered)["uv"][kept], "o", mfc="none", color="k",
-                label=f"kept ({kept.size})")
-    written.append(save_figure(fig, ax, folder / "hankel.png", "mode", "w_i^c (Eq. 17)", "Controllability of the modes by each joint (Fig. 9)"))
+    ax.semilogy(
+        kept + 1, hankel_values(considered)["uv"][kept], "o", mfc="none", color="k", label=f"kept ({kept.size})"
+    )
+    written.append(
+        save_figure(
+            fig,
+            ax,
+            folder / "hankel.png",
+            "mode",
+            "w_i^c (Eq. 17)",
+            "Controllability of the modes by each joint (Fig. 9)",
+        )
+    )
 
     ref = study["reference"]
     a = study["active"]
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.plot(ref.time, ref.friction_force[:, a], "k", lw=1.2, label=f"full ({study['full'].n_states} states)")
     for r in study["runs"]:
-        ax.plot(r["result"].time, r["result"].friction_force[:, a], lw=0.9,
-                label=f"{study['keep']} modes + {r['krylov_per_joint']} Krylov ({r['states']} states)")
-    written.append(save_figure(fig, ax, folder / "friction_moment.png", "t [s]", f"u_R of {study['joint_names'][a]}", "Friction moment: full vs reduced (Fig. 10)"))
+        ax.plot(
+            r["result"].time,
+            r["result"].friction_force[:, a],
+            lw=0.9,
+            label=f"{study['keep']} modes + {r['krylov_per_joint']} Krylov ({r['states']} states)",
+        )
+    written.append(
+        save_figure(
+            fig,
+            ax,
+            folder / "friction_moment.png",
+            "t [s]",
+            f"u_R of {study['joint_names'][a]}",
+            "Friction moment: full vs reduced (Fig. 10)",
+        )
+    )
 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.semilogy(ref.time, np.maximum(ref.energy, 1e-12), "k", label="full")
     for r in study["runs"]:
-        ax.semilogy(r["result"].time, np.maximum(r["result"].energy, 1e-12), lw=0.9,
-                    label=f"{study['keep']} modes + {r['krylov_per_joint']} Krylov")
-    written.append(save_figure(fig, ax, folder / "energy.png", "t [s]", "½xᵀx [J]", "Structural energy after the tip pulse"))
+        ax.semilogy(
+            r["result"].time,
+            np.maximum(r["result"].energy, 1e-12),
+            lw=0.9,
+            label=f"{study['keep']} modes + {r['krylov_per_joint']} Krylov",
+        )
+    written.append(
+        save_figure(fig, ax, folder / "energy.png", "t [s]", "½xᵀx [J]", "Structural energy after the tip pulse")
+    )
     return written
 
 
@@ -92,22 +121,37 @@ def study_markdown(study: dict) -> str:
         Markdown.
     """
     s = study_summary(study)
-    lines = ["## Model reduction (paper Section 4, Figs. 9–10)", "",
-             f"Joints {', '.join(s['joints'])} with F_N = {s['normal_forces']} N, tip pulse 200 N over 40 ms in y and z. "
-             f"Full model: all modes of the released truss ({s['full_states']} states); reduced: {s['kept_modes']} "
-             f"of the first {s['considered_modes']} modes by Hankel singular values, plus Krylov vectors for the "
-             f"active joint {s['active_joint']}. Plant step {s['step_s']:g} s.", "",
-             "| Krylov vectors | states | friction RMS error " + " | ".join(f"0–{w} s" for w in
-                                                                        s["runs"][0]["friction_rms_error"])
-             + " | static compliance error | H∞ u→v (rel., band) | H∞ w→y (rel.) |",
-             "|---:|---:|" + "---:|" * (len(s["runs"][0]["friction_rms_error"]) + 3)]
+    lines = [
+        "## Model reduction (paper Section 4, Figs. 9–10)",
+        "",
+        f"Joints {', '.join(s['joints'])} with F_N = {s['normal_forces']} N, tip pulse 200 N over 40 ms in y and z. "
+        f"Full model: all modes of the released truss ({s['full_states']} states); reduced: {s['kept_modes']} "
+        f"of the first {s['considered_modes']} modes by Hankel singular values, plus Krylov vectors for the "
+        f"active joint {s['active_joint']}. Plant step {s['step_s']:g} s.",
+        "",
+        "| Krylov vectors | states | friction RMS error "
+        + " | ".join(f"0–{w} s" for w in s["runs"][0]["friction_rms_error"])
+        + " | static compliance error | H∞ u→v (rel., band) | H∞ w→y (rel.) |",
+        "|---:|---:|" + "---:|" * (len(s["runs"][0]["friction_rms_error"]) + 3),
+    ]
     for r in s["runs"]:
         m = r["metrics"]
-        lines.append(f"| {r['krylov_per_joint']} | {r['states']} | "
-                     + " | ".join(f"{100 * e:.1f} %" for e in r["friction_rms_error"].values())
-                     + f" | {100 * m['static_compliance']['relative_error']:.2f} % | {100 * m['uv']['hinf_relative']:.1f} %"
-                     f" | {100 * m['wy']['hinf_relative']:.2f} % |")
-    lines += ["", "The stick–slip trajectory is sensitive: small model differences shift the stick/slip instants, "
-              "so the error grows with the window (docs/simulation.md).", "",
-              "![hankel](hankel.png)", "", "![friction moment](friction_moment.png)", "", "![energy](energy.png)", ""]
+        lines.append(
+            f"| {r['krylov_per_joint']} | {r['states']} | "
+            + " | ".join(f"{100 * e:.1f} %" for e in r["friction_rms_error"].values())
+            + f" | {100 * m['static_compliance']['relative_error']:.2f} % | {100 * m['uv']['hinf_relative']:.1f} %"
+            f" | {100 * m['wy']['hinf_relative']:.2f} % |"
+        )
+    lines += [
+        "",
+        "The stick–slip trajectory is sensitive: small model differences shift the stick/slip instants, "
+        "so the error grows with the window (docs/simulation.md).",
+        "",
+        "![hankel](hankel.png)",
+        "",
+        "![friction moment](friction_moment.png)",
+        "",
+        "![energy](energy.png)",
+        "",
+    ]
     return "\n".join(lines)

@@ -15,10 +15,15 @@ PERTURBATION = Path(__file__).with_name("perturbation")
 
 
 def pytest_addoption(parser):
-    parser.addoption("--perturb-inputs", type=float, default=0.0, metavar="RELATIVE",
-                     help="multiply the model's physical inputs (designs, Table 1) by 1 + RELATIVE·r, r in [-1, 1] "
-                          "fixed per input, in this process and its Python subprocesses: another machine's last bits "
-                          "(the portability leg, .ci/portability, uses 1e-12 on the tests marked 'numerics')")
+    parser.addoption(
+        "--perturb-inputs",
+        type=float,
+        default=0.0,
+        metavar="RELATIVE",
+        help="multiply the model's physical inputs (designs, Table 1) by 1 + RELATIVE·r, r in [-1, 1] "
+        "fixed per input, in this process and its Python subprocesses: another machine's last bits "
+        "(the portability leg, .ci/portability, uses 1e-12 on the tests marked 'numerics')",
+    )
 
 
 def pytest_configure(config):
@@ -28,7 +33,9 @@ def pytest_configure(config):
     if not (math.isfinite(relative) and 0.0 < relative <= 1e-6):
         raise pytest.UsageError(f"--perturb-inputs: {relative!r} — must be a relative size in (0, 1e-6]")
     # Before the test modules are imported, so that names they import are the perturbed ones.
-    module_spec = importlib.util.spec_from_file_location("smartjoint_test_perturbation", PERTURBATION / "sitecustomize.py")
+    module_spec = importlib.util.spec_from_file_location(
+        "smartjoint_test_perturbation", PERTURBATION / "sitecustomize.py"
+    )
     module = importlib.util.module_from_spec(module_spec)
     module_spec.loader.exec_module(module)
     module.install(relative)
@@ -40,6 +47,7 @@ def pytest_report_header(config):
     relative = config.getoption("perturb_inputs")
     if relative:
         return f"model inputs perturbed by up to {relative:g} relative (--perturb-inputs)"
+
 
 ALUMINIUM = {"youngs_modulus": 70.0e9, "shear_modulus": 26.0e9, "density": 2700.0}
 TUBE = {"material": "aluminium", "outer_diameter": 0.022, "wall_thickness": 0.0015}
@@ -65,18 +73,37 @@ def small_truss() -> dict:
         "name": "small",
         "materials": {"aluminium": dict(ALUMINIUM)},
         "sections": {"tube": dict(TUBE)},
-        "connectors": {"c": {"length": 0.05, "mass": 0.06, "diameter": 0.022, "axial_stiffness": 5e6,
-                             "bending_stiffness": 800.0, "torsional_stiffness": 600.0}},
+        "connectors": {
+            "c": {
+                "length": 0.05,
+                "mass": 0.06,
+                "diameter": 0.022,
+                "axial_stiffness": 5e6,
+                "bending_stiffness": 800.0,
+                "torsional_stiffness": 600.0,
+            }
+        },
         "node_types": {"ball": {"mass": 0.25, "seat_radius": 0.023}},
         "mesh": {"tube_elements": 2},
-        "truss": {"bays": 2, "bay_length": 1.0, "width": 1.0, "node_type": "ball", "section": "tube",
-                  "connector": "c", "tip_node": "cross"},
+        "truss": {
+            "bays": 2,
+            "bay_length": 1.0,
+            "width": 1.0,
+            "node_type": "ball",
+            "section": "tube",
+            "connector": "c",
+            "tip_node": "cross",
+        },
         "point_masses": [{"node": "TIP", "mass": 0.5}],
-        "sensors": [{"name": "tip_y", "node": "TIP", "direction": "uy"},
-                    {"name": "tip_vz", "node": "TIP", "direction": "uz", "quantity": "velocity"}],
+        "sensors": [
+            {"name": "tip_y", "node": "TIP", "direction": "uy"},
+            {"name": "tip_vz", "node": "TIP", "direction": "uz", "quantity": "velocity"},
+        ],
         "disturbances": [{"name": "fy", "node": "TIP", "direction": "uy"}],
-        "joints": [{"name": "JA", "member": "L2_0", "end": "end", "type": "A"},
-                   {"name": "JB", "member": "D1_1", "end": "start", "type": "B", "axis": [0.0, 1.0, 0.0]}],
+        "joints": [
+            {"name": "JA", "member": "L2_0", "end": "end", "type": "A"},
+            {"name": "JB", "member": "D1_1", "end": "start", "type": "B", "axis": [0.0, 1.0, 0.0]},
+        ],
     }
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design import control, plant
-from smartjoint.design.control import artifact
+from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import load_design, parse_design
@@ -29,7 +29,7 @@ def setup():
     fe = build_model(design, joints="released")
     model = modal.modal_model(fe, modal.solve_modes(fe, 8))
     lqg = control.design_lqg(model, design.control.sample_time)
-    return design, model, lqg, artifact.from_design(design, model, lqg, [1e-3, 2e-3])
+    return design, model, lqg, artifact_building.from_design(design, model, lqg, [1e-3, 2e-3])
 
 
 def _mutated(built, change) -> str:
@@ -58,12 +58,22 @@ def test_rebuilt_controllers_match_the_originals_bit_for_bit(setup, tmp_path):
     design, _, lqg, built = setup
     loaded = artifact.load(artifact.save(built, tmp_path / "c.json"))
     low, high = np.full(2, design.control.normal_force_min), np.full(2, design.control.normal_force_max)
-    pairs = [(control.SisoLaw(lqg.sample_time, low, high, [1e-3, 2e-3]), artifact.siso_law(loaded)),
-             (control.ClippedLqg(lqg, low, high, design.control.clqg_boundary_layer), artifact.clipped_lqg(loaded)),
-             (control.ActiveLqg(lqg), artifact.active_lqg(loaded))]
+    pairs = [
+        (control.SisoLaw(lqg.sample_time, low, high, [1e-3, 2e-3]), artifact.siso_law(loaded)),
+        (control.ClippedLqg(lqg, low, high, design.control.clqg_boundary_layer), artifact.clipped_lqg(loaded)),
+        (control.ActiveLqg(lqg), artifact.active_lqg(loaded)),
+    ]
     rng = np.random.default_rng(7)
-    steps = [plant.Measurements(k * 1e-3, 1e-3 * rng.standard_normal(2), 1e-2 * rng.standard_normal(2),
-                                   50.0 * rng.standard_normal(2), rng.uniform(40.0, 400.0, 2)) for k in range(200)]
+    steps = [
+        plant.Measurements(
+            k * 1e-3,
+            1e-3 * rng.standard_normal(2),
+            1e-2 * rng.standard_normal(2),
+            50.0 * rng.standard_normal(2),
+            rng.uniform(40.0, 400.0, 2),
+        )
+        for k in range(200)
+    ]
     for original, rebuilt in pairs:
         original.reset(), rebuilt.reset()
         for m in steps:
@@ -81,7 +91,7 @@ def test_design_file_changes_reach_both_hashes(setup, tmp_path):
 
     def build(data):
         path.write_text(tomli_w.dumps(data))
-        return artifact.from_design(load_design(path), model, lqg, 1e-3)
+        return artifact_building.from_design(load_design(path), model, lqg, 1e-3)
 
     data = small_truss()
     first, again = build(data), build(data)
@@ -97,52 +107,70 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
 
     design, model, lqg, _ = setup
     data = small_truss()
-    data["control"] = {"joints": ["JB", "JA"], "normal_force_min": [10.0, 20.0], "normal_force_max": 300.0,
-                       "siso_boundary_layer": 4e-3}
+    data["control"] = {
+        "joints": ["JB", "JA"],
+        "normal_force_min": [10.0, 20.0],
+        "normal_force_max": 300.0,
+        "siso_boundary_layer": 4e-3,
+    }
     swapped = parse_design(data)
     with pytest.raises(ModelError, match="model: joints.*'JB', 'JA'"):
-        artifact.from_design(swapped, model, lqg)
+        artifact_building.from_design(swapped, model, lqg)
     order = [1, 0]
     reordered = dataclasses.replace(model, joint_input=model.joint_input[:, order], joint_names=["JB", "JA"])
-    built = artifact.from_design(swapped, reordered, control.design_lqg(reordered, 1e-3))
+    built = artifact_building.from_design(swapped, reordered, control.design_lqg(reordered, 1e-3))
     assert built.joint_names == ("JB", "JA")
     assert built.normal_force_min.tolist() == [10.0, 20.0] and built.normal_force_max.tolist() == [300.0, 300.0]
     assert built.siso_boundary_layer.tolist() == [4e-3, 4e-3]
     with pytest.raises(ModelError, match="siso_boundary_layer: missing"):
-        artifact.from_design(design, model, lqg)
+        artifact_building.from_design(design, model, lqg)
     with pytest.raises(ModelError, match="siso_boundary_layer.*one per joint"):
-        artifact.from_design(design, model, lqg, [1e-3, 1e-3, 1e-3])
+        artifact_building.from_design(design, model, lqg, [1e-3, 1e-3, 1e-3])
     with pytest.raises(ModelError, match="lqg.sample_time"):
-        artifact.from_design(design, model, control.design_lqg(model, 5e-4), 1e-3)
+        artifact_building.from_design(design, model, control.design_lqg(model, 5e-4), 1e-3)
     with pytest.raises(ModelError, match="lqg.output.*one per sensor"):
-        artifact.from_design(dataclasses.replace(design, sensors=design.sensors[:1]), model, lqg, 1e-3)
+        artifact_building.from_design(dataclasses.replace(design, sensors=design.sensors[:1]), model, lqg, 1e-3)
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda d: d.update(schema_version=3), r"schema_version: 3 — unknown; this version reads schema_version 2"),
-    (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
-    (lambda d: d.update(safe_normal_force=[5.0, 400.0]), r"safe_normal_force\[0\]: 5.0 N for joint 'JA' — must lie "
-                                                         r"within \[normal_force_min, normal_force_max\]"),
-    (lambda d: d.update(sensor_quantities=["displacement", "speed"]), r"sensor_quantities\[1\]: 'speed' — allowed"),
-    (lambda d: d.update(sensor_quantities=["displacement"]), r"sensor_quantities: 1 entries — expected one per sensor"),
-    (lambda d: d.update(measured_normal_force_max=[100.0, 500.0]), r"measured_normal_force_max\[0\]: 100.0 N"),
-    (lambda d: d.update(sliding_velocity_limit=[0.0, 1.0]), r"sliding_velocity_limit\[0\]: 0.0 for joint 'JA'"),
-    (lambda d: d.pop("schema_version"), r"schema_version: missing"),
-    (lambda d: d.pop("feedback_gain"), r"feedback_gain: missing — required field"),
-    (lambda d: d.update(feedback_gain=[row[:-1] for row in d["feedback_gain"]]),
-     r"feedback_gain: shape \(2, 15\) — expected \(2, 16\) = \(l, 2n\)"),
-    (lambda d: d["estimator_gain"][3].__setitem__(1, float("nan")), r"estimator_gain: nan at index \(3, 1\)"),
-    (lambda d: d.update(normal_force_min=[500.0, 40.0]), r"normal_force_min/normal_force_max: 500.0/400.0 N .*'JA'"),
-    (lambda d: d.update(joint_names=["JA", "JA"]), r"joint_names\[1\]: 'JA' — duplicate"),
-    (lambda d: d.update(sensor_names=["tip_y", ""]), r"sensor_names\[1\]: '' — expected a non-empty string"),
-    (lambda d: d.update(sample_time=0.0), r"sample_time: 0.0 — must be > 0 \[s\]"),
-    (lambda d: d.update(sample_time="1e-3"), r"sample_time: '1e-3' — expected a number"),
-    (lambda d: d.update(siso_boundary_layer=[1e-3, -1.0]), r"siso_boundary_layer: -1.0 for joint 'JB'"),
-    (lambda d: d.update(gamma0=[[1.0, 2.0], [3.0]]), r"gamma0: .* rectangular"),
-    (lambda d: d["blocks"][0][0].__setitem__(0, True), r"blocks: True — expected a \(nested\) list of numbers"),
-    (lambda d: d.update(extra=1), r"extra: 1 — unknown field"),
-    (lambda d: d.update(design_sha256="abc"), r"design_sha256: 'abc'"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda d: d.update(schema_version=3), r"schema_version: 3 — unknown; this version reads schema_version 2"),
+        (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
+        (
+            lambda d: d.update(safe_normal_force=[5.0, 400.0]),
+            r"safe_normal_force\[0\]: 5.0 N for joint 'JA' — must lie "
+            r"within \[normal_force_min, normal_force_max\]",
+        ),
+        (lambda d: d.update(sensor_quantities=["displacement", "speed"]), r"sensor_quantities\[1\]: 'speed' — allowed"),
+        (
+            lambda d: d.update(sensor_quantities=["displacement"]),
+            r"sensor_quantities: 1 entries — expected one per sensor",
+        ),
+        (lambda d: d.update(measured_normal_force_max=[100.0, 500.0]), r"measured_normal_force_max\[0\]: 100.0 N"),
+        (lambda d: d.update(sliding_velocity_limit=[0.0, 1.0]), r"sliding_velocity_limit\[0\]: 0.0 for joint 'JA'"),
+        (lambda d: d.pop("schema_version"), r"schema_version: missing"),
+        (lambda d: d.pop("feedback_gain"), r"feedback_gain: missing — required field"),
+        (
+            lambda d: d.update(feedback_gain=[row[:-1] for row in d["feedback_gain"]]),
+            r"feedback_gain: shape \(2, 15\) — expected \(2, 16\) = \(l, 2n\)",
+        ),
+        (lambda d: d["estimator_gain"][3].__setitem__(1, float("nan")), r"estimator_gain: nan at index \(3, 1\)"),
+        (
+            lambda d: d.update(normal_force_min=[500.0, 40.0]),
+            r"normal_force_min/normal_force_max: 500.0/400.0 N .*'JA'",
+        ),
+        (lambda d: d.update(joint_names=["JA", "JA"]), r"joint_names\[1\]: 'JA' — duplicate"),
+        (lambda d: d.update(sensor_names=["tip_y", ""]), r"sensor_names\[1\]: '' — expected a non-empty string"),
+        (lambda d: d.update(sample_time=0.0), r"sample_time: 0.0 — must be > 0 \[s\]"),
+        (lambda d: d.update(sample_time="1e-3"), r"sample_time: '1e-3' — expected a number"),
+        (lambda d: d.update(siso_boundary_layer=[1e-3, -1.0]), r"siso_boundary_layer: -1.0 for joint 'JB'"),
+        (lambda d: d.update(gamma0=[[1.0, 2.0], [3.0]]), r"gamma0: .* rectangular"),
+        (lambda d: d["blocks"][0][0].__setitem__(0, True), r"blocks: True — expected a \(nested\) list of numbers"),
+        (lambda d: d.update(extra=1), r"extra: 1 — unknown field"),
+        (lambda d: d.update(design_sha256="abc"), r"design_sha256: 'abc'"),
+    ],
+)
 def test_invalid_artefacts_are_named(setup, change, message):
     with pytest.raises(ModelError, match=message):
         artifact.loads(_mutated(setup[3], change))
@@ -150,8 +178,11 @@ def test_invalid_artefacts_are_named(setup, change, message):
 
 def test_bad_text_and_files_raise_model_errors(setup, tmp_path, monkeypatch):
     built = setup[3]
-    for text, message in (("{\"schema_version\": 1,", "not valid JSON"), ("[1, 2]", "expected a JSON object"),
-                          ("{\"schema_version\": 2, \"schema_version\": 2}", "schema_version: 2 — duplicate key")):
+    for text, message in (
+        ('{"schema_version": 1,', "not valid JSON"),
+        ("[1, 2]", "expected a JSON object"),
+        ('{"schema_version": 2, "schema_version": 2}', "schema_version: 2 — duplicate key"),
+    ):
         with pytest.raises(ModelError, match=message):
             artifact.loads(text)
     with pytest.raises(ModelError, match="missing.json: cannot read"):

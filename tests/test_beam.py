@@ -26,7 +26,9 @@ def _family_frequencies(model, dof: str, count: int) -> np.ndarray:
     """Frequencies of the modes whose motion is dominated by one DOF type (e.g. 'rx')."""
     values, shapes = eigensolve(model.stiffness, model.mass, model.n_dof)
     labels = np.array([label[1] for label in model.dof_labels])
-    share = np.array([np.sum(shapes[labels == dof, k] ** 2) / np.sum(shapes[:, k] ** 2) for k in range(shapes.shape[1])])
+    share = np.array(
+        [np.sum(shapes[labels == dof, k] ** 2) / np.sum(shapes[:, k] ** 2) for k in range(shapes.shape[1])]
+    )
     picked = np.sqrt(values[share > 0.9]) / (2 * np.pi)
     return picked[:count]
 
@@ -36,7 +38,11 @@ def test_cantilever_bending_matches_euler_bernoulli():
     model = build_model(parse_design(beam_design(length, elements=10)))
     modes = solve_modes(model, 6)
     area, second = _section()
-    exact = BETA_L**2 / (2 * np.pi * length**2) * np.sqrt(ALUMINIUM["youngs_modulus"] * second / (ALUMINIUM["density"] * area))
+    exact = (
+        BETA_L**2
+        / (2 * np.pi * length**2)
+        * np.sqrt(ALUMINIUM["youngs_modulus"] * second / (ALUMINIUM["density"] * area))
+    )
     fem = modes.frequencies_hz[::2]  # y and z bending coincide for a tube: pairs
     np.testing.assert_allclose(modes.frequencies_hz[1::2], fem, rtol=1e-9)
     error = np.abs(fem - exact) / exact
@@ -48,7 +54,11 @@ def test_cantilever_bending_matches_euler_bernoulli():
 def test_cantilever_bending_converges_at_fourth_order():
     errors = []
     area, second = _section()
-    exact = BETA_L[2] ** 2 / (2 * np.pi * 4.0) * np.sqrt(ALUMINIUM["youngs_modulus"] * second / (ALUMINIUM["density"] * area))
+    exact = (
+        BETA_L[2] ** 2
+        / (2 * np.pi * 4.0)
+        * np.sqrt(ALUMINIUM["youngs_modulus"] * second / (ALUMINIUM["density"] * area))
+    )
     for n in (4, 8, 16):
         model = build_model(parse_design(beam_design(2.0, elements=n)))
         errors.append(abs(solve_modes(model, 6).frequencies_hz[4] - exact) / exact)

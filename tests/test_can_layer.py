@@ -43,7 +43,7 @@ def _values(signal, count, rng):
     if signal.minimum is not None:
         low, high = float(signal.minimum), float(signal.maximum)
     else:
-        raw_max = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2 ** signal.length - 1
+        raw_max = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2**signal.length - 1
         raw_min = -(2 ** (signal.length - 1)) if signal.is_signed else 0
         low, high = raw_min * signal.scale + signal.offset, raw_max * signal.scale + signal.offset
     values = rng.uniform(low, high, count)
@@ -76,7 +76,7 @@ def test_pack_and_unpack_are_bit_exact_with_cantools(image, kind):
             elif s.minimum is not None:
                 v = min(max(v, s.minimum), s.maximum)
             else:  # no range in the DBC: the raw value is kept within its bit field
-                raw_max = 2 ** (s.length - 1) - 1 if s.is_signed else 2 ** s.length - 1
+                raw_max = 2 ** (s.length - 1) - 1 if s.is_signed else 2**s.length - 1
                 raw_min = -(2 ** (s.length - 1)) if s.is_signed else 0
                 v = min(max(v, raw_min * s.scale + s.offset), raw_max * s.scale + s.offset)
             expected[s.name] = v
@@ -92,8 +92,22 @@ def test_pack_and_unpack_are_bit_exact_with_cantools(image, kind):
 def test_receive_checks_identifier_length_crc_and_counter(reference):
     fw = firmware.Firmware(reference, "siso", "float")
     m = fw.db.get_message_by_name("JOINT_A1")
-    good = e2e.protect(m.frame_id, bytearray(m.encode({"crc": 0, "counter": 0, "sync": 0, "sliding_velocity": 0.0,
-                                                       "friction_force": 0.0, "normal_force": 100.0})), 0)
+    good = e2e.protect(
+        m.frame_id,
+        bytearray(
+            m.encode(
+                {
+                    "crc": 0,
+                    "counter": 0,
+                    "sync": 0,
+                    "sliding_velocity": 0.0,
+                    "friction_force": 0.0,
+                    "normal_force": 100.0,
+                }
+            )
+        ),
+        0,
+    )
     assert fw.rx(m.frame_id, bytes(good), 0) == 0
     assert fw.rx(0x7FF, bytes(8), 0) == 16  # unknown identifier
     assert fw.rx(m.frame_id, bytes(good[:8]), 0) == 1  # wrong length
@@ -102,7 +116,13 @@ def test_receive_checks_identifier_length_crc_and_counter(reference):
     assert fw.rx(m.frame_id, bytes(bad), 0) == 2  # CRC
     assert fw.rx(m.frame_id, bytes(good), 0) == 4  # the same counter again
     c = fw.counters
-    assert (c["unknown_ids"], c["length_errors"], c["crc_errors"], c["counter_errors"], c["rx_frames"]) == (1, 1, 1, 1, 1)
+    assert (c["unknown_ids"], c["length_errors"], c["crc_errors"], c["counter_errors"], c["rx_frames"]) == (
+        1,
+        1,
+        1,
+        1,
+        1,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -114,11 +134,20 @@ def bench(three_type_a, reference):
 
 def _run(bench, law, faults=(), log_path=None):
     setup, reference = bench
-    loop = SilLoop(firmware.Firmware(reference, law, "float"), closed_loop.PULSE_DURATION, faults=faults,
-                       log_path=log_path)
+    loop = SilLoop(
+        firmware.Firmware(reference, law, "float"), closed_loop.PULSE_DURATION, faults=faults, log_path=log_path
+    )
     try:
-        result = plant.simulate(setup.plant, setup.laws, loop, setup.pulse(), setup.duration, setup.plant_step,
-                                   record_every=closed_loop.PLANT_STEPS_PER_SAMPLE, energy_books=False)
+        result = plant.simulate(
+            setup.plant,
+            setup.laws,
+            loop,
+            setup.pulse(),
+            setup.duration,
+            setup.plant_step,
+            record_every=closed_loop.PLANT_STEPS_PER_SAMPLE,
+            energy_books=False,
+        )
     finally:
         loop.close()
     return loop, result
@@ -151,14 +180,14 @@ def test_every_injected_fault_reaches_the_safe_state_within_three_cycles_and_rec
     record = loop.record
     safe = np.array(record.safe)
     row = safety.measure(record, (fault,), bench[1])
-    assert not safe[:row["start"]].any()  # nothing before the fault (power-up included)
+    assert not safe[: row["start"]].any()  # nothing before the fault (power-up included)
     assert row["ok"] and row["joints"] <= 3 and row["firmware"] <= 3, row
     assert row["recovery"] <= bench[1].timeout_cycles + bench[1].recovery_cycles + 1, row
     commands = np.array(record.command)
     assert np.all(commands[safe] == bench[1].safe_normal_force)  # the one safe normal force
     k1 = row["end"]
     applied = np.array(record.amplifier_force)  # the amplifiers follow the setpoints again
-    assert np.allclose(applied[k1 + 15:], commands[k1 + 15:], atol=1e-5)
+    assert np.allclose(applied[k1 + 15 :], commands[k1 + 15 :], atol=1e-5)
     after = result.time > closed_loop.PULSE_DURATION
     assert result.energy[after].max() <= result.energy.max() and np.all(np.isfinite(result.energy))
 
@@ -196,8 +225,11 @@ def test_blf_and_asc_of_one_run_decode_to_the_same_signals(bench, tmp_path):
     with can.Logger(str(tmp_path / "direct.asc")) as writer:
         for message in messages:
             writer.on_message_received(message)
-    done = subprocess.run([sys.executable, "-m", "can.logconvert", str(tmp_path / "run.blf"),
-                           str(tmp_path / "converted.asc")], capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "can.logconvert", str(tmp_path / "run.blf"), str(tmp_path / "converted.asc")],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     db = loop.db
     blf = logs.decode(messages, db)
@@ -211,24 +243,64 @@ def test_blf_and_asc_of_one_run_decode_to_the_same_signals(bench, tmp_path):
 def test_damaged_logs_and_unknown_interfaces_get_clear_messages(bench, tmp_path):
     _run((dataclasses.replace(bench[0], duration=0.05), bench[1]), "siso", log_path=tmp_path / "run.blf")
     data = (tmp_path / "run.blf").read_bytes()
-    (tmp_path / "cut.blf").write_bytes(data[:len(data) // 2])
+    (tmp_path / "cut.blf").write_bytes(data[: len(data) // 2])
     messages, problem = logs.read(tmp_path / "cut.blf")
     full, _ = logs.read(tmp_path / "run.blf")
     assert len(messages) < len(full) and problem.startswith("truncated")
     (tmp_path / "garbage.blf").write_bytes(data[:1000] + b"\0garbage" * 100 + data[2000:])
     assert logs.read(tmp_path / "garbage.blf")[1] is not None
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "bench", "decode", str(tmp_path / "cut.blf"),
-                           "--artifact", str(REFERENCE), "--json"], capture_output=True, text=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "bench",
+            "decode",
+            str(tmp_path / "cut.blf"),
+            "--artifact",
+            str(REFERENCE),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     assert out["frames"] == len(messages) and "ends early" in done.stderr and out["log_problem"].startswith("truncated")
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "bench", "decode", str(tmp_path / "missing.blf"),
-                           "--artifact", str(REFERENCE)], capture_output=True, text=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "bench",
+            "decode",
+            str(tmp_path / "missing.blf"),
+            "--artifact",
+            str(REFERENCE),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 2 and "not found" in done.stderr
     with pytest.raises(ModelError, match="bench interface 'nope'.*python-can knows"):
         open_bus("nope", "x")
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "bench", "log", "--interface", "nope", "-o",
-                           str(tmp_path / "x.blf"), "--duration", "0.1"], capture_output=True, text=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "bench",
+            "log",
+            "--interface",
+            "nope",
+            "-o",
+            str(tmp_path / "x.blf"),
+            "--duration",
+            "0.1",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 2 and "python-can knows" in done.stderr and not (tmp_path / "x.blf").exists()
 
 
@@ -242,10 +314,12 @@ def test_decode_skips_and_counts_malformed_frames(reference):
     good = e2e.protect(m.frame_id, bytearray(m.encode({"crc": 0, "counter": 0, "voltage": 12.5})), 0)
     bad = bytearray(good)
     bad[3] ^= 0xFF
-    frames = [can.Message(arbitration_id=m.frame_id, data=bytes(good), timestamp=0.0),
-              can.Message(arbitration_id=0x555, data=bytes(4), timestamp=0.0),
-              can.Message(arbitration_id=m.frame_id, data=bytes(good[:3]), timestamp=0.0),
-              can.Message(arbitration_id=m.frame_id, data=bytes(bad), timestamp=0.0)]
+    frames = [
+        can.Message(arbitration_id=m.frame_id, data=bytes(good), timestamp=0.0),
+        can.Message(arbitration_id=0x555, data=bytes(4), timestamp=0.0),
+        can.Message(arbitration_id=m.frame_id, data=bytes(good[:3]), timestamp=0.0),
+        can.Message(arbitration_id=m.frame_id, data=bytes(bad), timestamp=0.0),
+    ]
     decoded = logs.decode(frames, db)
     assert decoded.frames == 4 and len(decoded.rows) == 3
     assert decoded.summary()["unknown_ids"] == {"0x555": 1}
@@ -300,8 +374,9 @@ def test_bench_log_records_a_live_bus_that_reopens_and_converts(reference, tmp_p
     assert [round(r[3], 6) for r in decoded.rows if r[2] == "voltage"] == [round(v, 6) for v in sent]
     other = ".asc" if suffix == ".blf" else ".blf"
     converted = tmp_path / f"converted{other}"
-    run = subprocess.run([sys.executable, "-m", "can.logconvert", str(path), str(converted)], capture_output=True,
-                         text=True)
+    run = subprocess.run(
+        [sys.executable, "-m", "can.logconvert", str(path), str(converted)], capture_output=True, text=True
+    )
     assert run.returncode == 0, run.stderr
     assert [r[1:] for r in logs.decode(logs.read(converted)[0], db).rows] == [r[1:] for r in decoded.rows]
 

@@ -15,9 +15,16 @@ from smartjoint.design.network import protocol
 
 REFERENCE = Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json"
 # AUTOSAR "Specification of CRC Routines", CRC8 SAE J1850 check table.
-VECTORS = [(b"\x00\x00\x00\x00", 0x59), (b"\xF2\x01\x83", 0x37), (b"\x0F\xAA\x00\x55", 0x79),
-           (b"\x00\xFF\x55\x11", 0xB8), (b"\x33\x22\x55\xAA\xBB\xCC\xDD\xEE\xFF", 0xCB), (b"\x92\x6B\x55", 0x8C),
-           (b"\xFF\xFF\xFF\xFF", 0x74), (b"123456789", 0x4B)]
+VECTORS = [
+    (b"\x00\x00\x00\x00", 0x59),
+    (b"\xf2\x01\x83", 0x37),
+    (b"\x0f\xaa\x00\x55", 0x79),
+    (b"\x00\xff\x55\x11", 0xB8),
+    (b"\x33\x22\x55\xaa\xbb\xcc\xdd\xee\xff", 0xCB),
+    (b"\x92\x6b\x55", 0x8C),
+    (b"\xff\xff\xff\xff", 0x74),
+    (b"123456789", 0x4B),
+]
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +102,9 @@ def test_dbc_is_generated_from_the_artefact_and_round_trips(reference):
     for j, joint in enumerate(reference.joint_names):
         joint_frame = names[f"JOINT_{joint.upper()}"]
         assert joint_frame.frame_id == 0x100 + j and joint_frame.is_fd and joint_frame.cycle_time == 1
-        assert names[f"SETPOINT_{joint.upper()}"].cycle_time == 1 and names[f"AMP_STATUS_{joint.upper()}"].cycle_time == 1
+        assert (
+            names[f"SETPOINT_{joint.upper()}"].cycle_time == 1 and names[f"AMP_STATUS_{joint.upper()}"].cycle_time == 1
+        )
         # the frames the controller reads echo its heartbeat: it ages them by that (docs/safety.md)
         assert joint_frame.get_signal_by_name("sync").length == 4
         assert names[f"AMP_STATUS_{joint.upper()}"].get_signal_by_name("sync").length == 4
@@ -106,8 +115,18 @@ def test_dbc_is_generated_from_the_artefact_and_round_trips(reference):
     for message in again.messages:  # every frame starts with the E2E bytes
         assert message.get_signal_by_name("crc").start == 0 and message.get_signal_by_name("counter").start == 8
     frame = names["JOINT_A1"]
-    decoded = frame.decode(frame.encode({"crc": 0, "counter": 3, "sync": 5, "sliding_velocity": 1.234567891e-3,
-                                         "friction_force": -123.45678, "normal_force": 399.98}))
+    decoded = frame.decode(
+        frame.encode(
+            {
+                "crc": 0,
+                "counter": 3,
+                "sync": 5,
+                "sliding_velocity": 1.234567891e-3,
+                "friction_force": -123.45678,
+                "normal_force": 399.98,
+            }
+        )
+    )
     assert decoded["sliding_velocity"] == pytest.approx(1.234567891e-3, abs=1e-9)
     assert decoded["friction_force"] == pytest.approx(-123.45678, abs=1e-5)
 
@@ -128,8 +147,11 @@ def test_bus_load_worst_case_frames_and_the_limit(reference):
     fast = busload.bus_load(db, 1_000_000, 5_000_000)
     slow = busload.bus_load(db, 1_000_000, 2_000_000)
     assert 0 < fast.load < slow.load
-    by_hand = sum((34 / 1e6 + busload.fd_bits(m.length)[1] / 5e6 if m.is_fd else
-                   34 / 1e6 + busload.fd_bits(m.length)[1] / 5e6) / (m.cycle_time / 1e3) for m in db.messages)
+    by_hand = sum(
+        (34 / 1e6 + busload.fd_bits(m.length)[1] / 5e6 if m.is_fd else 34 / 1e6 + busload.fd_bits(m.length)[1] / 5e6)
+        / (m.cycle_time / 1e3)
+        for m in db.messages
+    )
     assert fast.load == pytest.approx(by_hand, rel=1e-12)
     assert busload.check(db, 1_000_000, 5_000_000).load == fast.load
     assert fast.load == pytest.approx(0.6426, abs=5e-4)  # docs/can.md: 64.3 % with the heartbeat every cycle

@@ -30,8 +30,12 @@ def test_modes_json_has_the_documented_shape():
     frequencies = [m["frequency_hz"] for m in out["modes"]]
     assert frequencies == sorted(frequencies) and frequencies[0] > 1.0
     comparison = out["ema_comparison"]
-    assert comparison[0] == {"index": 1, "ema_hz": 4.49, "fem_hz": comparison[0]["fem_hz"],
-                             "error_pct": pytest.approx(100 * (comparison[0]["fem_hz"] - 4.49) / 4.49)}
+    assert comparison[0] == {
+        "index": 1,
+        "ema_hz": 4.49,
+        "fem_hz": comparison[0]["fem_hz"],
+        "error_pct": pytest.approx(100 * (comparison[0]["fem_hz"] - 4.49) / 4.49),
+    }
     assert [c["index"] for c in comparison] == [1, 2, 3, 4, 5, 7, 8, 12, 17]
 
 
@@ -117,8 +121,13 @@ def test_a_sensor_name_the_firmware_cannot_carry_is_refused_before_any_work(tmp_
     data["sensors"][0]["name"] = name
     design = tmp_path / "small.toml"
     design.write_text(tomli_w.dumps(data))
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", command[0], str(design), *command[1:]],
-                          capture_output=True, text=True, cwd=tmp_path, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", command[0], str(design), *command[1:]],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=60,
+    )
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and f"sensors[0].name: {name!r}" in lines[0], lines

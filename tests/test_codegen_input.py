@@ -74,14 +74,22 @@ REFUSED = {
     "safe force below F^min": ({"safe_normal_force": [400.0, 5.0, 400.0]}, [], ("safe_normal_force[1]", "5.0")),
     "safe force count": ({"safe_normal_force": [100.0, 100.0]}, [], ("safe_normal_force", "expected (3,)")),
     "sensor limit beyond the frame": ({"sensor_limit": [25.0, 0.5]}, [], ("sensor_limit[0]", "25.0")),
-    "velocity limit beyond the frame": ({"sliding_velocity_limit": [1.0, 3.0, 1.0]}, [],
-                                        ("sliding_velocity_limit[1]", "3.0")),
-    "temperature limit at the frame's top": ({"amplifier_temperature_limit": 215.0}, [],
-                                             ("amplifier_temperature_limit", "215.0")),
+    "velocity limit beyond the frame": (
+        {"sliding_velocity_limit": [1.0, 3.0, 1.0]},
+        [],
+        ("sliding_velocity_limit[1]", "3.0"),
+    ),
+    "temperature limit at the frame's top": (
+        {"amplifier_temperature_limit": 215.0},
+        [],
+        ("amplifier_temperature_limit", "215.0"),
+    ),
     "F^max 1e12 N": ({"normal_force_max": [1e12, 400.0, 400.0]}, [], ("normal_force_max[0]", "1000000000000.0")),
-    "F^max beyond the setpoint frame": ({"normal_force_max": [400.0, 1250.0, 400.0],
-                                         "measured_normal_force_max": [440.0, 1300.0, 440.0]}, [],
-                                        ("normal_force_max[1]", "1200 N")),
+    "F^max beyond the setpoint frame": (
+        {"normal_force_max": [400.0, 1250.0, 400.0], "measured_normal_force_max": [440.0, 1300.0, 440.0]},
+        [],
+        ("normal_force_max[1]", "1200 N"),
+    ),
     "preload above F^min": ({"piezo_preload": 20.0}, [], ("piezo_preload", "20.0")),
     "timeout cycles": ({"timeout_cycles": 1}, [], ("timeout_cycles", "1")),
     "timeout cycles beyond the echo": ({"timeout_cycles": 8}, [], ("timeout_cycles", "8")),
@@ -106,10 +114,16 @@ def test_forces_and_voltages_the_frames_cannot_carry_are_refused(reference):
     with pytest.raises(ModelError, match=r"^SETPOINT_A1\.voltage: range \[0, 500\] V — its 32-bit field carries"):
         can_layer.render_can(reference, amplifier=protocol.Amplifier(voltage_max=500.0))
     # A stiffer stack reaches 15 kN, but the JOINT frame reports the applied F_N only up to 1310 N.
-    strong = dataclasses.replace(reference, normal_force_max=np.array([400.0, 400.0, 2000.0]),
-                                 measured_normal_force_max=np.array([440.0, 440.0, 2200.0]))
-    with pytest.raises(ModelError, match=r"^normal_force_max\[2\]: 2000.0 N for joint 'A3' — the JOINT_A3 frame "
-                                         r"carries the applied F_N up to 1310 N"):
+    strong = dataclasses.replace(
+        reference,
+        normal_force_max=np.array([400.0, 400.0, 2000.0]),
+        measured_normal_force_max=np.array([440.0, 440.0, 2200.0]),
+    )
+    with pytest.raises(
+        ModelError,
+        match=r"^normal_force_max\[2\]: 2000.0 N for joint 'A3' — the JOINT_A3 frame "
+        r"carries the applied F_N up to 1310 N",
+    ):
         can_layer.render_can(strong, amplifier=protocol.Amplifier(force_per_volt=100.0))
     # The amplifier given to the layer is checked as the artefact's own preload is.
     with pytest.raises(ModelError, match=r"^piezo_preload: 20.0 N — above normal_force_min\[0\] = 10.0 N"):
@@ -117,8 +131,21 @@ def test_forces_and_voltages_the_frames_cannot_carry_are_refused(reference):
 
 
 def test_reserved_words_include_the_standards_spellings():
-    for word in ("double", "_Bool", "restrict", "inline", "_Static_assert", "bool", "typeof", "class", "errno",
-                 "stdin", "size_t", "uint8_t", "isnan"):
+    for word in (
+        "double",
+        "_Bool",
+        "restrict",
+        "inline",
+        "_Static_assert",
+        "bool",
+        "typeof",
+        "class",
+        "errno",
+        "stdin",
+        "size_t",
+        "uint8_t",
+        "isnan",
+    ):
         assert word in identifiers.RESERVED, word
     for good in ("A1", "tip_y", "Joint_2b", "x"):
         identifiers.check_names([good], ["tip_y"], members=protocol.E2E_SIGNALS)
@@ -156,14 +183,18 @@ def _planted(monkeypatch, name: str, text: str):
 
 
 @needs_cc
-@pytest.mark.parametrize("name, text, reported", [
-    ("smartjoint_can.c", "\nint planted(void) { return undeclared_in_the_can_layer; }\n", "smartjoint_can.c"),
-    ("smartjoint_can.c", "\nstatic int planted_but_unused;\n", "smartjoint_can.c"),  # a warning is an error
-    ("sj_e2e.h", "\nvoid planted(int);\nvoid planted(double);\n", "sj_e2e.h"),
-    ("main.c", "\nint main(void);\nint planted(void) { return 1; }\nint planted(void) { return 2; }\n", "main.c"),
-])
-def test_a_planted_error_anywhere_in_the_can_layer_stops_the_move(name, text, reported, reference, tmp_path,
-                                                                  monkeypatch):
+@pytest.mark.parametrize(
+    "name, text, reported",
+    [
+        ("smartjoint_can.c", "\nint planted(void) { return undeclared_in_the_can_layer; }\n", "smartjoint_can.c"),
+        ("smartjoint_can.c", "\nstatic int planted_but_unused;\n", "smartjoint_can.c"),  # a warning is an error
+        ("sj_e2e.h", "\nvoid planted(int);\nvoid planted(double);\n", "sj_e2e.h"),
+        ("main.c", "\nint main(void);\nint planted(void) { return 1; }\nint planted(void) { return 2; }\n", "main.c"),
+    ],
+)
+def test_a_planted_error_anywhere_in_the_can_layer_stops_the_move(
+    name, text, reported, reference, tmp_path, monkeypatch
+):
     _planted(monkeypatch, name, text)
     target = tmp_path / "new"
     with pytest.raises(ModelError) as error:
@@ -255,8 +286,10 @@ def test_a_symlink_in_place_of_a_generated_file_is_not_followed(reference, tmp_p
 
 def test_written_by_codegen_recognises_each_kind_of_generated_file(reference, tmp_path):
     files = {**generate.render(reference), **can_layer.render_can(reference)}
-    other = {**generate.render(dataclasses.replace(reference, clqg_boundary_layer=5.0), "double"),
-             **can_layer.render_can(dataclasses.replace(reference, clqg_boundary_layer=5.0))}
+    other = {
+        **generate.render(dataclasses.replace(reference, clqg_boundary_layer=5.0), "double"),
+        **can_layer.render_can(dataclasses.replace(reference, clqg_boundary_layer=5.0)),
+    }
     for name, text in files.items():
         path = tmp_path / name
         path.write_text(other[name])  # an earlier generation: another artefact

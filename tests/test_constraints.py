@@ -25,8 +25,9 @@ def _star(seat_radius: float, clamp: bool = True, joints=(), node_mass: float = 
         "node_types": {"ball": {"mass": node_mass, "seat_radius": seat_radius, "inertia": node_mass * 1e-4}},
         "nodes": [{"name": "C", "position": [0.0, 0.0, 0.0], "type": "ball"}]
         + [{"name": f"F{k}", "position": arm} for k, arm in enumerate(ARMS)],
-        "members": [{"name": f"M{k}", "start": "C", "end": f"F{k}", "section": "tube", "elements": 3}
-                    for k in range(len(ARMS))],
+        "members": [
+            {"name": f"M{k}", "start": "C", "end": f"F{k}", "section": "tube", "elements": 3} for k in range(len(ARMS))
+        ],
         "joints": list(joints),
     }
     if clamp:
@@ -53,14 +54,18 @@ def _merged_frequencies(count: int) -> np.ndarray:
     length, rotation = beam.element_frames(points[a], points[b])
     k_local = beam.local_stiffness_terms(length)
     m_local = beam.local_mass_terms(length)
-    ke = beam.to_global(E * section_area * k_local["axial"] + G * 2 * second * k_local["torsion"]
-                        + E * second * (k_local["bending_y"] + k_local["bending_z"]), rotation)
+    ke = beam.to_global(
+        E * section_area * k_local["axial"]
+        + G * 2 * second * k_local["torsion"]
+        + E * second * (k_local["bending_y"] + k_local["bending_z"]),
+        rotation,
+    )
     me = beam.to_global(rho * section_area * m_local["translation"] + rho * 2 * second * m_local["torsion"], rotation)
     n = 6 * len(points)
     K = np.zeros((n, n))
     M = np.zeros((n, n))
     for e, (i, j) in enumerate(elements):
-        dofs = np.r_[6 * i:6 * i + 6, 6 * j:6 * j + 6]
+        dofs = np.r_[6 * i : 6 * i + 6, 6 * j : 6 * j + 6]
         K[np.ix_(dofs, dofs)] += ke[e]
         M[np.ix_(dofs, dofs)] += me[e]
     feet = [3, 6, 9]
@@ -97,8 +102,10 @@ def test_rigid_offsets_carry_rigid_body_motion_exactly():
 
 
 def test_released_joint_adds_exactly_one_zero_energy_direction():
-    for joint in ({"name": "J", "member": "M0", "end": "start", "type": "A"},
-                  {"name": "J", "member": "M1", "end": "start", "type": "B", "axis": [0.0, 0.0, 1.0]}):
+    for joint in (
+        {"name": "J", "member": "M0", "end": "start", "type": "A"},
+        {"name": "J", "member": "M1", "end": "start", "type": "B", "axis": [0.0, 0.0, 1.0]},
+    ):
         # One member alone, free in space: 6 rigid-body modes; its joint end released: 7.
         design = _star(seat_radius=0.05, clamp=False, joints=[joint], node_mass=0.2)
         design["members"] = [m for m in design["members"] if m["name"] == joint["member"]]
@@ -123,7 +130,9 @@ def test_joint_matrix_is_the_unit_vector_of_the_joint_dof():
 
 def test_released_joints_lower_the_spectrum_and_keep_it_supported():
     design = parse_design(small_truss())
-    locked = eigensolve(build_model(design, joints="locked").stiffness, build_model(design, joints="locked").mass, 10)[0]
+    locked = eigensolve(build_model(design, joints="locked").stiffness, build_model(design, joints="locked").mass, 10)[
+        0
+    ]
     released_model = build_model(design, joints="released")
     released = eigensolve(released_model.stiffness, released_model.mass, 10)[0]
     # Releasing a DOF removes a constraint: every eigenvalue can only go down (interlacing).

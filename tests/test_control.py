@@ -83,10 +83,12 @@ def test_lqg_gains_equal_python_control_and_the_loop_is_stable(model):
 def test_active_lqg_damps_the_linear_model_far_more_than_structural_damping(model):
     d = control.design_lqg(model, 1e-3)
     pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
-    active = plant.simulate(model, [], control.ActiveLqg(d, hold_until=0.04), pulse, 0.5, 1e-3, energy_books=False,
-                               scheme="linear")
-    free = plant.simulate(model, [], control.ActiveLqg(d, hold_until=10.0), pulse, 0.5, 1e-3, energy_books=False,
-                             scheme="linear")  # never acts
+    active = plant.simulate(
+        model, [], control.ActiveLqg(d, hold_until=0.04), pulse, 0.5, 1e-3, energy_books=False, scheme="linear"
+    )
+    free = plant.simulate(
+        model, [], control.ActiveLqg(d, hold_until=10.0), pulse, 0.5, 1e-3, energy_books=False, scheme="linear"
+    )  # never acts
     assert np.allclose(free.friction_force, 0.0)
     assert active.energy[-1] < 1e-2 * free.energy[-1]  # measured 1.9e-3
 
@@ -95,9 +97,19 @@ def test_study_runs_are_deterministic(model):
     d = control.design_lqg(model, 1e-3)
     laws = [lugre.TYPE_A, lugre.TYPE_B]
     pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
-    runs = [plant.simulate(model, laws, plant.HoldDuringExcitation(
-        control.ClippedLqg(d, np.full(2, 20.0), np.full(2, 300.0), 5.0), 0.04, np.full(2, 300.0)), pulse, 0.1, 1e-4)
-        for _ in range(2)]
+    runs = [
+        plant.simulate(
+            model,
+            laws,
+            plant.HoldDuringExcitation(
+                control.ClippedLqg(d, np.full(2, 20.0), np.full(2, 300.0), 5.0), 0.04, np.full(2, 300.0)
+            ),
+            pulse,
+            0.1,
+            1e-4,
+        )
+        for _ in range(2)
+    ]
     assert np.array_equal(runs[0].friction_force, runs[1].friction_force)
     assert np.array_equal(runs[0].normal_force, runs[1].normal_force)
     assert np.all(runs[0].normal_force[runs[0].time < 0.04 - 1e-9] == 300.0)
@@ -112,9 +124,17 @@ def test_bad_controller_inputs_are_named(model):
         control.design_lqg(model, 1.0 / model.omega.max() * 2 * np.pi)
     with pytest.raises(ModelError, match="control_weight"):
         control.design_lqg(model, 1e-3, control_weight=-1.0)
-    blind = modal.ModalModel(**{**model.__dict__, "displacement_output": np.zeros_like(model.displacement_output),
-                                "velocity_output": np.zeros_like(model.velocity_output)}) \
-        if hasattr(model, "__dict__") else None
+    blind = (
+        modal.ModalModel(
+            **{
+                **model.__dict__,
+                "displacement_output": np.zeros_like(model.displacement_output),
+                "velocity_output": np.zeros_like(model.velocity_output),
+            }
+        )
+        if hasattr(model, "__dict__")
+        else None
+    )
     if blind is not None:
         with pytest.raises(ModelError, match="not detectable"):
             control.design_lqg(blind, 1e-3)
@@ -138,13 +158,16 @@ def test_design_file_control_table_errors_name_the_key():
         parse_design(data)
 
 
-SAFETY = dict(safe_normal_force=[60.0, 80.0], friction_force_limit=[100.0, 100.0], measured_normal_force_min=[-5.0, -5.0],
-              measured_normal_force_max=[120.0, 120.0])
+SAFETY = dict(
+    safe_normal_force=[60.0, 80.0],
+    friction_force_limit=[100.0, 100.0],
+    measured_normal_force_min=[-5.0, -5.0],
+    measured_normal_force_max=[120.0, 120.0],
+)
 
 
 def test_siso_law_puts_every_joint_at_the_safe_force_on_an_unusable_input():
-    law = control.SisoLaw(1e-3, [10.0, 10.0], [110.0, 110.0], [1e-3, 1e-3], sliding_velocity_limit=[1.0, 1.0],
-                          **SAFETY)
+    law = control.SisoLaw(1e-3, [10.0, 10.0], [110.0, 110.0], [1e-3, 1e-3], sliding_velocity_limit=[1.0, 1.0], **SAFETY)
     law.step(_measure(0.0, [0.1, 0.1], [30.0, 30.0], [100.0, 100.0]))
     assert np.array_equal(law.step(_measure(1e-3, [0.1, 0.1], [30.0, 30.0], [100.0, 100.0])), [110.0, 110.0])
     # At the limits is plausible: the law acts (μ = 0.3, v = 1 → F^max).
@@ -157,8 +180,12 @@ def test_siso_law_puts_every_joint_at_the_safe_force_on_an_unusable_input():
     out = law.step(_measure(4e-3, [0.1, 0.1], [30.0, 30.0], [100.0, 100.0]))
     assert out[0] == 10.0 and out[1] == 10.0  # joint 0: μ = 0; joint 1: μ = −30/100 < 0 with v > 0
     # NaN is INPUT_INVALID only, Inf too; a finite absurd value is INPUT_IMPLAUSIBLE; both at once: both bits.
-    for bad, status in ((np.nan, control.STATUS_INPUT_INVALID), (np.inf, control.STATUS_INPUT_INVALID),
-                        (1e38, control.STATUS_INPUT_IMPLAUSIBLE), (-200.0, control.STATUS_INPUT_IMPLAUSIBLE)):
+    for bad, status in (
+        (np.nan, control.STATUS_INPUT_INVALID),
+        (np.inf, control.STATUS_INPUT_INVALID),
+        (1e38, control.STATUS_INPUT_IMPLAUSIBLE),
+        (-200.0, control.STATUS_INPUT_IMPLAUSIBLE),
+    ):
         assert np.array_equal(law.step(_measure(5e-3, [0.1, 0.1], [30.0, 30.0], [bad, 100.0])), [60.0, 80.0])
         assert law.status == status, bad
     law.step(_measure(6e-3, [np.nan, 2.0], [30.0, 30.0], [100.0, 100.0]))
@@ -168,15 +195,23 @@ def test_siso_law_puts_every_joint_at_the_safe_force_on_an_unusable_input():
 def test_clipped_lqg_restarts_at_the_safe_force_on_an_unusable_input(model):
     design = control.design_lqg(model, 1e-3)
     ny = model.velocity_output.shape[0]
-    law = control.ClippedLqg(design, np.full(2, 20.0), np.full(2, 220.0), 10.0, sensor_limit=np.full(ny, 0.01),
-                             **{**SAFETY, "safe_normal_force": [220.0, 20.0]})
+    law = control.ClippedLqg(
+        design,
+        np.full(2, 20.0),
+        np.full(2, 220.0),
+        10.0,
+        sensor_limit=np.full(ny, 0.01),
+        **{**SAFETY, "safe_normal_force": [220.0, 20.0]},
+    )
     good = _measure(0.0, [0.0, 0.0], [50.0, -50.0], [100.0, 100.0], y=np.full(ny, 0.01))  # sensors at the limit
     fresh = law.step(good)
     assert law.status == control.STATUS_OK and law.started
-    for field, bad, status in (("sensors", -0.0101, control.STATUS_INPUT_IMPLAUSIBLE),
-                               ("friction_force", -101.0, control.STATUS_INPUT_IMPLAUSIBLE),
-                               ("normal_force", 121.0, control.STATUS_INPUT_IMPLAUSIBLE),
-                               ("normal_force", np.nan, control.STATUS_INPUT_INVALID)):
+    for field, bad, status in (
+        ("sensors", -0.0101, control.STATUS_INPUT_IMPLAUSIBLE),
+        ("friction_force", -101.0, control.STATUS_INPUT_IMPLAUSIBLE),
+        ("normal_force", 121.0, control.STATUS_INPUT_IMPLAUSIBLE),
+        ("normal_force", np.nan, control.STATUS_INPUT_INVALID),
+    ):
         law.step(good)
         faulty = _measure(0.0, [0.0, 0.0], [50.0, -50.0], [100.0, 100.0], y=np.full(ny, 0.01))
         getattr(faulty, field)[-1] = bad

@@ -31,20 +31,28 @@ def _rebuild(document: dict) -> tuple[np.ndarray, np.ndarray]:
         length, rotation = beam.element_frames(points[[a]], points[[b]], np.array([element["local_y"]]))
         k = beam.local_stiffness_terms(length)
         m = beam.local_mass_terms(length)
-        ke = beam.to_global(element["EA"] * k["axial"] + element["GJ"] * k["torsion"]
-                            + element["EIy"] * k["bending_y"] + element["EIz"] * k["bending_z"], rotation)[0]
-        me = beam.to_global(element["mass_per_length"] * m["translation"]
-                            + element["polar_inertia_per_length"] * m["torsion"], rotation)[0]
-        dofs = np.r_[6 * a:6 * a + 6, 6 * b:6 * b + 6]
+        ke = beam.to_global(
+            element["EA"] * k["axial"]
+            + element["GJ"] * k["torsion"]
+            + element["EIy"] * k["bending_y"]
+            + element["EIz"] * k["bending_z"],
+            rotation,
+        )[0]
+        me = beam.to_global(
+            element["mass_per_length"] * m["translation"] + element["polar_inertia_per_length"] * m["torsion"], rotation
+        )[0]
+        dofs = np.r_[6 * a : 6 * a + 6, 6 * b : 6 * b + 6]
         K[np.ix_(dofs, dofs)] += ke
         M[np.ix_(dofs, dofs)] += me
     for lumped in document["lumped_masses"]:
         i = names.index(lumped["node"])
-        M[6 * i:6 * i + 3, 6 * i:6 * i + 3] += lumped["mass"] * np.eye(3)
-        M[6 * i + 3:6 * i + 6, 6 * i + 3:6 * i + 6] += lumped["inertia"] * np.eye(3)
+        M[6 * i : 6 * i + 3, 6 * i : 6 * i + 3] += lumped["mass"] * np.eye(3)
+        M[6 * i + 3 : 6 * i + 6, 6 * i + 3 : 6 * i + 6] += lumped["inertia"] * np.eye(3)
     # Constraint matrix: every rigid link's point follows its node; a release adds a DOF.
     dependent = {names.index(link["point"]) for link in document["rigid_links"]}
-    fixed = {6 * names.index(s["node"]) + document["dof_order"].index(d) for s in document["supports"] for d in s["dofs"]}
+    fixed = {
+        6 * names.index(s["node"]) + document["dof_order"].index(d) for s in document["supports"] for d in s["dofs"]
+    }
     columns = [d for p in range(len(points)) if p not in dependent for d in range(6 * p, 6 * p + 6) if d not in fixed]
     releases = [link for link in document["rigid_links"] if link["release"]]
     S = np.zeros((n_bar, len(columns) + len(releases)))
@@ -52,12 +60,12 @@ def _rebuild(document: dict) -> tuple[np.ndarray, np.ndarray]:
     for link in document["rigid_links"]:
         p, n = names.index(link["point"]), names.index(link["node"])
         r = np.array(link["offset"])
-        S[6 * p:6 * p + 6] = S[6 * n:6 * n + 6]
-        S[6 * p:6 * p + 3] += np.cross(S[6 * n + 3:6 * n + 6].T, r).T  # u_p = u_n + θ_n × r
+        S[6 * p : 6 * p + 6] = S[6 * n : 6 * n + 6]
+        S[6 * p : 6 * p + 3] += np.cross(S[6 * n + 3 : 6 * n + 6].T, r).T  # u_p = u_n + θ_n × r
     for k, link in enumerate(releases):
         p = names.index(link["point"])
         block = 0 if link["release"]["type"] == "A" else 3
-        S[6 * p + block:6 * p + block + 3, len(columns) + k] = link["release"]["direction"]
+        S[6 * p + block : 6 * p + block + 3, len(columns) + k] = link["release"]["direction"]
     return S.T @ K @ S, S.T @ M @ S
 
 
@@ -85,8 +93,11 @@ def test_export_rebuilds_the_same_frequencies():
 
 def test_export_model_command(tmp_path):
     target = tmp_path / "model.json"
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "export-model", "--no-update", "-o", str(target),
-                           "--json"], capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "export-model", "--no-update", "-o", str(target), "--json"],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     document = json.loads(target.read_text())

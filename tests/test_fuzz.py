@@ -23,8 +23,16 @@ SCRIPT = ROOT / ".ci" / "fuzz"
 def _clang() -> str | None:
     if shutil.which("clang"):
         return "clang"
-    versions = sorted((p for d in os.environ.get("PATH", "").split(os.pathsep) if d and Path(d).is_dir()
-                       for p in Path(d).glob("clang-[0-9]*") if p.name[6:].isdigit()), key=lambda p: int(p.name[6:]))
+    versions = sorted(
+        (
+            p
+            for d in os.environ.get("PATH", "").split(os.pathsep)
+            if d and Path(d).is_dir()
+            for p in Path(d).glob("clang-[0-9]*")
+            if p.name[6:].isdigit()
+        ),
+        key=lambda p: int(p.name[6:]),
+    )
     return str(versions[-1]) if versions else None
 
 
@@ -40,8 +48,9 @@ def _run(tmp_path, *args, **env):
     environment = {**os.environ, "PYTHON": sys.executable, "TMPDIR": str(tmp_path), **env}
     environment.pop("FUZZ_WORK", None)
     environment.pop("FUZZ_KEEP", None)
-    return subprocess.run([str(SCRIPT), *args], cwd=tmp_path, env=environment, capture_output=True, text=True,
-                          timeout=300)
+    return subprocess.run(
+        [str(SCRIPT), *args], cwd=tmp_path, env=environment, capture_output=True, text=True, timeout=300
+    )
 
 
 def test_fuzz_finds_the_planted_e2e_bug_and_the_real_runtime_is_clean(tmp_path):

@@ -9,9 +9,10 @@ import sys
 import numpy as np
 import pytest
 
-from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction import lugre, rig, rig_integration
 from smartjoint.design.friction.fitting import nrmse
-from smartjoint.design.friction.identify import classify, model_friction
+from smartjoint.design.friction.identify import model_friction
+from smartjoint.design.friction.record_screening import classify
 
 
 @pytest.mark.numerics
@@ -26,36 +27,63 @@ def test_true_parameters_reproduce_noise_free_records(joint_type, inertia):
     assert nrmse(micro.friction_force, model_friction(p, micro, micro.sliding_velocity)) < 0.01
     assert nrmse(stick.friction_force, model_friction(p, stick, stick.sliding_velocity)) < 0.01
     # A wrong Coulomb level is visible in the error: the measure discriminates.
-    wrong = lugre.LuGreParameters(p.sigma0, p.sigma1, p.sigma2, 1.1 * p.coulomb, p.stribeck, p.stribeck_velocity,
-                                  p.radius)
+    wrong = lugre.LuGreParameters(
+        p.sigma0, p.sigma1, p.sigma2, 1.1 * p.coulomb, p.stribeck, p.stribeck_velocity, p.radius
+    )
     assert nrmse(stick.friction_force, model_friction(wrong, stick, stick.sliding_velocity)) > 0.03
 
 
 @pytest.mark.numerics
 @pytest.mark.parametrize("joint_type", ["A", "B"])
 def test_rig_kernel_matches_the_python_reference(joint_type):
-    """rig_kernel.c mirrors rig._integrate_python: both regimes, a varying F_N, uneven samples."""
+    """rig_kernel.c mirrors rig_integration._integrate_python: both regimes, a varying F_N, uneven samples."""
     p = lugre.TABLE_1[joint_type]
     time = np.cumsum(np.r_[0.0, np.full(1999, 5e-5) * (1.0 + 0.2 * np.sin(np.arange(1999)))])
-    fine = np.interp(np.linspace(0.0, 1999.0, 1999 * rig.SUBSTEPS + 1), np.arange(2000.0), time)
+    fine = np.interp(np.linspace(0.0, 1999.0, 1999 * rig_integration.SUBSTEPS + 1), np.arange(2000.0), time)
     for factor, inertia in ((0.5, 1.0 if joint_type == "A" else 2e-3), (1.3, 0.2 if joint_type == "A" else 5e-4)):
         gain = p.moment_arm * 400.0 * (1.0 + 0.1 * np.sin(2.0 * np.pi * 7.0 * fine))
         force = factor * rig.breakaway(p, 400.0) * np.sin(2.0 * np.pi * 10.0 * fine)
-        python = rig.integrate(p, gain, inertia, force, time, rig.SUBSTEPS, 1e-4, 0.0, backend="python")
-        native = rig.integrate(p, gain, inertia, force, time, rig.SUBSTEPS, 1e-4, 0.0, backend="c")
+        python = rig_integration.integrate(
+            p, gain, inertia, force, time, rig_integration.SUBSTEPS, 1e-4, 0.0, backend="python"
+        )
+        native = rig_integration.integrate(
+            p, gain, inertia, force, time, rig_integration.SUBSTEPS, 1e-4, 0.0, backend="c"
+        )
         for reference, value in zip(python, native):
             assert np.max(np.abs(value - reference)) <= 1e-12 * np.max(np.abs(reference))
     with pytest.raises(ValueError, match="force: .* need"):
-        rig.integrate(p, 400.0, 1.0, np.zeros(5), time, rig.SUBSTEPS)
+        rig_integration.integrate(p, 400.0, 1.0, np.zeros(5), time, rig_integration.SUBSTEPS)
     with pytest.raises(ValueError, match="gain: .* one per substep node"):
-        rig.integrate(p, np.ones(5), 1.0, np.zeros(fine.size), time, rig.SUBSTEPS)
+        rig_integration.integrate(p, np.ones(5), 1.0, np.zeros(fine.size), time, rig_integration.SUBSTEPS)
 
 
 def test_rig_command_writes_a_readable_record(tmp_path):
     target = tmp_path / "r.csv"
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "rig", "--type", "A", "--normal-force", "400",
-                           "--amplitude", "150", "--frequency", "10", "--cycles", "1", "--noise", "0.01",
-                           "-o", str(target), "--json"], capture_output=True, text=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "rig",
+            "--type",
+            "A",
+            "--normal-force",
+            "400",
+            "--amplitude",
+            "150",
+            "--frequency",
+            "10",
+            "--cycles",
+            "1",
+            "--noise",
+            "0.01",
+            "-o",
+            str(target),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["records"][0]["regime"] == "micro-slip"
@@ -67,12 +95,30 @@ def test_rig_command_writes_a_readable_record(tmp_path):
 
 def test_identify_refuses_missing_regime(tmp_path):
     target = tmp_path / "micro.csv"
-    subprocess.run([sys.executable, "-m", "smartjoint.cli", "rig", "--normal-force", "400", "--amplitude", "150",
-                    "--frequency", "10", "--cycles", "1", "-o", str(target)], check=True, capture_output=True)
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "identify", str(target)], capture_output=True,
-                          text=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "rig",
+            "--normal-force",
+            "400",
+            "--amplitude",
+            "150",
+            "--frequency",
+            "10",
+            "--cycles",
+            "1",
+            "-o",
+            str(target),
+        ],
+        check=True,
+        capture_output=True,
+    )
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "identify", str(target)], capture_output=True, text=True
+    )
     assert done.returncode == 2 and "no stick-slip records" in done.stderr
-
 
 
 @pytest.mark.parametrize("joint_type", ["A", "B"])
@@ -121,8 +167,9 @@ def test_output_error_model_reproduces_a_noise_free_stick_slip_record(joint_type
     shooting = _prepare_shooting(record, p.moment_arm)
     assert shooting.starts.size == 4  # one velocity peak per half period
     assert nrmse(shooting.measured, shoot(p, shooting)) < 5e-4
-    wrong = lugre.LuGreParameters(p.sigma0, p.sigma1, p.sigma2, p.coulomb, 1.05 * p.stribeck, p.stribeck_velocity,
-                                  p.radius)
+    wrong = lugre.LuGreParameters(
+        p.sigma0, p.sigma1, p.sigma2, p.coulomb, 1.05 * p.stribeck, p.stribeck_velocity, p.radius
+    )
     assert nrmse(shooting.measured, shoot(wrong, shooting)) > 1e-2
 
 

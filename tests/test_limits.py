@@ -22,7 +22,7 @@ import pytest
 from conftest import small_truss
 
 from smartjoint.design import DesignError, ModelError, build_model, load_design, parse_design
-from smartjoint.design.structure import spec
+from smartjoint.design.structure import control_section, spec
 from smartjoint.design.structure.modal import count_zero_energy_modes, gross_energy, probe_zero_energy
 
 SECONDS = 2.0
@@ -34,23 +34,41 @@ CASES = {
     "base_dev_zero": ('base = "/dev/zero"\nname = "x"\n', "base"),
     "base_fifo": ('base = "pipe"\nname = "x"\n', "base"),
     "design_is_a_folder": (None, "<file>"),
-    "bays_1e9_float": ('base = "{base}"\nname = "x"\n[truss]\nbays = 1e9\nbay_length = 1.0\nwidth = 1.0\n'
-                       'node_type = "m12_ball"\nsection = "tube_22x1_5"\n', "truss.bays"),
-    "bays_1e9": ('base = "{base}"\nname = "x"\n[truss]\nbays = 1000000000\nbay_length = 1.0\nwidth = 1.0\n'
-                 'node_type = "m12_ball"\nsection = "tube_22x1_5"\n', "truss.bays"),
-    "bays_2_63": ('base = "{base}"\nname = "x"\n[truss]\nbays = 9223372036854775807\nbay_length = 1.0\n'
-                  'width = 1.0\nnode_type = "m12_ball"\nsection = "tube_22x1_5"\n', "truss.bays"),
+    "bays_1e9_float": (
+        'base = "{base}"\nname = "x"\n[truss]\nbays = 1e9\nbay_length = 1.0\nwidth = 1.0\n'
+        'node_type = "m12_ball"\nsection = "tube_22x1_5"\n',
+        "truss.bays",
+    ),
+    "bays_1e9": (
+        'base = "{base}"\nname = "x"\n[truss]\nbays = 1000000000\nbay_length = 1.0\nwidth = 1.0\n'
+        'node_type = "m12_ball"\nsection = "tube_22x1_5"\n',
+        "truss.bays",
+    ),
+    "bays_2_63": (
+        'base = "{base}"\nname = "x"\n[truss]\nbays = 9223372036854775807\nbay_length = 1.0\n'
+        'width = 1.0\nnode_type = "m12_ball"\nsection = "tube_22x1_5"\n',
+        "truss.bays",
+    ),
     "mesh_tube_elements": ('base = "{base}"\nname = "x"\n[mesh]\ntube_elements = 100000\n', "mesh.tube_elements"),
-    "truss_tube_elements": ('base = "{base}"\nname = "x"\n[truss]\nbays = 10\nbay_length = 1.0\nwidth = 1.0\n'
-                            'node_type = "m12_ball"\nsection = "tube_22x1_5"\ntube_elements = 100000\n',
-                            "truss.tube_elements"),
-    "dof_estimate": ('base = "{base}"\nname = "x"\n[truss]\nbays = 5000\nbay_length = 1.0\nwidth = 1.0\n'
-                     'node_type = "m12_ball"\nsection = "tube_22x1_5"\nconnector = "m12_screw"\n', "truss.bays"),
+    "truss_tube_elements": (
+        'base = "{base}"\nname = "x"\n[truss]\nbays = 10\nbay_length = 1.0\nwidth = 1.0\n'
+        'node_type = "m12_ball"\nsection = "tube_22x1_5"\ntube_elements = 100000\n',
+        "truss.tube_elements",
+    ),
+    "dof_estimate": (
+        'base = "{base}"\nname = "x"\n[truss]\nbays = 5000\nbay_length = 1.0\nwidth = 1.0\n'
+        'node_type = "m12_ball"\nsection = "tube_22x1_5"\nconnector = "m12_screw"\n',
+        "truss.bays",
+    ),
     "file_too_large": (None, "<file>"),
-    "considered_modes": ('base = "{base}"\nname = "x"\n[control]\nconsidered_modes = 1000000000\n',
-                         "control.considered_modes"),
-    "study_steps": ('base = "{base}"\nname = "x"\n[control]\nstudy_duration = 3000.0\nsample_time = 1e-5\n',
-                    "control.study_duration"),
+    "considered_modes": (
+        'base = "{base}"\nname = "x"\n[control]\nconsidered_modes = 1000000000\n',
+        "control.considered_modes",
+    ),
+    "study_steps": (
+        'base = "{base}"\nname = "x"\n[control]\nstudy_duration = 3000.0\nsample_time = 1e-5\n',
+        "control.study_duration",
+    ),
 }
 
 _CHILD = textwrap.dedent("""
@@ -86,8 +104,9 @@ def former_hangs(tmp_path_factory):
     (folder / "design_is_a_folder.toml").mkdir()
     with open(folder / "file_too_large.toml", "w") as handle:  # valid TOML, one comment too many
         handle.write('name = "x"\n#' + "x" * (spec.MAX_FILE_BYTES + 10) + "\n")
-    done = subprocess.run([sys.executable, "-c", _CHILD, json.dumps(paths)], capture_output=True, text=True,
-                          timeout=120)
+    done = subprocess.run(
+        [sys.executable, "-c", _CHILD, json.dumps(paths)], capture_output=True, text=True, timeout=120
+    )
     results = {}
     for line in done.stdout.splitlines():
         results.update(json.loads(line))
@@ -108,14 +127,23 @@ def test_former_hang_is_a_prompt_one_line_error(former_hangs, case):
 def test_limit_errors_name_the_allowed_range(former_hangs):
     assert f"1 … {spec.MAX_BAYS}" in former_hangs["bays_2_63"]["error"]
     assert f"1 … {spec.MAX_ELEMENTS}" in former_hangs["mesh_tube_elements"]["error"]
-    assert "DOFs" in former_hangs["dof_estimate"]["error"] and f"at most {spec.MAX_DOFS}" in former_hangs["dof_estimate"]["error"]
+    assert (
+        "DOFs" in former_hangs["dof_estimate"]["error"]
+        and f"at most {spec.MAX_DOFS}" in former_hangs["dof_estimate"]["error"]
+    )
     assert "/dev/zero is a device" in former_hangs["base_dev_zero"]["error"]
     assert "is a FIFO" in former_hangs["base_fifo"]["error"]
     assert f"at most {spec.MAX_FILE_BYTES} bytes" in former_hangs["file_too_large"]["error"]
 
 
-@pytest.mark.parametrize("truss", [{}, {"frame_diagonals": True, "root_battens": True, "tip_node": "diagonal"},
-                                   {"tip_node": "none", "frame_diagonals": True}])
+@pytest.mark.parametrize(
+    "truss",
+    [
+        {},
+        {"frame_diagonals": True, "root_battens": True, "tip_node": "diagonal"},
+        {"tip_node": "none", "frame_diagonals": True},
+    ],
+)
 def test_dof_estimate_is_the_model_size_before_supports(truss, monkeypatch):
     data = small_truss()
     data["truss"].update(truss)
@@ -140,7 +168,9 @@ def test_element_count_of_an_explicit_member_is_bounded():
     data = small_truss()
     data["nodes"] = [{"name": "X", "position": [5.0, 0.0, 0.0]}]
     data["members"] = [{"name": "extra", "start": "N2_0", "end": "X", "section": "tube", "elements": 10**6}]
-    with pytest.raises(DesignError, match=rf"members\[0\].elements: 1000000 — must be an integer 1 … {spec.MAX_ELEMENTS}"):
+    with pytest.raises(
+        DesignError, match=rf"members\[0\].elements: 1000000 — must be an integer 1 … {spec.MAX_ELEMENTS}"
+    ):
         parse_design(data)
 
 
@@ -181,10 +211,13 @@ def _control_error(**control) -> str:
 
 def test_normal_force_max_above_what_a_piezo_joint_can_set_is_refused():
     message = _control_error(normal_force_max=1e12)
-    assert "control.normal_force_max: 1000000000000.0" in message and f"<= {spec.MAX_NORMAL_FORCE:g} N" in message
+    assert (
+        "control.normal_force_max: 1000000000000.0" in message
+        and f"<= {control_section.MAX_NORMAL_FORCE:g} N" in message
+    )
     message = _control_error(normal_force_max=[400.0, 2e5])
     assert "control.normal_force_max: 200000.0" in message and "entry 1" in message
-    parse_design({**small_truss(), "control": {"normal_force_max": spec.MAX_NORMAL_FORCE}})
+    parse_design({**small_truss(), "control": {"normal_force_max": control_section.MAX_NORMAL_FORCE}})
     no_joints = {**small_truss(), "joints": [], "control": {"normal_force_max": 1e12}}
     with pytest.raises(DesignError, match="control.normal_force_max: 1000000000000.0"):
         parse_design(no_joints)  # a number for every joint is checked before there are any
@@ -213,10 +246,13 @@ def _pinned_chain(links: int) -> dict:
     """Links along x, the first clamped, each further link hinged to the previous by a type B
     joint about z: a chain of ``links − 1`` free hinges once the joints are released."""
     nodes = [{"name": f"P{i}", "position": [float(i), 0.0, 0.0]} for i in range(links + 1)]
-    members = [{"name": f"M{i}", "start": f"P{i}", "end": f"P{i + 1}", "section": "tube", "elements": 2}
-               for i in range(links)]
-    joints = [{"name": f"H{i}", "member": f"M{i}", "end": "start", "type": "B", "axis": [0.0, 0.0, 1.0]}
-              for i in range(1, links)]
+    members = [
+        {"name": f"M{i}", "start": f"P{i}", "end": f"P{i + 1}", "section": "tube", "elements": 2} for i in range(links)
+    ]
+    joints = [
+        {"name": f"H{i}", "member": f"M{i}", "end": "start", "type": "B", "axis": [0.0, 0.0, 1.0]}
+        for i in range(1, links)
+    ]
     data = small_truss()
     for key in ("truss", "point_masses", "sensors", "disturbances", "connectors", "node_types", "mesh"):
         data.pop(key)
@@ -224,12 +260,22 @@ def _pinned_chain(links: int) -> dict:
     return data
 
 
-@pytest.mark.parametrize("name, data, count", [
-    ("unsupported truss", {**small_truss(), "truss": {**small_truss()["truss"], "clamp_root": False}}, 6),
-    ("truss pinned at one node", {**small_truss(), "truss": {**small_truss()["truss"], "clamp_root": False},
-                                  "supports": [{"node": "N0_0", "dofs": ["ux", "uy", "uz"]}]}, 3),
-    ("pinned chain", _pinned_chain(3), 2),
-])
+@pytest.mark.parametrize(
+    "name, data, count",
+    [
+        ("unsupported truss", {**small_truss(), "truss": {**small_truss()["truss"], "clamp_root": False}}, 6),
+        (
+            "truss pinned at one node",
+            {
+                **small_truss(),
+                "truss": {**small_truss()["truss"], "clamp_root": False},
+                "supports": [{"node": "N0_0", "dofs": ["ux", "uy", "uz"]}],
+            },
+            3,
+        ),
+        ("pinned chain", _pinned_chain(3), 2),
+    ],
+)
 def test_real_mechanism_is_refused(name, data, count):
     design = parse_design(copy.deepcopy(data))
     with pytest.raises(ModelError, match=f"{count} zero-energy"):

@@ -12,7 +12,7 @@ from smartjoint.design.friction.lugre import CANUDAS_1995 as P
 
 def test_steady_state_friction_is_the_stribeck_curve():
     v = np.concatenate([-np.logspace(-6, 1, 50), np.logspace(-6, 1, 50)])
-    expected = np.sign(v) * (1.0 + 0.5 * np.exp(-(v / 1e-3) ** 2)) + 0.4 * v
+    expected = np.sign(v) * (1.0 + 0.5 * np.exp(-((v / 1e-3) ** 2))) + 0.4 * v
     mu = lugre.friction_coefficient(P, v, lugre.steady_state_deflection(P, v))
     np.testing.assert_allclose(mu, expected, rtol=1e-9)
     # The discrete step reaches it from rest in one long step (exact solution).
@@ -37,7 +37,9 @@ def test_analytic_jacobian_matches_finite_differences():
     phi = 0.3 * lugre.steady_state_deflection(P, v) + 2e-6
     d_phi, d_v = lugre.rhs_jacobian(P, v, phi)
     h_phi, h_v = 1e-12, 1e-9
-    np.testing.assert_allclose(d_phi, (lugre.rhs(P, v, phi + h_phi) - lugre.rhs(P, v, phi - h_phi)) / (2 * h_phi), rtol=1e-5)
+    np.testing.assert_allclose(
+        d_phi, (lugre.rhs(P, v, phi + h_phi) - lugre.rhs(P, v, phi - h_phi)) / (2 * h_phi), rtol=1e-5
+    )
     np.testing.assert_allclose(d_v, (lugre.rhs(P, v + h_v, phi) - lugre.rhs(P, v - h_v, phi)) / (2 * h_v), rtol=1e-5)
 
 
@@ -49,8 +51,17 @@ def _mass_on_ground(force, t_end, p=P, mass=1.0):
         friction = lugre.friction_coefficient(p, v, phi)
         return [v, (force(t) - friction) / mass, lugre.rhs(p, v, phi)]
 
-    return solve_ivp(f, (0, t_end), [0.0, 0.0, 0.0], method="Radau", rtol=1e-10, atol=1e-13, max_step=1e-2,
-                     dense_output=True, jac=lambda t, s: _jacobian(s, mass))
+    return solve_ivp(
+        f,
+        (0, t_end),
+        [0.0, 0.0, 0.0],
+        method="Radau",
+        rtol=1e-10,
+        atol=1e-13,
+        max_step=1e-2,
+        dense_output=True,
+        jac=lambda t, s: _jacobian(s, mass),
+    )
 
 
 def _jacobian(state, mass, spring=0.0):
@@ -89,8 +100,17 @@ def test_stick_slip_of_a_mass_pulled_through_a_spring_is_periodic():
         return [v, k * (pull * t - x) - lugre.friction_coefficient(P, v, phi), lugre.rhs(P, v, phi)]
 
     t_end = 40.0
-    solution = solve_ivp(f, (0, t_end), [0.0, 0.0, 0.0], method="Radau", rtol=1e-9, atol=1e-12, max_step=5e-3,
-                         dense_output=True, jac=lambda t, s: _jacobian(s, 1.0, k))
+    solution = solve_ivp(
+        f,
+        (0, t_end),
+        [0.0, 0.0, 0.0],
+        method="Radau",
+        rtol=1e-9,
+        atol=1e-12,
+        max_step=5e-3,
+        dense_output=True,
+        jac=lambda t, s: _jacobian(s, 1.0, k),
+    )
     t = np.linspace(10.0, t_end, 60001)
     v = solution.sol(t)[1]
     sticking = np.abs(v) < 1e-3 * pull
@@ -111,8 +131,16 @@ def _prescribed(t):
 
 def _reference(t_end):
     jac = lambda t, phi: np.atleast_2d(lugre.rhs_jacobian(P, _prescribed(t), phi[0])[0])  # noqa: E731
-    return solve_ivp(lambda t, phi: lugre.rhs(P, _prescribed(t), phi), (0, t_end), [0.0], method="Radau", jac=jac,
-                     rtol=1e-12, atol=1e-16, dense_output=True)
+    return solve_ivp(
+        lambda t, phi: lugre.rhs(P, _prescribed(t), phi),
+        (0, t_end),
+        [0.0],
+        method="Radau",
+        jac=jac,
+        rtol=1e-12,
+        atol=1e-16,
+        dense_output=True,
+    )
 
 
 @pytest.mark.parametrize("where, order", [("midpoint", 2.0), ("start", 1.0)])

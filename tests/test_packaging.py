@@ -27,8 +27,12 @@ PACKAGE_DIRS: dict[str, str] = PYPROJECT["tool"]["setuptools"]["package-dir"]
 
 
 def _pip_wheel(source: Path, dist: Path, *extra: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", *extra, "-w", str(dist),
-                           str(source)], capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", *extra, "-w", str(dist), str(source)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +57,7 @@ def wheel(tmp_path_factory) -> Path:
 def _source_folder(package: str) -> Path:
     """The source folder of an import package: its own package-dir entry, or its parent's plus the rest."""
     parent = max((name for name in PACKAGE_DIRS if package == name or package.startswith(name + ".")), key=len)
-    return ROOT / PACKAGE_DIRS[parent] / Path(*package[len(parent):].split(".")[1:])
+    return ROOT / PACKAGE_DIRS[parent] / Path(*package[len(parent) :].split(".")[1:])
 
 
 def _data_folders(package: str) -> set[str]:
@@ -76,8 +80,11 @@ def test_every_data_file_of_the_source_tree_is_named_in_the_registry():
     for package, names in package_data.FILES.items():
         folder = _source_folder(package)
         for sub in _data_folders(package):
-            present = {f"{sub}/{p.name}".removeprefix("./") for p in (folder / sub).iterdir()
-                       if p.is_file() and p.suffix not in (".py", ".pyc") and p.name != "README.md"}
+            present = {
+                f"{sub}/{p.name}".removeprefix("./")
+                for p in (folder / sub).iterdir()
+                if p.is_file() and p.suffix not in (".py", ".pyc") and p.name != "README.md"
+            }
             assert present <= set(names), f"{package}: not in package_data.FILES: {sorted(present - set(names))}"
         assert all((folder / name).is_file() for name in names), package
 
@@ -90,8 +97,9 @@ def test_no_module_locates_files_beside_its_own_source():
         for source in (ROOT / folder).rglob("*.py"):
             # Only modules the wheel installs: a tool in a folder that is no package (firmware/fuzz/
             # prepare.py works on the source tree's firmware/generated/) never runs from a wheel.
-            if not all((parent / "__init__.py").exists() for parent in source.parents
-                       if parent.is_relative_to(ROOT / folder)):
+            if not all(
+                (parent / "__init__.py").exists() for parent in source.parents if parent.is_relative_to(ROOT / folder)
+            ):
                 continue
             if "__file__" in source.read_text():
                 offenders.append(str(source.relative_to(ROOT)))
@@ -108,7 +116,7 @@ from smartjoint.bench import e2e
 from smartjoint.codegen import can_layer, generate, rendering
 from smartjoint.common import package_data
 from smartjoint.design.control import artifact
-from smartjoint.design.friction import rig
+from smartjoint.design.friction import rig_integration
 from smartjoint.design.structure import spec
 found = {"package": smartjoint.__file__,
          "files": [str(p) for _, p in package_data.all_files()],
@@ -120,7 +128,7 @@ controller = artifact.load(Path(sys.argv[2]))
 files = {**generate.render(controller, "float"), **can_layer.render_can(controller)}
 found["rendered"] = sorted(files)
 found["crc"] = e2e.compiled().lib.sj_crc8_j1850(b"123456789", 9, 0xFF) ^ 0xFF
-rig.kernel()
+rig_integration.kernel()
 found["nodes"] = len(spec.load_design().nodes)
 print(json.dumps(found))
 """
@@ -132,8 +140,14 @@ def test_the_installed_wheel_opens_its_data_from_inside_itself(wheel, tmp_path):
         archive.extractall(site)
     # The unpacked wheel first on the path: its smartjoint shadows the editable one of this checkout.
     env = {**os.environ, "PYTHONPATH": str(site)}
-    done = subprocess.run([sys.executable, "-c", CHECK, str(site), str(ROOT / "firmware" / "generated" / "controller.json")],
-                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    done = subprocess.run(
+        [sys.executable, "-c", CHECK, str(site), str(ROOT / "firmware" / "generated" / "controller.json")],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     found = json.loads(done.stdout)
     assert Path(found["package"]).resolve().is_relative_to(site.resolve())

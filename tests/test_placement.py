@@ -12,7 +12,6 @@ from smartjoint.design.structure import modal, placement, spec
 pytestmark = pytest.mark.numerics  # run again by the portability leg (.ci/portability)
 
 
-
 @pytest.fixture(scope="module")
 def reference():
     fe = fem.build_model(spec.load_design(), joints="locked")
@@ -54,8 +53,24 @@ def test_place_command_writes_a_loadable_design_with_the_ranked_joints(tmp_path)
     import sys
 
     target = tmp_path / "placed" / "three.toml"
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "place", "--no-update", "--modes", "1,2", "--count",
-                           "3", "-o", str(target), "--json"], capture_output=True, text=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "place",
+            "--no-update",
+            "--modes",
+            "1,2",
+            "--count",
+            "3",
+            "-o",
+            str(target),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     placed = spec.load_design(target)
@@ -68,16 +83,20 @@ def test_place_command_writes_a_loadable_design_with_the_ranked_joints(tmp_path)
     # every pair is either tied (name order) or clearly ordered (score order) on any machine.
     ranking = out["ranking"]
     for i, first in enumerate(ranking):
-        for second in ranking[i + 1:]:
+        for second in ranking[i + 1 :]:
             if placement.tied(first["score"], second["score"]):
                 assert (first["member"], first["end"]) < (second["member"], second["end"]), (first, second)
             else:
                 assert first["score"] > second["score"], (first, second)
-    mirrors = [(a["member"], b["member"]) for a, b in zip(ranking, ranking[1:]) if placement.tied(a["score"], b["score"])]
+    mirrors = [
+        (a["member"], b["member"]) for a, b in zip(ranking, ranking[1:]) if placement.tied(a["score"], b["score"])
+    ]
     assert ("L1_0", "L1_2") in mirrors and ("L1_1", "L1_3") in mirrors  # the rule is exercised, not vacuous
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "place", str(target), "--no-update"],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "place", str(target), "--no-update"], capture_output=True, text=True
+    )
     assert done.returncode == 2 and "already has joints" in done.stderr
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "place", "--no-update", "--modes", "x"],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "place", "--no-update", "--modes", "x"], capture_output=True, text=True
+    )
     assert done.returncode == 2 and "--modes" in done.stderr

@@ -18,11 +18,22 @@ def test_rig_matches_radau_reference():
 
     def f(t, s):
         _, v, phi = s
-        return [v, (test.amplitude * np.sin(2 * np.pi * 10.0 * t) - gain * lugre.friction_coefficient(p, v, phi)) / 1.0,
-                lugre.rhs(p, v, phi)]
+        return [
+            v,
+            (test.amplitude * np.sin(2 * np.pi * 10.0 * t) - gain * lugre.friction_coefficient(p, v, phi)) / 1.0,
+            lugre.rhs(p, v, phi),
+        ]
 
-    reference = solve_ivp(f, (0, record.time[-1]), [0, 0, 0], method="Radau", t_eval=record.time, rtol=1e-11,
-                          atol=[1e-13, 1e-13, 1e-14], max_step=1e-4)
+    reference = solve_ivp(
+        f,
+        (0, record.time[-1]),
+        [0, 0, 0],
+        method="Radau",
+        t_eval=record.time,
+        rtol=1e-11,
+        atol=[1e-13, 1e-13, 1e-14],
+        max_step=1e-4,
+    )
     scale = np.abs(reference.y[1]).max()
     assert np.abs(record.sliding_velocity - reference.y[1]).max() < 1e-3 * scale
     assert record.metadata["regime"] == "stick-slip"
@@ -41,15 +52,18 @@ def test_record_round_trip(tmp_path):
 GOOD = "# joint_type = A\n# inertia = 1.0 kg\ntime [s],sliding_velocity [m/s],excitation_force [N],normal_force [N]\n"
 
 
-@pytest.mark.parametrize("text, message", [
-    ("time [s],sliding_velocity [m/s],normal_force [N]\n0,0,1\n1,0,1\n2,0,1\n", "needs column 'friction_force'"),
-    (GOOD.replace(",normal_force [N]", "") + "0,0,1\n1,0,1\n2,0,1\n", "column 'normal_force' missing"),
-    (GOOD + "0,0,1,400\n1,nan,1,400\n2,0,1,400\n", "row 5, column 'sliding_velocity': nan m/s"),
-    (GOOD + "0,0,1,400\n1,0,1,400\n1,0,1,400\n", "row 6, column 'time': 1 after 1 — time does not increase"),
-    (GOOD + "0,0,1,400\n1,0,1\n2,0,1,400\n", "row 5 has 3 fields"),
-    (GOOD.replace("[m/s]", "[furlong/s]") + "0,0,1,400\n1,0,1,400\n2,0,1,400\n", "unit 'furlong/s' unknown"),
-    (GOOD.replace("# inertia = 1.0 kg\n", "") + "0,0,1,400\n1,0,1,400\n2,0,1,400\n", "needs the '# inertia"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("time [s],sliding_velocity [m/s],normal_force [N]\n0,0,1\n1,0,1\n2,0,1\n", "needs column 'friction_force'"),
+        (GOOD.replace(",normal_force [N]", "") + "0,0,1\n1,0,1\n2,0,1\n", "column 'normal_force' missing"),
+        (GOOD + "0,0,1,400\n1,nan,1,400\n2,0,1,400\n", "row 5, column 'sliding_velocity': nan m/s"),
+        (GOOD + "0,0,1,400\n1,0,1,400\n1,0,1,400\n", "row 6, column 'time': 1 after 1 — time does not increase"),
+        (GOOD + "0,0,1,400\n1,0,1\n2,0,1,400\n", "row 5 has 3 fields"),
+        (GOOD.replace("[m/s]", "[furlong/s]") + "0,0,1,400\n1,0,1,400\n2,0,1,400\n", "unit 'furlong/s' unknown"),
+        (GOOD.replace("# inertia = 1.0 kg\n", "") + "0,0,1,400\n1,0,1,400\n2,0,1,400\n", "needs the '# inertia"),
+    ],
+)
 def test_bad_records_name_file_and_column(tmp_path, text, message):
     path = tmp_path / "bad.csv"
     path.write_text(text)
@@ -60,11 +74,21 @@ def test_bad_records_name_file_and_column(tmp_path, text, message):
 
 # --- bad input through the command line: one line naming file, row and column ---------------------------------
 
+
 def _rig_record(tmp_path, joint_type="A"):
     """A small valid record written by the rig (200 rows), as its lines."""
     p = lugre.TABLE_1[joint_type]
-    record = rig.simulate(rig.RigTest(joint_type, 400.0, 0.5 * rig.breakaway(p, 400.0), 10.0, cycles=1.0,
-                                      inertia=1.0 if joint_type == "A" else 2e-3, sample_rate=2000.0))
+    record = rig.simulate(
+        rig.RigTest(
+            joint_type,
+            400.0,
+            0.5 * rig.breakaway(p, 400.0),
+            10.0,
+            cycles=1.0,
+            inertia=1.0 if joint_type == "A" else 2e-3,
+            sample_rate=2000.0,
+        )
+    )
     path = tmp_path / "good.csv"
     write_record(record, path)
     return path.read_text().splitlines()
@@ -77,7 +101,7 @@ def _row(lines, header_index, data_row, column, value):
     line = header_index + 1 + data_row
     cells = lines[line].split(",")
     cells[index] = value
-    return lines[:line] + [",".join(cells)] + lines[line + 1:], line + 1
+    return lines[:line] + [",".join(cells)] + lines[line + 1 :], line + 1
 
 
 def _identify_error(capsys, *arguments):
@@ -92,19 +116,22 @@ def _identify_error(capsys, *arguments):
     return lines[0]
 
 
-@pytest.mark.parametrize("column, value, allowed", [
-    ("normal_force", "1e308", "F_N must be > 0: allowed 0.001 … 1e+06 N"),
-    ("normal_force", "0.0", "F_N must be > 0"),
-    ("normal_force", "-200.0", "F_N must be > 0"),
-    ("normal_force", "nan", "F_N must be > 0"),
-    ("normal_force", "inf", "F_N must be > 0"),
-    ("sliding_velocity", "1e5", "magnitude <= 100 m/s"),
-    ("sliding_velocity", "-inf", "a finite number"),
-    ("excitation_force", "1e308", "magnitude <= 1e+07 N"),
-    ("time", "1e9", "magnitude <= 1e+06 s"),
-    ("time", "0.0", "time does not increase"),
-    ("excitation_force", "twelve", "— not a number"),
-])
+@pytest.mark.parametrize(
+    "column, value, allowed",
+    [
+        ("normal_force", "1e308", "F_N must be > 0: allowed 0.001 … 1e+06 N"),
+        ("normal_force", "0.0", "F_N must be > 0"),
+        ("normal_force", "-200.0", "F_N must be > 0"),
+        ("normal_force", "nan", "F_N must be > 0"),
+        ("normal_force", "inf", "F_N must be > 0"),
+        ("sliding_velocity", "1e5", "magnitude <= 100 m/s"),
+        ("sliding_velocity", "-inf", "a finite number"),
+        ("excitation_force", "1e308", "magnitude <= 1e+07 N"),
+        ("time", "1e9", "magnitude <= 1e+06 s"),
+        ("time", "0.0", "time does not increase"),
+        ("excitation_force", "twelve", "— not a number"),
+    ],
+)
 def test_implausible_cells_are_one_line_errors_naming_file_row_and_column(tmp_path, capsys, column, value, allowed):
     lines = _rig_record(tmp_path)
     header = next(k for k, line in enumerate(lines) if not line.startswith("#"))
@@ -143,11 +170,14 @@ def test_bad_record_through_the_installed_command_has_no_traceback(tmp_path):
     lines, line_number = _row(lines, header, 3, "normal_force", "1e308")
     path = tmp_path / "huge.csv"
     path.write_text("\n".join(lines) + "\n")
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "identify", str(path)], capture_output=True,
-                          text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "identify", str(path)], capture_output=True, text=True
+    )
     assert done.returncode == 2 and "Traceback" not in done.stderr
-    assert done.stderr.strip() == (f"smartjoint identify: error: {path}: row {line_number}, column 'normal_force': "
-                                   "1e308 N — F_N must be > 0: allowed 0.001 … 1e+06 N")
+    assert done.stderr.strip() == (
+        f"smartjoint identify: error: {path}: row {line_number}, column 'normal_force': "
+        "1e308 N — F_N must be > 0: allowed 0.001 … 1e+06 N"
+    )
 
 
 def test_type_b_radius_is_never_taken_from_table_1(tmp_path, capsys):
@@ -161,26 +191,39 @@ def test_type_b_radius_is_never_taken_from_table_1(tmp_path, capsys):
     assert read_record(bare, 0.015).radius == 0.015 and read_record(bare, 0.015).moment_arm == 0.015
     mismatch = _identify_error(capsys, str(tmp_path / "good.csv"), "--radius", "0.015")
     assert "metadata radius: 0.011 m, but radius 0.015 m was given" in mismatch
-    for line, expected in (("# radius = 11", "metadata radius: unit '' unknown"),
-                           ("# radius = 11 furlong", "metadata radius: unit 'furlong' unknown"),
-                           ("# radius = -0.011 m", "metadata radius: -0.011 m — allowed: >= 0.0001 and <= 10 m"),
-                           ("# radius = nan m", "metadata radius: 'nan' — must be a finite number")):
+    for line, expected in (
+        ("# radius = 11", "metadata radius: unit '' unknown"),
+        ("# radius = 11 furlong", "metadata radius: unit 'furlong' unknown"),
+        ("# radius = -0.011 m", "metadata radius: -0.011 m — allowed: >= 0.0001 and <= 10 m"),
+        ("# radius = nan m", "metadata radius: 'nan' — must be a finite number"),
+    ):
         odd = tmp_path / "odd.csv"
-        odd.write_text("\n".join(line if not line.startswith("# radius") else line for line in lines)
-                       .replace("# radius = 0.011 m", line) + "\n")
+        odd.write_text(
+            "\n".join(line if not line.startswith("# radius") else line for line in lines).replace(
+                "# radius = 0.011 m", line
+            )
+            + "\n"
+        )
         assert expected in _identify_error(capsys, str(odd)), expected
     typed_a = tmp_path / "a.csv"
-    typed_a.write_text("\n".join(_rig_record(tmp_path, "A")[:2] + ["# radius = 0.011 m"] + _rig_record(tmp_path)[2:])
-                       + "\n")
+    typed_a.write_text(
+        "\n".join(_rig_record(tmp_path, "A")[:2] + ["# radius = 0.011 m"] + _rig_record(tmp_path)[2:]) + "\n"
+    )
     assert "metadata radius: a type A joint has no radius" in _identify_error(capsys, str(typed_a))
 
 
-@pytest.mark.parametrize("edit, expected", [
-    (("# regime = micro-slip", "# regime = stickslip"), "metadata regime: 'stickslip' — allowed: micro-slip, stick-slip"),
-    (("# inertia = 1.0 kg", "# inertia = -1 kg"), "metadata inertia: -1 kg — allowed: >= 0"),
-    (("# joint_type = A", "# joint_type = C"), "metadata joint_type: 'C' — allowed: A, B"),
-    (("normal_force [N]", "time [s]"), "column 'time' appears twice"),
-])
+@pytest.mark.parametrize(
+    "edit, expected",
+    [
+        (
+            ("# regime = micro-slip", "# regime = stickslip"),
+            "metadata regime: 'stickslip' — allowed: micro-slip, stick-slip",
+        ),
+        (("# inertia = 1.0 kg", "# inertia = -1 kg"), "metadata inertia: -1 kg — allowed: >= 0"),
+        (("# joint_type = A", "# joint_type = C"), "metadata joint_type: 'C' — allowed: A, B"),
+        (("normal_force [N]", "time [s]"), "column 'time' appears twice"),
+    ],
+)
 def test_bad_metadata_and_header_are_one_line_errors(tmp_path, capsys, edit, expected):
     text = "\n".join(_rig_record(tmp_path)) + "\n"
     assert edit[0] in text
@@ -208,8 +251,9 @@ def test_write_record_refuses_what_it_could_not_read_back(tmp_path):
 
 # --- identify: guards for records that pass the reader but cannot be fitted ------------------------------------
 
+
 def _records(joint_type="A", cycles=0.5, normal_forces=(200.0, 400.0)):
-    from smartjoint.design.friction.identify import classify
+    from smartjoint.design.friction.record_screening import classify
 
     records = [rig.simulate(t) for t in rig.campaign(joint_type, cycles=cycles) if t.normal_force in normal_forces]
     return ([r for r in records if classify(r) == "micro-slip"], [r for r in records if classify(r) == "stick-slip"])
@@ -231,21 +275,37 @@ def test_identify_refuses_unusable_records_in_one_line():
     from smartjoint.design.friction.records import Record
 
     micro, stick = _records()
-    short = Record("short", micro[0].time[:20], micro[0].sliding_velocity[:20], micro[0].friction_force[:20],
-                   micro[0].normal_force[:20])
+    short = Record(
+        "short",
+        micro[0].time[:20],
+        micro[0].sliding_velocity[:20],
+        micro[0].friction_force[:20],
+        micro[0].normal_force[:20],
+    )
     with pytest.raises(RecordError, match="short: 20 samples — identify needs at least 50"):
         identify([short], stick)
-    still = Record("still", micro[0].time, micro[0].sliding_velocity, np.zeros_like(micro[0].time),
-                   micro[0].normal_force)
+    still = Record(
+        "still", micro[0].time, micro[0].sliding_velocity, np.zeros_like(micro[0].time), micro[0].normal_force
+    )
     with pytest.raises(RecordError, match="still: column 'friction_force' is zero throughout"):
         identify([still], stick)
     rng = np.random.default_rng(3)
-    noise = Record("noise", micro[0].time, 1e-4 * rng.standard_normal(micro[0].time.size),
-                   rng.standard_normal(micro[0].time.size), micro[0].normal_force)
+    noise = Record(
+        "noise",
+        micro[0].time,
+        1e-4 * rng.standard_normal(micro[0].time.size),
+        rng.standard_normal(micro[0].time.size),
+        micro[0].normal_force,
+    )
     with pytest.raises(RecordError, match="micro-slip records noise: the friction does not grow with the displacement"):
         identify([noise], stick)
-    creep = Record("creep", micro[0].time, np.full(micro[0].time.size, 1e-300),
-                   np.linspace(0.0, 1.0, micro[0].time.size), micro[0].normal_force)
+    creep = Record(
+        "creep",
+        micro[0].time,
+        np.full(micro[0].time.size, 1e-300),
+        np.linspace(0.0, 1.0, micro[0].time.size),
+        micro[0].normal_force,
+    )
     with pytest.raises(RecordError, match=r"the records give sigma0 = .* as start — plausible: > 0 and <= 1e\+10"):
         identify([creep], stick)
     with pytest.raises(RecordError, match="radius 0.011 m given, but the records are type A"):
@@ -257,8 +317,11 @@ def test_identify_radius_comes_from_the_records_and_must_be_one():
 
     micro, stick = _records("B")
     stick[0].radius = 0.012
-    with pytest.raises(RecordError, match=r"records .* \(radius 0.011 m\) and .* \(radius 0.012 m\) are not of one "
-                                          "joint"):
+    with pytest.raises(
+        RecordError,
+        match=r"records .* \(radius 0.011 m\) and .* \(radius 0.012 m\) are not of one "
+        "joint",
+    ):
         identify(micro, stick)
     stick[0].radius = None
     with pytest.raises(RecordError, match=f"{stick[0].name}: type B record without a radius"):
@@ -277,18 +340,28 @@ def test_degenerate_records_never_crash_identify():
     for case in range(12):
         n = int(rng.integers(50, 400))
         time = np.cumsum(rng.uniform(1e-5, 1e-2, n))
-        shapes = [lambda: rng.standard_normal(n), lambda: np.sin(np.linspace(0, rng.uniform(1, 40), n)),
-                  lambda: np.sign(np.sin(np.linspace(0, rng.uniform(1, 40), n))), lambda: np.linspace(-1, 1, n),
-                  lambda: np.full(n, rng.choice([-1.0, 1.0]))]
+        shapes = [
+            lambda: rng.standard_normal(n),
+            lambda: np.sin(np.linspace(0, rng.uniform(1, 40), n)),
+            lambda: np.sign(np.sin(np.linspace(0, rng.uniform(1, 40), n))),
+            lambda: np.linspace(-1, 1, n),
+            lambda: np.full(n, rng.choice([-1.0, 1.0])),
+        ]
 
         def signal(scale):
             return shapes[int(rng.integers(len(shapes)))]() * scale
 
         def record(name):
             force = np.abs(signal(rng.choice([1e-3, 1.0, 1e6]))) + 1e-3
-            return Record(name, time, signal(rng.choice([1e-9, 1e-3, 10.0])) + 1e-12,
-                          signal(rng.choice([1e-6, 1.0, 1e6])) + 1e-9, force, inertia=1.0,
-                          excitation_force=signal(1.0))
+            return Record(
+                name,
+                time,
+                signal(rng.choice([1e-9, 1e-3, 10.0])) + 1e-12,
+                signal(rng.choice([1e-6, 1.0, 1e6])) + 1e-9,
+                force,
+                inertia=1.0,
+                excitation_force=signal(1.0),
+            )
 
         try:
             identify([record(f"m{case}")], [record(f"s{case}")])

@@ -103,5 +103,7 @@ def test_static_compliance_is_the_sparse_solve(small):
 def test_more_krylov_vectors_than_the_space_allows_is_named(small):
     fe, modes = small
     n = fe.n_dof
-    with pytest.raises(reduction.ModelError, match=rf"Krylov vectors: {n} per joint × 2 joints \+ 10 kept modes .* > {n} DOFs"):
+    with pytest.raises(
+        reduction.ModelError, match=rf"Krylov vectors: {n} per joint × 2 joints \+ 10 kept modes .* > {n} DOFs"
+    ):
         reduction.reduce(fe, modes, 10, n)

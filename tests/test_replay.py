@@ -36,9 +36,13 @@ def _measurements(k: int, sample_time: float, joints: int, sensors: int) -> Meas
     """Synthetic sensor values that keep the cLQG's output moving (its state matters)."""
     t = k * sample_time
     phase = 2 * np.pi * 7 * t
-    return Measurements(time=t, sensors=1e-4 * np.sin(phase + np.arange(sensors)),
-                        sliding_velocity=2e-3 * np.sin(phase + np.arange(joints)),
-                        friction_force=100 * np.cos(phase + np.arange(joints)), normal_force=np.full(joints, 200.0))
+    return Measurements(
+        time=t,
+        sensors=1e-4 * np.sin(phase + np.arange(sensors)),
+        sliding_velocity=2e-3 * np.sin(phase + np.arange(joints)),
+        friction_force=100 * np.cos(phase + np.arange(joints)),
+        normal_force=np.full(joints, 200.0),
+    )
 
 
 def _sil_log(reference, path, law="clqg", faults=(), samples=SAMPLES):
@@ -47,8 +51,7 @@ def _sil_log(reference, path, law="clqg", faults=(), samples=SAMPLES):
     loop.reset()
     try:
         for k in range(samples):
-            loop.step(_measurements(k, reference.sample_time, len(reference.joint_names),
-                                    len(reference.sensor_names)))
+            loop.step(_measurements(k, reference.sample_time, len(reference.joint_names), len(reference.sensor_names)))
     finally:
         loop.close()
     return loop.record
@@ -75,7 +78,7 @@ def test_a_bus_off_log_replays_every_setpoint(reference, bus_off_log):
     assert content.problem() is None
     safe = np.array(record.safe)
     k_end = int(round(BUS_OFF[1] / reference.sample_time))
-    assert safe[k_end] and not safe[:int(round(BUS_OFF[0] / reference.sample_time))].any()  # a timeout to replay
+    assert safe[k_end] and not safe[: int(round(BUS_OFF[0] / reference.sample_time))].any()  # a timeout to replay
     out = _replay(reference, content)
     joints = len(reference.joint_names)
     assert out["samples"] == SAMPLES and out["silent_samples"] == 100
@@ -95,8 +98,14 @@ def test_a_bus_off_log_replays_every_setpoint(reference, bus_off_log):
 def _setpoint(reference, name: str, voltage: float, counter: int, t: float) -> can.Message:
     m = protocol.database(reference).get_message_by_name(name)
     data = e2e.protect(m.frame_id, bytearray(m.encode({"crc": 0, "counter": 0, "voltage": voltage})), counter)
-    return can.Message(arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False, is_fd=m.is_fd,
-                       bitrate_switch=m.is_fd, timestamp=t)
+    return can.Message(
+        arbitration_id=m.frame_id,
+        data=bytes(data),
+        is_extended_id=False,
+        is_fd=m.is_fd,
+        bitrate_switch=m.is_fd,
+        timestamp=t,
+    )
 
 
 def _write(messages, path):
@@ -115,8 +124,9 @@ def _main(argv, capsys):
     return code, capsys.readouterr()
 
 
-def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed(reference, bus_off_log, tmp_path,
-                                                                                   capsys):
+def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed(
+    reference, bus_off_log, tmp_path, capsys
+):
     path, _ = bus_off_log
     messages = logs.load(path).messages
     code, captured = _main(["bench", "replay", str(path), "--artifact", str(REFERENCE), "--law", "clqg"], capsys)
@@ -127,23 +137,57 @@ def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed
     counter = original.data[1] & 0x0F
     voltage = next(r[3] for r in logs.decode([original], protocol.database(reference)).rows if r[2] == "voltage")
     changed = list(messages)  # the recorded setpoint moved by 1 mV, CRC and counter kept valid
-    changed[a1] = _setpoint(reference, "SETPOINT_A1", voltage + (1e-3 if voltage < 25 else -1e-3), counter,
-                            original.timestamp)
-    code, captured = _main(["bench", "replay", str(_write(changed, tmp_path / "changed.blf")), "--artifact",
-                            str(REFERENCE), "--law", "clqg"], capsys)
+    changed[a1] = _setpoint(
+        reference, "SETPOINT_A1", voltage + (1e-3 if voltage < 25 else -1e-3), counter, original.timestamp
+    )
+    code, captured = _main(
+        [
+            "bench",
+            "replay",
+            str(_write(changed, tmp_path / "changed.blf")),
+            "--artifact",
+            str(REFERENCE),
+            "--law",
+            "clqg",
+        ],
+        capsys,
+    )
     assert code == 1
     first = captured.err.splitlines()[0]
     assert first.startswith("smartjoint bench replay: FAILED") and "900 setpoints compared, 1 differ" in first
     assert f"t = {original.timestamp:.6f} s SETPOINT_A1 differs" in captured.err
     # Within a tolerance of 2 mV it passes.
-    code, _ = _main(["bench", "replay", str(tmp_path / "changed.blf"), "--artifact", str(REFERENCE), "--law", "clqg",
-                     "--tolerance", "2e-3"], capsys)
+    code, _ = _main(
+        [
+            "bench",
+            "replay",
+            str(tmp_path / "changed.blf"),
+            "--artifact",
+            str(REFERENCE),
+            "--law",
+            "clqg",
+            "--tolerance",
+            "2e-3",
+        ],
+        capsys,
+    )
     assert code == 0
 
     extra = list(messages)  # a second recorded SETPOINT_A1 in one sample: the firmware sent one
     extra.insert(a1 + 1, _setpoint(reference, "SETPOINT_A1", voltage, (counter + 1) % 16, original.timestamp))
-    code, captured = _main(["bench", "replay", str(_write(extra, tmp_path / "extra.blf")), "--artifact",
-                            str(REFERENCE), "--law", "clqg", "--json"], capsys)
+    code, captured = _main(
+        [
+            "bench",
+            "replay",
+            str(_write(extra, tmp_path / "extra.blf")),
+            "--artifact",
+            str(REFERENCE),
+            "--law",
+            "clqg",
+            "--json",
+        ],
+        capsys,
+    )
     assert code == 1 and "1 recorded but not replayed" in captured.err.splitlines()[0]
     assert '"recorded_not_replayed": 1' in captured.out and '"differing": 0' in captured.out
 
@@ -153,13 +197,16 @@ def test_empty_and_foreign_logs_are_errors_not_zero_comparisons(reference, tmp_p
     for command in ("replay", "decode"):
         code, captured = _main(["bench", command, str(tmp_path / "empty.asc"), "--artifact", str(REFERENCE)], capsys)
         assert code == 2 and "no frames" in captured.err and len(captured.err.strip().splitlines()) == 1
-    foreign = _write([can.Message(arbitration_id=0x555, data=bytes(8), timestamp=0.001 * k) for k in range(5)],
-                     tmp_path / "foreign.asc")
+    foreign = _write(
+        [can.Message(arbitration_id=0x555, data=bytes(8), timestamp=0.001 * k) for k in range(5)],
+        tmp_path / "foreign.asc",
+    )
     code, captured = _main(["bench", "replay", str(foreign), "--artifact", str(REFERENCE)], capsys)
     assert code == 2 and "none with an identifier of the artefact's protocol" in captured.err
     _sil_log(reference, tmp_path / "short.blf", "siso", samples=20)
-    sensors_only = _write([m for m in logs.load(tmp_path / "short.blf").messages if m.arbitration_id < 0x200],
-                          tmp_path / "sensors.blf")
+    sensors_only = _write(
+        [m for m in logs.load(tmp_path / "short.blf").messages if m.arbitration_id < 0x200], tmp_path / "sensors.blf"
+    )
     code, captured = _main(["bench", "replay", str(sensors_only), "--artifact", str(REFERENCE)], capsys)
     assert code == 2 and "no recorded SETPOINT_* frame" in captured.err
 
@@ -198,10 +245,12 @@ def test_damaged_asc_reports_every_skipped_line_and_keeps_reading(bus_off_log, t
     assert logs.load(asc).problem() is None and len(logs.load(asc).messages) == len(full)
     lines = asc.read_text().splitlines(keepends=True)
     frame_line = next(k for k, line in enumerate(lines) if "CANFD" in line) + 50
-    garbage = ["some text a tool wrote\n",
-               " 0.050000 CANFD   1 Rx        1zz  1 0 c 12 00\n",  # the reader would stop here
-               "nan CANFD   1 Rx        100  1 0 c 12 " + "00 " * 12 + "\n",
-               "-0.001000 CANFD   1 Rx        100  1 0 c 12 " + "00 " * 12 + "\n"]
+    garbage = [
+        "some text a tool wrote\n",
+        " 0.050000 CANFD   1 Rx        1zz  1 0 c 12 00\n",  # the reader would stop here
+        "nan CANFD   1 Rx        100  1 0 c 12 " + "00 " * 12 + "\n",
+        "-0.001000 CANFD   1 Rx        100  1 0 c 12 " + "00 " * 12 + "\n",
+    ]
     (tmp_path / "garbage.asc").write_text("".join(lines[:frame_line] + garbage + lines[frame_line:]))
     content = logs.load(tmp_path / "garbage.asc")
     assert len(content.messages) == len(full) and content.unparseable_lines == 4 and content.truncated is None
@@ -217,8 +266,9 @@ def test_damaged_asc_reports_every_skipped_line_and_keeps_reading(bus_off_log, t
     cut = logs.load(tmp_path / "cut.asc")
     assert cut.truncated and f"stops after {len(cut.messages)} frames" in cut.truncated
     assert cut.cut_frames == 1 and 0 < len(cut.messages) < len(full)
-    code, captured = _main(["bench", "decode", str(tmp_path / "cut.asc"), "--artifact", str(REFERENCE), "--json"],
-                           capsys)
+    code, captured = _main(
+        ["bench", "decode", str(tmp_path / "cut.asc"), "--artifact", str(REFERENCE), "--json"], capsys
+    )
     assert code == 0 and "ends early" in captured.err and "1 frame(s) cut short" in captured.err
     assert "frames not decoded: unknown ids 0, wrong length 1" in captured.err  # the cut frame, counted
 
@@ -272,8 +322,11 @@ class StepAgeingFirmware:
         if self.since_input <= 3 and self.recovery:
             self.recovery -= 1
         voltage = 0.01 * (self.steps % 1000) + (10.0 if timed_out else 0.0)
-        data = e2e.protect(self.frame.frame_id, bytearray(self.frame.encode({"crc": 0, "counter": 0,
-                                                                               "voltage": voltage})), self.counter)
+        data = e2e.protect(
+            self.frame.frame_id,
+            bytearray(self.frame.encode({"crc": 0, "counter": 0, "voltage": voltage})),
+            self.counter,
+        )
         self.counter = (self.counter + 1) % e2e.COUNTER_MODULO
         self.out = [(self.frame.frame_id, bytes(data))]
         return 0
@@ -296,9 +349,22 @@ def test_replay_reproduces_a_layer_that_ages_its_inputs_by_steps(reference):
             node.step(0)
             node.tx()
             continue
-        data = e2e.protect(joint.frame_id, bytearray(joint.encode({"crc": 0, "counter": 0, "sync": 0, "sliding_velocity": 0.0,
-                                                                  "friction_force": 0.0, "normal_force": 100.0})),
-                           k % e2e.COUNTER_MODULO)
+        data = e2e.protect(
+            joint.frame_id,
+            bytearray(
+                joint.encode(
+                    {
+                        "crc": 0,
+                        "counter": 0,
+                        "sync": 0,
+                        "sliding_velocity": 0.0,
+                        "friction_force": 0.0,
+                        "normal_force": 100.0,
+                    }
+                )
+            ),
+            k % e2e.COUNTER_MODULO,
+        )
         frames.append(can.Message(arbitration_id=joint.frame_id, data=bytes(data), is_fd=True, timestamp=t))
         node.rx(joint.frame_id, bytes(data), 0)
         node.step(0)
@@ -313,8 +379,14 @@ def test_replay_reproduces_a_layer_that_ages_its_inputs_by_steps(reference):
     assert out["replayed_not_recorded_in_silent_samples"] == 30 and out["replayed_not_recorded"] == 10
     # The same log with the silent samples squeezed out (what a replay that skips them sees)
     # diverges from the first setpoint after the gap on.
-    squeezed = [can.Message(arbitration_id=m.arbitration_id, data=m.data, is_fd=m.is_fd,
-                            timestamp=m.timestamp - (30 * reference.sample_time if m.timestamp > 0.25 + 0.05 else 0))
-                for m in frames]
+    squeezed = [
+        can.Message(
+            arbitration_id=m.arbitration_id,
+            data=m.data,
+            is_fd=m.is_fd,
+            timestamp=m.timestamp - (30 * reference.sample_time if m.timestamp > 0.25 + 0.05 else 0),
+        )
+        for m in frames
+    ]
     diverged = replay(squeezed, StepAgeingFirmware(reference))
     assert diverged["differing"] == diverged["setpoints_compared"] - 50 and not diverged["ok"]

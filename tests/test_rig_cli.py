@@ -13,8 +13,15 @@ from smartjoint.cli import main
 from smartjoint.design.friction.records import read_record
 
 # A type B joint that is not Table 1's (σ0 +38 %, F_c −29 %, F_d +50 %, v_s +50 %, r 15 mm instead of 11).
-JOINT_B = {"sigma0": 9.0e4, "sigma1": 0.03, "sigma2": 0.02, "coulomb": 0.35, "stribeck": 0.12,
-           "stribeck_velocity": 0.03, "radius": 0.015}
+JOINT_B = {
+    "sigma0": 9.0e4,
+    "sigma1": 0.03,
+    "sigma2": 0.02,
+    "coulomb": 0.35,
+    "stribeck": 0.12,
+    "stribeck_velocity": 0.03,
+    "radius": 0.015,
+}
 
 
 def _toml(values: dict, joint_type: str | None = "B") -> str:
@@ -57,20 +64,26 @@ def test_flags_and_file_give_the_same_records(tmp_path, capsys):
     assert not (read_record(tmp_path / "table1.csv").sliding_velocity == by_file.sliding_velocity).all()
 
 
-@pytest.mark.parametrize("text, expected", [
-    (_toml({**JOINT_B, "sigma0": -1.0}), "sigma0: -1.0 — allowed: > 0 and <= 1e+10 1/rad"),
-    (_toml({**JOINT_B, "coulomb": 0.0}), "coulomb: 0.0 — allowed: > 0 and <= 10"),
-    (_toml({**JOINT_B, "stribeck_velocity": 1e6}), "stribeck_velocity: 1000000.0 — allowed: > 0 and <= 10000 rad/s"),
-    (_toml({**JOINT_B, "radius": 0.0}), "radius: 0.0 — allowed: >= 0.0001 and <= 10 m"),
-    (_toml({**JOINT_B, "sigma1": "0.02"}), "sigma1: '0.02' — must be a finite number"),
-    (_toml(JOINT_B).replace("sigma2 = 0.02", "sigma2 = nan"), "sigma2: nan — must be a finite number"),
-    (_toml(JOINT_B).replace("sigma2 = 0.02", "sigma2 = true"), "sigma2: True — must be a finite number"),
-    (_toml({k: v for k, v in JOINT_B.items() if k != "radius"}), "radius: missing — give all of sigma0"),
-    (_toml(JOINT_B, "A"), "radius: a type A joint has no radius — allowed only for type B"),
-    (_toml({**JOINT_B, "sigma3": 1.0}), "sigma3: unknown parameter — allowed: sigma0, sigma1"),
-    (_toml(JOINT_B, "C"), "joint_type: 'C' — allowed: 'A', 'B'"),
-    ("sigma0 = = 1\n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        (_toml({**JOINT_B, "sigma0": -1.0}), "sigma0: -1.0 — allowed: > 0 and <= 1e+10 1/rad"),
+        (_toml({**JOINT_B, "coulomb": 0.0}), "coulomb: 0.0 — allowed: > 0 and <= 10"),
+        (
+            _toml({**JOINT_B, "stribeck_velocity": 1e6}),
+            "stribeck_velocity: 1000000.0 — allowed: > 0 and <= 10000 rad/s",
+        ),
+        (_toml({**JOINT_B, "radius": 0.0}), "radius: 0.0 — allowed: >= 0.0001 and <= 10 m"),
+        (_toml({**JOINT_B, "sigma1": "0.02"}), "sigma1: '0.02' — must be a finite number"),
+        (_toml(JOINT_B).replace("sigma2 = 0.02", "sigma2 = nan"), "sigma2: nan — must be a finite number"),
+        (_toml(JOINT_B).replace("sigma2 = 0.02", "sigma2 = true"), "sigma2: True — must be a finite number"),
+        (_toml({k: v for k, v in JOINT_B.items() if k != "radius"}), "radius: missing — give all of sigma0"),
+        (_toml(JOINT_B, "A"), "radius: a type A joint has no radius — allowed only for type B"),
+        (_toml({**JOINT_B, "sigma3": 1.0}), "sigma3: unknown parameter — allowed: sigma0, sigma1"),
+        (_toml(JOINT_B, "C"), "joint_type: 'C' — allowed: 'A', 'B'"),
+        ("sigma0 = = 1\n", "not valid TOML"),
+    ],
+)
 def test_bad_parameter_files_are_one_line_errors(tmp_path, capsys, text, expected):
     path = tmp_path / "joint.toml"
     path.write_text(text)
@@ -83,24 +96,34 @@ def test_parameter_file_that_is_not_text_or_missing(tmp_path, capsys):
     path = tmp_path / "joint.toml"
     path.write_bytes("sigma0 = 1 # M\u00fcller\n".encode("latin-1"))
     assert "not UTF-8" in _rig_error(capsys, "--parameters", str(path), *SINGLE, "-o", str(tmp_path / "r.csv"))
-    assert "cannot read parameter set" in _rig_error(capsys, "--parameters", str(tmp_path / "none.toml"), *SINGLE,
-                                                     "-o", str(tmp_path / "r.csv"))
+    assert "cannot read parameter set" in _rig_error(
+        capsys, "--parameters", str(tmp_path / "none.toml"), *SINGLE, "-o", str(tmp_path / "r.csv")
+    )
 
 
-@pytest.mark.parametrize("arguments, expected", [
-    (("--type", "B", "--sigma0", "9e4", "--coulomb", "0.35"), "--sigma1 missing — give all of --sigma0"),
-    (("--type", "A", *[f"--{k.replace('_', '-')}={v}" for k, v in JOINT_B.items()]),
-     "--radius: a type A joint has no radius"),
-    (("--type", "B", *[f"--{k.replace('_', '-')}={v}" for k, v in JOINT_B.items() if k != "radius"]),
-     "--radius missing"),
-    (("--type", "B", *[f"--{k.replace('_', '-')}={v}" for k, v in {**JOINT_B, "sigma0": float("inf")}.items()]),
-     "command line: sigma0: inf — must be a finite number"),
-    (("--parameters", "joint.toml", "--sigma0", "1e5"), "--sigma0 together with --parameters"),
-    (("--noise", "-0.01",), "noise: -0.01 — allowed: 0 … 1"),
-    (("--noise", "nan",), "noise: nan — allowed: 0 … 1"),
-    (("--cycles", "1e9",), "allowed: at most 500000 samples per record"),
-    (("--inertia", "inf",), "inertia: inf — must be a finite number > 0"),
-])
+@pytest.mark.parametrize(
+    "arguments, expected",
+    [
+        (("--type", "B", "--sigma0", "9e4", "--coulomb", "0.35"), "--sigma1 missing — give all of --sigma0"),
+        (
+            ("--type", "A", *[f"--{k.replace('_', '-')}={v}" for k, v in JOINT_B.items()]),
+            "--radius: a type A joint has no radius",
+        ),
+        (
+            ("--type", "B", *[f"--{k.replace('_', '-')}={v}" for k, v in JOINT_B.items() if k != "radius"]),
+            "--radius missing",
+        ),
+        (
+            ("--type", "B", *[f"--{k.replace('_', '-')}={v}" for k, v in {**JOINT_B, "sigma0": float("inf")}.items()]),
+            "command line: sigma0: inf — must be a finite number",
+        ),
+        (("--parameters", "joint.toml", "--sigma0", "1e5"), "--sigma0 together with --parameters"),
+        (("--noise", "-0.01"), "noise: -0.01 — allowed: 0 … 1"),
+        (("--noise", "nan"), "noise: nan — allowed: 0 … 1"),
+        (("--cycles", "1e9"), "allowed: at most 500000 samples per record"),
+        (("--inertia", "inf"), "inertia: inf — must be a finite number > 0"),
+    ],
+)
 def test_bad_rig_options_are_one_line_errors(tmp_path, capsys, monkeypatch, arguments, expected):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "joint.toml").write_text(_toml(JOINT_B))
@@ -117,7 +140,8 @@ def test_campaign_output_must_be_a_folder_and_nothing_is_written_on_error(tmp_pa
     # F_d = 0: the campaign cannot size its stick-slip inertia; refused before the folder is made
     (tmp_path / "flat.toml").write_text(_toml({**JOINT_B, "stribeck": 0.0}))
     assert "stribeck: 0.0 — the campaign sizes the stick-slip inertia from F_d" in _rig_error(
-        capsys, "--parameters", str(tmp_path / "flat.toml"), "--campaign", "-o", str(tmp_path / "out"))
+        capsys, "--parameters", str(tmp_path / "flat.toml"), "--campaign", "-o", str(tmp_path / "out")
+    )
     assert not (tmp_path / "out").exists()
 
 
@@ -130,16 +154,34 @@ def test_identify_recovers_a_non_table_1_parameter_set_from_a_rig_campaign(tmp_p
     one run: the errors are 0.1–0.3 % (docs/identification.md, seeds 0–3 and 100 for Table 1)."""
     (tmp_path / "joint.toml").write_text(_toml(JOINT_B))
     folder = tmp_path / "campaign"
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "rig", "--parameters", str(tmp_path / "joint.toml"),
-                           "--campaign", "--noise", "0.01", "--cycles", "8", "-o", str(folder), "--json"],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "rig",
+            "--parameters",
+            str(tmp_path / "joint.toml"),
+            "--campaign",
+            "--noise",
+            "0.01",
+            "--cycles",
+            "8",
+            "-o",
+            str(folder),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["parameters"]["source"] == str(tmp_path / "joint.toml") and len(summary["records"]) == 6
     records = sorted(str(p) for p in folder.glob("*.csv"))
     assert all("# radius = 0.015 m" in open(p).read(300) for p in records)
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "identify", *records, "--json"],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "identify", *records, "--json"], capture_output=True, text=True
+    )
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     values = result["parameters"]

@@ -44,24 +44,33 @@ def _snapshot(root: Path) -> dict:
 
 def _stand_in(extra: dict[str, bytes] | None = None):
     """Stages that write a few report files (and the paths the real summary names) quickly."""
-    files = {"mode_shapes.png": b"\x89PNG fake", "can/sil_siso.blf": b"LOGG", "firmware/smartjoint_siso.c": b"/* */\n",
-             **(extra or {})}
+    files = {
+        "mode_shapes.png": b"\x89PNG fake",
+        "can/sil_siso.blf": b"LOGG",
+        "firmware/smartjoint_siso.c": b"/* */\n",
+        **(extra or {}),
+    }
 
     def stages(design_path, staging, progress):
         for name, data in files.items():
             (staging / name).parent.mkdir(parents=True, exist_ok=True)
             (staging / name).write_bytes(data)
-        summary = {"firmware": {"folder": "firmware", "files": ["firmware/smartjoint_siso.c"]},
-                   "sil": {"logs": ["can/sil_siso.blf"], "laws": {"siso": {"log": "can/sil_siso.blf"}}}}
+        summary = {
+            "firmware": {"folder": "firmware", "files": ["firmware/smartjoint_siso.c"]},
+            "sil": {"logs": ["can/sil_siso.blf"], "laws": {"siso": {"log": "can/sil_siso.blf"}}},
+        }
         return summary, lambda final: f"# report of run {final['run_id']}\n"
+
     return stages
 
 
 @pytest.fixture
 def no_work(monkeypatch):
     """Any stage starting fails the test: a refusal must come before the work."""
+
     def work(*args, **kwargs):
         raise AssertionError("the pipeline started working")
+
     monkeypatch.setattr(pipeline, "_stages", work)
     monkeypatch.setattr(pipeline, "load_design", work)
 
@@ -183,6 +192,7 @@ def test_a_summary_naming_a_file_outside_the_report_is_not_put_in_place(tmp_path
         summary, markdown = stages(design_path, staging, progress)
         summary["sil"]["laws"]["siso"]["log"] = "/tmp/smartjoint-sil-gone/sil_siso.blf"
         return summary, markdown
+
     monkeypatch.setattr(pipeline, "_stages", dangling)
     with pytest.raises(RuntimeError, match="smartjoint-sil-gone"):
         pipeline.run(None, tmp_path / "report", progress=lambda message: None)
@@ -216,13 +226,18 @@ class _Run:
     """``smartjoint run`` in a child process; its stderr read line by line on a thread (so no wait blocks)."""
 
     def __init__(self, design: Path, output: Path, temporary: Path):
-        from smartjoint.design.friction import rig
+        from smartjoint.design.friction import rig_integration
 
-        rig.kernel()  # compiled beforehand: a signal must not land in a compiler the child started
+        rig_integration.kernel()  # compiled beforehand: a signal must not land in a compiler the child started
         temporary.mkdir(exist_ok=True)
         env = {**os.environ, "TMPDIR": str(temporary)}  # where a temporary folder would appear
-        self.process = subprocess.Popen([sys.executable, "-m", "smartjoint.cli", "run", str(design), "-o", str(output)],
-                                        stderr=subprocess.PIPE, text=True, env=env, cwd=design.parent)
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "smartjoint.cli", "run", str(design), "-o", str(output)],
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            cwd=design.parent,
+        )
         self.lines: queue.Queue = queue.Queue()
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -255,8 +270,9 @@ class _Run:
 
 
 @pytest.mark.parametrize("number, name", [(signal.SIGINT, "SIGINT"), (signal.SIGTERM, "SIGTERM")])
-def test_an_interrupted_run_ends_with_one_line_and_leaves_the_earlier_report(tmp_path, small_design, monkeypatch,
-                                                                             number, name):
+def test_an_interrupted_run_ends_with_one_line_and_leaves_the_earlier_report(
+    tmp_path, small_design, monkeypatch, number, name
+):
     output, temporary = tmp_path / "report", tmp_path / "tmp"
     monkeypatch.setattr(pipeline, "_stages", _stand_in())
     assert main(["run", "-o", str(output)]) == 0  # an earlier, finished report
@@ -295,7 +311,8 @@ def test_what_a_killed_run_left_is_cleared_by_the_next_and_only_that(tmp_path, s
     monkeypatch.setattr(pipeline, "_stages", _stand_in())
     assert main(["run", "-o", str(output)]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        ["report", "small.toml", "tmp", lookalike.name, claim.name, f".report.smartjoint-{live}.staging"])
+        ["report", "small.toml", "tmp", lookalike.name, claim.name, f".report.smartjoint-{live}.staging"]
+    )
     assert (lookalike / "keep").is_dir()
     assert lookalike.exists() and claim.exists()
 
@@ -309,8 +326,11 @@ def test_a_run_killed_while_swapping_reports_gets_the_earlier_one_back(tmp_path,
     dead.wait()
     run_id = "20200101T000000Z-0000dead"
     stem = tmp_path / f".report.smartjoint-{run_id}"
-    Path(f"{stem}.run").write_text(json.dumps({**report_folder._claim(), "pid": dead.pid, "process_start": "0",
-                                               "run_id": run_id, "output": "report"}))
+    Path(f"{stem}.run").write_text(
+        json.dumps(
+            {**report_folder._claim(), "pid": dead.pid, "process_start": "0", "run_id": run_id, "output": "report"}
+        )
+    )
     os.rename(output, f"{stem}.previous")  # the state between the two renames of the swap
     Path(f"{stem}.staging").mkdir()
     assert report_folder.clean_stale(output) == [stem.name]

@@ -24,9 +24,16 @@ LOADED = artifact.load(REFERENCE)
 DATABASE = protocol.database(LOADED)
 CASES = safety.cases(LOADED, DATABASE)
 RECOVERY_LIMIT = LOADED.timeout_cycles + LOADED.recovery_cycles + 1  # stated in docs/safety.md
-EXPECTED_BIT = {"sliding_velocity": "velocity", "friction_force": "friction", "normal_force": "normal_force",
-                "temperature": "temperature", "current": "current", "monitor_voltage": "tracking",
-                "voltage": "amplifier_safe", "mode": "amplifier_safe"}  # the amplifier's own watchdog trips
+EXPECTED_BIT = {
+    "sliding_velocity": "velocity",
+    "friction_force": "friction",
+    "normal_force": "normal_force",
+    "temperature": "temperature",
+    "current": "current",
+    "monitor_voltage": "tracking",
+    "voltage": "amplifier_safe",
+    "mode": "amplifier_safe",
+}  # the amplifier's own watchdog trips
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +56,7 @@ def test_every_fault_reaches_the_safe_force_at_every_joint_within_three_cycles(i
     loop.reset()
     applied = np.zeros(len(LOADED.joint_names))
     try:
-        for m in signals[:case.cycles]:
+        for m in signals[: case.cycles]:
             applied = loop.step(Measurements(m.time, m.sensors, m.sliding_velocity, m.friction_force, applied))
     finally:
         loop.close()
@@ -77,9 +84,12 @@ def test_the_matrix_covers_every_frame_kind_signal_amplifier_fault_and_timing():
     for kind in FRAME_FAULTS:
         for timing in safety.TIMINGS:
             assert {c.faults[0].target for c in single if c.faults[0].kind == kind and c.timing == timing} == frames
-    decoded = {(m.name, s.name) for m in DATABASE.messages for s in m.signals
-               if s.name not in ("crc", "counter", "sync", "step_status", "missing_inputs", "faults")
-               and s.length > 1}
+    decoded = {
+        (m.name, s.name)
+        for m in DATABASE.messages
+        for s in m.signals
+        if s.name not in ("crc", "counter", "sync", "step_status", "missing_inputs", "faults") and s.length > 1
+    }
     assert decoded == {(c.faults[0].target, c.faults[0].signal) for c in single if c.faults[0].kind == "implausible"}
     assert any(len(c.faults) == 2 and c.timing.startswith("two at once, from t = 0") for c in CASES)
 
@@ -90,8 +100,11 @@ class Nodes:
 
     def __init__(self, fw, values=None):
         self.fw, self.counter, self.echo = fw, {}, 0
-        self.inputs = [m for m in sorted(fw.db.messages, key=lambda m: m.frame_id)
-                       if m.name.startswith(("JOINT_", "TIP_", "AMP_STATUS_"))]
+        self.inputs = [
+            m
+            for m in sorted(fw.db.messages, key=lambda m: m.frame_id)
+            if m.name.startswith(("JOINT_", "TIP_", "AMP_STATUS_"))
+        ]
         self.values = values or {}
 
     def frames(self):
@@ -101,13 +114,12 @@ class Nodes:
             self.counter[m.name] = (counter + 1) % 16
             values = {s.name: 0.0 for s in m.signals}
             if m.name.startswith("AMP_STATUS_"):
-                j = LOADED.joint_names.index(m.name[len("AMP_STATUS_"):])
+                j = LOADED.joint_names.index(m.name[len("AMP_STATUS_") :])
                 values["monitor_voltage"] = self.sent[j] if hasattr(self, "sent") else 50.0
                 values["temperature"] = 35.0
             values.update(self.values.get(m.name, {}))
             values["sync"] = self.echo
-            out.append((m.frame_id, bytes(e2e.protect(m.frame_id, bytearray(m.encode(values, strict=False)),
-                                                      counter))))
+            out.append((m.frame_id, bytes(e2e.protect(m.frame_id, bytearray(m.encode(values, strict=False)), counter))))
         return out
 
     def hear(self, sent):
@@ -168,7 +180,7 @@ def test_a_frame_later_than_the_bound_is_detected(reference_firmware):
             safe.append(fw.safe)
         assert any(safe[20:]) == detected, lateness
         if detected:
-            assert all(safe[20 + lateness:]), lateness  # no recovery while it stays late
+            assert all(safe[20 + lateness :]), lateness  # no recovery while it stays late
             assert "timeout" in fw.fault_names()
 
 
@@ -178,7 +190,7 @@ def test_the_step_counter_wraps_without_a_hiccup(reference_firmware):
     nodes = Nodes(fw)
     for k in range(5):
         _cycle(fw, nodes, k)
-    fw.lib.smartjoint_can_set_steps(fw._state, 2 ** 32 - 20)
+    fw.lib.smartjoint_can_set_steps(fw._state, 2**32 - 20)
     counters = []
     for k in range(5, 45):
         _cycle(fw, nodes, k)
@@ -230,9 +242,14 @@ def test_implausible_controller_inputs_reach_the_safe_state_and_name_their_bit(r
     """A value beyond its range in a frame with a valid E2E is a broken node: the safe force,
     with the check's own status bit."""
     fw = reference_firmware
-    cases = {("JOINT_A2", "sliding_velocity", 1.5): "velocity", ("JOINT_A1", "friction_force", -700.0): "friction",
-             ("JOINT_A3", "normal_force", 500.0): "normal_force", ("TIP_SENSORS", "tip_z", 0.6): "sensor",
-             ("AMP_STATUS_A2", "temperature", 120.0): "temperature", ("AMP_STATUS_A1", "current", 2.8): "current"}
+    cases = {
+        ("JOINT_A2", "sliding_velocity", 1.5): "velocity",
+        ("JOINT_A1", "friction_force", -700.0): "friction",
+        ("JOINT_A3", "normal_force", 500.0): "normal_force",
+        ("TIP_SENSORS", "tip_z", 0.6): "sensor",
+        ("AMP_STATUS_A2", "temperature", 120.0): "temperature",
+        ("AMP_STATUS_A1", "current", 2.8): "current",
+    }
     for (frame, signal, value), bit in cases.items():
         fw.reset()
         nodes = Nodes(fw)
@@ -253,23 +270,37 @@ def test_the_amplifier_makes_its_joint_safe_on_its_own():
     """Power-up, a silent controller, a setpoint outside the design's range, a setpoint kept
     back behind its heartbeat: the safe voltage, from the amplifier alone."""
     j = 0
-    amp = AmplifierModel(force_per_volt=LOADED.piezo_force_per_volt, safe_normal_force=float(LOADED.safe_normal_force[j]),
-                         normal_force_min=float(LOADED.normal_force_min[j]),
-                         normal_force_max=float(LOADED.normal_force_max[j]), timeout_cycles=LOADED.timeout_cycles)
+    amp = AmplifierModel(
+        force_per_volt=LOADED.piezo_force_per_volt,
+        safe_normal_force=float(LOADED.safe_normal_force[j]),
+        normal_force_min=float(LOADED.normal_force_min[j]),
+        normal_force_max=float(LOADED.normal_force_max[j]),
+        timeout_cycles=LOADED.timeout_cycles,
+    )
     dt = LOADED.sample_time
     assert amp.advance(dt) == pytest.approx(LOADED.safe_normal_force[j])  # power-up, nothing received
     setpoint, heartbeat = DATABASE.get_message_by_name("SETPOINT_A1"), DATABASE.get_message_by_name("CONTROLLER_STATUS")
 
     def send(k, volts, heartbeat_counter=None):
-        data = e2e.protect(setpoint.frame_id, bytearray(setpoint.encode({"crc": 0, "counter": 0, "voltage": volts})),
-                           k % 16)
-        amp.receive_setpoint(setpoint.frame_id, bytes(data), setpoint.length,
-                             lambda d: setpoint.decode(d)["voltage"])
-        beat = e2e.protect(heartbeat.frame_id, bytearray(heartbeat.encode(
-            {"crc": 0, "counter": 0, "mode": 2, "missing_inputs": 0, "step_status": 0, "faults": 0})),
-            (k if heartbeat_counter is None else heartbeat_counter) % 16)
-        amp.receive_heartbeat(heartbeat.frame_id, bytes(beat), heartbeat.length,
-                              lambda d: heartbeat.decode(d, decode_choices=False)["mode"])
+        data = e2e.protect(
+            setpoint.frame_id, bytearray(setpoint.encode({"crc": 0, "counter": 0, "voltage": volts})), k % 16
+        )
+        amp.receive_setpoint(setpoint.frame_id, bytes(data), setpoint.length, lambda d: setpoint.decode(d)["voltage"])
+        beat = e2e.protect(
+            heartbeat.frame_id,
+            bytearray(
+                heartbeat.encode(
+                    {"crc": 0, "counter": 0, "mode": 2, "missing_inputs": 0, "step_status": 0, "faults": 0}
+                )
+            ),
+            (k if heartbeat_counter is None else heartbeat_counter) % 16,
+        )
+        amp.receive_heartbeat(
+            heartbeat.frame_id,
+            bytes(beat),
+            heartbeat.length,
+            lambda d: heartbeat.decode(d, decode_choices=False)["mode"],
+        )
         return amp.advance(dt)
 
     assert send(1, 10.0) == pytest.approx(80.0)  # the first valid command ends the power-up hold
@@ -294,18 +325,24 @@ def reference_firmware():
 def test_fault_fields_that_mean_nothing_are_refused():
     names, joints = {m.name for m in DATABASE.messages}, list(LOADED.joint_names)
     signals = {m.name: [s.name for s in m.signals] for m in DATABASE.messages}
-    for fault, message in ((Fault("bus_off", 0.1, 0.2, "JOINT_A1"), "give no target"),
-                           (Fault("drop", 0.1, 0.2, "JOINT_A1", delay=0.01), "delay 0.01 — only for kind delay"),
-                           (Fault("drop", 0.1, 0.2, "JOINT_A1", amplifier_fault="stuck_output"), "only for kind"),
-                           (Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="speed", value=1.0), "signal 'speed'"),
-                           (Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="sliding_velocity"), "value None"),
-                           (Fault("amplifier", 0.1, 0.2, "A9", amplifier_fault="stuck_output"), "target 'A9'"),
-                           (Fault("drop", 0.2, 0.1, "SETPOINT_A1"), "window"),
-                           (Fault("drop", 0.1, math.nan, "SETPOINT_A1"), "window")):
+    for fault, message in (
+        (Fault("bus_off", 0.1, 0.2, "JOINT_A1"), "give no target"),
+        (Fault("drop", 0.1, 0.2, "JOINT_A1", delay=0.01), "delay 0.01 — only for kind delay"),
+        (Fault("drop", 0.1, 0.2, "JOINT_A1", amplifier_fault="stuck_output"), "only for kind"),
+        (Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="speed", value=1.0), "signal 'speed'"),
+        (Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="sliding_velocity"), "value None"),
+        (Fault("amplifier", 0.1, 0.2, "A9", amplifier_fault="stuck_output"), "target 'A9'"),
+        (Fault("drop", 0.2, 0.1, "SETPOINT_A1"), "window"),
+        (Fault("drop", 0.1, math.nan, "SETPOINT_A1"), "window"),
+    ):
         with pytest.raises(ModelError, match=message):
             check_faults([fault], names, joints, signals)
-    for text, message in (("drop:SETPOINT_A1:0.1:0.2:3", "takes no detail"), ("bus_off:X:1:2", None),
-                          ("melt:X:1:2", "kind 'melt'"), ("delay:JOINT_A1:1:2:soon", "the delay 'soon'")):
+    for text, message in (
+        ("drop:SETPOINT_A1:0.1:0.2:3", "takes no detail"),
+        ("bus_off:X:1:2", None),
+        ("melt:X:1:2", "kind 'melt'"),
+        ("delay:JOINT_A1:1:2:soon", "the delay 'soon'"),
+    ):
         if message is None:
             with pytest.raises(ModelError, match="give no target"):
                 check_faults([parse_fault(text)], names, joints, signals)

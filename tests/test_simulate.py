@@ -36,13 +36,18 @@ def test_free_decay_is_exact_for_any_step(model):
     w, xi = model.omega[0], model.damping[0]
     wd = w * np.sqrt(1 - xi**2)
     for step in (1e-3, 5e-3):
-        result = plant.simulate(model, JOINTS, plant.ConstantNormalForce(np.zeros(2), step), None, 0.5, step,
-                                   initial_state=x0)
+        result = plant.simulate(
+            model, JOINTS, plant.ConstantNormalForce(np.zeros(2), step), None, 0.5, step, initial_state=x0
+        )
         t = result.time
         eta = (1 / w) * np.exp(-xi * w * t) * (np.cos(wd * t) + xi * w / wd * np.sin(wd * t))
         energy = 0.5 * ((w * eta) ** 2 + np.gradient(eta, t) ** 2)
-        assert np.allclose(result.energy[::10], 0.5 * (w * eta[::10]) ** 2 + 0.5 * _velocity(w, xi, t[::10]) ** 2,
-                           rtol=1e-9, atol=1e-12)
+        assert np.allclose(
+            result.energy[::10],
+            0.5 * (w * eta[::10]) ** 2 + 0.5 * _velocity(w, xi, t[::10]) ** 2,
+            rtol=1e-9,
+            atol=1e-12,
+        )
         assert energy.size == t.size
 
 
@@ -57,8 +62,9 @@ def test_energy_balance_and_dissipation(model):
     pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
     errors = []
     for step in (2e-4, 1e-4):
-        result = plant.simulate(model, JOINTS, plant.ConstantNormalForce(np.array([20.0, 20.0]), 1e-3), pulse,
-                                   0.2, step)
+        result = plant.simulate(
+            model, JOINTS, plant.ConstantNormalForce(np.array([20.0, 20.0]), 1e-3), pulse, 0.2, step
+        )
         errors.append(result.balance_error())
         # Net dissipation in the joints (u_R·v itself may dip below zero while the bristles unload).
         assert result.work_joints[-1] > 0.05 * result.work_in[-1]
@@ -100,8 +106,20 @@ def test_simulate_command_names_a_wrong_normal_force_list():
 
     from smartjoint.pipeline import FIG10_DESIGN
 
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "simulate", str(FIG10_DESIGN), "--no-update",
-                           "--normal-force", "400,0"], capture_output=True, text=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smartjoint.cli",
+            "simulate",
+            str(FIG10_DESIGN),
+            "--no-update",
+            "--normal-force",
+            "400,0",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 2
     assert "--normal-force: '400,0' — need 3 finite values >= 0 (joints B1, A2, A3)" in done.stderr
 
@@ -124,10 +142,17 @@ class _Switching:
 def test_c_kernel_matches_numpy_mirror_with_switching_forces(model):
     """plant_kernel.c and its numpy mirror take the same steps (halvings included) to round-off."""
     pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
-    runs = [plant.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.08, 1e-4, backend=b)
-            for b in ("python", "c")]
-    for name in ("friction_force", "sliding_velocity", "deflection", "energy", "sensors", "work_joints",
-                 "work_damping", "work_in"):
+    runs = [plant.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.08, 1e-4, backend=b) for b in ("python", "c")]
+    for name in (
+        "friction_force",
+        "sliding_velocity",
+        "deflection",
+        "energy",
+        "sensors",
+        "work_joints",
+        "work_damping",
+        "work_in",
+    ):
         a, b = getattr(runs[0], name), getattr(runs[1], name)
         assert np.max(np.abs(a - b)) <= 1e-9 * np.max(np.abs(a)), name
 
@@ -174,8 +199,10 @@ def test_work_coefficients_match_quadrature_of_the_exact_motion(model):
 def test_energy_books_can_be_left_out(model):
     """energy_books=False: the same trajectory, the works NaN (not zeros that look like data)."""
     pulse = plant.triangular_pulse(200.0, 0.04, (1.0,))
-    runs = [plant.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books=books)
-            for books in (True, False)]
+    runs = [
+        plant.simulate(model, JOINTS, _Switching(2, 1e-3), pulse, 0.05, 1e-4, energy_books=books)
+        for books in (True, False)
+    ]
     assert np.array_equal(runs[0].friction_force, runs[1].friction_force)
     assert np.array_equal(runs[0].energy, runs[1].energy)
     assert np.all(np.isnan(runs[1].work_joints))
@@ -208,8 +235,15 @@ class _Bad:
         return self.value
 
 
-@pytest.mark.parametrize("value, text", [(np.array([np.nan, 1.0]), "nan"), (np.array([1.0, 2.0, 3.0]), r"\[1.0, 2.0, 3.0\]"),
-                                         ("many", "many"), (None, "None")])
+@pytest.mark.parametrize(
+    "value, text",
+    [
+        (np.array([np.nan, 1.0]), "nan"),
+        (np.array([1.0, 2.0, 3.0]), r"\[1.0, 2.0, 3.0\]"),
+        ("many", "many"),
+        (None, "None"),
+    ],
+)
 def test_controller_output_is_checked(model, value, text):
     with pytest.raises(ModelError, match=f"controller returned normal forces .*{text}.* need 2 finite"):
         plant.simulate(model, JOINTS, _Bad(value), None, 0.01, 1e-4)
@@ -221,12 +255,15 @@ def test_unstable_damping_and_rigid_joint_are_named(model):
     unstable = dataclasses.replace(model, damping=np.where(np.arange(model.n_coordinates) == 3, -0.01, model.damping))
     with pytest.raises(ModelError, match=r"coordinate 'mode 4' has .* ξ = -0.01 — need ω > 0 and ξ >= 0"):
         plant.simulate(unstable, JOINTS, plant.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
-    rigid = dataclasses.replace(model, joint_input=np.column_stack([model.joint_input[:, 0], np.zeros(model.n_coordinates)]))
+    rigid = dataclasses.replace(
+        model, joint_input=np.column_stack([model.joint_input[:, 0], np.zeros(model.n_coordinates)])
+    )
     with pytest.raises(ModelError, match="joint .* no coordinate of the model moves it"):
         plant.simulate(rigid, JOINTS, plant.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4)
     with pytest.raises(ModelError, match="initial_state: 3 values"):
-        plant.simulate(model, JOINTS, plant.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4,
-                          initial_state=np.zeros(3))
+        plant.simulate(
+            model, JOINTS, plant.ConstantNormalForce(np.zeros(2)), None, 0.01, 1e-4, initial_state=np.zeros(3)
+        )
 
 
 def test_auto_backend_falls_back_to_the_mirror_once_when_c_does_not_build(model, monkeypatch):

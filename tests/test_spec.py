@@ -120,18 +120,22 @@ def test_base_file_supplies_the_keys_a_design_does_not_set(tmp_path):
         load_design(child)
 
 
-@pytest.mark.parametrize("argument, expected", [
-    ("/dev/zero", "/dev/zero is a device; a design file must be a regular file"),
-    ("{folder}", "is a folder; a design file must be a regular file"),
-    ("{cycle}", "cycle.toml → cycle.toml is a cycle"),
-    ("{huge}", "truss.bays: 9223372036854775807 — must be an integer 1 … 5000"),
-])
+@pytest.mark.parametrize(
+    "argument, expected",
+    [
+        ("/dev/zero", "/dev/zero is a device; a design file must be a regular file"),
+        ("{folder}", "is a folder; a design file must be a regular file"),
+        ("{cycle}", "cycle.toml → cycle.toml is a cycle"),
+        ("{huge}", "truss.bays: 9223372036854775807 — must be an integer 1 … 5000"),
+    ],
+)
 def test_command_line_refuses_unbounded_inputs_in_one_line(tmp_path, argument, expected):
     (tmp_path / "cycle.toml").write_text('base = "cycle.toml"\nname = "x"\n')
     (tmp_path / "huge.toml").write_text('name = "x"\n[truss]\nbays = 9223372036854775807\n')
     path = argument.format(folder=tmp_path, cycle=tmp_path / "cycle.toml", huge=tmp_path / "huge.toml")
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "modes", path], capture_output=True, text=True,
-                          timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "modes", path], capture_output=True, text=True, timeout=60
+    )
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
     assert expected in lines[0], lines[0]

@@ -50,8 +50,17 @@ def test_agrees_with_radau_and_converges_in_the_long_step(model, monkeypatch):
     seen = _counted(monkeypatch)
     errors = []
     for long_step in (1e-3, 5e-4, 2.5e-4):
-        result = plant.simulate(model, JOINTS, plant.ConstantNormalForce(normal_force, 1e-3), pulse, duration,
-                                   2.5e-5, record_every=40, energy_books=False, stick_step=long_step)
+        result = plant.simulate(
+            model,
+            JOINTS,
+            plant.ConstantNormalForce(normal_force, 1e-3),
+            pulse,
+            duration,
+            2.5e-5,
+            record_every=40,
+            energy_books=False,
+            stick_step=long_step,
+        )
         u = result.friction_force
         errors.append(float(np.max(np.sqrt(np.mean((u - u_ref) ** 2, axis=0)) / np.sqrt(np.mean(u_ref**2, axis=0)))))
         assert np.max(np.abs(result.energy - e_ref)) / e_ref.max() < 1e-2
@@ -83,8 +92,20 @@ def test_c_kernel_matches_numpy_mirror(model, monkeypatch):
     for controller in (plant.ConstantNormalForce(np.array([300.0, 400.0]), 1e-3), _Switching(2, 1e-3)):
         runs, counts = [], []
         for backend in ("python", "c"):
-            runs.append(plant.simulate(model, JOINTS, controller, pulse, 0.12, 5e-5, record_every=20,
-                                          energy_books=False, backend=backend, stick_step=1e-3))
+            runs.append(
+                plant.simulate(
+                    model,
+                    JOINTS,
+                    controller,
+                    pulse,
+                    0.12,
+                    5e-5,
+                    record_every=20,
+                    energy_books=False,
+                    backend=backend,
+                    stick_step=1e-3,
+                )
+            )
             counts.append(seen["kernel"].counts.tolist())
         assert counts[0] == counts[1], counts
         # the passive joints stick after the pulse (long steps); at F_min = 10 N they keep slipping
@@ -99,21 +120,29 @@ def test_bad_stick_exact_settings_are_named(model):
     with pytest.raises(ModelError, match="energy_books: True — the stick-exact scheme keeps no energy books"):
         plant.simulate(model, JOINTS, forces, None, 0.01, 5e-5, record_every=20, stick_step=1e-3)
     with pytest.raises(ModelError, match=r"stick_step: 0.00012 s must be a whole multiple of step 5e-05 s"):
-        plant.simulate(model, JOINTS, forces, None, 0.012, 5e-5, record_every=20, energy_books=False,
-                          stick_step=1.2e-4)
-    with pytest.raises(ModelError, match="record_every: 10 steps of 5e-05 s — with stick_step it must be a multiple "
-                                         "of 20"):
-        plant.simulate(model, JOINTS, forces, None, 0.01, 5e-5, record_every=10, energy_books=False,
-                          stick_step=1e-3)
+        plant.simulate(model, JOINTS, forces, None, 0.012, 5e-5, record_every=20, energy_books=False, stick_step=1.2e-4)
+    with pytest.raises(
+        ModelError, match="record_every: 10 steps of 5e-05 s — with stick_step it must be a multiple of 20"
+    ):
+        plant.simulate(model, JOINTS, forces, None, 0.01, 5e-5, record_every=10, energy_books=False, stick_step=1e-3)
     switching = _Switching(2, 1e-3)
     with pytest.raises(ModelError, match="controller sample time 0.001 s must be a whole multiple of stick_step 0.002"):
-        plant.simulate(model, JOINTS, switching, None, 0.01, 5e-5, record_every=40, energy_books=False,
-                          stick_step=2e-3)
+        plant.simulate(model, JOINTS, switching, None, 0.01, 5e-5, record_every=40, energy_books=False, stick_step=2e-3)
 
 
 def test_full_models_are_refused(model, monkeypatch):
     monkeypatch.setattr(stick_exact, "MAX_STATES", 10)
-    with pytest.raises(ModelError, match="the model has 26 states — the stick-exact scheme is dense and takes at most "
-                                         "10"):
-        plant.simulate(model, JOINTS, plant.ConstantNormalForce(np.zeros(2), 1e-3), None, 0.01, 5e-5,
-                          record_every=20, energy_books=False, stick_step=1e-3)
+    with pytest.raises(
+        ModelError, match="the model has 26 states — the stick-exact scheme is dense and takes at most 10"
+    ):
+        plant.simulate(
+            model,
+            JOINTS,
+            plant.ConstantNormalForce(np.zeros(2), 1e-3),
+            None,
+            0.01,
+            5e-5,
+            record_every=20,
+            energy_books=False,
+            stick_step=1e-3,
+        )

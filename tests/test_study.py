@@ -20,8 +20,15 @@ def _small(duration=0.3, **control):
     from conftest import small_truss
 
     data = small_truss()
-    data["control"] = {"considered_modes": 12, "modes": 4, "krylov": 1, "normal_force_min": 5.0,
-                       "normal_force_max": 100.0, "study_duration": duration, **control}
+    data["control"] = {
+        "considered_modes": 12,
+        "modes": 4,
+        "krylov": 1,
+        "normal_force_min": 5.0,
+        "normal_force_max": 100.0,
+        "study_duration": duration,
+        **control,
+    }
     return parse_design(data)
 
 
@@ -48,8 +55,7 @@ def test_metrics_follow_their_definitions(small_study):
     passive = result.run("passive F_max")
     # Passive: the stacks are charged once, from 0 V to V_max, and held.
     volts = (s.normal_force_max - s.piezo_preload) / s.piezo_force_per_volt
-    assert passive.control_power == pytest.approx(np.sum(0.5 * s.piezo_capacitance * volts**2) / s.duration,
-                                                  rel=1e-12)
+    assert passive.control_power == pytest.approx(np.sum(0.5 * s.piezo_capacitance * volts**2) / s.duration, rel=1e-12)
     for r in result.runs:
         m = r.metrics
         after = r.time > study.PULSE_DURATION
@@ -70,13 +76,18 @@ def test_metrics_follow_their_definitions(small_study):
 
 @pytest.mark.numerics
 def test_piezo_power_counts_charging_only():
-    s = dataclasses.replace(study.setup(_small(siso_boundary_layer=1e-4), study.design_model(
-        _small(siso_boundary_layer=1e-4), lambda m: None)), duration=1.0)
+    s = dataclasses.replace(
+        study.setup(
+            _small(siso_boundary_layer=1e-4), study.design_model(_small(siso_boundary_layer=1e-4), lambda m: None)
+        ),
+        duration=1.0,
+    )
     low, high = 10.0, 90.0
     forces = np.tile([[high], [low]], (50, 1))  # 50 charges to 90 N, discharges are free
-    expected = 50 * 0.5 * s.piezo_capacitance * ((high / s.piezo_force_per_volt) ** 2
-                                                 - (low / s.piezo_force_per_volt) ** 2) \
-        + 0.5 * s.piezo_capacitance * (low / s.piezo_force_per_volt) ** 2  # the very first charge from 0 V
+    expected = (
+        50 * 0.5 * s.piezo_capacitance * ((high / s.piezo_force_per_volt) ** 2 - (low / s.piezo_force_per_volt) ** 2)
+        + 0.5 * s.piezo_capacitance * (low / s.piezo_force_per_volt) ** 2
+    )  # the very first charge from 0 V
     assert study._piezo_power(s, forces) == pytest.approx(expected, rel=1e-12)
 
 
@@ -159,31 +170,49 @@ def test_design_and_study_commands(tmp_path):
     from conftest import small_truss
 
     data = small_truss()
-    data["control"] = {"considered_modes": 12, "modes": 4, "normal_force_min": 5.0, "normal_force_max": 100.0,
-                       "study_duration": 0.2, "siso_boundary_layer": 1e-4}
+    data["control"] = {
+        "considered_modes": 12,
+        "modes": 4,
+        "normal_force_min": 5.0,
+        "normal_force_max": 100.0,
+        "study_duration": 0.2,
+        "siso_boundary_layer": 1e-4,
+    }
     path = tmp_path / "small.toml"
     path.write_text(tomli_w.dumps(data))
     out = tmp_path / "controller.json"
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(out), "--json"],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(out), "--json"],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     loaded = artifact.load(out)
     assert loaded.artifact_sha256 == summary["artifact_sha256"] and loaded.joint_names == ("JA", "JB")
     assert summary["lqg_stability_margin"] > 0
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "study", str(path), "--json", "--plots",
-                           str(tmp_path / "plots")], capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "study", str(path), "--json", "--plots", str(tmp_path / "plots")],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     assert set(result["runs"]) == {"passive F_min", "passive F_max", "SISO", "cLQG", "active LQG"}
     assert (tmp_path / "plots" / "control_energy.png").stat().st_size > 0
     refused = tmp_path / "refused.json"
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(refused),
-                           "--max-load", "0.1"], capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(refused), "--max-load", "0.1"],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 2 and "exceeds the limit 10 %" in done.stderr and not refused.exists()
     assert summary["bus_load"] < 0.7
     data["control"]["normal_force_min"] = 500.0
     path.write_text(tomli_w.dumps(data))
-    done = subprocess.run([sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(tmp_path / "x.json")],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(tmp_path / "x.json")],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 2 and "normal_force_min" in done.stderr and not (tmp_path / "x.json").exists()

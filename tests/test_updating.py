@@ -22,8 +22,11 @@ def _with_measurements(truth: dict[str, float], modes=(1, 2, 3, 4, 6)):
 
 
 def test_recovers_known_parameters():
-    truth = {"connectors.c.axial_stiffness": 2.0e6, "connectors.c.bending_stiffness": 1500.0,
-             "materials.aluminium.youngs_modulus": 66.0e9}
+    truth = {
+        "connectors.c.axial_stiffness": 2.0e6,
+        "connectors.c.bending_stiffness": 1500.0,
+        "materials.aluminium.youngs_modulus": 66.0e9,
+    }
     design = _with_measurements(truth)
     result = update_model(build_model(design, joints="locked"))
     assert np.max(np.abs(result.error_pct)) < 1e-6

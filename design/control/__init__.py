@@ -1,25 +1,38 @@
 """Control design (paper Section 5): the SISO law (``laws``), the LQG design (``lqg``), the
 controllers that run it (``filter``: clipped-optimal and fully active LQG), the controller
-artefact (``artifact``) and the closed-loop study of Section 6 (``study``).
+artefact (``artifact``, built from a design by ``artifact_building``) and the closed-loop study
+of Section 6 (``study``).
 
 The controllers implement ``design.plant.interface.Controller``; they depend on the plant's
 interface and discretisation only, never on the simulator. The names below are the
-controllers and their design; ``artifact`` and ``study`` are imported as modules (they import
-these, so this package does not import them).
+controllers and their design; ``artifact``, ``artifact_building`` and ``study`` are
+imported as modules (they import these, so this package does not import them).
 """
 
 from smartjoint.design.control.filter import ActiveLqg, ClippedLqg, ordered_product
 from smartjoint.design.control.laws import (
-                                            STATUS_ESTIMATE_RESET,
-                                            STATUS_INPUT_IMPLAUSIBLE,
-                                            STATUS_INPUT_INVALID,
-                                            STATUS_OK,
-                                            SisoLaw,
-                                            boundary_layer,
-                                            input_status,
+    STATUS_ESTIMATE_RESET,
+    STATUS_INPUT_IMPLAUSIBLE,
+    STATUS_INPUT_INVALID,
+    STATUS_OK,
+    SisoLaw,
+    boundary_layer,
+    input_status,
 )
 from smartjoint.design.control.lqg import LqgDesign, check_sample_time, design_lqg
 
-__all__ = ["STATUS_ESTIMATE_RESET", "STATUS_INPUT_IMPLAUSIBLE", "STATUS_INPUT_INVALID", "STATUS_OK", "ActiveLqg",
-           "ClippedLqg", "LqgDesign", "SisoLaw", "boundary_layer", "check_sample_time", "design_lqg",
-           "input_status", "ordered_product"]
+__all__ = [
+    "STATUS_ESTIMATE_RESET",
+    "STATUS_INPUT_IMPLAUSIBLE",
+    "STATUS_INPUT_INVALID",
+    "STATUS_OK",
+    "ActiveLqg",
+    "ClippedLqg",
+    "LqgDesign",
+    "SisoLaw",
+    "boundary_layer",
+    "check_sample_time",
+    "design_lqg",
+    "input_status",
+    "ordered_product",
+]

@@ -2,7 +2,8 @@
 
 The artefact freezes a controller design — limits, boundary layers, the discrete LQG of
 ``control.design_lqg`` and the piezo calibration — together with where it came from (design
-file, its SHA-256, package version). The C generator reads only this file, and
+file, its SHA-256, package version); ``artifact_building.from_design`` builds it from a design.
+The C generator reads only this file, and
 ``siso_law``/``clipped_lqg``/``active_lqg`` rebuild the Python reference controllers from it
 alone, so firmware and reference are checked against the same numbers.
 
@@ -18,13 +19,11 @@ and nothing that depends on the time of writing — the same inputs give the sam
 ``artifact_sha256`` is the SHA-256 of those bytes (= ``sha256sum`` of a saved file).
 """
 
-
 from __future__ import annotations
 
 import hashlib
 import importlib.metadata
 import json
-import math
 import os
 import tempfile
 from dataclasses import dataclass
@@ -62,7 +61,7 @@ def installed_version() -> str:
 @dataclass(frozen=True, eq=False)
 class ControllerArtifact:
     """A validated controller design (fields: see :data:`SCHEMA`). Arrays are read-only float64;
-    ``==`` compares them exactly. Built by :func:`from_design` or :func:`loads`."""
+    ``==`` compares them exactly. Built by ``artifact_building.from_design`` or :func:`loads`."""
 
     schema_version: int
     name: str
@@ -113,131 +112,12 @@ class ControllerArtifact:
                 return False
         return True
 
-    __hash__ = None  # arrays: equal artefacts need not share a hash
+    # Unhashable, as a class defining __eq__ is (arrays: equal artefacts need not share a hash)
 
     @property
     def artifact_sha256(self) -> str:
         """SHA-256 of the canonical text ``dumps(self)``: the identity of this exact design."""
         return hashlib.sha256(dumps(self).encode("ascii")).hexdigest()
-
-
-# --------------------------------------------------------------------------- building
-def _per_joint(field: str, value, joints: tuple[str, ...]) -> np.ndarray:
-    """A number for every joint or one per joint (broadcast)."""
-    array = np.array(value, dtype=float)
-    if array.ndim == 0:
-        return np.full(len(joints), float(array))
-    if array.shape != (len(joints),):
-        raise field_error(field, value, f"expected a number or {len(joints)} numbers, one per joint ({', '.join(joints)})")
-    return array
-
-
-def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> ControllerArtifact:
-    """The artefact of ``design`` with the LQG ``lqg`` designed on the reduced modal ``model``.
-
-    Controlled joints: ``design.control.joints`` in that order, else every joint of the design;
-    the model's joint/sensor order must be that order.
-
-    Parameters
-    ----------
-    design : Design
-        The design (limits, piezo calibration, [safety]).
-    model : ModalModel
-        The reduced modal model the LQG was designed on.
-    lqg : LqgDesign
-        The discrete LQG (Eq. 33).
-    siso_boundary_layer : float or sequence of float, optional
-        ε of Eq. 30 [m/s], a number or one per joint; default ``design.control.siso_boundary_layer``.
-
-    Returns
-    -------
-    ControllerArtifact
-        Validated.
-    """
-    control = design.control
-    joints = tuple(control.joints) if control.joints is not None else tuple(j.name for j in design.joints)
-    sensors = tuple(s.name for s in design.sensors)
-    n = lqg.blocks.shape[0]
-    if lqg.joint_input.shape[1:] != (len(joints),):
-        raise ModelError(f"lqg.joint_input: shape {lqg.joint_input.shape} — expected {len(joints)} columns, "
-                         f"one per controlled joint ({', '.join(joints) or 'none'})")
-    if lqg.output.shape[:1] != (len(sensors),):
-        raise ModelError(f"lqg.output: shape {lqg.output.shape} — expected {len(sensors)} rows, "
-                         f"one per sensor ({', '.join(sensors) or 'none'})")
-    if tuple(model.joint_names) != joints or tuple(model.sensor_names) != sensors:
-        raise ModelError(f"model: joints {list(model.joint_names)}, sensors {list(model.sensor_names)} — the design "
-                         f"controls joints {list(joints)} with sensors {list(sensors)}, in this order")
-    if model.n_coordinates != n or not np.array_equal(model.joint_input, lqg.joint_input):
-        raise ModelError(f"lqg: {n} coordinates — not designed on this model ({model.n_coordinates} coordinates, "
-                         "joint_input must be equal)")
-    if lqg.sample_time != control.sample_time:
-        raise ModelError(f"lqg.sample_time: {lqg.sample_time!r} s — the design's [control] sample_time is "
-                         f"{control.sample_time!r} s")
-    if siso_boundary_layer is None:
-        siso_boundary_layer = control.siso_boundary_layer
-        if siso_boundary_layer is None:
-            raise ModelError("siso_boundary_layer: missing — give ε of Eq. 30 [m/s] (optimised by "
-                             "`smartjoint design`, or [control] siso_boundary_layer)")
-    return ControllerArtifact(
-        schema_version=SCHEMA_VERSION, name=design.name, sample_time=lqg.sample_time,
-        joint_names=joints, sensor_names=sensors,
-        normal_force_min=_per_joint("normal_force_min", control.normal_force_min, joints),
-        normal_force_max=_per_joint("normal_force_max", control.normal_force_max, joints),
-        siso_boundary_layer=_per_joint("siso_boundary_layer", siso_boundary_layer, joints),
-        clqg_boundary_layer=control.clqg_boundary_layer,
-        blocks=lqg.blocks, gamma0=lqg.gamma0, gamma1=lqg.gamma1, joint_input=lqg.joint_input, output=lqg.output,
-        feedback_gain=lqg.feedback_gain, estimator_gain=lqg.estimator_gain,
-        modal_frequencies=np.asarray(model.omega, dtype=float) / (2.0 * math.pi),
-        piezo_capacitance=control.piezo_capacitance, piezo_force_per_volt=control.piezo_force_per_volt,
-        piezo_preload=control.piezo_preload, **safety_fields(design, joints),
-        design_source=Path(str(design.source)).name, design_sha256=design.sha256,
-        package_version=installed_version())
-
-
-DISPLACEMENT_FRACTION = 0.05  # default displacement plausibility: 5 % of the truss's largest extent
-
-
-def safety_fields(design, joints: tuple[str, ...]) -> dict:
-    """The artefact's safe state and plausibility ranges from the design's ``[safety]``.
-
-    Parameters
-    ----------
-    design : Design
-        The design.
-    joints : tuple of str
-        The controlled joints, in artefact order.
-
-    Returns
-    -------
-    dict
-        The safety fields of the schema.
-    """
-    control, safety = design.control, design.safety
-    low = _per_joint("normal_force_min", control.normal_force_min, joints)
-    high = _per_joint("normal_force_max", control.normal_force_max, joints)
-    if safety.safe_normal_force == "max":
-        safe = high
-    elif safety.safe_normal_force == "min":
-        safe = low
-    else:
-        safe = _per_joint("safe_normal_force", safety.safe_normal_force, joints)
-    margin = safety.normal_force_margin
-    displacement = safety.displacement_limit
-    if displacement is None:
-        positions = np.array([n.position for n in design.nodes.values()], dtype=float).reshape(-1, 3)
-        extent = float(np.max(np.ptp(positions, axis=0))) if len(positions) else 0.0
-        displacement = DISPLACEMENT_FRACTION * extent if extent > 0 else 1.0
-    quantities = tuple(s.quantity for s in design.sensors)
-    return dict(
-        sensor_quantities=quantities, safe_normal_force=safe,
-        sliding_velocity_limit=np.full(len(joints), safety.sliding_velocity_limit),
-        friction_force_limit=safety.friction_coefficient_limit * (high + margin * high),
-        measured_normal_force_min=-margin * high, measured_normal_force_max=high + margin * high,
-        sensor_limit=np.array([displacement if q == "displacement" else safety.velocity_limit for q in quantities],
-                              dtype=float),
-        amplifier_temperature_limit=safety.amplifier_temperature_limit,
-        amplifier_current_limit=safety.amplifier_current_limit, tracking_tolerance=safety.tracking_tolerance,
-        timeout_cycles=safety.timeout_cycles, recovery_cycles=safety.recovery_cycles)
 
 
 # --------------------------------------------------------------------------- text
@@ -272,7 +152,9 @@ def dumps(artifact: ControllerArtifact) -> str:
     data = {}
     for spec in SCHEMA:
         value = getattr(artifact, spec.name)
-        data[spec.name] = value.tolist() if spec.kind == "array" else list(value) if spec.kind in ("names", "strings") else value
+        data[spec.name] = (
+            value.tolist() if spec.kind == "array" else list(value) if spec.kind in ("names", "strings") else value
+        )
     return _encode(data, "") + "\n"
 
 
@@ -296,8 +178,9 @@ def save(artifact: ControllerArtifact, path) -> Path:
     text = dumps(artifact)
     temporary = None
     try:
-        with tempfile.NamedTemporaryFile("w", encoding="ascii", dir=path.parent, prefix=f".{path.name}.",
-                                         suffix=".tmp", delete=False) as handle:
+        with tempfile.NamedTemporaryFile(
+            "w", encoding="ascii", dir=path.parent, prefix=f".{path.name}.", suffix=".tmp", delete=False
+        ) as handle:
             temporary = handle.name
             handle.write(text)
             handle.flush()
@@ -344,8 +227,10 @@ def loads(text: str) -> ControllerArtifact:
     check_version(data["schema_version"])  # first: another version may have other fields
     missing = [spec.name for spec in SCHEMA if spec.name not in data]
     if missing:
-        raise ModelError(f"{missing[0]}: missing — required field" + (
-            f" (also missing: {', '.join(missing[1:])})" if len(missing) > 1 else ""))
+        raise ModelError(
+            f"{missing[0]}: missing — required field"
+            + (f" (also missing: {', '.join(missing[1:])})" if len(missing) > 1 else "")
+        )
     unknown = sorted(set(data) - set(FIELDS))
     if unknown:
         raise field_error(unknown[0], data[unknown[0]], f"unknown field in schema_version {SCHEMA_VERSION}")
@@ -373,8 +258,9 @@ def load(path) -> ControllerArtifact:
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as error:
-        raise ModelError(f"{path}: cannot read controller artefact ({getattr(error, 'strerror', None) or error})") \
-            from None
+        raise ModelError(
+            f"{path}: cannot read controller artefact ({getattr(error, 'strerror', None) or error})"
+        ) from None
     try:
         return loads(text)
     except ModelError as error:
@@ -397,8 +283,18 @@ def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
     """
     n2 = artifact.output.shape[1]
     unknown = np.full((n2, n2), np.nan)
-    return LqgDesign(artifact.sample_time, artifact.blocks, artifact.gamma0, artifact.gamma1, artifact.joint_input,
-                     artifact.output, artifact.feedback_gain, artifact.estimator_gain, unknown, unknown.copy())
+    return LqgDesign(
+        artifact.sample_time,
+        artifact.blocks,
+        artifact.gamma0,
+        artifact.gamma1,
+        artifact.joint_input,
+        artifact.output,
+        artifact.feedback_gain,
+        artifact.estimator_gain,
+        unknown,
+        unknown.copy(),
+    )
 
 
 def siso_law(artifact: ControllerArtifact) -> SisoLaw:
@@ -414,12 +310,17 @@ def siso_law(artifact: ControllerArtifact) -> SisoLaw:
     -------
     SisoLaw
     """
-    return SisoLaw(artifact.sample_time, artifact.normal_force_min, artifact.normal_force_max,
-                   artifact.siso_boundary_layer, safe_normal_force=artifact.safe_normal_force,
-                   sliding_velocity_limit=artifact.sliding_velocity_limit,
-                   friction_force_limit=artifact.friction_force_limit,
-                   measured_normal_force_min=artifact.measured_normal_force_min,
-                   measured_normal_force_max=artifact.measured_normal_force_max)
+    return SisoLaw(
+        artifact.sample_time,
+        artifact.normal_force_min,
+        artifact.normal_force_max,
+        artifact.siso_boundary_layer,
+        safe_normal_force=artifact.safe_normal_force,
+        sliding_velocity_limit=artifact.sliding_velocity_limit,
+        friction_force_limit=artifact.friction_force_limit,
+        measured_normal_force_min=artifact.measured_normal_force_min,
+        measured_normal_force_max=artifact.measured_normal_force_max,
+    )
 
 
 def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
@@ -435,11 +336,17 @@ def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
     -------
     ClippedLqg
     """
-    return ClippedLqg(lqg_design(artifact), artifact.normal_force_min, artifact.normal_force_max,
-                      artifact.clqg_boundary_layer, safe_normal_force=artifact.safe_normal_force,
-                      sensor_limit=artifact.sensor_limit, friction_force_limit=artifact.friction_force_limit,
-                      measured_normal_force_min=artifact.measured_normal_force_min,
-                      measured_normal_force_max=artifact.measured_normal_force_max)
+    return ClippedLqg(
+        lqg_design(artifact),
+        artifact.normal_force_min,
+        artifact.normal_force_max,
+        artifact.clqg_boundary_layer,
+        safe_normal_force=artifact.safe_normal_force,
+        sensor_limit=artifact.sensor_limit,
+        friction_force_limit=artifact.friction_force_limit,
+        measured_normal_force_min=artifact.measured_normal_force_min,
+        measured_normal_force_max=artifact.measured_normal_force_max,
+    )
 
 
 def active_lqg(artifact: ControllerArtifact) -> ActiveLqg:
@@ -457,5 +364,15 @@ def active_lqg(artifact: ControllerArtifact) -> ActiveLqg:
     return ActiveLqg(lqg_design(artifact))
 
 
-__all__ = ["ControllerArtifact", "DISPLACEMENT_FRACTION", "active_lqg", "clipped_lqg", "dumps", "from_design",
-           "installed_version", "load", "loads", "lqg_design", "safety_fields", "save", "siso_law"]
+__all__ = [
+    "ControllerArtifact",
+    "active_lqg",
+    "clipped_lqg",
+    "dumps",
+    "installed_version",
+    "load",
+    "loads",
+    "lqg_design",
+    "save",
+    "siso_law",
+]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -51,23 +52,36 @@ SCHEMA: tuple[FieldSpec, ...] = (
     FieldSpec("piezo_force_per_volt", "number", unit="N/V", meaning="F_N = force_per_volt·V + preload"),
     FieldSpec("piezo_preload", "number", unit="N", meaning="normal force at 0 V (>= 0, <= F_N^min)"),
     FieldSpec("sensor_quantities", "strings", ("ny",), meaning="per sensor: displacement (m) or velocity (m/s)"),
-    FieldSpec("safe_normal_force", "array", ("l",), "N", "F_N of every joint while the controller cannot act "
-              "(within [F_N^min, F_N^max]; docs/safety.md)"),
+    FieldSpec(
+        "safe_normal_force",
+        "array",
+        ("l",),
+        "N",
+        "F_N of every joint while the controller cannot act (within [F_N^min, F_N^max]; docs/safety.md)",
+    ),
     FieldSpec("sliding_velocity_limit", "array", ("l",), "m/s", "|v| above is implausible (> 0)"),
     FieldSpec("friction_force_limit", "array", ("l",), "N", "|u_R| above is implausible (> 0)"),
     FieldSpec("measured_normal_force_min", "array", ("l",), "N", "a measured F_N below is implausible (<= 0)"),
-    FieldSpec("measured_normal_force_max", "array", ("l",), "N", "a measured F_N above is implausible "
-              "(>= F_N^max)"),
+    FieldSpec("measured_normal_force_max", "array", ("l",), "N", "a measured F_N above is implausible (>= F_N^max)"),
     FieldSpec("sensor_limit", "array", ("ny",), "m or m/s", "|y| above is implausible (> 0)"),
     FieldSpec("amplifier_temperature_limit", "number", unit="degC", meaning="amplifier temperature above is a fault"),
     FieldSpec("amplifier_current_limit", "number", unit="A", meaning="|amplifier current| above is a fault (> 0)"),
-    FieldSpec("tracking_tolerance", "number", unit="V", meaning="|monitor voltage − setpoint| above is a tracking "
-              "fault (> 0)"),
-    FieldSpec("timeout_cycles", "integer", meaning="an input whose newest frame is this many cycles old is missing "
-              "(a whole number 2 … 7; firmware and amplifiers)"),
+    FieldSpec(
+        "tracking_tolerance", "number", unit="V", meaning="|monitor voltage − setpoint| above is a tracking fault (> 0)"
+    ),
+    FieldSpec(
+        "timeout_cycles",
+        "integer",
+        meaning="an input whose newest frame is this many cycles old is missing "
+        "(a whole number 2 … 7; firmware and amplifiers)",
+    ),
     FieldSpec("recovery_cycles", "integer", meaning="fault-free cycles in a row before the safe state ends (1 … 255)"),
-    FieldSpec("design_source", "string", meaning="file name of the design (no folder: the text must not depend on where it lies)"),
-    FieldSpec("design_sha256", "string", meaning="SHA-256 of the design file bytes (\"\" for in-memory designs)"),
+    FieldSpec(
+        "design_source",
+        "string",
+        meaning="file name of the design (no folder: the text must not depend on where it lies)",
+    ),
+    FieldSpec("design_sha256", "string", meaning='SHA-256 of the design file bytes ("" for in-memory designs)'),
     FieldSpec("package_version", "string", meaning="smartjoint version that wrote the artefact"),
 )
 FIELDS = {spec.name: spec for spec in SCHEMA}
@@ -117,7 +131,7 @@ def validated(values: dict) -> dict:
     ModelError
         Naming the first field that is wrong and what it accepts.
     """
-    out = {"schema_version": check_version(values["schema_version"])}
+    out: dict[str, Any] = {"schema_version": check_version(values["schema_version"])}
     for spec in SCHEMA:
         value = values[spec.name]
         if spec.kind == "string":
@@ -140,7 +154,7 @@ def validated(values: dict) -> dict:
         if not out[field]:
             raise field_error(field, out[field], "expected a non-empty string")
     if out["design_sha256"] and not _HEX64.fullmatch(out["design_sha256"]):
-        raise field_error("design_sha256", out["design_sha256"], "expected 64 lowercase hex digits or \"\"")
+        raise field_error("design_sha256", out["design_sha256"], 'expected 64 lowercase hex digits or ""')
     for field in ("sample_time", "clqg_boundary_layer", "piezo_capacitance", "piezo_force_per_volt"):
         if out[field] <= 0:
             raise field_error(field, out[field], f"must be > 0 [{FIELDS[field].unit}]")
@@ -162,15 +176,18 @@ def _check_shapes(out: dict) -> None:
     n, l, ny = blocks.shape[0], len(out["joint_names"]), len(out["sensor_names"])
     sizes = {"n": n, "2n": 2 * n, "l": l, "ny": ny}
     if len(out["sensor_quantities"]) != ny:
-        raise ModelError(f"sensor_quantities: {len(out['sensor_quantities'])} entries — expected one per sensor "
-                         f"(n_y = {ny})")
+        raise ModelError(
+            f"sensor_quantities: {len(out['sensor_quantities'])} entries — expected one per sensor (n_y = {ny})"
+        )
     for spec in SCHEMA:
         if spec.kind == "array":
             expected = tuple(sizes.get(s, s) for s in spec.shape)
             if out[spec.name].shape != expected:
                 symbols = ", ".join(str(s) for s in spec.shape) + ("," if len(spec.shape) == 1 else "")
-                raise ModelError(f"{spec.name}: shape {out[spec.name].shape} — expected {expected} = ({symbols}) "
-                                 f"with n = {n} coordinates, l = {l} joints, n_y = {ny} sensors")
+                raise ModelError(
+                    f"{spec.name}: shape {out[spec.name].shape} — expected {expected} = ({symbols}) "
+                    f"with n = {n} coordinates, l = {l} joints, n_y = {ny} sensors"
+                )
 
 
 def _check_joints(out: dict) -> None:
@@ -178,18 +195,26 @@ def _check_joints(out: dict) -> None:
     low, high = out["normal_force_min"], out["normal_force_max"]
     for j, joint in enumerate(out["joint_names"]):
         if not 0 < low[j] <= high[j]:
-            raise ModelError(f"normal_force_min/normal_force_max: {float(low[j])!r}/{float(high[j])!r} N for joint "
-                             f"{joint!r} — need 0 < F_N^min <= F_N^max")
+            raise ModelError(
+                f"normal_force_min/normal_force_max: {float(low[j])!r}/{float(high[j])!r} N for joint "
+                f"{joint!r} — need 0 < F_N^min <= F_N^max"
+            )
         if high[j] > NORMAL_FORCE_LIMIT:
-            raise ModelError(f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — at most "
-                             f"{NORMAL_FORCE_LIMIT:g} N (1 MN: far beyond any piezo-clamped friction joint)")
+            raise ModelError(
+                f"normal_force_max[{j}]: {float(high[j])!r} N for joint {joint!r} — at most "
+                f"{NORMAL_FORCE_LIMIT:g} N (1 MN: far beyond any piezo-clamped friction joint)"
+            )
         if out["piezo_preload"] > low[j]:
-            raise ModelError(f"piezo_preload: {out['piezo_preload']!r} N — above normal_force_min[{j}] = "
-                             f"{float(low[j])!r} N of joint {joint!r}: at 0 V the stack already presses with the "
-                             "preload, so F_N^min is out of reach; need piezo_preload <= F_N^min")
+            raise ModelError(
+                f"piezo_preload: {out['piezo_preload']!r} N — above normal_force_min[{j}] = "
+                f"{float(low[j])!r} N of joint {joint!r}: at 0 V the stack already presses with the "
+                "preload, so F_N^min is out of reach; need piezo_preload <= F_N^min"
+            )
         if out["siso_boundary_layer"][j] <= 0:
-            raise ModelError(f"siso_boundary_layer: {float(out['siso_boundary_layer'][j])!r} for joint {joint!r} "
-                             "— ε must be > 0 [m/s] (Eq. 30)")
+            raise ModelError(
+                f"siso_boundary_layer: {float(out['siso_boundary_layer'][j])!r} for joint {joint!r} "
+                "— ε must be > 0 [m/s] (Eq. 30)"
+            )
 
 
 SENSOR_QUANTITIES = ("displacement", "velocity")
@@ -204,18 +229,25 @@ def _check_safety(out: dict) -> None:
     for j, joint in enumerate(out["joint_names"]):
         safe = float(out["safe_normal_force"][j])
         if not low[j] <= safe <= high[j]:
-            raise ModelError(f"safe_normal_force[{j}]: {safe!r} N for joint {joint!r} — must lie within "
-                             f"[normal_force_min, normal_force_max] = [{float(low[j])!r}, {float(high[j])!r}] N")
+            raise ModelError(
+                f"safe_normal_force[{j}]: {safe!r} N for joint {joint!r} — must lie within "
+                f"[normal_force_min, normal_force_max] = [{float(low[j])!r}, {float(high[j])!r}] N"
+            )
         for field in ("sliding_velocity_limit", "friction_force_limit"):
             if out[field][j] <= 0:
-                raise ModelError(f"{field}[{j}]: {float(out[field][j])!r} for joint {joint!r} — must be > 0 "
-                                 f"[{FIELDS[field].unit}]")
+                raise ModelError(
+                    f"{field}[{j}]: {float(out[field][j])!r} for joint {joint!r} — must be > 0 [{FIELDS[field].unit}]"
+                )
         if out["measured_normal_force_min"][j] > 0:
-            raise ModelError(f"measured_normal_force_min[{j}]: {float(out['measured_normal_force_min'][j])!r} N for "
-                             f"joint {joint!r} — must be <= 0 N (an unloaded joint reads 0 N)")
+            raise ModelError(
+                f"measured_normal_force_min[{j}]: {float(out['measured_normal_force_min'][j])!r} N for "
+                f"joint {joint!r} — must be <= 0 N (an unloaded joint reads 0 N)"
+            )
         if out["measured_normal_force_max"][j] < high[j]:
-            raise ModelError(f"measured_normal_force_max[{j}]: {float(out['measured_normal_force_max'][j])!r} N for "
-                             f"joint {joint!r} — must be >= normal_force_max = {float(high[j])!r} N")
+            raise ModelError(
+                f"measured_normal_force_max[{j}]: {float(out['measured_normal_force_max'][j])!r} N for "
+                f"joint {joint!r} — must be >= normal_force_max = {float(high[j])!r} N"
+            )
     if np.any(out["sensor_limit"] <= 0):
         raise field_error("sensor_limit", out["sensor_limit"], "must be > 0 [m or m/s]")
     for field in ("amplifier_current_limit", "tracking_tolerance"):
@@ -240,8 +272,12 @@ def check_version(value) -> int:
         ``SCHEMA_VERSION``.
     """
     if isinstance(value, bool) or not isinstance(value, int) or value != SCHEMA_VERSION:
-        hint = (" — schema_version 1 has no safe state or plausibility ranges: re-run `smartjoint design` to write "
-                "version 2" if value == 1 and not isinstance(value, bool) else "")
+        hint = (
+            " — schema_version 1 has no safe state or plausibility ranges: re-run `smartjoint design` to write "
+            "version 2"
+            if value == 1 and not isinstance(value, bool)
+            else ""
+        )
         raise field_error("schema_version", value, f"unknown; this version reads schema_version {SCHEMA_VERSION}{hint}")
     return value
 
@@ -284,12 +320,14 @@ def _array(field: str, value) -> np.ndarray:
         if value.dtype.kind not in "fiu":
             raise field_error(field, value, "expected numbers")
     else:
+
         def check(item):
             if isinstance(item, list):
                 for element in item:
                     check(element)
             elif isinstance(item, bool) or not isinstance(item, (int, float)):
                 raise field_error(field, item, "expected a (nested) list of numbers")
+
         if isinstance(value, tuple):
             value = list(value)
         check(value)
@@ -306,5 +344,14 @@ def _array(field: str, value) -> np.ndarray:
     return array
 
 
-__all__ = ["FIELDS", "FieldSpec", "NORMAL_FORCE_LIMIT", "SCHEMA", "SCHEMA_VERSION", "SENSOR_QUANTITIES", "check_version",
-           "field_error", "validated"]
+__all__ = [
+    "FIELDS",
+    "FieldSpec",
+    "NORMAL_FORCE_LIMIT",
+    "SCHEMA",
+    "SCHEMA_VERSION",
+    "SENSOR_QUANTITIES",
+    "check_version",
+    "field_error",
+    "validated",
+]

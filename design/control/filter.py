@@ -108,9 +108,19 @@ class ClippedLqg(_Lqg):
     beyond finiteness (``clipped_lqg`` of ``design/control/artifact.py`` passes the artefact's).
     """
 
-    def __init__(self, design: LqgDesign, normal_force_min, normal_force_max, boundary_layer_width: float, *,
-                 safe_normal_force=None, sensor_limit=None, friction_force_limit=None,
-                 measured_normal_force_min=None, measured_normal_force_max=None):
+    def __init__(
+        self,
+        design: LqgDesign,
+        normal_force_min,
+        normal_force_max,
+        boundary_layer_width: float,
+        *,
+        safe_normal_force=None,
+        sensor_limit=None,
+        friction_force_limit=None,
+        measured_normal_force_min=None,
+        measured_normal_force_max=None,
+    ):
         super().__init__(design)
         self.normal_force_min = np.array(normal_force_min, dtype=float)
         self.normal_force_max = np.array(normal_force_max, dtype=float)
@@ -127,7 +137,8 @@ class ClippedLqg(_Lqg):
         self.sensor_limit = magnitude_limit("sensor_limit", sensor_limit, design.output.shape[0])
         self.friction_force_limit = magnitude_limit("friction_force_limit", friction_force_limit, count)
         self.measured_normal_force_min, self.measured_normal_force_max = measured_range(
-            measured_normal_force_min, measured_normal_force_max, count)
+            measured_normal_force_min, measured_normal_force_max, count
+        )
 
     def reset(self) -> None:
         super().reset()
@@ -143,9 +154,11 @@ class ClippedLqg(_Lqg):
         sensors = np.asarray(measurements.sensors, dtype=float)
         friction = np.asarray(measurements.friction_force, dtype=float)
         applied = np.asarray(measurements.normal_force, dtype=float)
-        status = any_status(input_status(sensors, -self.sensor_limit, self.sensor_limit),
-                             input_status(friction, -self.friction_force_limit, self.friction_force_limit),
-                             input_status(applied, self.measured_normal_force_min, self.measured_normal_force_max))
+        status = any_status(
+            input_status(sensors, -self.sensor_limit, self.sensor_limit),
+            input_status(friction, -self.friction_force_limit, self.friction_force_limit),
+            input_status(applied, self.measured_normal_force_min, self.measured_normal_force_max),
+        )
         if status != STATUS_OK:
             return self._fault(status)
         with np.errstate(all="ignore"):
@@ -155,11 +168,13 @@ class ClippedLqg(_Lqg):
         self.status = STATUS_OK
         error = self.desired_force - friction
         normal_force = self.normal_force_min + self.normal_force_range * boundary_layer(
-            error * np.sign(friction), self.boundary_layer)
+            error * np.sign(friction), self.boundary_layer
+        )
         # The friction force just after this sample: u_R = F_N·μ with μ continuous, so it scales
         # with the new normal force — the start value of the next time update's first-order hold.
-        self.previous_force = np.where(applied > 0.0, friction * normal_force / np.where(applied > 0.0, applied, 1.0),
-                                       friction)
+        self.previous_force = np.where(
+            applied > 0.0, friction * normal_force / np.where(applied > 0.0, applied, 1.0), friction
+        )
         return normal_force
 
 

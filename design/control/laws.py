@@ -57,8 +57,10 @@ def safe_force(value, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """
     safe = _vector("safe_normal_force", high if value is None else value, low.size, 0.0)
     if not np.all(np.isfinite(safe)) or np.any(safe < low) or np.any(safe > high):
-        raise ModelError(f"safe_normal_force: {safe.tolist()} — must lie within [normal_force_min, normal_force_max] "
-                         f"= [{low.tolist()}, {high.tolist()}] N per joint")
+        raise ModelError(
+            f"safe_normal_force: {safe.tolist()} — must lie within [normal_force_min, normal_force_max] "
+            f"= [{low.tolist()}, {high.tolist()}] N per joint"
+        )
     return safe
 
 
@@ -151,9 +153,19 @@ class SisoLaw:
     of ``design/control/artifact.py`` builds the law with the artefact's).
     """
 
-    def __init__(self, sample_time: float, normal_force_min, normal_force_max, boundary_layer_width, *,
-                 safe_normal_force=None, sliding_velocity_limit=None, friction_force_limit=None,
-                 measured_normal_force_min=None, measured_normal_force_max=None):
+    def __init__(
+        self,
+        sample_time: float,
+        normal_force_min,
+        normal_force_max,
+        boundary_layer_width,
+        *,
+        safe_normal_force=None,
+        sliding_velocity_limit=None,
+        friction_force_limit=None,
+        measured_normal_force_min=None,
+        measured_normal_force_max=None,
+    ):
         self.sample_time = float(sample_time)
         self.normal_force_min = np.array(normal_force_min, dtype=float)
         self.normal_force_max = np.array(normal_force_max, dtype=float)
@@ -161,8 +173,10 @@ class SisoLaw:
         check_limits(self.normal_force_min, self.normal_force_max)
         self.normal_force_range = self.normal_force_max - self.normal_force_min
         if np.any(self.normal_force_min <= 0):
-            raise ModelError(f"normal_force_min: {self.normal_force_min.tolist()} — the SISO law needs F_N^min > 0: "
-                             "μ = u_R/F_N (Eq. 31) is undefined at F_N = 0")
+            raise ModelError(
+                f"normal_force_min: {self.normal_force_min.tolist()} — the SISO law needs F_N^min > 0: "
+                "μ = u_R/F_N (Eq. 31) is undefined at F_N = 0"
+            )
         if not np.all(np.isfinite(self.boundary_layer)) or np.any(self.boundary_layer <= 0):
             raise ModelError(f"siso_boundary_layer: {self.boundary_layer.tolist()} — ε must be finite and > 0 [m/s]")
         count = self.normal_force_min.size
@@ -170,7 +184,8 @@ class SisoLaw:
         self.sliding_velocity_limit = magnitude_limit("sliding_velocity_limit", sliding_velocity_limit, count)
         self.friction_force_limit = magnitude_limit("friction_force_limit", friction_force_limit, count)
         self.measured_normal_force_min, self.measured_normal_force_max = measured_range(
-            measured_normal_force_min, measured_normal_force_max, count)
+            measured_normal_force_min, measured_normal_force_max, count
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -183,9 +198,11 @@ class SisoLaw:
         velocity = np.asarray(measurements.sliding_velocity, dtype=float)
         friction = np.asarray(measurements.friction_force, dtype=float)
         applied = np.asarray(measurements.normal_force, dtype=float)
-        joint_status = (input_status(velocity, -self.sliding_velocity_limit, self.sliding_velocity_limit)
-                        | input_status(friction, -self.friction_force_limit, self.friction_force_limit)
-                        | input_status(applied, self.measured_normal_force_min, self.measured_normal_force_max))
+        joint_status = (
+            input_status(velocity, -self.sliding_velocity_limit, self.sliding_velocity_limit)
+            | input_status(friction, -self.friction_force_limit, self.friction_force_limit)
+            | input_status(applied, self.measured_normal_force_min, self.measured_normal_force_max)
+        )
         usable = joint_status == STATUS_OK
         self.status = any_status(joint_status)
         previous_force, previous_normal = self.previous_friction, self.previous_normal_force
@@ -218,8 +235,10 @@ def measured_range(low, high, count: int) -> tuple[np.ndarray, np.ndarray]:
     low = _vector("measured_normal_force_min", low, count, -math.inf)
     high = _vector("measured_normal_force_max", high, count, math.inf)
     if np.any(low > high):
-        raise ModelError(f"measured_normal_force_min {low.tolist()} / measured_normal_force_max {high.tolist()}: "
-                         "need min <= max per joint")
+        raise ModelError(
+            f"measured_normal_force_min {low.tolist()} / measured_normal_force_max {high.tolist()}: "
+            "need min <= max per joint"
+        )
     return low, high
 
 
@@ -232,13 +251,27 @@ def check_limits(low: np.ndarray, high: np.ndarray) -> None:
         F_N^min and F_N^max per joint.
     """
     if low.shape != high.shape or not np.all(np.isfinite(low)) or not np.all(np.isfinite(high)):
-        raise ModelError(f"normal_force_min {low.tolist()} / normal_force_max {high.tolist()}: need finite values, "
-                         "one per joint")
+        raise ModelError(
+            f"normal_force_min {low.tolist()} / normal_force_max {high.tolist()}: need finite values, one per joint"
+        )
     if np.any(low < 0) or np.any(low > high):
-        raise ModelError(f"normal_force_min {low.tolist()} / normal_force_max {high.tolist()}: need "
-                         "0 <= F_N^min <= F_N^max per joint")
+        raise ModelError(
+            f"normal_force_min {low.tolist()} / normal_force_max {high.tolist()}: need "
+            "0 <= F_N^min <= F_N^max per joint"
+        )
 
 
-__all__ = ["STATUS_ESTIMATE_RESET", "STATUS_INPUT_IMPLAUSIBLE", "STATUS_INPUT_INVALID", "STATUS_OK", "SisoLaw",
-           "any_status", "boundary_layer", "check_limits", "input_status", "magnitude_limit", "measured_range",
-           "safe_force"]
+__all__ = [
+    "STATUS_ESTIMATE_RESET",
+    "STATUS_INPUT_IMPLAUSIBLE",
+    "STATUS_INPUT_INVALID",
+    "STATUS_OK",
+    "SisoLaw",
+    "any_status",
+    "boundary_layer",
+    "check_limits",
+    "input_status",
+    "magnitude_limit",
+    "measured_range",
+    "safe_force",
+]

@@ -46,7 +46,7 @@ class LqgDesign:
         n = self.blocks.shape[0]
         a = np.zeros((2 * n, 2 * n))
         for i in range(n):
-            a[2 * i:2 * i + 2, 2 * i:2 * i + 2] = self.blocks[i]
+            a[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = self.blocks[i]
         return a
 
     def input_matrices(self) -> tuple[np.ndarray, np.ndarray]:
@@ -75,13 +75,21 @@ def check_sample_time(model: ModalModel, sample_time: float) -> None:
         raise ModelError(f"sample_time: {sample_time!r} — must be a finite number > 0 [s]")
     highest = float(model.omega.max()) / (2 * math.pi)
     if highest * sample_time >= 0.5:
-        raise ModelError(f"sample_time: {sample_time:g} s is too coarse for the highest retained mode "
-                         f"({highest:.1f} Hz): rule f_max·Δt < 1/2 (Nyquist) — use Δt < {0.5 / highest:.3g} s "
-                         "or retain fewer modes")
+        raise ModelError(
+            f"sample_time: {sample_time:g} s is too coarse for the highest retained mode "
+            f"({highest:.1f} Hz): rule f_max·Δt < 1/2 (Nyquist) — use Δt < {0.5 / highest:.3g} s "
+            "or retain fewer modes"
+        )
 
 
-def design_lqg(model: ModalModel, sample_time: float, state_weight: float = 1.0, control_weight: float = 1e-6,
-               process_noise: float = 1e4, measurement_noise: float = 1e-10) -> LqgDesign:
+def design_lqg(
+    model: ModalModel,
+    sample_time: float,
+    state_weight: float = 1.0,
+    control_weight: float = 1e-6,
+    process_noise: float = 1e4,
+    measurement_noise: float = 1e-10,
+) -> LqgDesign:
     """LQR + Kalman filter (Eq. 33) for the reduced model at the controller sample time.
 
     Model: exact discretisation (``discretisation.discretise``) of each mode block; friction enters
@@ -91,8 +99,12 @@ def design_lqg(model: ModalModel, sample_time: float, state_weight: float = 1.0,
     every mode block), and a Riccati failure is reported with the weights that caused it.
     """
     check_sample_time(model, sample_time)
-    for name, value in (("state_weight", state_weight), ("control_weight", control_weight),
-                        ("process_noise", process_noise), ("measurement_noise", measurement_noise)):
+    for name, value in (
+        ("state_weight", state_weight),
+        ("control_weight", control_weight),
+        ("process_noise", process_noise),
+        ("measurement_noise", measurement_noise),
+    ):
         if not (math.isfinite(value) and value > 0):
             raise ModelError(f"{name}: {value!r} — must be a finite number > 0")
     n, l = model.n_coordinates, model.joint_input.shape[1]
@@ -104,7 +116,7 @@ def design_lqg(model: ModalModel, sample_time: float, state_weight: float = 1.0,
     phi, g0, g1 = discretise(model, sample_time)
     a = np.zeros((2 * n, 2 * n))
     for i in range(n):
-        a[2 * i:2 * i + 2, 2 * i:2 * i + 2] = phi[i]
+        a[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = phi[i]
     e, h = model.joint_input, model.disturbance_input
     gz = g0 + g1  # ZOH: a force held over the sample
     b = -(gz[:, :, None] * e[:, None, :]).reshape(2 * n, l)
@@ -119,9 +131,11 @@ def design_lqg(model: ModalModel, sample_time: float, state_weight: float = 1.0,
         k, s, _ = ct.dlqr(a, b, q, r)
         _, p, _ = ct.dlqe(a, g, c, process_noise * np.eye(g.shape[1]), measurement_noise * np.eye(ny))
     except Exception as failure:  # python-control / slycot raise several types
-        raise ModelError(f"Riccati solver failed ({type(failure).__name__}: {failure}) for state_weight "
-                         f"{state_weight:g}, control_weight {control_weight:g}, process_noise {process_noise:g}, "
-                         f"measurement_noise {measurement_noise:g}") from None
+        raise ModelError(
+            f"Riccati solver failed ({type(failure).__name__}: {failure}) for state_weight "
+            f"{state_weight:g}, control_weight {control_weight:g}, process_noise {process_noise:g}, "
+            f"measurement_noise {measurement_noise:g}"
+        ) from None
     k, s, p = np.asarray(k), np.asarray(s), np.asarray(p)
     if not (np.all(np.isfinite(k)) and np.all(np.isfinite(p))):
         raise ModelError("Riccati solver returned non-finite gains; check the weights")
@@ -133,22 +147,26 @@ def _check_pbh(a, b, word, reason, model) -> None:
     """PBH rank test per 2×2 mode block (modes are decoupled): rank[A − λI, B] = 2 for each λ."""
     n = a.shape[0] // 2
     for i in range(n):
-        block = a[2 * i:2 * i + 2, 2 * i:2 * i + 2]
-        rows = b[2 * i:2 * i + 2]
+        block = a[2 * i : 2 * i + 2, 2 * i : 2 * i + 2]
+        rows = b[2 * i : 2 * i + 2]
         for lam in np.linalg.eigvals(block):
             if abs(lam) < 1.0 - 1e-12:
                 continue  # stable modes need no control/observation
             test = np.hstack([block - lam * np.eye(2), rows])
             if np.linalg.matrix_rank(test, tol=1e-12 * max(1.0, np.abs(test).max())) < 2:
-                raise ModelError(f"reduced model is not {word}: {reason} {i + 1} "
-                                 f"({model.omega[i] / 2 / np.pi:.2f} Hz) with |λ| = {abs(lam):.6f}")
+                raise ModelError(
+                    f"reduced model is not {word}: {reason} {i + 1} "
+                    f"({model.omega[i] / 2 / np.pi:.2f} Hz) with |λ| = {abs(lam):.6f}"
+                )
     # With structural damping every mode is strictly stable, so the loop above only catches
     # undamped modes; a mode that no joint moves / no sensor sees is still reported:
     norms = np.linalg.norm(b.reshape(n, 2, -1), axis=(1, 2))
     if np.any(norms <= 1e-14 * max(norms.max(), 1e-300)):
         i = int(np.argmin(norms))
-        raise ModelError(f"reduced model is not {word} in practice: {reason} {i + 1} "
-                         f"({model.omega[i] / 2 / np.pi:.2f} Hz) at all — drop it from the reduced model")
+        raise ModelError(
+            f"reduced model is not {word} in practice: {reason} {i + 1} "
+            f"({model.omega[i] / 2 / np.pi:.2f} Hz) at all — drop it from the reduced model"
+        )
 
 
 __all__ = ["LqgDesign", "check_sample_time", "design_lqg"]

@@ -87,8 +87,10 @@ def controlled_joints(design) -> list[str]:
     names = [j.name for j in design.joints]
     chosen = design.control.joints
     if chosen is not None and sorted(chosen) != sorted(names):
-        raise ModelError(f"control.joints: {list(chosen)} — the controllers act on every friction joint of the "
-                         f"design ({', '.join(names)}); a joint outside control.joints would have no normal force")
+        raise ModelError(
+            f"control.joints: {list(chosen)} — the controllers act on every friction joint of the "
+            f"design ({', '.join(names)}); a joint outside control.joints would have no normal force"
+        )
     if chosen is not None and list(chosen) != names:
         raise ModelError(f"control.joints: {list(chosen)} — list the joints in design order ({', '.join(names)})")
     return names
@@ -121,9 +123,18 @@ def setup(design, model: ModalModel, plant: ModalModel | None = None) -> StudySe
     if not (c.study_duration > PULSE_DURATION):
         raise ModelError(f"control.study_duration: {c.study_duration!r} s — must exceed the pulse ({PULSE_DURATION} s)")
     check_sample_time(model, c.sample_time)
-    return StudySetup(model, plant if plant is not None else model, [lugre.TABLE_1[j.type] for j in design.joints],
-                      float(c.sample_time), low, high, float(c.study_duration), float(c.piezo_capacitance),
-                      float(c.piezo_force_per_volt), float(c.piezo_preload))
+    return StudySetup(
+        model,
+        plant if plant is not None else model,
+        [lugre.TABLE_1[j.type] for j in design.joints],
+        float(c.sample_time),
+        low,
+        high,
+        float(c.study_duration),
+        float(c.piezo_capacitance),
+        float(c.piezo_force_per_volt),
+        float(c.piezo_preload),
+    )
 
 
 # ---------------------------------------------------------------------------------------- runs
@@ -139,10 +150,27 @@ def _piezo_power(s: StudySetup, normal_force: np.ndarray) -> float:
 def run_semi_active(s: StudySetup, name: str, controller) -> Run:
     """Any normal-force controller, F_N^max during the pulse (Section 6)."""
     held = HoldDuringExcitation(controller, PULSE_DURATION, s.normal_force_max)
-    r = simulate(s.plant, s.laws, held, s.pulse(), s.duration, s.plant_step,
-                          record_every=PLANT_STEPS_PER_SAMPLE, energy_books=False)
-    return Run(name, r.time, r.energy, r.sensors, r.normal_force, r.friction_force, r.sliding_velocity,
-               _piezo_power(s, r.normal_force), "piezo charging")
+    r = simulate(
+        s.plant,
+        s.laws,
+        held,
+        s.pulse(),
+        s.duration,
+        s.plant_step,
+        record_every=PLANT_STEPS_PER_SAMPLE,
+        energy_books=False,
+    )
+    return Run(
+        name,
+        r.time,
+        r.energy,
+        r.sensors,
+        r.normal_force,
+        r.friction_force,
+        r.sliding_velocity,
+        _piezo_power(s, r.normal_force),
+        "piezo charging",
+    )
 
 
 def run_passive(s: StudySetup, name: str, normal_forces) -> Run:
@@ -159,8 +187,17 @@ def run_active(s: StudySetup, design: LqgDesign) -> Run:
     r = simulate(s.model, [], controller, s.pulse(), s.duration, s.sample_time, energy_books=False, scheme="linear")
     force = r.friction_force  # the linear scheme records the joint forces acting: the actuators'
     power = float(np.sum(np.abs(force * r.sliding_velocity)[:-1]) * s.sample_time / s.duration)
-    return Run("active LQG", r.time, r.energy, r.sensors, np.full_like(force, np.nan), force,
-               r.sliding_velocity, power, "actuator mechanical")
+    return Run(
+        "active LQG",
+        r.time,
+        r.energy,
+        r.sensors,
+        np.full_like(force, np.nan),
+        force,
+        r.sliding_velocity,
+        power,
+        "actuator mechanical",
+    )
 
 
 def siso(s: StudySetup, boundary_layer) -> SisoLaw:
@@ -188,7 +225,7 @@ def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) ->
     cache: dict[float, float] = {}
 
     def measure(log_width: float) -> float:
-        width = float(10.0 ** log_width)
+        width = float(10.0**log_width)
         if width not in cache:
             cache[width] = run_semi_active(s, "SISO", siso(s, width)).energy_measure()
             progress(f"      ε = {width:.3g} m/s: E(t_e) = {cache[width]:.5g} J·s")
@@ -197,10 +234,11 @@ def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) ->
     logs = [math.log10(g) for g in grid]
     values = [measure(v) for v in logs]
     best = logs[int(np.argmin(values))]
-    found = minimize_scalar(measure, bounds=(best - 0.5, best + 0.5), method="bounded",
-                            options={"xatol": 0.02, "maxiter": 12})
+    found = minimize_scalar(
+        measure, bounds=(best - 0.5, best + 0.5), method="bounded", options={"xatol": 0.02, "maxiter": 12}
+    )
     log_width = float(found.x) if found.fun < min(values) else best
-    width = float(10.0 ** log_width)
+    width = float(10.0**log_width)
     best_value, tenth, tenfold = measure(log_width), measure(log_width - 1.0), measure(log_width + 1.0)
     return BoundaryLayerOptimum(width, best_value, list(cache.items()), tenth, tenfold)
 
@@ -215,14 +253,17 @@ def metrics(run: Run, reference: Run) -> dict:
     start = int(np.searchsorted(run.time, PULSE_DURATION - 1e-12))
     threshold = SETTLING_FRACTION * run.energy[start]
     above = np.flatnonzero(run.energy > threshold)
-    settled = None if above.size and above[-1] == run.energy.size - 1 else \
-        float(run.time[above[-1] + 1] if above.size else run.time[0])
+    settled = (
+        None
+        if above.size and above[-1] == run.energy.size - 1
+        else float(run.time[above[-1] + 1] if above.size else run.time[0])
+    )
     return {
         "energy_end": float(run.energy[-1]),
         "energy_end_relative": float(run.energy[-1] / reference.energy[-1]),
         "energy_measure": run.energy_measure(),
-        "tip_rms": [float(v) for v in np.sqrt(np.mean(tip ** 2, axis=0))],
-        "tip_rms_total": float(np.sqrt(np.mean(np.sum(tip ** 2, axis=1)))),
+        "tip_rms": [float(v) for v in np.sqrt(np.mean(tip**2, axis=0))],
+        "tip_rms_total": float(np.sqrt(np.mean(np.sum(tip**2, axis=1)))),
         "tip_peak": [float(v) for v in np.max(np.abs(tip), axis=0)],
         "settling_time": settled,
         "control_power": run.control_power,
@@ -266,8 +307,7 @@ class Study:
 
 def lqg_for(design, model: ModalModel) -> LqgDesign:
     c = design.control
-    return design_lqg(model, c.sample_time, c.state_weight, c.control_weight, c.process_noise,
-                              c.measurement_noise)
+    return design_lqg(model, c.sample_time, c.state_weight, c.control_weight, c.process_noise, c.measurement_noise)
 
 
 def run_study(design, model: ModalModel | None = None, progress=print) -> Study:
@@ -285,19 +325,26 @@ def run_study(design, model: ModalModel | None = None, progress=print) -> Study:
     else:
         width = np.array(np.broadcast_to(np.asarray(c.siso_boundary_layer, dtype=float), (len(design.joints),)))
     runs = []
-    for name, make in (("passive F_min", lambda: run_passive(s, "passive F_min", s.normal_force_min)),
-                       ("passive F_max", lambda: run_passive(s, "passive F_max", s.normal_force_max)),
-                       ("SISO", lambda: run_semi_active(s, "SISO", siso(s, width))),
-                       ("cLQG", lambda: run_semi_active(
-                           s, "cLQG", ClippedLqg(lqg, s.normal_force_min, s.normal_force_max, c.clqg_boundary_layer))),
-                       ("active LQG", lambda: run_active(s, lqg))):
+    for name, make in (
+        ("passive F_min", lambda: run_passive(s, "passive F_min", s.normal_force_min)),
+        ("passive F_max", lambda: run_passive(s, "passive F_max", s.normal_force_max)),
+        ("SISO", lambda: run_semi_active(s, "SISO", siso(s, width))),
+        (
+            "cLQG",
+            lambda: run_semi_active(
+                s, "cLQG", ClippedLqg(lqg, s.normal_force_min, s.normal_force_max, c.clqg_boundary_layer)
+            ),
+        ),
+        ("active LQG", lambda: run_active(s, lqg)),
+    ):
         progress(f"      {name}: {s.duration:g} s …")
         runs.append(make())
     reference = runs[1]
     for r in runs:
         r.metrics = metrics(r, reference)
-    return Study(s, lqg, width, optimum, float(c.clqg_boundary_layer), runs, list(model.sensor_names),
-                 list(model.joint_names))
+    return Study(
+        s, lqg, width, optimum, float(c.clqg_boundary_layer), runs, list(model.sensor_names), list(model.joint_names)
+    )
 
 
 def summary(study: Study) -> dict:
@@ -313,10 +360,15 @@ def summary(study: Study) -> dict:
         "normal_force_max": s.normal_force_max.tolist(),
         "siso_boundary_layer": study.boundary_layer.tolist(),
         "clqg_boundary_layer": study.clqg_boundary_layer,
-        "boundary_layer_optimisation": None if optimum is None else {
-            "optimum": optimum.boundary_layer, "energy_measure": optimum.energy_measure,
-            "energy_measure_tenth": optimum.tenth, "energy_measure_tenfold": optimum.tenfold,
-            "evaluations": [[w, e] for w, e in optimum.evaluations]},
+        "boundary_layer_optimisation": None
+        if optimum is None
+        else {
+            "optimum": optimum.boundary_layer,
+            "energy_measure": optimum.energy_measure,
+            "energy_measure_tenth": optimum.tenth,
+            "energy_measure_tenfold": optimum.tenfold,
+            "evaluations": [[w, e] for w, e in optimum.evaluations],
+        },
         "lqg_max_pole_magnitude": 1.0 - study.stability_margin,
         "lqg_stability_margin": study.stability_margin,
         "runs": {r.name: r.metrics for r in study.runs},

@@ -195,10 +195,27 @@ def step_result(names, solution, errors: dict[str, float], evaluations: int, clu
     with np.errstate(invalid="ignore"):
         correlation = np.nan_to_num(covariance / np.outer(np.maximum(sigma, 1e-300), np.maximum(sigma, 1e-300)))
     np.fill_diagonal(correlation, 1.0)
-    return StepResult(tuple(names), np.exp(solution.x), np.exp(np.clip(solution.x - 1.96 * sigma, -700, 700)),
-                      np.exp(np.clip(solution.x + 1.96 * sigma, -700, 700)), correlation, errors,
-                      float(solution.cost), evaluations)
+    return StepResult(
+        tuple(names),
+        np.exp(solution.x),
+        np.exp(np.clip(solution.x - 1.96 * sigma, -700, 700)),
+        np.exp(np.clip(solution.x + 1.96 * sigma, -700, 700)),
+        correlation,
+        errors,
+        float(solution.cost),
+        evaluations,
+    )
 
 
-__all__ = ["EXCITATION_CUTOFF", "StepResult", "VELOCITY_CUTOFF", "WEAK_RELATIVE_WIDTH", "dominant_frequency",
-           "filtered_velocity", "low_pass", "nrmse", "rms", "step_result"]
+__all__ = [
+    "EXCITATION_CUTOFF",
+    "StepResult",
+    "VELOCITY_CUTOFF",
+    "WEAK_RELATIVE_WIDTH",
+    "dominant_frequency",
+    "filtered_velocity",
+    "low_pass",
+    "nrmse",
+    "rms",
+    "step_result",
+]

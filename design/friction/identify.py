@@ -6,7 +6,8 @@ velocity) and compared with the measured friction force::
 
     min_p  J(p) = ½ Σ_records Σ_k [(u_R(t_k) − û_R(v(t_k), F_N, p)) / (rms_r·√N_r)]²     (Eq. 3)
 
-Each record is normalised by its RMS force and length so that every record counts alike.
+Each record is normalised by its RMS force and length so that every record counts alike. The records
+are screened first (``record_screening``: usable samples, one joint's radius, the regime).
 As in the paper the problem is split in two:
 
 1. p1 = [σ0, σ1] from micro-slip records (p2 held fixed),
@@ -50,14 +51,12 @@ from smartjoint.common.errors import SmartjointError
 from smartjoint.design.friction import lugre, rig
 from smartjoint.design.friction.fitting import StepResult, filtered_velocity, nrmse, rms, step_result
 from smartjoint.design.friction.output_error import P3, output_error_blocker, refine
-from smartjoint.design.friction.records import MIN_RADIUS, Record, RecordError, bound
+from smartjoint.design.friction.record_screening import check_records, joint_radius, slides
+from smartjoint.design.friction.records import Record, RecordError
 
 P1 = ("sigma0", "sigma1")
 P2 = ("coulomb", "stribeck", "stribeck_velocity", "sigma2")
 ROUNDS = 2
-# Fewest samples per record: the 11-point Savitzky–Golay window of the friction column and the
-# spectrum that finds the excitation frequency need a few times that.
-MIN_SAMPLES = 50
 
 
 def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, initial_force: float = 0.0):
@@ -93,12 +92,12 @@ def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, in
         if k:
             dt = float(time[k] - time[k - 1])
             mid = 0.5 * (v + previous_v)
-            level = fc + fd * math.exp(-(mid / vs) ** 2)
+            level = fc + fd * math.exp(-((mid / vs) ** 2))
             rate = s0 * abs(mid) / level
             if rate > 0.0:
                 target = math.copysign(level / s0, mid)
                 phi = phi + (target - phi) * -math.expm1(-rate * dt)
-        level = fc + fd * math.exp(-(v / vs) ** 2)
+        level = fc + fd * math.exp(-((v / vs) ** 2))
         phidot = v - s0 * abs(v) / level * phi
         out[k] = arm * float(normal_force[k]) * (s0 * phi + s1 * phidot + s2 * v)
         previous_v = v
@@ -134,39 +133,52 @@ class Identification:
         return list(dict.fromkeys(self.micro.weak + self.stick.weak))
 
     def as_dict(self) -> dict:
-        out = {"joint_type": self.joint_type, "parameters": {}, "nrmse": {**self.micro.nrmse, **self.stick.nrmse},
-               "weakly_identifiable": self.weakly_identifiable, "correlation": {}, "steps": list(self.steps)}
+        out: dict = {
+            "joint_type": self.joint_type,
+            "parameters": {},
+            "nrmse": {**self.micro.nrmse, **self.stick.nrmse},
+            "weakly_identifiable": self.weakly_identifiable,
+            "correlation": {},
+            "steps": list(self.steps),
+        }
         results = [("p1", self.micro), ("p2", self.stick)]
         if self.refined is not None:
             results.append(("output error", self.refined))
             out["velocity_nrmse"] = dict(self.refined.nrmse)
         for step, result in results:
             for k, name in enumerate(result.names):
-                out["parameters"][name] = {"value": float(result.values[k]), "ci95": [float(result.lower[k]),
-                                                                                       float(result.upper[k])],
-                                           "step": step}
+                out["parameters"][name] = {
+                    "value": float(result.values[k]),
+                    "ci95": [float(result.lower[k]), float(result.upper[k])],
+                    "step": step,
+                }
             out["correlation"][step] = {"names": list(result.names), "matrix": result.correlation.tolist()}
         if self.parameters.radius is not None:
             out["parameters"]["radius"] = {"value": self.parameters.radius, "ci95": None, "step": "given"}
         return out
 
 
-def _initial_guess(micro: list[Record], stick: list[Record], radius: float | None, velocities,
-                   joint_type: str) -> dict[str, float]:
+def _initial_guess(
+    micro: list[Record], stick: list[Record], radius: float | None, velocities, joint_type: str
+) -> dict[str, float]:
     arm = radius if radius is not None else 1.0
     mu = np.concatenate([r.friction_force / (arm * r.normal_force) for r in stick])
     v = np.concatenate([velocities[r.name] for r in stick])
     sliding = np.abs(v) > 0.3 * np.abs(v).max()
     coulomb = float(np.median(np.abs(mu[sliding])))
     if not coulomb > 0.0:
-        raise RecordError(f"identify: stick-slip records {', '.join(r.name for r in stick)}: column 'friction_force' "
-                          "is zero while sliding — step 2 needs a Coulomb level F_c > 0")
+        raise RecordError(
+            f"identify: stick-slip records {', '.join(r.name for r in stick)}: column 'friction_force' "
+            "is zero while sliding — step 2 needs a Coulomb level F_c > 0"
+        )
     peak = float(np.percentile(np.abs(mu), 99.5))
     stribeck = max(peak - coulomb, 0.05 * coulomb)
     # Presliding: μ grows like σ0·x with x = ∫v dt; the slope of μ over x gives σ0.
     slopes = []
     for r in micro:
-        x = np.concatenate([[0.0], np.cumsum(0.5 * (velocities[r.name][1:] + velocities[r.name][:-1]) * np.diff(r.time))])
+        x = np.concatenate(
+            [[0.0], np.cumsum(0.5 * (velocities[r.name][1:] + velocities[r.name][:-1]) * np.diff(r.time))]
+        )
         m = r.friction_force / (arm * r.normal_force)
         small = np.abs(m) < 0.5 * np.abs(m).max()
         span = float(np.ptp(x[small])) if np.count_nonzero(small) >= 3 else 0.0
@@ -177,13 +189,20 @@ def _initial_guess(micro: list[Record], stick: list[Record], radius: float | Non
             if math.isfinite(slope) and slope > 0.0:
                 slopes.append(slope)
     if not slopes:
-        raise RecordError(f"identify: micro-slip records {', '.join(r.name for r in micro)}: the friction does not "
-                          "grow with the displacement (no presliding) — step 1 needs records whose friction force "
-                          "follows the displacement below break-away")
+        raise RecordError(
+            f"identify: micro-slip records {', '.join(r.name for r in micro)}: the friction does not "
+            "grow with the displacement (no presliding) — step 1 needs records whose friction force "
+            "follows the displacement below break-away"
+        )
     sigma0 = float(np.median(slopes))
-    guess = {"sigma0": max(sigma0, 1.0), "sigma1": 1e-4 * math.sqrt(max(sigma0, 1.0)), "sigma2": 1e-3 * coulomb,
-             "coulomb": coulomb, "stribeck": stribeck,
-             "stribeck_velocity": float(0.05 * np.median(np.abs(v[sliding])))}
+    guess = {
+        "sigma0": max(sigma0, 1.0),
+        "sigma1": 1e-4 * math.sqrt(max(sigma0, 1.0)),
+        "sigma2": 1e-3 * coulomb,
+        "coulomb": coulomb,
+        "stribeck": stribeck,
+        "stribeck_velocity": float(0.05 * np.median(np.abs(v[sliding]))),
+    }
     _check_plausible(guess, joint_type, "start")
     return guess
 
@@ -194,8 +213,10 @@ def _check_plausible(values: dict[str, float], joint_type: str, stage: str) -> N
     for name, value in values.items():
         lower, upper, _ = rig.PARAMETER_BOUNDS[name][0 if joint_type == "A" else 1]
         if not (math.isfinite(value) and lower < value <= upper):
-            raise RecordError(f"identify: the records give {name} = {value:.6g} as {stage} — plausible: > {lower:g} "
-                              f"and <= {upper:g}; the records do not determine the LuGre parameters")
+            raise RecordError(
+                f"identify: the records give {name} = {value:.6g} as {stage} — plausible: > {lower:g} "
+                f"and <= {upper:g}; the records do not determine the LuGre parameters"
+            )
 
 
 def model_friction(p: lugre.LuGreParameters, record: Record, velocity) -> np.ndarray:
@@ -218,8 +239,17 @@ def model_friction(p: lugre.LuGreParameters, record: Record, velocity) -> np.nda
     return simulate_friction(p, record.time, velocity, record.normal_force, record.friction_force[0])
 
 
-def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]], radius, velocities, progress, label,
-         polish: int = 2):
+def _fit(
+    records,
+    names,
+    fixed: dict[str, float],
+    starts: list[dict[str, float]],
+    radius,
+    velocities,
+    progress,
+    label,
+    polish: int = 2,
+):
     count = [np.sqrt(r.time.size) for r in records]
 
     def parameters(theta):
@@ -248,71 +278,28 @@ def _fit(records, names, fixed: dict[str, float], starts: list[dict[str, float]]
     for k, start in enumerate(starts):
         theta0 = np.log([start[n] for n in names])
         bounds = (theta0 - math.log(1e3), theta0 + math.log(1e3))
-        solution = scipy.optimize.least_squares(residual, theta0, bounds=bounds, x_scale=1.0, diff_step=1e-6,
-                                                xtol=1e-10, ftol=1e-12, max_nfev=200)
+        solution = scipy.optimize.least_squares(
+            residual, theta0, bounds=bounds, x_scale=1.0, diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=200
+        )
         evaluations += solution.nfev
         if best is None or solution.cost < best.cost:
             best = solution
         if progress:
             progress(f"{label}: start {k + 1}/{len(starts)}, cost {best.cost:.4g}")
+    assert best is not None  # every caller passes at least one start
     p = parameters(best.x)
     errors = {r.name: nrmse(r.friction_force, model_friction(p, r, velocities[r.name])) for r in records}
     return step_result(names, best, errors, evaluations), p
 
 
-def _joint_radius(records: list[Record], joint_type: str, radius: float | None) -> float | None:
-    """The radius of type B records: ``radius`` if given, else the one every record carries.
-
-    Never a default: a type B record without a radius is refused (Table 1's 11 mm would put
-    σ0, F_c and σ2 off by the ratio of the radii).
-    """
-    if joint_type == "A":
-        if radius is not None:
-            raise RecordError(f"identify: radius {radius!r} m given, but the records are type A — a type A joint has "
-                              "no radius")
-        return None
-    if radius is not None:
-        if not (isinstance(radius, (int, float)) and math.isfinite(radius)
-                and MIN_RADIUS <= radius <= bound("radius", "B")):
-            raise RecordError(f"identify: radius {radius!r} m — allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m")
-        for record in records:
-            if record.radius is not None and record.radius != radius:
-                raise RecordError(f"identify: radius {radius!r} m given, but record {record.name} carries "
-                                  f"radius = {record.radius!r} m — give one radius")
-        return float(radius)
-    carried = {}
-    for record in records:
-        if record.radius is None:
-            raise RecordError(f"{record.name}: type B record without a radius — add '# radius = <r> m' to the record "
-                              "(or pass the radius to identify / --radius); no default is assumed")
-        carried.setdefault(record.radius, record.name)
-    if len(carried) > 1:
-        (first, one), (second, other) = list(carried.items())[:2]
-        raise RecordError(f"identify: records {one} (radius {first!r} m) and {other} (radius {second!r} m) are not "
-                          "of one joint — identify one joint's records at a time")
-    return next(iter(carried))
-
-
-def _check_records(records: list[Record]) -> None:
-    """One-line errors for records the fit cannot use (too short, nothing measured)."""
-    for record in records:
-        if record.time.size < MIN_SAMPLES:
-            raise RecordError(f"{record.name}: {record.time.size} samples — identify needs at least {MIN_SAMPLES} "
-                              "per record")
-        for column in ("sliding_velocity", "friction_force"):
-            values = getattr(record, column)
-            if not np.all(np.isfinite(values)):
-                raise RecordError(f"{record.name}: column {column!r}: not finite — allowed: finite numbers")
-            if not np.any(values != 0.0):
-                raise RecordError(f"{record.name}: column {column!r} is zero throughout — nothing to identify from")
-        if not (np.all(np.isfinite(record.time)) and np.all(np.diff(record.time) > 0.0)):
-            raise RecordError(f"{record.name}: column 'time' must be finite and increase")
-        if not np.all(np.isfinite(record.normal_force) & (record.normal_force > 0.0)):
-            raise RecordError(f"{record.name}: column 'normal_force': F_N must be > 0 and finite")
-
-
-def identify(micro: list[Record], stick: list[Record], radius: float | None = None, progress=None,
-             cutoff_hz: float | None = None, output_error: bool = True) -> Identification:
+def identify(
+    micro: list[Record],
+    stick: list[Record],
+    radius: float | None = None,
+    progress=None,
+    cutoff_hz: float | None = None,
+    output_error: bool = True,
+) -> Identification:
     """Two-step identification of Eq. 3 from micro-slip and stick-slip records, then the
     output-error step (`output_error.refine`) when every stick-slip record has its excitation force and
     inertia and ``output_error`` is on; ``Identification.steps`` lists what ran.
@@ -352,11 +339,11 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
     if len(types) != 1:
         raise RecordError(f"identify: records mix joint types {sorted(types)}")
     joint_type = types.pop()
-    radius = _joint_radius(micro + stick, joint_type, radius)
+    radius = joint_radius(micro + stick, joint_type, radius)
     names = [r.name for r in micro + stick]
     if len(set(names)) != len(names):
         raise RecordError("identify: two records share a name; rename the files")
-    _check_records(micro + stick)
+    check_records(micro + stick)
     try:
         with np.errstate(all="ignore"):
             return _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error)
@@ -364,9 +351,11 @@ def identify(micro: list[Record], stick: list[Record], radius: float | None = No
         raise
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as error:
         detail = " ".join(str(error).split())[:160]
-        raise RecordError(f"identify: the fit failed on records {', '.join(names)} ({type(error).__name__}: {detail}) "
-                          "— they do not determine the LuGre parameters (micro-slip records must show presliding, "
-                          "stick-slip records must slide)") from None
+        raise RecordError(
+            f"identify: the fit failed on records {', '.join(names)} ({type(error).__name__}: {detail}) "
+            "— they do not determine the LuGre parameters (micro-slip records must show presliding, "
+            "stick-slip records must slide)"
+        ) from None
 
 
 def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error) -> Identification:
@@ -375,86 +364,77 @@ def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_erro
     velocities = {r.name: (filtered_velocity(r, cutoff_hz) if cutoff_hz else r.sliding_velocity) for r in micro + stick}
     for r in stick:
         if not slides(r, radius):
-            raise RecordError(f"{r.name}: column 'sliding_velocity' shows no gross slip — a stick-slip record must "
-                              "slide (step 2 identifies F_c, F_d, v_s, σ2 from sliding)")
+            raise RecordError(
+                f"{r.name}: column 'sliding_velocity' shows no gross slip — a stick-slip record must "
+                "slide (step 2 identifies F_c, F_d, v_s, σ2 from sliding)"
+            )
     guess = _initial_guess(micro, stick, radius, velocities, joint_type)
     velocity_scale = max(float(np.abs(r.sliding_velocity).max()) for r in stick)
     p2 = {n: guess[n] for n in P2}
-    p1_starts = [{**guess, "sigma0": guess["sigma0"] * a, "sigma1": guess["sigma1"] * b}
-                 for a in (0.5, 1.0, 2.0) for b in (1e-2, 1.0, 1e2)]
-    p2_starts = [{**p2, "stribeck": fraction * p2["coulomb"], "stribeck_velocity": factor * velocity_scale}
-                 for fraction in (0.1, 0.25, 0.5) for factor in (1e-2, 3e-2, 0.1, 0.3)]
+    p1_starts = [
+        {**guess, "sigma0": guess["sigma0"] * a, "sigma1": guess["sigma1"] * b}
+        for a in (0.5, 1.0, 2.0)
+        for b in (1e-2, 1.0, 1e2)
+    ]
+    p2_starts = [
+        {**p2, "stribeck": fraction * p2["coulomb"], "stribeck_velocity": factor * velocity_scale}
+        for fraction in (0.1, 0.25, 0.5)
+        for factor in (1e-2, 3e-2, 0.1, 0.3)
+    ]
     for round_number in range(1, ROUNDS + 1):
-        micro_result, _ = _fit(micro, P1, p2, p1_starts, radius, velocities, progress,
-                               f"round {round_number}, step 1 (σ0, σ1, micro-slip)")
+        micro_result, _ = _fit(
+            micro, P1, p2, p1_starts, radius, velocities, progress, f"round {round_number}, step 1 (σ0, σ1, micro-slip)"
+        )
         p1 = dict(zip(P1, micro_result.values.tolist()))
         # The last round lets σ1 float in step 2 too: stick-slip onsets (large φ̇) constrain it
         # better than presliding does, and a σ1 left wrong by step 1 biases v_s.
         names = P2 + ("sigma1",) if round_number == ROUNDS else P2
         fixed = {n: v for n, v in p1.items() if n not in names}
         starts = [{**start, "sigma1": p1["sigma1"]} for start in p2_starts]
-        stick_result, parameters = _fit(stick, names, fixed, starts, radius, velocities, progress,
-                                        f"round {round_number}, step 2 ({', '.join(names)}, stick-slip)")
+        stick_result, parameters = _fit(
+            stick,
+            names,
+            fixed,
+            starts,
+            radius,
+            velocities,
+            progress,
+            f"round {round_number}, step 2 ({', '.join(names)}, stick-slip)",
+        )
         p2 = {n: v for n, v in zip(names, stick_result.values.tolist()) if n in P2}
         p1_starts = [p1] + [{**p1, "sigma1": p1["sigma1"] * b} for b in (1e-3, 1e-1, 10.0)]
         p2_starts = [p2]
-    steps = [f"equation error (Eq. 3), {ROUNDS} rounds: step 1 σ0, σ1 on {len(micro)} micro-slip records, step 2 "
-             f"F_c, F_d, v_s, σ2, σ1 on {len(stick)} stick-slip records"]
+    steps = [
+        f"equation error (Eq. 3), {ROUNDS} rounds: step 1 σ0, σ1 on {len(micro)} micro-slip records, step 2 "
+        f"F_c, F_d, v_s, σ2, σ1 on {len(stick)} stick-slip records"
+    ]
     refined = None
     blocker = output_error_blocker(stick, output_error)
     if blocker is None:
         refined, parameters = refine(stick, parameters, progress)
-        steps.append(f"output error (rig model driven by the excitation force): σ0, σ1, σ2, F_c, F_d, v_s on "
-                     f"{len(stick)} stick-slip records")
+        steps.append(
+            f"output error (rig model driven by the excitation force): σ0, σ1, σ2, F_c, F_d, v_s on "
+            f"{len(stick)} stick-slip records"
+        )
     else:
         steps.append(f"output error: skipped — {blocker}")
         if progress:
             progress(steps[-1])
     _check_plausible({n: getattr(parameters, n) for n in P3}, joint_type, "result")
     for result, records in ((micro_result, micro), (stick_result, stick)):
-        result.nrmse = {r.name: nrmse(r.friction_force, model_friction(parameters, r, velocities[r.name]))
-                        for r in records}
-    return Identification(parameters, joint_type, micro_result, stick_result,
-                          {r.name: r for r in micro + stick}, velocities, refined, steps)
+        result.nrmse = {
+            r.name: nrmse(r.friction_force, model_friction(parameters, r, velocities[r.name])) for r in records
+        }
+    return Identification(
+        parameters,
+        joint_type,
+        micro_result,
+        stick_result,
+        {r.name: r for r in micro + stick},
+        velocities,
+        refined,
+        steps,
+    )
 
 
-def slides(record: Record, radius: float | None = None) -> bool:
-    """Gross sliding: the element moves by far more than any bristle deflection μ/σ0 could.
-
-    Parameters
-    ----------
-    record : Record
-        Its velocity gives the displacement, its friction and normal force μ.
-    radius : float, optional
-        [m]: the moment arm r of μ = u_R/(r·F_N) for a type B record that carries none.
-
-    Returns
-    -------
-    bool
-    """
-    arm = 1.0 if record.joint_type == "A" else (radius if radius is not None else record.moment_arm)
-    mu = np.abs(record.friction_force / (arm * record.normal_force))
-    displacement = np.ptp(np.cumsum(record.sliding_velocity) * record.sample_time)
-    return bool(displacement * 1e4 > mu.max() and displacement > 1e-4)
-
-
-def classify(record: Record, radius: float | None = None) -> str:
-    """'stick-slip' or 'micro-slip': the record's ``regime`` metadata, else whether it slides.
-
-    Parameters
-    ----------
-    record : Record
-        A record with or without ``# regime = …``.
-    radius : float, optional
-        Passed to `slides` when the record names no regime.
-
-    Returns
-    -------
-    str
-    """
-    if "regime" in record.metadata:
-        return record.metadata["regime"]
-    return "stick-slip" if slides(record, radius) else "micro-slip"
-
-
-__all__ = ["Identification", "classify", "identify", "model_friction", "simulate_friction", "slides"]
+__all__ = ["Identification", "identify", "model_friction", "simulate_friction"]

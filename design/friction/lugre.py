@@ -66,12 +66,14 @@ class LuGreParameters:
 
 # Paper Table 1 (identified on the isolated joints).
 TYPE_A = LuGreParameters(sigma0=1.42e5, sigma1=0.02, sigma2=0.01, coulomb=0.61, stribeck=0.14, stribeck_velocity=0.01)
-TYPE_B = LuGreParameters(sigma0=6.5e4, sigma1=0.02, sigma2=0.01, coulomb=0.49, stribeck=0.08, stribeck_velocity=0.02,
-                         radius=0.011)
+TYPE_B = LuGreParameters(
+    sigma0=6.5e4, sigma1=0.02, sigma2=0.01, coulomb=0.49, stribeck=0.08, stribeck_velocity=0.02, radius=0.011
+)
 TABLE_1 = {"A": TYPE_A, "B": TYPE_B}
 # Canudas de Wit et al. (1995) reference set, with F_N = 1 N: forces in N.
-CANUDAS_1995 = LuGreParameters(sigma0=1e5, sigma1=math.sqrt(1e5), sigma2=0.4, coulomb=1.0, stribeck=0.5,
-                               stribeck_velocity=1e-3)
+CANUDAS_1995 = LuGreParameters(
+    sigma0=1e5, sigma1=math.sqrt(1e5), sigma2=0.4, coulomb=1.0, stribeck=0.5, stribeck_velocity=1e-3
+)
 
 
 def joint_laws(design) -> list[LuGreParameters]:
@@ -105,7 +107,7 @@ def stribeck_level(p: LuGreParameters, velocity):
     float or ndarray
         The level, dimensionless.
     """
-    return p.coulomb + p.stribeck * np.exp(-(np.asarray(velocity, dtype=float) / p.stribeck_velocity) ** 2)
+    return p.coulomb + p.stribeck * np.exp(-((np.asarray(velocity, dtype=float) / p.stribeck_velocity) ** 2))
 
 
 def g(p: LuGreParameters, velocity):
@@ -276,6 +278,20 @@ def step(p: LuGreParameters, deflection, velocity, dt: float):
     return np.where(moving, deflection + (target - deflection) * weight, deflection + v * dt)
 
 
-__all__ = ["CANUDAS_1995", "LuGreParameters", "TABLE_1", "TYPE_A", "TYPE_B", "friction_coefficient",
-           "friction_force", "g", "joint_laws", "rhs", "rhs_jacobian", "steady_state_coefficient",
-           "steady_state_deflection", "step", "stribeck_level"]
+__all__ = [
+    "CANUDAS_1995",
+    "LuGreParameters",
+    "TABLE_1",
+    "TYPE_A",
+    "TYPE_B",
+    "friction_coefficient",
+    "friction_force",
+    "g",
+    "joint_laws",
+    "rhs",
+    "rhs_jacobian",
+    "steady_state_coefficient",
+    "steady_state_deflection",
+    "step",
+    "stribeck_level",
+]

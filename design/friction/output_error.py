@@ -13,7 +13,7 @@ import scipy.optimize
 from scipy.signal import find_peaks, savgol_filter
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction import lugre, rig_integration
 from smartjoint.design.friction.fitting import (
     EXCITATION_CUTOFF,
     VELOCITY_CUTOFF,
@@ -88,23 +88,31 @@ def prepare_shooting(record: Record, arm: float) -> Shooting:
     force = low_pass(record.excitation_force, record.sample_time, EXCITATION_CUTOFF * frequency, period)
     smoothed = low_pass(record.sliding_velocity, record.sample_time, VELOCITY_CUTOFF * frequency, period)
     half_period = 0.5 * period / record.sample_time
-    peaks, _ = find_peaks(np.abs(smoothed), distance=max(int(0.6 * half_period), 1),
-                          height=0.5 * np.abs(smoothed).max())
+    peaks, _ = find_peaks(
+        np.abs(smoothed), distance=max(int(0.6 * half_period), 1), height=0.5 * np.abs(smoothed).max()
+    )
     peaks = peaks[peaks < record.time.size - 1]
     if peaks.size == 0:
-        raise RecordError(f"{record.name}: column 'sliding_velocity' has no sliding peak to start the output-error "
-                          "segments from")
+        raise RecordError(
+            f"{record.name}: column 'sliding_velocity' has no sliding peak to start the output-error segments from"
+        )
     # The start values: a quadratic fit to the raw velocity over ±0.1 half period. Reading the
     # low-passed velocity at its own maxima would pick the noise's ups (type B: σ2 +15 %, not +10 %).
     half_window = min(max(int(0.1 * half_period), 2), (record.time.size - 1) // 2)
     start_velocity = savgol_filter(record.sliding_velocity, 2 * half_window + 1, 2)[peaks]
-    # Linear interpolation between samples: the substep nodes of rig.integrate.
-    substep = np.diff(record.time)[:, None] / rig.SUBSTEPS * np.arange(rig.SUBSTEPS)[None, :]
+    # Linear interpolation between samples: the substep nodes of rig_integration.integrate.
+    substep = np.diff(record.time)[:, None] / rig_integration.SUBSTEPS * np.arange(rig_integration.SUBSTEPS)[None, :]
     nodes = np.append((record.time[:-1, None] + substep).ravel(), record.time[-1])
-    measured = record.sliding_velocity[peaks[0] + 1:]
-    return Shooting(record, np.interp(nodes, record.time, force),
-                     arm * np.interp(nodes, record.time, record.normal_force), peaks, start_velocity, measured,
-                     rms(record.sliding_velocity) * math.sqrt(measured.size))
+    measured = record.sliding_velocity[peaks[0] + 1 :]
+    return Shooting(
+        record,
+        np.interp(nodes, record.time, force),
+        arm * np.interp(nodes, record.time, record.normal_force),
+        peaks,
+        start_velocity,
+        measured,
+        rms(record.sliding_velocity) * math.sqrt(measured.size),
+    )
 
 
 def shoot(p: lugre.LuGreParameters, shooting: Shooting) -> np.ndarray:
@@ -126,14 +134,22 @@ def shoot(p: lugre.LuGreParameters, shooting: Shooting) -> np.ndarray:
     ndarray
         The simulated velocity at the samples of ``shooting.measured``.
     """
-    record, step = shooting.record, rig.SUBSTEPS
+    record, step = shooting.record, rig_integration.SUBSTEPS
     bounds = np.append(shooting.starts, record.time.size - 1)
     parts = []
     for start, end, velocity0 in zip(bounds[:-1], bounds[1:], shooting.start_velocity):
         nodes = slice(start * step, end * step + 1)
-        velocity, _ = rig.integrate(p, shooting.gain[nodes], record.inertia, shooting.force[nodes],
-                                    record.time[start:end + 1], step, velocity0,
-                                    float(lugre.steady_state_deflection(p, velocity0)), backend="c")
+        velocity, _ = rig_integration.integrate(
+            p,
+            shooting.gain[nodes],
+            record.inertia,
+            shooting.force[nodes],
+            record.time[start : end + 1],
+            step,
+            velocity0,
+            float(lugre.steady_state_deflection(p, velocity0)),
+            backend="c",
+        )
         parts.append(velocity[1:])
     return np.concatenate(parts)
 
@@ -178,14 +194,24 @@ def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple
         return np.nan_to_num(np.concatenate(parts), nan=1e3, posinf=1e3, neginf=-1e3)
 
     theta0 = np.log([getattr(start, n) for n in P3])
-    solution = scipy.optimize.least_squares(residual, theta0, bounds=(theta0 - math.log(1e3), theta0 + math.log(1e3)),
-                                            x_scale=1.0, diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=100)
+    solution = scipy.optimize.least_squares(
+        residual,
+        theta0,
+        bounds=(theta0 - math.log(1e3), theta0 + math.log(1e3)),
+        x_scale=1.0,
+        diff_step=1e-6,
+        xtol=1e-10,
+        ftol=1e-12,
+        max_nfev=100,
+    )
     p = parameters(solution.x)
     errors = {s.record.name: nrmse(s.measured, shoot(p, s)) for s in shootings}
     lengths = np.concatenate([np.diff(np.append(s.starts, s.record.time.size - 1)) for s in shootings])
     if progress:
-        progress(f"step 3 (output error: σ0, σ1, σ2, F_c, F_d, v_s, {len(stick)} stick-slip records, "
-                 f"{sum(s.starts.size for s in shootings)} segments): cost {solution.cost:.4g}")
+        progress(
+            f"step 3 (output error: σ0, σ1, σ2, F_c, F_d, v_s, {len(stick)} stick-slip records, "
+            f"{sum(s.starts.size for s in shootings)} segments): cost {solution.cost:.4g}"
+        )
     return step_result(P3, solution, errors, solution.nfev, np.repeat(np.arange(lengths.size), lengths)), p
 
 
@@ -211,7 +237,7 @@ def output_error_blocker(stick: list[Record], enabled: bool) -> str | None:
         if gap:
             return gap
     try:
-        rig.kernel()
+        rig_integration.kernel()
     except ModelError as error:  # the Python reference loop would take hours here
         return f"rig kernel unavailable ({error})"
     return None

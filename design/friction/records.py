@@ -18,7 +18,7 @@ velocities in rad/s and forces as moments in N·m, and must give the joint ``rad
 moment arm r of u_R = r·F_N·μ): no default is assumed for a user's joint. Units are converted
 to SI on reading.
 
-Every value is checked (``BOUNDS``): a record that is not UTF-8 text, an unknown unit, a
+Every value is checked (``record_quantities.BOUNDS``): a record that is not UTF-8 text, an unknown unit, a
 missing or repeated column, a row of the wrong length, a cell that is not a finite number, a
 time that does not increase, a normal force that is not > 0 or a magnitude beyond the
 physically plausible bounds is a one-line ``RecordError`` naming the file, the row (its line
@@ -38,83 +38,15 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from smartjoint.common.errors import SmartjointError
+from smartjoint.design.friction.record_quantities import COLUMNS, MIN_NORMAL_FORCE, MIN_RADIUS, UNITS, bound, si_unit
 
 
 class RecordError(SmartjointError, ValueError):
     """A friction record is malformed."""
 
 
-# unit → factor to SI, per quantity kind
-_UNITS = {
-    "time": {"s": 1.0, "ms": 1e-3},
-    "velocity": {"m/s": 1.0, "mm/s": 1e-3, "rad/s": 1.0, "mrad/s": 1e-3},
-    "force": {"N": 1.0, "kN": 1e3, "N*m": 1.0, "N·m": 1.0, "Nm": 1.0},
-    "mass": {"kg": 1.0, "g": 1e-3, "kg*m^2": 1.0, "kg·m²": 1.0, "kg m2": 1.0},
-    "length": {"m": 1.0, "mm": 1e-3},
-}
-COLUMNS = {
-    "time": "time",
-    "sliding_velocity": "velocity",
-    "friction_force": "force",
-    "excitation_force": "force",
-    "normal_force": "force",
-}
 REGIMES = ("micro-slip", "stick-slip")
 MAX_BYTES = 64 * 1024 * 1024  # 64 MiB: about 900 000 rows of four full-precision columns
-
-# Physically plausible magnitudes in SI units, per joint type: (type A, type B). Generous for
-# a bolted or clamped friction joint of a truss (the paper's joints: F_N 200–400 N, velocities
-# of mm/s … m/s, r = 11 mm), but they catch unit slips (kN written as N × 1000, µm as m) and
-# values such as 1e308 that would overflow the fit.
-BOUNDS = {
-    "time": (1e6, 1e6),  # |t| [s]: 11.6 days
-    "time_step": (1e-9, 1e-9),  # smallest sample spacing [s]: 1 GHz sampling
-    "sliding_velocity": (100.0, 1e4),  # |v| [m/s] (type A), |ω| [rad/s] (type B, ≈ 95 000 rpm)
-    "friction_force": (1e7, 1e5),  # |u_R| [N] (type A), [N·m] (type B)
-    "excitation_force": (1e7, 1e5),
-    "normal_force": (1e6, 1e6),  # 1 mN ≤ F_N ≤ 1 MN (a fully preloaded M36 bolt is ≈ 0.6 MN)
-    "inertia": (1e6, 1e4),  # 0 ≤ m ≤ 1000 t (type A), ≤ 1e4 kg·m² (type B)
-    "radius": (10.0, 10.0),  # 1e-4 m ≤ r ≤ 10 m (type B only)
-}
-MIN_RADIUS = 1e-4  # [m]
-MIN_NORMAL_FORCE = 1e-3  # [N]: μ = u_R/F_N is meaningless below (and a zero F_N divides by zero)
-_SI = {"time": "s", "sliding_velocity": ("m/s", "rad/s"), "friction_force": ("N", "N*m"),
-       "excitation_force": ("N", "N*m"), "normal_force": "N", "inertia": ("kg", "kg*m^2"), "radius": "m"}
-
-
-def bound(quantity: str, joint_type: str) -> float:
-    """The plausible magnitude limit of ``quantity`` (a ``BOUNDS`` key) for a joint type, in SI.
-
-    Parameters
-    ----------
-    quantity : str
-        A key of ``BOUNDS``.
-    joint_type : str
-        'A' or 'B'.
-
-    Returns
-    -------
-    float
-    """
-    return BOUNDS[quantity][0 if joint_type == "A" else 1]
-
-
-def si_unit(quantity: str, joint_type: str) -> str:
-    """The SI unit a record quantity is stored in, for a joint type (type B: angular, moments).
-
-    Parameters
-    ----------
-    quantity : str
-        A column or metadata name.
-    joint_type : str
-        'A' or 'B'.
-
-    Returns
-    -------
-    str
-    """
-    unit = _SI[quantity]
-    return unit if isinstance(unit, str) else unit[0 if joint_type == "A" else 1]
 
 
 @dataclass
@@ -145,8 +77,10 @@ class Record:
         if self.joint_type == "A":
             return 1.0
         if self.radius is None:
-            raise RecordError(f"{self.name}: type B record without a radius — add '# radius = <r> m' to the "
-                              "record (or pass the radius to identify / --radius)")
+            raise RecordError(
+                f"{self.name}: type B record without a radius — add '# radius = <r> m' to the "
+                "record (or pass the radius to identify / --radius)"
+            )
         return self.radius
 
 
@@ -184,15 +118,19 @@ def _read_text(path: Path, name: str) -> str:
     except OSError as error:
         raise RecordError(f"{name}: cannot read record ({error.strerror or error})") from None
     if len(data) > MAX_BYTES:
-        raise RecordError(f"{name}: larger than {MAX_BYTES // 2**20} MiB — allowed: records up to that size "
-                          "(split a longer measurement)")
+        raise RecordError(
+            f"{name}: larger than {MAX_BYTES // 2**20} MiB — allowed: records up to that size "
+            "(split a longer measurement)"
+        )
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as error:
         line = data.count(b"\n", 0, error.start) + 1
         column = error.start - (data.rfind(b"\n", 0, error.start) + 1) + 1
-        raise RecordError(f"{name}: row {line}, character {column}: byte 0x{data[error.start]:02x} is not UTF-8 — "
-                          "a record must be UTF-8 text (CSV; re-save it as UTF-8)") from None
+        raise RecordError(
+            f"{name}: row {line}, character {column}: byte 0x{data[error.start]:02x} is not UTF-8 — "
+            "a record must be UTF-8 text (CSV; re-save it as UTF-8)"
+        ) from None
     del data
     if "\x00" in text:
         line = text.count("\n", 0, text.index("\x00")) + 1
@@ -210,21 +148,26 @@ def _number(text: str, unit: str, what: str, name: str) -> float:
     return value
 
 
-def _metadata_length(metadata, key: str, joint_type: str, name: str, lower: float, upper: float,
-                     lower_inclusive: bool, kind: str) -> float | None:
+def _metadata_length(
+    metadata, key: str, joint_type: str, name: str, lower: float, upper: float, lower_inclusive: bool, kind: str
+) -> float | None:
     if key not in metadata:
         return None
     value, unit = metadata[key]
-    allowed = _UNITS[kind]
+    allowed = UNITS[kind]
     if unit not in allowed:
-        raise RecordError(f"{name}: metadata {key}: unit {unit!r} unknown — write '# {key} = <value> <unit>' "
-                          f"with unit one of {', '.join(allowed)}")
+        raise RecordError(
+            f"{name}: metadata {key}: unit {unit!r} unknown — write '# {key} = <value> <unit>' "
+            f"with unit one of {', '.join(allowed)}"
+        )
     number = _number(value, unit, f"metadata {key}", name) * allowed[unit]
     low_ok = number >= lower if lower_inclusive else number > lower
     if not (low_ok and number <= upper):
         relation = ">=" if lower_inclusive else ">"
-        raise RecordError(f"{name}: metadata {key}: {value} {unit} — allowed: {relation} {lower:g} and <= "
-                          f"{upper:g} {si_unit(key, joint_type)}")
+        raise RecordError(
+            f"{name}: metadata {key}: {value} {unit} — allowed: {relation} {lower:g} and <= "
+            f"{upper:g} {si_unit(key, joint_type)}"
+        )
     return number
 
 
@@ -269,30 +212,42 @@ def read_record(path: str | Path, radius: float | None = None) -> Record:
     data = {}
     for column, (_, factor, unit) in columns.items():
         column_values = np.frombuffer(values.pop(column), dtype=float) * factor
-        _check_column(name, column, column_values, unit, factor, joint_type, row_numbers,
-                      lambda k, column=column: cell(column, k))
+        _check_column(
+            name, column, column_values, unit, factor, joint_type, row_numbers, lambda k, column=column: cell(column, k)
+        )
         data[column] = column_values
     steps = np.diff(data["time"])
     smallest = bound("time_step", joint_type)
     if np.any(steps < smallest):
         first = int(np.flatnonzero(steps < smallest)[0]) + 1
-        raise RecordError(f"{name}: row {row_numbers[first]}, column 'time': {cell('time', first)} after "
-                          f"{cell('time', first - 1)} — time does not increase (allowed: each row at least "
-                          f"{smallest:g} s after the one before)")
+        raise RecordError(
+            f"{name}: row {row_numbers[first]}, column 'time': {cell('time', first)} after "
+            f"{cell('time', first - 1)} — time does not increase (allowed: each row at least "
+            f"{smallest:g} s after the one before)"
+        )
     if "friction_force" in data:
         friction = data["friction_force"]
     else:
         if inertia is None:
             raise RecordError(f"{name}: column 'excitation_force' needs the '# inertia = <value> kg' metadata line")
         friction = friction_from_excitation(data["time"], data["sliding_velocity"], data["excitation_force"], inertia)
-    return Record(path.stem, data["time"], data["sliding_velocity"], friction, data["normal_force"], joint_type,
-                  inertia, data.get("excitation_force"), {k: " ".join(v).strip() for k, v in metadata.items()},
-                  radius)
+    return Record(
+        path.stem,
+        data["time"],
+        data["sliding_velocity"],
+        friction,
+        data["normal_force"],
+        joint_type,
+        inertia,
+        data.get("excitation_force"),
+        {k: " ".join(v).strip() for k, v in metadata.items()},
+        radius,
+    )
 
 
-def _metadata(lines: list[str], name: str) -> tuple[dict[str, tuple[str, str]], int]:
+def _metadata(lines: list[str], name: str) -> tuple[dict[str, tuple[str, ...]], int]:
     """The ``# key = value unit`` lines before the header, and the header's line index."""
-    metadata: dict[str, tuple[str, str]] = {}
+    metadata: dict[str, tuple[str, ...]] = {}
     body_start = 0
     for number, line in enumerate(lines):
         if line.startswith("#"):
@@ -314,26 +269,36 @@ def _joint_properties(metadata, name: str, given: float | None) -> tuple[str, fl
         raise RecordError(f"{name}: metadata joint_type: {joint_type!r} — allowed: A, B")
     regime = " ".join(metadata["regime"]).strip() if "regime" in metadata else None
     if regime is not None and regime not in REGIMES:
-        raise RecordError(f"{name}: metadata regime: {regime!r} — allowed: {', '.join(REGIMES)} (or no regime line: "
-                          "then identify classifies the record by whether it slides)")
+        raise RecordError(
+            f"{name}: metadata regime: {regime!r} — allowed: {', '.join(REGIMES)} (or no regime line: "
+            "then identify classifies the record by whether it slides)"
+        )
     inertia = _metadata_length(metadata, "inertia", joint_type, name, 0.0, bound("inertia", joint_type), True, "mass")
-    radius = _metadata_length(metadata, "radius", joint_type, name, MIN_RADIUS, bound("radius", joint_type), True,
-                              "length")
+    radius = _metadata_length(
+        metadata, "radius", joint_type, name, MIN_RADIUS, bound("radius", joint_type), True, "length"
+    )
     if joint_type == "A" and (radius is not None or given is not None):
-        raise RecordError(f"{name}: {'metadata radius' if radius is not None else f'radius {given!r} m given'}: a "
-                          "type A joint has no radius — allowed only with '# joint_type = B'")
+        raise RecordError(
+            f"{name}: {'metadata radius' if radius is not None else f'radius {given!r} m given'}: a "
+            "type A joint has no radius — allowed only with '# joint_type = B'"
+        )
     if joint_type == "B" and given is not None:
         if not (math.isfinite(given) and MIN_RADIUS <= given <= bound("radius", "B")):
-            raise RecordError(f"{name}: radius {given!r} m given — allowed: {MIN_RADIUS:g} … "
-                              f"{bound('radius', 'B'):g} m")
+            raise RecordError(
+                f"{name}: radius {given!r} m given — allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m"
+            )
         if radius is not None and radius != given:
-            raise RecordError(f"{name}: metadata radius: {radius!r} m, but radius {given!r} m was given — the record's "
-                              "own radius and the given one must agree (or give none)")
+            raise RecordError(
+                f"{name}: metadata radius: {radius!r} m, but radius {given!r} m was given — the record's "
+                "own radius and the given one must agree (or give none)"
+            )
         radius = float(given)
     if joint_type == "B" and radius is None:
-        raise RecordError(f"{name}: metadata radius: missing — a type B record must give its joint radius, e.g. "
-                          f"'# radius = 0.011 m' (allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m), or pass "
-                          "it (identify --radius); no default is assumed")
+        raise RecordError(
+            f"{name}: metadata radius: missing — a type B record must give its joint radius, e.g. "
+            f"'# radius = 0.011 m' (allowed: {MIN_RADIUS:g} … {bound('radius', 'B'):g} m), or pass "
+            "it (identify --radius); no default is assumed"
+        )
     return joint_type, inertia, radius
 
 
@@ -350,18 +315,22 @@ def _header_columns(header: list[str], header_row: int, name: str) -> dict[str, 
             continue  # extra columns are allowed and ignored
         if column in columns:
             raise RecordError(f"{name}: row {header_row}: column {column!r} appears twice — allowed: once")
-        allowed = _UNITS[COLUMNS[column]]
+        allowed = UNITS[COLUMNS[column]]
         if unit not in allowed:
-            raise RecordError(f"{name}: row {header_row}, column {column!r}: unit {unit!r} unknown; allowed: "
-                              f"{', '.join(allowed)}")
+            raise RecordError(
+                f"{name}: row {header_row}, column {column!r}: unit {unit!r} unknown; allowed: {', '.join(allowed)}"
+            )
         columns[column] = (index, allowed[unit], unit)
     for required in ("time", "sliding_velocity", "normal_force"):
         if required not in columns:
-            raise RecordError(f"{name}: row {header_row}: column {required!r} missing; header has "
-                              f"{', '.join(h.strip() for h in header)}")
+            raise RecordError(
+                f"{name}: row {header_row}: column {required!r} missing; header has "
+                f"{', '.join(h.strip() for h in header)}"
+            )
     if "friction_force" not in columns and "excitation_force" not in columns:
-        raise RecordError(f"{name}: row {header_row}: needs column 'friction_force' or 'excitation_force' "
-                          "(with '# inertia = …')")
+        raise RecordError(
+            f"{name}: row {header_row}: needs column 'friction_force' or 'excitation_force' (with '# inertia = …')"
+        )
     return columns
 
 
@@ -381,8 +350,10 @@ def _read_rows(reader, header: list[str], columns, body_start: int, name: str):
             try:
                 values[column].append(float(row[index]))
             except ValueError:
-                raise RecordError(f"{name}: row {line_number}, column {column!r}: {row[index].strip()} — not a "
-                                  "number (allowed: a finite number)") from None
+                raise RecordError(
+                    f"{name}: row {line_number}, column {column!r}: {row[index].strip()} — not a "
+                    "number (allowed: a finite number)"
+                ) from None
         row_numbers.append(line_number)
     if len(row_numbers) < 3:
         raise RecordError(f"{name}: {len(row_numbers)} data rows — need at least 3")
@@ -402,8 +373,7 @@ def _check_column(name, column, values, unit, factor, joint_type, row_numbers, c
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
         shown_value = cells(first) if cells is not None else repr(float(values[first] / factor))
-        raise RecordError(f"{name}: row {row_numbers[first]}, column {column!r}: {shown_value} {unit} — "
-                          f"{allowed}")
+        raise RecordError(f"{name}: row {row_numbers[first]}, column {column!r}: {shown_value} {unit} — {allowed}")
 
 
 def write_record(record: Record, path: str | Path) -> None:
@@ -439,10 +409,17 @@ def write_record(record: Record, path: str | Path) -> None:
     columns.append(("normal_force [N]", record.normal_force))
     lines.append(",".join(c for c, _ in columns))
     first_row = len(lines) + 1
-    for (title, values) in columns:
+    for title, values in columns:
         column, unit = title[:-1].split(" [")
-        _check_column(str(path), column, np.asarray(values, dtype=float), unit, 1.0, record.joint_type,
-                      range(first_row, first_row + len(values)))
+        _check_column(
+            str(path),
+            column,
+            np.asarray(values, dtype=float),
+            unit,
+            1.0,
+            record.joint_type,
+            range(first_row, first_row + len(values)),
+        )
     matrix = np.column_stack([v for _, v in columns])
     lines += [",".join(repr(float(x)) for x in row) for row in matrix]
     temporary = path.with_name(path.name + ".partial")
@@ -455,5 +432,12 @@ def write_record(record: Record, path: str | Path) -> None:
         raise RecordError(f"{path}: cannot write record ({error.strerror or error})") from None
 
 
-__all__ = ["BOUNDS", "COLUMNS", "MAX_BYTES", "MIN_NORMAL_FORCE", "MIN_RADIUS", "REGIMES", "Record", "RecordError",
-           "bound", "friction_from_excitation", "read_record", "si_unit", "write_record"]
+__all__ = [
+    "MAX_BYTES",
+    "REGIMES",
+    "Record",
+    "RecordError",
+    "friction_from_excitation",
+    "read_record",
+    "write_record",
+]

@@ -8,12 +8,9 @@ u_R = r·F_N·μ(v, φ) (Eq. 2, r = 1 for type A)::
 
 A below the break-away force r·F_N·(F_c + F_d) gives micro-slip (presliding hysteresis),
 above it stick-slip — the two regimes the two identification steps need. The stiff bristle
-dynamics are integrated by the implicit trapezoidal rule (A-stable, second order, no
-numerical damping of the lightly damped bristle resonance) with a Newton solve on the
-analytic Jacobian at ``SUBSTEPS`` steps per sample (C kernel ``rig_kernel.c``, with the Python
-loop kept as its reference); the rig "measures"
-sliding velocity and excitation force at ``sample_rate`` with optional Gaussian noise
-(relative to each signal's RMS), like the paper's shaker tests.
+dynamics are integrated by ``rig_integration`` (implicit trapezoidal rule, C kernel
+``rig_kernel.c``); the rig "measures" sliding velocity and excitation force at ``sample_rate``
+with optional Gaussian noise (relative to each signal's RMS), like the paper's shaker tests.
 
 The rig simulates any LuGre parameter set (``parameter_set``: from numbers, a TOML file or
 the paper's Table 1 when the caller asks for nothing else); every record it writes carries the
@@ -31,7 +28,9 @@ import numpy as np
 
 from smartjoint.common.errors import SmartjointError
 from smartjoint.design.friction import lugre
-from smartjoint.design.friction.records import MIN_RADIUS, Record, bound, friction_from_excitation
+from smartjoint.design.friction.record_quantities import MIN_RADIUS, bound
+from smartjoint.design.friction.records import Record, friction_from_excitation
+from smartjoint.design.friction.rig_integration import SUBSTEPS, integrate
 
 
 class RigError(SmartjointError, ValueError):
@@ -50,8 +49,14 @@ PARAMETER_BOUNDS = {
     "stribeck": ((0.0, 10.0, True), (0.0, 10.0, True)),
     "stribeck_velocity": ((0.0, bound("sliding_velocity", "A"), False), (0.0, bound("sliding_velocity", "B"), False)),
 }
-PARAMETER_UNITS = {"sigma0": ("1/m", "1/rad"), "sigma1": ("s/m", "s/rad"), "sigma2": ("s/m", "s/rad"),
-                   "coulomb": ("", ""), "stribeck": ("", ""), "stribeck_velocity": ("m/s", "rad/s")}
+PARAMETER_UNITS = {
+    "sigma0": ("1/m", "1/rad"),
+    "sigma1": ("s/m", "s/rad"),
+    "sigma2": ("s/m", "s/rad"),
+    "coulomb": ("", ""),
+    "stribeck": ("", ""),
+    "stribeck_velocity": ("m/s", "rad/s"),
+}
 LUGRE_NAMES = tuple(PARAMETER_BOUNDS)
 TABLE_1_SOURCE = "paper Table 1"
 
@@ -104,8 +109,9 @@ def parameter_set(joint_type: str, values: dict | None = None, source: str = "co
     checked = {}
     for key in allowed:
         if key not in values:
-            raise RigError(f"{source}: {key}: missing — give all of {', '.join(allowed)} (or none for "
-                           f"{TABLE_1_SOURCE})")
+            raise RigError(
+                f"{source}: {key}: missing — give all of {', '.join(allowed)} (or none for {TABLE_1_SOURCE})"
+            )
         value = values[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise RigError(f"{source}: {key}: {value!r} — must be a finite number")
@@ -116,8 +122,10 @@ def parameter_set(joint_type: str, values: dict | None = None, source: str = "co
             unit = PARAMETER_UNITS[key][0 if joint_type == "A" else 1]
         if not ((value >= lower if inclusive else value > lower) and value <= upper):
             relation = ">=" if inclusive else ">"
-            raise RigError(f"{source}: {key}: {value!r} — allowed: {relation} {lower:g} and <= {upper:g}"
-                           f"{' ' + unit if unit else ''}")
+            raise RigError(
+                f"{source}: {key}: {value!r} — allowed: {relation} {lower:g} and <= {upper:g}"
+                f"{' ' + unit if unit else ''}"
+            )
         checked[key] = float(value)
     return ParameterSet(joint_type, lugre.LuGreParameters(**checked), source)
 
@@ -216,20 +224,27 @@ def check_test(test: RigTest, parameters: lugre.LuGreParameters) -> None:
     if test.normal_force > bound("normal_force", test.joint_type):
         raise RigError(f"normal_force: {test.normal_force!r} — allowed: <= {bound('normal_force', 'A'):g} N")
     if test.amplitude > bound("excitation_force", test.joint_type):
-        raise RigError(f"amplitude: {test.amplitude!r} — allowed: <= {bound('excitation_force', test.joint_type):g} "
-                       f"{'N' if test.joint_type == 'A' else 'N*m'}")
+        raise RigError(
+            f"amplitude: {test.amplitude!r} — allowed: <= {bound('excitation_force', test.joint_type):g} "
+            f"{'N' if test.joint_type == 'A' else 'N*m'}"
+        )
     if test.inertia > bound("inertia", test.joint_type):
-        raise RigError(f"inertia: {test.inertia!r} — allowed: <= {bound('inertia', test.joint_type):g} "
-                       f"{'kg' if test.joint_type == 'A' else 'kg*m^2'}")
+        raise RigError(
+            f"inertia: {test.inertia!r} — allowed: <= {bound('inertia', test.joint_type):g} "
+            f"{'kg' if test.joint_type == 'A' else 'kg*m^2'}"
+        )
     if not (math.isfinite(test.noise) and 0.0 <= test.noise <= 1.0):
         raise RigError(f"noise: {test.noise!r} — allowed: 0 … 1 (relative to each signal's RMS)")
     samples = test.cycles / test.frequency * test.sample_rate
     if not samples <= MAX_SAMPLES:
-        raise RigError(f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples at "
-                       f"{test.sample_rate:g} Hz — allowed: at most {MAX_SAMPLES} samples per record")
+        raise RigError(
+            f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples at "
+            f"{test.sample_rate:g} Hz — allowed: at most {MAX_SAMPLES} samples per record"
+        )
     if samples < 3:
-        raise RigError(f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples — need at "
-                       "least 3")
+        raise RigError(
+            f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples — need at least 3"
+        )
     if test.joint_type == "B" and parameters.radius is None:
         raise RigError("radius: missing — a type B joint needs its radius in the parameter set")
     if test.joint_type == "A" and parameters.radius is not None:
@@ -271,155 +286,32 @@ def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None, sou
         velocity = velocity + test.noise * np.sqrt(np.mean(velocity**2)) * rng.standard_normal(time.size)
         force = force + test.noise * np.sqrt(np.mean(force**2)) * rng.standard_normal(time.size)
     friction = friction_from_excitation(time, velocity, force, test.inertia)
-    return Record(test.name, time, velocity, friction, np.full(time.size, test.normal_force), test.joint_type,
-                  test.inertia, force, {"regime": "micro-slip" if test.amplitude < breakaway(p, test.normal_force)
-                                        else "stick-slip", "noise": f"{test.noise:g}",
-                                        "parameter_set": source,
-                                        "true_friction_rms": f"{np.sqrt(np.mean(true_friction**2)):.6g}"},
-                  radius=p.radius if test.joint_type == "B" else None)
+    return Record(
+        test.name,
+        time,
+        velocity,
+        friction,
+        np.full(time.size, test.normal_force),
+        test.joint_type,
+        test.inertia,
+        force,
+        {
+            "regime": "micro-slip" if test.amplitude < breakaway(p, test.normal_force) else "stick-slip",
+            "noise": f"{test.noise:g}",
+            "parameter_set": source,
+            "true_friction_rms": f"{np.sqrt(np.mean(true_friction**2)):.6g}",
+        },
+        radius=p.radius if test.joint_type == "B" else None,
+    )
 
 
-SUBSTEPS = 8
-ITERATIONS = 20  # Newton iterations per substep (SJ_RIG_ITERATIONS in rig_kernel.c)
-_C_FAILURE: list[str] = []  # why the C kernel is unavailable on this machine (reported once)
-DECLARATIONS = """
-typedef struct {
-    double sigma0, sigma1, sigma2, coulomb, stribeck, stribeck_velocity, max_deflection;
-    double inertia;
-} sj_rig;
-long sj_rig_integrate(const sj_rig *p, const double *time, long samples, int substeps, const double *force,
-                      const double *gain, double velocity0, double deflection0, double *velocity,
-                      double *deflection);
-"""
-
-
-def integrate(p, gain, inertia, force, time, substeps, velocity0: float = 0.0, deflection0: float = 0.0,
-              backend: str = "auto"):
-    """Implicit trapezoidal rule for (v, φ) of the rig (Eq. 1–2) under an excitation ``force``.
-
-    Parameters
-    ----------
-    p : LuGreParameters
-        The joint.
-    gain : float or ndarray
-        r·F_N, a number or one value per substep node.
-    inertia : float
-        The moving inertia [kg] (type B: [kg·m²]).
-    force : ndarray
-        The excitation at every substep node: (len(time) − 1)·substeps + 1 values.
-    time : ndarray
-        The sample times [s].
-    substeps : int
-        Substeps per sample.
-    velocity0, deflection0 : float
-        The start.
-    backend : str
-        'c' (rig_kernel.c), 'python' (the reference loop) or 'auto' (C, else Python with a warning).
-
-    Returns
-    -------
-    tuple of ndarray
-        Velocity and bristle deflection at the sample times (x is not needed).
-    """
-    time = np.ascontiguousarray(time, dtype=float)
-    nodes = (time.size - 1) * substeps + 1
-    force = np.ascontiguousarray(force, dtype=float)
-    gain = np.asarray(gain, dtype=float)
-    if force.shape != (nodes,):
-        raise ValueError(f"force: {force.shape} values — need (len(time) − 1)·substeps + 1 = {nodes}")
-    if gain.shape not in ((), (nodes,)):
-        raise ValueError(f"gain: {gain.shape} values — need one number or {nodes}, one per substep node")
-    gain = np.ascontiguousarray(np.broadcast_to(gain, (nodes,)))
-    from smartjoint.common import native
-
-    module = native.choose(backend, "rig integration", kernel, lambda: None, _C_FAILURE, stacklevel=2)
-    if module is None:
-        return _integrate_python(p, gain, inertia, force, time, substeps, velocity0, deflection0)
-    return _integrate_c(module, p, gain, inertia, force, time, substeps, velocity0, deflection0)
-
-
-def kernel():
-    """The compiled rig kernel (cffi module; ``ModelError`` when it cannot be built).
-
-    Returns
-    -------
-    module
-        The cffi module of ``rig_kernel.c``.
-    """
-    from smartjoint.common import native, package_data
-
-    return native.load("rig", DECLARATIONS, package_data.path("smartjoint.design.friction", "rig_kernel.c"))
-
-
-def _integrate_c(module, p, gain, inertia, force, time, substeps, velocity0, deflection0):
-    ffi, lib = module.ffi, module.lib
-    rig = ffi.new("sj_rig *", dict(sigma0=p.sigma0, sigma1=p.sigma1, sigma2=p.sigma2, coulomb=p.coulomb,
-                                   stribeck=p.stribeck, stribeck_velocity=p.stribeck_velocity,
-                                   max_deflection=p.max_deflection, inertia=float(inertia)))
-    velocity = np.empty(time.size)
-    deflection = np.empty(time.size)
-
-    def pointer(array):
-        return ffi.cast("double *", ffi.from_buffer(array))
-
-    lib.sj_rig_integrate(rig, pointer(time), time.size, int(substeps), pointer(force), pointer(gain),
-                         float(velocity0), float(deflection0), pointer(velocity), pointer(deflection))
-    return velocity, deflection
-
-
-def _integrate_python(p, gain, inertia, force, time, substeps, velocity0, deflection0):
-    """Reference loop: rig_kernel.c mirrors it statement for statement."""
-    force = force.tolist()
-    gain = gain.tolist()
-    s0, s1, s2 = p.sigma0, p.sigma1, p.sigma2
-    fc, fd, vs = p.coulomb, p.stribeck, p.stribeck_velocity
-
-    def rates(excitation, scale, v, phi):
-        ratio = v / vs
-        level = fc + fd * math.exp(-(ratio * ratio))
-        phidot = v - s0 * abs(v) / level * phi
-        mu = s0 * phi + s1 * phidot + s2 * v
-        return (excitation - scale * mu) / inertia, phidot, level
-
-    velocity = np.zeros(time.size)
-    deflection = np.zeros(time.size)
-    v, phi = float(velocity0), float(deflection0)
-    velocity[0], deflection[0] = v, phi
-    node = 0
-    for k in range(1, time.size):
-        h = float(time[k] - time[k - 1]) / substeps
-        for _ in range(substeps):
-            a0, d0, _ = rates(force[node], gain[node], v, phi)
-            node += 1
-            v1, phi1 = v + h * a0, phi + h * d0  # explicit predictor, then Newton
-            for _ in range(ITERATIONS):
-                a1, d1, level = rates(force[node], gain[node], v1, phi1)
-                r_v = v1 - v - 0.5 * h * (a0 + a1)
-                r_p = phi1 - phi - 0.5 * h * (d0 + d1)
-                # ∂φ̇/∂φ, ∂φ̇/∂v (sign(v) kink handled one-sidedly) and ∂a/∂·
-                f_phi = -s0 * abs(v1) / level
-                d_level = -2.0 * v1 / (vs * vs) * (level - fc)
-                sign = 1.0 if v1 > 0 else (-1.0 if v1 < 0 else 0.0)
-                f_v = 1.0 - s0 * phi1 * (sign * level - abs(v1) * d_level) / (level * level)
-                a_v = -gain[node] * (s1 * f_v + s2) / inertia
-                a_phi = -gain[node] * (s0 + s1 * f_phi) / inertia
-                j11, j12 = 1.0 - 0.5 * h * a_v, -0.5 * h * a_phi
-                j21, j22 = -0.5 * h * f_v, 1.0 - 0.5 * h * f_phi
-                det = j11 * j22 - j12 * j21
-                dv = (r_v * j22 - j12 * r_p) / det
-                dp = (j11 * r_p - j21 * r_v) / det
-                v1 -= dv
-                phi1 -= dp
-                if abs(dv) <= 1e-13 * (1.0 + abs(v1)) and abs(dp) <= 1e-12 * p.max_deflection:
-                    break
-            v, phi = v1, phi1
-        velocity[k] = v
-        deflection[k] = phi
-    return velocity, deflection
-
-
-def campaign(joint_type: str, parameters: lugre.LuGreParameters | None = None, noise: float = 0.0, seed: int = 0,
-             cycles: float = 4.0) -> list[RigTest]:
+def campaign(
+    joint_type: str,
+    parameters: lugre.LuGreParameters | None = None,
+    noise: float = 0.0,
+    seed: int = 0,
+    cycles: float = 4.0,
+) -> list[RigTest]:
     """The standard two-regime test set of Section 3.2 at two normal forces.
 
     Micro-slip: half the break-away amplitude at 10 Hz. Stick-slip: 1.1× and 1.3× the
@@ -446,22 +338,40 @@ def campaign(joint_type: str, parameters: lugre.LuGreParameters | None = None, n
     """
     p = parameters or lugre.TABLE_1[joint_type]
     if not p.stribeck > 0.0:
-        raise RigError(f"stribeck: {p.stribeck!r} — the campaign sizes the stick-slip inertia from F_d "
-                       "(sliding at about 5·v_s); must be > 0")
+        raise RigError(
+            f"stribeck: {p.stribeck!r} — the campaign sizes the stick-slip inertia from F_d "
+            "(sliding at about 5·v_s); must be > 0"
+        )
     micro_inertia = 1.0 if joint_type == "A" else 2e-3
     tests = []
     for normal_force in (200.0, 400.0):
         level = breakaway(p, normal_force)
         seed += 1
-        tests.append(RigTest(joint_type, normal_force, 0.5 * level, 10.0, cycles, micro_inertia, noise=noise, seed=seed))
+        tests.append(
+            RigTest(joint_type, normal_force, 0.5 * level, 10.0, cycles, micro_inertia, noise=noise, seed=seed)
+        )
         for factor, frequency in ((1.1, 10.0), (1.3, 20.0)):
             inertia = p.moment_arm * normal_force * p.stribeck / (2.0 * np.pi * frequency * 5.0 * p.stribeck_velocity)
             seed += 1
-            tests.append(RigTest(joint_type, normal_force, factor * level, frequency, cycles, inertia, noise=noise,
-                                 seed=seed))
+            tests.append(
+                RigTest(joint_type, normal_force, factor * level, frequency, cycles, inertia, noise=noise, seed=seed)
+            )
     return tests
 
 
-__all__ = ["DECLARATIONS", "ITERATIONS", "LUGRE_NAMES", "MAX_SAMPLES", "PARAMETER_BOUNDS", "PARAMETER_UNITS",
-           "ParameterSet", "RigError", "RigTest", "SUBSTEPS", "TABLE_1_SOURCE", "breakaway", "campaign",
-           "check_test", "integrate", "kernel", "load_parameter_set", "parameter_set", "simulate"]
+__all__ = [
+    "LUGRE_NAMES",
+    "MAX_SAMPLES",
+    "PARAMETER_BOUNDS",
+    "PARAMETER_UNITS",
+    "ParameterSet",
+    "RigError",
+    "RigTest",
+    "TABLE_1_SOURCE",
+    "breakaway",
+    "campaign",
+    "check_test",
+    "load_parameter_set",
+    "parameter_set",
+    "simulate",
+]

@@ -1,6 +1,6 @@
-/* Isolated-joint rig kernel of smartjoint.design.friction.rig (compiled on first use through cffi).
+/* Isolated-joint rig kernel of smartjoint.design.friction.rig_integration (compiled on first use through cffi).
  *
- * The same algorithm as rig._integrate_python, statement for statement, so that the two agree
+ * The same algorithm as rig_integration._integrate_python, statement for statement, so that the two agree
  * to round-off (tests/test_identify.py): the rig model of paper Section 3.2
  *
  *     m v' = F_exc - gain mu(v, phi),   phi' = f(v, phi)        (Eq. 1-2, gain = r F_N)

@@ -19,5 +19,15 @@ from smartjoint.design.network.protocol import (
     load_dbc,
 )
 
-__all__ = ["AMPLIFIER_FAULTS", "CONTROLLER", "CONTROLLER_FAULTS", "E2E_SIGNALS", "MODES", "MODE_SAFE", "Amplifier",
-           "database", "dbc_text", "load_dbc"]
+__all__ = [
+    "AMPLIFIER_FAULTS",
+    "CONTROLLER",
+    "CONTROLLER_FAULTS",
+    "E2E_SIGNALS",
+    "MODES",
+    "MODE_SAFE",
+    "Amplifier",
+    "database",
+    "dbc_text",
+    "load_dbc",
+]

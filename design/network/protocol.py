@@ -7,10 +7,10 @@ starts with the E2E bytes of ``bench/e2e.py``: byte 0 CRC-8 J1850, bits 8–11 a
 
 | frame | id | sender | cycle | payload |
 |---|---|---|---|---|
-| ``JOINT_<j>`` | 0x100 + j | joint sensor node | Δt | sliding velocity v_j, friction force u_R,j, applied normal force F_N,j |
+| ``JOINT_<j>`` | 0x100 + j | joint sensor node | Δt | sliding velocity v_j, friction u_R,j, applied normal F_N,j |
 | ``TIP_SENSORS`` | 0x180 | tip sensor node | Δt | the design's sensors y (m or m/s) |
 | ``SETPOINT_<j>`` | 0x200 + j | controller | Δt | piezo voltage setpoint V_j (F_N = k·V + preload) |
-| ``AMP_STATUS_<j>`` | 0x280 + j | amplifier j | Δt | monitor voltage, current, temperature, fault bits, own safe state |
+| ``AMP_STATUS_<j>`` | 0x280 + j | amplifier j | Δt | monitor voltage, current, temperature, faults, own safe state |
 | ``CONTROLLER_STATUS`` | 0x080 | controller | Δt | heartbeat: mode, inputs missing, step status, fault bits |
 
 The heartbeat goes every cycle: the amplifiers watch it (and their setpoints) and go to the
@@ -48,12 +48,29 @@ MODES = {0: "INIT", 1: "SISO", 2: "CLQG", 3: "SAFE"}
 AMPLIFIER_FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current")
 MODE_SAFE = 3
 # Fault bits of CONTROLLER_STATUS.faults, in bit order (the C layer's <PREFIX>_CAN_FAULT_*).
-CONTROLLER_FAULTS = ("velocity", "friction", "normal_force", "sensor", "temperature", "current", "tracking",
-                     "amplifier", "amplifier_safe", "timeout", "e2e", "controller", "law")
+CONTROLLER_FAULTS = (
+    "velocity",
+    "friction",
+    "normal_force",
+    "sensor",
+    "temperature",
+    "current",
+    "tracking",
+    "amplifier",
+    "amplifier_safe",
+    "timeout",
+    "e2e",
+    "controller",
+    "law",
+)
 E2E_SIGNALS = ("crc", "counter", "sync")  # E2E bytes and the heartbeat echo; no sensor signal may take these names
-SYNC_COMMENT = ("the alive counter of the last controller heartbeat this node saw: the controller tells from it "
-                "how many of its cycles the frame is old (docs/safety.md)")
-CYCLE_TIME_MAX_MS = ATTRIBUTE_DEFINITION_GENMSGCYCLETIME.maximum  # the DBC attribute is an INT of this range
+SYNC_COMMENT = (
+    "the alive counter of the last controller heartbeat this node saw: the controller tells from it "
+    "how many of its cycles the frame is old (docs/safety.md)"
+)
+_CYCLE_TIME_MAX = ATTRIBUTE_DEFINITION_GENMSGCYCLETIME.maximum
+assert isinstance(_CYCLE_TIME_MAX, int)  # cantools gives GenMsgCycleTime its range
+CYCLE_TIME_MAX_MS: int = _CYCLE_TIME_MAX  # the DBC attribute is an INT of this range
 
 
 @dataclass(frozen=True)
@@ -69,16 +86,27 @@ def _e2e(frame_id: int, sync: int | None = None) -> list[can.Signal]:
     """The E2E signals of a frame, and for the frames the controller reads the heartbeat echo
     (4 bits at ``sync``)."""
     crc, counter, echo = E2E_SIGNALS
-    signals = [can.Signal(crc, 0, 8, comment="CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1"),
-               can.Signal(counter, 8, 4, minimum=0, maximum=15, comment="alive counter, +1 per frame, mod 16")]
+    signals = [
+        can.Signal(crc, 0, 8, comment="CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1"),
+        can.Signal(counter, 8, 4, minimum=0, maximum=15, comment="alive counter, +1 per frame, mod 16"),
+    ]
     if sync is not None:
         signals.append(can.Signal(echo, sync, 4, minimum=0, maximum=15, comment=SYNC_COMMENT))
     return signals
 
 
 def _scaled(name, start, length, scale, signed, unit, minimum, maximum, comment) -> can.Signal:
-    return can.Signal(name, start, length, is_signed=signed, conversion=conversion.BaseConversion.factory(scale, 0.0),
-                      minimum=minimum, maximum=maximum, unit=unit, comment=comment)
+    return can.Signal(
+        name,
+        start,
+        length,
+        is_signed=signed,
+        conversion=conversion.BaseConversion.factory(scale, 0.0),
+        minimum=minimum,
+        maximum=maximum,
+        unit=unit,
+        comment=comment,
+    )
 
 
 def _fd_length(payload_bytes: int) -> int:
@@ -87,23 +115,29 @@ def _fd_length(payload_bytes: int) -> int:
 
 def _identifier(name: str, kind: str) -> str:
     if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", name):
-        raise ModelError(f"{kind}_names: {name!r} is not a valid DBC/C identifier ([A-Za-z_][A-Za-z0-9_]*) — it names "
-                         f"a frame of the CAN protocol; rename the {kind} in the design file")
+        raise ModelError(
+            f"{kind}_names: {name!r} is not a valid DBC/C identifier ([A-Za-z_][A-Za-z0-9_]*) — it names "
+            f"a frame of the CAN protocol; rename the {kind} in the design file"
+        )
     return name.upper()
 
 
 def _check_names(joints: list[str], sensors: list[str]) -> None:
     """Frame names upper-case the joint names, signal names lower-case the sensor names: both
     must stay distinct, and no sensor signal may repeat the E2E signals of its frame."""
-    for field, names, spell, what in (("joint_names", joints, str.upper, "frame JOINT_"),
-                                      ("sensor_names", sensors, str.lower, "TIP_SENSORS signal ")):
+    for field, names, spell, what in (
+        ("joint_names", joints, str.upper, "frame JOINT_"),
+        ("sensor_names", sensors, str.lower, "TIP_SENSORS signal "),
+    ):
         taken = {spell(n): f"the E2E signal {n!r}" for n in E2E_SIGNALS} if field == "sensor_names" else {}
         for i, name in enumerate(names):
             _identifier(name, field[:-6])
             key = spell(name)
             if key in taken:
-                raise ModelError(f"{field}[{i}]: {name!r} — the {what}{key} would repeat {taken[key]}; "
-                                 f"rename the {field[:-6]} in the design file")
+                raise ModelError(
+                    f"{field}[{i}]: {name!r} — the {what}{key} would repeat {taken[key]}; "
+                    f"rename the {field[:-6]} in the design file"
+                )
             taken[key] = f"{field}[{i}] {name!r}"
 
 
@@ -114,61 +148,205 @@ def _check_ranges(db: can.Database) -> None:
             if signal.minimum is None or signal.maximum is None:
                 continue
             raw_min = -(2 ** (signal.length - 1)) if signal.is_signed else 0
-            raw_max = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2 ** signal.length - 1
-            low, high = sorted((signal.conversion.raw_to_scaled(raw_min, decode_choices=False),
-                                signal.conversion.raw_to_scaled(raw_max, decode_choices=False)))
+            raw_max = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2**signal.length - 1
+            low, high = sorted((_physical(signal, raw_min), _physical(signal, raw_max)))
             if signal.minimum < low or signal.maximum > high:
                 unit = f" {signal.unit}" if signal.unit else ""
-                raise ModelError(f"{message.name}.{signal.name}: range [{signal.minimum:g}, {signal.maximum:g}]{unit} "
-                                 f"— its {signal.length}-bit field carries [{float(low):g}, {float(high):g}]")
+                raise ModelError(
+                    f"{message.name}.{signal.name}: range [{signal.minimum:g}, {signal.maximum:g}]{unit} "
+                    f"— its {signal.length}-bit field carries [{float(low):g}, {float(high):g}]"
+                )
+
+
+def _physical(signal: can.Signal, raw: int) -> float:
+    """A raw value in the signal's physical units: a number, as choices are not decoded."""
+    value = signal.conversion.raw_to_scaled(raw, decode_choices=False)
+    assert isinstance(value, (int, float))
+    return value
 
 
 def _cycle_ms(sample_time: float) -> int:
     """The frames' cycle time: the sample time in whole milliseconds, as DBC carries it."""
     cycle = sample_time * 1000.0
     if abs(cycle - round(cycle)) > 1e-9 or round(cycle) < 1:
-        raise ModelError(f"sample_time: {sample_time!r} s — DBC cycle times are whole milliseconds; use a "
-                         "sample time of 1 ms, 2 ms, …")
+        raise ModelError(
+            f"sample_time: {sample_time!r} s — DBC cycle times are whole milliseconds; use a "
+            "sample time of 1 ms, 2 ms, …"
+        )
     cycle = int(round(cycle))
     if cycle > CYCLE_TIME_MAX_MS:
-        raise ModelError(f"sample_time: {sample_time!r} s — DBC cycle times (GenMsgCycleTime) are at most "
-                         f"{CYCLE_TIME_MAX_MS} ms")
+        raise ModelError(
+            f"sample_time: {sample_time!r} s — DBC cycle times (GenMsgCycleTime) are at most {CYCLE_TIME_MAX_MS} ms"
+        )
     return cycle
+
+
+def _joint_message(j: int, name: str, tag: str, cycle: int) -> can.Message:
+    """The JOINT frame of joint ``j``: sliding velocity, friction and applied normal force."""
+    frame_id = JOINT_BASE + j
+    signals = _e2e(frame_id, sync=12) + [
+        _scaled("sliding_velocity", 16, 32, 1e-9, True, "m/s", -2.0, 2.0, f"v of joint {name}"),
+        _scaled("friction_force", 48, 32, 1e-5, True, "N", -20000.0, 20000.0, f"u_R of joint {name}"),
+        _scaled("normal_force", 80, 16, 0.02, False, "N", 0.0, 1310.0, f"applied F_N of joint {name}"),
+    ]
+    return can.Message(
+        frame_id,
+        f"JOINT_{tag}",
+        12,
+        signals,
+        senders=[f"JOINT_NODE_{tag}"],
+        cycle_time=cycle,
+        is_fd=True,
+        comment=f"joint {name}: v, u_R, F_N",
+    )
+
+
+def _setpoint_message(j: int, name: str, tag: str, amplifier: Amplifier, cycle: int) -> can.Message:
+    """The SETPOINT frame the controller sends amplifier ``j``: the piezo voltage."""
+    volts = _scaled(
+        "voltage",
+        16,
+        32,
+        1e-7,
+        False,
+        "V",
+        0.0,
+        amplifier.voltage_max,
+        f"piezo voltage setpoint of joint {name}: F_N = {amplifier.force_per_volt:g}*V + {amplifier.preload:g} N",
+    )
+    return can.Message(
+        SETPOINT_BASE + j,
+        f"SETPOINT_{tag}",
+        6,
+        _e2e(SETPOINT_BASE + j) + [volts],
+        senders=[CONTROLLER],
+        cycle_time=cycle,
+        is_fd=True,
+        comment=f"setpoint of amplifier {name}",
+    )
+
+
+def _amplifier_status_message(j: int, name: str, tag: str, amplifier: Amplifier, cycle: int) -> can.Message:
+    """The AMP_STATUS frame amplifier ``j`` sends: monitor voltage, current, temperature, faults."""
+    status = (
+        _e2e(STATUS_BASE + j, sync=60)
+        + [
+            _scaled("monitor_voltage", 16, 16, 0.005, False, "V", 0.0, amplifier.voltage_max, "measured output"),
+            _scaled("current", 32, 16, 1e-4, True, "A", -3.0, 3.0, "output current"),
+            can.Signal(
+                "temperature",
+                48,
+                8,
+                conversion=conversion.BaseConversion.factory(1.0, -40.0),
+                minimum=-40.0,
+                maximum=215.0,
+                unit="degC",
+                comment="amplifier temperature",
+            ),
+        ]
+        + [
+            can.Signal(fault, 12 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
+            for k, fault in enumerate(AMPLIFIER_FAULTS)
+        ]
+        + [
+            can.Signal(
+                "safe_state",
+                56,
+                1,
+                comment="the amplifier's watchdog tripped and holds the safe force "
+                "(no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold "
+                "before the first command, nor following the heartbeat's mode)",
+            )
+        ]
+    )
+    return can.Message(
+        STATUS_BASE + j,
+        f"AMP_STATUS_{tag}",
+        8,
+        status,
+        senders=[f"AMPLIFIER_{tag}"],
+        cycle_time=cycle,
+        is_fd=True,
+        comment=f"amplifier {name} status",
+    )
 
 
 def _joint_frames(j: int, name: str, amplifier: Amplifier, cycle: int) -> tuple[list, list]:
     """The nodes (sensor node, amplifier) and frames (JOINT, SETPOINT, AMP_STATUS) of joint ``j``."""
     tag = _identifier(name, "joint")
-    nodes: list = []
-    messages: list = []
-    frame_id = JOINT_BASE + j
-    signals = _e2e(frame_id, sync=12) + [
-        _scaled("sliding_velocity", 16, 32, 1e-9, True, "m/s", -2.0, 2.0, f"v of joint {name}"),
-        _scaled("friction_force", 48, 32, 1e-5, True, "N", -20000.0, 20000.0, f"u_R of joint {name}"),
-        _scaled("normal_force", 80, 16, 0.02, False, "N", 0.0, 1310.0, f"applied F_N of joint {name}")]
-    nodes.append(can.Node(f"JOINT_NODE_{tag}", comment=f"sensors of joint {name}"))
-    nodes.append(can.Node(f"AMPLIFIER_{tag}", comment=f"piezo amplifier of joint {name}"))
-    messages.append(can.Message(frame_id, f"JOINT_{tag}", 12, signals, senders=[f"JOINT_NODE_{tag}"],
-                                cycle_time=cycle, is_fd=True, comment=f"joint {name}: v, u_R, F_N"))
-    volts = _scaled("voltage", 16, 32, 1e-7, False, "V", 0.0, amplifier.voltage_max,
-                    f"piezo voltage setpoint of joint {name}: F_N = {amplifier.force_per_volt:g}*V + "
-                    f"{amplifier.preload:g} N")
-    messages.append(can.Message(SETPOINT_BASE + j, f"SETPOINT_{tag}", 6, _e2e(SETPOINT_BASE + j) + [volts],
-                                senders=[CONTROLLER], cycle_time=cycle, is_fd=True,
-                                comment=f"setpoint of amplifier {name}"))
-    status = _e2e(STATUS_BASE + j, sync=60) + [
-        _scaled("monitor_voltage", 16, 16, 0.005, False, "V", 0.0, amplifier.voltage_max, "measured output"),
-        _scaled("current", 32, 16, 1e-4, True, "A", -3.0, 3.0, "output current"),
-        can.Signal("temperature", 48, 8, conversion=conversion.BaseConversion.factory(1.0, -40.0), minimum=-40.0,
-                   maximum=215.0, unit="degC", comment="amplifier temperature"),
-    ] + [can.Signal(fault, 12 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
-         for k, fault in enumerate(AMPLIFIER_FAULTS)] + [
-        can.Signal("safe_state", 56, 1, comment="the amplifier's watchdog tripped and holds the safe force "
-                   "(no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold "
-                   "before the first command, nor following the heartbeat's mode)")]
-    messages.append(can.Message(STATUS_BASE + j, f"AMP_STATUS_{tag}", 8, status, senders=[f"AMPLIFIER_{tag}"],
-                                cycle_time=cycle, is_fd=True, comment=f"amplifier {name} status"))
+    nodes = [
+        can.Node(f"JOINT_NODE_{tag}", comment=f"sensors of joint {name}"),
+        can.Node(f"AMPLIFIER_{tag}", comment=f"piezo amplifier of joint {name}"),
+    ]
+    messages = [
+        _joint_message(j, name, tag, cycle),
+        _setpoint_message(j, name, tag, amplifier, cycle),
+        _amplifier_status_message(j, name, tag, amplifier, cycle),
+    ]
     return nodes, messages
+
+
+def _tip_message(sensors: list[str], cycle: int) -> can.Message:
+    """The TIP_SENSORS frame: one signal per sensor of the design's y."""
+    tip = _e2e(TIP_ID, sync=12) + [
+        _scaled(_identifier(s, "sensor").lower(), 16 + 32 * k, 32, 1e-8, True, "m", -20.0, 20.0, f"sensor {s}")
+        for k, s in enumerate(sensors)
+    ]
+    return can.Message(
+        TIP_ID,
+        "TIP_SENSORS",
+        _fd_length(2 + 4 * len(sensors)),
+        tip,
+        senders=["TIP_NODE"],
+        cycle_time=cycle,
+        is_fd=True,
+        comment="tip sensors y",
+    )
+
+
+def _controller_status_message(cycle: int) -> can.Message:
+    """The CONTROLLER_STATUS heartbeat: mode, step status, missing inputs and fault bits."""
+    mode = can.Signal(
+        "mode",
+        16,
+        4,
+        minimum=0,
+        maximum=3,
+        comment="0 init, 1 SISO, 2 cLQG, 3 safe state",
+        conversion=conversion.BaseConversion.factory(1, 0, OrderedDict(MODES)),
+    )
+    controller = _e2e(CONTROLLER_ID) + [
+        mode,
+        can.Signal("step_status", 24, 8, comment="status bits of the last step"),
+        can.Signal("missing_inputs", 20, 4, comment="inputs in timeout or invalid"),
+        can.Signal(
+            "faults",
+            32,
+            16,
+            comment="why the safe state holds: bits "
+            + ", ".join(f"{k} {name}" for k, name in enumerate(CONTROLLER_FAULTS)),
+        ),
+    ]
+    return can.Message(
+        CONTROLLER_ID,
+        "CONTROLLER_STATUS",
+        8,
+        controller,
+        senders=[CONTROLLER],
+        cycle_time=cycle,
+        is_fd=True,
+        comment="controller heartbeat: the amplifiers go to the safe force without it",
+    )
+
+
+def _fd_specifics() -> DbcSpecifics:
+    """The DBC specifics that mark the bus as CAN FD."""
+    # BusType "CAN FD" makes cantools write VFrameFormat per frame, so is_fd survives the DBC.
+    bus_type = DbcAttributeDefinition("BusType", default_value="CAN", kind=None, type_name="STRING")
+    return DbcSpecifics(
+        attributes=OrderedDict(BusType=DbcAttribute("CAN FD", bus_type)),
+        attribute_definitions=OrderedDict(BusType=bus_type),
+    )
 
 
 def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -> can.Database:
@@ -206,34 +384,21 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
         raise ModelError(f"sensor_names: {len(sensors)} sensors — one TIP_SENSORS frame carries 1…{MAX_SENSORS}")
     _check_names(joints, sensors)
     cycle = _cycle_ms(artifact.sample_time)
-    nodes = [can.Node(CONTROLLER, comment="semi-active controller (generated firmware)"),
-             can.Node("TIP_NODE", comment="tip deflection sensors")]
+    nodes = [
+        can.Node(CONTROLLER, comment="semi-active controller (generated firmware)"),
+        can.Node("TIP_NODE", comment="tip deflection sensors"),
+    ]
     messages = []
     for j, name in enumerate(joints):
         joint_nodes, joint_messages = _joint_frames(j, name, amplifier, cycle)
         nodes += joint_nodes
         messages += joint_messages
-    tip = _e2e(TIP_ID, sync=12) + [
-        _scaled(_identifier(s, "sensor").lower(), 16 + 32 * k, 32, 1e-8, True, "m", -20.0, 20.0, f"sensor {s}")
-        for k, s in enumerate(sensors)]
-    messages.append(can.Message(TIP_ID, "TIP_SENSORS", _fd_length(2 + 4 * len(sensors)), tip, senders=["TIP_NODE"],
-                                cycle_time=cycle, is_fd=True, comment="tip sensors y"))
-    mode = can.Signal("mode", 16, 4, minimum=0, maximum=3, comment="0 init, 1 SISO, 2 cLQG, 3 safe state",
-                      conversion=conversion.BaseConversion.factory(1, 0, dict(MODES)))
-    controller = _e2e(CONTROLLER_ID) + [mode, can.Signal("step_status", 24, 8, comment="status bits of the last step"),
-                                        can.Signal("missing_inputs", 20, 4, comment="inputs in timeout or invalid"),
-                                        can.Signal("faults", 32, 16, comment="why the safe state holds: bits " + ", ".join(
-                                            f"{k} {name}" for k, name in enumerate(CONTROLLER_FAULTS)))]
-    messages.append(can.Message(CONTROLLER_ID, "CONTROLLER_STATUS", 8, controller, senders=[CONTROLLER],
-                                cycle_time=cycle, is_fd=True,
-                                comment="controller heartbeat: the amplifiers go to the safe force without it"))
+    messages.append(_tip_message(sensors, cycle))
+    messages.append(_controller_status_message(cycle))
     messages.sort(key=lambda m: m.frame_id)
-    # BusType "CAN FD" makes cantools write VFrameFormat per frame, so is_fd survives the DBC.
-    bus_type = DbcAttributeDefinition("BusType", default_value="CAN", kind=None, type_name="STRING")
-    specifics = DbcSpecifics(attributes=OrderedDict(BusType=DbcAttribute("CAN FD", bus_type)),
-                             attribute_definitions=OrderedDict(BusType=bus_type))
-    db = can.Database(messages, nodes, version=f"smartjoint artefact {artifact.artifact_sha256[:16]}",
-                      dbc_specifics=specifics)
+    db = can.Database(
+        messages, nodes, version=f"smartjoint artefact {artifact.artifact_sha256[:16]}", dbc_specifics=_fd_specifics()
+    )
     db.refresh()
     _check_ranges(db)
     return db
@@ -274,6 +439,8 @@ def load_dbc(text: str) -> can.Database:
         The text does not parse as DBC (one line, with cantools' reason).
     """
     try:
-        return cantools.database.load_string(text, database_format="dbc")
+        db = cantools.database.load_string(text, database_format="dbc")
     except Exception as error:  # cantools raises several parser errors
         raise ModelError(f"DBC: cannot parse ({type(error).__name__}: {error})") from None
+    assert isinstance(db, can.Database)  # the DBC format always loads a CAN database
+    return db

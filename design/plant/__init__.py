@@ -17,6 +17,22 @@ from smartjoint.design.plant.loop import SimulationResult, simulate
 from smartjoint.design.plant.reference import reference_simulation, reference_system
 from smartjoint.design.plant.schemes import SCHEMES
 
-__all__ = ["SCHEMES", "ConstantNormalForce", "Controller", "HoldDuringExcitation", "Kernel", "Measurements",
-           "PlantRun", "Scheme", "SimulationResult", "TriangularPulse", "discretise", "first_order_hold",
-           "reference_simulation", "reference_system", "simulate", "triangular_pulse", "work_coefficients"]
+__all__ = [
+    "SCHEMES",
+    "ConstantNormalForce",
+    "Controller",
+    "HoldDuringExcitation",
+    "Kernel",
+    "Measurements",
+    "PlantRun",
+    "Scheme",
+    "SimulationResult",
+    "TriangularPulse",
+    "discretise",
+    "first_order_hold",
+    "reference_simulation",
+    "reference_system",
+    "simulate",
+    "triangular_pulse",
+    "work_coefficients",
+]

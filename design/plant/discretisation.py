@@ -49,11 +49,11 @@ def first_order_hold(system: np.ndarray, inputs: np.ndarray, step: float) -> tup
     n, q = system.shape[-1], inputs.shape[-1]
     augmented = np.zeros(system.shape[:-2] + (n + 2 * q, n + 2 * q))
     augmented[..., :n, :n] = system * step
-    augmented[..., :n, n:n + q] = inputs * step
-    augmented[..., n:n + q, n + q:] = np.eye(q)
+    augmented[..., :n, n : n + q] = inputs * step
+    augmented[..., n : n + q, n + q :] = np.eye(q)
     ex = scipy.linalg.expm(augmented)
-    gamma_b = ex[..., :n, n + q:]
-    return ex[..., :n, :n], ex[..., :n, n:n + q] - gamma_b, gamma_b
+    gamma_b = ex[..., :n, n + q :]
+    return ex[..., :n, :n], ex[..., :n, n : n + q] - gamma_b, gamma_b
 
 
 def discretise(model: ModalModel, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -153,8 +153,12 @@ def step_works(c, y0, y1, f_a, f_b):
     """
     m0 = c[0] * y0 + c[1] * y1 + c[2] * f_a + c[3] * f_b
     m1 = c[4] * y0 + c[5] * y1 + c[6] * f_a + c[7] * f_b
-    damping = (y0 * (c[8] * y0 + c[12] * y1 + c[13] * f_a + c[14] * f_b) + y1 * (c[9] * y1 + c[15] * f_a + c[16] * f_b)
-               + f_a * (c[10] * f_a + c[17] * f_b) + c[11] * f_b * f_b)
+    damping = (
+        y0 * (c[8] * y0 + c[12] * y1 + c[13] * f_a + c[14] * f_b)
+        + y1 * (c[9] * y1 + c[15] * f_a + c[16] * f_b)
+        + f_a * (c[10] * f_a + c[17] * f_b)
+        + c[11] * f_b * f_b
+    )
     return m0, m1, damping
 
 

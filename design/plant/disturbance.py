@@ -100,12 +100,13 @@ def at_steps(disturbance, steps: int, step: float, m: int, compact: bool = False
 def _samples(disturbance, times: np.ndarray, m: int) -> np.ndarray:
     """w at the given times, (n_t, m): one vectorised call where the function offers it."""
     sample = getattr(disturbance, "sample", None)
-    values = sample(times) if sample else np.array([np.asarray(disturbance(t), dtype=float).reshape(-1)
-                                                     for t in times])
+    values = sample(times) if sample else np.array([np.asarray(disturbance(t), dtype=float).reshape(-1) for t in times])
     values = np.asarray(values, dtype=float)
     if values.shape != (times.size, m):
-        raise ModelError(f"disturbance: returned {values.shape[1:] if values.ndim == 2 else values.shape} values per "
-                         f"time — need {m} (one per disturbance input)")
+        raise ModelError(
+            f"disturbance: returned {values.shape[1:] if values.ndim == 2 else values.shape} values per "
+            f"time — need {m} (one per disturbance input)"
+        )
     if not np.all(np.isfinite(values)):
         bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))[0]
         raise ModelError(f"disturbance: non-finite value {values[bad].tolist()} at t = {times[bad]:.6g} s")

@@ -84,15 +84,19 @@ class _Plant:
         self.step = step
         # (l, n), padded with zero rows to a multiple of 4: the C kernel takes four joints per pass
         self.ET_padded = np.zeros((-(-self.l // 4) * 4, self.n))
-        self.ET_padded[:self.l] = model.joint_input.T
-        self.ET = self.ET_padded[:self.l]
+        self.ET_padded[: self.l] = model.joint_input.T
+        self.ET = self.ET_padded[: self.l]
         self.HT = np.ascontiguousarray(model.disturbance_input.T, dtype=float)  # (m, n)
         self.Vy = np.ascontiguousarray(model.velocity_output, dtype=float)
         self.Dy = np.ascontiguousarray(model.displacement_output / model.omega, dtype=float)
         self.two_xi_w = 2.0 * model.damping * model.omega
         self.law = JointLaws(joints)
         levels = MAX_HALVINGS + 1
-        self.phi, self.g0, self.g1 = np.zeros((levels, 4, self.n)), np.zeros((levels, 2, self.n)), np.zeros((levels, 2, self.n))
+        self.phi, self.g0, self.g1 = (
+            np.zeros((levels, 4, self.n)),
+            np.zeros((levels, 2, self.n)),
+            np.zeros((levels, 2, self.n)),
+        )
         self.G = np.zeros((levels, self.l, self.l))
         self.books = books
         self.book = np.zeros((levels, 18, self.n if books else 0))
@@ -161,8 +165,9 @@ class _PythonKernel(_Kernel):
             v_new, phi_new, u_new = _solve_joints(p.law, G, v_free, s.v, s.phi, s.fn, h, s.u)
         except _SolveFailed as failure:
             if depth >= MAX_HALVINGS:
-                raise ModelError(f"joint solve did not converge at step {h:.3g} s (residual {failure.residual:.3g}); "
-                                 "reduce the step") from None
+                raise ModelError(
+                    f"joint solve did not converge at step {h:.3g} s (residual {failure.residual:.3g}); reduce the step"
+                ) from None
             w_mid = 0.5 * (w_a + w_b)  # linear in the step, as the first-order hold assumes
             self._advance(w_a, w_mid, depth + 1)
             self._advance(w_mid, w_b, depth + 1)
@@ -191,9 +196,9 @@ class _CKernel(_Kernel):
     def __init__(self, plant: _Plant, state: State, recorder: Recorder):
         super().__init__(plant, state, recorder)
         module = native_module()
-        self.ffi, self.lib = module.ffi, module.lib
-        ffi = self.ffi
-        self._keep = []  # arrays whose memory the C structs point into
+        ffi = self.ffi = module.ffi
+        self.lib = module.lib
+        self._keep: list[np.ndarray] = []  # arrays whose memory the C structs point into
 
         def ptr(array):
             array = np.ascontiguousarray(array, dtype=float)
@@ -202,18 +207,52 @@ class _CKernel(_Kernel):
 
         law = plant.law
         self.work = np.zeros(5 * plant.n + 7 * plant.l + plant.l**2 + 1)
-        self.cp = ffi.new("sj_plant *", dict(
-            n=plant.n, l=plant.l, m=plant.m, ny=plant.ny, levels=MAX_HALVINGS + 1, books=int(plant.books), step=plant.step,
-            phi=ptr(plant.phi), g0=ptr(plant.g0), g1=ptr(plant.g1), G=ptr(plant.G), book=ptr(plant.book), ET=ptr(plant.ET_padded), HT=ptr(plant.HT),
-            Vy=ptr(plant.Vy), Dy=ptr(plant.Dy), two_xi_w=ptr(plant.two_xi_w), s0=ptr(law.s0), s1=ptr(law.s1),
-            s2=ptr(law.s2), fc=ptr(law.fc), fd=ptr(law.fd), vs=ptr(law.vs), arm=ptr(law.arm), bound=ptr(law.bound),
-            work=ptr(self.work)))
+        self.cp = ffi.new(
+            "sj_plant *",
+            dict(
+                n=plant.n,
+                l=plant.l,
+                m=plant.m,
+                ny=plant.ny,
+                levels=MAX_HALVINGS + 1,
+                books=int(plant.books),
+                step=plant.step,
+                phi=ptr(plant.phi),
+                g0=ptr(plant.g0),
+                g1=ptr(plant.g1),
+                G=ptr(plant.G),
+                book=ptr(plant.book),
+                ET=ptr(plant.ET_padded),
+                HT=ptr(plant.HT),
+                Vy=ptr(plant.Vy),
+                Dy=ptr(plant.Dy),
+                two_xi_w=ptr(plant.two_xi_w),
+                s0=ptr(law.s0),
+                s1=ptr(law.s1),
+                s2=ptr(law.s2),
+                fc=ptr(law.fc),
+                fd=ptr(law.fd),
+                vs=ptr(law.vs),
+                arm=ptr(law.arm),
+                bound=ptr(law.bound),
+                work=ptr(self.work),
+            ),
+        )
         for name in ("x", "q", "v", "phi", "u", "fn"):  # shared memory: C writes, numpy reads
             setattr(state, name, np.ascontiguousarray(getattr(state, name), dtype=float))
         self.cs = ffi.new("sj_state *", {name: ptr(getattr(state, name)) for name in ("x", "q", "v", "phi", "u", "fn")})
-        self.cr = ffi.new("sj_record *", dict(v=ptr(recorder.v), u=ptr(recorder.u), fn=ptr(recorder.fn),
-                                              phi=ptr(recorder.phi), sensors=ptr(recorder.sensors),
-                                              energy=ptr(recorder.energy), works=ptr(recorder.works)))
+        self.cr = ffi.new(
+            "sj_record *",
+            dict(
+                v=ptr(recorder.v),
+                u=ptr(recorder.u),
+                fn=ptr(recorder.fn),
+                phi=ptr(recorder.phi),
+                sensors=ptr(recorder.sensors),
+                energy=ptr(recorder.energy),
+                works=ptr(recorder.works),
+            ),
+        )
 
     def _pull(self):
         cs = self.cs
@@ -234,12 +273,15 @@ class _CKernel(_Kernel):
 
     def run(self, w, steps, k0, record_every):
         w = np.ascontiguousarray(w, dtype=float)
-        done = self.lib.sj_run(self.cp, self.cs, self.ffi.cast("double *", self.ffi.from_buffer(w)), steps, k0,
-                               record_every, self.cr)
+        done = self.lib.sj_run(
+            self.cp, self.cs, self.ffi.cast("double *", self.ffi.from_buffer(w)), steps, k0, record_every, self.cr
+        )
         self._pull()
         if done < steps:
-            raise ModelError(f"joint solve did not converge at step {self.cs.failed_step:.3g} s (residual "
-                             f"{self.cs.failed_residual:.3g}); reduce the step")
+            raise ModelError(
+                f"joint solve did not converge at step {self.cs.failed_step:.3g} s (residual "
+                f"{self.cs.failed_residual:.3g}); reduce the step"
+            )
 
 
 _C_FAILURE: list[str] = []  # why the C kernel is unavailable on this machine (reported once)
@@ -275,11 +317,25 @@ def kernel(run: PlantRun):
     plant = _Plant(run.model, run.joints, run.step, run.energy_books)
     state = State(plant.ET, run.initial_state)
     recorder = Recorder(run.rows, plant.l, plant.ny)
-    return native.choose(run.backend, "plant simulation", lambda: _CKernel(plant, state, recorder),
-                         lambda: _PythonKernel(plant, state, recorder), _C_FAILURE)
+    return native.choose(
+        run.backend,
+        "plant simulation",
+        lambda: _CKernel(plant, state, recorder),
+        lambda: _PythonKernel(plant, state, recorder),
+        _C_FAILURE,
+    )
 
 
 FRICTION = True  # LuGre joints; the controller commands normal forces
 COMPACT_DISTURBANCE = False
 
-__all__ = ["ITERATIONS", "MAX_DISTURBANCES", "MAX_HALVINGS", "COMPACT_DISTURBANCE", "FRICTION", "TOLERANCE", "check", "kernel"]
+__all__ = [
+    "ITERATIONS",
+    "MAX_DISTURBANCES",
+    "MAX_HALVINGS",
+    "COMPACT_DISTURBANCE",
+    "FRICTION",
+    "TOLERANCE",
+    "check",
+    "kernel",
+]

@@ -60,8 +60,11 @@ class State:
 
     def __init__(self, joint_input_t: np.ndarray, initial_state):
         l, n = joint_input_t.shape
-        self.x = np.zeros((2, n)) if initial_state is None else \
-            np.ascontiguousarray(np.array(initial_state, dtype=float).reshape(n, 2).T)
+        self.x = (
+            np.zeros((2, n))
+            if initial_state is None
+            else np.ascontiguousarray(np.array(initial_state, dtype=float).reshape(n, 2).T)
+        )
         self.q = np.zeros(n)
         self.v = joint_input_t @ self.x[0]
         self.phi, self.u, self.fn = np.zeros(l), np.zeros(l), np.zeros(l)

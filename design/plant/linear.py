@@ -40,8 +40,9 @@ class _LinearKernel:
         self.e, self.hw = model.joint_input, model.disturbance_input
         self.vy, self.dy = model.velocity_output, model.displacement_output / model.omega
         n, l = model.n_coordinates, self.e.shape[1]
-        self.x = np.zeros((n, 2)) if run.initial_state is None else \
-            np.array(run.initial_state, dtype=float).reshape(n, 2)
+        self.x = (
+            np.zeros((n, 2)) if run.initial_state is None else np.array(run.initial_state, dtype=float).reshape(n, 2)
+        )
         self.force = np.zeros(l)
         self.recorder = Recorder(run.rows, l, self.vy.shape[0])
 
@@ -85,8 +86,10 @@ def check(run: PlantRun) -> None:
         The run as ``loop.simulate`` received it.
     """
     if len(run.joints):
-        raise ModelError(f"joints: {len(run.joints)} LuGre parameter sets — the linear scheme is frictionless; "
-                         "pass joints=[] (the controller's forces act in the joints)")
+        raise ModelError(
+            f"joints: {len(run.joints)} LuGre parameter sets — the linear scheme is frictionless; "
+            "pass joints=[] (the controller's forces act in the joints)"
+        )
     if run.energy_books:
         raise ModelError("energy_books: True — the linear scheme keeps no energy books; pass energy_books=False")
     if run.stick_step is not None:

@@ -79,25 +79,33 @@ def _check(model: ModalModel, joints, duration, step, controller, initial_state,
         raise ModelError(f"controller sample_time: {sample_time!r} — must be a positive number of seconds")
     ratio = sample_time / step
     if not (ratio >= 1 and abs(ratio - round(ratio)) < 1e-9 * ratio):
-        raise ModelError(f"controller sample time {sample_time!r} s must be a whole multiple of the "
-                         f"plant step {step!r} s")
-    unstable = np.flatnonzero(~(np.isfinite(model.damping) & (model.damping >= 0) & np.isfinite(model.omega)
-                                & (model.omega > 0)))
+        raise ModelError(
+            f"controller sample time {sample_time!r} s must be a whole multiple of the plant step {step!r} s"
+        )
+    unstable = np.flatnonzero(
+        ~(np.isfinite(model.damping) & (model.damping >= 0) & np.isfinite(model.omega) & (model.omega > 0))
+    )
     if unstable.size:
         i = unstable[0]
-        raise ModelError(f"modal model: coordinate {model.labels[i]!r} has ω = {float(model.omega[i])!r} rad/s, "
-                         f"ξ = {float(model.damping[i])!r} — need ω > 0 and ξ >= 0 (a stable structure)")
-    still = np.flatnonzero(~np.any(model.joint_input != 0.0, axis=0)) if l and friction else []
+        raise ModelError(
+            f"modal model: coordinate {model.labels[i]!r} has ω = {float(model.omega[i])!r} rad/s, "
+            f"ξ = {float(model.damping[i])!r} — need ω > 0 and ξ >= 0 (a stable structure)"
+        )
+    still: np.ndarray | list[int] = np.flatnonzero(~np.any(model.joint_input != 0.0, axis=0)) if l and friction else []
     if len(still):
-        raise ModelError(f"joint {model.joint_names[still[0]]!r}: no coordinate of the model moves it (its column of "
-                         "E is zero) — a joint on a rigid DOF cannot slide; move it or add its Krylov vector")
+        raise ModelError(
+            f"joint {model.joint_names[still[0]]!r}: no coordinate of the model moves it (its column of "
+            "E is zero) — a joint on a rigid DOF cannot slide; move it or add its Krylov vector"
+        )
     if model.disturbance_input.shape[1] > MAX_DISTURBANCES:
         raise ModelError(f"disturbances: {model.disturbance_input.shape[1]} inputs — at most {MAX_DISTURBANCES}")
     if initial_state is not None:
         x0 = np.asarray(initial_state, dtype=float)
         if x0.size != 2 * model.n_coordinates or not np.all(np.isfinite(x0)):
-            raise ModelError(f"initial_state: {x0.size} values — need {2 * model.n_coordinates} finite values "
-                             "([η̇_i, ω_iη_i] per coordinate)")
+            raise ModelError(
+                f"initial_state: {x0.size} values — need {2 * model.n_coordinates} finite values "
+                "([η̇_i, ω_iη_i] per coordinate)"
+            )
     return l, int(round(ratio))
 
 
@@ -110,16 +118,77 @@ def _commands(raw, l: int, t: float, model: ModalModel, friction: bool) -> np.nd
     if new.shape not in ((l,), (1, l), (l, 1)) or not np.all(np.isfinite(new)) or (friction and np.any(new < 0)):
         shown = raw.tolist() if isinstance(raw, np.ndarray) else raw
         what, bound = ("normal forces", " >= 0") if friction else ("joint forces", "")
-        raise ModelError(f"controller returned {what} {shown!r} at t = {t:.6g} s — need {l} finite values"
-                         f"{bound} (joints {', '.join(model.joint_names)})")
+        raise ModelError(
+            f"controller returned {what} {shown!r} at t = {t:.6g} s — need {l} finite values"
+            f"{bound} (joints {', '.join(model.joint_names)})"
+        )
     return new.reshape(l)
 
 
-def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller: Controller,
-             disturbance: Callable[[float], np.ndarray] | None = None, duration: float = 1.0, step: float = 1e-4,
-             initial_state: np.ndarray | None = None, progress: Callable[[str], None] | None = None,
-             record_every: int = 1, backend: str = "auto", energy_books: bool = True,
-             stick_step: float | None = None, scheme: str | None = None) -> SimulationResult:
+def _check_options(record_every, energy_books) -> None:
+    """The recording options: a whole ``record_every`` >= 1 and a boolean ``energy_books``."""
+    if not (isinstance(record_every, int) and record_every >= 1):
+        raise ModelError(f"record_every: {record_every!r} — must be a whole number >= 1")
+    if not isinstance(energy_books, bool):
+        raise ModelError(f"energy_books: {energy_books!r} — must be True or False")
+
+
+def _run_loop(run: PlantRun, kernel, w: np.ndarray, l: int, friction: bool, ratio: int, progress) -> None:
+    """Step the kernel through the run: a controller call every ``ratio`` plant steps (once
+    for a controller that holds constant), a progress line about every tenth of the run."""
+    model, controller, steps, step = run.model, run.controller, run.steps, run.step
+    duration, record_every = run.duration, run.record_every
+    controller.reset()
+    kernel.start(w[0] if w.shape[0] else np.zeros(model.disturbance_input.shape[1]))
+    chunk = steps if getattr(controller, "holds_constant", False) else ratio
+    report_every = max(steps // 10, 1)
+    next_report = report_every
+    for k0 in range(0, steps, chunk):
+        t = k0 * step
+        kernel.set_normal_force(_commands(controller.step(kernel.measure(t)), l, t, model, friction))
+        n = min(chunk, steps - k0)
+        kernel.run(w[k0 : k0 + n + 1], n, k0, record_every)
+        if progress and k0 + n >= next_report:
+            progress(f"t = {(k0 + n) * step:.3f} s of {duration:g} s")
+            next_report = (k0 + n) // report_every * report_every + report_every
+    if steps % record_every == 0:
+        kernel.record_row(steps // record_every)
+
+
+def _result(r, model: ModalModel, step: float, record_every: int) -> SimulationResult:
+    """The kernel's recorded rows as a :class:`SimulationResult` on the time grid ``step·record_every``."""
+    time = np.arange(r.energy.size) * step * record_every
+    return SimulationResult(
+        time,
+        r.sensors,
+        r.v,
+        r.u,
+        r.fn,
+        r.phi,
+        r.energy,
+        r.works[:, 0],
+        r.works[:, 1],
+        r.works[:, 2],
+        list(model.joint_names),
+        list(model.sensor_names),
+    )
+
+
+def simulate(
+    model: ModalModel,
+    joints: list[lugre.LuGreParameters],
+    controller: Controller,
+    disturbance: Callable[[float], np.ndarray] | None = None,
+    duration: float = 1.0,
+    step: float = 1e-4,
+    initial_state: np.ndarray | None = None,
+    progress: Callable[[str], None] | None = None,
+    record_every: int = 1,
+    backend: str = "auto",
+    energy_books: bool = True,
+    stick_step: float | None = None,
+    scheme: str | None = None,
+) -> SimulationResult:
     """Run the closed loop for ``duration`` seconds at plant step ``step`` (see module docstring).
 
     Parameters
@@ -162,36 +231,18 @@ def simulate(model: ModalModel, joints: list[lugre.LuGreParameters], controller:
     """
     chosen = schemes.scheme(scheme if scheme is not None else "fixed" if stick_step is None else "stick_exact")
     l, ratio = _check(model, joints, duration, step, controller, initial_state, chosen.FRICTION)
-    if not (isinstance(record_every, int) and record_every >= 1):
-        raise ModelError(f"record_every: {record_every!r} — must be a whole number >= 1")
-    if not isinstance(energy_books, bool):
-        raise ModelError(f"energy_books: {energy_books!r} — must be True or False")
-    run = PlantRun(model, joints, controller, duration, step, initial_state, record_every, backend, energy_books,
-                   stick_step)
+    _check_options(record_every, energy_books)
+    run = PlantRun(
+        model, joints, controller, duration, step, initial_state, record_every, backend, energy_books, stick_step
+    )
     chosen.check(run)
     kernel = chosen.kernel(run)
     steps = run.steps
-    w = disturbances.at_steps(disturbance, steps, step, model.disturbance_input.shape[1],
-                              compact=chosen.COMPACT_DISTURBANCE)
-    controller.reset()
-    kernel.start(w[0] if w.shape[0] else np.zeros(model.disturbance_input.shape[1]))
-    chunk = steps if getattr(controller, "holds_constant", False) else ratio
-    report_every = max(steps // 10, 1)
-    next_report = report_every
-    for k0 in range(0, steps, chunk):
-        t = k0 * step
-        kernel.set_normal_force(_commands(controller.step(kernel.measure(t)), l, t, model, chosen.FRICTION))
-        n = min(chunk, steps - k0)
-        kernel.run(w[k0:k0 + n + 1], n, k0, record_every)
-        if progress and k0 + n >= next_report:
-            progress(f"t = {(k0 + n) * step:.3f} s of {duration:g} s")
-            next_report = (k0 + n) // report_every * report_every + report_every
-    if steps % record_every == 0:
-        kernel.record_row(steps // record_every)
-    r = kernel.recorder
-    time = np.arange(r.energy.size) * step * record_every
-    return SimulationResult(time, r.sensors, r.v, r.u, r.fn, r.phi, r.energy, r.works[:, 0], r.works[:, 1],
-                            r.works[:, 2], list(model.joint_names), list(model.sensor_names))
+    w = disturbances.at_steps(
+        disturbance, steps, step, model.disturbance_input.shape[1], compact=chosen.COMPACT_DISTURBANCE
+    )
+    _run_loop(run, kernel, w, l, chosen.FRICTION, ratio, progress)
+    return _result(kernel.recorder, model, step, record_every)
 
 
 __all__ = ["SimulationResult", "simulate"]

@@ -14,8 +14,12 @@ from smartjoint.design.plant.joints import JointLaws
 from smartjoint.design.structure.modal import ModalModel
 
 
-def reference_system(model: ModalModel, joints: list[lugre.LuGreParameters], normal_forces,
-                     disturbance: Callable[[float], np.ndarray] | None):
+def reference_system(
+    model: ModalModel,
+    joints: list[lugre.LuGreParameters],
+    normal_forces,
+    disturbance: Callable[[float], np.ndarray] | None,
+):
     """Eq. 12 with constant normal forces as an ODE z' = f(t, z), z = [x; φ], with its analytic
     Jacobian, for scipy.integrate.solve_ivp.
 
@@ -80,9 +84,17 @@ def reference_system(model: ModalModel, joints: list[lugre.LuGreParameters], nor
     return rhs, jac, ns, friction
 
 
-def reference_simulation(model: ModalModel, joints: list[lugre.LuGreParameters], normal_forces,
-                         disturbance: Callable[[float], np.ndarray] | None, duration: float, times: np.ndarray,
-                         rtol: float = 1e-10, atol: float = 1e-13, method: str = "Radau"):
+def reference_simulation(
+    model: ModalModel,
+    joints: list[lugre.LuGreParameters],
+    normal_forces,
+    disturbance: Callable[[float], np.ndarray] | None,
+    duration: float,
+    times: np.ndarray,
+    rtol: float = 1e-10,
+    atol: float = 1e-13,
+    method: str = "Radau",
+):
     """Eq. 12 for constant normal forces through scipy.integrate.solve_ivp with an analytic
     Jacobian: the accuracy reference for ``loop.simulate``.
 

@@ -53,7 +53,7 @@ def _aligned(shape) -> np.ndarray:
     count = int(np.prod(shape))
     raw = np.zeros(count + 8)
     offset = (-raw.ctypes.data % 64) // 8
-    return raw[offset:offset + count].reshape(shape)
+    return raw[offset : offset + count].reshape(shape)
 
 
 class _StickPlant:
@@ -95,7 +95,8 @@ class _StickPlant:
             inputs[:n2, :l] = self.B * slip[None, :]
             inputs[n2:, :l] = -np.eye(l)
             inputs[:n2, l:] = self.H
-            self._cache[key] = tuple(self._discretise(M, inputs, h) for h in self.lengths)
+            long, medium, short = (self._discretise(M, inputs, h) for h in self.lengths)
+            self._cache[key] = long, medium, short
         return self._cache[key]
 
     def _discretise(self, M, inputs, h) -> dict:
@@ -128,7 +129,7 @@ class _StickPython:
         self.p, self.s, self.r = plant, state, recorder
         self.recorder = recorder
         self.z = np.zeros(plant.N)
-        self.z[:plant.n2] = np.column_stack([state.x[0], state.x[1]]).reshape(-1)
+        self.z[: plant.n2] = np.column_stack([state.x[0], state.x[1]]).reshape(-1)
         self.d = np.zeros(plant.l)
         self.levels = None
         self.counts = np.zeros(3, dtype=np.int64)  # steps taken: long, medium, short
@@ -161,9 +162,9 @@ class _StickPython:
 
     def record_row(self, row):
         p, s, r = self.p, self.s, self.r
-        r.v[row], r.u[row], r.fn[row], r.phi[row] = s.v, s.u, s.fn, self.z[p.n2:]
-        r.sensors[row] = p.Cy @ self.z[:p.n2]
-        r.energy[row] = 0.5 * float(self.z[:p.n2] @ self.z[:p.n2])
+        r.v[row], r.u[row], r.fn[row], r.phi[row] = s.v, s.u, s.fn, self.z[p.n2 :]
+        r.sensors[row] = p.Cy @ self.z[: p.n2]
+        r.energy[row] = 0.5 * float(self.z[: p.n2] @ self.z[: p.n2])
         r.works[row] = np.nan
 
     def _advance(self, k, w_a, w_b):
@@ -171,7 +172,7 @@ class _StickPython:
         z_free = k["phi"] @ self.z + k["g0"][:, :l] @ self.d
         if np.any(w_a) or np.any(w_b):  # as the C kernel: the disturbance terms only while it acts
             z_free = z_free + k["g0"][:, l:] @ w_a + k["g1"][:, l:] @ w_b
-        v_free, phi_free = p.Cv @ z_free[:p.n2], z_free[p.n2:]
+        v_free, phi_free = p.Cv @ z_free[: p.n2], z_free[p.n2 :]
         scale = np.maximum(np.abs(v_free), p.law.vs) + np.abs(self.s.v)
         d = self.d.copy()
         residual = np.zeros(l)
@@ -223,7 +224,7 @@ class _StickPython:
         parts = self.p.ratio[level]
         span = (w.shape[0] - 1) // parts
         for i in range(parts):
-            self._interval(level + 1, w[i * span:(i + 1) * span + 1], h / parts)
+            self._interval(level + 1, w[i * span : (i + 1) * span + 1], h / parts)
 
     def run(self, w, steps, k0, record_every):
         p, sub = self.p, self.p.sub
@@ -233,11 +234,13 @@ class _StickPython:
             if (k0 // sub + k) % (record_every // sub) == 0:
                 self.record_row((k0 // sub + k) // (record_every // sub))
             try:
-                self._interval(0, w[k * sub:(k + 1) * sub + 1], p.long_step)
+                self._interval(0, w[k * sub : (k + 1) * sub + 1], p.long_step)
             except _SolveFailed as failure:
                 self._sync()
-                raise ModelError(f"slip-term solve did not converge at step {p.step:.3g} s (residual "
-                                 f"{failure.residual:.3g}); reduce the step") from None
+                raise ModelError(
+                    f"slip-term solve did not converge at step {p.step:.3g} s (residual "
+                    f"{failure.residual:.3g}); reduce the step"
+                ) from None
         self._sync()
 
 
@@ -248,12 +251,12 @@ class _StickC:
 
     def __init__(self, plant: _StickPlant, state: State, recorder: Recorder):
         module = native_module()
-        self.ffi, self.lib = module.ffi, module.lib
-        ffi = self.ffi
+        ffi = self.ffi = module.ffi
+        self.lib = module.lib
         self.mirror = _StickPython(plant, state, recorder)  # holds z, d and the discretisations
         self.p, self.s, self.r = plant, state, recorder
         self.recorder = recorder
-        self._keep = []
+        self._keep: list[np.ndarray] = []
 
         def ptr(array):
             array = np.ascontiguousarray(array, dtype=float)
@@ -265,17 +268,46 @@ class _StickC:
         for name in ("v", "u", "fn"):
             setattr(state, name, np.ascontiguousarray(getattr(state, name), dtype=float))
         self.work = _aligned((2 * plant.padded + 2 * plant.N + 14 * plant.l + plant.l**2 + 1,))
-        self.cp = ffi.new("sj_stick *", dict(
-            N=plant.N, Np=plant.padded, n2=plant.n2, l=plant.l, m=plant.m, ny=plant.Cy.shape[0], ratio=list(plant.ratio), kappa=KAPPA,
-            beta=list(BETA),
-            Cv=ptr(plant.Cv), Cy=ptr(plant.Cy), s0=ptr(law.s0), s1=ptr(law.s1), s2=ptr(law.s2), fc=ptr(law.fc),
-            fd=ptr(law.fd), vs=ptr(law.vs), arm=ptr(law.arm), work=ptr(self.work)))
+        self.cp = ffi.new(
+            "sj_stick *",
+            dict(
+                N=plant.N,
+                Np=plant.padded,
+                n2=plant.n2,
+                l=plant.l,
+                m=plant.m,
+                ny=plant.Cy.shape[0],
+                ratio=list(plant.ratio),
+                kappa=KAPPA,
+                beta=list(BETA),
+                Cv=ptr(plant.Cv),
+                Cy=ptr(plant.Cy),
+                s0=ptr(law.s0),
+                s1=ptr(law.s1),
+                s2=ptr(law.s2),
+                fc=ptr(law.fc),
+                fd=ptr(law.fd),
+                vs=ptr(law.vs),
+                arm=ptr(law.arm),
+                work=ptr(self.work),
+            ),
+        )
         m = self.mirror
-        self.cs = ffi.new("sj_stick_state *", dict(z=ptr(m.z), d=ptr(m.d), v=ptr(state.v), u=ptr(state.u),
-                                                    fn=ptr(state.fn)))
-        self.cr = ffi.new("sj_record *", dict(v=ptr(recorder.v), u=ptr(recorder.u), fn=ptr(recorder.fn),
-                                              phi=ptr(recorder.phi), sensors=ptr(recorder.sensors),
-                                              energy=ptr(recorder.energy), works=ptr(recorder.works)))
+        self.cs = ffi.new(
+            "sj_stick_state *", dict(z=ptr(m.z), d=ptr(m.d), v=ptr(state.v), u=ptr(state.u), fn=ptr(state.fn))
+        )
+        self.cr = ffi.new(
+            "sj_record *",
+            dict(
+                v=ptr(recorder.v),
+                u=ptr(recorder.u),
+                fn=ptr(recorder.fn),
+                phi=ptr(recorder.phi),
+                sensors=ptr(recorder.sensors),
+                energy=ptr(recorder.energy),
+                works=ptr(recorder.works),
+            ),
+        )
 
     @property
     def counts(self):
@@ -304,12 +336,23 @@ class _StickC:
         rows = w.shape[0]  # the rows after the disturbance's end are left out: zero
         w = np.ascontiguousarray(w if rows else np.zeros((1, self.p.m)), dtype=float)
         longs = steps // sub
-        done = self.lib.sj_stick_run(self.cp, self.cs, self.ffi.cast("double *", self.ffi.from_buffer(w)), rows,
-                                     longs, k0 // sub, record_every // sub, self.cr, self.p.long_step)
+        done = self.lib.sj_stick_run(
+            self.cp,
+            self.cs,
+            self.ffi.cast("double *", self.ffi.from_buffer(w)),
+            rows,
+            longs,
+            k0 // sub,
+            record_every // sub,
+            self.cr,
+            self.p.long_step,
+        )
         self.mirror._sync()
         if done < longs:
-            raise ModelError(f"slip-term solve did not converge at step {self.cs.failed_step:.3g} s (residual "
-                             f"{self.cs.failed_residual:.3g}); reduce the step")
+            raise ModelError(
+                f"slip-term solve did not converge at step {self.cs.failed_step:.3g} s (residual "
+                f"{self.cs.failed_residual:.3g}); reduce the step"
+            )
 
 
 _C_FAILURE: list[str] = []
@@ -335,11 +378,15 @@ def check(run: PlantRun) -> None:
     if not getattr(controller, "holds_constant", False):
         per_sample = controller.sample_time / stick_step
         if abs(per_sample - round(per_sample)) > 1e-9 * per_sample or round(per_sample) < 1:
-            raise ModelError(f"controller sample time {controller.sample_time!r} s must be a whole multiple of "
-                             f"stick_step {stick_step!r} s")
+            raise ModelError(
+                f"controller sample time {controller.sample_time!r} s must be a whole multiple of "
+                f"stick_step {stick_step!r} s"
+            )
     if record_every % sub:
-        raise ModelError(f"record_every: {record_every} steps of {step:g} s — with stick_step it must be a multiple "
-                         f"of {sub} (records fall on long-step boundaries)")
+        raise ModelError(
+            f"record_every: {record_every} steps of {step:g} s — with stick_step it must be a multiple "
+            f"of {sub} (records fall on long-step boundaries)"
+        )
     steps = duration / stick_step
     if abs(steps - round(steps)) > 1e-9 * steps:
         raise ModelError(f"duration: {duration!r} s must be a whole multiple of stick_step {stick_step!r} s")
@@ -347,8 +394,10 @@ def check(run: PlantRun) -> None:
         raise ModelError("energy_books: True — the stick-exact scheme keeps no energy books; pass energy_books=False")
     states = 2 * model.n_coordinates + model.joint_input.shape[1]
     if states > MAX_STATES:
-        raise ModelError(f"stick_step: the model has {states} states — the stick-exact scheme is dense and takes at "
-                         f"most {MAX_STATES} (a reduced model); leave stick_step out for the full model")
+        raise ModelError(
+            f"stick_step: the model has {states} states — the stick-exact scheme is dense and takes at "
+            f"most {MAX_STATES} (a reduced model); leave stick_step out for the full model"
+        )
 
 
 def kernel(run: PlantRun):
@@ -368,11 +417,17 @@ def kernel(run: PlantRun):
     """
     from smartjoint.common import native
 
+    assert run.stick_step is not None  # the scheme runs only with a stick step (see check)
     plant = _StickPlant(run.model, JointLaws(run.joints), run.step, float(run.stick_step))
     state = State(plant.ET, run.initial_state)
     recorder = Recorder(run.rows, plant.l, plant.Cy.shape[0])
-    return native.choose(run.backend, "stick-exact simulation", lambda: _StickC(plant, state, recorder),
-                         lambda: _StickPython(plant, state, recorder), _C_FAILURE)
+    return native.choose(
+        run.backend,
+        "stick-exact simulation",
+        lambda: _StickC(plant, state, recorder),
+        lambda: _StickPython(plant, state, recorder),
+        _C_FAILURE,
+    )
 
 
 FRICTION = True  # LuGre joints; the controller commands normal forces

@@ -10,18 +10,31 @@ Every function here raises `ModelError` (exported too) for a request the model c
 from smartjoint.common.errors import ModelError
 from smartjoint.design.reduction.krylov import Reduction, krylov_vectors, reduce
 from smartjoint.design.reduction.metrics import (
-                                                 band_norms,
-                                                 error_metrics,
-                                                 frequency_grid,
-                                                 frequency_response,
-                                                 modal_compliance,
-                                                 static_compliance,
+    band_norms,
+    error_metrics,
+    frequency_grid,
+    frequency_response,
+    modal_compliance,
+    static_compliance,
 )
 from smartjoint.design.reduction.selection import PATHS, hankel_values, select_modes
 from smartjoint.design.reduction.study import WINDOWS, reduction_study, study_summary
 
 __all__ = [
-    "ModelError", "PATHS", "Reduction", "WINDOWS", "band_norms", "error_metrics", "frequency_grid", "frequency_response",
-    "hankel_values", "krylov_vectors", "modal_compliance", "reduce", "reduction_study", "select_modes",
-    "static_compliance", "study_summary",
+    "ModelError",
+    "PATHS",
+    "Reduction",
+    "WINDOWS",
+    "band_norms",
+    "error_metrics",
+    "frequency_grid",
+    "frequency_response",
+    "hankel_values",
+    "krylov_vectors",
+    "modal_compliance",
+    "reduce",
+    "reduction_study",
+    "select_modes",
+    "static_compliance",
+    "study_summary",
 ]

@@ -21,8 +21,14 @@ from smartjoint.design.reduction.selection import PATHS, hankel_values, select_m
 from smartjoint.design.structure.modal import ModalModel, Modes, modal_model
 
 
-def krylov_vectors(stiffness: sp.spmatrix, mass: sp.spmatrix, E: np.ndarray, retained: np.ndarray, per_joint: int,
-                   joints: list[int] | None = None):
+def krylov_vectors(
+    stiffness: sp.spmatrix,
+    mass: sp.spmatrix,
+    E: np.ndarray,
+    retained: np.ndarray,
+    per_joint: int,
+    joints: list[int] | None = None,
+):
     """Krylov correction vectors Ψ̂ and their ω̂ (Eq. 24–26).
 
     Parameters
@@ -55,9 +61,11 @@ def krylov_vectors(stiffness: sp.spmatrix, mass: sp.spmatrix, E: np.ndarray, ret
     if count == 0:
         return np.zeros((E.shape[0], 0)), np.zeros(0), []
     if retained.shape[1] + count > E.shape[0]:
-        raise ModelError(f"Krylov vectors: {per_joint} per joint × {len(joints)} joints + {retained.shape[1]} kept modes "
-                         f"= {retained.shape[1] + count} > {E.shape[0]} DOFs — the space allows at most "
-                         f"{(E.shape[0] - retained.shape[1]) // max(len(joints), 1)} per joint")
+        raise ModelError(
+            f"Krylov vectors: {per_joint} per joint × {len(joints)} joints + {retained.shape[1]} kept modes "
+            f"= {retained.shape[1] + count} > {E.shape[0]} DOFs — the space allows at most "
+            f"{(E.shape[0] - retained.shape[1]) // max(len(joints), 1)} per joint"
+        )
     factor = spla.splu(sp.csc_matrix(stiffness))
     basis = [retained]
     vectors, labels = [], []
@@ -71,8 +79,10 @@ def krylov_vectors(stiffness: sp.spmatrix, mass: sp.spmatrix, E: np.ndarray, ret
             norm = float(np.sqrt(psi @ (mass @ psi)))
             scale = float(np.sqrt(E[:, j] @ factor.solve(E[:, j])))
             if not norm > 1e-10 * max(scale, 1e-300):
-                raise ModelError(f"Krylov vector {k} of joint {j + 1} is already in the span of the kept modes and "
-                                 "previous vectors; use fewer vectors")
+                raise ModelError(
+                    f"Krylov vector {k} of joint {j + 1} is already in the span of the kept modes and "
+                    "previous vectors; use fewer vectors"
+                )
             psi = psi / norm
             basis.append(psi[:, None])
             vectors.append(psi)
@@ -97,8 +107,14 @@ class Reduction:
     hankel: dict[str, np.ndarray] = field(default_factory=dict)  # per considered mode
 
 
-def reduce(fe_model, modes: Modes, n_keep: int, krylov_per_joint: int = 0, paths: tuple[str, ...] = PATHS,
-           krylov_joints: list[int] | None = None) -> Reduction:
+def reduce(
+    fe_model,
+    modes: Modes,
+    n_keep: int,
+    krylov_per_joint: int = 0,
+    paths: tuple[str, ...] = PATHS,
+    krylov_joints: list[int] | None = None,
+) -> Reduction:
     """Select ``n_keep`` of ``modes`` by Hankel values and add Krylov vectors per joint (Eq. 27–29).
 
     Parameters
@@ -131,15 +147,27 @@ def reduce(fe_model, modes: Modes, n_keep: int, krylov_per_joint: int = 0, paths
     kept = select_modes(considered, n_keep, paths)
     reduced = modal_model(fe_model, modes, kept)
     if krylov_per_joint and fe_model.E.shape[1]:
+        assert reduced.basis is not None  # modal_model always keeps the shapes
         stiffness = fe_model.stiffness
-        psi, omega_hat, labels = krylov_vectors(stiffness, fe_model.mass, fe_model.E, reduced.basis, krylov_per_joint,
-                                                krylov_joints)
+        psi, omega_hat, labels = krylov_vectors(
+            stiffness, fe_model.mass, fe_model.E, reduced.basis, krylov_per_joint, krylov_joints
+        )
         basis = np.column_stack([reduced.basis, psi])
         xi = np.concatenate([reduced.damping, np.full(omega_hat.size, fe_model.design.modal_damping)])
         omega = np.concatenate([reduced.omega, omega_hat])
-        reduced = ModalModel(omega, xi, basis.T @ fe_model.E, basis.T @ fe_model.F, fe_model.V @ basis,
-                             fe_model.W @ basis, reduced.labels + [f"krylov {m + 1}" for m in range(omega_hat.size)],
-                             reduced.joint_names, reduced.sensor_names, reduced.disturbance_names, basis)
+        reduced = ModalModel(
+            omega,
+            xi,
+            basis.T @ fe_model.E,
+            basis.T @ fe_model.F,
+            fe_model.V @ basis,
+            fe_model.W @ basis,
+            reduced.labels + [f"krylov {m + 1}" for m in range(omega_hat.size)],
+            reduced.joint_names,
+            reduced.sensor_names,
+            reduced.disturbance_names,
+            basis,
+        )
     return Reduction(reduced, len(modes), kept, krylov_per_joint, hankel_values(considered))
 
 

@@ -32,6 +32,7 @@ def frequency_response(model: ModalModel, omega: np.ndarray, path: str) -> np.nd
     w, xi = model.omega[None, :], model.damping[None, :]
     # η_i(s) = f_i/(s² + 2ξωs + ω²); velocity outputs take s·η, displacement outputs η.
     modal = 1.0 / (s**2 + 2.0 * xi * w * s + w**2)  # (n_freq, n)
+    parts: list[tuple[np.ndarray, np.ndarray | None]]
     if path == "uv":
         left, right, parts = model.joint_input.T, model.joint_input, [(s * modal, None)]
     elif path == "wy":
@@ -42,9 +43,11 @@ def frequency_response(model: ModalModel, omega: np.ndarray, path: str) -> np.nd
     out = None
     for response, outputs in parts:
         rows = left if outputs is None else outputs
+        assert rows is not None  # 'uv' multiplies by left, 'wy' by its outputs
         # G[f, a, b] = Σ_n response[f, n]·rows[a, n]·right[n, b]: one matrix product per output.
         term = np.stack([response @ (rows[a][:, None] * right) for a in range(rows.shape[0])], axis=1)
         out = term if out is None else out + term
+    assert out is not None  # parts is never empty
     return out
 
 
@@ -73,8 +76,8 @@ def frequency_grid(models: list[ModalModel], band: float, points: int = 4000) ->
         inside = m.omega < band
         for w, xi in zip(m.omega[inside], m.damping[inside]):
             grid.append(w * (1.0 + xi * np.linspace(-8.0, 8.0, 33)))
-    grid = np.unique(np.concatenate(grid))
-    return grid[(grid >= 0.0) & (grid <= band)]
+    merged = np.unique(np.concatenate(grid))
+    return merged[(merged >= 0.0) & (merged <= band)]
 
 
 def band_norms(full: ModalModel, reduced: ModalModel, band: float, path: str) -> dict[str, float]:
@@ -107,8 +110,14 @@ def band_norms(full: ModalModel, reduced: ModalModel, band: float, path: str) ->
     def hinf(X):
         return float(np.max(np.linalg.svd(X, compute_uv=False)))
 
-    return {"h2": h2(G), "h2_error": h2(G - R), "hinf": hinf(G), "hinf_error": hinf(G - R),
-            "h2_relative": h2(G - R) / max(h2(G), 1e-300), "hinf_relative": hinf(G - R) / max(hinf(G), 1e-300)}
+    return {
+        "h2": h2(G),
+        "h2_error": h2(G - R),
+        "hinf": hinf(G),
+        "hinf_error": hinf(G - R),
+        "h2_relative": h2(G - R) / max(h2(G), 1e-300),
+        "hinf_relative": hinf(G - R) / max(hinf(G), 1e-300),
+    }
 
 
 def static_compliance(fe_model) -> np.ndarray:
@@ -164,9 +173,16 @@ def error_metrics(fe_model, full: ModalModel, reduced: ModalModel, band: float) 
     """
     exact = static_compliance(fe_model)
     approx = modal_compliance(reduced)
-    out = {"static_compliance": {"full": exact.tolist(), "reduced": approx.tolist(),
-                                 "relative_error": float(np.linalg.norm(exact - approx) / np.linalg.norm(exact))}
-           if exact.size else None, "band_hz": band / (2.0 * np.pi)}
+    out = {
+        "static_compliance": {
+            "full": exact.tolist(),
+            "reduced": approx.tolist(),
+            "relative_error": float(np.linalg.norm(exact - approx) / np.linalg.norm(exact)),
+        }
+        if exact.size
+        else None,
+        "band_hz": band / (2.0 * np.pi),
+    }
     if full.joint_input.shape[1]:
         out["uv"] = band_norms(full, reduced, band, "uv")
     if full.disturbance_input.shape[1] and full.displacement_output.shape[0]:
@@ -174,5 +190,11 @@ def error_metrics(fe_model, full: ModalModel, reduced: ModalModel, band: float) 
     return out
 
 
-__all__ = ["band_norms", "error_metrics", "frequency_grid", "frequency_response", "modal_compliance",
-           "static_compliance"]
+__all__ = [
+    "band_norms",
+    "error_metrics",
+    "frequency_grid",
+    "frequency_response",
+    "modal_compliance",
+    "static_compliance",
+]

@@ -40,14 +40,18 @@ def hankel_values(model: ModalModel) -> dict[str, np.ndarray]:
     xi = model.damping
     e2 = np.sum(model.joint_input**2, axis=1)
     h2 = np.sum(model.disturbance_input**2, axis=1)
-    y2 = (w**2 * np.sum(model.velocity_output**2, axis=0) + np.sum(model.displacement_output**2, axis=0))
+    y2 = w**2 * np.sum(model.velocity_output**2, axis=0) + np.sum(model.displacement_output**2, axis=0)
     control_u = e2 / (4.0 * xi * w)
     control_w = h2 / (4.0 * xi * w)
     observe_v = e2 / (4.0 * xi * w)  # v = Bᵀx: same vectors as the input
     observe_y = y2 / (4.0 * xi * w**3)
-    return {"uv": np.sqrt(control_u * observe_v), "wy": np.sqrt(control_w * observe_y),
-            "uy": np.sqrt(control_u * observe_y), "wv": np.sqrt(control_w * observe_v),
-            "controllability_u": control_u}
+    return {
+        "uv": np.sqrt(control_u * observe_v),
+        "wy": np.sqrt(control_w * observe_y),
+        "uy": np.sqrt(control_u * observe_y),
+        "wv": np.sqrt(control_w * observe_v),
+        "controllability_u": control_u,
+    }
 
 
 def select_modes(model: ModalModel, n_keep: int, paths: tuple[str, ...] = PATHS) -> np.ndarray:

@@ -3,6 +3,8 @@ with 0…K Krylov vectors under the tip pulse, by friction force and by the erro
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from smartjoint.common.errors import ModelError
@@ -16,9 +18,93 @@ from smartjoint.design.structure.fem import build_model
 WINDOWS = (0.05, 0.1, 0.2, 0.5)  # s: RMS windows of the friction-moment comparison
 
 
-def reduction_study(design, normal_forces: np.ndarray, considered: int = 100, keep: int = 60,
-                    krylov: tuple[int, ...] = (0, 2), krylov_joints: list[int] | None = None, duration: float = 0.5,
-                    step: float = 5e-5, progress=print) -> dict:
+def _full_model(design, considered: int, progress):
+    """The released truss, its full modal model (all modes of Eq. 5) and its first ``considered`` modes."""
+    fe = build_model(design, joints="released")
+    progress(f"      all {fe.n_dof} modes of the released truss (the full model) …")
+    everything = modal.solve_modes(fe, fe.n_dof)
+    full = modal.modal_model(fe, everything)
+    first = modal.Modes(
+        everything.omega[:considered], everything.shapes[:, :considered], everything.damping[:considered]
+    )
+    return fe, full, first
+
+
+def _friction_rms_errors(reduced_u: np.ndarray, reference, active: int, duration: float) -> dict:
+    """The relative RMS error of the active joint's friction force over each window of ``WINDOWS``."""
+    ref_u = reference.friction_force[:, active]
+    diff = reduced_u - ref_u
+    return {
+        f"{w:g}": float(
+            np.sqrt(np.mean(diff[reference.time <= w] ** 2)) / np.sqrt(np.mean(ref_u[reference.time <= w] ** 2))
+        )
+        for w in WINDOWS
+        if w <= duration
+    }
+
+
+def _compared_run(count: int, reduced, result, reference, errors: dict, metrics: dict) -> dict:
+    """One entry of the study's ``runs``: a reduced model's run compared with the full model's."""
+    return {
+        "krylov_per_joint": count,
+        "states": reduced.model.n_states,
+        "result": result,
+        "reduction": reduced,
+        "friction_rms_error": errors,
+        "metrics": metrics,
+        "energy_measure_ratio": result.energy_measure() / reference.energy_measure(),
+    }
+
+
+def _pulse_simulation(design, normal_forces: np.ndarray, duration: float, step: float):
+    """``plant.simulate`` of a model under the study's run: the design's joint laws, the normal
+    forces held constant, the paper's tip pulse (200 N along every input), no energy books."""
+    laws = joint_laws(design)
+    controller = plant.ConstantNormalForce(normal_forces, 1e-3)
+    pulse = plant.triangular_pulse(directions=np.ones(len(design.disturbances)))  # 200 N along every input
+    return functools.partial(
+        plant.simulate,
+        joints=laws,
+        controller=controller,
+        disturbance=pulse,
+        duration=duration,
+        step=step,
+        energy_books=False,
+    )
+
+
+def _krylov_runs(
+    fe, full, first, keep: int, krylov, krylov_joints, simulate_model, reference, active, duration, progress
+) -> list[dict]:
+    """One reduced model per Krylov count (``keep`` modes of ``first`` plus the vectors), each
+    run and compared with the full model's ``reference`` run."""
+    band = float(first.omega[-1])
+    runs = []
+    for count in krylov:
+        reduced = reduce(fe, first, keep, count, krylov_joints=krylov_joints)
+        result = simulate_model(reduced.model)
+        errors = _friction_rms_errors(result.friction_force[:, active], reference, active, duration)
+        runs.append(
+            _compared_run(count, reduced, result, reference, errors, error_metrics(fe, full, reduced.model, band))
+        )
+        progress(
+            f"      {keep} modes + {count} Krylov vector(s): friction RMS error "
+            + ", ".join(f"{100 * e:.1f} % (0–{w} s)" for w, e in errors.items())
+        )
+    return runs
+
+
+def reduction_study(
+    design,
+    normal_forces: np.ndarray,
+    considered: int = 100,
+    keep: int = 60,
+    krylov: tuple[int, ...] = (0, 2),
+    krylov_joints: list[int] | None = None,
+    duration: float = 0.5,
+    step: float = 5e-5,
+    progress=print,
+) -> dict:
     """Full model (all modes of Eq. 5) against reduced models with 0…K Krylov vectors under the
     paper's tip pulse: the friction forces of Fig. 10 and the error metrics of Section 4.
 
@@ -55,38 +141,30 @@ def reduction_study(design, normal_forces: np.ndarray, considered: int = 100, ke
     """
     if not design.joints:
         raise ModelError("design has no [[joints]]: the reduction study needs at least one friction joint")
-    fe = build_model(design, joints="released")
-    progress(f"      all {fe.n_dof} modes of the released truss (the full model) …")
-    everything = modal.solve_modes(fe, fe.n_dof)
-    full = modal.modal_model(fe, everything)
-    first = modal.Modes(everything.omega[:considered], everything.shapes[:, :considered],
-                        everything.damping[:considered])
-    laws = joint_laws(design)
-    controller = plant.ConstantNormalForce(normal_forces, 1e-3)
-    pulse = plant.triangular_pulse(directions=np.ones(len(design.disturbances)))  # 200 N along every input
+    fe, full, first = _full_model(design, considered, progress)
+    simulate_model = _pulse_simulation(design, normal_forces, duration, step)
     considered = min(considered, fe.n_dof)
     keep = min(keep, considered)
     progress(f"      full model: {full.n_states} states, {duration:g} s at {step:g} s")
-    reference = plant.simulate(full, laws, controller, pulse, duration, step, energy_books=False)
+    reference = simulate_model(full)
     active = int(np.argmax(normal_forces))
-    ref_u = reference.friction_force[:, active]
-    band = float(first.omega[-1])
-    runs = []
-    for count in krylov:
-        reduced = reduce(fe, first, keep, count, krylov_joints=krylov_joints)
-        result = plant.simulate(reduced.model, laws, controller, pulse, duration, step, energy_books=False)
-        diff = result.friction_force[:, active] - ref_u
-        errors = {f"{w:g}": float(np.sqrt(np.mean(diff[reference.time <= w] ** 2))
-                                 / np.sqrt(np.mean(ref_u[reference.time <= w] ** 2))) for w in WINDOWS if w <= duration}
-        metrics = error_metrics(fe, full, reduced.model, band)
-        runs.append({"krylov_per_joint": count, "states": reduced.model.n_states, "result": result,
-                     "reduction": reduced, "friction_rms_error": errors, "metrics": metrics,
-                     "energy_measure_ratio": result.energy_measure() / reference.energy_measure()})
-        progress(f"      {keep} modes + {count} Krylov vector(s): friction RMS error "
-                 + ", ".join(f"{100 * e:.1f} % (0–{w} s)" for w, e in errors.items()))
-    return {"fe": fe, "full": full, "first": first, "reference": reference, "runs": runs, "active": active,
-            "considered": considered, "keep": keep, "duration": duration, "step": step,
-            "joint_names": [j.name for j in design.joints], "normal_forces": normal_forces.tolist()}
+    runs = _krylov_runs(
+        fe, full, first, keep, krylov, krylov_joints, simulate_model, reference, active, duration, progress
+    )
+    return {
+        "fe": fe,
+        "full": full,
+        "first": first,
+        "reference": reference,
+        "runs": runs,
+        "active": active,
+        "considered": considered,
+        "keep": keep,
+        "duration": duration,
+        "step": step,
+        "joint_names": [j.name for j in design.joints],
+        "normal_forces": normal_forces.tolist(),
+    }
 
 
 def study_summary(study: dict) -> dict:
@@ -105,16 +183,27 @@ def study_summary(study: dict) -> dict:
     """
     hankel = study["runs"][0]["reduction"].hankel
     return {
-        "joints": study["joint_names"], "normal_forces": study["normal_forces"],
+        "joints": study["joint_names"],
+        "normal_forces": study["normal_forces"],
         "active_joint": study["joint_names"][study["active"]],
-        "full_states": study["full"].n_states, "considered_modes": study["considered"], "kept_modes": study["keep"],
-        "duration_s": study["duration"], "step_s": study["step"],
+        "full_states": study["full"].n_states,
+        "considered_modes": study["considered"],
+        "kept_modes": study["keep"],
+        "duration_s": study["duration"],
+        "step_s": study["step"],
         "hankel_uv": hankel["uv"].tolist(),
-        "runs": [{"krylov_per_joint": r["krylov_per_joint"], "states": r["states"],
-                  "kept_modes": (r["reduction"].kept_modes + 1).tolist(),
-                  "krylov_frequencies_hz": (r["reduction"].model.omega[study["keep"]:] / (2 * np.pi)).tolist(),
-                  "friction_rms_error": r["friction_rms_error"], "energy_measure_ratio": r["energy_measure_ratio"],
-                  "metrics": r["metrics"]} for r in study["runs"]],
+        "runs": [
+            {
+                "krylov_per_joint": r["krylov_per_joint"],
+                "states": r["states"],
+                "kept_modes": (r["reduction"].kept_modes + 1).tolist(),
+                "krylov_frequencies_hz": (r["reduction"].model.omega[study["keep"] :] / (2 * np.pi)).tolist(),
+                "friction_rms_error": r["friction_rms_error"],
+                "energy_measure_ratio": r["energy_measure_ratio"],
+                "metrics": r["metrics"],
+            }
+            for r in study["runs"]
+        ],
     }
 
 

@@ -2,10 +2,12 @@
 updating, joint placement and the neutral model export.
 
 In pipeline order: ``spec`` reads a design file (through ``files`` and ``table``) into the
-dataclasses of ``description`` (``sections`` reads [safety] and [updating]); ``beam`` is the
-12-DOF element and ``fem`` assembles M, K, S, E, F, V, W (Eq. 4–10); ``modal`` solves the
-modes and builds the modal model (Eq. 5, 11); ``updating`` fits the model to the measured
-frequencies; ``placement`` ranks the connectors for joints; ``export`` writes the model out.
+dataclasses of ``description`` (``control_section`` reads [control], ``sections`` [safety] and
+[updating]); ``beam`` is the
+12-DOF element, ``mesh`` discretises the members (Fig. 6) and ``fem`` assembles M, K, S, E, F, V,
+W (Eq. 4–10); ``modal`` solves the modes and builds the modal model (Eq. 5, 11); ``updating``
+fits the model to the measured frequencies; ``placement`` ranks the connectors for joints;
+``export`` writes the model out.
 """
 
 from smartjoint.design.structure.description import Design
@@ -16,6 +18,18 @@ from smartjoint.design.structure.spec import REFERENCE_DESIGN, load_design, pars
 from smartjoint.design.structure.updating import UpdatingResult, update_model, updated_design
 
 __all__ = [
-    "Design", "FEModel", "ModalModel", "Modes", "REFERENCE_DESIGN", "UpdatingResult", "build_model", "export_model",
-    "load_design", "modal_model", "parse_design", "solve_modes", "update_model", "updated_design",
+    "Design",
+    "FEModel",
+    "ModalModel",
+    "Modes",
+    "REFERENCE_DESIGN",
+    "UpdatingResult",
+    "build_model",
+    "export_model",
+    "load_design",
+    "modal_model",
+    "parse_design",
+    "solve_modes",
+    "update_model",
+    "updated_design",
 ]

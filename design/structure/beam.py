@@ -185,5 +185,4 @@ def to_global(local: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     return np.einsum("nji,njk,nkl->nil", transform, local, transform, optimize=True)
 
 
-__all__ = ["element_frames", "local_mass_terms", "local_stiffness_terms", "MASS_TERMS", "STIFFNESS_TERMS",
-           "to_global"]
+__all__ = ["element_frames", "local_mass_terms", "local_stiffness_terms", "MASS_TERMS", "STIFFNESS_TERMS", "to_global"]

@@ -259,7 +259,7 @@ class Design:
         for key, value in values.items():
             table, name, attribute = split_parameter(key)
             tables[table][name] = dataclasses.replace(tables[table][name], **{attribute: float(value)})
-        return dataclasses.replace(self, **tables)
+        return dataclasses.replace(self, materials=tables["materials"], connectors=tables["connectors"])
 
 
 UPDATABLE = {
@@ -293,6 +293,26 @@ def split_parameter(key: str) -> tuple[str, str, str]:
     return parts[0], parts[1], parts[2]
 
 
-__all__ = ["Connector", "Control", "DOF_NAMES", "Design", "Disturbance", "JOINT_TYPES", "Joint", "Material",
-           "MeasuredMode", "Member", "Node", "NodeType", "PointMass", "SENSOR_QUANTITIES", "Safety", "Sensor", "Support",
-           "TubeSection", "UPDATABLE", "Updating", "split_parameter"]
+__all__ = [
+    "Connector",
+    "Control",
+    "DOF_NAMES",
+    "Design",
+    "Disturbance",
+    "JOINT_TYPES",
+    "Joint",
+    "Material",
+    "MeasuredMode",
+    "Member",
+    "Node",
+    "NodeType",
+    "PointMass",
+    "SENSOR_QUANTITIES",
+    "Safety",
+    "Sensor",
+    "Support",
+    "TubeSection",
+    "UPDATABLE",
+    "Updating",
+    "split_parameter",
+]

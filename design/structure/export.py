@@ -32,14 +32,20 @@ def export_model(model: FEModel) -> dict:
     elements = []
     for e, (a, b) in enumerate(model.element_points):
         EA, EIy, EIz, GJ, rhoA, rhoIp = (float(v) for v in properties[e])
-        elements.append({
-            "points": [int(a), int(b)],
-            "member": model.element_member[e],
-            "kind": model.element_kind[e],
-            "local_y": [float(v) for v in model.element_rotation[e, 1]],
-            "EA": EA, "EIy": EIy, "EIz": EIz, "GJ": GJ,
-            "mass_per_length": rhoA, "polar_inertia_per_length": rhoIp,
-        })
+        elements.append(
+            {
+                "points": [int(a), int(b)],
+                "member": model.element_member[e],
+                "kind": model.element_kind[e],
+                "local_y": [float(v) for v in model.element_rotation[e, 1]],
+                "EA": EA,
+                "EIy": EIy,
+                "EIz": EIz,
+                "GJ": GJ,
+                "mass_per_length": rhoA,
+                "polar_inertia_per_length": rhoIp,
+            }
+        )
     return {
         "schema": SCHEMA,
         "design": {"name": design.name, "source": design.source, "sha256": design.sha256},
@@ -53,8 +59,10 @@ def export_model(model: FEModel) -> dict:
         "rigid_links": model.rigid_links,
         "lumped_masses": model.lumped_masses,
         "supports": [{"node": s.node, "dofs": list(s.dofs)} for s in design.supports],
-        "sensors": [{"name": s.name, "node": s.node, "direction": list(s.direction), "quantity": s.quantity}
-                    for s in design.sensors],
+        "sensors": [
+            {"name": s.name, "node": s.node, "direction": list(s.direction), "quantity": s.quantity}
+            for s in design.sensors
+        ],
         "disturbances": [{"name": d.name, "node": d.node, "direction": list(d.direction)} for d in design.disturbances],
     }
 

@@ -39,6 +39,7 @@ import scipy.sparse as sp
 from smartjoint.common.errors import ModelError
 from smartjoint.design.structure import beam
 from smartjoint.design.structure.description import DOF_NAMES, Design
+from smartjoint.design.structure.mesh import Mesh, discretise
 
 _TERM_INDEX = {name: i for i, name in enumerate(beam.STIFFNESS_TERMS)}
 
@@ -82,10 +83,9 @@ class FEModel:
     def stiffness_with(self, parameters: dict[str, float]) -> sp.csr_matrix:
         """K = Σ_p p·K_p for the given parameter values (missing keys keep their value)."""
         values = {**self.parameters, **parameters}
-        total = None
-        for key, part in self.stiffness_parts.items():
-            term = part * values[key]
-            total = term if total is None else total + term
+        total, *rest = [part * values[key] for key, part in self.stiffness_parts.items()]
+        for term in rest:
+            total = total + term
         return total.tocsr()
 
     @property
@@ -95,13 +95,11 @@ class FEModel:
 
 
 def _rigid_mass(model: FEModel) -> float:
-    lengths = np.linalg.norm(model.points[model.element_points[:, 1]] - model.points[model.element_points[:, 0]], axis=1)
+    lengths = np.linalg.norm(
+        model.points[model.element_points[:, 1]] - model.points[model.element_points[:, 0]], axis=1
+    )
     members = float(np.sum(model.element_properties[:, 4] * lengths))
     return members + sum(m["mass"] for m in model.lumped_masses)
-
-
-def _parameter_key(table: str, name: str, attribute: str) -> str:
-    return f"{table}.{name}.{attribute}"
 
 
 def build_model(design: Design, *, joints: str = "released", allow_mechanisms: bool = False) -> FEModel:
@@ -134,151 +132,92 @@ def build_model(design: Design, *, joints: str = "released", allow_mechanisms: b
     """
     if joints not in ("released", "locked"):
         raise ValueError(f"joints: {joints!r} — allowed: 'released', 'locked'")
-    nodes = design.nodes
-    node_names = list(nodes)
+    node_names = list(design.nodes)
     node_index = {name: i for i, name in enumerate(node_names)}
-    mesh = _discretise(design, node_index)
-    points_array = np.array(mesh.points)
-    element_points = np.column_stack([mesh.element_a, mesh.element_b]).astype(np.int64)
-    lengths, rotation = beam.element_frames(points_array[element_points[:, 0]],
-                                            points_array[element_points[:, 1]],
-                                            np.array(mesh.element_reference))
-    n_points = len(mesh.points)
-    n_bar = 6 * n_points
+    mesh = discretise(design, node_index)
+    points_array, element_points, lengths, rotation = _element_frames(mesh)
+    n_bar = 6 * len(mesh.points)
     rows, cols = _element_entries(element_points)
-
     coefficients, parameter_values, global_terms = _stiffness_terms(design, mesh.element_terms, lengths, rotation)
     masses = np.array(mesh.element_mass)
-    local_mass = beam.local_mass_terms(lengths)
-    element_m = masses[:, 0, None, None] * local_mass["translation"] + masses[:, 1, None, None] * local_mass["torsion"]
-    element_m = beam.to_global(element_m, rotation)
-    mass_bar = sp.coo_matrix((element_m.ravel(), (rows, cols)), shape=(n_bar, n_bar)).tocsr()
     lumped_bar, lumped = _lumped_masses(design, node_names, node_index, n_bar)
-    mass_bar = mass_bar + lumped_bar  # the node and point masses
-
-    seat_points = {point: (node, axis, key) for key, (point, node, axis) in mesh.seats.items()}
+    mass_bar = _element_mass_matrix(masses, lengths, rotation, rows, cols, n_bar) + lumped_bar  # node, point masses
     active_joints = list(design.joints) if joints == "released" else []
-    column, labels, joint_column = _independent_dofs(design, node_names, node_index, mesh.point_names, n_points,
-                                                     seat_points, active_joints)
-    S, rigid_links, joint_pairs = _constraints(points_array, mesh.point_names, node_names, seat_points, column,
-                                               labels, active_joints, joint_column)
-    St = S.T.tocsr()
-
-    stiffness_parts = {}
-    for key, coefficient in coefficients.items():
-        data = np.einsum("et,etij->eij", coefficient, global_terms).ravel()
-        part_bar = sp.coo_matrix((data, (rows, cols)), shape=(n_bar, n_bar)).tocsr()
-        stiffness_parts[key] = (St @ part_bar @ S).tocsr()
-    mass = (St @ mass_bar @ S).tocsr()
+    S, labels, rigid_links, joint_pairs = _constraint_matrix(
+        design, mesh, points_array, node_names, node_index, active_joints
+    )
+    St, mass, stiffness_parts = _independent_matrices(S, mass_bar, coefficients, global_terms, rows, cols)
     E, F, V, W = _inputs_outputs(design, node_index, S, St, joint_pairs, active_joints)
-
     model = FEModel(
-        design=design, joints_released=joints == "released", points=points_array, point_names=mesh.point_names,
-        element_points=element_points, element_member=mesh.element_member, element_kind=mesh.element_kind,
+        design=design,
+        joints_released=joints == "released",
+        points=points_array,
+        point_names=mesh.point_names,
+        element_points=element_points,
+        element_member=mesh.element_member,
+        element_kind=mesh.element_kind,
         element_properties=_element_properties(coefficients, parameter_values, masses),
-        element_rotation=rotation, S=S, mass=mass, stiffness_parts=stiffness_parts,
-        parameters=parameter_values, E=E, F=F, V=V, W=W, dof_labels=labels,
-        joint_names=[j.name for j in active_joints], sensor_names=[s.name for s in design.sensors],
-        disturbance_names=[d.name for d in design.disturbances], rigid_links=rigid_links, lumped_masses=lumped,
+        element_rotation=rotation,
+        S=S,
+        mass=mass,
+        stiffness_parts=stiffness_parts,
+        parameters=parameter_values,
+        E=E,
+        F=F,
+        V=V,
+        W=W,
+        dof_labels=labels,
+        joint_names=[j.name for j in active_joints],
+        sensor_names=[s.name for s in design.sensors],
+        disturbance_names=[d.name for d in design.disturbances],
+        rigid_links=rigid_links,
+        lumped_masses=lumped,
     )
     if not allow_mechanisms:
         check_supported(model)
     return model
 
 
+def _element_frames(mesh: Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The mesh's points as an array, the two point indices, length and rotation of every element."""
+    points_array = np.array(mesh.points)
+    element_points = np.column_stack([mesh.element_a, mesh.element_b]).astype(np.int64)
+    lengths, rotation = beam.element_frames(
+        points_array[element_points[:, 0]], points_array[element_points[:, 1]], np.array(mesh.element_reference)
+    )
+    return points_array, element_points, lengths, rotation
+
+
+def _element_mass_matrix(masses, lengths, rotation, rows, cols, n_bar: int) -> sp.csr_matrix:
+    """M̄ of the beam elements (without the lumped masses), from their ρA and ρI_p per length."""
+    local_mass = beam.local_mass_terms(lengths)
+    element_m = masses[:, 0, None, None] * local_mass["translation"] + masses[:, 1, None, None] * local_mass["torsion"]
+    element_m = beam.to_global(element_m, rotation)
+    return sp.coo_matrix((element_m.ravel(), (rows, cols)), shape=(n_bar, n_bar)).tocsr()
+
+
+def _independent_matrices(S, mass_bar, coefficients, global_terms, rows, cols):
+    """Sᵀ, M = SᵀM̄S and K_p = SᵀK̄_pS per stiffness parameter at unit value (Eq. 4 → 5), so that
+    K = Σ_p p·K_p."""
+    n_bar = S.shape[0]
+    St = S.T.tocsr()
+    stiffness_parts = {}
+    for key, coefficient in coefficients.items():
+        data = np.einsum("et,etij->eij", coefficient, global_terms).ravel()
+        part_bar = sp.coo_matrix((data, (rows, cols)), shape=(n_bar, n_bar)).tocsr()
+        stiffness_parts[key] = (St @ part_bar @ S).tocsr()
+    mass = (St @ mass_bar @ S).tocsr()
+    return St, mass, stiffness_parts
+
+
 def _element_entries(element_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Row and column in z̄ of every entry of every 12 × 12 element matrix, for one COO assembly."""
-    element_dofs = np.concatenate([6 * element_points[:, [0]] + np.arange(6), 6 * element_points[:, [1]] + np.arange(6)], axis=1)
+    element_dofs = np.concatenate(
+        [6 * element_points[:, [0]] + np.arange(6), 6 * element_points[:, [1]] + np.arange(6)], axis=1
+    )
     rows = np.repeat(element_dofs, 12, axis=1).ravel()
     cols = np.tile(element_dofs, (1, 12)).ravel()
     return rows, cols
-
-
-@dataclass
-class _Mesh:
-    """The points and beam elements of every member (paper Fig. 6), before any matrix."""
-
-    points: list[np.ndarray]  # node centres first, then the beam nodes of each member
-    point_names: list[str]
-    # Seats of every member end: (member, end) -> (point index, node index, axis into member).
-    seats: dict[tuple[str, str], tuple[int, int, np.ndarray]] = field(default_factory=dict)
-    element_a: list[int] = field(default_factory=list)
-    element_b: list[int] = field(default_factory=list)
-    element_member: list[str] = field(default_factory=list)
-    element_kind: list[str] = field(default_factory=list)
-    element_terms: list[list[tuple[str, str, float]]] = field(default_factory=list)
-    element_mass: list[tuple[float, float]] = field(default_factory=list)
-    element_reference: list[np.ndarray] = field(default_factory=list)
-
-
-def _discretise(design: Design, node_index: dict[str, int]) -> _Mesh:
-    """Node centre → seat → connector → tube elements → connector → seat → node centre, per member."""
-    nodes = design.nodes
-    mesh = _Mesh([np.array(nodes[n].position, dtype=float) for n in nodes], list(nodes))
-    points, point_names = mesh.points, mesh.point_names
-    for member in design.members.values():
-        start = np.array(nodes[member.start].position, dtype=float)
-        end = np.array(nodes[member.end].position, dtype=float)
-        axis = (end - start) / np.linalg.norm(end - start)
-        radius_start = _seat_radius(design, member.start)
-        radius_end = _seat_radius(design, member.end)
-        connector = design.connectors[member.connector] if member.connector else None
-        connector_length = connector.length if connector else 0.0
-        seat_start = start + radius_start * axis
-        seat_end = end - radius_end * axis
-        stations = [seat_start]
-        if connector:
-            stations.append(seat_start + connector_length * axis)
-        tube_start = stations[-1]
-        tube_end = seat_end - connector_length * axis
-        for k in range(1, member.elements):
-            stations.append(tube_start + (tube_end - tube_start) * k / member.elements)
-        stations.append(tube_end)
-        if connector:
-            stations.append(seat_end)
-        first = len(points)
-        for k, position in enumerate(stations):
-            points.append(position)
-            point_names.append(f"{member.name}:{k}")
-        last = len(points) - 1
-        mesh.seats[(member.name, "start")] = (first, node_index[member.start], axis)
-        mesh.seats[(member.name, "end")] = (last, node_index[member.end], -axis)
-        _add_elements(design, mesh, member, connector, first, len(stations) - 1, axis)
-    return mesh
-
-
-def _add_elements(design: Design, mesh: _Mesh, member, connector, first: int, n_segments: int,
-                  axis: np.ndarray) -> None:
-    """The beam elements of one member: the end connectors (if any) and the tube between them."""
-    section = design.sections[member.section]
-    material = design.materials[section.material]
-    tube_terms = [
-        (_parameter_key("materials", material.name, "youngs_modulus"), "axial", section.area),
-        (_parameter_key("materials", material.name, "youngs_modulus"), "bending_y", section.second_moment),
-        (_parameter_key("materials", material.name, "youngs_modulus"), "bending_z", section.second_moment),
-        (_parameter_key("materials", material.name, "shear_modulus"), "torsion", section.polar_moment),
-    ]
-    tube_mass = (material.density * section.area, material.density * section.polar_moment)
-    for k in range(n_segments):
-        is_connector = connector is not None and (k == 0 or k == n_segments - 1)
-        mesh.element_a.append(first + k)
-        mesh.element_b.append(first + k + 1)
-        mesh.element_member.append(member.name)
-        mesh.element_reference.append(_member_reference(axis))
-        if is_connector:
-            mesh.element_kind.append("connector")
-            mesh.element_terms.append([
-                (_parameter_key("connectors", connector.name, "axial_stiffness"), "axial", 1.0),
-                (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_y", 1.0),
-                (_parameter_key("connectors", connector.name, "bending_stiffness"), "bending_z", 1.0),
-                (_parameter_key("connectors", connector.name, "torsional_stiffness"), "torsion", 1.0),
-            ])
-            per_length = connector.mass / connector.length
-            mesh.element_mass.append((per_length, per_length * connector.diameter**2 / 8.0))
-        else:
-            mesh.element_kind.append("tube")
-            mesh.element_terms.append(tube_terms)
-            mesh.element_mass.append(tube_mass)
 
 
 def _stiffness_terms(design: Design, element_terms, lengths, rotation):
@@ -312,13 +251,30 @@ def _lumped_masses(design: Design, node_names: list[str], node_index: dict[str, 
         i = node_index[name]
         lumped_rows += list(range(6 * i, 6 * i + 6))
         lumped_values += [node_type.mass] * 3 + [node_type.inertia] * 3
-        lumped.append({"node": name, "mass": node_type.mass, "inertia": node_type.inertia, "source": f"node_types.{node.type}"})
+        lumped.append(
+            {"node": name, "mass": node_type.mass, "inertia": node_type.inertia, "source": f"node_types.{node.type}"}
+        )
     for point_mass in design.point_masses:
         i = node_index[point_mass.node]
         lumped_rows += list(range(6 * i, 6 * i + 6))
         lumped_values += [point_mass.mass] * 3 + [point_mass.inertia] * 3
-        lumped.append({"node": point_mass.node, "mass": point_mass.mass, "inertia": point_mass.inertia, "source": "point_masses"})
+        lumped.append(
+            {"node": point_mass.node, "mass": point_mass.mass, "inertia": point_mass.inertia, "source": "point_masses"}
+        )
     return sp.coo_matrix((lumped_values, (lumped_rows, lumped_rows)), shape=(n_bar, n_bar)).tocsr(), lumped
+
+
+def _constraint_matrix(design: Design, mesh: Mesh, points_array, node_names, node_index, active_joints):
+    """S of z̄ = S·z (Eq. 4) over the independent DOFs, with the label of every z, the rigid
+    links (for the export) and Ē, the action–reaction pair of each joint force."""
+    seat_points = {point: (node, axis, key) for key, (point, node, axis) in mesh.seats.items()}
+    column, labels, joint_column = _independent_dofs(
+        design, node_names, node_index, mesh.point_names, len(mesh.points), seat_points, active_joints
+    )
+    S, rigid_links, joint_pairs = _constraints(
+        points_array, mesh.point_names, node_names, seat_points, column, labels, active_joints, joint_column
+    )
+    return S, labels, rigid_links, joint_pairs
 
 
 def _independent_dofs(design: Design, node_names, node_index, point_names, n_points, seat_points, active_joints):
@@ -389,10 +345,10 @@ def _constraints(points_array, point_names, node_names, seat_points, column, lab
             for a in range(3):
                 tie(6 * point + block + a, q, float(direction[a]))
             # Ē: the joint force pair, on the seat and (reaction) on the node centre.
-            joint_pairs[6 * point + block:6 * point + block + 3, k] = direction
-            joint_pairs[6 * node + block:6 * node + block + 3, k] -= direction
+            joint_pairs[6 * point + block : 6 * point + block + 3, k] = direction
+            joint_pairs[6 * node + block : 6 * node + block + 3, k] -= direction
             if block == 0:
-                joint_pairs[6 * node + 3:6 * node + 6, k] -= np.cross(offset, direction)
+                joint_pairs[6 * node + 3 : 6 * node + 6, k] -= np.cross(offset, direction)
             link["release"] = {"joint": joint.name, "type": joint.type, "direction": direction.tolist()}
         rigid_links.append(link)
     return sp.csr_matrix((s_vals, (s_rows, s_cols)), shape=(n_bar, n_dof)), rigid_links, joint_pairs
@@ -405,24 +361,15 @@ def _inputs_outputs(design: Design, node_index, S, St, joint_pairs, active_joint
     F_bar = np.zeros((n_bar, len(design.disturbances)))
     for k, disturbance in enumerate(design.disturbances):
         i = node_index[disturbance.node]
-        F_bar[6 * i:6 * i + 6, k] = disturbance.direction
+        F_bar[6 * i : 6 * i + 6, k] = disturbance.direction
     F = np.asarray(St @ F_bar)
     V = np.zeros((len(design.sensors), n_dof))
     W = np.zeros((len(design.sensors), n_dof))
     for k, sensor in enumerate(design.sensors):
         i = node_index[sensor.node]
-        row = np.asarray(S[6 * i:6 * i + 6].T @ np.array(sensor.direction)).ravel()
+        row = np.asarray(S[6 * i : 6 * i + 6].T @ np.array(sensor.direction)).ravel()
         (V if sensor.quantity == "displacement" else W)[k] = row
     return E, F, V, W
-
-
-def _seat_radius(design: Design, node_name: str) -> float:
-    node = design.nodes[node_name]
-    return design.node_types[node.type].seat_radius if node.type else 0.0
-
-
-def _member_reference(axis: np.ndarray) -> np.ndarray:
-    return np.array([0.0, 1.0, 0.0]) if abs(axis[2]) > 0.99 else np.array([0.0, 0.0, 1.0])
 
 
 def _skew(r: np.ndarray) -> np.ndarray:

@@ -47,9 +47,17 @@ def read_file(path: Path, key: str, shown: str, source: str | None, max_bytes: i
     try:
         status = os.fstat(descriptor)
         if not stat.S_ISREG(status.st_mode):
-            kind = ("a folder" if stat.S_ISDIR(status.st_mode) else "a FIFO" if stat.S_ISFIFO(status.st_mode)
-                    else "a device" if stat.S_ISCHR(status.st_mode) or stat.S_ISBLK(status.st_mode)
-                    else "a socket" if stat.S_ISSOCK(status.st_mode) else "not a regular file")
+            kind = (
+                "a folder"
+                if stat.S_ISDIR(status.st_mode)
+                else "a FIFO"
+                if stat.S_ISFIFO(status.st_mode)
+                else "a device"
+                if stat.S_ISCHR(status.st_mode) or stat.S_ISBLK(status.st_mode)
+                else "a socket"
+                if stat.S_ISSOCK(status.st_mode)
+                else "not a regular file"
+            )
             raise DesignError(key, shown, f"{path} is {kind}; a {what} must be a regular file", source)
         limit = f"a {what} must be a regular file of at most {max_bytes} bytes ({max_bytes / 1024**2:g} MiB)"
         if status.st_size > max_bytes:
@@ -85,8 +93,9 @@ def _chain_names(chain: list[Path]) -> str:
     return " → ".join(names)
 
 
-def read_toml(path: Path, source: str, raw: bytes, chain: list[Path], max_bytes: int,
-              max_depth: int) -> tuple[dict[str, Any], bytes]:
+def read_toml(
+    path: Path, source: str, raw: bytes, chain: list[Path], max_bytes: int, max_depth: int
+) -> tuple[dict[str, Any], bytes]:
     """Parse a design file; ``base = "other.toml"`` (relative to the file) supplies every
     top-level key the file does not set itself. The hash covers the whole chain of bytes.
 
@@ -122,12 +131,14 @@ def read_toml(path: Path, source: str, raw: bytes, chain: list[Path], max_bytes:
     base_path = (path.parent / base) if not Path(base).is_absolute() else Path(base)
     for earlier in chain:
         if _same_file(earlier, base_path):
-            cycle = chain[chain.index(earlier):] + [base_path]
-            raise DesignError("base", base, f"{_chain_names(cycle)} is a cycle; a base chain must end in a "
-                              "file without base", source)
+            cycle = chain[chain.index(earlier) :] + [base_path]
+            raise DesignError(
+                "base", base, f"{_chain_names(cycle)} is a cycle; a base chain must end in a file without base", source
+            )
     if len(chain) > max_depth:
-        raise DesignError("base", base, f"{_chain_names(chain + [base_path])}: at most {max_depth} "
-                          "levels of base files", source)
+        raise DesignError(
+            "base", base, f"{_chain_names(chain + [base_path])}: at most {max_depth} levels of base files", source
+        )
     base_raw = read_file(base_path, "base", base, source, max_bytes)
     base_data, base_chain = read_toml(base_path, str(base_path), base_raw, chain + [base_path], max_bytes, max_depth)
     return {**base_data, **data}, base_chain + b"\0" + raw

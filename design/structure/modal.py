@@ -69,17 +69,27 @@ def eigensolve(stiffness: sp.spmatrix, mass: sp.spmatrix, n_modes: int) -> tuple
             if n_modes == n_dof:  # the whole spectrum: divide and conquer is several times faster
                 values, vectors = scipy.linalg.eigh(stiffness.toarray(), mass.toarray(), driver="gvd")
             else:
-                values, vectors = scipy.linalg.eigh(stiffness.toarray(), mass.toarray(),
-                                                    subset_by_index=[0, n_modes - 1])
+                values, vectors = scipy.linalg.eigh(
+                    stiffness.toarray(), mass.toarray(), subset_by_index=[0, n_modes - 1]
+                )
         else:
             # A fixed start vector: ARPACK's default is random, which changes the last bits of
             # every result from run to run (artefacts and firmware must be byte-identical).
             start = np.random.default_rng(0).standard_normal(n_dof)
-            values, vectors = spla.eigsh(sp.csc_matrix(stiffness), k=n_modes, M=sp.csc_matrix(mass),
-                                         sigma=SHIFT, which="LM", mode="normal", v0=start)
+            values, vectors = spla.eigsh(
+                sp.csc_matrix(stiffness),
+                k=n_modes,
+                M=sp.csc_matrix(mass),
+                sigma=SHIFT,
+                which="LM",
+                mode="normal",
+                v0=start,
+            )
     except (np.linalg.LinAlgError, RuntimeError) as error:
-        raise ModelError(f"eigen solution failed ({error}); a DOF without mass (a massless node with a "
-                         "released joint?) or a singular stiffness matrix") from None
+        raise ModelError(
+            f"eigen solution failed ({error}); a DOF without mass (a massless node with a "
+            "released joint?) or a singular stiffness matrix"
+        ) from None
     order = np.argsort(values)
     values, vectors = values[order], vectors[:, order]
     # Explicit mass normalisation: ARPACK's vectors are M-orthogonal but scaled loosely.
@@ -155,8 +165,10 @@ def solve_modes(model, n_modes: int, parameters: dict[str, float] | None = None)
     stiffness = model.stiffness_with(parameters or {})
     values, vectors = eigensolve(stiffness, model.mass, n_modes)
     if zero_energy(stiffness, vectors[:, :1])[0]:
-        raise ModelError(f"lowest eigenvalue ω² = {values[0]:.3g} (rad/s)² is round-off of a zero-energy motion: "
-                         "the structure is not fully supported")
+        raise ModelError(
+            f"lowest eigenvalue ω² = {values[0]:.3g} (rad/s)² is round-off of a zero-energy motion: "
+            "the structure is not fully supported"
+        )
     return Modes(np.sqrt(values), vectors, np.full(n_modes, model.design.modal_damping))
 
 
@@ -285,12 +297,31 @@ def modal_model(model, modes: Modes, indices=None) -> ModalModel:
     indices = np.arange(len(modes)) if indices is None else np.asarray(indices, dtype=int)
     shapes = modes.shapes[:, indices]
     return ModalModel(
-        omega=modes.omega[indices].copy(), damping=modes.damping[indices].copy(),
-        joint_input=shapes.T @ model.E, disturbance_input=shapes.T @ model.F,
-        displacement_output=model.V @ shapes, velocity_output=model.W @ shapes,
-        labels=[f"mode {i + 1}" for i in indices], joint_names=list(model.joint_names),
-        sensor_names=list(model.sensor_names), disturbance_names=list(model.disturbance_names), basis=shapes)
+        omega=modes.omega[indices].copy(),
+        damping=modes.damping[indices].copy(),
+        joint_input=shapes.T @ model.E,
+        disturbance_input=shapes.T @ model.F,
+        displacement_output=model.V @ shapes,
+        velocity_output=model.W @ shapes,
+        labels=[f"mode {i + 1}" for i in indices],
+        joint_names=list(model.joint_names),
+        sensor_names=list(model.sensor_names),
+        disturbance_names=list(model.disturbance_names),
+        basis=shapes,
+    )
 
 
-__all__ = ["count_zero_energy_modes", "DENSE_LIMIT", "eigensolve", "gross_energy", "modal_model", "ModalModel",
-           "Modes", "probe_zero_energy", "SHIFT", "solve_modes", "zero_energy", "ZERO_ENERGY_RELATIVE"]
+__all__ = [
+    "count_zero_energy_modes",
+    "DENSE_LIMIT",
+    "eigensolve",
+    "gross_energy",
+    "modal_model",
+    "ModalModel",
+    "Modes",
+    "probe_zero_energy",
+    "SHIFT",
+    "solve_modes",
+    "zero_energy",
+    "ZERO_ENERGY_RELATIVE",
+]

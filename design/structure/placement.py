@@ -63,7 +63,7 @@ def connector_energy(fe, modes, targets) -> list[Candidate]:
         a, b = fe.element_points[e]
         axis = fe.element_rotation[e, 0]
         length = float(np.linalg.norm(fe.points[b] - fe.points[a]))
-        elongation = axis @ (shapes[6 * b:6 * b + 3] - shapes[6 * a:6 * a + 3])
+        elongation = axis @ (shapes[6 * b : 6 * b + 3] - shapes[6 * a : 6 * a + 3])
         fractions = fe.element_properties[e, 0] / length * elongation**2 / modes.omega[targets] ** 2
         candidates.append(Candidate(member, end, tuple(float(f) for f in fractions)))
     return candidates
@@ -168,15 +168,26 @@ def design_text(base: str, name: str, chosen: list[Candidate], targets: list[int
     str
         TOML text.
     """
-    lines = [f"# Joint placement by modal strain energy (paper Section 6): modes "
-             f"{', '.join(str(i + 1) for i in targets)}; written by `smartjoint place`.",
-             f"base = {_quote(base)}", f"name = {_quote(name)}",
-             f"description = {_quote(f'{len(chosen)} type A joints placed for modes ' + ', '.join(str(i + 1) for i in targets))}"]
+    lines = [
+        f"# Joint placement by modal strain energy (paper Section 6): modes "
+        f"{', '.join(str(i + 1) for i in targets)}; written by `smartjoint place`.",
+        f"base = {_quote(base)}",
+        f"name = {_quote(name)}",
+        "description = "
+        + _quote(f"{len(chosen)} type A joints placed for modes " + ", ".join(str(i + 1) for i in targets)),
+    ]
     for k, c in enumerate(chosen, start=1):
-        lines += ["", f"# score {c.score:.4g} (strain-energy fraction per mode: "
-                  + ", ".join(f"{f:.3g}" for f in c.fractions) + ")",
-                  "[[joints]]", f"name = {_quote(f'{prefix}{k}')}", f"member = {_quote(c.member)}",
-                  f"end = {_quote(c.end)}", 'type = "A"']
+        lines += [
+            "",
+            f"# score {c.score:.4g} (strain-energy fraction per mode: "
+            + ", ".join(f"{f:.3g}" for f in c.fractions)
+            + ")",
+            "[[joints]]",
+            f"name = {_quote(f'{prefix}{k}')}",
+            f"member = {_quote(c.member)}",
+            f"end = {_quote(c.end)}",
+            'type = "A"',
+        ]
     return "\n".join(lines) + "\n"
 
 

@@ -59,25 +59,36 @@ def parse_safety(t: DesignTable, control: Control, joints) -> Safety:
         for i in range(len(forces)):
             if not low[i] <= forces[i] <= high[i]:
                 entry = f" (entry {i})" if isinstance(safe, tuple) else ""
-                raise t.error("safe_normal_force", float(forces[i]),
-                              f"\"max\", \"min\" or newtons within [normal_force_min, normal_force_max] = "
-                              f"[{low[i]:g}, {high[i]:g}] N{entry}")
+                raise t.error(
+                    "safe_normal_force",
+                    float(forces[i]),
+                    f'"max", "min" or newtons within [normal_force_min, normal_force_max] = '
+                    f"[{low[i]:g}, {high[i]:g}] N{entry}",
+                )
     safety = Safety(
         safe_normal_force=safe,
-        sliding_velocity_limit=t.number("sliding_velocity_limit", d.sliding_velocity_limit, positive=True,
-                                        maximum=MAX_SLIDING_VELOCITY),
-        friction_coefficient_limit=t.number("friction_coefficient_limit", d.friction_coefficient_limit,
-                                            positive=True, maximum=MAX_FRICTION_COEFFICIENT),
+        sliding_velocity_limit=t.number(
+            "sliding_velocity_limit", d.sliding_velocity_limit, positive=True, maximum=MAX_SLIDING_VELOCITY
+        ),
+        friction_coefficient_limit=t.number(
+            "friction_coefficient_limit", d.friction_coefficient_limit, positive=True, maximum=MAX_FRICTION_COEFFICIENT
+        ),
         normal_force_margin=t.number("normal_force_margin", d.normal_force_margin, non_negative=True, maximum=1.0),
-        displacement_limit=(t.number("displacement_limit", positive=True, maximum=MAX_DISPLACEMENT)
-                            if "displacement_limit" in t.data else None),
+        displacement_limit=(
+            t.number("displacement_limit", positive=True, maximum=MAX_DISPLACEMENT)
+            if "displacement_limit" in t.data
+            else None
+        ),
         velocity_limit=t.number("velocity_limit", d.velocity_limit, positive=True, maximum=MAX_SLIDING_VELOCITY),
-        amplifier_temperature_limit=t.number("amplifier_temperature_limit", d.amplifier_temperature_limit,
-                                             positive=True, maximum=MAX_TEMPERATURE),
-        amplifier_current_limit=t.number("amplifier_current_limit", d.amplifier_current_limit, positive=True,
-                                         maximum=MAX_CURRENT),
-        tracking_tolerance=t.number("tracking_tolerance", d.tracking_tolerance, positive=True,
-                                    maximum=MAX_TRACKING_TOLERANCE),
+        amplifier_temperature_limit=t.number(
+            "amplifier_temperature_limit", d.amplifier_temperature_limit, positive=True, maximum=MAX_TEMPERATURE
+        ),
+        amplifier_current_limit=t.number(
+            "amplifier_current_limit", d.amplifier_current_limit, positive=True, maximum=MAX_CURRENT
+        ),
+        tracking_tolerance=t.number(
+            "tracking_tolerance", d.tracking_tolerance, positive=True, maximum=MAX_TRACKING_TOLERANCE
+        ),
         timeout_cycles=t.integer("timeout_cycles", d.timeout_cycles, minimum=2, maximum=MAX_TIMEOUT_CYCLES),
         recovery_cycles=t.integer("recovery_cycles", d.recovery_cycles, minimum=1, maximum=255),
     )
@@ -133,8 +144,13 @@ def parse_updating(t: DesignTable, materials, connectors) -> Updating:
             raise t.error(f"parameters[{i}]", key, f"no {table[:-1]} named {name!r}")
     measured = []
     for m in t.tables("measured"):
-        measured.append(MeasuredMode(m.integer("mode", maximum=MAX_MODES), m.number("frequency_hz", positive=True),
-                                     m.number("mac", None) if m.data.get("mac") is not None else None))
+        measured.append(
+            MeasuredMode(
+                m.integer("mode", maximum=MAX_MODES),
+                m.number("frequency_hz", positive=True),
+                m.number("mac", None) if m.data.get("mac") is not None else None,
+            )
+        )
         m.finish()
     if len(measured) < 1:
         raise t.error("measured", [], "give at least one [[updating.measured]] mode")
@@ -169,9 +185,12 @@ def joint_axis(t: DesignTable, member: Member, nodes: dict[str, Node]) -> tuple[
         raise t.error("axis", list(axis), "must not be the zero vector")
     axis /= np.linalg.norm(axis)
     if abs(float(axis @ rod)) > 1e-6:
-        raise t.error("axis", [float(a) for a in axis],
-                      f"type B rotates about an axis perpendicular to the member (member direction {np.round(rod, 4).tolist()})")
-    return tuple(float(a) for a in axis)
+        raise t.error(
+            "axis",
+            [float(a) for a in axis],
+            f"type B rotates about an axis perpendicular to the member (member direction {np.round(rod, 4).tolist()})",
+        )
+    return float(axis[0]), float(axis[1]), float(axis[2])
 
 
 def check_member_lengths(members, nodes, node_types, connectors) -> None:
@@ -187,8 +206,11 @@ def check_member_lengths(members, nodes, node_types, connectors) -> None:
         rigid = sum(node_types[nodes[n].type].seat_radius if nodes[n].type else 0.0 for n in (member.start, member.end))
         flexible = 2.0 * connectors[member.connector].length if member.connector else 0.0
         if length - rigid - flexible <= 1e-9:
-            raise DesignError(f"members.{member.name}", length,
-                              f"member length must exceed node seats + connectors ({rigid + flexible:.4g} m)")
+            raise DesignError(
+                f"members.{member.name}",
+                length,
+                f"member length must exceed node seats + connectors ({rigid + flexible:.4g} m)",
+            )
 
 
 __all__ = ["MAX_MODES", "check_member_lengths", "joint_axis", "parse_safety", "parse_updating"]

@@ -3,7 +3,8 @@
 The format is documented in ``docs/design-file.md``. Every check here fails with a
 :class:`~smartjoint.common.errors.DesignError` that names the key path (``joints[2].type``),
 the value found and what is allowed, so a user never meets a traceback from numpy. The values
-are the dataclasses of `description`; the tables are read through `table.DesignTable`.
+are the dataclasses of `description`; the tables are read through `table.DesignTable`, [control]
+by `control_section` and [safety] and [updating] by `sections`.
 """
 
 from __future__ import annotations
@@ -13,16 +14,14 @@ import hashlib
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from smartjoint.common import package_data
 from smartjoint.common.errors import DesignError
+from smartjoint.design.structure.control_section import parse_control
 from smartjoint.design.structure.description import (
     DOF_NAMES,
     JOINT_TYPES,
     SENSOR_QUANTITIES,
     Connector,
-    Control,
     Design,
     Disturbance,
     Joint,
@@ -36,14 +35,8 @@ from smartjoint.design.structure.description import (
     TubeSection,
 )
 from smartjoint.design.structure.files import read_file, read_toml
-from smartjoint.design.structure.sections import (
-    MAX_MODES,
-    check_member_lengths,
-    joint_axis,
-    parse_safety,
-    parse_updating,
-)
-from smartjoint.design.structure.table import DesignTable, direction, dof_list, per_joint, reference, unique
+from smartjoint.design.structure.sections import check_member_lengths, joint_axis, parse_safety, parse_updating
+from smartjoint.design.structure.table import DesignTable, direction, dof_list, reference, unique
 
 SCHEMA = "smartjoint-design/1"
 DIAGONAL_PATTERNS = ("alternating", "parallel")
@@ -52,9 +45,9 @@ TIP_NODES = ("none", "cross", "diagonal")
 REFERENCE_DESIGN = package_data.path("smartjoint.design", "data/meroform_10bay.toml")
 
 # Limits on every size a design file controls, checked before anything of that size is
-# allocated (docs/design-file.md; MAX_MODES with [updating] in `sections`). Each is generous for
-# a real truss: a 1000-bay mast of the reference kind has 4 005 nodes, 12 004 members and
-# 384 000 DOFs and solves in about a minute.
+# allocated (docs/design-file.md; MAX_MODES with [updating] in `sections`, the limits of [control]
+# in `control_section`). Each is generous for a real truss: a 1000-bay mast of the reference
+# kind has 4 005 nodes, 12 004 members and 384 000 DOFs and solves in about a minute.
 MAX_FILE_BYTES = 4 * 1024 * 1024  # one design file: some 50 000 explicit members, parsed in seconds
 MAX_BASE_DEPTH = 4  # base files behind the file given
 MAX_BAYS = 5000
@@ -62,15 +55,6 @@ MAX_ELEMENTS = 1000  # beam elements per tube (a cubic beam element needs a hand
 MAX_NODES = 100_000
 MAX_MEMBERS = 300_000
 MAX_DOFS = 1_000_000  # about 5 GB for assembly plus 100 modes
-MAX_KRYLOV = 20  # Krylov correction vectors per joint
-MAX_LANCZOS_BYTES = 4 * 1024**3  # the Lanczos basis of 2·considered_modes vectors of the DOF size
-MIN_SAMPLE_TIME = 1e-6  # [s]: the firmware counts its cycle in whole microseconds
-MAX_STUDY_DURATION = 3600.0  # [s] of simulated time in a closed-loop study (the paper: 4 s)
-MAX_CONTROLLER_STEPS = 10_000_000  # study_duration / sample_time
-# The largest normal force a piezo-actuated friction joint can plausibly set: the blocking
-# force of the largest multilayer piezo stacks is some tens of kN, and the bolt of a truss joint
-# (M12, property class 8.8: proof load 48 kN) holds no more. 1e5 N is above both.
-MAX_NORMAL_FORCE = 1e5  # [N]
 
 
 def load_design(path: str | Path | None = None) -> Design:
@@ -147,14 +131,31 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
     if "updating" in root.data:
         updating = parse_updating(root.table("updating"), materials, connectors)
 
-    control = _parse_control(root.table("control", {}), joints, dofs)
+    control = parse_control(root.table("control", {}), joints, dofs)
     safety = parse_safety(root.table("safety", {}), control, joints)
 
     root.finish()
-    return Design(name, description, materials, sections, connectors, node_types, nodes, members,
-                  tuple(point_masses), tuple(supports), tuple(joints), tuple(sensors),
-                  tuple(disturbances), modal_damping, updating, control, safety, source=source,
-                  truss=truss_settings)
+    return Design(
+        name,
+        description,
+        materials,
+        sections,
+        connectors,
+        node_types,
+        nodes,
+        members,
+        tuple(point_masses),
+        tuple(supports),
+        tuple(joints),
+        tuple(sensors),
+        tuple(disturbances),
+        modal_damping,
+        updating,
+        control,
+        safety,
+        source=source,
+        truss=truss_settings,
+    )
 
 
 def _parse_components(root: DesignTable):
@@ -231,7 +232,7 @@ def _parse_geometry(root: DesignTable, node_types, sections, connectors):
         node_type = t.string("type", None)
         if node_type is not None:
             reference(t, "type", node_type, node_types, "node type")
-        nodes[node_name] = Node(node_name, t.vector("position", 3), node_type)
+        nodes[node_name] = Node(node_name, t.vector3("position"), node_type)
         t.finish()
 
     explicit_members = root.tables("members")
@@ -247,16 +248,22 @@ def _parse_geometry(root: DesignTable, node_types, sections, connectors):
         connector = t.string("connector", None)
         if connector is not None:
             reference(t, "connector", connector, connectors, "connector")
-        members[member_name] = Member(member_name, start, end, section, connector,
-                                      t.integer("elements", default_elements, maximum=MAX_ELEMENTS))
+        members[member_name] = Member(
+            member_name, start, end, section, connector, t.integer("elements", default_elements, maximum=MAX_ELEMENTS)
+        )
         t.finish()
     if not members:
         raise root.error("members", [], "the design has no members (give [truss] or [[members]])")
     joint_entries = root.data.get("joints", [])
     dofs = estimated_dofs(nodes, members, len(joint_entries) if isinstance(joint_entries, list) else 0)
     if dofs > MAX_DOFS:
-        raise DesignError("<model>", f"{dofs} DOFs", f"at most {MAX_DOFS} DOFs (6 per node and per inner beam node, "
-                          "1 per joint); use fewer bays, members or [mesh] tube_elements", root.source)
+        raise DesignError(
+            "<model>",
+            f"{dofs} DOFs",
+            f"at most {MAX_DOFS} DOFs (6 per node and per inner beam node, "
+            "1 per joint); use fewer bays, members or [mesh] tube_elements",
+            root.source,
+        )
     check_member_lengths(members, nodes, node_types, connectors)
     return nodes, members, truss_settings, dofs
 
@@ -267,8 +274,9 @@ def _parse_attachments(root: DesignTable, nodes, truss_settings):
     point_masses = []
     for t in root.tables("point_masses"):
         node = reference(t, "node", t.string("node"), nodes, "node")
-        point_masses.append(PointMass(node, t.number("mass", non_negative=True),
-                                      t.number("inertia", 0.0, non_negative=True)))
+        point_masses.append(
+            PointMass(node, t.number("mass", non_negative=True), t.number("inertia", 0.0, non_negative=True))
+        )
         t.finish()
 
     supports = []
@@ -305,7 +313,12 @@ def _parse_joints(root: DesignTable, members, nodes) -> list[Joint]:
     ends = [(j.member, j.end) for j in joints]
     for i, joint_end in enumerate(ends):
         if ends.index(joint_end) != i:
-            raise DesignError(f"joints[{i}].end", joint_end[1], f"member {joint_end[0]!r} already has a joint at that end", root.source)
+            raise DesignError(
+                f"joints[{i}].end",
+                joint_end[1],
+                f"member {joint_end[0]!r} already has a joint at that end",
+                root.source,
+            )
     return joints
 
 
@@ -314,8 +327,14 @@ def _parse_signals(root: DesignTable, nodes):
     sensors = []
     for t in root.tables("sensors"):
         node = reference(t, "node", t.string("node"), nodes, "node")
-        sensors.append(Sensor(t.string("name"), node, direction(t, "direction"),
-                              t.string("quantity", "displacement", choices=SENSOR_QUANTITIES)))
+        sensors.append(
+            Sensor(
+                t.string("name"),
+                node,
+                direction(t, "direction"),
+                t.string("quantity", "displacement", choices=SENSOR_QUANTITIES),
+            )
+        )
         t.finish()
     unique([s.name for s in sensors], "sensors", root.source)
 
@@ -352,87 +371,6 @@ def estimated_dofs(nodes: dict[str, Node], members: dict[str, Member], joints: i
     return 6 * (len(nodes) + inner) + joints
 
 
-def _parse_control(t: DesignTable, joints, dofs: int) -> Control:
-    names = [j.name for j in joints]
-    controlled = None
-    if "joints" in t.data:
-        value = t.get("joints")
-        if not (isinstance(value, list) and value and all(isinstance(v, str) for v in value)):
-            raise t.error("joints", value, "expected a non-empty list of joint names")
-        for v in value:
-            if v not in names:
-                raise t.error("joints", v, "a joint of [[joints]]: " + (", ".join(names) or "(the design has none)"))
-        if len(set(value)) != len(value):
-            raise t.error("joints", value, "each joint once")
-        controlled = tuple(value)
-    count = len(controlled) if controlled is not None else len(joints)
-    d = Control()
-    control = Control(
-        joints=controlled,
-        sample_time=t.number("sample_time", d.sample_time, positive=True),
-        normal_force_min=per_joint(t, "normal_force_min", d.normal_force_min, count, non_negative=True),
-        normal_force_max=per_joint(t, "normal_force_max", d.normal_force_max, count, positive=True),
-        considered_modes=t.integer("considered_modes", d.considered_modes, maximum=MAX_MODES),
-        modes=t.integer("modes", d.modes, maximum=MAX_MODES),
-        krylov=t.integer("krylov", d.krylov, minimum=0, maximum=MAX_KRYLOV),
-        state_weight=t.number("state_weight", d.state_weight, positive=True),
-        control_weight=t.number("control_weight", d.control_weight, positive=True),
-        process_noise=t.number("process_noise", d.process_noise, positive=True),
-        measurement_noise=t.number("measurement_noise", d.measurement_noise, positive=True),
-        siso_boundary_layer=per_joint(t, "siso_boundary_layer", None, count, positive=True),
-        clqg_boundary_layer=t.number("clqg_boundary_layer", d.clqg_boundary_layer, positive=True),
-        piezo_capacitance=t.number("piezo_capacitance", d.piezo_capacitance, positive=True),
-        piezo_force_per_volt=t.number("piezo_force_per_volt", d.piezo_force_per_volt, positive=True),
-        piezo_preload=t.number("piezo_preload", d.piezo_preload, non_negative=True),
-        study_duration=t.number("study_duration", d.study_duration, positive=True),
-    )
-    _check_control_limits(t, control, count, dofs)
-    t.finish()
-    return control
-
-
-def _check_control_limits(t: DesignTable, control: Control, count: int, dofs: int) -> None:
-    """Ranges of [control] that single keys cannot express: sizes the study allocates or runs
-    through, and the normal forces a piezo joint can set (F_N = force_per_volt·V + preload)."""
-    if control.sample_time < MIN_SAMPLE_TIME:
-        raise t.error("sample_time", control.sample_time, f"must be >= {MIN_SAMPLE_TIME:g} s (the firmware counts "
-                      "its cycle in whole microseconds)")
-    if control.study_duration > MAX_STUDY_DURATION:
-        raise t.error("study_duration", control.study_duration, f"must be 0 < t_e <= {MAX_STUDY_DURATION:g} s")
-    steps = control.study_duration / control.sample_time
-    if steps > MAX_CONTROLLER_STEPS:
-        raise t.error("study_duration", control.study_duration,
-                      f"at most {MAX_CONTROLLER_STEPS} controller steps: t_e <= {MAX_CONTROLLER_STEPS:g} × "
-                      f"sample_time = {MAX_CONTROLLER_STEPS * control.sample_time:g} s")
-    lanczos_modes = MAX_LANCZOS_BYTES // (16 * max(dofs, 1))
-    if min(control.considered_modes, dofs) > lanczos_modes:
-        raise t.error("considered_modes", control.considered_modes,
-                      f"with about {dofs} DOFs at most {lanczos_modes} (the Lanczos basis of 2 × considered_modes "
-                      f"vectors must stay under {MAX_LANCZOS_BYTES // 1024**3} GiB)")
-    if control.modes > control.considered_modes:
-        raise t.error("modes", control.modes, f"must be <= considered_modes ({control.considered_modes})")
-    # A number applies to every joint and is checked even when the design has none yet.
-    count = count or int(not isinstance(control.normal_force_min, tuple)
-                         and not isinstance(control.normal_force_max, tuple))
-    low = np.broadcast_to(np.asarray(control.normal_force_min, dtype=float), (count,))
-    high = np.broadcast_to(np.asarray(control.normal_force_max, dtype=float), (count,))
-    for i in range(count):
-        joint = f" (entry {i})" if isinstance(control.normal_force_max, tuple) else ""
-        if high[i] > MAX_NORMAL_FORCE:
-            raise t.error("normal_force_max", float(high[i]),
-                          f"must be 0 < F_N^max <= {MAX_NORMAL_FORCE:g} N{joint}: more than the largest piezo "
-                          "stacks push and the joint bolt holds")
-    for i in range(count):
-        joint = f" (entry {i})" if isinstance(control.normal_force_min, tuple) or isinstance(control.normal_force_max, tuple) else ""
-        if low[i] > high[i]:
-            raise t.error("normal_force_min", float(low[i]),
-                          f"must be 0 <= F_N^min <= F_N^max = {high[i]:g} N{joint}")
-    if count and control.piezo_preload > float(low.min()):
-        raise t.error("piezo_preload", control.piezo_preload,
-                      f"must be 0 <= preload <= F_N^min = {float(low.min()):g} N (at 0 V the stack "
-                      "already presses with the preload, so no setting could reach F_N^min)")
-
-
 def _generate_mast(t: DesignTable, nodes, members, node_types, sections, connectors, default_elements) -> None:
     """A regular square mast along x (paper Fig. 1/8): ``bays`` bays, corners N<i>_<c>.
 
@@ -459,12 +397,17 @@ def _generate_mast(t: DesignTable, nodes, members, node_types, sections, connect
     # The mast's size before any of it is made (the same count as estimated_dofs).
     tip_spokes = {"none": 0, "cross": 4, "diagonal": 2}[tip_node]
     generated_nodes = 4 * (bays + 1) + (tip_node != "none")
-    generated_members = 12 * bays + 4 * root_battens + tip_spokes + (
-        bays - (tip_node == "diagonal") if frame_diagonals else 0)
+    generated_members = (
+        12 * bays + 4 * root_battens + tip_spokes + (bays - (tip_node == "diagonal") if frame_diagonals else 0)
+    )
     dofs = 6 * (generated_nodes + generated_members * (elements - 1 + (2 if connector else 0)))
     if dofs > MAX_DOFS:
-        raise t.error("bays", bays, f"the mast would have {dofs} DOFs ({generated_nodes} nodes, {generated_members} "
-                      f"members of {elements} tube elements); at most {MAX_DOFS}: fewer bays or tube_elements")
+        raise t.error(
+            "bays",
+            bays,
+            f"the mast would have {dofs} DOFs ({generated_nodes} nodes, {generated_members} "
+            f"members of {elements} tube elements); at most {MAX_DOFS}: fewer bays or tube_elements",
+        )
 
     corners = [(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)]
     for i in range(bays + 1):
@@ -496,5 +439,17 @@ def _generate_mast(t: DesignTable, nodes, members, node_types, sections, connect
             add(f"T{c}", f"N{bays}_{c}", "TIP")
 
 
-__all__ = ["MAX_BASE_DEPTH", "MAX_BAYS", "MAX_DOFS", "MAX_ELEMENTS", "MAX_FILE_BYTES", "MAX_MEMBERS", "MAX_NODES",
-           "MAX_NORMAL_FORCE", "REFERENCE_DESIGN", "SCHEMA", "estimated_dofs", "load_design", "parse_design"]
+__all__ = [
+    "MAX_BASE_DEPTH",
+    "MAX_BAYS",
+    "MAX_DOFS",
+    "MAX_ELEMENTS",
+    "MAX_FILE_BYTES",
+    "MAX_MEMBERS",
+    "MAX_NODES",
+    "REFERENCE_DESIGN",
+    "SCHEMA",
+    "estimated_dofs",
+    "load_design",
+    "parse_design",
+]

@@ -63,8 +63,15 @@ class DesignTable:
             raise self.error(name, value, "allowed: " + ", ".join(repr(c) for c in choices))
         return value
 
-    def number(self, name: str, default: object = MISSING, *, positive: bool = False,
-               non_negative: bool = False, maximum: float | None = None) -> float:
+    def number(
+        self,
+        name: str,
+        default: object = MISSING,
+        *,
+        positive: bool = False,
+        non_negative: bool = False,
+        maximum: float | None = None,
+    ) -> float:
         value = self.get(name, default)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(name, value, "expected a number")
@@ -79,8 +86,7 @@ class DesignTable:
             raise self.error(name, value, f"must be <= {maximum}")
         return value
 
-    def integer(self, name: str, default: object = MISSING, *, minimum: int = 1,
-                maximum: int | None = None) -> int:
+    def integer(self, name: str, default: object = MISSING, *, minimum: int = 1, maximum: int | None = None) -> int:
         value = self.get(name, default)
         allowed = f"an integer {minimum} … {maximum}" if maximum is not None else f"an integer >= {minimum}"
         if isinstance(value, bool) or not isinstance(value, int):
@@ -99,11 +105,19 @@ class DesignTable:
         value = self.get(name, default)
         if value is None:
             return None  # type: ignore[return-value]
-        if (not isinstance(value, list) or len(value) != size
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-                or not all(math.isfinite(float(v)) for v in value)):
+        if (
+            not isinstance(value, list)
+            or len(value) != size
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            or not all(math.isfinite(float(v)) for v in value)
+        ):
             raise self.error(name, value, f"expected a list of {size} finite numbers")
         return tuple(float(v) for v in value)
+
+    def vector3(self, name: str) -> tuple[float, float, float]:
+        """A required list of three finite numbers, such as a position (see :meth:`vector`)."""
+        x, y, z = self.vector(name, 3)
+        return x, y, z
 
     def table(self, name: str, default: object = MISSING) -> DesignTable:
         value = self.get(name, default)
@@ -124,8 +138,7 @@ class DesignTable:
     def finish(self) -> None:
         unknown = sorted(set(self.data) - self.used)
         if unknown:
-            raise self.error(unknown[0], self.data[unknown[0]], "unknown key; allowed: "
-                             + ", ".join(sorted(self.used)))
+            raise self.error(unknown[0], self.data[unknown[0]], "unknown key; allowed: " + ", ".join(sorted(self.used)))
 
 
 def reference(table: DesignTable, key: str, name: str, known: dict[str, Any], what: str) -> str:
@@ -203,7 +216,7 @@ def dof_list(t: DesignTable, key: str) -> tuple[str, ...]:
     if value == "all":
         return DOF_NAMES
     if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        raise t.error(key, value, "expected \"all\" or a list of " + ", ".join(DOF_NAMES))
+        raise t.error(key, value, 'expected "all" or a list of ' + ", ".join(DOF_NAMES))
     for v in value:
         if v not in DOF_NAMES:
             raise t.error(key, v, "allowed: " + ", ".join(DOF_NAMES))

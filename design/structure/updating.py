@@ -61,14 +61,26 @@ class UpdatingResult:
     def as_dict(self) -> dict:
         return {
             "parameters": [
-                {"name": n, "initial": float(p0), "updated": float(p), "ratio": float(p / p0),
-                 "sensitivity": float(np.linalg.norm(self.sensitivity[:, k]))}
+                {
+                    "name": n,
+                    "initial": float(p0),
+                    "updated": float(p),
+                    "ratio": float(p / p0),
+                    "sensitivity": float(np.linalg.norm(self.sensitivity[:, k])),
+                }
                 for k, (n, p0, p) in enumerate(zip(self.parameter_names, self.initial, self.updated))
             ],
             "modes": [
-                {"index": int(i), "ema_hz": float(m), "fem_initial_hz": float(f0), "fem_hz": float(f),
-                 "error_pct": float(e)}
-                for i, m, f0, f, e in zip(self.modes, self.measured_hz, self.initial_hz, self.updated_hz, self.error_pct)
+                {
+                    "index": int(i),
+                    "ema_hz": float(m),
+                    "fem_initial_hz": float(f0),
+                    "fem_hz": float(f),
+                    "error_pct": float(e),
+                }
+                for i, m, f0, f, e in zip(
+                    self.modes, self.measured_hz, self.initial_hz, self.updated_hz, self.error_pct
+                )
             ],
             "max_abs_error_pct": float(np.max(np.abs(self.error_pct))),
             "evaluations": self.evaluations,
@@ -101,6 +113,42 @@ def _updating_inputs(model: FEModel):
     if n_modes > model.n_dof:
         raise ModelError(f"updating.measured: mode {n_modes} exceeds the model's {model.n_dof} DOFs")
     return spec, names, initial, modes, measured, n_modes
+
+
+def _multistart_fit(residual, jacobian, weight: np.ndarray, bound: np.ndarray, n_parameters: int, progress):
+    """The least-squares fit of the log-parameters θ within ±``bound`` from several starts.
+
+    Returns the best solution and how many starts were polished."""
+    # Paired by mode number the objective is only piecewise smooth (modes cross), so local
+    # descent alone stalls: screen a scrambled Sobol sample of the log-parameter box, then
+    # polish the nominal point and the best samples with least squares.
+    sampler = scipy.stats.qmc.Sobol(n_parameters, scramble=True, seed=SEED)
+    samples = (2.0 * sampler.random(SCREENING_SAMPLES) - 1.0) * bound
+    scores = np.array([np.max(np.abs(residual(theta) / weight)) for theta in samples])
+    if progress:
+        progress(0, POLISHED_STARTS + 1, float(scores.min()) * 100.0)
+    starts = [np.zeros(n_parameters)] + [samples[i] for i in np.argsort(scores)[:POLISHED_STARTS]]
+    best = None
+    for k, start in enumerate(starts):
+        solution = scipy.optimize.least_squares(
+            residual,
+            start,
+            jac=jacobian,
+            bounds=(-bound, bound),
+            method="trf",
+            x_scale=1.0,
+            xtol=1e-10,
+            ftol=1e-12,
+            max_nfev=60,
+        )
+        if best is None or solution.cost < best.cost:
+            best = solution
+        if progress:
+            progress(k + 1, len(starts), float(np.max(np.abs(best.fun / weight))) * 100.0)
+        if np.max(np.abs(best.fun / weight)) < 0.002:  # within 0.2 % on every mode: no further start helps
+            break
+    assert best is not None  # starts always holds the nominal point
+    return best, k + 1
 
 
 def update_model(model: FEModel, progress=None) -> UpdatingResult:
@@ -147,32 +195,24 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
         f = frequencies[index]
         return weight[:, None] * d_lambda * values[None, :] / (8.0 * np.pi**2 * f[:, None] * measured[:, None])
 
-    # Paired by mode number the objective is only piecewise smooth (modes cross), so local
-    # descent alone stalls: screen a scrambled Sobol sample of the log-parameter box, then
-    # polish the nominal point and the best samples with least squares.
-    sampler = scipy.stats.qmc.Sobol(len(names), scramble=True, seed=SEED)
-    samples = (2.0 * sampler.random(SCREENING_SAMPLES) - 1.0) * bound
-    scores = np.array([np.max(np.abs(residual(theta) / weight)) for theta in samples])
-    if progress:
-        progress(0, POLISHED_STARTS + 1, float(scores.min()) * 100.0)
-    starts = [np.zeros(len(names))] + [samples[i] for i in np.argsort(scores)[:POLISHED_STARTS]]
-    best = None
-    for k, start in enumerate(starts):
-        solution = scipy.optimize.least_squares(residual, start, jac=jacobian, bounds=(-bound, bound),
-                                                method="trf", x_scale=1.0, xtol=1e-10, ftol=1e-12, max_nfev=60)
-        if best is None or solution.cost < best.cost:
-            best = solution
-        if progress:
-            progress(k + 1, len(starts), float(np.max(np.abs(best.fun / weight))) * 100.0)
-        if np.max(np.abs(best.fun / weight)) < 0.002:  # within 0.2 % on every mode: no further start helps
-            break
+    best, polished = _multistart_fit(residual, jacobian, weight, bound, len(names), progress)
     initial_hz, _ = _frequencies(model, names, initial, n_modes)
     updated = initial * np.exp(best.x)
     updated_hz, _ = evaluate(best.x)
     sensitivity = jacobian(best.x) * (measured / updated_hz[index] / weight)[:, None]
-    return UpdatingResult(names, initial, updated, modes, measured, initial_hz[index], updated_hz[index],
-                          sensitivity, calls["n"], k + 1,
-                          np.array([m.mac if m.mac is not None else np.nan for m in spec.measured]))
+    return UpdatingResult(
+        names,
+        initial,
+        updated,
+        modes,
+        measured,
+        initial_hz[index],
+        updated_hz[index],
+        sensitivity,
+        calls["n"],
+        polished,
+        np.array([m.mac if m.mac is not None else np.nan for m in spec.measured]),
+    )
 
 
 def updated_design(design, progress=None):

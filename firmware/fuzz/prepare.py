@@ -42,11 +42,20 @@ def _reference_sources(artifact, can_layer, generate) -> dict[str, str]:
 
 def _layout(db, artifact) -> tuple[str, str]:
     """fuzz_reference.h and fuzz_reference.c: the bus table and the limits of the artefact."""
-    header = ['/* Written by firmware/fuzz/prepare.py from bus.dbc and controller.json of firmware/generated. */',
-              '#ifndef FUZZ_REFERENCE_H', '#define FUZZ_REFERENCE_H', '', '#include "fuzz_support.h"', '']
-    source = ['/* Written by firmware/fuzz/prepare.py from bus.dbc and controller.json of firmware/generated. */',
-              '#include "fuzz_reference.h"', '']
     messages = sorted(db.messages, key=lambda m: m.frame_id)
+    return "\n".join(_header_lines(messages, artifact)), "\n".join(_source_lines(messages, artifact)) + "\n"
+
+
+def _header_lines(messages, artifact) -> list[str]:
+    """fuzz_reference.h: the sizes of the bus and the artefact, and the tables' declarations."""
+    header = [
+        "/* Written by firmware/fuzz/prepare.py from bus.dbc and controller.json of firmware/generated. */",
+        "#ifndef FUZZ_REFERENCE_H",
+        "#define FUZZ_REFERENCE_H",
+        "",
+        '#include "fuzz_support.h"',
+        "",
+    ]
     most = max(len(m.signals) for m in messages)
     longest = max(m.length for m in messages)
     header.append(f"#define FUZZ_MAX_SIGNALS {most}u")
@@ -59,57 +68,94 @@ def _layout(db, artifact) -> tuple[str, str]:
     header.append("")
     for m in messages:
         header.append(f"extern const fuzz_message fuzz_message_{m.name.lower()};")
-    header += ["extern const fuzz_message *const fuzz_bus[FUZZ_MESSAGE_COUNT];",
-               "extern const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS];",
-               "extern const double fuzz_normal_force_min[FUZZ_JOINTS];",
-               "extern const double fuzz_normal_force_max[FUZZ_JOINTS];",
-               "/* The one safe force of the policy (artefact; docs/safety.md) */",
-               "extern const double fuzz_safe_normal_force[FUZZ_JOINTS];",
-               "extern const double fuzz_force_per_volt;", "extern const double fuzz_preload;",
-               "/* The plausible ranges of the measured signals (artefact) */",
-               "extern const double fuzz_sliding_velocity_limit[FUZZ_JOINTS];",
-               "extern const double fuzz_friction_force_limit[FUZZ_JOINTS];",
-               "extern const double fuzz_measured_normal_force_min[FUZZ_JOINTS];",
-               "extern const double fuzz_measured_normal_force_max[FUZZ_JOINTS];",
-               "extern const double fuzz_sensor_limit[FUZZ_SENSORS];",
-               "extern const double fuzz_amplifier_temperature_limit;", "extern const double fuzz_amplifier_current_limit;",
-               "extern const double fuzz_tracking_tolerance;", "",
-               "#endif /* FUZZ_REFERENCE_H */", ""]
+    header += [
+        "extern const fuzz_message *const fuzz_bus[FUZZ_MESSAGE_COUNT];",
+        "extern const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS];",
+        "extern const double fuzz_normal_force_min[FUZZ_JOINTS];",
+        "extern const double fuzz_normal_force_max[FUZZ_JOINTS];",
+        "/* The one safe force of the policy (artefact; docs/safety.md) */",
+        "extern const double fuzz_safe_normal_force[FUZZ_JOINTS];",
+        "extern const double fuzz_force_per_volt;",
+        "extern const double fuzz_preload;",
+        "/* The plausible ranges of the measured signals (artefact) */",
+        "extern const double fuzz_sliding_velocity_limit[FUZZ_JOINTS];",
+        "extern const double fuzz_friction_force_limit[FUZZ_JOINTS];",
+        "extern const double fuzz_measured_normal_force_min[FUZZ_JOINTS];",
+        "extern const double fuzz_measured_normal_force_max[FUZZ_JOINTS];",
+        "extern const double fuzz_sensor_limit[FUZZ_SENSORS];",
+        "extern const double fuzz_amplifier_temperature_limit;",
+        "extern const double fuzz_amplifier_current_limit;",
+        "extern const double fuzz_tracking_tolerance;",
+        "",
+        "#endif /* FUZZ_REFERENCE_H */",
+        "",
+    ]
+    return header
+
+
+def _message_table(m) -> list[str]:
+    """One frame's signal rows and its fuzz_message in fuzz_reference.c."""
+    rows = []
+    lines: list[str] = []
+    for s in sorted(m.signals, key=lambda s: s.start):
+        if s.byte_order != "little_endian" or s.is_float:
+            raise SystemExit(f"prepare.py: signal {m.name}.{s.name}: only little-endian integer signals are modelled")
+        ranged = s.minimum is not None and s.maximum is not None
+        rows.append(
+            f'    {{"{s.name}", {s.start}u, {s.length}u, {int(s.is_signed)}, {int(ranged)}, '
+            f"{_number(s.conversion.scale)}, {_number(s.conversion.offset)}, "
+            f"{_number(s.minimum if ranged else 0.0)}, {_number(s.maximum if ranged else 0.0)}}},"
+        )
+    lower = m.name.lower()
+    lines.append(f"static const fuzz_signal signals_{lower}[{len(rows)}] = {{")
+    lines += rows
+    lines.append("};")
+    lines.append(
+        f'const fuzz_message fuzz_message_{lower} = {{"{m.name}", 0x{m.frame_id:03X}u, {m.length}u, '
+        f"{len(rows)}u, signals_{lower}}};"
+    )
+    lines.append("")
+    return lines
+
+
+def _source_lines(messages, artifact) -> list[str]:
+    """fuzz_reference.c: every frame's table, the setpoint ids and the artefact's limits."""
+    source = [
+        "/* Written by firmware/fuzz/prepare.py from bus.dbc and controller.json of firmware/generated. */",
+        '#include "fuzz_reference.h"',
+        "",
+    ]
     for m in messages:
-        rows = []
-        for s in sorted(m.signals, key=lambda s: s.start):
-            if s.byte_order != "little_endian" or s.is_float:
-                raise SystemExit(f"prepare.py: signal {m.name}.{s.name}: only little-endian integer signals are modelled")
-            ranged = s.minimum is not None and s.maximum is not None
-            rows.append(f'    {{"{s.name}", {s.start}u, {s.length}u, {int(s.is_signed)}, {int(ranged)}, '
-                        f"{_number(s.conversion.scale)}, {_number(s.conversion.offset)}, "
-                        f"{_number(s.minimum if ranged else 0.0)}, {_number(s.maximum if ranged else 0.0)}}},")
-        lower = m.name.lower()
-        source.append(f"static const fuzz_signal signals_{lower}[{len(rows)}] = {{")
-        source += rows
-        source.append("};")
-        source.append(f'const fuzz_message fuzz_message_{lower} = {{"{m.name}", 0x{m.frame_id:03X}u, {m.length}u, '
-                      f"{len(rows)}u, signals_{lower}}};")
-        source.append("")
-    source.append("const fuzz_message *const fuzz_bus[FUZZ_MESSAGE_COUNT] = {"
-                  + ", ".join(f"&fuzz_message_{m.name.lower()}" for m in messages) + "};")
+        source += _message_table(m)
+    source.append(
+        "const fuzz_message *const fuzz_bus[FUZZ_MESSAGE_COUNT] = {"
+        + ", ".join(f"&fuzz_message_{m.name.lower()}" for m in messages)
+        + "};"
+    )
     by_name = {m.name: m for m in messages}
     setpoints = [by_name[f"SETPOINT_{j.upper()}"].frame_id for j in artifact.joint_names]
-    source.append("const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS] = {" + ", ".join(f"0x{i:03X}u" for i in setpoints) + "};")
-    for name, values in (("normal_force_min", artifact.normal_force_min), ("normal_force_max", artifact.normal_force_max),
-                         ("safe_normal_force", artifact.safe_normal_force)):
+    source.append(
+        "const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS] = {" + ", ".join(f"0x{i:03X}u" for i in setpoints) + "};"
+    )
+    for name, values in (
+        ("normal_force_min", artifact.normal_force_min),
+        ("normal_force_max", artifact.normal_force_max),
+        ("safe_normal_force", artifact.safe_normal_force),
+    ):
         source.append(f"const double fuzz_{name}[FUZZ_JOINTS] = {{" + ", ".join(_number(v) for v in values) + "};")
     source.append(f"const double fuzz_force_per_volt = {_number(artifact.piezo_force_per_volt)};")
     source.append(f"const double fuzz_preload = {_number(artifact.piezo_preload)};")
-    for name, values, size in (("sliding_velocity_limit", artifact.sliding_velocity_limit, "FUZZ_JOINTS"),
-                               ("friction_force_limit", artifact.friction_force_limit, "FUZZ_JOINTS"),
-                               ("measured_normal_force_min", artifact.measured_normal_force_min, "FUZZ_JOINTS"),
-                               ("measured_normal_force_max", artifact.measured_normal_force_max, "FUZZ_JOINTS"),
-                               ("sensor_limit", artifact.sensor_limit, "FUZZ_SENSORS")):
+    for name, values, size in (
+        ("sliding_velocity_limit", artifact.sliding_velocity_limit, "FUZZ_JOINTS"),
+        ("friction_force_limit", artifact.friction_force_limit, "FUZZ_JOINTS"),
+        ("measured_normal_force_min", artifact.measured_normal_force_min, "FUZZ_JOINTS"),
+        ("measured_normal_force_max", artifact.measured_normal_force_max, "FUZZ_JOINTS"),
+        ("sensor_limit", artifact.sensor_limit, "FUZZ_SENSORS"),
+    ):
         source.append(f"const double fuzz_{name}[{size}] = {{" + ", ".join(_number(v) for v in values) + "};")
     for name in ("amplifier_temperature_limit", "amplifier_current_limit", "tracking_tolerance"):
         source.append(f"const double fuzz_{name} = {_number(getattr(artifact, name))};")
-    return "\n".join(header), "\n".join(source) + "\n"
+    return source
 
 
 def main(argv: list[str]) -> int:
@@ -123,12 +169,18 @@ def main(argv: list[str]) -> int:
     artifact = artifacts.load(REFERENCE / "controller.json")
     for name, text in _reference_sources(artifact, can_layer, generate).items():
         if not (REFERENCE / name).exists() or (REFERENCE / name).read_text() != text:
-            print(f"prepare.py: firmware/generated/{name} is not what the generator writes: regenerate it "
-                  "(firmware/README.md)", file=sys.stderr)
+            print(
+                f"prepare.py: firmware/generated/{name} is not what the generator writes: regenerate it "
+                "(firmware/README.md)",
+                file=sys.stderr,
+            )
             return 2
     folder = Path(argv[0])
-    files = {f"double/{name}": text for name, text in generate.render(artifact, "double", PREFIX).items()
-             if name.endswith((".c", ".h")) and name != "main.c"}
+    files = {
+        f"double/{name}": text
+        for name, text in generate.render(artifact, "double", PREFIX).items()
+        if name.endswith((".c", ".h")) and name != "main.c"
+    }
     codec = can_layer.render_can(artifact, PREFIX, full_codec=True)
     files.update({f"codec/{name}": codec[name] for name in (f"{PREFIX}_can.h", f"{PREFIX}_can.c")})
     db = protocol.load_dbc((REFERENCE / "bus.dbc").read_text())

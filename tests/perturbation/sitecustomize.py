@@ -48,8 +48,10 @@ def _scaled(item, relative: float, *place):
 
 def perturb_design(design, relative: float):
     """The design with its physical inputs perturbed (the tables named in the module text)."""
-    tables = {table: {name: _scaled(value, relative, table, name) for name, value in getattr(design, table).items()}
-              for table in ("materials", "sections", "connectors", "node_types", "nodes")}
+    tables = {
+        table: {name: _scaled(value, relative, table, name) for name, value in getattr(design, table).items()}
+        for table in ("materials", "sections", "connectors", "node_types", "nodes")
+    }
     masses = tuple(_scaled(m, relative, "point_masses", k, m.node) for k, m in enumerate(design.point_masses))
     return dataclasses.replace(design, point_masses=masses, **tables)
 

@@ -1,0 +1,144 @@
+"""The safe-state fault matrix of ``safety`` as the report shows it: the table of every case
+(safety_cases.md), the report's paragraph and the figure of cycles to the safe state and to
+recovery (safety_cycles.png). Policy and figures: docs/safety.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from smartjoint.bench.safety import DETECTION_LIMIT
+
+
+def matrix_markdown(out: dict) -> str:
+    """The table of all cases (grouped per timing) and the worst figures.
+
+    Parameters
+    ----------
+    out : dict
+        What :func:`smartjoint.bench.safety.fault_matrix` returned.
+
+    Returns
+    -------
+    str
+        Markdown.
+    """
+
+    def cell(value):
+        return "—" if value is None else str(value)
+
+    lines = [
+        f"### Safe state under every fault ({out['law']}, {out['real']} firmware, SIL bench)",
+        "",
+        f"{out['cases']} cases; worst cycles to the safe state: firmware {cell(out['worst_firmware'])}, "
+        f"force at every joint {cell(out['worst_joints'])} (limit {DETECTION_LIMIT}); worst recovery "
+        f"{cell(out['worst_recovery'])} cycles after the fault ends; "
+        + (
+            "every case passes."
+            if not out["failed"]
+            else f"**{len(out['failed'])} fail**: " + "; ".join(out["failed"][:10])
+        ),
+        "",
+        "| fault | timing | firmware safe [cycles] | joints at F_safe [cycles] | holds | recovery [cycles] | ok |",
+        "|---|---|---:|---:|---|---:|---|",
+    ]
+    for r in out["rows"]:
+        note = (
+            f" (output stage of {', '.join(r['failed_output_stage'])} failed: that joint cannot)"
+            if r["failed_output_stage"]
+            else ""
+        )
+        if r["tolerated"]:
+            lines.append(
+                f"| {r['case']} | {r['timing']} | no safe state (used late) | — | — | — | "
+                f"{'yes' if r['ok'] else '**no**'} |"
+            )
+            continue
+        lines.append(
+            f"| {r['case']}{note} | {r['timing']} | {cell(r['firmware'])} | {cell(r['joints'])} | "
+            f"{'yes' if r['holds'] else '**no**'} | {cell(r['recovery'])} | {'yes' if r['ok'] else '**no**'} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def summary_markdown(out: dict, table: str) -> str:
+    """The report's paragraph: what was run, the worst figures, the failing cases (if any).
+
+    Parameters
+    ----------
+    out : dict
+        What :func:`smartjoint.bench.safety.fault_matrix` returned.
+    table : str
+        The file of the full table (linked).
+
+    Returns
+    -------
+    str
+        Markdown.
+    """
+
+    def cell(value):
+        return "—" if value is None else str(value)
+
+    timings = sorted({r["timing"] for r in out["rows"]})
+    lines = [
+        f"### Safe state under every fault ({out['law']}, {out['real']} firmware, SIL bench)",
+        "",
+        f"{out['cases']} cases — every fault kind on every frame, every implausible signal, every amplifier "
+        f"fault and the bus off, timed {', '.join(timings)}. Worst cycles until the safe state holds: "
+        f"firmware {cell(out['worst_firmware'])}, the force at every joint {cell(out['worst_joints'])} (limit "
+        f"{DETECTION_LIMIT}); worst recovery {cell(out['worst_recovery'])} cycles after a fault ends. "
+        + (
+            "Every case passes."
+            if not out["failed"]
+            else f"**{len(out['failed'])} cases fail:** " + "; ".join(out["failed"][:20]) + "."
+        )
+        + f" All cases: [{table}]({table}).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def plot_matrix(out: dict, path):
+    """Plot safety_cycles.png: how many cases reach the safe state or recover after how many cycles.
+
+    Parameters
+    ----------
+    out : dict
+        What :func:`smartjoint.bench.safety.fault_matrix` returned.
+    path : path
+        The figure file.
+
+    Returns
+    -------
+    path
+        ``path``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    checked = [r for r in out["rows"] if not r["tolerated"] and r.get("observable", True)]
+    fig, ax = plt.subplots(figsize=(7, 3.4))
+    width = 0.27
+    for offset, key, label in (
+        (-width, "firmware", "firmware safe"),
+        (0.0, "joints", "F_safe at every joint"),
+        (width, "recovery", "recovered after the fault"),
+    ):
+        values = [r[key] for r in checked if r[key] is not None]
+        if not values:
+            continue
+        counts = np.bincount(values)
+        ax.bar(np.arange(counts.size) + offset, counts, width, label=f"{label} ({len(values)} cases)")
+    ax.axvline(DETECTION_LIMIT + 0.5, color="k", lw=0.8, ls="--")
+    ax.text(DETECTION_LIMIT + 0.55, ax.get_ylim()[1] * 0.9, "limit", fontsize=8)
+    ax.set_xlabel("controller cycles after the fault (or its end, for recovery)")
+    ax.set_ylabel("cases")
+    ax.set_title(f"{out['cases']} fault cases on the SIL bench ({out['law']})")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

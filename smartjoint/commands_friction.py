@@ -1,0 +1,144 @@
+"""The commands of the friction stage (``rig``, ``identify``): records of the isolated-joint rig
+of paper Section 3.2 simulated from a LuGre parameter set (Table 1, a file or the command line),
+and the parameters identified from such records (Eq. 3).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from smartjoint.commands import report_progress, write_plots
+from smartjoint.common.errors import SmartjointError
+
+_LUGRE_FLAGS = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity", "radius")
+
+
+def _rig_parameters(args):
+    """The rig's parameter set: --parameters FILE, or all the LuGre flags, or (neither) Table 1."""
+    from smartjoint.design.friction import rig
+
+    flags = {n: getattr(args, n) for n in _LUGRE_FLAGS if getattr(args, n) is not None}
+    if args.parameters is not None:
+        if flags:
+            raise SmartjointError(
+                f"--{next(iter(flags)).replace('_', '-')} together with --parameters — give "
+                "the parameter set either as flags or as a file"
+            )
+        return rig.load_parameter_set(args.parameters, args.type)
+    joint_type = args.type or "A"
+    if not flags:
+        return rig.parameter_set(joint_type)
+    values = {n: v for n, v in flags.items()}
+    for name in _LUGRE_FLAGS:
+        if name not in values and (name != "radius" or joint_type == "B"):
+            raise SmartjointError(
+                f"--{name.replace('_', '-')} missing — give all of --sigma0, --sigma1, "
+                "--sigma2, --coulomb, --stribeck, --stribeck-velocity"
+                f"{', --radius' if joint_type == 'B' else ''} (or --parameters FILE, or none of "
+                f"them for {rig.TABLE_1_SOURCE})"
+            )
+    if "radius" in values and joint_type == "A":
+        raise SmartjointError("--radius: a type A joint has no radius — allowed only with --type B")
+    return rig.parameter_set(joint_type, values, "command line")
+
+
+def _rig_test(args, joint_type, normal_force, amplitude, frequency, seed):
+    from smartjoint.design.friction.rig import RigTest
+
+    inertia = args.inertia if args.inertia is not None else (1.0 if joint_type == "A" else 2e-3)
+    return RigTest(
+        joint_type, normal_force, amplitude, frequency, cycles=args.cycles, inertia=inertia, noise=args.noise, seed=seed
+    )
+
+
+def cmd_rig(args) -> dict:
+    """``smartjoint rig``: simulate one rig test, or the whole campaign, and write the records.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``rig`` options (parameter set, test or ``--campaign``, ``-o``, ``--json``).
+
+    Returns
+    -------
+    dict
+        ``"parameters"`` (the set used) and ``"records"`` (file, regime, samples and peak sliding
+        velocity of each record written).
+    """
+    from smartjoint.design.friction import rig
+    from smartjoint.design.friction.records import write_record
+
+    output = Path(args.output)
+    chosen = _rig_parameters(args)
+    parameters, joint_type = chosen.parameters, chosen.joint_type
+    if args.campaign:
+        if output.exists() and not output.is_dir():
+            raise SmartjointError(
+                f"-o {output}: exists and is not a folder — --campaign writes its records into a folder"
+            )
+        tests = rig.campaign(joint_type, parameters, noise=args.noise, seed=args.seed, cycles=args.cycles)
+        paths = [output / f"{t.name}.csv" for t in tests]
+    else:
+        missing = [n for n in ("normal_force", "amplitude", "frequency") if getattr(args, n) is None]
+        if missing:
+            raise SmartjointError(f"give --{missing[0].replace('_', '-')} (or --campaign)")
+        if output.is_dir():
+            raise SmartjointError(f"-o {output}: is a folder — give a record file name (or --campaign)")
+        tests = [_rig_test(args, joint_type, args.normal_force, args.amplitude, args.frequency, args.seed)]
+        paths = [output]
+    for test in tests:  # every test is checked before anything is written
+        rig.check_test(test, parameters)
+    if not args.json:
+        print(chosen.describe())
+    if args.campaign:
+        try:
+            output.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise SmartjointError(f"-o {output}: cannot create folder ({error.strerror or error})") from None
+    written = []
+    for test, path in zip(tests, paths):
+        record = rig.simulate(test, parameters, chosen.source)
+        write_record(record, path)
+        written.append(
+            {
+                "file": str(path),
+                "regime": record.metadata["regime"],
+                "samples": int(record.time.size),
+                "max_velocity": float(abs(record.sliding_velocity).max()),
+            }
+        )
+        if not args.json:
+            print(f"wrote {path} ({record.metadata['regime']}, {record.time.size} samples)")
+    return {"parameters": chosen.as_dict(), "records": written}
+
+
+def cmd_identify(args) -> dict:
+    """``smartjoint identify``: the LuGre parameters from micro-slip and stick–slip records (Eq. 3).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``identify`` options (record files, ``--radius``, ``--no-output-error``,
+        ``--plots``, ``--json``).
+
+    Returns
+    -------
+    dict
+        The identification result (``Identification.as_dict``), with ``"plots"`` under
+        ``--plots``.
+    """
+    from smartjoint.design.friction.identify import identify
+    from smartjoint.design.friction.record_screening import classify
+    from smartjoint.design.friction.records import read_record
+    from smartjoint.report import identification_table, plot_hysteresis
+
+    records = [read_record(path, args.radius) for path in args.records]
+    micro = [r for r in records if classify(r, args.radius) == "micro-slip"]
+    stick = [r for r in records if classify(r, args.radius) == "stick-slip"]
+    result = identify(micro, stick, radius=args.radius, progress=report_progress, output_error=not args.no_output_error)
+    out = result.as_dict()
+    write_plots(args, out, lambda folder: plot_hysteresis(result, folder))
+    if not args.json:
+        print("\n".join(f"step: {step}" for step in result.steps) + "\n")
+        print(identification_table(result))
+    return out
