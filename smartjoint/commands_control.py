@@ -83,14 +83,7 @@ def cmd_design(args) -> dict:
         "lqg_max_pole_magnitude": float(abs(poles).max()),
         "lqg_stability_margin": float(1 - abs(poles).max()),
         "bus_load": load.load,
-        "boundary_layer_optimisation": None
-        if optimum is None
-        else {
-            "optimum": optimum.boundary_layer,
-            "energy_measure": optimum.energy_measure,
-            "energy_measure_tenth": optimum.tenth,
-            "energy_measure_tenfold": optimum.tenfold,
-        },
+        "boundary_layer_optimisation": None if optimum is None else optimum.figures(),
     }
     if not args.json:
         for key, value in out.items():

@@ -217,6 +217,15 @@ class BoundaryLayerOptimum:
     tenth: float  # E(t_e) at ε/10
     tenfold: float  # E(t_e) at 10ε
 
+    def figures(self) -> dict:
+        """The optimum, its E(t_e) and the acceptance check, JSON-ready (no evaluations)."""
+        return {
+            "optimum": self.boundary_layer,
+            "energy_measure": self.energy_measure,
+            "energy_measure_tenth": self.tenth,
+            "energy_measure_tenfold": self.tenfold,
+        }
+
 
 def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) -> BoundaryLayerOptimum:
     """ε of Eq. 30 minimising E(t_e) of Eq. 32 (Section 5.1): a half-decade scan of log ε, then
@@ -363,10 +372,7 @@ def summary(study: Study) -> dict:
         "boundary_layer_optimisation": None
         if optimum is None
         else {
-            "optimum": optimum.boundary_layer,
-            "energy_measure": optimum.energy_measure,
-            "energy_measure_tenth": optimum.tenth,
-            "energy_measure_tenfold": optimum.tenfold,
+            **optimum.figures(),
             "evaluations": [[w, e] for w, e in optimum.evaluations],
         },
         "lqg_max_pole_magnitude": 1.0 - study.stability_margin,

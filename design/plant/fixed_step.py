@@ -241,18 +241,7 @@ class _CKernel(_Kernel):
         for name in ("x", "q", "v", "phi", "u", "fn"):  # shared memory: C writes, numpy reads
             setattr(state, name, np.ascontiguousarray(getattr(state, name), dtype=float))
         self.cs = ffi.new("sj_state *", {name: ptr(getattr(state, name)) for name in ("x", "q", "v", "phi", "u", "fn")})
-        self.cr = ffi.new(
-            "sj_record *",
-            dict(
-                v=ptr(recorder.v),
-                u=ptr(recorder.u),
-                fn=ptr(recorder.fn),
-                phi=ptr(recorder.phi),
-                sensors=ptr(recorder.sensors),
-                energy=ptr(recorder.energy),
-                works=ptr(recorder.works),
-            ),
-        )
+        self.cr = ffi.new("sj_record *", {name: ptr(array) for name, array in recorder.fields().items()})
 
     def _pull(self):
         cs = self.cs

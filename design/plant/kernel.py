@@ -53,6 +53,11 @@ class Recorder:
         self.energy = np.zeros(rows)
         self.works = np.zeros((rows, 3))
 
+    def fields(self) -> dict[str, np.ndarray]:
+        """The arrays in the order of the C kernels' ``sj_record`` (``plant_kernel.h``)."""
+        names = ("v", "u", "fn", "phi", "sensors", "energy", "works")
+        return {name: getattr(self, name) for name in names}
+
 
 class State:
     """The plant state a kernel advances in place: x (2, n) = [η̇; ωη], q = E·u_R (n), and per joint

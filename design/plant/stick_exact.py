@@ -296,18 +296,7 @@ class _StickC:
         self.cs = ffi.new(
             "sj_stick_state *", dict(z=ptr(m.z), d=ptr(m.d), v=ptr(state.v), u=ptr(state.u), fn=ptr(state.fn))
         )
-        self.cr = ffi.new(
-            "sj_record *",
-            dict(
-                v=ptr(recorder.v),
-                u=ptr(recorder.u),
-                fn=ptr(recorder.fn),
-                phi=ptr(recorder.phi),
-                sensors=ptr(recorder.sensors),
-                energy=ptr(recorder.energy),
-                works=ptr(recorder.works),
-            ),
-        )
+        self.cr = ffi.new("sj_record *", {name: ptr(array) for name, array in recorder.fields().items()})
 
     @property
     def counts(self):
