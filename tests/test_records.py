@@ -220,6 +220,7 @@ def test_type_b_radius_is_never_taken_from_table_1(tmp_path, capsys):
             "metadata regime: 'stickslip' — allowed: micro-slip, stick-slip",
         ),
         (("# inertia = 1.0 kg", "# inertia = -1 kg"), "metadata inertia: -1 kg — allowed: >= 0"),
+        (("# inertia = 1.0 kg", "# inertia ="), "metadata inertia: empty — write '# inertia = <value> [unit]'"),
         (("# joint_type = A", "# joint_type = C"), "metadata joint_type: 'C' — allowed: A, B"),
         (("normal_force [N]", "time [s]"), "column 'time' appears twice"),
     ],

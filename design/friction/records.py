@@ -253,6 +253,11 @@ def _metadata(lines: list[str], name: str) -> tuple[dict[str, tuple[str, ...]], 
         if line.startswith("#"):
             if "=" in line:
                 key, _, value = line[1:].partition("=")
+                if not value.strip():
+                    raise RecordError(
+                        f"{name}: line {number + 1}, metadata {key.strip()}: empty — write "
+                        f"'# {key.strip()} = <value> [unit]' or leave the line out"
+                    )
                 metadata[key.strip()] = tuple((value.strip().split(None, 1) + [""])[:2])
             continue
         body_start = number
