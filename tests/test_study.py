@@ -88,7 +88,7 @@ def test_piezo_power_counts_charging_only():
         50 * 0.5 * s.piezo_capacitance * ((high / s.piezo_force_per_volt) ** 2 - (low / s.piezo_force_per_volt) ** 2)
         + 0.5 * s.piezo_capacitance * (low / s.piezo_force_per_volt) ** 2
     )  # the very first charge from 0 V
-    assert study._piezo_power(s, forces) == pytest.approx(expected, rel=1e-12)
+    assert study.piezo_power(s, forces) == pytest.approx(expected, rel=1e-12)
 
 
 @pytest.mark.numerics

@@ -1,11 +1,11 @@
 """Control design (paper Section 5): the SISO law (``laws``), the LQG design (``lqg``), the
 controllers that run it (``filter``: clipped-optimal and fully active LQG), the controller
 artefact (``artifact``, built from a design by ``artifact_building``) and the closed-loop study
-of Section 6 (``study``).
+of Section 6 (``study``, each of its runs in ``runs``).
 
 The controllers implement ``design.plant.interface.Controller``; they depend on the plant's
 interface and discretisation only, never on the simulator. The names below are the
-controllers and their design; ``artifact``, ``artifact_building`` and ``study`` are
+controllers and their design; ``artifact``, ``artifact_building``, ``runs`` and ``study`` are
 imported as modules (they import these, so this package does not import them).
 """
 

@@ -1,89 +1,63 @@
 """The closed-loop study of paper Section 6: passive, SISO (Eq. 30–31), cLQG (Eq. 33–34) and
 active LQG joints after the tip pulse, and the ε optimisation of the SISO law for Eq. 32.
 
-Protocol (Section 6): the triangular tip pulse (200 N over 40 ms along every disturbance input),
-every joint at F_N^max while it acts, then the controller until t_e. The plant is the design's
-reduced model (the paper's 24 states) with the LuGre joints of Table 1, simulated at a plant step
-that divides the controller sample time (``design.plant.loop.simulate``); the active LQG on
-the frictionless ``linear`` scheme of the same loop. Everything here is
-deterministic: the same inputs give bit-identical results.
+The design model is the design's reduced model (the paper's 24 states); each run, its protocol
+and its power are in ``runs`` (re-exported here). Everything here is deterministic: the same
+inputs give bit-identical results.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design import reduction
-from smartjoint.design.control.filter import ActiveLqg, ClippedLqg
-from smartjoint.design.control.laws import SisoLaw
-from smartjoint.design.control.lqg import LqgDesign, check_sample_time, design_lqg
-from smartjoint.design.friction import lugre
-from smartjoint.design.plant.disturbance import TriangularPulse, triangular_pulse
-from smartjoint.design.plant.interface import ConstantNormalForce, HoldDuringExcitation
-from smartjoint.design.plant.loop import simulate
+from smartjoint.design.control.filter import ClippedLqg
+from smartjoint.design.control.lqg import LqgDesign, design_lqg
+from smartjoint.design.control.runs import (
+    PLANT_STEPS_PER_SAMPLE,
+    PULSE_AMPLITUDE,
+    PULSE_DURATION,
+    SETTLING_FRACTION,
+    Run,
+    StudySetup,
+    piezo_power,
+    run_active,
+    run_passive,
+    run_semi_active,
+    setup,
+    siso,
+)
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.modal import ModalModel
 
-PULSE_DURATION = 0.04  # s (Section 4.3)
-PULSE_AMPLITUDE = 200.0  # N
-PLANT_STEPS_PER_SAMPLE = 20  # plant step = Δt/20 (50 µs at 1 ms): within the scheme's accuracy study
-SETTLING_FRACTION = 0.1  # settling time: e(t) stays below 10 % of the energy at the end of the pulse
 EPSILON_GRID = tuple(10.0 ** np.arange(-8.0, -1.75, 0.5))  # m/s: the SISO ε scan before refinement
-
-
-@dataclass(frozen=True)
-class StudySetup:
-    """What every run of the study shares. ``model``: the reduced design model the controllers
-    are designed on; ``plant``: the model simulated (the same reduced model by default)."""
-
-    model: ModalModel
-    plant: ModalModel
-    laws: list
-    sample_time: float
-    normal_force_min: np.ndarray
-    normal_force_max: np.ndarray
-    duration: float  # t_e of Eq. 32
-    piezo_capacitance: float
-    piezo_force_per_volt: float
-    piezo_preload: float
-
-    @property
-    def plant_step(self) -> float:
-        return self.sample_time / PLANT_STEPS_PER_SAMPLE
-
-    def pulse(self) -> TriangularPulse:
-        return triangular_pulse(PULSE_AMPLITUDE, PULSE_DURATION, np.ones(self.plant.disturbance_input.shape[1]))
-
-
-@dataclass
-class Run:
-    """One closed-loop run at the controller samples: e(t) = ½xᵀx, tip sensors, joint forces."""
-
-    name: str
-    time: np.ndarray
-    energy: np.ndarray
-    sensors: np.ndarray
-    normal_force: np.ndarray  # semi-active: applied F_N; active: NaN
-    joint_force: np.ndarray  # friction u_R (semi-active) or actuator force u_d (active)
-    sliding_velocity: np.ndarray
-    control_power: float  # mean over [0, t_e] [W]
-    power_kind: str  # "piezo charging" or "actuator mechanical"
-    metrics: dict = field(default_factory=dict)
-
-    def energy_measure(self) -> float:
-        """Eq. 32: E(t_e) = ∫₀^t_e xᵀx dt (trapezoid on the sample grid)."""
-        return float(np.trapezoid(2.0 * self.energy, self.time))
 
 
 def controlled_joints(design) -> list[str]:
     """The joints the controllers act on: every joint of the design, in ``control.joints`` order
-    where given. A strict subset would leave friction joints without a normal force law."""
+    where given. A strict subset would leave friction joints without a normal force law.
+
+    Parameters
+    ----------
+    design : Design
+        The design read from its file (``design.structure.spec``).
+
+    Returns
+    -------
+    list of str
+        The joint names in design order.
+
+    Raises
+    ------
+    ModelError
+        When ``control.joints`` names other joints or another order.
+    """
     names = [j.name for j in design.joints]
     chosen = design.control.joints
     if chosen is not None and sorted(chosen) != sorted(names):
@@ -99,7 +73,20 @@ def controlled_joints(design) -> list[str]:
 def design_model(design, progress=print) -> ModalModel:
     """The reduced model of Section 4 the controllers are designed on: ``control.modes`` of the
     first ``control.considered_modes`` modes by Hankel values plus ``control.krylov`` correction
-    vectors per joint (Eq. 27–29), joints frictionless (Eq. 6)."""
+    vectors per joint (Eq. 27–29), joints frictionless (Eq. 6).
+
+    Parameters
+    ----------
+    design : Design
+        The (updated) design with joints, sensors and disturbances.
+    progress : callable
+        Receives one progress line.
+
+    Returns
+    -------
+    ModalModel
+        The reduced model (the paper's 24 states for ``three_type_a.toml``).
+    """
     c = design.control
     if not design.joints:
         raise ModelError("design has no [[joints]]: the controllers need at least one friction joint")
@@ -113,96 +100,6 @@ def design_model(design, progress=print) -> ModalModel:
     progress(f"      reduced model: {c.modes} of the first {considered} modes + {c.krylov} Krylov vector(s) per joint")
     first = modal.solve_modes(fe, considered)
     return reduction.reduce(fe, first, min(c.modes, considered), c.krylov).model
-
-
-def setup(design, model: ModalModel, plant: ModalModel | None = None) -> StudySetup:
-    c = design.control
-    count = len(design.joints)
-    low = np.array(np.broadcast_to(np.asarray(c.normal_force_min, dtype=float), (count,)))
-    high = np.array(np.broadcast_to(np.asarray(c.normal_force_max, dtype=float), (count,)))
-    if not (c.study_duration > PULSE_DURATION):
-        raise ModelError(f"control.study_duration: {c.study_duration!r} s — must exceed the pulse ({PULSE_DURATION} s)")
-    check_sample_time(model, c.sample_time)
-    return StudySetup(
-        model,
-        plant if plant is not None else model,
-        [lugre.TABLE_1[j.type] for j in design.joints],
-        float(c.sample_time),
-        low,
-        high,
-        float(c.study_duration),
-        float(c.piezo_capacitance),
-        float(c.piezo_force_per_volt),
-        float(c.piezo_preload),
-    )
-
-
-# ---------------------------------------------------------------------------------------- runs
-def _piezo_power(s: StudySetup, normal_force: np.ndarray) -> float:
-    """Mean electrical power to charge the stacks, V = (F_N − preload)/k per joint, starting
-    from 0 V before t = 0: ½C·max(0, V_k² − V_k−1²) per sample (no charge recovered)."""
-    volts = np.maximum(normal_force - s.piezo_preload, 0.0) / s.piezo_force_per_volt
-    squared = np.vstack([np.zeros((1, volts.shape[1])), volts]) ** 2
-    charge = 0.5 * s.piezo_capacitance * np.maximum(np.diff(squared, axis=0), 0.0)
-    return float(charge.sum() / s.duration)
-
-
-def run_semi_active(s: StudySetup, name: str, controller) -> Run:
-    """Any normal-force controller, F_N^max during the pulse (Section 6)."""
-    held = HoldDuringExcitation(controller, PULSE_DURATION, s.normal_force_max)
-    r = simulate(
-        s.plant,
-        s.laws,
-        held,
-        s.pulse(),
-        s.duration,
-        s.plant_step,
-        record_every=PLANT_STEPS_PER_SAMPLE,
-        energy_books=False,
-    )
-    return Run(
-        name,
-        r.time,
-        r.energy,
-        r.sensors,
-        r.normal_force,
-        r.friction_force,
-        r.sliding_velocity,
-        _piezo_power(s, r.normal_force),
-        "piezo charging",
-    )
-
-
-def run_passive(s: StudySetup, name: str, normal_forces) -> Run:
-    return run_semi_active(s, name, ConstantNormalForce(np.asarray(normal_forces, dtype=float), s.sample_time))
-
-
-def run_active(s: StudySetup, design: LqgDesign) -> Run:
-    """The fully active reference: u_d = −K·x̂ as forces on the linear model (the plant's
-    frictionless ``linear`` scheme at the sample time, zero force during the pulse); mean
-    mechanical actuator power Σ|u_d·v| on the sample grid."""
-    if s.plant is not s.model:
-        raise ModelError("the active LQG reference runs on the design model only")
-    controller = ActiveLqg(design, hold_until=PULSE_DURATION)
-    r = simulate(s.model, [], controller, s.pulse(), s.duration, s.sample_time, energy_books=False, scheme="linear")
-    force = r.friction_force  # the linear scheme records the joint forces acting: the actuators'
-    power = float(np.sum(np.abs(force * r.sliding_velocity)[:-1]) * s.sample_time / s.duration)
-    return Run(
-        "active LQG",
-        r.time,
-        r.energy,
-        r.sensors,
-        np.full_like(force, np.nan),
-        force,
-        r.sliding_velocity,
-        power,
-        "actuator mechanical",
-    )
-
-
-def siso(s: StudySetup, boundary_layer) -> SisoLaw:
-    width = np.broadcast_to(np.asarray(boundary_layer, dtype=float), s.normal_force_min.shape)
-    return SisoLaw(s.sample_time, s.normal_force_min, s.normal_force_max, width)
 
 
 # ------------------------------------------------------------------------------- ε optimisation
@@ -230,7 +127,21 @@ class BoundaryLayerOptimum:
 def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) -> BoundaryLayerOptimum:
     """ε of Eq. 30 minimising E(t_e) of Eq. 32 (Section 5.1): a half-decade scan of log ε, then
     bounded Brent (scipy ``minimize_scalar``) within a half decade of the best grid point. E is a
-    rough function of ε (stick/slip events shift with it), hence the scan before the local search."""
+    rough function of ε (stick/slip events shift with it), hence the scan before the local search.
+
+    Parameters
+    ----------
+    s : StudySetup
+        The study the SISO runs are made in.
+    progress : callable
+        Receives one line per evaluation.
+    grid : sequence of float
+        The ε [m/s] scanned before the local search.
+
+    Returns
+    -------
+    BoundaryLayerOptimum
+    """
     cache: dict[float, float] = {}
 
     def measure(log_width: float) -> float:
@@ -256,7 +167,20 @@ def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) ->
 def metrics(run: Run, reference: Run) -> dict:
     """Table of Section 6: energy at t_e (absolute and relative to the reference, passive F^max),
     E(t_e) of Eq. 32, RMS and peak tip deflection after the pulse, settling time to 10 % of the
-    energy at the end of the pulse, mean control power."""
+    energy at the end of the pulse, mean control power.
+
+    Parameters
+    ----------
+    run : Run
+        The run measured.
+    reference : Run
+        The run the final energy is related to (passive F^max in the study).
+
+    Returns
+    -------
+    dict
+        JSON-ready figures; ``settling_time`` is None when the run has not settled by t_e.
+    """
     after = run.time > PULSE_DURATION + 1e-12
     tip = run.sensors[after]
     start = int(np.searchsorted(run.time, PULSE_DURATION - 1e-12))
@@ -315,13 +239,46 @@ class Study:
 
 
 def lqg_for(design, model: ModalModel) -> LqgDesign:
+    """The LQG of the design's ``[control]`` weights and noises (:func:`design_lqg`).
+
+    Parameters
+    ----------
+    design : Design
+    model : ModalModel
+        The design model.
+
+    Returns
+    -------
+    LqgDesign
+    """
     c = design.control
     return design_lqg(model, c.sample_time, c.state_weight, c.control_weight, c.process_noise, c.measurement_noise)
 
 
 def run_study(design, model: ModalModel | None = None, progress=print) -> Study:
     """Section 6 on ``design`` (already updated): design model, LQG, ε (from the design file or
-    optimised), then the five runs and their metrics."""
+    optimised), then the five runs and their metrics.
+
+    Parameters
+    ----------
+    design : Design
+        The updated design.
+    model : ModalModel, optional
+        The design model; built by :func:`design_model` when not given.
+    progress : callable
+        Receives the progress lines.
+
+    Returns
+    -------
+    Study
+
+    Examples
+    --------
+    >>> from smartjoint.design.structure.spec import load_design
+    >>> study = run_study(load_design("design/data/three_type_a.toml"), progress=lambda line: None)  # doctest: +SKIP
+    >>> study.orderings()["clqg_below_both_passive"]  # doctest: +SKIP
+    True
+    """
     c = design.control
     model = model if model is not None else design_model(design, progress)
     s = setup(design, model)
@@ -357,7 +314,17 @@ def run_study(design, model: ModalModel | None = None, progress=print) -> Study:
 
 
 def summary(study: Study) -> dict:
-    """JSON-ready figures of the study (no time series)."""
+    """JSON-ready figures of the study (no time series).
+
+    Parameters
+    ----------
+    study : Study
+
+    Returns
+    -------
+    dict
+        Timing, limits, ε, the LQG's stability margin, each run's metrics and the orderings.
+    """
     s = study.setup
     optimum = study.optimum
     return {
@@ -382,3 +349,29 @@ def summary(study: Study) -> dict:
         "joints": study.joint_names,
         "sensors": study.sensor_names,
     }
+
+
+__all__ = [
+    "EPSILON_GRID",
+    "PLANT_STEPS_PER_SAMPLE",
+    "PULSE_AMPLITUDE",
+    "PULSE_DURATION",
+    "SETTLING_FRACTION",
+    "BoundaryLayerOptimum",
+    "Run",
+    "Study",
+    "StudySetup",
+    "controlled_joints",
+    "design_model",
+    "lqg_for",
+    "metrics",
+    "optimise_boundary_layer",
+    "piezo_power",
+    "run_active",
+    "run_passive",
+    "run_semi_active",
+    "run_study",
+    "setup",
+    "siso",
+    "summary",
+]
