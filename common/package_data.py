@@ -52,22 +52,54 @@ def _root(package: str) -> Path:
 
 
 def path(package: str, name: str) -> Path:
-    """The data file ``name`` of ``package`` (a key of :data:`FILES`) on disk."""
+    """The data file ``name`` of ``package`` on disk.
+
+    Parameters
+    ----------
+    package : str
+        A key of :data:`FILES`, e.g. ``"smartjoint.design"``.
+    name : str
+        One of its data files, e.g. ``"data/meroform_10bay.toml"``.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    KeyError
+        When ``name`` is not one of the package's data files (they must be listed to be packaged).
+    """
     if name not in FILES.get(package, ()):
         raise KeyError(f"{package}: {name!r} is not one of its data files (common/package_data.py FILES)")
     return _root(package) / name
 
 
 def folder(package: str, name: str) -> Path:
-    """The folder ``name`` of ``package`` that holds some of its data files."""
+    """The folder ``name`` of ``package`` that holds some of its data files, on disk, as
+    :func:`path` finds a file; a ``KeyError`` when it holds none of them.
+
+    Parameters
+    ----------
+    package : str
+        A key of :data:`FILES`.
+    name : str
+        A folder of it, e.g. ``"runtime"``.
+    """
     if not any(f.startswith(name.rstrip("/") + "/") for f in FILES.get(package, ())):
         raise KeyError(f"{package}: {name!r} holds none of its data files (common/package_data.py FILES)")
     return _root(package) / name
 
 
 def all_files() -> list[tuple[str, Path]]:
-    """Every data file as (path inside the package tree, e.g.
-    ``smartjoint/design/friction/rig_kernel.c``, path on disk)."""
+    """Every data file of the package.
+
+    Returns
+    -------
+    list of (str, Path)
+        The path inside the package tree (e.g. ``smartjoint/design/friction/rig_kernel.c``) and
+        the path on disk.
+    """
     return [
         (f"{package.replace('.', '/')}/{name}", path(package, name))
         for package, names in FILES.items()

@@ -81,7 +81,22 @@ class _Lqg:
 def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
     """matrix @ vector summed strictly left to right over the columns, starting with the first
     product — the order of the generated C, so the double build reproduces this reference bit
-    for bit (BLAS sums in blocks and with FMA, which differs in the last bits)."""
+    for bit (BLAS sums in blocks and with FMA, which differs in the last bits).
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (m, n)
+    vector : ndarray, shape (n,)
+
+    Returns
+    -------
+    ndarray, shape (m,)
+
+    Examples
+    --------
+    >>> ordered_product(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([1.0, 1.0]))
+    array([3., 7.])
+    """
     total = matrix[:, 0] * vector[0]
     for k in range(1, matrix.shape[1]):
         total = total + matrix[:, k] * vector[k]

@@ -91,7 +91,25 @@ def input_status(value, low, high) -> np.ndarray:
     """Per measured value, its status bits against its plausible range [low, high]:
     ``STATUS_INPUT_INVALID`` for NaN/±Inf, ``STATUS_INPUT_IMPLAUSIBLE`` for a number outside (a
     value at a limit is within), else 0. The range test is written as "within", false for NaN,
-    as in the C (``check_input``)."""
+    as in the C (``check_input``).
+
+    Parameters
+    ----------
+    value : array_like
+        The measured values.
+    low, high : float or array_like
+        The plausible range, limits included.
+
+    Returns
+    -------
+    ndarray of int
+        One status per value.
+
+    Examples
+    --------
+    >>> input_status([0.5, 2.0, np.nan], -1.0, 1.0).tolist()
+    [0, 8, 1]
+    """
     value = np.asarray(value, dtype=float)
     with np.errstate(invalid="ignore"):
         inside = (value >= low) & (value <= high)
@@ -121,7 +139,25 @@ def any_status(*statuses: np.ndarray) -> int:
 
 def boundary_layer(value, width):
     """The smoothed Heaviside H_ε(s) = clip(s/ε, 0, 1) of Eq. 30 and Eq. 34, with NaN → 0
-    (written as s > 0 ? min(s, 1) : 0 so that C and numpy agree on every input)."""
+    (written as s > 0 ? min(s, 1) : 0 so that C and numpy agree on every input).
+
+    Parameters
+    ----------
+    value : array_like
+        s, the switching quantity.
+    width : float or array_like
+        ε, the boundary layer (same unit as ``value``).
+
+    Returns
+    -------
+    ndarray
+        H_ε(s) in [0, 1].
+
+    Examples
+    --------
+    >>> boundary_layer([-1.0, 0.5, 3.0, np.nan], 1.0).tolist()
+    [0.0, 0.5, 1.0, 0.0]
+    """
     with np.errstate(all="ignore"):
         ratio = np.asarray(value, dtype=float) / width
     return np.where(ratio > 0.0, np.minimum(ratio, 1.0), 0.0)

@@ -70,7 +70,20 @@ class LqgDesign:
 
 def check_sample_time(model: ModalModel, sample_time: float) -> None:
     """Rule: every retained mode below the Nyquist frequency, f_max·Δt < 1/2 — above it the
-    discrete model aliases the mode and the estimator cannot tell it from a slower one."""
+    discrete model aliases the mode and the estimator cannot tell it from a slower one.
+
+    Parameters
+    ----------
+    model : ModalModel
+        The retained modes.
+    sample_time : float
+        Δt [s].
+
+    Raises
+    ------
+    ModelError
+        For a Δt that is not a finite positive number or too coarse for the highest mode.
+    """
     if not (math.isfinite(sample_time) and sample_time > 0):
         raise ModelError(f"sample_time: {sample_time!r} — must be a finite number > 0 [s]")
     highest = float(model.omega.max()) / (2 * math.pi)
@@ -97,6 +110,29 @@ def design_lqg(
     sensors y = C·x with noise ``measurement_noise`` m². Gains from python-control
     (``dlqr``, ``dlqe``); stabilisability and detectability are checked first (PBH test on
     every mode block), and a Riccati failure is reported with the weights that caused it.
+
+    Parameters
+    ----------
+    model : ModalModel
+        The reduced model (joints frictionless).
+    sample_time : float
+        Δt [s], below the Nyquist rule of :func:`check_sample_time`.
+    state_weight, control_weight : float
+        Q = q·I on the modal state, R = r·I on the joint forces.
+    process_noise : float
+        Intensity of the disturbance inputs [N²].
+    measurement_noise : float
+        Sensor noise intensity [m²].
+
+    Returns
+    -------
+    LqgDesign
+        The discrete model, the LQR gain K and the Kalman gain M.
+
+    Raises
+    ------
+    ModelError
+        For a non-positive weight, an unstabilisable or undetectable mode, or a Riccati failure.
     """
     check_sample_time(model, sample_time)
     for name, value in (
