@@ -58,7 +58,22 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
 
     ``output`` is refused (``ReportFolderError``) before any work unless it is new, empty or the
     report of an earlier run. Paths in the summary are relative to ``output``, except
-    ``design.source`` (absolute) and ``report`` (returned only, not written)."""
+    ``design.source`` (absolute) and ``report`` (returned only, not written).
+
+    Parameters
+    ----------
+    design_path : str or None
+        The design file; the bundled reference truss when None.
+    output : Path
+        The report folder.
+    progress : callable
+        Receives one line per stage and step.
+
+    Returns
+    -------
+    dict
+        The summary written to ``summary.json`` (figures of every stage, file names, timing).
+    """
     started, clock = utc_now(), time.perf_counter()
     run_id = new_run_id(started)
     folder = ReportFolder(Path(output), run_id)
