@@ -17,7 +17,13 @@ FILES: dict[str, tuple[str, ...]] = {
     "smartjoint": ("py.typed",),
     "smartjoint.design.plant": ("plant_kernel.c", "plant_kernel.h"),
     "smartjoint.design.friction": ("rig_kernel.c",),
-    "smartjoint.design": ("data/meroform_10bay.toml", "data/fig10_three_joints.toml", "data/three_type_a.toml"),
+    "smartjoint.design": (
+        "data/meroform_10bay.toml",
+        "data/fig10_three_joints.toml",
+        "data/three_type_a.toml",
+        "data/paper_table1_type_a.toml",
+        "data/paper_table1_type_b.toml",
+    ),
     "smartjoint.codegen": tuple(
         f"templates/{name}"
         for name in (

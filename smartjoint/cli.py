@@ -176,6 +176,13 @@ def _add_friction_commands(sub, o: SimpleNamespace) -> None:
         "stick-slip records carry excitation_force and inertia)",
     )
     p.add_argument("--plots", help="folder for hysteresis plots (PNG)")
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="JOINT.toml",
+        help="write the result file a design names in [friction.X] file = … (parameters, 95 %% intervals, "
+        "records used and a provenance hash; docs/design-file.md)",
+    )
     p.set_defaults(func=cmd_identify)
 
 

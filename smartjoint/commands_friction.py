@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from smartjoint.commands import report_progress, write_plots
+from smartjoint.commands import report_progress, write_atomic, write_plots
 from smartjoint.common.errors import SmartjointError
 
 _LUGRE_FLAGS = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity", "radius")
@@ -127,6 +127,7 @@ def cmd_identify(args) -> dict:
         The identification result (``Identification.as_dict``), with ``"plots"`` under
         ``--plots``.
     """
+    from smartjoint.design.friction import parameter_file
     from smartjoint.design.friction.identify import identify
     from smartjoint.design.friction.record_screening import classify
     from smartjoint.design.friction.records import read_record
@@ -138,7 +139,15 @@ def cmd_identify(args) -> dict:
     result = identify(micro, stick, radius=args.radius, progress=report_progress, output_error=not args.no_output_error)
     out = result.as_dict()
     write_plots(args, out, lambda folder: plot_hysteresis(result, folder))
+    if args.output:
+        text = parameter_file.result_text(
+            result, parameter_file.file_hashes(args.records), output_error=not args.no_output_error
+        )
+        write_atomic(Path(args.output), text)
+        out["written"] = str(args.output)
     if not args.json:
         print("\n".join(f"step: {step}" for step in result.steps) + "\n")
         print(identification_table(result))
+        if args.output:
+            print(f"\nresult written to {args.output} (a design names it in [friction.{result.joint_type}] file = …)")
     return out

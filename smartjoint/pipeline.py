@@ -1,15 +1,16 @@
 """``smartjoint run``: the whole pipeline that exists, end to end, with a report.
 
-Stages so far: load the design → build the FE model (joints locked, the conventional truss
-of the modal survey) → update it to the measured eigenfrequencies → eigen solution of the
-updated model, also with the joints released (the frictionless linear subsystem of Eq. 12)
-→ friction joint: isolated-rig records (Table 1 type B, 1 % noise) and the two-step LuGre
-identification of Eq. 3 plus the output-error step, with hysteresis loops like Fig. 5 → model
-reduction (Section 4, Fig. 10)
-→ semi-active control: the controller design artefact and the closed-loop study of Section 6
-(Figs. 12–14) → generated C firmware, checked back to back against the Python reference → the
-study through the CAN loop (software in the loop) → report (Markdown + PNG). Each later stage of
-the design card joins here.
+Stages: load the design → build the FE model (joints locked, the conventional truss of the modal
+survey) → update it to the measured eigenfrequencies → eigen solution of the updated model → the
+joints: the design's own, or type A joints placed by ``[placement]`` on a design without any
+(Section 6), with the modes of the released joints (the frictionless linear subsystem of Eq. 12)
+→ friction joints: the rig records the design names identified (Eq. 3 plus the output-error
+step) and used by every later stage, or the design's own parameters checked on simulated rig
+records, with hysteresis loops like Fig. 5 → model reduction (Section 4, Fig. 10) → semi-active
+control: the controller design artefact and the closed-loop study of Section 6 (Figs. 12–14) →
+generated C firmware, checked back to back against the Python reference → the study through the
+CAN loop (software in the loop) → report (Markdown + PNG). The design file drives every stage;
+a design without joints and without [placement] stops after the structure with the reason.
 
 The report folder (``smartjoint/report_folder.py``) is checked before any work: a new or empty
 folder, or the report of an earlier run, and nothing else. The run writes into a staging folder
@@ -37,18 +38,18 @@ from smartjoint.codegen import backtoback, can_layer, generate, identifiers, out
 from smartjoint.design import build_model, load_design, solve_modes, updated_design
 from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
-from smartjoint.design.friction import lugre, rig
-from smartjoint.design.friction.identify import identify
-from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.network import protocol
 from smartjoint.design.reduction import reduction_study, study_summary
-from smartjoint.design.structure.spec import REFERENCE_DESIGN
+from smartjoint.pipeline_joints import friction_entries, friction_stage, place_joints
 from smartjoint.report_control import control_markdown, plot_control_study
 from smartjoint.report_folder import ReportFolder, iso, new_run_id, utc_now
+from smartjoint.report_friction import friction_markdown
 from smartjoint.report_reduction import plot_study, study_markdown
 
-FIG10_DESIGN = REFERENCE_DESIGN.parent / "fig10_three_joints.toml"
-CONTROL_DESIGN = REFERENCE_DESIGN.parent / "three_type_a.toml"  # Fig. 11: three type A joints
+NO_JOINTS = (
+    "the design has no [[joints]] and no [placement]: friction, reduction, control, firmware and SIL need "
+    "friction joints — add [[joints]] or a [placement] table (docs/design-file.md)"
+)
 
 REPORT_MODES = 30
 
@@ -116,12 +117,16 @@ def _paths(value) -> list[str]:
 class _Results:
     """What the stages produce, filled stage by stage; the report and the summary read it."""
 
-    design: Any = None
+    design: Any = None  # the design of stages 4–8: with placed joints, identified friction
+    source_design: Any = None  # the design file's (updated) design
     model: Any = None
     result: Any = None  # the updating result, None without [updating]
     modes: Any = None
     released: Any = None  # modes with the joints released, None without joints
-    identification: Any = None
+    placed_design: str | None = None  # the design file [placement] wrote into the report
+    skipped: str | None = None  # why the stages after the structure did not run
+    friction: list = field(default_factory=list)  # per joint type (pipeline_joints.JointTypeFriction)
+    friction_entries: dict = field(default_factory=dict)  # per joint: parameters and source
     study: Any = None  # the reduction study
     controlled: Any = None  # the design the controllers are built for
     control_study: Any = None
@@ -141,11 +146,16 @@ def _stages(design_path: str | None, staging: Path, progress):
     function of the final summary that gives report.md."""
     r = _Results()
     _structure_stages(r, design_path, progress)
-    _friction_stage(r, progress)
-    _reduction_stage(r, progress)
-    _control_stage(r, progress)
-    _firmware_stage(r, progress)
-    _sil_stage(r, staging, progress)
+    _joints(r, staging, progress)
+    if r.design.joints:
+        _friction_stage(r, staging, progress)
+        _reduction_stage(r, progress)
+        _control_stage(r, progress)
+        _firmware_stage(r, progress)
+        _sil_stage(r, staging, progress)
+    else:
+        r.skipped = NO_JOINTS
+        progress(f"[4/9]–[8/9] skipped: {NO_JOINTS}")
     progress("[9/9] report")
     _write_report_files(r, staging)
     return _summary(r), lambda final: _report_markdown(r, final)
@@ -183,50 +193,45 @@ def _structure_stages(r: _Results, design_path: str | None, progress) -> None:
     else:
         progress("[3/9] model updating: skipped (no [updating] section)")
     modes = solve_modes(model, min(REPORT_MODES, model.n_dof))
-    released = None
-    if design.joints:
-        released_model = build_model(design, joints="released")
-        released = solve_modes(released_model, min(REPORT_MODES, released_model.n_dof))
-    r.design, r.model, r.result, r.modes, r.released = design, model, result, modes, released
+    r.design, r.source_design, r.model, r.result, r.modes = design, design, model, result, modes
 
 
-def _friction_stage(r: _Results, progress) -> None:
-    """Stage 4: isolated-rig records of a type B joint, then the LuGre identification."""
-    progress(
-        "[4/9] friction joint: isolated rig (Section 3.2), type B, 1 % noise → identification (Eq. 3 + output error)"
-    )
-    records = [rig.simulate(test) for test in rig.campaign("B", noise=0.01, cycles=8)]
-    micro = [record for record in records if classify(record) == "micro-slip"]
-    stick = [record for record in records if classify(record) == "stick-slip"]
-    r.identification = identify(micro, stick, progress=lambda message: progress(f"      {message}"))
+def _joints(r: _Results, staging: Path, progress) -> None:
+    """The design's joints, or those [placement] puts on a design without any; the modes with
+    the joints released (the frictionless linear subsystem of Eq. 12)."""
+    r.design, r.placed_design = place_joints(r.design, staging, progress)
+    if r.design.joints:
+        released_model = build_model(r.design, joints="released")
+        r.released = solve_modes(released_model, min(REPORT_MODES, released_model.n_dof))
+
+
+def _friction_stage(r: _Results, staging: Path, progress) -> None:
+    """Stage 4: the friction of each joint type, identified from the design's rig records or
+    checked on simulated ones (``pipeline_joints.friction_stage``)."""
+    types = ", ".join(sorted({j.type for j in r.design.joints}))
+    progress(f"[4/9] friction joints (Section 3.2, Eq. 3 + output error): joint types {types}")
+    r.design, r.friction = friction_stage(r.design, staging, progress)
 
 
 def _reduction_stage(r: _Results, progress) -> None:
-    """Stage 5, reduction (Section 4.3): on the design's own joints, or — for a design without
-    joints such as the bundled reference — on the Fig. 10 example (the same truss plus joints
-    B1, A2, A3)."""
-    design, result = r.design, r.result
-    example = design if design.joints else load_design(FIG10_DESIGN)
-    if result is not None and not design.joints:
-        example = example.with_parameters(result.parameters)
+    """Stage 5, reduction (Section 4.3, Fig. 10) on the design's joints: the largest normal force
+    at the type B joints (else the first joint), Krylov vectors for that joint."""
+    design = r.design
     progress(
-        f"[5/9] model reduction (Section 4, Fig. 10) on {example.name!r}: joints "
-        f"{', '.join(j.name + ' (' + j.type + ')' for j in example.joints)}"
+        f"[5/9] model reduction (Section 4, Fig. 10) on {design.name!r}: joints "
+        f"{', '.join(j.name + ' (' + j.type + ')' for j in design.joints)}"
     )
-    forces = np.array([400.0 if j.type == "B" else 0.0 for j in example.joints])
+    forces = np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
     if not forces.any():
         forces[0] = 400.0
     r.study = reduction_study(
-        example, forces, krylov_joints=[int(np.argmax(forces))], progress=lambda message: progress(message)
+        design, forces, krylov_joints=[int(np.argmax(forces))], progress=lambda message: progress(message)
     )
 
 
 def _control_stage(r: _Results, progress) -> None:
-    """Stage 6, control (Sections 5–6): on the design's joints, or for the reference truss on Fig. 11's."""
-    design, result = r.design, r.result
-    controlled = design if design.joints else load_design(CONTROL_DESIGN)
-    if result is not None and not design.joints:
-        controlled = controlled.with_parameters(result.parameters)
+    """Stage 6, control (Sections 5–6) on the design's joints."""
+    controlled = r.design
     progress(
         f"[6/9] semi-active control (Sections 5–6) on {controlled.name!r}: joints "
         f"{', '.join(j.name for j in controlled.joints)}, t_e = {controlled.control.study_duration:g} s"
@@ -278,10 +283,13 @@ def _write_report_files(r: _Results, staging: Path) -> None:
     design = r.design
     plots.plot_mode_shapes(r.model, r.modes, staging / "mode_shapes.png")
     measured = [(m.mode, m.frequency_hz) for m in design.updating.measured] if design.updating else []
-    plots.plot_spectrum(r.modes, measured, staging / "spectrum.png")
+    plots.plot_spectrum(r.modes, measured, staging / "spectrum.png", updated=r.result is not None)
     if r.result is not None:
         plots.plot_updating(r.result, staging / "updating.png")
-    r.hysteresis = [p.name for p in plots.plot_hysteresis(r.identification, staging)]
+    if r.skipped:
+        return
+    r.hysteresis = [p.name for f in r.friction for p in plots.plot_hysteresis(f.identification, staging)]
+    r.friction_entries = friction_entries(r.design, r.friction, staging)
     plot_study(r.study, staging)
     plot_control_study(r.control_study, staging)
     artifact.save(r.controller, staging / "controller.json")
@@ -294,16 +302,30 @@ def _write_report_files(r: _Results, staging: Path) -> None:
 
 def _summary(r: _Results) -> dict:
     """summary.json without the run's id and times."""
-    design, model, sil_check, safety_check = r.design, r.model, r.sil_check, r.safety_check
+    design, model = r.source_design, r.model
     source = os.path.abspath(design.source) if os.path.isfile(design.source) else design.source
-    return {
+    out = {
         "smartjoint_version": __version__,
-        "design": {"name": design.name, "source": source, "sha256": design.sha256},
+        "design": {"name": design.name, "source": source, "sha256": design.sha256, "placed": r.placed_design},
         "fe_model": {"n_dof": model.n_dof, "elements": len(model.element_kind), "mass_kg": model.total_mass},
         "updating": r.result.as_dict() if r.result is not None else None,
         "modes_hz": [float(f) for f in r.modes.frequencies_hz],
         "modes_released_hz": [float(f) for f in r.released.frequencies_hz] if r.released is not None else None,
-        "friction_identification": r.identification.as_dict(),
+        "skipped": r.skipped,
+    }
+    if r.skipped:
+        return {**out, **dict.fromkeys(("friction", "reduction", "control", "firmware", "sil"))}
+    return {**out, **_joint_stages_summary(r)}
+
+
+def _joint_stages_summary(r: _Results) -> dict:
+    """The summary of stages 4–8, which run on a design with joints."""
+    sil_check, safety_check = r.sil_check, r.safety_check
+    return {
+        "friction": {
+            "joints": r.friction_entries,
+            "types": [f.as_dict() for f in r.friction],
+        },
         "reduction": study_summary(r.study),
         "control": {
             **closed_loop.summary(r.control_study),
@@ -340,9 +362,17 @@ def _summary(r: _Results) -> dict:
 
 def _report_markdown(r: _Results, final: dict) -> str:
     """report.md from the stages' results and the final summary."""
+    head = _markdown(r.source_design, r.model, r.modes, r.released, r.result, final)
+    if r.placed_design:
+        head += (
+            f"The design has no friction joints: [placement] placed {len(r.design.joints)} type A joints "
+            f"(paper Section 6), written as `{r.placed_design}`; every later stage runs on it.\n\n"
+        )
+    if r.skipped:
+        return head + f"\n## Friction joints, reduction, control, firmware and SIL\n\nNot run: {r.skipped}.\n"
     return (
-        _markdown(r.design, r.model, r.modes, r.released, r.result, final)
-        + _friction_markdown(r.identification, r.hysteresis)
+        head
+        + friction_markdown(r.design, r.friction, r.hysteresis)
         + "\n"
         + study_markdown(r.study)
         + "\n"
@@ -407,38 +437,6 @@ def _markdown(design, model, modes, released, result, summary) -> str:
         lines.append(f"| {i + 1} | {f:.3f} |{extra}")
     lines += ["", "## Mode shapes", "", "![mode shapes](mode_shapes.png)", ""]
     return "\n".join(lines)
-
-
-def _friction_markdown(identification, hysteresis: list[str]) -> str:
-    truth = lugre.TABLE_1[identification.joint_type]
-    lines = [
-        "## Friction joint: identification from rig records (Section 3.2, Eq. 3 + output error)",
-        "",
-        f"Synthetic records of the isolated type {identification.joint_type} joint (paper Table 1 parameters, "
-        "1 % measurement noise): two micro-slip and four stick-slip records at F_N = 200 and 400 N.",
-        "",
-        plots.identification_table(identification),
-        "",
-        "| parameter | Table 1 | identified | error [%] |",
-        "|---|---:|---:|---:|",
-    ]
-    for name in ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity"):
-        true, found = getattr(truth, name), getattr(identification.parameters, name)
-        lines.append(f"| {name} | {true:.4g} | {found:.4g} | {100 * (found / true - 1):+.1f} |")
-    lines += [
-        "",
-        "Weakly identifiable (95 % interval wider than ±50 %) by the two Eq. 3 steps: "
-        + (", ".join(identification.weak_by_equation_error) or "none")
-        + " (the paper found σ1 and σ2).",
-    ]
-    if identification.refined is not None:
-        lines += [
-            "After the output-error step (rig model driven by the measured excitation force, "
-            "docs/identification.md): " + (", ".join(identification.weakly_identifiable) or "none") + "."
-        ]
-    lines += ["Steps: " + "; ".join(identification.steps) + ".", ""]
-    lines += [f"![{name}]({name})" for name in hysteresis]
-    return "\n".join(lines) + "\n"
 
 
 def _control_section(study, controller) -> str:

@@ -114,10 +114,22 @@ def plot_mode_shapes(model: FEModel, modes: Modes, path: Path, count: int = 6) -
     plt.close(fig)
 
 
-def plot_spectrum(modes: Modes, measured: list[tuple[int, float]], path: Path) -> None:
+def plot_spectrum(modes: Modes, measured: list[tuple[int, float]], path: Path, updated: bool = True) -> None:
+    """The eigenfrequencies by mode number, with the measured ones (EMA) where given.
+
+    Parameters
+    ----------
+    modes : Modes
+    measured : list of (int, float)
+        Mode number and frequency [Hz] of the measured modes.
+    path : Path
+        The PNG written.
+    updated : bool
+        Whether model updating ran (the legend says which model is shown).
+    """
     fig, ax = plt.subplots(figsize=(8, 3.6))
     index = np.arange(1, len(modes) + 1)
-    ax.plot(index, modes.frequencies_hz, ".-", label="FEM (updated)")
+    ax.plot(index, modes.frequencies_hz, ".-", label="FEM (updated)" if updated else "FEM (nominal, not updated)")
     if measured:
         ax.plot([m for m, _ in measured], [f for _, f in measured], "rx", ms=9, label="EMA")
     ax.set_xlabel("mode number")

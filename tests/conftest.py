@@ -49,6 +49,24 @@ def pytest_report_header(config):
         return f"model inputs perturbed by up to {relative:g} relative (--perturb-inputs)"
 
 
+# The paper's Table 1, given explicitly: a design without friction parameters has none.
+TABLE_1_A = {
+    "sigma0": 1.42e5,
+    "sigma1": 0.02,
+    "sigma2": 0.01,
+    "coulomb": 0.61,
+    "stribeck": 0.14,
+    "stribeck_velocity": 0.01,
+}
+TABLE_1_B = {
+    "sigma0": 6.5e4,
+    "sigma1": 0.02,
+    "sigma2": 0.01,
+    "coulomb": 0.49,
+    "stribeck": 0.08,
+    "stribeck_velocity": 0.02,
+    "radius": 0.011,
+}
 ALUMINIUM = {"youngs_modulus": 70.0e9, "shear_modulus": 26.0e9, "density": 2700.0}
 TUBE = {"material": "aluminium", "outer_diameter": 0.022, "wall_thickness": 0.0015}
 
@@ -104,6 +122,7 @@ def small_truss() -> dict:
             {"name": "JA", "member": "L2_0", "end": "end", "type": "A"},
             {"name": "JB", "member": "D1_1", "end": "start", "type": "B", "axis": [0.0, 1.0, 0.0]},
         ],
+        "friction": {"A": dict(TABLE_1_A), "B": dict(TABLE_1_B)},
     }
 
 

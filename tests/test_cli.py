@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -45,15 +46,84 @@ def test_missing_design_file_is_one_line(tmp_path):
     assert done.stderr.count("\n") == 1 and "cannot read design file" in done.stderr
 
 
-def test_run_writes_a_complete_report(tmp_path, capsys):
+# A user's joints, not the paper's: type A given inline, type B identified from its rig records.
+USER_TYPE_A = {
+    "sigma0": 2.1e5,
+    "sigma1": 0.03,
+    "sigma2": 0.015,
+    "coulomb": 0.45,
+    "stribeck": 0.2,
+    "stribeck_velocity": 0.015,
+}
+USER_TYPE_B = {
+    "sigma0": 9e4,
+    "sigma1": 0.03,
+    "sigma2": 0.02,
+    "coulomb": 0.35,
+    "stribeck": 0.12,
+    "stribeck_velocity": 0.03,
+    "radius": 0.015,
+}
+
+
+class _Forbidden(dict):
+    """The paper's Table 1, made to fail on any use."""
+
+    def __getitem__(self, key):
+        raise AssertionError(f"the run read the paper's Table 1 (type {key})")
+
+    get = __getitem__
+
+
+def _user_design(tmp_path) -> Path:
+    """small_truss (not the paper's: 2 bays, a type B joint, a velocity sensor) with its own
+    friction: type A inline, type B from rig records simulated with USER_TYPE_B at 1 % noise."""
     import tomli_w
     from conftest import small_truss
 
+    from smartjoint.design.friction import lugre, rig
+    from smartjoint.design.friction.records import write_record
+
+    truth = lugre.LuGreParameters(**USER_TYPE_B)
+    (tmp_path / "rig").mkdir()
+    for test in rig.campaign("B", truth, noise=0.01, cycles=8):
+        write_record(rig.simulate(test, truth, source="user joint B"), tmp_path / "rig" / f"{test.name}.csv")
+    data = small_truss()
+    data["friction"] = {"A": dict(USER_TYPE_A), "B": {"file": "joint_b_prior.toml"}, "records": ["rig/*.csv"]}
+    (tmp_path / "joint_b_prior.toml").write_text(tomli_w.dumps({**USER_TYPE_B, "sigma0": 5e4, "coulomb": 0.5}))
     design = tmp_path / "small.toml"
-    design.write_text(tomli_w.dumps(small_truss()))
+    design.write_text(tomli_w.dumps(data))
+    return design
+
+
+def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
+    """The whole run on a user's truss that is not the paper's; nothing in it reads the paper's
+    Table 1 or a bundled design, and the user's joints, friction and sensors reach the artefact
+    and the report (the identified type B parameters within 5 % at 1 % noise)."""
+    import io
+    import os
+
+    from smartjoint.common import package_data
+    from smartjoint.design.friction import lugre
+
+    design = _user_design(tmp_path)
+    bundled = package_data.folder("smartjoint.design", "data").resolve()
+
+    def guarded(opener):
+        def open_outside_the_bundled_designs(path, *args, **kwargs):
+            if isinstance(path, (str, os.PathLike)):
+                assert bundled not in Path(path).resolve().parents, f"the run read the bundled {path}"
+            return opener(path, *args, **kwargs)
+
+        return open_outside_the_bundled_designs
+
+    monkeypatch.setattr(os, "open", guarded(os.open))
+    monkeypatch.setattr(io, "open", guarded(io.open))
+    monkeypatch.setattr(lugre, "TABLE_1", _Forbidden())
     out = tmp_path / "report"
     assert main(["run", str(design), "-o", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
+    _user_friction_reaches_the_artifact(out, summary)
     for name in ("report.md", "mode_shapes.png", "spectrum.png", "summary.json"):
         assert (out / name).stat().st_size > 0
     assert summary["modes_released_hz"][0] < summary["modes_hz"][0]
@@ -81,7 +151,29 @@ def test_run_writes_a_complete_report(tmp_path, capsys):
     assert safety["cases"] > 100 and safety["failed"] == [] and safety["worst_joint_cycles"] <= 3
     assert (out / "safety_cases.md").read_text().count("\n|") > safety["cases"]
     assert (out / "safety_cycles.png").stat().st_size > 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "small.toml"]  # no staging or claim left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["joint_b_prior.toml", "report", "rig", "small.toml"]
+
+
+def _user_friction_reaches_the_artifact(out: Path, summary: dict) -> None:
+    from smartjoint.design.control import artifact
+
+    loaded = artifact.load(out / "controller.json")
+    assert loaded.joint_names == ("JA", "JB") and loaded.joint_types == ("A", "B")
+    assert loaded.sensor_names == ("tip_y", "tip_vz") and loaded.sensor_quantities == ("displacement", "velocity")
+    names = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")
+    assert loaded.friction_parameters[0].tolist() == [USER_TYPE_A[n] for n in names]  # inline, as given
+    identified = dict(zip(names, loaded.friction_parameters[1]))
+    for name in ("sigma0", "coulomb", "stribeck", "stribeck_velocity"):  # identified from the records
+        assert identified[name] == pytest.approx(USER_TYPE_B[name], rel=0.05), name
+    assert loaded.friction_radius.tolist() == [0.0, 0.015]
+    assert loaded.friction_sources[0] == "small.toml [friction.A]"
+    assert loaded.friction_sources[1] == "identified by this run from 6 rig records"
+    joints = summary["friction"]["joints"]
+    assert joints["JB"]["file"] == "friction_B.toml" and (out / "friction_B.toml").exists()
+    assert [joints["JB"][n] for n in names] == loaded.friction_parameters[1].tolist()
+    report = (out / "report.md").read_text()
+    for text in ("| JA | A | 2.1e+05 |", "| JB | B |", "identified by this run from 6 rig records", "tip_vz"):
+        assert text in report, text
 
 
 def test_interrupt_while_the_command_line_imports_is_one_line_and_exit_130():

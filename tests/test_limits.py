@@ -23,6 +23,7 @@ from conftest import small_truss
 
 from smartjoint.design import DesignError, ModelError, build_model, load_design, parse_design
 from smartjoint.design.structure import control_section, spec
+from smartjoint.design.structure.files import anchor_paths
 from smartjoint.design.structure.modal import count_zero_energy_modes, gross_energy, probe_zero_energy
 
 SECONDS = 2.0
@@ -292,6 +293,7 @@ def test_locked_pinned_chain_is_a_structure():
 
 def _reference_mast(bays: int, tube_elements: int) -> dict:
     data = tomllib.loads(spec.REFERENCE_DESIGN.read_text())
+    anchor_paths(data, spec.REFERENCE_DESIGN.parent)  # its [friction] files, beside it
     data["truss"]["bays"] = bays
     data["mesh"]["tube_elements"] = tube_elements
     data.pop("updating")

@@ -84,6 +84,10 @@ class ControllerArtifact:
     piezo_force_per_volt: float
     piezo_preload: float
     sensor_quantities: tuple[str, ...]
+    joint_types: tuple[str, ...]
+    friction_parameters: np.ndarray
+    friction_radius: np.ndarray
+    friction_sources: tuple[str, ...]
     safe_normal_force: np.ndarray
     sliding_velocity_limit: np.ndarray
     friction_force_limit: np.ndarray

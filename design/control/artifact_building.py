@@ -13,6 +13,8 @@ from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact, installed_version
 from smartjoint.design.control.artifact_schema import SCHEMA_VERSION, field_error
 from smartjoint.design.control.lqg import LqgDesign
+from smartjoint.design.friction.lugre import joint_laws
+from smartjoint.design.structure.description import FRICTION_PARAMETERS
 
 
 def _per_joint(field: str, value, joints: tuple[str, ...]) -> np.ndarray:
@@ -113,10 +115,43 @@ def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> Cont
         piezo_force_per_volt=control.piezo_force_per_volt,
         piezo_preload=control.piezo_preload,
         **safety_fields(design, joints),
+        **friction_fields(design, joints),
         design_source=Path(str(design.source)).name,
         design_sha256=design.sha256,
         package_version=installed_version(),
     )
+
+
+def friction_fields(design, joints: tuple[str, ...]) -> dict:
+    """The controlled joints' types and the LuGre parameters the design was made with.
+
+    Parameters
+    ----------
+    design : Design
+        The design (identified parameters in place where ``smartjoint run`` identified them).
+    joints : tuple of str
+        The controlled joints, in artefact order.
+
+    Returns
+    -------
+    dict
+        ``joint_types``, ``friction_parameters`` (l × 6), ``friction_radius`` and ``friction_sources``.
+    """
+    by_name = {j.name: j for j in design.joints}
+    laws = dict(zip([j.name for j in design.joints], joint_laws(design)))
+    sources = []
+    for name in joints:
+        friction = design.joint_friction(by_name[name])
+        in_file = bool(friction.sha256) and Path(friction.source).is_file()
+        sources.append(Path(friction.source).name if in_file else friction.source)  # never a folder
+    return {
+        "joint_types": tuple(by_name[name].type for name in joints),
+        "friction_parameters": np.array(
+            [[getattr(laws[name], p) for p in FRICTION_PARAMETERS] for name in joints], dtype=float
+        ).reshape(len(joints), len(FRICTION_PARAMETERS)),
+        "friction_radius": np.array([laws[name].radius or 0.0 for name in joints], dtype=float),
+        "friction_sources": tuple(sources),
+    }
 
 
 DISPLACEMENT_FRACTION = 0.05  # default displacement plausibility: 5 % of the truss's largest extent

@@ -13,7 +13,7 @@ import numpy as np
 
 from smartjoint.common.errors import ModelError
 
-SCHEMA_VERSION = 2  # 2: the safe state and the plausibility ranges (docs/safety.md)
+SCHEMA_VERSION = 3  # 2: the safe state and the plausibility ranges (docs/safety.md); 3: the joints' friction
 # Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo
 # stacks block at ~100 kN; 1 MN is a typing error (an exponent too many), not a design.
 NORMAL_FORCE_LIMIT = 1e6  # N
@@ -52,6 +52,16 @@ SCHEMA: tuple[FieldSpec, ...] = (
     FieldSpec("piezo_force_per_volt", "number", unit="N/V", meaning="F_N = force_per_volt·V + preload"),
     FieldSpec("piezo_preload", "number", unit="N", meaning="normal force at 0 V (>= 0, <= F_N^min)"),
     FieldSpec("sensor_quantities", "strings", ("ny",), meaning="per sensor: displacement (m) or velocity (m/s)"),
+    FieldSpec("joint_types", "strings", ("l",), meaning="per joint: A (axial slip) or B (rotation), paper Fig. 3"),
+    FieldSpec(
+        "friction_parameters",
+        "array",
+        ("l", 6),
+        "Table 1 units",
+        "per joint the LuGre σ0, σ1, σ2, F_c, F_d, v_s per unit F_N (Eq. 1–2) the design was made with (information)",
+    ),
+    FieldSpec("friction_radius", "array", ("l",), "m", "per joint r of a type B joint, 0 for type A (information)"),
+    FieldSpec("friction_sources", "strings", ("l",), meaning="per joint where its friction parameters came from"),
     FieldSpec(
         "safe_normal_force",
         "array",
@@ -175,10 +185,13 @@ def _check_shapes(out: dict) -> None:
         raise ModelError(f"blocks: shape {blocks.shape} — expected (n, 2, 2) with n >= 1 retained coordinates")
     n, l, ny = blocks.shape[0], len(out["joint_names"]), len(out["sensor_names"])
     sizes = {"n": n, "2n": 2 * n, "l": l, "ny": ny}
-    if len(out["sensor_quantities"]) != ny:
-        raise ModelError(
-            f"sensor_quantities: {len(out['sensor_quantities'])} entries — expected one per sensor (n_y = {ny})"
-        )
+    for field, count, what in (
+        ("sensor_quantities", ny, "one per sensor (n_y"),
+        ("joint_types", l, "one per joint (l"),
+        ("friction_sources", l, "one per joint (l"),
+    ):
+        if len(out[field]) != count:
+            raise ModelError(f"{field}: {len(out[field])} entries — expected {what} = {count})")
     for spec in SCHEMA:
         if spec.kind == "array":
             expected = tuple(sizes.get(s, s) for s in spec.shape)
@@ -210,11 +223,26 @@ def _check_joints(out: dict) -> None:
                 f"{float(low[j])!r} N of joint {joint!r}: at 0 V the stack already presses with the "
                 "preload, so F_N^min is out of reach; need piezo_preload <= F_N^min"
             )
+        _check_friction(out, j, joint)
         if out["siso_boundary_layer"][j] <= 0:
             raise ModelError(
                 f"siso_boundary_layer: {float(out['siso_boundary_layer'][j])!r} for joint {joint!r} "
                 "— ε must be > 0 [m/s] (Eq. 30)"
             )
+
+
+def _check_friction(out: dict, j: int, joint: str) -> None:
+    """A joint's type, its LuGre parameters (σ0, F_c, v_s > 0, the others >= 0) and its radius."""
+    joint_type, values, radius = out["joint_types"][j], out["friction_parameters"][j], out["friction_radius"][j]
+    if joint_type not in ("A", "B"):
+        raise field_error(f"joint_types[{j}]", joint_type, f"joint {joint!r}: allowed: A, B")
+    positive = np.array([True, False, False, True, False, True])
+    if np.any(values < 0) or np.any(values[positive] <= 0):
+        raise field_error(
+            f"friction_parameters[{j}]", values, f"joint {joint!r}: σ0, F_c, v_s must be > 0 and σ1, σ2, F_d >= 0"
+        )
+    if (joint_type == "B") != (radius > 0) or radius < 0:
+        raise field_error(f"friction_radius[{j}]", float(radius), f"joint {joint!r}: > 0 [m] for type B, 0 for type A")
 
 
 SENSOR_QUANTITIES = ("displacement", "velocity")
@@ -273,9 +301,10 @@ def check_version(value) -> int:
     """
     if isinstance(value, bool) or not isinstance(value, int) or value != SCHEMA_VERSION:
         hint = (
-            " — schema_version 1 has no safe state or plausibility ranges: re-run `smartjoint design` to write "
-            "version 2"
-            if value == 1 and not isinstance(value, bool)
+            f" — schema_version {value} has no "
+            + ("safe state or plausibility ranges" if value == 1 else "joint friction")
+            + f": re-run `smartjoint design` to write version {SCHEMA_VERSION}"
+            if value in (1, 2) and not isinstance(value, bool)
             else ""
         )
         raise field_error("schema_version", value, f"unknown; this version reads schema_version {SCHEMA_VERSION}{hint}")

@@ -101,7 +101,7 @@ def setup(design, model: ModalModel, plant: ModalModel | None = None) -> StudySe
     return StudySetup(
         model,
         plant if plant is not None else model,
-        [lugre.TABLE_1[j.type] for j in design.joints],
+        lugre.joint_laws(design),
         float(c.sample_time),
         low,
         high,

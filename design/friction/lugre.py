@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from smartjoint.common.errors import MISSING, DesignError
+
 
 @dataclass(frozen=True)
 class LuGreParameters:
@@ -77,19 +79,36 @@ CANUDAS_1995 = LuGreParameters(
 
 
 def joint_laws(design) -> list[LuGreParameters]:
-    """LuGre parameters per joint of a design: paper Table 1 by joint type.
+    """LuGre parameters per joint of a design, as its design file gives them.
 
     Parameters
     ----------
     design : Design
-        The design whose ``joints`` are read in order.
+        The design whose ``joints`` are read in order; each joint's own ``friction`` or its
+        type's ``[friction.X]`` table.
 
     Returns
     -------
     list of LuGreParameters
-        ``TABLE_1[joint.type]`` for each joint (read at call time, so a changed table counts).
+
+    Raises
+    ------
+    DesignError
+        For a joint without parameters: nothing falls back to the paper's Table 1.
     """
-    return [TABLE_1[j.type] for j in design.joints]
+    laws = []
+    for index, joint in enumerate(design.joints):
+        friction = design.joint_friction(joint)
+        if friction is None:
+            raise DesignError(
+                f"joints[{index}].friction",
+                MISSING,
+                f"joint {joint.name!r} (type {joint.type}) has no LuGre parameters — give [friction.{joint.type}] "
+                "(inline or file = …) or the joint's own friction",
+                design.source,
+            )
+        laws.append(LuGreParameters(**friction.values(), radius=friction.radius))
+    return laws
 
 
 def stribeck_level(p: LuGreParameters, velocity):

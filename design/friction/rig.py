@@ -162,6 +162,7 @@ def load_parameter_set(path: str | Path, joint_type: str | None = None) -> Param
         raise RigError(f"{source}: byte {error.start}: not UTF-8 — a parameter set is TOML text") from None
     except tomllib.TOMLDecodeError as error:
         raise RigError(f"{source}: not valid TOML ({error})") from None
+    values.pop("identification", None)  # how an `identify -o` result was found: not a parameter
     declared = values.pop("joint_type", None)
     if declared is not None and declared not in ("A", "B"):
         raise RigError(f"{source}: joint_type: {declared!r} — allowed: 'A', 'B'")

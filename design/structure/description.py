@@ -15,6 +15,7 @@ from smartjoint.common.errors import DesignError
 DOF_NAMES = ("ux", "uy", "uz", "rx", "ry", "rz")
 JOINT_TYPES = ("A", "B")
 SENSOR_QUANTITIES = ("displacement", "velocity")
+FRICTION_PARAMETERS = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")
 
 
 @dataclass(frozen=True)
@@ -109,11 +110,38 @@ class Support:
 
 
 @dataclass(frozen=True)
+class JointFriction:
+    """LuGre parameters of a joint per unit normal force (paper Eq. 1–2, the columns of Table 1)
+    and where they came from.
+
+    σ0 [1/m], σ1 and σ2 [s/m], F_c and F_d (friction coefficients), v_s [m/s] — per radian for a
+    type B joint, which also has its contact radius r [m]. ``source`` names the design file and
+    key or the parameter file; ``sha256`` is that file's hash (empty when given inline).
+    """
+
+    joint_type: str  # "A" | "B"
+    sigma0: float
+    sigma1: float
+    sigma2: float
+    coulomb: float
+    stribeck: float
+    stribeck_velocity: float
+    radius: float | None
+    source: str
+    sha256: str = ""
+
+    def values(self) -> dict[str, float]:
+        """The six LuGre parameters by name (``FRICTION_PARAMETERS``), without the radius."""
+        return {name: getattr(self, name) for name in FRICTION_PARAMETERS}
+
+
+@dataclass(frozen=True)
 class Joint:
     """A friction joint at one end of a member (paper Fig. 3).
 
     Type A releases the axial slip of the member end against the node; type B releases the
-    rotation of the member end about ``axis`` (perpendicular to the member).
+    rotation of the member end about ``axis`` (perpendicular to the member). ``friction``: the
+    joint's own LuGre parameters; None takes those of its type (``Design.friction``).
     """
 
     name: str
@@ -121,6 +149,7 @@ class Joint:
     end: str  # "start" | "end"
     type: str  # "A" | "B"
     axis: tuple[float, float, float] | None
+    friction: JointFriction | None = None
 
 
 @dataclass(frozen=True)
@@ -154,6 +183,16 @@ class Updating:
     parameters: tuple[str, ...]  # e.g. "connectors.m12.axial_stiffness"
     measured: tuple[MeasuredMode, ...]
     max_factors: tuple[float, ...]  # per parameter: bounds initial/max_factor .. initial·max_factor
+
+
+@dataclass(frozen=True)
+class Placement:
+    """``[placement]``: the type A joints ``smartjoint run`` places on a design without joints
+    (paper Section 6): ``count`` joints at the end connectors with the largest axial modal
+    strain energy of the ``modes`` (1-based)."""
+
+    modes: tuple[int, ...]
+    count: int
 
 
 @dataclass(frozen=True)
@@ -247,6 +286,21 @@ class Design:
     source: str = "<memory>"
     sha256: str = ""
     truss: dict[str, Any] = field(default_factory=dict)
+    friction: dict[str, JointFriction] = field(default_factory=dict)  # by joint type ([friction.A])
+    friction_records: tuple[str, ...] = ()  # rig records `run` identifies ([friction] records)
+    placement: Placement | None = None  # joints `run` places on a design without [[joints]]
+
+    def joint_friction(self, joint: Joint) -> JointFriction | None:
+        """The joint's LuGre parameters: its own, else its type's; None when the design has none."""
+        return joint.friction if joint.friction is not None else self.friction.get(joint.type)
+
+    def with_friction(self, friction: JointFriction) -> Design:
+        """A copy whose joints of ``friction.joint_type`` take ``friction`` (identified
+        parameters replace what the design file said, the joints' own included)."""
+        joints = tuple(
+            dataclasses.replace(j, friction=None) if j.type == friction.joint_type else j for j in self.joints
+        )
+        return dataclasses.replace(self, joints=joints, friction={**self.friction, friction.joint_type: friction})
 
     def parameter(self, key: str) -> float:
         """Value of an updatable parameter ``table.name.field`` (see :data:`UPDATABLE`)."""

@@ -123,6 +123,7 @@ def read_toml(
         data = tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise DesignError("<file>", source, f"not valid TOML: {error}") from None
+    anchor_paths(data, path.parent)
     if "base" not in data:
         return data, raw
     base = data.pop("base")
@@ -144,4 +145,37 @@ def read_toml(
     return {**base_data, **data}, base_chain + b"\0" + raw
 
 
-__all__ = ["read_file", "read_toml"]
+def anchor_paths(data: dict[str, Any], folder: Path) -> None:
+    """Make the file names a design file gives relative to itself absolute, in place: a base
+    chain merges tables from files in other folders, so each name is read where it was written
+    (``[friction.X] file``, ``[friction] records``, a joint's ``friction`` file).
+
+    Parameters
+    ----------
+    data : dict
+        The file's tables as read; values of the wrong type are left for the parser to report.
+    folder : Path
+        The folder of the file.
+    """
+
+    def anchored(value: Any) -> Any:
+        if isinstance(value, str) and value and not Path(value).is_absolute():
+            return os.path.normpath(folder / value)
+        return value
+
+    friction = data.get("friction")
+    if isinstance(friction, dict):
+        for table in friction.values():
+            if isinstance(table, dict) and "file" in table:
+                table["file"] = anchored(table["file"])
+        if isinstance(friction.get("records"), list):
+            friction["records"] = [anchored(value) for value in friction["records"]]
+    joints = data.get("joints")
+    for joint in joints if isinstance(joints, list) else ():
+        if isinstance(joint, dict) and isinstance(joint.get("friction"), str):
+            joint["friction"] = anchored(joint["friction"])
+        elif isinstance(joint, dict) and isinstance(joint.get("friction"), dict) and "file" in joint["friction"]:
+            joint["friction"]["file"] = anchored(joint["friction"]["file"])
+
+
+__all__ = ["anchor_paths", "read_file", "read_toml"]

@@ -12,6 +12,7 @@ from smartjoint.design.structure.description import (
     MeasuredMode,
     Member,
     Node,
+    Placement,
     Safety,
     Updating,
     split_parameter,
@@ -26,6 +27,7 @@ MAX_TEMPERATURE = 200.0  # °C: above the Curie point of PZT stacks
 MAX_CURRENT = 100.0  # A
 MAX_TRACKING_TOLERANCE = 1e3  # V
 MAX_DISPLACEMENT = 20.0  # m: what the TIP_SENSORS frame carries
+MAX_PLACED_JOINTS = 50  # joints [placement] may ask for
 MAX_TIMEOUT_CYCLES = 7  # frames echo a 4-bit heartbeat counter: ages of 8 and more read as "ahead"
 
 
@@ -213,4 +215,39 @@ def check_member_lengths(members, nodes, node_types, connectors) -> None:
             )
 
 
-__all__ = ["MAX_MODES", "check_member_lengths", "joint_axis", "parse_safety", "parse_updating"]
+def parse_placement(t: DesignTable) -> Placement:
+    """The [placement] table: the modes to damp and how many type A joints to place on a design
+    without joints (a design that extends this one with its own [[joints]] keeps them).
+
+    Parameters
+    ----------
+    t : DesignTable
+        The [placement] table.
+
+    Returns
+    -------
+    Placement
+    """
+    modes = t.get("modes")
+    if not (
+        isinstance(modes, list)
+        and modes
+        and all(isinstance(m, int) and not isinstance(m, bool) and 1 <= m <= MAX_MODES for m in modes)
+    ):
+        raise t.error("modes", modes, f"expected a non-empty list of mode numbers 1 … {MAX_MODES}")
+    if len(set(modes)) != len(modes):
+        raise t.error("modes", modes, "each mode once")
+    count = t.integer("count", minimum=1, maximum=MAX_PLACED_JOINTS)
+    t.finish()
+    return Placement(tuple(sorted(modes)), count)
+
+
+__all__ = [
+    "MAX_MODES",
+    "MAX_PLACED_JOINTS",
+    "check_member_lengths",
+    "joint_axis",
+    "parse_placement",
+    "parse_safety",
+    "parse_updating",
+]

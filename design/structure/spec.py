@@ -35,7 +35,14 @@ from smartjoint.design.structure.description import (
     TubeSection,
 )
 from smartjoint.design.structure.files import read_file, read_toml
-from smartjoint.design.structure.sections import check_member_lengths, joint_axis, parse_safety, parse_updating
+from smartjoint.design.structure.friction_section import joint_friction, parse_friction
+from smartjoint.design.structure.sections import (
+    check_member_lengths,
+    joint_axis,
+    parse_placement,
+    parse_safety,
+    parse_updating,
+)
 from smartjoint.design.structure.table import DesignTable, direction, dof_list, reference, unique
 
 SCHEMA = "smartjoint-design/1"
@@ -121,6 +128,8 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
     nodes, members, truss_settings, dofs = _parse_geometry(root, node_types, sections, connectors)
     point_masses, supports = _parse_attachments(root, nodes, truss_settings)
     joints = _parse_joints(root, members, nodes)
+    friction, friction_records = parse_friction(root)
+    placement = parse_placement(root.table("placement")) if "placement" in root.data else None
     sensors, disturbances = _parse_signals(root, nodes)
 
     damping = root.table("damping", {})
@@ -155,6 +164,9 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
         safety,
         source=source,
         truss=truss_settings,
+        friction=friction,
+        friction_records=friction_records,
+        placement=placement,
     )
 
 
@@ -308,7 +320,7 @@ def _parse_joints(root: DesignTable, members, nodes) -> list[Joint]:
         elif "axis" in t.data:
             t.get("axis")
             raise t.error("axis", t.data["axis"], "type A slips along the member axis; axis is only for type B")
-        joints.append(Joint(joint_name, member, end, joint_type, axis))
+        joints.append(Joint(joint_name, member, end, joint_type, axis, _own_friction(t, joint_type)))
         t.finish()
     ends = [(j.member, j.end) for j in joints]
     for i, joint_end in enumerate(ends):
@@ -320,6 +332,16 @@ def _parse_joints(root: DesignTable, members, nodes) -> list[Joint]:
                 root.source,
             )
     return joints
+
+
+def _own_friction(t: DesignTable, joint_type: str):
+    """A joint's own LuGre parameters: ``friction = "file.toml"`` or an inline table."""
+    if "friction" not in t.data:
+        return None
+    value = t.get("friction")
+    if isinstance(value, str):
+        value = {"file": value}
+    return joint_friction(DesignTable(value, t.key("friction"), t.source), joint_type)
 
 
 def _parse_signals(root: DesignTable, nodes):

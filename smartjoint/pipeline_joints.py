@@ -1,0 +1,223 @@
+"""The stages of ``smartjoint run`` that concern the friction joints: placing them on a design
+without joints (``[placement]``, paper Section 6) and the friction stage (Section 3.2, Eq. 3).
+
+Everything comes from the design file. The friction stage identifies the rig records the design
+names (``[friction] records``) and hands the identified parameters to every later stage; without
+records it simulates the rig for each of the design's joint types with the design's own
+parameters and identifies them back — a check of the identification, the design's parameters
+stay in use. A design without joints and without ``[placement]`` stops before the stages that
+need joints; no stage substitutes another truss or the paper's Table 1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from smartjoint.design import build_model, load_design, solve_modes
+from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction.identify import Identification, identify
+from smartjoint.design.friction.parameter_file import file_hashes, provenance, result_text
+from smartjoint.design.friction.record_screening import classify
+from smartjoint.design.friction.records import Record, read_record
+from smartjoint.design.structure import placement
+from smartjoint.design.structure.description import FRICTION_PARAMETERS, Design, JointFriction
+
+PLACED_DESIGN = "placed_design.toml"
+RIG_NOISE = 0.01  # relative measurement noise of the simulated rig records
+RIG_CYCLES = 8  # excitation cycles per record
+
+
+@dataclass
+class JointTypeFriction:
+    """The friction stage's result for one joint type: the identification, the parameters the
+    later stages use (``used``) and what the design file stated (``stated``; None when records
+    were identified for a type the design gave no parameters for)."""
+
+    joint_type: str
+    identification: Identification
+    used: JointFriction
+    stated: JointFriction | None
+    records: list[str]  # record files identified, or the names of the simulated records
+    simulated: bool
+    result_file: str | None  # the identification result in the report folder (records named only)
+
+    def as_dict(self) -> dict:
+        """JSON-ready: the source of the parameters used, the comparison and the result file."""
+        return {
+            "joint_type": self.joint_type,
+            "simulated_records": self.simulated,
+            "records": list(self.records),
+            "used": {**self.used.values(), "radius": self.used.radius, "source": self.used.source},
+            "stated": None if self.stated is None else {**self.stated.values(), "radius": self.stated.radius},
+            "result_file": self.result_file,
+            "identification": self.identification.as_dict(),
+        }
+
+
+def place_joints(design: Design, staging: Path, progress) -> tuple[Design, str | None]:
+    """Type A joints by ``[placement]`` on a design without joints, written as a design file
+    into the report (``placed_design.toml``, extending the design file).
+
+    Parameters
+    ----------
+    design : Design
+        The (updated) design; returned unchanged when it has joints or no ``[placement]``.
+    staging : Path
+        The report folder being written.
+    progress : callable
+
+    Returns
+    -------
+    tuple
+        (the design with the placed joints, the placed design's file name or None).
+    """
+    if design.joints or design.placement is None:
+        return design, None
+    targets = [m - 1 for m in design.placement.modes]
+    fe = build_model(design, joints="locked")
+    modes = solve_modes(fe, max(targets) + 1)
+    chosen = placement.choose(placement.connector_energy(fe, modes, targets), design.placement.count)
+    source = Path(design.source).resolve()
+    text = placement.design_text(str(source), f"{design.name}-placed", chosen, targets)
+    (staging / PLACED_DESIGN).write_text(text, encoding="utf-8")
+    placed = load_design(staging / PLACED_DESIGN)
+    # Updating ran on the design without joints: the same parameters hold for the placed truss.
+    updated = {key: design.parameter(key) for key in design.updating.parameters} if design.updating else {}
+    placed = dataclasses.replace(placed.with_parameters(updated), source=PLACED_DESIGN)
+    progress(
+        f"      no [[joints]]: placed {len(chosen)} type A joints by [placement] for modes "
+        f"{', '.join(map(str, design.placement.modes))}: "
+        + ", ".join(f"{j.name} at {j.member} {j.end}" for j in placed.joints)
+        + f" → {PLACED_DESIGN}"
+    )
+    return placed, PLACED_DESIGN
+
+
+def friction_stage(design: Design, staging: Path, progress) -> tuple[Design, list[JointTypeFriction]]:
+    """Each joint type's friction: the design's records identified, or its parameters checked
+    on simulated rig records; the identification results written into the report.
+
+    Parameters
+    ----------
+    design : Design
+        The design with joints.
+    staging : Path
+        The report folder being written.
+    progress : callable
+
+    Returns
+    -------
+    tuple
+        (the design with identified parameters in place, one result per joint type in A, B order).
+    """
+    types = sorted({j.type for j in design.joints})
+    named: dict[str, list[tuple[str, Record]]] = {}
+    for path in design.friction_records:
+        record = read_record(path)
+        named.setdefault(record.joint_type, []).append((path, record))
+    unused = sorted(set(named) - set(types))
+    if unused:
+        progress(f"      records of joint type {', '.join(unused)}: the design has no such joint, not identified")
+    results = {}
+    for joint_type in types:
+        if joint_type in named:
+            results[joint_type] = _identify_records(design, joint_type, named[joint_type], staging, progress)
+            design = design.with_friction(results[joint_type].used)
+    lugre.joint_laws(design)  # every other joint has parameters in the design file: one line if not
+    for joint_type in types:
+        if joint_type not in results:
+            results[joint_type] = _rig_check(design, joint_type, progress)
+    return design, [results[t] for t in types]
+
+
+def _identify_records(design: Design, joint_type: str, named, staging: Path, progress) -> JointTypeFriction:
+    """The design's own rig records of one joint type, identified; the result replaces the
+    design file's parameters of that type."""
+    paths = [path for path, _ in named]
+    progress(f"      type {joint_type}: identifying {len(paths)} rig records named by the design")
+    identification = _identify([record for _, record in named], progress)
+    hashes = file_hashes(paths)
+    name = f"friction_{joint_type}.toml"
+    (staging / name).write_text(result_text(identification, hashes), encoding="utf-8")
+    p = identification.parameters
+    used = JointFriction(
+        joint_type,
+        **{n: getattr(p, n) for n in FRICTION_PARAMETERS},
+        radius=p.radius,
+        source=f"identified by this run from {len(paths)} rig records",
+        sha256=provenance(identification, hashes, True),
+    )
+    stated = design.friction.get(joint_type)
+    return JointTypeFriction(joint_type, identification, used, stated, [str(x) for x in paths], False, name)
+
+
+def _rig_check(design: Design, joint_type: str, progress) -> JointTypeFriction:
+    """No records: the rig simulated with the design's parameters of ``joint_type`` (1 % noise)
+    and identified back; the design's parameters stay in use."""
+    joint = next(j for j in design.joints if j.type == joint_type)
+    stated = design.joint_friction(joint)
+    assert stated is not None  # lugre.joint_laws checked every joint
+    truth = lugre.joint_laws(dataclasses.replace(design, joints=(joint,)))[0]
+    progress(
+        f"      type {joint_type}: no records named — the rig simulated with the design's parameters "
+        f"({os.path.basename(stated.source)}), {RIG_NOISE:.0%} noise, then identified back"
+    )
+    tests = rig.campaign(joint_type, truth, noise=RIG_NOISE, cycles=RIG_CYCLES)
+    records = [rig.simulate(test, truth, source=stated.source) for test in tests]
+    identification = _identify(records, progress)
+    return JointTypeFriction(joint_type, identification, stated, stated, [r.name for r in records], True, None)
+
+
+def _identify(records: list[Record], progress) -> Identification:
+    micro = [record for record in records if classify(record) == "micro-slip"]
+    stick = [record for record in records if classify(record) == "stick-slip"]
+    return identify(micro, stick, progress=lambda message: progress(f"      {message}"))
+
+
+def friction_entries(design: Design, results: list[JointTypeFriction], staging: Path) -> dict[str, dict]:
+    """Each joint's LuGre parameters and where they came from, JSON-ready; the parameter files
+    the design names are copied into the report (``friction/``) so that it says what was used.
+
+    Parameters
+    ----------
+    design : Design
+        The design of the later stages (identified parameters in place).
+    results : list of JointTypeFriction
+        The friction stage's results (the identification result files).
+    staging : Path
+        The report folder being written.
+
+    Returns
+    -------
+    dict
+        Joint name → type, the six parameters, radius, ``source`` (what it is), ``file`` (in the
+        report, or None for parameters inline in the design file) and ``sha256``.
+    """
+    identified = {id(r.used): r.result_file for r in results if not r.simulated}
+    entries = {}
+    for joint in design.joints:
+        friction = design.joint_friction(joint)
+        assert friction is not None  # the friction stage checked every joint
+        source, file = friction.source, None
+        if friction.sha256 and Path(friction.source).is_file():
+            file = f"friction/{Path(friction.source).name}"
+            (staging / "friction").mkdir(exist_ok=True)
+            (staging / file).write_bytes(Path(friction.source).read_bytes())
+            source = f"parameter file {Path(friction.source).name}"
+        elif id(friction) in identified:  # identified by this run: its result file is in the report
+            file = identified[id(friction)]
+        entries[joint.name] = {
+            "type": joint.type,
+            **friction.values(),
+            "radius": friction.radius,
+            "source": source,
+            "file": file,
+            "sha256": friction.sha256,
+        }
+    return entries
+
+
+__all__ = ["PLACED_DESIGN", "JointTypeFriction", "friction_entries", "friction_stage", "place_joints"]
