@@ -81,7 +81,7 @@ def place_joints(design: Design, staging: Path, progress) -> tuple[Design, str |
     modes = solve_modes(fe, max(targets) + 1)
     chosen = placement.choose(placement.connector_energy(fe, modes, targets), design.placement.count)
     source = Path(design.source).resolve()
-    text = placement.design_text(str(source), f"{design.name}-placed", chosen, targets)
+    text = placement.design_text(str(source), f"{design.name}-placed", chosen, targets, writer="smartjoint run")
     (staging / PLACED_DESIGN).write_text(text, encoding="utf-8")
     placed = load_design(staging / PLACED_DESIGN)
     # Updating ran on the design without joints: the same parameters hold for the placed truss.

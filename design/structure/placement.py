@@ -146,7 +146,14 @@ def choose(candidates: list[Candidate], count: int) -> list[Candidate]:
     raise ModelError(f"joints: {count} requested, only {len(chosen)} members with end connectors")
 
 
-def design_text(base: str, name: str, chosen: list[Candidate], targets: list[int], prefix: str = "A") -> str:
+def design_text(
+    base: str,
+    name: str,
+    chosen: list[Candidate],
+    targets: list[int],
+    prefix: str = "A",
+    writer: str = "smartjoint place",
+) -> str:
     """A design file that extends ``base`` (path relative to the new file) by type A joints at
     the ``chosen`` connectors, named ``A1, A2, …`` in rank order, with the scores as comments.
 
@@ -162,6 +169,8 @@ def design_text(base: str, name: str, chosen: list[Candidate], targets: list[int
         The modes damped (0-based), for the comment.
     prefix : str
         The joint names' prefix.
+    writer : str
+        The command named in the header comment.
 
     Returns
     -------
@@ -170,7 +179,7 @@ def design_text(base: str, name: str, chosen: list[Candidate], targets: list[int
     """
     lines = [
         f"# Joint placement by modal strain energy (paper Section 6): modes "
-        f"{', '.join(str(i + 1) for i in targets)}; written by `smartjoint place`.",
+        f"{', '.join(str(i + 1) for i in targets)}; written by `{writer}`.",
         f"base = {_quote(base)}",
         f"name = {_quote(name)}",
         "description = "
