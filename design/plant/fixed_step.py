@@ -277,30 +277,12 @@ _C_FAILURE: list[str] = []  # why the C kernel is unavailable on this machine (r
 
 
 def check(run: PlantRun) -> None:
-    """The fixed-step run's own conditions: the general ones of ``loop.simulate`` suffice.
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-    """
+    """``Scheme.check`` (``kernel.py``): the general conditions of ``loop.simulate`` suffice."""
 
 
 def kernel(run: PlantRun):
-    """The kernel of a fixed-step run: ``plant_kernel.c`` (backend "c"), its numpy mirror
-    ("python") or the C where it builds ("auto").
-
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-
-    Returns
-    -------
-    Kernel
-        The C or the Python kernel, state and recorder shared with numpy.
-    """
+    """``Scheme.kernel`` (``kernel.py``): ``plant_kernel.c`` (backend "c"), its numpy mirror
+    ("python") or the C where it builds ("auto"), state and recorder shared with numpy."""
     from smartjoint.common import native
 
     plant = _Plant(run.model, run.joints, run.step, run.energy_books)

@@ -119,9 +119,28 @@ class Scheme(Protocol):
     FRICTION: bool
     COMPACT_DISTURBANCE: bool
 
-    def check(self, run: PlantRun) -> None: ...
+    def check(self, run: PlantRun) -> None:
+        """Raise a named ``ModelError`` where the scheme cannot do the run.
 
-    def kernel(self, run: PlantRun) -> Kernel: ...
+        Parameters
+        ----------
+        run : PlantRun
+            The run as ``loop.simulate`` received it, its general conditions checked.
+        """
+
+    def kernel(self, run: PlantRun) -> Kernel:
+        """The kernel of the run.
+
+        Parameters
+        ----------
+        run : PlantRun
+            The run as ``loop.simulate`` received it, checked by ``check``.
+
+        Returns
+        -------
+        Kernel
+            A new kernel at the run's initial state, with an empty recorder.
+        """
 
 
 def _declarations(header: str) -> str:

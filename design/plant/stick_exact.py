@@ -348,14 +348,7 @@ _C_FAILURE: list[str] = []
 
 
 def check(run: PlantRun) -> None:
-    """The stick-exact run's own conditions, each a named error.
-
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-    """
+    """``Scheme.check`` (``kernel.py``): the stick-exact run's own conditions, each a named error."""
     model, step, stick_step, controller = run.model, run.step, run.stick_step, run.controller
     record_every, energy_books, duration = run.record_every, run.energy_books, run.duration
     if not (isinstance(stick_step, (int, float)) and math.isfinite(stick_step) and stick_step >= step):
@@ -390,20 +383,8 @@ def check(run: PlantRun) -> None:
 
 
 def kernel(run: PlantRun):
-    """The kernel of a stick-exact run: ``sj_stick_run`` of plant_kernel.c (backend "c"), its
-    numpy mirror ("python") or the C where it builds ("auto").
-
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-
-    Returns
-    -------
-    Kernel
-        The C or the Python kernel; ``counts`` the steps taken per length.
-    """
+    """``Scheme.kernel`` (``kernel.py``): ``sj_stick_run`` of plant_kernel.c (backend "c"), its
+    numpy mirror ("python") or the C where it builds ("auto"); ``counts`` the steps taken per length."""
     from smartjoint.common import native
 
     assert run.stick_step is not None  # the scheme runs only with a stick step (see check)
