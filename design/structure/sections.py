@@ -164,7 +164,7 @@ def _measured_dofs(t: DesignTable, nodes: dict[str, Node]) -> tuple[MeasuredDof,
     entries = t.tables("measured_dofs")
     if not entries or len(entries) > MAX_MEASURED_DOFS:
         raise t.error("measured_dofs", f"{len(entries)} DOFs", f"1 … {MAX_MEASURED_DOFS} {{ node, direction }} tables")
-    dofs = []
+    dofs: list[MeasuredDof] = []
     for entry in entries:
         node = reference(entry, "node", entry.string("node"), nodes, "node")
         dof = MeasuredDof(node, direction(entry, "direction"))

@@ -256,7 +256,7 @@ class FitEvaluations:
         return np.column_stack(columns)
 
 
-def update_model(model: FEModel, progress=None) -> UpdatingResult:
+def update_model(model: FEModel, progress=None, warn=None) -> UpdatingResult:
     """Fit the design's ``[updating]`` parameters to its measured frequencies.
 
     With EMA shapes the measured modes pair with FE modes by MAC at every evaluation, and
@@ -268,6 +268,8 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
         The locked truss of a design with ``[updating]``.
     progress : callable, optional
         ``progress(k, n, worst_error_pct)`` after each polished start.
+    warn : callable, optional
+        ``warn(message)`` for each swap instead of a ModeSwapWarning (the command line's lines).
 
     Returns
     -------
@@ -308,7 +310,7 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
     updated = initial * np.exp(best.x)
     updated_hz, _, updated_index, correlation = evaluate(best.x)
     sensitivity = jacobian(best.x)[: len(modes)] * (measured / updated_hz[updated_index] / weight)[:, None]
-    _warn_swaps(initial_correlation, correlation)
+    _warn_swaps(initial_correlation, correlation, warn)
     return UpdatingResult(
         names,
         initial,
@@ -327,7 +329,7 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
     )
 
 
-def _warn_swaps(initial: ModeCorrelation | None, updated: ModeCorrelation | None) -> None:
+def _warn_swaps(initial: ModeCorrelation | None, updated: ModeCorrelation | None, warn=None) -> None:
     """A ModeSwapWarning naming the modes whose MAC pair is not their number, or changed in the fit."""
     if initial is None or updated is None:
         return
@@ -342,10 +344,13 @@ def _warn_swaps(initial: ModeCorrelation | None, updated: ModeCorrelation | None
             )
         )
     for message in messages:
-        warnings.warn(message, ModeSwapWarning, stacklevel=3)
+        if warn is not None:
+            warn(message)
+        else:
+            warnings.warn(message, ModeSwapWarning, stacklevel=3)
 
 
-def updated_design(design, progress=None):
+def updated_design(design, progress=None, warn=None):
     """The design with its ``[updating]`` parameters fitted, and the result (None without one).
 
     Updating always runs on the conventional truss (joints locked): that is what the modal
@@ -355,7 +360,7 @@ def updated_design(design, progress=None):
     ----------
     design : Design
         The design.
-    progress : callable, optional
+    progress, warn : callable, optional
         As for `update_model`.
 
     Returns
@@ -367,7 +372,7 @@ def updated_design(design, progress=None):
 
     if design.updating is None:
         return design, None
-    result = update_model(build_model(design, joints="locked"), progress=progress)
+    result = update_model(build_model(design, joints="locked"), progress=progress, warn=warn)
     return design.with_parameters(result.parameters), result
 
 
