@@ -236,3 +236,55 @@ def test_ema_shapes_are_read():
     assert updating.has_shapes and updating.mac_weight == 0.5
     assert updating.measured[0].shape == (1.0, -0.5)
     assert updating.measured_dofs[1] == MeasuredDof("N2_0", (0.0, 0.0, 1.0, 0.0, 0.0, 0.0))
+
+
+def _design_file(tmp_path, design_dict: dict, updating) -> str:
+    """``design_dict`` with ``updating`` (an Updating with shapes) written as a design file."""
+    import tomli_w
+
+    data = dict(design_dict)
+    data["updating"] = {
+        "parameters": list(updating.parameters),
+        "measured_dofs": [
+            {"node": d.node, "direction": DOF_NAMES[d.direction.index(1.0)]} for d in updating.measured_dofs
+        ],
+        "measured": [
+            {"mode": m.mode, "frequency_hz": m.frequency_hz, "shape": list(m.shape)} for m in updating.measured
+        ],
+    }
+    path = tmp_path / "surveyed.toml"
+    path.write_text(tomli_w.dumps(data))
+    return str(path)
+
+
+@pytest.mark.numerics
+def test_modes_json_has_effective_masses_and_the_mac_pairing(tmp_path, capsys):
+    import json
+
+    from smartjoint.cli import main
+
+    design, _ = _swapped_survey({})
+    path = _design_file(tmp_path, small_truss(), design.updating)
+    assert main(["modes", path, "--no-update", "-n", "8", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    first = out["modes"][0]
+    assert set(first["effective_mass_kg"]) == {"x", "y", "z"}
+    assert set(first["participation_factor"]) == set(first["cumulative_effective_mass_fraction"]) == {"x", "y", "z"}
+    for d in "xyz":
+        shares = [m["cumulative_effective_mass_fraction"][d] for m in out["modes"]]
+        assert shares == sorted(shares) and 0.0 <= shares[-1] <= 1.0 + 1e-12
+        assert first["effective_mass_kg"][d] == pytest.approx(first["participation_factor"][d] ** 2)
+    assert [p["fe_mode"] for p in out["mac"]["pairing"]] == [1, 3, 4, 5, 6, 8, 7]
+    assert len(out["mac"]["swaps"]) == 2
+
+
+def test_mac_plot_is_written(tmp_path):
+    from smartjoint.design.structure.correlation import ModeCorrelation
+    from smartjoint.report import plot_mac
+
+    mac = np.array([[0.98, 0.01, 0.0], [0.02, 0.1, 0.95]])
+    correlation = ModeCorrelation(
+        np.array([1, 2]), np.array([4.5, 20.6]), np.array([1, 3]), np.array([4.4, 19.0, 21.0]), mac, []
+    )
+    plot_mac(correlation, tmp_path / "mac.png")
+    assert (tmp_path / "mac.png").stat().st_size > 1000
