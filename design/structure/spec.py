@@ -129,7 +129,7 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
 
     updating = None
     if "updating" in root.data:
-        updating = parse_updating(root.table("updating"), materials, connectors)
+        updating = parse_updating(root.table("updating"), materials, connectors, nodes)
 
     control = parse_control(root.table("control", {}), joints, dofs)
     safety = parse_safety(root.table("safety", {}), control, joints)
