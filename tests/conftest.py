@@ -1,6 +1,6 @@
 """Shared helpers: small design dictionaries built in code (validated by parse_design), commands
-and the command line run in a fresh process, and the portability leg's ``--perturb-inputs``
-option (see tests/perturbation/sitecustomize.py)."""
+and the command line run in a fresh process, a quiet joint frame, and the portability leg's
+``--perturb-inputs`` option (see tests/perturbation/sitecustomize.py)."""
 
 from __future__ import annotations
 
@@ -142,3 +142,11 @@ def cli_error(*args, **options) -> str:
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, (done.returncode, done.stderr)
     return lines[0]
+
+
+def quiet_joint_frame(message, counter: int) -> bytearray:
+    """A JOINT frame of ``message`` at rest (no sliding, no friction, F_N = 100 N), E2E-protected with ``counter``."""
+    from smartjoint.bench import e2e
+
+    signals = {"crc": 0, "counter": 0, "sync": 0, "sliding_velocity": 0.0, "friction_force": 0.0, "normal_force": 100.0}
+    return e2e.protect(message.frame_id, bytearray(message.encode(signals)), counter)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cli_error, run, run_cli
+from conftest import cli_error, quiet_joint_frame, run, run_cli
 
 from smartjoint.bench import e2e, firmware, logs, sil
 from smartjoint.bench.faults import Fault, check_faults, parse_fault
@@ -92,22 +92,7 @@ def test_pack_and_unpack_are_bit_exact_with_cantools(image, kind):
 def test_receive_checks_identifier_length_crc_and_counter(reference):
     fw = firmware.Firmware(reference, "siso", "float")
     m = fw.db.get_message_by_name("JOINT_A1")
-    good = e2e.protect(
-        m.frame_id,
-        bytearray(
-            m.encode(
-                {
-                    "crc": 0,
-                    "counter": 0,
-                    "sync": 0,
-                    "sliding_velocity": 0.0,
-                    "friction_force": 0.0,
-                    "normal_force": 100.0,
-                }
-            )
-        ),
-        0,
-    )
+    good = quiet_joint_frame(m, 0)
     assert fw.rx(m.frame_id, bytes(good), 0) == 0
     assert fw.rx(0x7FF, bytes(8), 0) == 16  # unknown identifier
     assert fw.rx(m.frame_id, bytes(good[:8]), 0) == 1  # wrong length

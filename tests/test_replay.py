@@ -10,6 +10,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from conftest import quiet_joint_frame
 
 from smartjoint import cli
 from smartjoint.bench import e2e, firmware, logs
@@ -349,22 +350,7 @@ def test_replay_reproduces_a_layer_that_ages_its_inputs_by_steps(reference):
             node.step(0)
             node.tx()
             continue
-        data = e2e.protect(
-            joint.frame_id,
-            bytearray(
-                joint.encode(
-                    {
-                        "crc": 0,
-                        "counter": 0,
-                        "sync": 0,
-                        "sliding_velocity": 0.0,
-                        "friction_force": 0.0,
-                        "normal_force": 100.0,
-                    }
-                )
-            ),
-            k % e2e.COUNTER_MODULO,
-        )
+        data = quiet_joint_frame(joint, k % e2e.COUNTER_MODULO)
         frames.append(can.Message(arbitration_id=joint.frame_id, data=bytes(data), is_fd=True, timestamp=t))
         node.rx(joint.frame_id, bytes(data), 0)
         node.step(0)
