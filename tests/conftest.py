@@ -144,6 +144,17 @@ def cli_error(*args, **options) -> str:
     return lines[0]
 
 
+def design_file_error(path: Path, text: str) -> str:
+    """Write ``text`` to the design file ``path``; the message of the DesignError load_design refuses it with."""
+    from smartjoint.common.errors import DesignError
+    from smartjoint.design import load_design
+
+    path.write_text(text)
+    with pytest.raises(DesignError) as refused:
+        load_design(path)
+    return str(refused.value)
+
+
 def quiet_joint_frame(message, counter: int) -> bytearray:
     """A JOINT frame of ``message`` at rest (no sliding, no friction, F_N = 100 N), E2E-protected with ``counter``."""
     from smartjoint.bench import e2e

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from conftest import cli_error, small_truss
+from conftest import cli_error, design_file_error, small_truss
 
 from smartjoint.design import DesignError, ModelError, build_model, load_design, parse_design
 
@@ -88,10 +88,7 @@ def test_unsupported_structure_is_refused():
 
 
 def test_not_toml(tmp_path):
-    path = tmp_path / "bad.toml"
-    path.write_text("name = [unclosed\n")
-    with pytest.raises(DesignError, match="not valid TOML"):
-        load_design(path)
+    assert "not valid TOML" in design_file_error(tmp_path / "bad.toml", "name = [unclosed\n")
 
 
 def test_command_line_reports_one_line(tmp_path):
@@ -101,7 +98,6 @@ def test_command_line_reports_one_line(tmp_path):
 
 
 def test_base_file_supplies_the_keys_a_design_does_not_set(tmp_path):
-    from smartjoint.common.errors import DesignError
     from smartjoint.design.structure.spec import REFERENCE_DESIGN, load_design
 
     child = tmp_path / "child.toml"
@@ -109,9 +105,7 @@ def test_base_file_supplies_the_keys_a_design_does_not_set(tmp_path):
     design = load_design(child)
     reference = load_design()
     assert design.name == "child" and design.members == reference.members and design.sha256 != reference.sha256
-    child.write_text('base = "missing.toml"\nname = "child"\n')
-    with pytest.raises(DesignError, match="base"):
-        load_design(child)
+    assert "base" in design_file_error(child, 'base = "missing.toml"\nname = "child"\n')
 
 
 @pytest.mark.parametrize(
