@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.bench.safety import DETECTION_LIMIT
+from smartjoint.common import figures
 
 
 def matrix_markdown(out: dict) -> str:
@@ -114,11 +115,7 @@ def plot_matrix(out: dict, path):
     path
         ``path``.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     checked = [r for r in out["rows"] if not r["tolerated"] and r.get("observable", True)]
     fig, ax = plt.subplots(figsize=(7, 3.4))
     width = 0.27
@@ -138,7 +135,5 @@ def plot_matrix(out: dict, path):
     ax.set_ylabel("cases")
     ax.set_title(f"{out['cases']} fault cases on the SIL bench ({out['law']})")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
     return path

@@ -14,6 +14,7 @@ import numpy as np
 from smartjoint.bench import busload, firmware, safety
 from smartjoint.bench.faults import Fault, check_faults
 from smartjoint.bench.loop import SilLoop
+from smartjoint.common import figures
 from smartjoint.design import plant
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
@@ -309,13 +310,8 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     list of Path
         The figure written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    plt = figures.pyplot()
+    folder = figures.folder_for(folder)
     fig, ax = plt.subplots(figsize=(7, 3.6))
     colours = {"siso": "tab:blue", "clqg": "tab:red"}
     for law, f in out["laws"].items():
@@ -340,10 +336,8 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     ax.set_ylabel("½xᵀx [J]")
     ax.set_title("Study through the CAN loop (software in the loop)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
     path = folder / "sil_energy.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
     return [path]
 
 
@@ -466,11 +460,7 @@ def plot_faults(run: dict, path) -> Path:
     Path
         ``path``.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     r, record = run["result"], run["record"]
     time = np.array(record.time)
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 4.6), sharex=True)
@@ -488,7 +478,5 @@ def plot_faults(run: dict, path) -> Path:
     bottom.set_xlabel("t [s]")
     bottom.set_ylabel("F_N by the amplifier [N]")
     bottom.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
     return Path(path)
