@@ -69,8 +69,21 @@ def _mil_runs(setup, law: str, controller, spread_runs: int) -> tuple:
     return mil, spread
 
 
-def _simulate(setup, loop: SilLoop):
-    """The study's plant with the CAN loop as its controller; the buses closed whatever happens."""
+def run_loop(setup, loop: SilLoop):
+    """The study's plant with the CAN loop as its controller; the buses closed whatever happens.
+
+    Parameters
+    ----------
+    setup : study.StudySetup
+        The plant, pulse, duration and plant step of the study.
+    loop : bench.loop.SilLoop
+        The CAN loop (firmware, bus, amplifier models), closed when the run ends.
+
+    Returns
+    -------
+    plant result
+        What ``plant.simulate`` returned; the loop keeps its record.
+    """
     try:
         return plant.simulate(
             setup.plant,
@@ -124,7 +137,7 @@ def _sil_run(setup, artifact, law, real, faults, log_folder, amplifier, interfac
         log_path=log_path,
         amplifier=amplifier,
     )
-    result = _simulate(setup, loop)
+    result = run_loop(setup, loop)
     return loop, result, log_path
 
 
@@ -393,7 +406,7 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
     """
     faults = demo_faults(artifact, setup.duration) if faults is None else tuple(faults)
     loop = SilLoop(firmware.Firmware(artifact, law, real), closed_loop.PULSE_DURATION, faults=faults)
-    result = _simulate(setup, loop)
+    result = run_loop(setup, loop)
     rows = [
         {
             "fault": f.label(),
