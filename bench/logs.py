@@ -441,7 +441,7 @@ def plot(decoded: Decoded, folder, frames=None) -> list[Path]:
     Returns
     -------
     list of Path
-        The figures written.
+        One ``<frame>.png`` per frame drawn, in the frames' alphabetical order.
     """
     plt = figures.pyplot()
     folder = figures.folder_for(folder)

@@ -278,7 +278,8 @@ def sil_markdown(out: dict) -> str:
     Returns
     -------
     str
-        Markdown: one table row per law, then the injected faults per law.
+        Markdown: the bus settings and planned load, one table row per law (E(t_e) of MIL and SIL,
+        their difference beside the MIL spread, the bus figures), then the injected faults per law.
     """
     lines = [
         "## Software in the loop: the study through CAN (firmware + bus + amplifiers)",
@@ -314,14 +315,14 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     out : dict
         What :func:`sil_study` returned.
     folder : path
-        Where the figure goes (created if missing).
+        The folder of ``sil_energy.png``, created if missing.
     mil_runs : dict, optional
         Per law the MIL run.
 
     Returns
     -------
     list of Path
-        The figure written.
+        ``sil_energy.png`` in ``folder``.
     """
     plt = figures.pyplot()
     folder = figures.folder_for(folder)
@@ -432,17 +433,18 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
 
 
 def fault_markdown(run: dict) -> str:
-    """The report section of a fault run (:func:`fault_run`): the table and the run's figures.
+    """The report section of a fault run: the table and the run's figures.
 
     Parameters
     ----------
     run : dict
-        What :func:`fault_run` returned.
+        A fault run, as :func:`fault_run` returns it.
 
     Returns
     -------
     str
-        Markdown.
+        Markdown: the heading, one table row per fault (:func:`fault_lines`), then the largest
+        energy after the pulse, the samples in the safe state and the firmware's error counters.
     """
     lines = [f"### Injected faults in the study (SIL, {run['law']}): safe state and recovery", ""]
     lines += fault_lines(run["faults"])
@@ -464,7 +466,7 @@ def plot_faults(run: dict, path) -> Path:
     Parameters
     ----------
     run : dict
-        What :func:`fault_run` returned.
+        A fault run, as :func:`fault_run` returns it.
     path : path
         The figure file.
 
