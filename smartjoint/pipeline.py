@@ -34,7 +34,7 @@ from smartjoint import __version__
 from smartjoint import report as plots
 from smartjoint.bench import busload, safety, safety_report, sil
 from smartjoint.codegen import backtoback, can_layer, generate, identifiers, output
-from smartjoint.design import build_model, load_design, solve_modes, updated_design
+from smartjoint.design import Design, build_model, load_design, solve_modes, updated_design
 from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction import lugre, rig
@@ -203,14 +203,20 @@ def _friction_stage(r: _Results, progress) -> None:
     r.identification = identify(micro, stick, progress=lambda message: progress(f"      {message}"))
 
 
+def _joint_design(r: _Results, bundled) -> Design:
+    """The design a joint stage works on: the design itself when it has joints, else the bundled
+    design ``bundled`` with the updated parameters, if the model was updated."""
+    if r.design.joints:
+        return r.design
+    design = load_design(bundled)
+    return design if r.result is None else design.with_parameters(r.result.parameters)
+
+
 def _reduction_stage(r: _Results, progress) -> None:
     """Stage 5, reduction (Section 4.3): on the design's own joints, or — for a design without
     joints such as the bundled reference — on the Fig. 10 example (the same truss plus joints
     B1, A2, A3)."""
-    design, result = r.design, r.result
-    example = design if design.joints else load_design(FIG10_DESIGN)
-    if result is not None and not design.joints:
-        example = example.with_parameters(result.parameters)
+    example = _joint_design(r, FIG10_DESIGN)
     progress(
         f"[5/9] model reduction (Section 4, Fig. 10) on {example.name!r}: joints "
         f"{', '.join(j.name + ' (' + j.type + ')' for j in example.joints)}"
@@ -225,10 +231,7 @@ def _reduction_stage(r: _Results, progress) -> None:
 
 def _control_stage(r: _Results, progress) -> None:
     """Stage 6, control (Sections 5–6): on the design's joints, or for the reference truss on Fig. 11's."""
-    design, result = r.design, r.result
-    controlled = design if design.joints else load_design(CONTROL_DESIGN)
-    if result is not None and not design.joints:
-        controlled = controlled.with_parameters(result.parameters)
+    controlled = _joint_design(r, CONTROL_DESIGN)
     progress(
         f"[6/9] semi-active control (Sections 5–6) on {controlled.name!r}: joints "
         f"{', '.join(j.name for j in controlled.joints)}, t_e = {controlled.control.study_duration:g} s"

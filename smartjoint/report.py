@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from smartjoint.common import figures  # noqa: E402
 from smartjoint.design.structure.correlation import ModeCorrelation  # noqa: E402
 from smartjoint.design.structure.fem import FEModel  # noqa: E402
 from smartjoint.design.structure.modal import Modes  # noqa: E402
@@ -141,9 +142,7 @@ def plot_updating(result: UpdatingResult, path: Path) -> None:
     bottom.set_xlabel("mode number")
     bottom.legend(loc="upper right")
     fig.suptitle("Model updating to the measured eigenfrequencies")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
 
 
 def member_polylines(model: FEModel) -> dict[str, list[int]]:
@@ -182,9 +181,7 @@ def plot_mode_shapes(model: FEModel, modes: Modes, path: Path, count: int = 6) -
         ax.set_box_aspect(np.ptp(np.vstack([points, deformed]), axis=0) + 1e-9)
         ax.view_init(elev=22, azim=-58)
         ax.set_axis_off()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    figures.save(fig, path, dpi=100)
 
 
 def plot_spectrum(modes: Modes, measured: list[tuple[int, float]], path: Path) -> None:
@@ -197,9 +194,7 @@ def plot_spectrum(modes: Modes, measured: list[tuple[int, float]], path: Path) -
     ax.set_ylabel("frequency [Hz]")
     ax.grid(alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
 
 
 def _interval(lower: float, upper: float) -> str:
@@ -249,9 +244,7 @@ def plot_hysteresis(result, folder: Path) -> list[Path]:
         ax.set_ylabel("friction force u_R")
         ax.set_title(f"{name}: NRMSE {({**result.micro.nrmse, **result.stick.nrmse})[name]:.3f}", fontsize=9)
         ax.legend()
-        fig.tight_layout()
         path = folder / f"hysteresis_{name}.png"
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        figures.save(fig, path, dpi=100)
         paths.append(path)
     return paths

@@ -19,7 +19,6 @@ from smartjoint.bench.faults import Fault, check_faults, parse_fault
 from smartjoint.bench.loop import SilLoop, open_bus
 from smartjoint.bench.replay import replay
 from smartjoint.common.errors import ModelError
-from smartjoint.design import plant
 from smartjoint.design.control import artifact
 from smartjoint.design.control import study as closed_loop
 
@@ -122,20 +121,7 @@ def _run(bench, law, faults=(), log_path=None):
     loop = SilLoop(
         firmware.Firmware(reference, law, "float"), closed_loop.PULSE_DURATION, faults=faults, log_path=log_path
     )
-    try:
-        result = plant.simulate(
-            setup.plant,
-            setup.laws,
-            loop,
-            setup.pulse(),
-            setup.duration,
-            setup.plant_step,
-            record_every=closed_loop.PLANT_STEPS_PER_SAMPLE,
-            energy_books=False,
-        )
-    finally:
-        loop.close()
-    return loop, result
+    return loop, sil.run_loop(setup, loop)
 
 
 # One of each family with the plant in the loop (every kind on every frame runs without the
