@@ -155,6 +155,14 @@ def _with_updating(**updating):
     return data
 
 
+def _one_dof(node: str = "TIP", direction="uy", shape=(1.0,)) -> dict:
+    """[updating] with one measured DOF and one measured mode of that shape."""
+    return {
+        "measured_dofs": [{"node": node, "direction": direction}],
+        "measured": [{"mode": 1, "frequency_hz": 30.0, "shape": list(shape)}],
+    }
+
+
 @pytest.mark.parametrize(
     ("updating", "key", "says"),
     [
@@ -164,38 +172,10 @@ def _with_updating(**updating):
             "measured[0].shape",
             "required with updating.measured_dofs",
         ),
-        (
-            {
-                "measured_dofs": [{"node": "TIP", "direction": "uy"}],
-                "measured": [{"mode": 1, "frequency_hz": 30.0, "shape": [1.0, 2.0]}],
-            },
-            "measured[0].shape",
-            "list of 1 finite numbers",
-        ),
-        (
-            {
-                "measured_dofs": [{"node": "TIP", "direction": "uy"}],
-                "measured": [{"mode": 1, "frequency_hz": 30.0, "shape": [0.0]}],
-            },
-            "measured[0].shape",
-            "all zeros",
-        ),
-        (
-            {
-                "measured_dofs": [{"node": "TIP", "direction": "uy"}],
-                "measured": [{"mode": 1, "frequency_hz": 30.0, "shape": ["a"]}],
-            },
-            "measured[0].shape",
-            "finite numbers",
-        ),
-        (
-            {
-                "measured_dofs": [{"node": "NOPE", "direction": "uy"}],
-                "measured": [{"mode": 1, "frequency_hz": 30.0, "shape": [1.0]}],
-            },
-            "measured_dofs[0].node",
-            "no node of that name",
-        ),
+        (_one_dof(shape=[1.0, 2.0]), "measured[0].shape", "list of 1 finite numbers"),
+        (_one_dof(shape=[0.0]), "measured[0].shape", "all zeros"),
+        (_one_dof(shape=["a"]), "measured[0].shape", "finite numbers"),
+        (_one_dof(node="NOPE"), "measured_dofs[0].node", "no node of that name"),
         (
             {
                 "measured_dofs": [{"node": "TIP", "direction": "uy"}, {"node": "TIP", "direction": [0, 2, 0]}],
@@ -204,14 +184,7 @@ def _with_updating(**updating):
             "measured_dofs[1].direction",
             "the same DOF as measured_dofs[0]",
         ),
-        (
-            {
-                "measured_dofs": [{"node": "TIP", "direction": "up"}],
-                "measured": [{"mode": 1, "frequency_hz": 30.0, "shape": [1.0]}],
-            },
-            "measured_dofs[0].direction",
-            "allowed: ux",
-        ),
+        (_one_dof(direction="up"), "measured_dofs[0].direction", "allowed: ux"),
         ({"mac_weight": 1.0, "measured": [{"mode": 1, "frequency_hz": 30.0}]}, "mac_weight", "needs EMA shapes"),
         ({"measured_dofs": [], "measured": [{"mode": 1, "frequency_hz": 30.0}]}, "measured_dofs", "1 … 10000"),
     ],
