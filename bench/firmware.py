@@ -103,13 +103,12 @@ class Firmware:
     Parameters
     ----------
     artifact : ControllerArtifact
-        The controller design artefact.
+        The controller design artefact the controllers and the CAN layer are generated from.
     law : str
         The law the CAN layer runs, ``"siso"`` or ``"clqg"``.
-    real : str
-        The controllers' scalar type.
-    prefix : str
-        The prefix of every C identifier and file name.
+    real, prefix : str
+        The controllers' scalar type and the prefix of every C identifier and file name, as
+        ``codegen.generate.render`` takes them.
     **can_options
         Passed to ``codegen.can_layer.render_can`` (``amplifier``).
     """

@@ -20,6 +20,7 @@ from typing import TextIO, cast
 import numpy as np
 
 from smartjoint.bench import e2e
+from smartjoint.common import figures
 from smartjoint.common.errors import ModelError
 
 
@@ -440,15 +441,10 @@ def plot(decoded: Decoded, folder, frames=None) -> list[Path]:
     Returns
     -------
     list of Path
-        The figures written.
+        One ``<frame>.png`` per frame drawn, in the frames' alphabetical order.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    plt = figures.pyplot()
+    folder = figures.folder_for(folder)
     series: defaultdict[str, defaultdict[str, list]] = defaultdict(lambda: defaultdict(list))
     for t, frame, signal, value in decoded.rows:
         if signal in ("crc", "counter"):
@@ -466,9 +462,7 @@ def plot(decoded: Decoded, folder, frames=None) -> list[Path]:
             ax.set_ylabel(signal, fontsize=7)
         axes[-1, 0].set_xlabel("t [s]")
         axes[0, 0].set_title(frame)
-        fig.tight_layout()
         path = folder / f"{frame}.png"
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        figures.save(fig, path, dpi=100)
         written.append(path)
     return written

@@ -227,8 +227,37 @@ def signals(recorded, artifact, cycles: int):
     return out
 
 
+def run_case_loop(firmware, case: Case, measurements) -> SilLoop:
+    """One case through the CAN loop without the plant: its faults injected, each joint's measured
+    F_N what its amplifier applied over the last sample; the buses closed whatever happens.
+
+    Parameters
+    ----------
+    firmware : bench.firmware.Firmware
+        The compiled firmware image.
+    case : Case
+        The fault scenario (its faults and cycles).
+    measurements : list of Measurements
+        What the nodes measure (:func:`signals`), at least ``case.cycles`` of them.
+
+    Returns
+    -------
+    SilLoop
+        The closed loop, with the run's record.
+    """
+    loop = SilLoop(firmware, 0.0, faults=case.faults)
+    loop.reset()
+    applied = np.zeros(len(firmware.artifact.joint_names))
+    try:
+        for m in measurements[: case.cycles]:
+            applied = loop.step(Measurements(m.time, m.sensors, m.sliding_velocity, m.friction_force, applied))
+    finally:
+        loop.close()
+    return loop
+
+
 def run_case(firmware, case: Case, measurements) -> dict:
-    """One case on the bench.
+    """One case on the bench (:func:`run_case_loop`) and its figures.
 
     Parameters
     ----------
@@ -244,17 +273,12 @@ def run_case(firmware, case: Case, measurements) -> dict:
     dict
         The case's name and timing with the figures of the module docstring (:func:`measure`).
     """
-    artifact = firmware.artifact
-    loop = SilLoop(firmware, 0.0, faults=case.faults)
-    loop.reset()
-    applied = np.zeros(len(artifact.joint_names))
-    try:
-        for m in measurements[: case.cycles]:
-            # The joint's measured F_N is what its amplifier applied over the last sample.
-            applied = loop.step(Measurements(m.time, m.sensors, m.sliding_velocity, m.friction_force, applied))
-    finally:
-        loop.close()
-    return {"case": case.name, "timing": case.timing, **measure(loop.record, case.faults, artifact, case.tolerated)}
+    loop = run_case_loop(firmware, case, measurements)
+    return {
+        "case": case.name,
+        "timing": case.timing,
+        **measure(loop.record, case.faults, firmware.artifact, case.tolerated),
+    }
 
 
 def _gain_error_shows(record, artifact, force, start: int, stop: int) -> int:

@@ -8,6 +8,17 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.bench.safety import DETECTION_LIMIT
+from smartjoint.common import figures
+
+
+def _cell(value) -> str:
+    """A figure in the table or the paragraph: — where the case never got there."""
+    return "—" if value is None else str(value)
+
+
+def _heading(out: dict) -> str:
+    """The heading of the table and of the report's paragraph: the law and the firmware run."""
+    return f"### Safe state under every fault ({out['law']}, {out['real']} firmware, SIL bench)"
 
 
 def matrix_markdown(out: dict) -> str:
@@ -24,15 +35,12 @@ def matrix_markdown(out: dict) -> str:
         Markdown.
     """
 
-    def cell(value):
-        return "—" if value is None else str(value)
-
     lines = [
-        f"### Safe state under every fault ({out['law']}, {out['real']} firmware, SIL bench)",
+        _heading(out),
         "",
-        f"{out['cases']} cases; worst cycles to the safe state: firmware {cell(out['worst_firmware'])}, "
-        f"force at every joint {cell(out['worst_joints'])} (limit {DETECTION_LIMIT}); worst recovery "
-        f"{cell(out['worst_recovery'])} cycles after the fault ends; "
+        f"{out['cases']} cases; worst cycles to the safe state: firmware {_cell(out['worst_firmware'])}, "
+        f"force at every joint {_cell(out['worst_joints'])} (limit {DETECTION_LIMIT}); worst recovery "
+        f"{_cell(out['worst_recovery'])} cycles after the fault ends; "
         + (
             "every case passes."
             if not out["failed"]
@@ -55,8 +63,8 @@ def matrix_markdown(out: dict) -> str:
             )
             continue
         lines.append(
-            f"| {r['case']}{note} | {r['timing']} | {cell(r['firmware'])} | {cell(r['joints'])} | "
-            f"{'yes' if r['holds'] else '**no**'} | {cell(r['recovery'])} | {'yes' if r['ok'] else '**no**'} |"
+            f"| {r['case']}{note} | {r['timing']} | {_cell(r['firmware'])} | {_cell(r['joints'])} | "
+            f"{'yes' if r['holds'] else '**no**'} | {_cell(r['recovery'])} | {'yes' if r['ok'] else '**no**'} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -77,17 +85,14 @@ def summary_markdown(out: dict, table: str) -> str:
         Markdown.
     """
 
-    def cell(value):
-        return "—" if value is None else str(value)
-
     timings = sorted({r["timing"] for r in out["rows"]})
     lines = [
-        f"### Safe state under every fault ({out['law']}, {out['real']} firmware, SIL bench)",
+        _heading(out),
         "",
         f"{out['cases']} cases — every fault kind on every frame, every implausible signal, every amplifier "
         f"fault and the bus off, timed {', '.join(timings)}. Worst cycles until the safe state holds: "
-        f"firmware {cell(out['worst_firmware'])}, the force at every joint {cell(out['worst_joints'])} (limit "
-        f"{DETECTION_LIMIT}); worst recovery {cell(out['worst_recovery'])} cycles after a fault ends. "
+        f"firmware {_cell(out['worst_firmware'])}, the force at every joint {_cell(out['worst_joints'])} (limit "
+        f"{DETECTION_LIMIT}); worst recovery {_cell(out['worst_recovery'])} cycles after a fault ends. "
         + (
             "Every case passes."
             if not out["failed"]
@@ -114,11 +119,7 @@ def plot_matrix(out: dict, path):
     path
         ``path``.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     checked = [r for r in out["rows"] if not r["tolerated"] and r.get("observable", True)]
     fig, ax = plt.subplots(figsize=(7, 3.4))
     width = 0.27
@@ -138,7 +139,5 @@ def plot_matrix(out: dict, path):
     ax.set_ylabel("cases")
     ax.set_title(f"{out['cases']} fault cases on the SIL bench ({out['law']})")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
     return path

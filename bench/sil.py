@@ -14,6 +14,7 @@ import numpy as np
 from smartjoint.bench import busload, firmware, safety
 from smartjoint.bench.faults import Fault, check_faults
 from smartjoint.bench.loop import SilLoop
+from smartjoint.common import figures
 from smartjoint.design import plant
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
@@ -68,8 +69,21 @@ def _mil_runs(setup, law: str, controller, spread_runs: int) -> tuple:
     return mil, spread
 
 
-def _simulate(setup, loop: SilLoop):
-    """The study's plant with the CAN loop as its controller; the buses closed whatever happens."""
+def run_loop(setup, loop: SilLoop):
+    """The study's plant with the CAN loop as its controller; the buses closed whatever happens.
+
+    Parameters
+    ----------
+    setup : study.StudySetup
+        The plant, pulse, duration and plant step of the study.
+    loop : bench.loop.SilLoop
+        The CAN loop (firmware, bus, amplifier models), closed when the run ends.
+
+    Returns
+    -------
+    plant result
+        What ``plant.simulate`` returned; the loop keeps its record.
+    """
     try:
         return plant.simulate(
             setup.plant,
@@ -123,7 +137,7 @@ def _sil_run(setup, artifact, law, real, faults, log_folder, amplifier, interfac
         log_path=log_path,
         amplifier=amplifier,
     )
-    result = _simulate(setup, loop)
+    result = run_loop(setup, loop)
     return loop, result, log_path
 
 
@@ -264,7 +278,8 @@ def sil_markdown(out: dict) -> str:
     Returns
     -------
     str
-        Markdown: one table row per law, then the injected faults per law.
+        Markdown: the bus settings and planned load, one table row per law (E(t_e) of MIL and SIL,
+        their difference beside the MIL spread, the bus figures), then the injected faults per law.
     """
     lines = [
         "## Software in the loop: the study through CAN (firmware + bus + amplifiers)",
@@ -300,22 +315,17 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     out : dict
         What :func:`sil_study` returned.
     folder : path
-        Where the figure goes (created if missing).
+        The folder of ``sil_energy.png``, created if missing.
     mil_runs : dict, optional
         Per law the MIL run.
 
     Returns
     -------
     list of Path
-        The figure written.
+        ``sil_energy.png`` in ``folder``.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    plt = figures.pyplot()
+    folder = figures.folder_for(folder)
     fig, ax = plt.subplots(figsize=(7, 3.6))
     colours = {"siso": "tab:blue", "clqg": "tab:red"}
     for law, f in out["laws"].items():
@@ -340,10 +350,8 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     ax.set_ylabel("½xᵀx [J]")
     ax.set_title("Study through the CAN loop (software in the loop)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
     path = folder / "sil_energy.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
     return [path]
 
 
@@ -399,7 +407,7 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
     """
     faults = demo_faults(artifact, setup.duration) if faults is None else tuple(faults)
     loop = SilLoop(firmware.Firmware(artifact, law, real), closed_loop.PULSE_DURATION, faults=faults)
-    result = _simulate(setup, loop)
+    result = run_loop(setup, loop)
     rows = [
         {
             "fault": f.label(),
@@ -425,17 +433,18 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
 
 
 def fault_markdown(run: dict) -> str:
-    """The report section of a fault run (:func:`fault_run`): the table and the run's figures.
+    """The report section of a fault run: the table and the run's figures.
 
     Parameters
     ----------
     run : dict
-        What :func:`fault_run` returned.
+        A fault run, as :func:`fault_run` returns it.
 
     Returns
     -------
     str
-        Markdown.
+        Markdown: the heading, one table row per fault (:func:`fault_lines`), then the largest
+        energy after the pulse, the samples in the safe state and the firmware's error counters.
     """
     lines = [f"### Injected faults in the study (SIL, {run['law']}): safe state and recovery", ""]
     lines += fault_lines(run["faults"])
@@ -457,7 +466,7 @@ def plot_faults(run: dict, path) -> Path:
     Parameters
     ----------
     run : dict
-        What :func:`fault_run` returned.
+        A fault run, as :func:`fault_run` returns it.
     path : path
         The figure file.
 
@@ -466,11 +475,7 @@ def plot_faults(run: dict, path) -> Path:
     Path
         ``path``.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     r, record = run["result"], run["record"]
     time = np.array(record.time)
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 4.6), sharex=True)
@@ -488,7 +493,5 @@ def plot_faults(run: dict, path) -> Path:
     bottom.set_xlabel("t [s]")
     bottom.set_ylabel("F_N by the amplifier [N]")
     bottom.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
     return Path(path)

@@ -30,7 +30,6 @@ shows what the float build buys), and the float build at -O0 (what the optimiser
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import re
 import shutil
@@ -39,7 +38,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from machine import cpu_model  # benchmarks/machine.py (the script's folder is on sys.path)
+from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py (the script's folder is on sys.path)
 
 from smartjoint.codegen import build, generate, output
 from smartjoint.design.control import artifact as artifacts
@@ -462,27 +461,20 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="firmware_image-") as temporary:
         whole = measure_image(a, Path(temporary) / "image", callgraph)
     _print_whole_image(whole)
-    Path(args.json).write_text(
-        json.dumps(
-            {
-                "whole_image": whole,
-                "benchmark": "firmware_size",
-                "machine": facts,
-                "artifact": str(args.artifact),
-                "artifact_sha256": a.artifact_sha256,
-                "target_flags": TARGET + BASE_FLAGS,
-                "limits_bytes": LIMITS,
-                "call_graph_source": "gcc -fcallgraph-info" if callgraph else "objdump bl targets",
-                "builds": results,
-                "ours": ours,
-                "baselines": list(baselines),
-                "targets_met": verdict,
-            },
-            indent=1,
-        )
-        + "\n"
+    write_json(
+        args.json,
+        {
+            "whole_image": whole,
+            **artifact_header("firmware_size", facts, args.artifact, a),
+            "target_flags": TARGET + BASE_FLAGS,
+            "limits_bytes": LIMITS,
+            "call_graph_source": "gcc -fcallgraph-info" if callgraph else "objdump bl targets",
+            "builds": results,
+            "ours": ours,
+            "baselines": list(baselines),
+            "targets_met": verdict,
+        },
     )
-    print(f"\nwrote {args.json}")
     return 0
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import platform
 from pathlib import Path
 
@@ -14,3 +15,44 @@ def cpu_model() -> str:
         lines = []
     model = next((line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")), "")
     return model or platform.processor()
+
+
+def artifact_header(benchmark: str, facts: dict, artifact_path, artifact) -> dict:
+    """The entries that open the JSON of a benchmark run on a controller artefact.
+
+    Parameters
+    ----------
+    benchmark : str
+        The benchmark's name.
+    facts : dict
+        The machine facts the benchmark gathered.
+    artifact_path : path-like
+        The artefact file as given on the command line.
+    artifact : ControllerArtifact
+        The artefact read from it (its SHA-256 pins the exact controller measured).
+
+    Returns
+    -------
+    dict
+        ``benchmark``, ``machine``, ``artifact`` and ``artifact_sha256``, in that order.
+    """
+    return {
+        "benchmark": benchmark,
+        "machine": facts,
+        "artifact": str(artifact_path),
+        "artifact_sha256": artifact.artifact_sha256,
+    }
+
+
+def write_json(path, results: dict) -> None:
+    """Write a benchmark's results (JSON, one-space indent, final newline) and say where.
+
+    Parameters
+    ----------
+    path : path-like
+        The JSON file.
+    results : dict
+        What the benchmark measured.
+    """
+    Path(path).write_text(json.dumps(results, indent=1) + "\n")
+    print(f"\nwrote {path}")

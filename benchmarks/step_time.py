@@ -26,7 +26,6 @@ step takes the normal path), seeded. The artefact is firmware/generated/controll
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import re
@@ -38,7 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from machine import cpu_model  # benchmarks/machine.py (the script's folder is on sys.path)
+from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py (the script's folder is on sys.path)
 
 from smartjoint.codegen import build, controllers, generate, output
 from smartjoint.design.control import artifact as artifacts
@@ -375,32 +374,25 @@ def main() -> int:
         f"(loop, checksum and row indexing included); callgrind steps {CALLGRIND_STEPS}"
     )
     met = _print_target(summary)
-    Path(args.json).write_text(
-        json.dumps(
-            {
-                "benchmark": "step_time",
-                "machine": facts,
-                "artifact": str(args.artifact),
-                "artifact_sha256": a.artifact_sha256,
-                "flags": build.FLAGS,
-                "sizes": {"n": n, "l": l, "n_y": ny},
-                "rows": ROWS,
-                "repeats": REPEATS,
-                "python_rows": PY_ROWS,
-                "non_ok_status_steps": statuses,
-                "c_ns_per_step": timing,
-                "callgrind": counts,
-                "structural_macs": macs,
-                "python_ns_per_step": python,
-                "summary": summary,
-                "instructions_per_mac_target": INSTRUCTIONS_PER_MAC_TARGET,
-                "target_met": met,
-            },
-            indent=1,
-        )
-        + "\n"
+    write_json(
+        args.json,
+        {
+            **artifact_header("step_time", facts, args.artifact, a),
+            "flags": build.FLAGS,
+            "sizes": {"n": n, "l": l, "n_y": ny},
+            "rows": ROWS,
+            "repeats": REPEATS,
+            "python_rows": PY_ROWS,
+            "non_ok_status_steps": statuses,
+            "c_ns_per_step": timing,
+            "callgrind": counts,
+            "structural_macs": macs,
+            "python_ns_per_step": python,
+            "summary": summary,
+            "instructions_per_mac_target": INSTRUCTIONS_PER_MAC_TARGET,
+            "target_met": met,
+        },
     )
-    print(f"\nwrote {args.json}")
     return 0
 
 

@@ -52,7 +52,11 @@ def load_updated(args, *, firmware_names: bool = False):
     report_progress(
         f"updating {len(design.updating.parameters)} parameters to {len(design.updating.measured)} measured modes …"
     )
-    return updated_design(design, lambda k, n, err: report_progress(f"  start {k}/{n}: worst error {err:.2f} %"))
+    return updated_design(
+        design,
+        lambda k, n, err: report_progress(f"  start {k}/{n}: worst error {err:.2f} %"),
+        lambda message: report_progress(f"warning: {message}"),
+    )
 
 
 def check_firmware_names(design) -> None:
@@ -123,20 +127,33 @@ def _model(args, *, joints: str = "locked"):
 
 
 def cmd_modes(args) -> dict:
+    """``smartjoint modes``: the lowest modes, their effective masses along x, y, z and, with
+    measured data, the EMA comparison (by number) and the MAC pairing (with EMA shapes)."""
     from smartjoint.design import solve_modes
+    from smartjoint.design.structure.correlation import correlate, measurement_matrix
+    from smartjoint.design.structure.participation import DIRECTIONS, effective_modal_mass
+    from smartjoint.design.structure.updating import PAIRING_MARGIN
 
     model, result = _model(args)
     modes = solve_modes(model, min(args.count, model.n_dof))
+    participation = effective_modal_mass(model, modes.shapes)
     out = {
         "design": model.design.name,
         "n_dof": model.n_dof,
         "updated": result is not None,
-        "modes": [{"index": i + 1, "frequency_hz": float(f)} for i, f in enumerate(modes.frequencies_hz)],
+        "modes": [
+            {"index": i + 1, "frequency_hz": float(f), **_mode_participation(participation, i)}
+            for i, f in enumerate(modes.frequencies_hz)
+        ],
+        "free_mass_kg": dict(zip(DIRECTIONS, participation.free_mass.tolist())),
     }
     spec = model.design.updating
     if spec is not None:
         n = max(m.mode for m in spec.measured)
-        frequencies = modes.frequencies_hz if n <= len(modes) else solve_modes(model, n).frequencies_hz
+        if spec.has_shapes:
+            n = min(model.n_dof, n + PAIRING_MARGIN)
+        solved = modes if n <= len(modes) else solve_modes(model, n)
+        frequencies = solved.frequencies_hz
         out["ema_comparison"] = [
             {
                 "index": m.mode,
@@ -146,16 +163,48 @@ def cmd_modes(args) -> dict:
             }
             for m in spec.measured
         ]
+        if spec.has_shapes:
+            restricted = measurement_matrix(model, spec.measured_dofs) @ solved.shapes[:, :n]
+            out["mac"] = correlate(spec, restricted, frequencies[:n]).as_dict()
     if not args.json:
-        print(f"{model.design.name}: {model.n_dof} DOFs ({'updated' if result else 'as designed'})")
-        print(" mode  frequency [Hz]")
-        for m in out["modes"]:
-            print(f"{m['index']:5d}  {m['frequency_hz']:12.4f}")
-        if "ema_comparison" in out:
-            print("\n mode   EMA [Hz]   FEM [Hz]  error [%]")
-            for c in out["ema_comparison"]:
-                print(f"{c['index']:5d} {c['ema_hz']:10.3f} {c['fem_hz']:10.3f} {c['error_pct']:+10.2f}")
+        _print_modes(model, result, out)
     return out
+
+
+def _mode_participation(participation, i: int) -> dict:
+    """The JSON of mode i's participation factors, effective masses and cumulative mass fractions."""
+    from smartjoint.design.structure.participation import DIRECTIONS
+
+    return {
+        "participation_factor": dict(zip(DIRECTIONS, participation.participation[i].tolist())),
+        "effective_mass_kg": dict(zip(DIRECTIONS, participation.effective_mass[i].tolist())),
+        "cumulative_effective_mass_fraction": dict(zip(DIRECTIONS, participation.cumulative_fraction[i].tolist())),
+    }
+
+
+def _print_modes(model, result, out: dict) -> None:
+    """The text of ``smartjoint modes``: the table of modes, the EMA comparison, the MAC pairing."""
+    from smartjoint.design.structure.participation import DIRECTIONS
+
+    print(f"{model.design.name}: {model.n_dof} DOFs ({'updated' if result else 'as designed'})")
+    print(" mode  frequency [Hz]   effective mass x / y / z [kg]   cumulative x / y / z [%]")
+    for m in out["modes"]:
+        mass = " ".join(f"{m['effective_mass_kg'][d]:9.3f}" for d in DIRECTIONS)
+        share = " ".join(f"{100 * m['cumulative_effective_mass_fraction'][d]:6.1f}" for d in DIRECTIONS)
+        print(f"{m['index']:5d}  {m['frequency_hz']:12.4f}   {mass}   {share}")
+    free = ", ".join(f"{d} {out['free_mass_kg'][d]:.2f}" for d in DIRECTIONS)
+    print(f"free mass (moves with the supports) [kg]: {free}")
+    if "ema_comparison" in out:
+        print("\n mode   EMA [Hz]   FEM [Hz]  error [%]")
+        for c in out["ema_comparison"]:
+            print(f"{c['index']:5d} {c['ema_hz']:10.3f} {c['fem_hz']:10.3f} {c['error_pct']:+10.2f}")
+    if "mac" in out:
+        print("\n EMA mode  FE mode (MAC pair)    MAC")
+        for p in out["mac"]["pairing"]:
+            swap = "  swap" if p["fe_mode"] != p["measured_mode"] else ""
+            print(f"{p['measured_mode']:9d} {p['fe_mode']:8d} {p['mac']:19.3f}{swap}")
+        for swap in out["mac"]["swaps"]:
+            report_progress(f"warning: {swap}")
 
 
 def cmd_update(args) -> dict:
@@ -164,9 +213,12 @@ def cmd_update(args) -> dict:
         raise SmartjointError(f"{model.design.source}: the design has no [updating] section")
     out = result.as_dict()
     if not args.json:
-        from smartjoint.report import updating_table
+        from smartjoint.report import correlation_table, updating_table
 
         print(updating_table(result))
+        if result.correlation is not None:
+            print("\nMAC pairing (EMA shapes):\n")
+            print(correlation_table(result))
     return out
 
 

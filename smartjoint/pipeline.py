@@ -187,7 +187,9 @@ def _structure_stages(r: _Results, design_path: str | None, progress) -> None:
             f"{len(design.updating.measured)} measured modes"
         )
         design, result = updated_design(
-            design, lambda k, n, err: progress(f"      start {k}/{n}: worst error {err:.2f} %")
+            design,
+            lambda k, n, err: progress(f"      start {k}/{n}: worst error {err:.2f} %"),
+            lambda message: progress(f"      warning: {message}"),
         )
         model = build_model(design, joints="locked")
     else:
@@ -286,6 +288,8 @@ def _write_report_files(r: _Results, staging: Path) -> None:
     plots.plot_spectrum(r.modes, measured, staging / "spectrum.png", updated=r.result is not None)
     if r.result is not None:
         plots.plot_updating(r.result, staging / "updating.png")
+        if r.result.correlation is not None:  # EMA shapes: the MAC matrix of Fig. 7
+            plots.plot_mac(r.result.correlation, staging / "mac.png")
     if r.skipped:
         return
     r.hysteresis = [p.name for f in r.friction for p in plots.plot_hysteresis(f.identification, staging)]
@@ -422,6 +426,8 @@ def _markdown(design, model, modes, released, result, summary) -> str:
             plots.sensitivity_table(result),
             "",
         ]
+        if result.correlation is not None:
+            lines += ["MAC pairing of the EMA shapes:", "", plots.correlation_table(result), "", "![MAC](mac.png)", ""]
     else:
         lines += ["The design carries no measured frequencies; the nominal model is used.", ""]
     lines += [

@@ -10,6 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from smartjoint.common import figures  # noqa: E402
+from smartjoint.design.structure.correlation import ModeCorrelation  # noqa: E402
 from smartjoint.design.structure.fem import FEModel  # noqa: E402
 from smartjoint.design.structure.modal import Modes  # noqa: E402
 from smartjoint.design.structure.updating import UpdatingResult  # noqa: E402
@@ -41,6 +43,78 @@ def updating_table(result: UpdatingResult) -> str:
     return "\n".join(lines)
 
 
+def correlation_table(result: UpdatingResult) -> str:
+    """Markdown: the MAC pairing of every measured mode before and after updating (EMA shapes).
+
+    Parameters
+    ----------
+    result : UpdatingResult
+        An updating result with ``correlation`` (the design carries EMA shapes).
+
+    Returns
+    -------
+    str
+        One row per measured mode: its number, the paired FE mode and MAC, nominal and updated.
+    """
+    updated, initial = result.correlation, result.initial_correlation
+    assert updated is not None and initial is not None
+    lines = [
+        "| EMA mode | EMA [Hz] | FE mode, nominal | MAC, nominal | FE mode, updated | FE updated [Hz] | MAC, updated |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for i, number in enumerate(updated.measured_modes):
+        mark = "" if updated.fe_modes[i] == number else " (swap)"
+        lines.append(
+            f"| {number} | {updated.measured_hz[i]:.2f} | {initial.fe_modes[i]} | {initial.diagonal[i]:.3f} | "
+            f"{updated.fe_modes[i]}{mark} | {updated.paired_hz[i]:.3f} | {updated.diagonal[i]:.3f} |"
+        )
+    swaps = updated.swaps or ["none: every measured mode pairs with the FE mode of its number"]
+    lines += ["", "Swaps: " + "; ".join(swaps) + f". Pairing changes during the fit: {result.pairing_changes}."]
+    return "\n".join(lines)
+
+
+def plot_mac(correlation: ModeCorrelation, path: Path) -> None:
+    """The MAC matrix of the measured against the FE modes as an image with its values (paper Fig. 7).
+
+    Parameters
+    ----------
+    correlation : ModeCorrelation
+        The MAC matrix and pairing (`UpdatingResult.correlation`).
+    path : Path
+        The PNG written.
+    """
+    mac = correlation.mac
+    n_measured, n_fe = mac.shape
+    fig, ax = plt.subplots(figsize=(1.0 + 0.5 * n_fe, 1.2 + 0.5 * n_measured))
+    image = ax.imshow(mac, vmin=0.0, vmax=1.0, cmap="Blues", aspect="equal")
+    for i in range(n_measured):
+        for j in range(n_fe):
+            paired = correlation.fe_modes[i] == j + 1
+            ax.text(
+                j,
+                i,
+                f"{mac[i, j]:.2f}",
+                ha="center",
+                va="center",
+                fontsize=7,
+                fontweight="bold" if paired else "normal",
+                color="white" if mac[i, j] > 0.6 else "black",
+            )
+    ax.set_xticks(range(n_fe), [str(j + 1) for j in range(n_fe)], fontsize=8)
+    ax.set_yticks(
+        range(n_measured),
+        [f"{m} ({f:.2f} Hz)" for m, f in zip(correlation.measured_modes, correlation.measured_hz)],
+        fontsize=8,
+    )
+    ax.set_xlabel("FE mode")
+    ax.set_ylabel("EMA mode")
+    ax.set_title("MAC, EMA against the updated FE model (paired in bold)", fontsize=10)
+    fig.colorbar(image, ax=ax, fraction=0.03, pad=0.02)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def sensitivity_table(result: UpdatingResult) -> str:
     """Normalised sensitivities ∂ln f_i / ∂ln p_k at the updated parameters."""
     short = [name.split(".", 1)[1] for name in result.parameter_names]
@@ -68,9 +142,7 @@ def plot_updating(result: UpdatingResult, path: Path) -> None:
     bottom.set_xlabel("mode number")
     bottom.legend(loc="upper right")
     fig.suptitle("Model updating to the measured eigenfrequencies")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
 
 
 def member_polylines(model: FEModel) -> dict[str, list[int]]:
@@ -109,9 +181,7 @@ def plot_mode_shapes(model: FEModel, modes: Modes, path: Path, count: int = 6) -
         ax.set_box_aspect(np.ptp(np.vstack([points, deformed]), axis=0) + 1e-9)
         ax.view_init(elev=22, azim=-58)
         ax.set_axis_off()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    figures.save(fig, path, dpi=100)
 
 
 def plot_spectrum(modes: Modes, measured: list[tuple[int, float]], path: Path, updated: bool = True) -> None:
@@ -136,9 +206,7 @@ def plot_spectrum(modes: Modes, measured: list[tuple[int, float]], path: Path, u
     ax.set_ylabel("frequency [Hz]")
     ax.grid(alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
 
 
 def _interval(lower: float, upper: float) -> str:
@@ -188,9 +256,7 @@ def plot_hysteresis(result, folder: Path) -> list[Path]:
         ax.set_ylabel("friction force u_R")
         ax.set_title(f"{name}: NRMSE {({**result.micro.nrmse, **result.stick.nrmse})[name]:.3f}", fontsize=9)
         ax.legend()
-        fig.tight_layout()
         path = folder / f"hysteresis_{name}.png"
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        figures.save(fig, path, dpi=100)
         paths.append(path)
     return paths

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from smartjoint.common import figures
 from smartjoint.design.control import study as closed_loop
 from smartjoint.report_reduction import save_figure
 
@@ -34,11 +35,7 @@ def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
         control_energy.png (Figs. 12–13), control_tip.png (Fig. 14), control_normal_force.png,
         and siso_boundary_layer.png when ε was optimised.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     folder = Path(folder)
     written = [
         _plot_energy(plt, study, folder),
@@ -78,9 +75,7 @@ def _plot_tip(plt, study: closed_loop.Study, folder: Path) -> Path:
         ax.set_ylabel(f"{sensor} [mm]")
         ax.set_title(f"Tip deflection {sensor} (Fig. 14)")
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(folder / "control_tip.png", dpi=110)
-    plt.close(fig)
+    figures.save(fig, folder / "control_tip.png", dpi=110)
     return folder / "control_tip.png"
 
 

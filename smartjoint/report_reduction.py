@@ -2,21 +2,18 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+from smartjoint.common import figures
 from smartjoint.design.reduction import hankel_values, study_summary
 from smartjoint.design.structure import modal
 
 
 def plot_study(study: dict, folder) -> list:
     """hankel.png (Fig. 9), friction_moment.png (Fig. 10), energy.png."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from pathlib import Path
-
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     folder = Path(folder)
     written = []
     first = study["first"]
@@ -95,15 +92,11 @@ def save_figure(fig, ax, path, xlabel: str, ylabel: str, title: str):
     path-like
         ``path``.
     """
-    import matplotlib.pyplot as plt
-
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    figures.save(fig, path, dpi=110)
     return path
 
 

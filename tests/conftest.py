@@ -1,5 +1,6 @@
-"""Shared helpers: small design dictionaries built in code (validated by parse_design), and the
-portability leg's ``--perturb-inputs`` option (see tests/perturbation/sitecustomize.py)."""
+"""Shared helpers: small design dictionaries built in code (validated by parse_design), commands
+and the command line run in a fresh process, a quiet joint frame, and the portability leg's
+``--perturb-inputs`` option (see tests/perturbation/sitecustomize.py)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import copy
 import importlib.util
 import math
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -140,3 +143,40 @@ def three_type_a():
 
     design, _ = updated_design(load_design(spec.REFERENCE_DESIGN.parent / "three_type_a.toml"))
     return design, study.design_model(design, lambda message: None)
+
+
+def run(*command, **options) -> subprocess.CompletedProcess:
+    """Run ``command`` (compiler, checker, tool) to its end, stdout and stderr captured as text."""
+    return subprocess.run([str(part) for part in command], capture_output=True, text=True, **options)
+
+
+def run_cli(*args, **options) -> subprocess.CompletedProcess:
+    """``python -m smartjoint.cli ARGS`` in a fresh process of this interpreter, output captured as text."""
+    return run(sys.executable, "-m", "smartjoint.cli", *args, **options)
+
+
+def cli_error(*args, **options) -> str:
+    """Run the command line where it must refuse: exit 2, one line on stderr and no traceback; that line."""
+    done = run_cli(*args, **options)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, (done.returncode, done.stderr)
+    return lines[0]
+
+
+def design_file_error(path: Path, text: str) -> str:
+    """Write ``text`` to the design file ``path``; the message of the DesignError load_design refuses it with."""
+    from smartjoint.common.errors import DesignError
+    from smartjoint.design import load_design
+
+    path.write_text(text)
+    with pytest.raises(DesignError) as refused:
+        load_design(path)
+    return str(refused.value)
+
+
+def quiet_joint_frame(message, counter: int) -> bytearray:
+    """A JOINT frame of ``message`` at rest (no sliding, no friction, F_N = 100 N), E2E-protected with ``counter``."""
+    from smartjoint.bench import e2e
+
+    signals = {"crc": 0, "counter": 0, "sync": 0, "sliding_velocity": 0.0, "friction_force": 0.0, "normal_force": 100.0}
+    return e2e.protect(message.frame_id, bytearray(message.encode(signals)), counter)

@@ -6,20 +6,19 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import subprocess
 import sys
 import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import cli_error, quiet_joint_frame, run, run_cli
 
 from smartjoint.bench import e2e, firmware, logs, sil
 from smartjoint.bench.faults import Fault, check_faults, parse_fault
 from smartjoint.bench.loop import SilLoop, open_bus
 from smartjoint.bench.replay import replay
 from smartjoint.common.errors import ModelError
-from smartjoint.design import plant
 from smartjoint.design.control import artifact
 from smartjoint.design.control import study as closed_loop
 
@@ -92,22 +91,7 @@ def test_pack_and_unpack_are_bit_exact_with_cantools(image, kind):
 def test_receive_checks_identifier_length_crc_and_counter(reference):
     fw = firmware.Firmware(reference, "siso", "float")
     m = fw.db.get_message_by_name("JOINT_A1")
-    good = e2e.protect(
-        m.frame_id,
-        bytearray(
-            m.encode(
-                {
-                    "crc": 0,
-                    "counter": 0,
-                    "sync": 0,
-                    "sliding_velocity": 0.0,
-                    "friction_force": 0.0,
-                    "normal_force": 100.0,
-                }
-            )
-        ),
-        0,
-    )
+    good = quiet_joint_frame(m, 0)
     assert fw.rx(m.frame_id, bytes(good), 0) == 0
     assert fw.rx(0x7FF, bytes(8), 0) == 16  # unknown identifier
     assert fw.rx(m.frame_id, bytes(good[:8]), 0) == 1  # wrong length
@@ -137,20 +121,7 @@ def _run(bench, law, faults=(), log_path=None):
     loop = SilLoop(
         firmware.Firmware(reference, law, "float"), closed_loop.PULSE_DURATION, faults=faults, log_path=log_path
     )
-    try:
-        result = plant.simulate(
-            setup.plant,
-            setup.laws,
-            loop,
-            setup.pulse(),
-            setup.duration,
-            setup.plant_step,
-            record_every=closed_loop.PLANT_STEPS_PER_SAMPLE,
-            energy_books=False,
-        )
-    finally:
-        loop.close()
-    return loop, result
+    return loop, sil.run_loop(setup, loop)
 
 
 # One of each family with the plant in the loop (every kind on every frame runs without the
@@ -225,11 +196,7 @@ def test_blf_and_asc_of_one_run_decode_to_the_same_signals(bench, tmp_path):
     with can.Logger(str(tmp_path / "direct.asc")) as writer:
         for message in messages:
             writer.on_message_received(message)
-    done = subprocess.run(
-        [sys.executable, "-m", "can.logconvert", str(tmp_path / "run.blf"), str(tmp_path / "converted.asc")],
-        capture_output=True,
-        text=True,
-    )
+    done = run(sys.executable, "-m", "can.logconvert", tmp_path / "run.blf", tmp_path / "converted.asc")
     assert done.returncode == 0, done.stderr
     db = loop.db
     blf = logs.decode(messages, db)
@@ -249,59 +216,17 @@ def test_damaged_logs_and_unknown_interfaces_get_clear_messages(bench, tmp_path)
     assert len(messages) < len(full) and problem.startswith("truncated")
     (tmp_path / "garbage.blf").write_bytes(data[:1000] + b"\0garbage" * 100 + data[2000:])
     assert logs.read(tmp_path / "garbage.blf")[1] is not None
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "bench",
-            "decode",
-            str(tmp_path / "cut.blf"),
-            "--artifact",
-            str(REFERENCE),
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
-    )
+    done = run_cli("bench", "decode", tmp_path / "cut.blf", "--artifact", REFERENCE, "--json")
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     assert out["frames"] == len(messages) and "ends early" in done.stderr and out["log_problem"].startswith("truncated")
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "bench",
-            "decode",
-            str(tmp_path / "missing.blf"),
-            "--artifact",
-            str(REFERENCE),
-        ],
-        capture_output=True,
-        text=True,
-    )
-    assert done.returncode == 2 and "not found" in done.stderr
+    assert "not found" in cli_error("bench", "decode", tmp_path / "missing.blf", "--artifact", REFERENCE)
     with pytest.raises(ModelError, match="bench interface 'nope'.*python-can knows"):
         open_bus("nope", "x")
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "bench",
-            "log",
-            "--interface",
-            "nope",
-            "-o",
-            str(tmp_path / "x.blf"),
-            "--duration",
-            "0.1",
-        ],
-        capture_output=True,
-        text=True,
+    assert "python-can knows" in cli_error(
+        "bench", "log", "--interface", "nope", "-o", tmp_path / "x.blf", "--duration", "0.1"
     )
-    assert done.returncode == 2 and "python-can knows" in done.stderr and not (tmp_path / "x.blf").exists()
+    assert not (tmp_path / "x.blf").exists()
 
 
 def test_decode_skips_and_counts_malformed_frames(reference):
@@ -374,10 +299,8 @@ def test_bench_log_records_a_live_bus_that_reopens_and_converts(reference, tmp_p
     assert [round(r[3], 6) for r in decoded.rows if r[2] == "voltage"] == [round(v, 6) for v in sent]
     other = ".asc" if suffix == ".blf" else ".blf"
     converted = tmp_path / f"converted{other}"
-    run = subprocess.run(
-        [sys.executable, "-m", "can.logconvert", str(path), str(converted)], capture_output=True, text=True
-    )
-    assert run.returncode == 0, run.stderr
+    done = run(sys.executable, "-m", "can.logconvert", path, converted)
+    assert done.returncode == 0, done.stderr
     assert [r[1:] for r in logs.decode(logs.read(converted)[0], db).rows] == [r[1:] for r in decoded.rows]
 
 

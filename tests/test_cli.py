@@ -8,23 +8,20 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import cli_error, run_cli
 
 from smartjoint.cli import main
 
 
-def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "smartjoint.cli", *args], capture_output=True, text=True)
-
-
 def test_help_lists_commands():
-    done = _cli("--help")
+    done = run_cli("--help")
     assert done.returncode == 0
     for command in ("run", "modes", "update", "export-model"):
         assert command in done.stdout
 
 
 def test_modes_json_has_the_documented_shape():
-    done = _cli("modes", "--no-update", "-n", "5", "--json")
+    done = run_cli("modes", "--no-update", "-n", "5", "--json")
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     assert [m["index"] for m in out["modes"]] == [1, 2, 3, 4, 5]
@@ -41,7 +38,7 @@ def test_modes_json_has_the_documented_shape():
 
 
 def test_missing_design_file_is_one_line(tmp_path):
-    done = _cli("modes", str(tmp_path / "nope.toml"))
+    done = run_cli("modes", tmp_path / "nope.toml")
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "cannot read design file" in done.stderr
 
@@ -213,14 +210,6 @@ def test_a_sensor_name_the_firmware_cannot_carry_is_refused_before_any_work(tmp_
     data["sensors"][0]["name"] = name
     design = tmp_path / "small.toml"
     design.write_text(tomli_w.dumps(data))
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", command[0], str(design), *command[1:]],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        timeout=60,
-    )
-    assert done.returncode == 2, done.stderr
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and f"sensors[0].name: {name!r}" in lines[0], lines
+    line = cli_error(command[0], design, *command[1:], cwd=tmp_path, timeout=60)
+    assert f"sensors[0].name: {name!r}" in line, line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.toml"]

@@ -8,11 +8,11 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run, run_cli
 
 from smartjoint.bench import sil
 from smartjoint.codegen import build, controllers, generate, output
@@ -333,26 +333,9 @@ def test_sanitizers_report_nothing_on_the_back_to_back_run(reference, tmp_path):
     folder = tmp_path / "gen"
     output.write(generate.render(reference, "double"), folder)
     exe = tmp_path / "replay"
-    done = subprocess.run(
-        [
-            "cc",
-            *build.FLAGS,
-            "-O1",
-            "-g",
-            "-fsanitize=address,undefined",
-            "-fno-sanitize-recover=all",
-            "-I",
-            str(folder),
-            str(ROOT / "firmware" / "runtime" / "replay.c"),
-            str(folder / "smartjoint_siso.c"),
-            str(folder / "smartjoint_clqg.c"),
-            "-o",
-            str(exe),
-            "-lm",
-        ],
-        capture_output=True,
-        text=True,
-    )
+    sanitizers = ("-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all")
+    sources = (ROOT / "firmware" / "runtime" / "replay.c", folder / "smartjoint_siso.c", folder / "smartjoint_clqg.c")
+    done = run("cc", *build.FLAGS, *sanitizers, "-I", folder, *sources, "-o", exe, "-lm")
     assert done.returncode == 0, done.stderr
     sequence = _sequence(reference, count=1500)
     l = len(reference.joint_names)
@@ -362,10 +345,10 @@ def test_sanitizers_report_nothing_on_the_back_to_back_run(reference, tmp_path):
     ):
         rows = np.array([np.concatenate([getattr(m, f) for f in fields]) for m in sequence])
         payload = np.array([law, len(sequence)], dtype=np.int32).tobytes() + rows.astype(np.float64).tobytes()
-        run = subprocess.run([str(exe)], input=payload, capture_output=True)
-        assert run.returncode == 0 and run.stderr == b"", run.stderr.decode()[-2000:]
+        replayed = subprocess.run([str(exe)], input=payload, capture_output=True)
+        assert replayed.returncode == 0 and replayed.stderr == b"", replayed.stderr.decode()[-2000:]
         record = np.dtype([("out", np.float64, width), ("status", np.uint32)], align=False)
-        got = np.frombuffer(run.stdout, dtype=record)
+        got = np.frombuffer(replayed.stdout, dtype=record)
         python.reset()
         expected = np.array([python.step(m) for m in sequence])
         assert got["out"][:, :l].tobytes() == expected.tobytes()
@@ -378,20 +361,8 @@ def test_cppcheck_reports_nothing(reference, tmp_path, real):
 
     files = {**generate.render(reference, real), **can_layer.render_can(reference, real=real)}
     output.write({k: v for k, v in files.items() if not k.endswith(".dbc")}, tmp_path)
-    done = subprocess.run(
-        [
-            "cppcheck",
-            "--enable=all",
-            "--std=c99",
-            "--error-exitcode=1",
-            "--inline-suppr",
-            "--suppress=missingIncludeSystem",
-            "--quiet",
-            str(tmp_path),
-        ],
-        capture_output=True,
-        text=True,
-    )
+    checks = ("--enable=all", "--std=c99", "--error-exitcode=1", "--inline-suppr", "--suppress=missingIncludeSystem")
+    done = run("cppcheck", *checks, "--quiet", tmp_path)
     assert done.returncode == 0 and done.stdout.strip() == "" and done.stderr.strip() == "", done.stderr
 
 
@@ -399,37 +370,19 @@ def test_cppcheck_reports_nothing(reference, tmp_path, real):
     shutil.which("arm-none-eabi-gcc") is None, reason="ARM cross compiler not installed (CI installs it)"
 )
 def test_cortex_m4f_float_build_compiles_clean(tmp_path):
+    target = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard")
+    flags = ("-O2", *[f for f in build.FLAGS if f != "-O2"])
     for name in ("smartjoint_siso.c", "smartjoint_clqg.c", "smartjoint_can.c", "sj_e2e.c"):
-        done = subprocess.run(
-            [
-                "arm-none-eabi-gcc",
-                "-mcpu=cortex-m4",
-                "-mthumb",
-                "-mfpu=fpv4-sp-d16",
-                "-mfloat-abi=hard",
-                "-O2",
-                *[f for f in build.FLAGS if f != "-O2"],
-                "-c",
-                str(REFERENCE / name),
-                "-o",
-                str(tmp_path / (name + ".o")),
-            ],
-            capture_output=True,
-            text=True,
-        )
+        done = run("arm-none-eabi-gcc", *target, *flags, "-c", REFERENCE / name, "-o", tmp_path / (name + ".o"))
         assert done.returncode == 0, done.stderr
 
 
 def test_example_builds_and_runs(reference, tmp_path):
     output.write(generate.render(reference, "float"), tmp_path)
-    done = subprocess.run(["make", "-s", "-C", str(tmp_path)], capture_output=True, text=True)
+    done = run("make", "-s", "-C", tmp_path)
     assert done.returncode == 0, done.stderr
-    run = subprocess.run([str(tmp_path / "example")], capture_output=True, text=True)
-    assert run.returncode == 0 and "status 0" in run.stdout
-
-
-def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "smartjoint.cli", *args], capture_output=True, text=True)
+    example = run(tmp_path / "example")
+    assert example.returncode == 0 and "status 0" in example.stdout
 
 
 def test_bad_artefacts_and_options_write_nothing(reference, tmp_path):
@@ -444,11 +397,11 @@ def test_bad_artefacts_and_options_write_nothing(reference, tmp_path):
         source = tmp_path / f"{field}.json"
         source.write_text(json.dumps(data).replace("NaN", "NaN"))
         out = tmp_path / f"out-{field}"
-        done = _cli("codegen", str(source), "-o", str(out))
+        done = run_cli("codegen", str(source), "-o", str(out))
         assert done.returncode == 2 and field in done.stderr, (field, done.stderr)
         assert not out.exists(), field
-    done = _cli("codegen", str(REFERENCE / "controller.json"), "-o", str(tmp_path / "p"), "--prefix", "Bad-Name")
+    done = run_cli("codegen", REFERENCE / "controller.json", "-o", tmp_path / "p", "--prefix", "Bad-Name")
     assert done.returncode == 2 and "--prefix" in done.stderr and not (tmp_path / "p").exists()
-    done = _cli("codegen", str(REFERENCE / "controller.json"), "-o", str(tmp_path / "ok"), "--real", "double", "--json")
+    done = run_cli("codegen", REFERENCE / "controller.json", "-o", tmp_path / "ok", "--real", "double", "--json")
     assert done.returncode == 0, done.stderr
     assert len(json.loads(done.stdout)["files"]) == 13  # controllers, example, build files, CAN layer, E2E, DBC

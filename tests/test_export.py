@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 import scipy.linalg
-from conftest import small_truss
+from conftest import run_cli, small_truss
 
 from smartjoint.design import build_model, parse_design
 from smartjoint.design.structure import beam
@@ -93,11 +91,7 @@ def test_export_rebuilds_the_same_frequencies():
 
 def test_export_model_command(tmp_path):
     target = tmp_path / "model.json"
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "export-model", "--no-update", "-o", str(target), "--json"],
-        capture_output=True,
-        text=True,
-    )
+    done = run_cli("export-model", "--no-update", "-o", target, "--json")
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     document = json.loads(target.read_text())

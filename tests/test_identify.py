@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from smartjoint.design.friction import lugre, rig, rig_integration
 from smartjoint.design.friction.fitting import nrmse
@@ -57,33 +56,13 @@ def test_rig_kernel_matches_the_python_reference(joint_type):
         rig_integration.integrate(p, np.ones(5), 1.0, np.zeros(fine.size), time, rig_integration.SUBSTEPS)
 
 
+# One micro-slip test of the rig: F_N = 400 N, a 150 N excitation at 10 Hz, one cycle.
+MICRO_SLIP = ("--normal-force", "400", "--amplitude", "150", "--frequency", "10", "--cycles", "1")
+
+
 def test_rig_command_writes_a_readable_record(tmp_path):
     target = tmp_path / "r.csv"
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "rig",
-            "--type",
-            "A",
-            "--normal-force",
-            "400",
-            "--amplitude",
-            "150",
-            "--frequency",
-            "10",
-            "--cycles",
-            "1",
-            "--noise",
-            "0.01",
-            "-o",
-            str(target),
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
-    )
+    done = run_cli("rig", "--type", "A", *MICRO_SLIP, "--noise", "0.01", "-o", str(target), "--json")
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["records"][0]["regime"] == "micro-slip"
@@ -95,29 +74,8 @@ def test_rig_command_writes_a_readable_record(tmp_path):
 
 def test_identify_refuses_missing_regime(tmp_path):
     target = tmp_path / "micro.csv"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "rig",
-            "--normal-force",
-            "400",
-            "--amplitude",
-            "150",
-            "--frequency",
-            "10",
-            "--cycles",
-            "1",
-            "-o",
-            str(target),
-        ],
-        check=True,
-        capture_output=True,
-    )
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "identify", str(target)], capture_output=True, text=True
-    )
+    run_cli("rig", *MICRO_SLIP, "-o", str(target), check=True)
+    done = run_cli("identify", str(target))
     assert done.returncode == 2 and "no stick-slip records" in done.stderr
 
 

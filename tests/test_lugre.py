@@ -43,24 +43,25 @@ def test_analytic_jacobian_matches_finite_differences():
     np.testing.assert_allclose(d_v, (lugre.rhs(P, v + h_v, phi) - lugre.rhs(P, v - h_v, phi)) / (2 * h_v), rtol=1e-5)
 
 
-def _mass_on_ground(force, t_end, p=P, mass=1.0):
-    """Unit mass with LuGre friction under an external force F(t): states x, v, φ."""
+def _mass_with_friction(force, t_end, *, mass=1.0, spring=0.0, rtol, atol, max_step):
+    """A mass with LuGre friction, states x, v, φ from rest, under the external force F(t, x);
+    ``spring`` is −∂F/∂x, for the analytic Jacobian. Radau with dense output."""
 
     def f(t, s):
         x, v, phi = s
-        friction = lugre.friction_coefficient(p, v, phi)
-        return [v, (force(t) - friction) / mass, lugre.rhs(p, v, phi)]
+        friction = lugre.friction_coefficient(P, v, phi)
+        return [v, (force(t, x) - friction) / mass, lugre.rhs(P, v, phi)]
 
     return solve_ivp(
         f,
         (0, t_end),
         [0.0, 0.0, 0.0],
         method="Radau",
-        rtol=1e-10,
-        atol=1e-13,
-        max_step=1e-2,
+        rtol=rtol,
+        atol=atol,
+        max_step=max_step,
         dense_output=True,
-        jac=lambda t, s: _jacobian(s, mass),
+        jac=lambda t, s: _jacobian(s, mass, spring),
     )
 
 
@@ -77,7 +78,9 @@ def test_presliding_under_force_below_breakaway_is_bounded_and_returns():
     # Force cycles 0 → 0.9 F_s → 0 → −0.9 F_s → 0, slowly: presliding only, no gross sliding.
     period = 2.0
     amplitude = 0.9 * 1.5
-    solution = _mass_on_ground(lambda t: amplitude * np.sin(2 * np.pi * t / period), 4 * period)
+    solution = _mass_with_friction(
+        lambda t, x: amplitude * np.sin(2 * np.pi * t / period), 4 * period, rtol=1e-10, atol=1e-13, max_step=1e-2
+    )
     t = np.linspace(0, 4 * period, 4001)
     x = solution.sol(t)[0]
     assert np.max(np.abs(x)) < 3 * P.max_deflection  # tens of micrometres: bristles, not sliding
@@ -95,21 +98,9 @@ def test_stick_slip_of_a_mass_pulled_through_a_spring_is_periodic():
     # Canudas de Wit et al. (1995): m = 1 kg, k = 2 N/m, pulled at 0.1 m/s.
     k, pull = 2.0, 0.1
 
-    def f(t, s):
-        x, v, phi = s
-        return [v, k * (pull * t - x) - lugre.friction_coefficient(P, v, phi), lugre.rhs(P, v, phi)]
-
     t_end = 40.0
-    solution = solve_ivp(
-        f,
-        (0, t_end),
-        [0.0, 0.0, 0.0],
-        method="Radau",
-        rtol=1e-9,
-        atol=1e-12,
-        max_step=5e-3,
-        dense_output=True,
-        jac=lambda t, s: _jacobian(s, 1.0, k),
+    solution = _mass_with_friction(
+        lambda t, x: k * (pull * t - x), t_end, spring=k, rtol=1e-9, atol=1e-12, max_step=5e-3
     )
     t = np.linspace(10.0, t_end, 60001)
     v = solution.sol(t)[1]

@@ -120,7 +120,7 @@ from smartjoint.design.friction import rig_integration
 from smartjoint.design.structure import spec
 found = {"package": smartjoint.__file__,
          "files": [str(p) for _, p in package_data.all_files()],
-         "constants": [str(p) for p in (spec.REFERENCE_DESIGN, pipeline.FIG10_DESIGN, pipeline.CONTROL_DESIGN,
+         "constants": [str(p) for p in (spec.REFERENCE_DESIGN, pipeline.__file__,
                                         rendering.TEMPLATES, can_layer.RUNTIME, e2e.RUNTIME)]}
 # Open them the way the commands do: the templates, the runtime copied into the CAN layer, the
 # E2E twin and the rig kernel compiled, the bundled design loaded.

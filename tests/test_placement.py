@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from conftest import cli_error, run_cli
 
 # `fem` is the design package: its folder holds data/ (the bundled designs), and it exports build_model.
 from smartjoint import design as fem
@@ -49,28 +50,9 @@ def test_bad_targets_are_named(reference):
 
 def test_place_command_writes_a_loadable_design_with_the_ranked_joints(tmp_path):
     import json
-    import subprocess
-    import sys
 
     target = tmp_path / "placed" / "three.toml"
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "place",
-            "--no-update",
-            "--modes",
-            "1,2",
-            "--count",
-            "3",
-            "-o",
-            str(target),
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
-    )
+    done = run_cli("place", "--no-update", "--modes", "1,2", "--count", "3", "-o", str(target), "--json")
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     placed = spec.load_design(target)
@@ -92,11 +74,5 @@ def test_place_command_writes_a_loadable_design_with_the_ranked_joints(tmp_path)
         (a["member"], b["member"]) for a, b in zip(ranking, ranking[1:]) if placement.tied(a["score"], b["score"])
     ]
     assert ("L1_0", "L1_2") in mirrors and ("L1_1", "L1_3") in mirrors  # the rule is exercised, not vacuous
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "place", str(target), "--no-update"], capture_output=True, text=True
-    )
-    assert done.returncode == 2 and "already has joints" in done.stderr
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "place", "--no-update", "--modes", "x"], capture_output=True, text=True
-    )
-    assert done.returncode == 2 and "--modes" in done.stderr
+    assert "already has joints" in cli_error("place", str(target), "--no-update")
+    assert "--modes" in cli_error("place", "--no-update", "--modes", "x")

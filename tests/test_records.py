@@ -162,17 +162,14 @@ def test_binary_and_latin_1_records_are_one_line_errors(tmp_path, capsys):
 
 def test_bad_record_through_the_installed_command_has_no_traceback(tmp_path):
     """The same refusal in a fresh process: exit 2, one line, no traceback."""
-    import subprocess
-    import sys
+    from conftest import run_cli
 
     lines = _rig_record(tmp_path)
     header = next(k for k, line in enumerate(lines) if not line.startswith("#"))
     lines, line_number = _row(lines, header, 3, "normal_force", "1e308")
     path = tmp_path / "huge.csv"
     path.write_text("\n".join(lines) + "\n")
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "identify", str(path)], capture_output=True, text=True
-    )
+    done = run_cli("identify", path)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.strip() == (
         f"smartjoint identify: error: {path}: row {line_number}, column 'normal_force': "

@@ -10,6 +10,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from conftest import quiet_joint_frame
 
 from smartjoint import cli
 from smartjoint.bench import e2e, firmware, logs
@@ -115,10 +116,11 @@ def _write(messages, path):
     return path
 
 
-def _main(argv, capsys):
-    """Exit code and stderr of the CLI (main returns, or raises SystemExit for exit 1)."""
+def _bench(capsys, command, log, *options):
+    """Exit code and captured output of ``smartjoint bench COMMAND LOG --artifact <reference> OPTIONS``
+    in this process (main returns, or raises SystemExit for exit 1)."""
     try:
-        code = cli.main(argv)
+        code = cli.main(["bench", command, str(log), "--artifact", str(REFERENCE), *options])
     except SystemExit as stop:
         code = stop.code
     return code, capsys.readouterr()
@@ -129,7 +131,7 @@ def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed
 ):
     path, _ = bus_off_log
     messages = logs.load(path).messages
-    code, captured = _main(["bench", "replay", str(path), "--artifact", str(REFERENCE), "--law", "clqg"], capsys)
+    code, captured = _bench(capsys, "replay", path, "--law", "clqg")
     assert code == 0 and "900 setpoints compared, 0 differ" in captured.out, captured
 
     a1 = next(k for k, m in enumerate(messages) if m.arbitration_id == 0x200 and m.timestamp > 0.3)
@@ -140,54 +142,18 @@ def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed
     changed[a1] = _setpoint(
         reference, "SETPOINT_A1", voltage + (1e-3 if voltage < 25 else -1e-3), counter, original.timestamp
     )
-    code, captured = _main(
-        [
-            "bench",
-            "replay",
-            str(_write(changed, tmp_path / "changed.blf")),
-            "--artifact",
-            str(REFERENCE),
-            "--law",
-            "clqg",
-        ],
-        capsys,
-    )
+    code, captured = _bench(capsys, "replay", _write(changed, tmp_path / "changed.blf"), "--law", "clqg")
     assert code == 1
     first = captured.err.splitlines()[0]
     assert first.startswith("smartjoint bench replay: FAILED") and "900 setpoints compared, 1 differ" in first
     assert f"t = {original.timestamp:.6f} s SETPOINT_A1 differs" in captured.err
     # Within a tolerance of 2 mV it passes.
-    code, _ = _main(
-        [
-            "bench",
-            "replay",
-            str(tmp_path / "changed.blf"),
-            "--artifact",
-            str(REFERENCE),
-            "--law",
-            "clqg",
-            "--tolerance",
-            "2e-3",
-        ],
-        capsys,
-    )
+    code, _ = _bench(capsys, "replay", tmp_path / "changed.blf", "--law", "clqg", "--tolerance", "2e-3")
     assert code == 0
 
     extra = list(messages)  # a second recorded SETPOINT_A1 in one sample: the firmware sent one
     extra.insert(a1 + 1, _setpoint(reference, "SETPOINT_A1", voltage, (counter + 1) % 16, original.timestamp))
-    code, captured = _main(
-        [
-            "bench",
-            "replay",
-            str(_write(extra, tmp_path / "extra.blf")),
-            "--artifact",
-            str(REFERENCE),
-            "--law",
-            "clqg",
-            "--json",
-        ],
-        capsys,
-    )
+    code, captured = _bench(capsys, "replay", _write(extra, tmp_path / "extra.blf"), "--law", "clqg", "--json")
     assert code == 1 and "1 recorded but not replayed" in captured.err.splitlines()[0]
     assert '"recorded_not_replayed": 1' in captured.out and '"differing": 0' in captured.out
 
@@ -195,19 +161,19 @@ def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed
 def test_empty_and_foreign_logs_are_errors_not_zero_comparisons(reference, tmp_path, capsys):
     (tmp_path / "empty.asc").write_text("")
     for command in ("replay", "decode"):
-        code, captured = _main(["bench", command, str(tmp_path / "empty.asc"), "--artifact", str(REFERENCE)], capsys)
+        code, captured = _bench(capsys, command, tmp_path / "empty.asc")
         assert code == 2 and "no frames" in captured.err and len(captured.err.strip().splitlines()) == 1
     foreign = _write(
         [can.Message(arbitration_id=0x555, data=bytes(8), timestamp=0.001 * k) for k in range(5)],
         tmp_path / "foreign.asc",
     )
-    code, captured = _main(["bench", "replay", str(foreign), "--artifact", str(REFERENCE)], capsys)
+    code, captured = _bench(capsys, "replay", foreign)
     assert code == 2 and "none with an identifier of the artefact's protocol" in captured.err
     _sil_log(reference, tmp_path / "short.blf", "siso", samples=20)
     sensors_only = _write(
         [m for m in logs.load(tmp_path / "short.blf").messages if m.arbitration_id < 0x200], tmp_path / "sensors.blf"
     )
-    code, captured = _main(["bench", "replay", str(sensors_only), "--artifact", str(REFERENCE)], capsys)
+    code, captured = _bench(capsys, "replay", sensors_only)
     assert code == 2 and "no recorded SETPOINT_* frame" in captured.err
 
 
@@ -255,7 +221,7 @@ def test_damaged_asc_reports_every_skipped_line_and_keeps_reading(bus_off_log, t
     content = logs.load(tmp_path / "garbage.asc")
     assert len(content.messages) == len(full) and content.unparseable_lines == 4 and content.truncated is None
     assert f"line {frame_line + 1}: 'some text a tool wrote'" in content.first_unparseable
-    code, captured = _main(["bench", "decode", str(tmp_path / "garbage.asc"), "--artifact", str(REFERENCE)], capsys)
+    code, captured = _bench(capsys, "decode", tmp_path / "garbage.asc")
     assert code == 0 and "4 unparseable line(s) skipped" in captured.err
     assert "unparseable_lines': 4" in captured.out
 
@@ -266,9 +232,7 @@ def test_damaged_asc_reports_every_skipped_line_and_keeps_reading(bus_off_log, t
     cut = logs.load(tmp_path / "cut.asc")
     assert cut.truncated and f"stops after {len(cut.messages)} frames" in cut.truncated
     assert cut.cut_frames == 1 and 0 < len(cut.messages) < len(full)
-    code, captured = _main(
-        ["bench", "decode", str(tmp_path / "cut.asc"), "--artifact", str(REFERENCE), "--json"], capsys
-    )
+    code, captured = _bench(capsys, "decode", tmp_path / "cut.asc", "--json")
     assert code == 0 and "ends early" in captured.err and "1 frame(s) cut short" in captured.err
     assert "frames not decoded: unknown ids 0, wrong length 1" in captured.err  # the cut frame, counted
 
@@ -285,7 +249,7 @@ def test_time_stamps_that_are_not_finite_are_refused_and_odd_ones_counted(refere
     assert "1 non-finite" in problem and "1 negative" in problem and "1 time stamp(s) earlier" in problem
     with pytest.raises(ModelError, match="1 frame.* not finite"):
         _replay(reference, content)
-    code, captured = _main(["bench", "replay", str(csv), "--artifact", str(REFERENCE)], capsys)
+    code, captured = _bench(capsys, "replay", csv)
     assert code == 2 and "not finite" in captured.err.splitlines()[-1]
     decoded = logs.decode(content, firmware.Firmware(reference, "siso", "float").db)
     assert decoded.non_finite_times == 1 and decoded.summary()["log"]["negative_times"] == 1
@@ -349,22 +313,7 @@ def test_replay_reproduces_a_layer_that_ages_its_inputs_by_steps(reference):
             node.step(0)
             node.tx()
             continue
-        data = e2e.protect(
-            joint.frame_id,
-            bytearray(
-                joint.encode(
-                    {
-                        "crc": 0,
-                        "counter": 0,
-                        "sync": 0,
-                        "sliding_velocity": 0.0,
-                        "friction_force": 0.0,
-                        "normal_force": 100.0,
-                    }
-                )
-            ),
-            k % e2e.COUNTER_MODULO,
-        )
+        data = quiet_joint_frame(joint, k % e2e.COUNTER_MODULO)
         frames.append(can.Message(arbitration_id=joint.frame_id, data=bytes(data), is_fd=True, timestamp=t))
         node.rx(joint.frame_id, bytes(data), 0)
         node.step(0)

@@ -4,10 +4,9 @@ records from which `smartjoint identify` recovers the set the rig simulated."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import pytest
+from conftest import run_cli
 
 from smartjoint.cli import main
 from smartjoint.design.friction.records import read_record
@@ -154,34 +153,14 @@ def test_identify_recovers_a_non_table_1_parameter_set_from_a_rig_campaign(tmp_p
     one run: the errors are 0.1–0.3 % (docs/identification.md, seeds 0–3 and 100 for Table 1)."""
     (tmp_path / "joint.toml").write_text(_toml(JOINT_B))
     folder = tmp_path / "campaign"
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "rig",
-            "--parameters",
-            str(tmp_path / "joint.toml"),
-            "--campaign",
-            "--noise",
-            "0.01",
-            "--cycles",
-            "8",
-            "-o",
-            str(folder),
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
-    )
+    campaign = ("--campaign", "--noise", "0.01", "--cycles", "8")  # 1 % noise, 8 cycles a record
+    done = run_cli("rig", "--parameters", tmp_path / "joint.toml", *campaign, "-o", folder, "--json")
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["parameters"]["source"] == str(tmp_path / "joint.toml") and len(summary["records"]) == 6
     records = sorted(str(p) for p in folder.glob("*.csv"))
     assert all("# radius = 0.015 m" in open(p).read(300) for p in records)
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "identify", *records, "--json"], capture_output=True, text=True
-    )
+    done = run_cli("identify", *records, "--json")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     values = result["parameters"]

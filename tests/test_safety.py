@@ -13,11 +13,9 @@ import pytest
 from smartjoint.bench import e2e, firmware, safety
 from smartjoint.bench.amplifier import AmplifierModel
 from smartjoint.bench.faults import FRAME_FAULTS, Fault, check_faults, parse_fault
-from smartjoint.bench.loop import SilLoop
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
 from smartjoint.design.network import protocol
-from smartjoint.design.plant.interface import Measurements
 
 REFERENCE = Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json"
 LOADED = artifact.load(REFERENCE)
@@ -52,14 +50,7 @@ def test_every_fault_reaches_the_safe_force_at_every_joint_within_three_cycles(i
     of the fault (of its detection bound for delays) and keeps it while the fault lasts; the
     loop recovers within the stated cycles after it ends; a delay within the latency bound is
     used, never a timeout; power-up holds the safe force until the first valid command."""
-    loop = SilLoop(image, 0.0, faults=case.faults)
-    loop.reset()
-    applied = np.zeros(len(LOADED.joint_names))
-    try:
-        for m in signals[: case.cycles]:
-            applied = loop.step(Measurements(m.time, m.sensors, m.sliding_velocity, m.friction_force, applied))
-    finally:
-        loop.close()
+    loop = safety.run_case_loop(image, case, signals)
     row = safety.measure(loop.record, case.faults, LOADED, case.tolerated)
     if case.tolerated:
         assert row["safe_samples"] == 0 and row["ok"], row

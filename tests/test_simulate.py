@@ -101,24 +101,12 @@ def test_bad_inputs_are_named(model):
 
 
 def test_simulate_command_names_a_wrong_normal_force_list():
-    import subprocess
-    import sys
+    from conftest import run_cli
 
-    from smartjoint.pipeline import FIG10_DESIGN
+    from smartjoint.design.structure.spec import REFERENCE_DESIGN
 
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "smartjoint.cli",
-            "simulate",
-            str(FIG10_DESIGN),
-            "--no-update",
-            "--normal-force",
-            "400,0",
-        ],
-        capture_output=True,
-        text=True,
+    done = run_cli(
+        "simulate", REFERENCE_DESIGN.parent / "fig10_three_joints.toml", "--no-update", "--normal-force", "400,0"
     )
     assert done.returncode == 2
     assert "--normal-force: '400,0' — need 3 finite values >= 0 (joints B1, A2, A3)" in done.stderr

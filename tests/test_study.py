@@ -5,31 +5,32 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from conftest import cli_error, run_cli, small_truss
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design import parse_design
 from smartjoint.design.control import artifact, study
 
 
-def _small(duration=0.3, **control):
-    from conftest import small_truss
-
+def _small_data(duration, **control) -> dict:
+    """The small truss with a quick control section: 4 of 12 modes, F_N 5–100 N, a short study."""
     data = small_truss()
     data["control"] = {
         "considered_modes": 12,
         "modes": 4,
-        "krylov": 1,
         "normal_force_min": 5.0,
         "normal_force_max": 100.0,
         "study_duration": duration,
         **control,
     }
-    return parse_design(data)
+    return data
+
+
+def _small(duration=0.3, **control):
+    return parse_design(_small_data(duration, **{"krylov": 1, **control}))
 
 
 @pytest.fixture(scope="module")
@@ -124,8 +125,6 @@ def test_boundary_layer_optimum_beats_its_neighbours():
 
 
 def test_the_controllers_need_every_joint_in_design_order():
-    from conftest import small_truss
-
     data = small_truss()
     data["control"] = {"joints": ["JA"]}
     with pytest.raises(ModelError, match="control.joints.*every friction joint"):
@@ -167,52 +166,27 @@ def test_the_optimised_boundary_layer_beats_a_decade_either_side(bundled):
 
 def test_design_and_study_commands(tmp_path):
     import tomli_w
-    from conftest import small_truss
 
-    data = small_truss()
-    data["control"] = {
-        "considered_modes": 12,
-        "modes": 4,
-        "normal_force_min": 5.0,
-        "normal_force_max": 100.0,
-        "study_duration": 0.2,
-        "siso_boundary_layer": 1e-4,
-    }
+    data = _small_data(0.2, siso_boundary_layer=1e-4)
     path = tmp_path / "small.toml"
     path.write_text(tomli_w.dumps(data))
     out = tmp_path / "controller.json"
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(out), "--json"],
-        capture_output=True,
-        text=True,
-    )
+    done = run_cli("design", path, "-o", out, "--json")
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     loaded = artifact.load(out)
     assert loaded.artifact_sha256 == summary["artifact_sha256"] and loaded.joint_names == ("JA", "JB")
     assert summary["lqg_stability_margin"] > 0
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "study", str(path), "--json", "--plots", str(tmp_path / "plots")],
-        capture_output=True,
-        text=True,
-    )
+    done = run_cli("study", path, "--json", "--plots", tmp_path / "plots")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     assert set(result["runs"]) == {"passive F_min", "passive F_max", "SISO", "cLQG", "active LQG"}
     assert (tmp_path / "plots" / "control_energy.png").stat().st_size > 0
     refused = tmp_path / "refused.json"
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(refused), "--max-load", "0.1"],
-        capture_output=True,
-        text=True,
-    )
+    done = run_cli("design", path, "-o", refused, "--max-load", "0.1")  # refused after the model reduction
     assert done.returncode == 2 and "exceeds the limit 10 %" in done.stderr and not refused.exists()
     assert summary["bus_load"] < 0.7
     data["control"]["normal_force_min"] = 500.0
     path.write_text(tomli_w.dumps(data))
-    done = subprocess.run(
-        [sys.executable, "-m", "smartjoint.cli", "design", str(path), "-o", str(tmp_path / "x.json")],
-        capture_output=True,
-        text=True,
-    )
-    assert done.returncode == 2 and "normal_force_min" in done.stderr and not (tmp_path / "x.json").exists()
+    assert "normal_force_min" in cli_error("design", path, "-o", tmp_path / "x.json")
+    assert not (tmp_path / "x.json").exists()

@@ -212,11 +212,18 @@ def loads(text: str) -> ControllerArtifact:
     Parameters
     ----------
     text : str
-        The JSON text.
+        The artefact's JSON text, as written by :func:`dumps`.
 
     Returns
     -------
     ControllerArtifact
+        The artefact, every field checked against ``SCHEMA``.
+
+    Raises
+    ------
+    ModelError
+        Not JSON or not an object, a duplicate, missing or unknown field, another schema
+        version, or a field value the schema refuses.
     """
     try:
         data = json.loads(text, object_pairs_hook=_object)
@@ -301,6 +308,17 @@ def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
     )
 
 
+def _safe_state_options(artifact: ControllerArtifact) -> dict:
+    """What both laws take from the artefact for the safe state: the safe normal force and the
+    plausibility ranges of the friction force and the measured normal force."""
+    return {
+        "safe_normal_force": artifact.safe_normal_force,
+        "friction_force_limit": artifact.friction_force_limit,
+        "measured_normal_force_min": artifact.measured_normal_force_min,
+        "measured_normal_force_max": artifact.measured_normal_force_max,
+    }
+
+
 def siso_law(artifact: ControllerArtifact) -> SisoLaw:
     """The local Lyapunov law of Eq. 30 with μ of Eq. 31, per joint, with the artefact's safe
     normal force and plausibility ranges (what the generated C checks).
@@ -319,11 +337,8 @@ def siso_law(artifact: ControllerArtifact) -> SisoLaw:
         artifact.normal_force_min,
         artifact.normal_force_max,
         artifact.siso_boundary_layer,
-        safe_normal_force=artifact.safe_normal_force,
         sliding_velocity_limit=artifact.sliding_velocity_limit,
-        friction_force_limit=artifact.friction_force_limit,
-        measured_normal_force_min=artifact.measured_normal_force_min,
-        measured_normal_force_max=artifact.measured_normal_force_max,
+        **_safe_state_options(artifact),
     )
 
 
@@ -345,11 +360,8 @@ def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
         artifact.normal_force_min,
         artifact.normal_force_max,
         artifact.clqg_boundary_layer,
-        safe_normal_force=artifact.safe_normal_force,
         sensor_limit=artifact.sensor_limit,
-        friction_force_limit=artifact.friction_force_limit,
-        measured_normal_force_min=artifact.measured_normal_force_min,
-        measured_normal_force_max=artifact.measured_normal_force_max,
+        **_safe_state_options(artifact),
     )
 
 

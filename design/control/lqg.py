@@ -135,14 +135,12 @@ def design_lqg(
         For a non-positive weight, an unstabilisable or undetectable mode, or a Riccati failure.
     """
     check_sample_time(model, sample_time)
-    for name, value in (
-        ("state_weight", state_weight),
-        ("control_weight", control_weight),
-        ("process_noise", process_noise),
-        ("measurement_noise", measurement_noise),
-    ):
-        if not (math.isfinite(value) and value > 0):
-            raise ModelError(f"{name}: {value!r} — must be a finite number > 0")
+    _check_weights(
+        state_weight=state_weight,
+        control_weight=control_weight,
+        process_noise=process_noise,
+        measurement_noise=measurement_noise,
+    )
     n, l = model.n_coordinates, model.joint_input.shape[1]
     ny = model.velocity_output.shape[0]
     if l == 0:
@@ -177,6 +175,13 @@ def design_lqg(
         raise ModelError("Riccati solver returned non-finite gains; check the weights")
     m = p @ c.T @ np.linalg.inv(c @ p @ c.T + measurement_noise * np.eye(ny))
     return LqgDesign(sample_time, phi, g0, g1, np.array(e, dtype=float), c, k, m, s, p)
+
+
+def _check_weights(**weights: float) -> None:
+    """Each weight and noise intensity a finite number > 0 (Riccati needs Q, R > 0)."""
+    for name, value in weights.items():
+        if not (math.isfinite(value) and value > 0):
+            raise ModelError(f"{name}: {value!r} — must be a finite number > 0")
 
 
 def _check_pbh(a, b, word, reason, model) -> None:

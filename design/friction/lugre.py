@@ -21,6 +21,11 @@ and the global error O(h²) (second order); with v held from the step start (zer
 it is first order. Both are exact for constant v. g(v) has a kink at v = 0, so a step
 that contains a velocity reversal has a local error O(h²) (tests/test_lugre.py measures
 both orders against a Radau reference).
+
+The functions of Eq. 1–2 take the joint's parameters ``p`` (:class:`LuGreParameters`), the
+velocity v [m/s] and, where they need it, the bristle deflection φ [m] (type B: [rad/s], [rad]),
+each a number or an array (elementwise: several joints or samples at once), and return a number
+or an array; each docstring says what it reads of ``p``.
 """
 
 from __future__ import annotations
@@ -112,37 +117,18 @@ def joint_laws(design) -> list[LuGreParameters]:
 
 
 def stribeck_level(p: LuGreParameters, velocity):
-    """F_c + F_d·exp(−(v/v_s)²): the steady sliding friction coefficient without viscous part.
+    """F_c + F_d·exp(−(v/v_s)²): the steady sliding friction coefficient without viscous part
+    (dimensionless).
 
-    Parameters
-    ----------
-    p : LuGreParameters
-        Reads F_c, F_d and v_s.
-    velocity : float or ndarray
-        v [m/s] (type B: [rad/s]); arrays work elementwise.
-
-    Returns
-    -------
-    float or ndarray
-        The level, dimensionless.
+    Reads F_c, F_d and v_s of ``p``; the arguments as in the module docstring.
     """
     return p.coulomb + p.stribeck * np.exp(-((np.asarray(velocity, dtype=float) / p.stribeck_velocity) ** 2))
 
 
 def g(p: LuGreParameters, velocity):
-    """g(v) of Eq. 1 [1/s per unit φ·σ0]: |v| / (F_c + F_d·exp(−(v/v_s)²)).
+    """g(v) of Eq. 1 [1/s per unit φ·σ0]: |v| / (F_c + F_d·exp(−(v/v_s)²)), zero at v = 0.
 
-    Parameters
-    ----------
-    p : LuGreParameters
-        Its Stribeck level (`stribeck_level`).
-    velocity : float or ndarray
-        v [m/s] (type B: [rad/s]); arrays work elementwise.
-
-    Returns
-    -------
-    float or ndarray
-        g(v), zero at v = 0.
+    Reads the Stribeck level of ``p`` (`stribeck_level`); the arguments as in the module docstring.
     """
     return np.abs(velocity) / stribeck_level(p, velocity)
 
@@ -150,35 +136,15 @@ def g(p: LuGreParameters, velocity):
 def rhs(p: LuGreParameters, velocity, deflection):
     """φ̇ = f(v, φ) of Eq. 1.
 
-    Parameters
-    ----------
-    p : LuGreParameters
-        σ0 and g(v).
-    velocity, deflection : float or ndarray
-        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
-
-    Returns
-    -------
-    float or ndarray
-        φ̇.
+    Reads σ0 and g(v) of ``p``; the arguments as in the module docstring.
     """
     return velocity - p.sigma0 * g(p, velocity) * deflection
 
 
 def rhs_jacobian(p: LuGreParameters, velocity, deflection):
-    """Analytic partial derivatives (∂f/∂φ, ∂f/∂v) of Eq. 1.
+    """Analytic partial derivatives (∂f/∂φ, ∂f/∂v) of Eq. 1, a tuple.
 
-    Parameters
-    ----------
-    p : LuGreParameters
-        σ0, and F_c, F_d, v_s for ∂g/∂v.
-    velocity, deflection : float or ndarray
-        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
-
-    Returns
-    -------
-    tuple
-        (∂f/∂φ, ∂f/∂v).
+    Reads σ0, and F_c, F_d, v_s of ``p`` for ∂g/∂v; the arguments as in the module docstring.
     """
     v = np.asarray(velocity, dtype=float)
     level = stribeck_level(p, v)
@@ -190,17 +156,7 @@ def rhs_jacobian(p: LuGreParameters, velocity, deflection):
 def friction_coefficient(p: LuGreParameters, velocity, deflection):
     """μ(v, φ) = σ0·φ + σ1·φ̇ + σ2·v of Eq. 2.
 
-    Parameters
-    ----------
-    p : LuGreParameters
-        σ0, σ1, σ2, and f of Eq. 1 for φ̇.
-    velocity, deflection : float or ndarray
-        v and φ [m/s, m] (type B: [rad/s, rad]); arrays work elementwise.
-
-    Returns
-    -------
-    float or ndarray
-        μ.
+    Reads σ0, σ1, σ2 of ``p``, and f of Eq. 1 for φ̇; the arguments as in the module docstring.
     """
     return p.sigma0 * deflection + p.sigma1 * rhs(p, velocity, deflection) + p.sigma2 * velocity
 
@@ -226,37 +182,18 @@ def friction_force(p: LuGreParameters, velocity, deflection, normal_force):
 
 
 def steady_state_deflection(p: LuGreParameters, velocity):
-    """φ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²})/σ0 (0 at v = 0).
+    """φ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²})/σ0 (0 at v = 0): the deflection of steady sliding.
 
-    Parameters
-    ----------
-    p : LuGreParameters
-        σ0 and the Stribeck level.
-    velocity : float or ndarray
-        v [m/s] (type B: [rad/s]); arrays work elementwise.
-
-    Returns
-    -------
-    float or ndarray
-        φ_ss, the deflection of steady sliding.
+    Reads σ0 and the Stribeck level of ``p``; the arguments as in the module docstring.
     """
     return np.sign(velocity) * stribeck_level(p, velocity) / p.sigma0
 
 
 def steady_state_coefficient(p: LuGreParameters, velocity):
-    """Steady sliding μ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²}) + σ2·v.
+    """Steady sliding μ_ss(v) = sign(v)·(F_c + F_d·e^{−(v/v_s)²}) + σ2·v: the friction curve of
+    steady sliding at the velocity v.
 
-    Parameters
-    ----------
-    p : LuGreParameters
-        σ2 and the Stribeck level.
-    velocity : float or ndarray
-        The steady sliding velocity v [m/s] (type B: [rad/s]); arrays work elementwise.
-
-    Returns
-    -------
-    float or ndarray
-        μ_ss, the friction curve of steady sliding.
+    Reads σ2 and the Stribeck level of ``p``; the arguments as in the module docstring.
     """
     return np.sign(velocity) * stribeck_level(p, velocity) + p.sigma2 * np.asarray(velocity, dtype=float)
 

@@ -88,19 +88,9 @@ def kernel():
 
 def _integrate_c(module, p, gain, inertia, force, time, substeps, velocity0, deflection0):
     ffi, lib = module.ffi, module.lib
-    rig = ffi.new(
-        "sj_rig *",
-        dict(
-            sigma0=p.sigma0,
-            sigma1=p.sigma1,
-            sigma2=p.sigma2,
-            coulomb=p.coulomb,
-            stribeck=p.stribeck,
-            stribeck_velocity=p.stribeck_velocity,
-            max_deflection=p.max_deflection,
-            inertia=float(inertia),
-        ),
-    )
+    # sj_rig's fields (DECLARATIONS) are the joint's LuGreParameters by their own names, and the inertia
+    joint = {name: getattr(p, name) for name, _ in ffi.typeof("sj_rig").fields if name != "inertia"}
+    rig = ffi.new("sj_rig *", dict(joint, inertia=float(inertia)))
     velocity = np.empty(time.size)
     deflection = np.empty(time.size)
 

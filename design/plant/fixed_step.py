@@ -33,7 +33,7 @@ import numpy as np
 from smartjoint.common.errors import ModelError
 from smartjoint.design.plant.discretisation import discretise, step_works, work_coefficients
 from smartjoint.design.plant.joints import JointLaws
-from smartjoint.design.plant.kernel import PlantRun, Recorder, State, native_module
+from smartjoint.design.plant.kernel import LAW_FIELDS, NativeStructs, PlantRun, Recorder, State, choose_kernel
 from smartjoint.design.structure.modal import ModalModel
 
 MAX_HALVINGS = 8  # a plant step may split into up to 2^8 substeps where the joints demand it
@@ -195,53 +195,25 @@ class _CKernel(_Kernel):
 
     def __init__(self, plant: _Plant, state: State, recorder: Recorder):
         super().__init__(plant, state, recorder)
-        module = native_module()
-        ffi = self.ffi = module.ffi
-        self.lib = module.lib
-        self._keep: list[np.ndarray] = []  # arrays whose memory the C structs point into
-
-        def ptr(array):
-            array = np.ascontiguousarray(array, dtype=float)
-            self._keep.append(array)
-            return ffi.cast("double *", ffi.from_buffer(array))
-
-        law = plant.law
+        native = self.native = NativeStructs()  # holds the arrays the C structs point into
+        ffi = self.ffi = native.ffi
+        self.lib = native.lib
+        ptr = native.pointer
         self.work = np.zeros(5 * plant.n + 7 * plant.l + plant.l**2 + 1)
         self.cp = ffi.new(
             "sj_plant *",
             dict(
-                n=plant.n,
-                l=plant.l,
-                m=plant.m,
-                ny=plant.ny,
                 levels=MAX_HALVINGS + 1,
                 books=int(plant.books),
-                step=plant.step,
-                phi=ptr(plant.phi),
-                g0=ptr(plant.g0),
-                g1=ptr(plant.g1),
-                G=ptr(plant.G),
-                book=ptr(plant.book),
                 ET=ptr(plant.ET_padded),
-                HT=ptr(plant.HT),
-                Vy=ptr(plant.Vy),
-                Dy=ptr(plant.Dy),
-                two_xi_w=ptr(plant.two_xi_w),
-                s0=ptr(law.s0),
-                s1=ptr(law.s1),
-                s2=ptr(law.s2),
-                fc=ptr(law.fc),
-                fd=ptr(law.fd),
-                vs=ptr(law.vs),
-                arm=ptr(law.arm),
-                bound=ptr(law.bound),
                 work=ptr(self.work),
+                **native.numbers(plant, ("n", "l", "m", "ny", "step")),
+                **native.pointers(plant, ("phi", "g0", "g1", "G", "book", "HT", "Vy", "Dy", "two_xi_w")),
+                **native.pointers(plant.law, (*LAW_FIELDS, "bound")),
             ),
         )
-        for name in ("x", "q", "v", "phi", "u", "fn"):  # shared memory: C writes, numpy reads
-            setattr(state, name, np.ascontiguousarray(getattr(state, name), dtype=float))
-        self.cs = ffi.new("sj_state *", {name: ptr(getattr(state, name)) for name in ("x", "q", "v", "phi", "u", "fn")})
-        self.cr = ffi.new("sj_record *", {name: ptr(array) for name, array in recorder.fields().items()})
+        self.cs = ffi.new("sj_state *", native.shared(state, ("x", "q", "v", "phi", "u", "fn")))
+        self.cr = native.record(recorder)
 
     def _pull(self):
         cs = self.cs
@@ -277,42 +249,14 @@ _C_FAILURE: list[str] = []  # why the C kernel is unavailable on this machine (r
 
 
 def check(run: PlantRun) -> None:
-    """The fixed-step run's own conditions: the general ones of ``loop.simulate`` suffice.
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-    """
+    """``Scheme.check`` (``kernel.py``): the general conditions of ``loop.simulate`` suffice."""
 
 
 def kernel(run: PlantRun):
-    """The kernel of a fixed-step run: ``plant_kernel.c`` (backend "c"), its numpy mirror
-    ("python") or the C where it builds ("auto").
-
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-
-    Returns
-    -------
-    Kernel
-        The C or the Python kernel, state and recorder shared with numpy.
-    """
-    from smartjoint.common import native
-
+    """``Scheme.kernel`` (``kernel.py``): ``plant_kernel.c`` (backend "c"), its numpy mirror
+    ("python") or the C where it builds ("auto"), state and recorder shared with numpy."""
     plant = _Plant(run.model, run.joints, run.step, run.energy_books)
-    state = State(plant.ET, run.initial_state)
-    recorder = Recorder(run.rows, plant.l, plant.ny)
-    return native.choose(
-        run.backend,
-        "plant simulation",
-        lambda: _CKernel(plant, state, recorder),
-        lambda: _PythonKernel(plant, state, recorder),
-        _C_FAILURE,
-    )
+    return choose_kernel(run, "plant simulation", plant, _CKernel, _PythonKernel, _C_FAILURE)
 
 
 FRICTION = True  # LuGre joints; the controller commands normal forces

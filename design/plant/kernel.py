@@ -119,9 +119,28 @@ class Scheme(Protocol):
     FRICTION: bool
     COMPACT_DISTURBANCE: bool
 
-    def check(self, run: PlantRun) -> None: ...
+    def check(self, run: PlantRun) -> None:
+        """Raise a named ``ModelError`` where the scheme cannot do the run.
 
-    def kernel(self, run: PlantRun) -> Kernel: ...
+        Parameters
+        ----------
+        run : PlantRun
+            The run as ``loop.simulate`` received it, its general conditions checked.
+        """
+
+    def kernel(self, run: PlantRun) -> Kernel:
+        """The kernel of the run.
+
+        Parameters
+        ----------
+        run : PlantRun
+            The run as ``loop.simulate`` received it, checked by ``check``.
+
+        Returns
+        -------
+        Kernel
+            A new kernel at the run's initial state, with an empty recorder.
+        """
 
 
 def _declarations(header: str) -> str:
@@ -145,4 +164,157 @@ def native_module():
     return native.load("plant", _declarations(header.read_text()), source, includes=(header.parent,))
 
 
-__all__ = ["Kernel", "PlantRun", "Recorder", "Scheme", "State", "native_module"]
+# The joint laws' arrays (``joints.JointLaws``) that sj_plant and sj_stick hold, by the laws' names.
+LAW_FIELDS = ("s0", "s1", "s2", "fc", "fd", "vs", "arm")
+
+
+class NativeStructs:
+    """The cffi module of ``plant_kernel.c`` and the numpy arrays its structs point into: what a
+    C kernel of either friction scheme sets up (``fixed_step``, ``stick_exact``).
+
+    The fields of the C structs carry the names of the Python attributes they hold, so a struct
+    is filled from name lists (:meth:`numbers`, :meth:`pointers`). An array handed to
+    :meth:`pointer` is kept as long as this object, so the C structs never point into freed
+    memory; ``ffi`` and ``lib`` are the module's.
+    """
+
+    def __init__(self) -> None:
+        module = native_module()
+        self.ffi, self.lib = module.ffi, module.lib
+        self._kept: list[np.ndarray] = []
+
+    def pointer(self, array):
+        """A ``double *`` to the array's float values (C-ordered; a copy only where it is not).
+
+        Parameters
+        ----------
+        array : array_like
+            The values; kept alive with this object.
+
+        Returns
+        -------
+        cdata
+            ``double *``.
+        """
+        array = np.ascontiguousarray(array, dtype=float)
+        self._kept.append(array)
+        return self.ffi.cast("double *", self.ffi.from_buffer(array))
+
+    def pointers(self, source, names: tuple[str, ...]) -> dict:
+        """Struct fields that point into arrays of the same names (see :meth:`pointer`).
+
+        Parameters
+        ----------
+        source : object
+            Has the arrays as attributes ``names``.
+        names : tuple of str
+            The fields, named as the attributes.
+
+        Returns
+        -------
+        dict
+            Field name → ``double *``.
+        """
+        return {name: self.pointer(getattr(source, name)) for name in names}
+
+    @staticmethod
+    def numbers(source, names: tuple[str, ...]) -> dict:
+        """Struct fields that hold numbers of the same names.
+
+        Parameters
+        ----------
+        source : object
+            Has the numbers (sizes, step lengths) as attributes ``names``.
+        names : tuple of str
+            The fields, named as the attributes.
+
+        Returns
+        -------
+        dict
+            Field name → number.
+        """
+        return {name: getattr(source, name) for name in names}
+
+    def shared(self, state: State, names: tuple[str, ...]) -> dict:
+        """Pointers into the state's arrays, which C then writes and numpy reads.
+
+        Parameters
+        ----------
+        state : State
+            The arrays ``names`` are made C-ordered floats in place first (where they are, as
+            ``State`` makes them, they stay the same objects).
+        names : tuple of str
+            Attributes of ``state``, named as the fields of the C state struct.
+
+        Returns
+        -------
+        dict
+            Field name → ``double *``.
+        """
+        for name in names:
+            setattr(state, name, np.ascontiguousarray(getattr(state, name), dtype=float))
+        return self.pointers(state, names)
+
+    def record(self, recorder: Recorder):
+        """The ``sj_record`` struct that writes the recorded rows into ``recorder``'s arrays.
+
+        Parameters
+        ----------
+        recorder : Recorder
+            Its ``fields()``, in the struct's order.
+
+        Returns
+        -------
+        cdata
+            ``sj_record *``.
+        """
+        return self.ffi.new("sj_record *", {name: self.pointer(array) for name, array in recorder.fields().items()})
+
+
+def choose_kernel(run: PlantRun, what: str, plant, compiled, mirror, failures: list[str]) -> Kernel:
+    """A friction scheme's C kernel or its numpy mirror, as ``run.backend`` asks
+    (``native.choose``), on a new state and recorder.
+
+    Parameters
+    ----------
+    run : PlantRun
+        The run: its backend, initial state and number of recorded rows.
+    what : str
+        The simulation as the warning of a fallback to Python names it.
+    plant
+        The scheme's constant data: ``ET`` (Eᵀ, l × n), ``l`` joints and ``ny`` sensors.
+    compiled, mirror : callable
+        The C and the numpy kernel, each called with ``(plant, state, recorder)``.
+    failures : list of str
+        Why the scheme's C kernel is unavailable on this machine (reported once).
+
+    Returns
+    -------
+    Kernel
+        The chosen kernel; state and recorder shared with numpy.
+    """
+    from smartjoint.common import native
+
+    state = State(plant.ET, run.initial_state)
+    recorder = Recorder(run.rows, plant.l, plant.ny)
+    return native.choose(
+        run.backend,
+        what,
+        lambda: compiled(plant, state, recorder),
+        lambda: mirror(plant, state, recorder),
+        failures,
+        stacklevel=4,  # the warning names the caller of the scheme's kernel(), as without this helper
+    )
+
+
+__all__ = [
+    "LAW_FIELDS",
+    "Kernel",
+    "NativeStructs",
+    "PlantRun",
+    "Recorder",
+    "Scheme",
+    "State",
+    "choose_kernel",
+    "native_module",
+]

@@ -77,14 +77,7 @@ class _LinearKernel:
 
 
 def check(run: PlantRun) -> None:
-    """The linear run's own conditions, each a named error.
-
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-    """
+    """``Scheme.check`` (``kernel.py``): the linear run's own conditions, each a named error."""
     if len(run.joints):
         raise ModelError(
             f"joints: {len(run.joints)} LuGre parameter sets — the linear scheme is frictionless; "
@@ -99,19 +92,8 @@ def check(run: PlantRun) -> None:
 
 
 def kernel(run: PlantRun) -> _LinearKernel:
-    """The kernel of a linear run (numpy).
-
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-
-    Returns
-    -------
-    Kernel
-        The frictionless modal model, discretised at ``run.step``.
-    """
+    """``Scheme.kernel`` (``kernel.py``): the frictionless modal model in numpy, discretised at
+    ``run.step``."""
     return _LinearKernel(run)
 
 

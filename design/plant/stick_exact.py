@@ -37,7 +37,7 @@ import numpy as np
 from smartjoint.common.errors import ModelError
 from smartjoint.design.plant.discretisation import first_order_hold
 from smartjoint.design.plant.joints import JointLaws
-from smartjoint.design.plant.kernel import PlantRun, Recorder, State, native_module
+from smartjoint.design.plant.kernel import LAW_FIELDS, NativeStructs, PlantRun, Recorder, State, choose_kernel
 
 KAPPA = 0.05  # ρ·h below which a joint counts as stuck for a step h
 BETA = (0.3, 0.5)  # |u_R| / break-away force below which it does, for the long and the medium step
@@ -67,7 +67,7 @@ class _StickPlant:
         self.ET = np.ascontiguousarray(model.joint_input.T, dtype=float)
         self.Vy = np.ascontiguousarray(model.velocity_output, dtype=float)
         self.Dy = np.ascontiguousarray(model.displacement_output / model.omega, dtype=float)
-        self.n2, self.l, self.m = A.shape[0], B.shape[1], H.shape[1]
+        self.n2, self.l, self.m, self.ny = A.shape[0], B.shape[1], H.shape[1], Cy.shape[0]
         self.N = self.n2 + self.l
         self.padded = -(-self.N // 4) * 4
         self.law = law
@@ -250,53 +250,30 @@ class _StickC:
     name = "c"
 
     def __init__(self, plant: _StickPlant, state: State, recorder: Recorder):
-        module = native_module()
-        ffi = self.ffi = module.ffi
-        self.lib = module.lib
+        native = self.native = NativeStructs()  # holds the arrays the C structs point into
+        ffi = self.ffi = native.ffi
+        self.lib = native.lib
         self.mirror = _StickPython(plant, state, recorder)  # holds z, d and the discretisations
         self.p, self.s, self.r = plant, state, recorder
         self.recorder = recorder
-        self._keep: list[np.ndarray] = []
-
-        def ptr(array):
-            array = np.ascontiguousarray(array, dtype=float)
-            self._keep.append(array)
-            return ffi.cast("double *", ffi.from_buffer(array))
-
-        self.ptr = ptr
-        law = plant.law
-        for name in ("v", "u", "fn"):
-            setattr(state, name, np.ascontiguousarray(getattr(state, name), dtype=float))
+        ptr = native.pointer
+        shared = native.shared(state, ("v", "u", "fn"))
         self.work = _aligned((2 * plant.padded + 2 * plant.N + 14 * plant.l + plant.l**2 + 1,))
         self.cp = ffi.new(
             "sj_stick *",
             dict(
-                N=plant.N,
                 Np=plant.padded,
-                n2=plant.n2,
-                l=plant.l,
-                m=plant.m,
-                ny=plant.Cy.shape[0],
                 ratio=list(plant.ratio),
                 kappa=KAPPA,
                 beta=list(BETA),
-                Cv=ptr(plant.Cv),
-                Cy=ptr(plant.Cy),
-                s0=ptr(law.s0),
-                s1=ptr(law.s1),
-                s2=ptr(law.s2),
-                fc=ptr(law.fc),
-                fd=ptr(law.fd),
-                vs=ptr(law.vs),
-                arm=ptr(law.arm),
                 work=ptr(self.work),
+                **native.numbers(plant, ("N", "n2", "l", "m", "ny")),
+                **native.pointers(plant, ("Cv", "Cy")),
+                **native.pointers(plant.law, LAW_FIELDS),
             ),
         )
-        m = self.mirror
-        self.cs = ffi.new(
-            "sj_stick_state *", dict(z=ptr(m.z), d=ptr(m.d), v=ptr(state.v), u=ptr(state.u), fn=ptr(state.fn))
-        )
-        self.cr = ffi.new("sj_record *", {name: ptr(array) for name, array in recorder.fields().items()})
+        self.cs = ffi.new("sj_stick_state *", dict(**native.pointers(self.mirror, ("z", "d")), **shared))
+        self.cr = native.record(recorder)
 
     @property
     def counts(self):
@@ -348,14 +325,7 @@ _C_FAILURE: list[str] = []
 
 
 def check(run: PlantRun) -> None:
-    """The stick-exact run's own conditions, each a named error.
-
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-    """
+    """``Scheme.check`` (``kernel.py``): the stick-exact run's own conditions, each a named error."""
     model, step, stick_step, controller = run.model, run.step, run.stick_step, run.controller
     record_every, energy_books, duration = run.record_every, run.energy_books, run.duration
     if not (isinstance(stick_step, (int, float)) and math.isfinite(stick_step) and stick_step >= step):
@@ -390,33 +360,11 @@ def check(run: PlantRun) -> None:
 
 
 def kernel(run: PlantRun):
-    """The kernel of a stick-exact run: ``sj_stick_run`` of plant_kernel.c (backend "c"), its
-    numpy mirror ("python") or the C where it builds ("auto").
-
-
-    Parameters
-    ----------
-    run : PlantRun
-        The run as ``loop.simulate`` received it.
-
-    Returns
-    -------
-    Kernel
-        The C or the Python kernel; ``counts`` the steps taken per length.
-    """
-    from smartjoint.common import native
-
+    """``Scheme.kernel`` (``kernel.py``): ``sj_stick_run`` of plant_kernel.c (backend "c"), its
+    numpy mirror ("python") or the C where it builds ("auto"); ``counts`` the steps taken per length."""
     assert run.stick_step is not None  # the scheme runs only with a stick step (see check)
     plant = _StickPlant(run.model, JointLaws(run.joints), run.step, float(run.stick_step))
-    state = State(plant.ET, run.initial_state)
-    recorder = Recorder(run.rows, plant.l, plant.Cy.shape[0])
-    return native.choose(
-        run.backend,
-        "stick-exact simulation",
-        lambda: _StickC(plant, state, recorder),
-        lambda: _StickPython(plant, state, recorder),
-        _C_FAILURE,
-    )
+    return choose_kernel(run, "stick-exact simulation", plant, _StickC, _StickPython, _C_FAILURE)
 
 
 FRICTION = True  # LuGre joints; the controller commands normal forces

@@ -3,8 +3,6 @@ with 0…K Krylov vectors under the tip pulse, by friction force and by the erro
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from smartjoint.common.errors import ModelError
@@ -62,15 +60,11 @@ def _pulse_simulation(design, normal_forces: np.ndarray, duration: float, step: 
     laws = joint_laws(design)
     controller = plant.ConstantNormalForce(normal_forces, 1e-3)
     pulse = plant.triangular_pulse(directions=np.ones(len(design.disturbances)))  # 200 N along every input
-    return functools.partial(
-        plant.simulate,
-        joints=laws,
-        controller=controller,
-        disturbance=pulse,
-        duration=duration,
-        step=step,
-        energy_books=False,
-    )
+
+    def simulate_model(model):
+        return plant.simulate(model, laws, controller, pulse, duration, step, energy_books=False)
+
+    return simulate_model
 
 
 def _krylov_runs(

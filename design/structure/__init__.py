@@ -6,7 +6,9 @@ dataclasses of ``description`` (``control_section`` reads [control], ``sections`
 [updating]); ``beam`` is the
 12-DOF element, ``mesh`` discretises the members (Fig. 6) and ``fem`` assembles M, K, S, E, F, V,
 W (Eq. 4–10); ``modal`` solves the modes and builds the modal model (Eq. 5, 11); ``updating``
-fits the model to the measured frequencies; ``placement`` ranks the connectors for joints;
+fits the model to the measured frequencies, pairing the modes by MAC (``correlation``) where the
+design carries EMA shapes; ``participation`` gives the effective modal masses; ``placement``
+ranks the connectors for joints;
 ``export`` writes the model out.
 """
 

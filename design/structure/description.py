@@ -172,17 +172,42 @@ class Disturbance:
 
 
 @dataclass(frozen=True)
+class MeasuredDof:
+    """One DOF of the modal survey (an accelerometer channel): a node's motion along a direction."""
+
+    node: str
+    direction: tuple[float, ...]  # 6-vector over DOF_NAMES, as for a Sensor
+
+
+@dataclass(frozen=True)
 class MeasuredMode:
+    """One mode of the modal survey (EMA, paper Fig. 7).
+
+    ``shape`` holds the real-valued EMA mode shape, one component per DOF of
+    ``Updating.measured_dofs`` (any scaling and sign: the MAC does not see them); None without one.
+    """
+
     mode: int  # 1-based index in the ascending FE spectrum
     frequency_hz: float
     mac: float | None
+    shape: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
 class Updating:
+    """The [updating] section: parameters and bounds, the measured modes, optionally their shapes
+    at ``measured_dofs`` and the weight of a MAC term in the objective (0: frequencies only)."""
+
     parameters: tuple[str, ...]  # e.g. "connectors.m12.axial_stiffness"
     measured: tuple[MeasuredMode, ...]
     max_factors: tuple[float, ...]  # per parameter: bounds initial/max_factor .. initial·max_factor
+    measured_dofs: tuple[MeasuredDof, ...] = ()
+    mac_weight: float = 0.0
+
+    @property
+    def has_shapes(self) -> bool:
+        """Whether the measured modes carry EMA shapes (then modes are paired by MAC)."""
+        return bool(self.measured_dofs)
 
 
 @dataclass(frozen=True)
@@ -356,6 +381,7 @@ __all__ = [
     "JOINT_TYPES",
     "Joint",
     "Material",
+    "MeasuredDof",
     "MeasuredMode",
     "Member",
     "Node",

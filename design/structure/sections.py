@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from smartjoint.common.errors import DesignError
+from smartjoint.common.errors import MISSING, DesignError
 from smartjoint.design.structure.description import (
     UPDATABLE,
     Control,
+    MeasuredDof,
     MeasuredMode,
     Member,
     Node,
@@ -17,9 +18,11 @@ from smartjoint.design.structure.description import (
     Updating,
     split_parameter,
 )
-from smartjoint.design.structure.table import DesignTable, per_joint
+from smartjoint.design.structure.table import DesignTable, direction, per_joint, reference
 
 MAX_MODES = 1000  # considered_modes, updating mode numbers
+MAX_MEASURED_DOFS = 10_000  # DOFs of a modal survey (a large EMA has some hundreds)
+MAX_MAC_WEIGHT = 100.0  # weight of the (1 − MAC) residuals against the relative frequency errors
 # Bounds of [safety]: beyond them a value is a typing error, not a design.
 MAX_SLIDING_VELOCITY = 100.0  # m/s
 MAX_FRICTION_COEFFICIENT = 10.0
@@ -99,7 +102,7 @@ def parse_safety(t: DesignTable, control: Control, joints) -> Safety:
     return safety
 
 
-def parse_updating(t: DesignTable, materials, connectors) -> Updating:
+def parse_updating(t: DesignTable, materials, connectors, nodes: dict[str, Node] | None = None) -> Updating:
     """The [updating] table: the parameters to fit, their bounds and the measured modes (EMA).
 
     Parameters
@@ -108,11 +111,14 @@ def parse_updating(t: DesignTable, materials, connectors) -> Updating:
         The [updating] table.
     materials, connectors : dict
         The parsed tables, which the parameter keys must name.
+    nodes : dict of str to Node, optional
+        The nodes, which ``measured_dofs`` must name.
 
     Returns
     -------
     Updating
-        Parameters, measured modes (strictly increasing mode numbers) and max factors.
+        Parameters, measured modes (strictly increasing mode numbers), max factors and, where
+        given, the EMA shapes at ``measured_dofs`` and the MAC weight.
     """
     default_factor = t.number("max_factor", 10.0, positive=True)
     if default_factor <= 1.0:
@@ -144,13 +150,53 @@ def parse_updating(t: DesignTable, materials, connectors) -> Updating:
         known = materials if table == "materials" else connectors
         if name not in known:
             raise t.error(f"parameters[{i}]", key, f"no {table[:-1]} named {name!r}")
+    measured_dofs = _measured_dofs(t, nodes or {})
+    measured = _measured_modes(t, len(measured_dofs))
+    mac_weight = t.number("mac_weight", 0.0, non_negative=True, maximum=MAX_MAC_WEIGHT)
+    if mac_weight > 0.0 and not measured_dofs:
+        raise t.error("mac_weight", mac_weight, "a MAC term needs EMA shapes: give updating.measured_dofs and shapes")
+    t.finish()
+    return Updating(tuple(parameters), tuple(measured), tuple(factors), measured_dofs, mac_weight)
+
+
+def _measured_dofs(t: DesignTable, nodes: dict[str, Node]) -> tuple[MeasuredDof, ...]:
+    """``measured_dofs``: the DOFs of the modal survey, each ``{ node, direction }`` once."""
+    if "measured_dofs" not in t.data:
+        return ()
+    entries = t.tables("measured_dofs")
+    if not entries or len(entries) > MAX_MEASURED_DOFS:
+        raise t.error("measured_dofs", f"{len(entries)} DOFs", f"1 … {MAX_MEASURED_DOFS} {{ node, direction }} tables")
+    dofs: list[MeasuredDof] = []
+    for entry in entries:
+        node = reference(entry, "node", entry.string("node"), nodes, "node")
+        dof = MeasuredDof(node, direction(entry, "direction"))
+        if dof in dofs:
+            raise entry.error("direction", entry.data["direction"], f"the same DOF as measured_dofs[{dofs.index(dof)}]")
+        dofs.append(dof)
+        entry.finish()
+    return tuple(dofs)
+
+
+def _measured_modes(t: DesignTable, dof_count: int) -> list[MeasuredMode]:
+    """``measured``: mode numbers (strictly increasing), frequencies, EMA MAC and, with
+    ``measured_dofs``, the shape of every mode (one real component per measured DOF)."""
     measured = []
     for m in t.tables("measured"):
+        shape = None
+        if dof_count:
+            if "shape" not in m.data:
+                raise m.error("shape", MISSING, f"required with updating.measured_dofs: {dof_count} components")
+            shape = m.vector("shape", dof_count)
+            if not any(shape):
+                raise m.error("shape", list(shape), "must not be all zeros (its MAC is undefined)")
+        elif "shape" in m.data:
+            raise m.error("shape", m.data["shape"], "give updating.measured_dofs, the DOFs of the components")
         measured.append(
             MeasuredMode(
                 m.integer("mode", maximum=MAX_MODES),
                 m.number("frequency_hz", positive=True),
                 m.number("mac", None) if m.data.get("mac") is not None else None,
+                shape,
             )
         )
         m.finish()
@@ -159,8 +205,7 @@ def parse_updating(t: DesignTable, materials, connectors) -> Updating:
     modes = [m.mode for m in measured]
     if sorted(set(modes)) != modes:
         raise t.error("measured", modes, "mode numbers must be strictly increasing")
-    t.finish()
-    return Updating(tuple(parameters), tuple(measured), tuple(factors))
+    return measured
 
 
 def joint_axis(t: DesignTable, member: Member, nodes: dict[str, Node]) -> tuple[float, float, float]:
@@ -243,6 +288,8 @@ def parse_placement(t: DesignTable) -> Placement:
 
 
 __all__ = [
+    "MAX_MAC_WEIGHT",
+    "MAX_MEASURED_DOFS",
     "MAX_MODES",
     "MAX_PLACED_JOINTS",
     "check_member_lengths",

@@ -138,7 +138,7 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
 
     updating = None
     if "updating" in root.data:
-        updating = parse_updating(root.table("updating"), materials, connectors)
+        updating = parse_updating(root.table("updating"), materials, connectors, nodes)
 
     control = parse_control(root.table("control", {}), joints, dofs)
     safety = parse_safety(root.table("safety", {}), control, joints)
@@ -218,6 +218,39 @@ def _parse_components(root: DesignTable):
     return materials, sections, connectors, node_types
 
 
+def _named_tables(root: DesignTable, key: str, existing: dict, limit: int, noun: str):
+    """The [[key]] tables of ``root`` with their names, once they and the ``existing`` entries
+    (those [truss] generated) are at most ``limit``; a name already in ``existing`` is refused
+    when its table comes up, so the caller adds each entry before the next table is read.
+
+    Parameters
+    ----------
+    root : DesignTable
+        The design file's top table.
+    key : str
+        The array of tables, ``"nodes"`` or ``"members"``.
+    existing : dict
+        The entries so far by name, filled by the caller.
+    limit : int
+        The most entries allowed.
+    noun : str
+        One entry, in the error messages.
+
+    Yields
+    ------
+    tuple of (DesignTable, str)
+        Each table and its name.
+    """
+    tables = root.tables(key)
+    if len(existing) + len(tables) > limit:
+        raise root.error(key, f"{len(existing) + len(tables)} {key}", f"at most {limit} {key}")
+    for t in tables:
+        name = t.string("name")
+        if name in existing:
+            raise t.error("name", name, f"duplicate {noun} name")
+        yield t, name
+
+
 def _parse_geometry(root: DesignTable, node_types, sections, connectors):
     """[mesh], the generated [truss], [[nodes]] and [[members]], checked against the size
     limits before the model is built; returns them with the [truss] settings and the DOF bound."""
@@ -234,26 +267,14 @@ def _parse_geometry(root: DesignTable, node_types, sections, connectors):
         _generate_mast(truss, nodes, members, node_types, sections, connectors, default_elements)
         truss.finish()
 
-    explicit_nodes = root.tables("nodes")
-    if len(nodes) + len(explicit_nodes) > MAX_NODES:
-        raise root.error("nodes", f"{len(nodes) + len(explicit_nodes)} nodes", f"at most {MAX_NODES} nodes")
-    for t in explicit_nodes:
-        node_name = t.string("name")
-        if node_name in nodes:
-            raise t.error("name", node_name, "duplicate node name")
+    for t, node_name in _named_tables(root, "nodes", nodes, MAX_NODES, "node"):
         node_type = t.string("type", None)
         if node_type is not None:
             reference(t, "type", node_type, node_types, "node type")
         nodes[node_name] = Node(node_name, t.vector3("position"), node_type)
         t.finish()
 
-    explicit_members = root.tables("members")
-    if len(members) + len(explicit_members) > MAX_MEMBERS:
-        raise root.error("members", f"{len(members) + len(explicit_members)} members", f"at most {MAX_MEMBERS} members")
-    for t in explicit_members:
-        member_name = t.string("name")
-        if member_name in members:
-            raise t.error("name", member_name, "duplicate member name")
+    for t, member_name in _named_tables(root, "members", members, MAX_MEMBERS, "member"):
         start = reference(t, "start", t.string("start"), nodes, "node")
         end = reference(t, "end", t.string("end"), nodes, "node")
         section = reference(t, "section", t.string("section"), sections, "section")

@@ -13,10 +13,19 @@ for in log scale, θ_k = ln(p_k/p_k⁰), bounded to [1/max_factor, max_factor]·
 scipy.optimize.least_squares (trust-region reflective). Paired by number, the objective is
 only piecewise smooth (modes cross), so a Sobol screening of the parameter box picks the
 starting points; the best polished fit wins.
+
+Where the design carries EMA mode shapes (``updating.measured_dofs``, docs/design-file.md) the
+FE mode of each measured mode is not its number but its pair by MAC
+(`correlation.pair_modes`), found anew at every evaluation from the FE shapes at the measured
+DOFs; a pairing that differs from the numbers, or that changes during the fit, is warned
+(:class:`~smartjoint.design.structure.correlation.ModeSwapWarning`). ``mac_weight`` w_MAC > 0
+adds the residuals √w_MAC·(1 − MAC_i) of the paired modes to the objective (their derivatives
+by forward differences). Without shapes everything is as before, bit for bit.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,12 +33,21 @@ import scipy.optimize
 import scipy.stats
 
 from smartjoint.common.errors import ModelError
+from smartjoint.design.structure.correlation import (
+    ModeCorrelation,
+    ModeSwapWarning,
+    correlate,
+    measurement_matrix,
+    modal_assurance_criterion,
+)
 from smartjoint.design.structure.fem import FEModel
 from smartjoint.design.structure.modal import eigensolve
 
 SEED = 20021  # fixed: the same design always updates to the same parameters
 SCREENING_SAMPLES = 64
 POLISHED_STARTS = 2
+PAIRING_MARGIN = 4  # FE modes solved beyond the highest measured number, for a pair by MAC to reach
+MAC_STEP = 1e-6  # forward-difference step in θ = ln(p/p⁰) of the MAC residuals
 
 
 @dataclass
@@ -45,6 +63,9 @@ class UpdatingResult:
     evaluations: int
     starts: int
     mac: np.ndarray | None  # the EMA MAC values given in the design (for the report)
+    correlation: ModeCorrelation | None = None  # with EMA shapes: MAC matrix and pairing, updated
+    initial_correlation: ModeCorrelation | None = None  # the same at the nominal parameters
+    pairing_changes: int = 0  # evaluations at which the MAC pairing differed from the one before
 
     @property
     def initial_error_pct(self) -> np.ndarray:
@@ -85,6 +106,16 @@ class UpdatingResult:
             "max_abs_error_pct": float(np.max(np.abs(self.error_pct))),
             "evaluations": self.evaluations,
             "starts": self.starts,
+            **({} if self.correlation is None else {"correlation": self.correlation_dict()}),
+        }
+
+    def correlation_dict(self) -> dict:
+        """The MAC pairing before and after updating (only with EMA shapes)."""
+        assert self.correlation is not None and self.initial_correlation is not None
+        return {
+            "updated": self.correlation.as_dict(),
+            "initial": self.initial_correlation.as_dict(),
+            "pairing_changes": self.pairing_changes,
         }
 
 
@@ -124,7 +155,8 @@ def _multistart_fit(residual, jacobian, weight: np.ndarray, bound: np.ndarray, n
     # polish the nominal point and the best samples with least squares.
     sampler = scipy.stats.qmc.Sobol(n_parameters, scramble=True, seed=SEED)
     samples = (2.0 * sampler.random(SCREENING_SAMPLES) - 1.0) * bound
-    scores = np.array([np.max(np.abs(residual(theta) / weight)) for theta in samples])
+    # The worst relative frequency error (without the MAC residuals that follow with a mac_weight).
+    scores = np.array([np.max(np.abs(residual(theta)[: weight.size] / weight)) for theta in samples])
     if progress:
         progress(0, POLISHED_STARTS + 1, float(scores.min()) * 100.0)
     starts = [np.zeros(n_parameters)] + [samples[i] for i in np.argsort(scores)[:POLISHED_STARTS]]
@@ -144,15 +176,91 @@ def _multistart_fit(residual, jacobian, weight: np.ndarray, bound: np.ndarray, n
         if best is None or solution.cost < best.cost:
             best = solution
         if progress:
-            progress(k + 1, len(starts), float(np.max(np.abs(best.fun / weight))) * 100.0)
-        if np.max(np.abs(best.fun / weight)) < 0.002:  # within 0.2 % on every mode: no further start helps
+            progress(k + 1, len(starts), float(np.max(np.abs(best.fun[: weight.size] / weight))) * 100.0)
+        if (
+            np.max(np.abs(best.fun[: weight.size] / weight)) < 0.002
+        ):  # within 0.2 % on every mode: no further start helps
             break
     assert best is not None  # starts always holds the nominal point
     return best, k + 1
 
 
-def update_model(model: FEModel, progress=None) -> UpdatingResult:
+class FitEvaluations:
+    """The eigen solutions of the fit, one θ = ln(p/p⁰) cached at a time, and with EMA shapes the
+    MAC pairing at each (`correlation.correlate`); counts the solutions and the pairing changes.
+
+    Parameters
+    ----------
+    model : FEModel
+        The locked truss.
+    names : list of str
+        The fitted parameters.
+    initial : ndarray
+        Their nominal values p⁰.
+    index : ndarray of int
+        The measured modes' numbers − 1 (the pairing without shapes).
+    n_modes : int
+        The highest measured mode number.
+    """
+
+    def __init__(self, model: FEModel, names, initial: np.ndarray, index: np.ndarray, n_modes: int):
+        spec = model.design.updating
+        assert spec is not None  # update_model checked it
+        self.model, self.spec, self.names, self.initial, self.index = model, spec, names, initial, index
+        self.restrict = measurement_matrix(model, spec.measured_dofs) if spec.has_shapes else None
+        self.n_solve = min(model.n_dof, n_modes + PAIRING_MARGIN) if spec.has_shapes else n_modes
+        self.calls = 0
+        self.pairing_changes = 0
+        self.last_pairing: np.ndarray | None = None
+        self.cache: dict[bytes, tuple] = {}
+
+    def solve(self, theta) -> tuple[np.ndarray, np.ndarray, np.ndarray, ModeCorrelation | None]:
+        """(FE frequencies, shapes, the FE mode of each measured mode (0-based), the correlation)."""
+        frequencies, shapes = _frequencies(self.model, self.names, self.initial * np.exp(theta), self.n_solve)
+        if self.restrict is None:
+            return frequencies, shapes, self.index, None
+        correlation = correlate(self.spec, self.restrict @ shapes, frequencies)
+        return frequencies, shapes, correlation.fe_modes - 1, correlation
+
+    def __call__(self, theta) -> tuple[np.ndarray, np.ndarray, np.ndarray, ModeCorrelation | None]:
+        key = np.asarray(theta).tobytes()
+        if key not in self.cache:
+            self.calls += 1
+            self.cache.clear()
+            self.cache[key] = self.solve(theta)
+            paired = self.cache[key][2]
+            if self.last_pairing is not None and not np.array_equal(paired, self.last_pairing):
+                self.pairing_changes += 1
+            self.last_pairing = paired
+        return self.cache[key]
+
+    def mac_residual(self, theta) -> np.ndarray:
+        """√w_MAC·(1 − MAC_i) of every measured mode with its pair."""
+        correlation = self(theta)[3]
+        assert correlation is not None  # a MAC term needs shapes (parse_updating)
+        return np.sqrt(self.spec.mac_weight) * (1.0 - correlation.diagonal)
+
+    def mac_jacobian(self, theta) -> np.ndarray:
+        """∂/∂θ of `mac_residual` by forward differences, the pairing held at θ's."""
+        assert self.restrict is not None
+        base, paired = self.mac_residual(theta), self(theta)[2]
+        measured = np.array([m.shape for m in self.spec.measured], dtype=float).T
+        columns = []
+        for k in range(len(self.names)):
+            stepped = np.array(theta, dtype=float)
+            stepped[k] += MAC_STEP
+            self.calls += 1
+            _, shapes = _frequencies(self.model, self.names, self.initial * np.exp(stepped), self.n_solve)
+            mac = np.diag(modal_assurance_criterion(measured, self.restrict @ shapes[:, paired]))
+            columns.append((np.sqrt(self.spec.mac_weight) * (1.0 - mac) - base) / MAC_STEP)
+        return np.column_stack(columns)
+
+
+def update_model(model: FEModel, progress=None, warn=None) -> UpdatingResult:
     """Fit the design's ``[updating]`` parameters to its measured frequencies.
+
+    With EMA shapes the measured modes pair with FE modes by MAC at every evaluation, and
+    ``mac_weight`` adds their (1 − MAC) to the objective (module docstring).
 
     Parameters
     ----------
@@ -160,11 +268,19 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
         The locked truss of a design with ``[updating]``.
     progress : callable, optional
         ``progress(k, n, worst_error_pct)`` after each polished start.
+    warn : callable, optional
+        ``warn(message)`` for each swap instead of a ModeSwapWarning (the command line's lines).
 
     Returns
     -------
     UpdatingResult
-        The fitted parameters, the frequencies before and after, the errors and sensitivities.
+        The fitted parameters, the frequencies before and after, the errors and sensitivities;
+        with shapes the MAC matrix and pairing before and after.
+
+    Warns
+    -----
+    ModeSwapWarning
+        When the MAC pairing differs from the mode numbers, or changed during the fit.
     """
     spec, names, initial, modes, measured, n_modes = _updating_inputs(model)
     index = modes - 1
@@ -172,50 +288,69 @@ def update_model(model: FEModel, progress=None) -> UpdatingResult:
     weight = np.array([m.mac if m.mac is not None else 1.0 for m in spec.measured])
     bound = np.log(np.array(spec.max_factors))
     parts = [model.stiffness_parts[n] for n in names]
-    calls = {"n": 0}
-    cache: dict[bytes, tuple] = {}
-
-    def evaluate(theta):
-        key = np.asarray(theta).tobytes()
-        if key not in cache:
-            calls["n"] += 1
-            cache.clear()
-            cache[key] = _frequencies(model, names, initial * np.exp(theta), n_modes)
-        return cache[key]
+    evaluate = FitEvaluations(model, names, initial, index, n_modes)
+    mac_term = spec.mac_weight > 0.0
 
     def residual(theta):
-        frequencies, _ = evaluate(theta)
-        return weight * (frequencies[index] - measured) / measured
+        frequencies, _, paired, _ = evaluate(theta)
+        relative = weight * (frequencies[paired] - measured) / measured
+        return np.concatenate([relative, evaluate.mac_residual(theta)]) if mac_term else relative
 
     def jacobian(theta):
-        frequencies, shapes = evaluate(theta)
+        frequencies, shapes, paired, _ = evaluate(theta)
         values = initial * np.exp(theta)
-        phi = shapes[:, index]
+        phi = shapes[:, paired]
         d_lambda = np.column_stack([np.einsum("ij,ij->j", phi, part @ phi) for part in parts])  # ∂ω²/∂p
-        f = frequencies[index]
-        return weight[:, None] * d_lambda * values[None, :] / (8.0 * np.pi**2 * f[:, None] * measured[:, None])
+        f = frequencies[paired]
+        rows = weight[:, None] * d_lambda * values[None, :] / (8.0 * np.pi**2 * f[:, None] * measured[:, None])
+        return np.vstack([rows, evaluate.mac_jacobian(theta)]) if mac_term else rows
 
     best, polished = _multistart_fit(residual, jacobian, weight, bound, len(names), progress)
-    initial_hz, _ = _frequencies(model, names, initial, n_modes)
+    initial_hz, _, initial_index, initial_correlation = evaluate.solve(np.zeros(len(names)))
     updated = initial * np.exp(best.x)
-    updated_hz, _ = evaluate(best.x)
-    sensitivity = jacobian(best.x) * (measured / updated_hz[index] / weight)[:, None]
+    updated_hz, _, updated_index, correlation = evaluate(best.x)
+    sensitivity = jacobian(best.x)[: len(modes)] * (measured / updated_hz[updated_index] / weight)[:, None]
+    _warn_swaps(initial_correlation, correlation, warn)
     return UpdatingResult(
         names,
         initial,
         updated,
         modes,
         measured,
-        initial_hz[index],
-        updated_hz[index],
+        initial_hz[initial_index],
+        updated_hz[updated_index],
         sensitivity,
-        calls["n"],
+        evaluate.calls,
         polished,
         np.array([m.mac if m.mac is not None else np.nan for m in spec.measured]),
+        correlation,
+        initial_correlation,
+        evaluate.pairing_changes,
     )
 
 
-def updated_design(design, progress=None):
+def _warn_swaps(initial: ModeCorrelation | None, updated: ModeCorrelation | None, warn=None) -> None:
+    """A ModeSwapWarning naming the modes whose MAC pair is not their number, or changed in the fit."""
+    if initial is None or updated is None:
+        return
+    messages = [f"model updating: {swap}" for swap in updated.swaps]
+    moved = np.flatnonzero(initial.fe_modes != updated.fe_modes)
+    if moved.size:
+        messages.append(
+            "model updating: the MAC pairing changed during the fit: "
+            + ", ".join(
+                f"measured mode {initial.measured_modes[i]} from FE mode {initial.fe_modes[i]} to {updated.fe_modes[i]}"
+                for i in moved
+            )
+        )
+    for message in messages:
+        if warn is not None:
+            warn(message)
+        else:
+            warnings.warn(message, ModeSwapWarning, stacklevel=3)
+
+
+def updated_design(design, progress=None, warn=None):
     """The design with its ``[updating]`` parameters fitted, and the result (None without one).
 
     Updating always runs on the conventional truss (joints locked): that is what the modal
@@ -225,7 +360,7 @@ def updated_design(design, progress=None):
     ----------
     design : Design
         The design.
-    progress : callable, optional
+    progress, warn : callable, optional
         As for `update_model`.
 
     Returns
@@ -237,8 +372,18 @@ def updated_design(design, progress=None):
 
     if design.updating is None:
         return design, None
-    result = update_model(build_model(design, joints="locked"), progress=progress)
+    result = update_model(build_model(design, joints="locked"), progress=progress, warn=warn)
     return design.with_parameters(result.parameters), result
 
 
-__all__ = ["POLISHED_STARTS", "SCREENING_SAMPLES", "SEED", "update_model", "updated_design", "UpdatingResult"]
+__all__ = [
+    "FitEvaluations",
+    "MAC_STEP",
+    "PAIRING_MARGIN",
+    "POLISHED_STARTS",
+    "SCREENING_SAMPLES",
+    "SEED",
+    "update_model",
+    "updated_design",
+    "UpdatingResult",
+]

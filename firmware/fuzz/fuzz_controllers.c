@@ -93,66 +93,62 @@ static void check_step(const char *law, unsigned int status, unsigned int expect
     }
 }
 
-static void fuzz_siso(fuzz_reader *reader)
+/* The friction force and the measured normal force of joint j, which both laws read: taken from
+ * the fuzz input in that order, and their reference classification. */
+static unsigned int take_joint_forces(fuzz_reader *reader, smartjoint_real *friction_force,
+                                      smartjoint_real *normal_force, unsigned int j)
 {
-    smartjoint_siso_state state;
-    int step;
-    smartjoint_siso_init(&state);
-    for (step = 0; step < MAX_STEPS && fuzz_more(reader); ++step) {
-        smartjoint_siso_input input;
-        smartjoint_siso_output output;
-        unsigned int status, j, expected = 0u;
-        if (fuzz_take_u8(reader) == 0xFFu) {
-            smartjoint_siso_init(&state);
-        }
-        for (j = 0u; j < FUZZ_JOINTS; ++j) {
-            input.sliding_velocity[j] = take_real(reader);
-            input.friction_force[j] = take_real(reader);
-            input.normal_force[j] = take_real(reader);
-            expected |= classify(input.sliding_velocity[j], -fuzz_sliding_velocity_limit[j],
-                                 fuzz_sliding_velocity_limit[j]);
-            expected |= classify(input.friction_force[j], -fuzz_friction_force_limit[j], fuzz_friction_force_limit[j]);
-            expected |= classify(input.normal_force[j], fuzz_measured_normal_force_min[j],
-                                 fuzz_measured_normal_force_max[j]);
-        }
-        status = smartjoint_siso_step(&state, &input, &output);
-        check_step("siso", status, expected, 0, output.normal_force, step);
-    }
+    *friction_force = take_real(reader);
+    *normal_force = take_real(reader);
+    return classify(*friction_force, -fuzz_friction_force_limit[j], fuzz_friction_force_limit[j]) |
+           classify(*normal_force, fuzz_measured_normal_force_min[j], fuzz_measured_normal_force_max[j]);
 }
 
-static void fuzz_clqg(fuzz_reader *reader)
+/* One SISO step (after a restart, if asked) on inputs taken from the fuzz input, checked. */
+static void fuzz_siso_step(smartjoint_siso_state *state, int restart, fuzz_reader *reader, int step)
 {
-    smartjoint_clqg_state state;
-    int step;
-    smartjoint_clqg_init(&state);
-    for (step = 0; step < MAX_STEPS && fuzz_more(reader); ++step) {
-        smartjoint_clqg_input input;
-        smartjoint_clqg_output output;
-        unsigned int status, j, r, expected = 0u;
-        if (fuzz_take_u8(reader) == 0xFFu) {
-            smartjoint_clqg_init(&state);
+    smartjoint_siso_input input;
+    smartjoint_siso_output output;
+    unsigned int status, j, expected = 0u;
+    if (restart) {
+        smartjoint_siso_init(state);
+    }
+    for (j = 0u; j < FUZZ_JOINTS; ++j) {
+        input.sliding_velocity[j] = take_real(reader);
+        expected |= classify(input.sliding_velocity[j], -fuzz_sliding_velocity_limit[j],
+                             fuzz_sliding_velocity_limit[j]);
+        expected |= take_joint_forces(reader, &input.friction_force[j], &input.normal_force[j], j);
+    }
+    status = smartjoint_siso_step(state, &input, &output);
+    check_step("siso", status, expected, 0, output.normal_force, step);
+}
+
+/* One clipped-LQG step (after a restart, if asked) on inputs taken from the fuzz input, checked,
+ * u_d included. */
+static void fuzz_clqg_step(smartjoint_clqg_state *state, int restart, fuzz_reader *reader, int step)
+{
+    smartjoint_clqg_input input;
+    smartjoint_clqg_output output;
+    unsigned int status, j, r, expected = 0u;
+    if (restart) {
+        smartjoint_clqg_init(state);
+    }
+    for (r = 0u; r < FUZZ_SENSORS; ++r) {
+        input.sensors[r] = take_real(reader);
+        expected |= classify(input.sensors[r], -fuzz_sensor_limit[r], fuzz_sensor_limit[r]);
+    }
+    for (j = 0u; j < FUZZ_JOINTS; ++j) {
+        expected |= take_joint_forces(reader, &input.friction_force[j], &input.normal_force[j], j);
+    }
+    status = smartjoint_clqg_step(state, &input, &output);
+    check_step("clqg", status, expected, 1, output.normal_force, step);
+    for (j = 0u; j < FUZZ_JOINTS; ++j) {
+        if (status != 0u && output.desired_force[j] != 0) {
+            fuzz_fail("controllers_" BUILD, "clqg step %d: status 0x%x but u_d of joint %u is %.9g", step, status, j,
+                      (double)output.desired_force[j]);
         }
-        for (r = 0u; r < FUZZ_SENSORS; ++r) {
-            input.sensors[r] = take_real(reader);
-            expected |= classify(input.sensors[r], -fuzz_sensor_limit[r], fuzz_sensor_limit[r]);
-        }
-        for (j = 0u; j < FUZZ_JOINTS; ++j) {
-            input.friction_force[j] = take_real(reader);
-            input.normal_force[j] = take_real(reader);
-            expected |= classify(input.friction_force[j], -fuzz_friction_force_limit[j], fuzz_friction_force_limit[j]);
-            expected |= classify(input.normal_force[j], fuzz_measured_normal_force_min[j],
-                                 fuzz_measured_normal_force_max[j]);
-        }
-        status = smartjoint_clqg_step(&state, &input, &output);
-        check_step("clqg", status, expected, 1, output.normal_force, step);
-        for (j = 0u; j < FUZZ_JOINTS; ++j) {
-            if (status != 0u && output.desired_force[j] != 0) {
-                fuzz_fail("controllers_" BUILD, "clqg step %d: status 0x%x but u_d of joint %u is %.9g", step, status, j,
-                          (double)output.desired_force[j]);
-            }
-            if (status == 0u && !isfinite(output.desired_force[j])) {
-                fuzz_fail("controllers_" BUILD, "clqg step %d: status 0 with a non-finite u_d of joint %u", step, j);
-            }
+        if (status == 0u && !isfinite(output.desired_force[j])) {
+            fuzz_fail("controllers_" BUILD, "clqg step %d: status 0 with a non-finite u_d of joint %u", step, j);
         }
     }
 }
@@ -160,11 +156,20 @@ static void fuzz_clqg(fuzz_reader *reader)
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     fuzz_reader reader;
+    smartjoint_siso_state siso;
+    smartjoint_clqg_state clqg;
+    unsigned int use_clqg;
+    int step;
     fuzz_reader_init(&reader, data, size);
-    if (fuzz_take_u8(&reader) & 1u) {
-        fuzz_clqg(&reader);
-    } else {
-        fuzz_siso(&reader);
+    use_clqg = fuzz_take_u8(&reader) & 1u;
+    for (step = 0; step < MAX_STEPS && fuzz_more(&reader); ++step) {
+        /* The control byte is read at every step: 0xFF restarts the controller, started at step 0. */
+        const int restart = fuzz_take_u8(&reader) == 0xFFu || step == 0;
+        if (use_clqg) {
+            fuzz_clqg_step(&clqg, restart, &reader, step);
+        } else {
+            fuzz_siso_step(&siso, restart, &reader, step);
+        }
     }
     return 0;
 }

@@ -10,8 +10,26 @@
 #include "smartjoint_clqg.h"
 #include "smartjoint_siso.h"
 
-/* One law behind one signature, so that a single loop replays either. */
+/* One law behind one set of signatures, so that a single loop replays either. */
 typedef unsigned int (*step_function)(void *state, const void *input, void *output);
+
+struct law {
+    void (*init)(void *state);
+    step_function step;
+    void *state;
+    size_t input_size;
+    size_t output_size;
+};
+
+static void siso_init(void *state)
+{
+    smartjoint_siso_init(state);
+}
+
+static void clqg_init(void *state)
+{
+    smartjoint_clqg_init(state);
+}
 
 static unsigned int siso_step(void *state, const void *input, void *output)
 {
@@ -23,17 +41,26 @@ static unsigned int clqg_step(void *state, const void *input, void *output)
     return smartjoint_clqg_step(state, input, output);
 }
 
-static int replay(int32_t count, step_function step, void *state, void *input, size_t input_size, void *output,
-                  size_t output_size)
+static int replay(int32_t count, const struct law *law)
 {
+    /* Room for either law's structs; each law reads and writes only its own size. */
+    union {
+        smartjoint_siso_input siso;
+        smartjoint_clqg_input clqg;
+    } input;
+    union {
+        smartjoint_siso_output siso;
+        smartjoint_clqg_output clqg;
+    } output;
     int32_t k;
+    law->init(law->state);
     for (k = 0; k < count; ++k) {
         uint32_t status;
-        if (fread(input, input_size, 1, stdin) != 1) {
+        if (fread(&input, law->input_size, 1, stdin) != 1) {
             return 3;
         }
-        status = (uint32_t)step(state, input, output);
-        if (fwrite(output, output_size, 1, stdout) != 1 || fwrite(&status, sizeof status, 1, stdout) != 1) {
+        status = (uint32_t)law->step(law->state, &input, &output);
+        if (fwrite(&output, law->output_size, 1, stdout) != 1 || fwrite(&status, sizeof status, 1, stdout) != 1) {
             return 4;
         }
     }
@@ -42,23 +69,16 @@ static int replay(int32_t count, step_function step, void *state, void *input, s
 
 int main(void)
 {
+    static smartjoint_siso_state siso_state;
+    static smartjoint_clqg_state clqg_state;
+    /* Indexed by the law number of the header. */
+    static const struct law laws[2] = {
+        {siso_init, siso_step, &siso_state, sizeof(smartjoint_siso_input), sizeof(smartjoint_siso_output)},
+        {clqg_init, clqg_step, &clqg_state, sizeof(smartjoint_clqg_input), sizeof(smartjoint_clqg_output)},
+    };
     int32_t header[2];
-    if (fread(header, sizeof header, 1, stdin) != 1 || header[1] < 0) {
+    if (fread(header, sizeof header, 1, stdin) != 1 || header[1] < 0 || header[0] < 0 || header[0] > 1) {
         return 2;
     }
-    if (header[0] == 0) {
-        static smartjoint_siso_state state;
-        smartjoint_siso_input input;
-        smartjoint_siso_output output;
-        smartjoint_siso_init(&state);
-        return replay(header[1], siso_step, &state, &input, sizeof input, &output, sizeof output);
-    }
-    if (header[0] == 1) {
-        static smartjoint_clqg_state state;
-        smartjoint_clqg_input input;
-        smartjoint_clqg_output output;
-        smartjoint_clqg_init(&state);
-        return replay(header[1], clqg_step, &state, &input, sizeof input, &output, sizeof output);
-    }
-    return 2;
+    return replay(header[1], &laws[header[0]]);
 }
