@@ -4,7 +4,8 @@ the command-line spelling (``kind:target:start:end[:detail]``, :func:`parse_faul
 Frame faults act on one frame name on its way over the bus (the firmware's own frames included),
 ``implausible`` puts a value beyond the design's range into a signal with a valid E2E
 protection, ``amplifier`` makes one joint's amplifier report (or suffer) a fault, ``bus_off``
-takes the whole bus off. The loop that injects them is ``bench/loop.py``.
+takes the whole bus off. The loop that injects them is ``bench/loop.py``; the report's
+demonstration sequence, built from the design's own frames and joints, is :func:`demo_faults`.
 """
 
 from __future__ import annotations
@@ -172,3 +173,31 @@ def parse_fault(text: str) -> Fault:
     elif detail is not None:
         raise ModelError(f"--fault {text!r}: kind {kind} takes no detail (got {detail!r})")
     return Fault(kind, start, end, target, **fields)
+
+
+def demo_faults(artifact, duration: float) -> tuple:
+    """Four faults in sequence for the report, on the design's own frames and joints.
+
+    A dropped joint frame, a damaged sensor frame, an over-heated amplifier, the bus off — at
+    1/8, 1/4, 3/8 and 1/2 of the study.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The artefact (its joint names).
+    duration : float
+        The study's length [s].
+
+    Returns
+    -------
+    tuple of Fault
+        The four faults.
+    """
+    joints = list(artifact.joint_names)
+    at = lambda fraction, length: (fraction * duration, fraction * duration + length)  # noqa: E731
+    return (
+        Fault("drop", *at(0.125, 0.1), f"JOINT_{joints[0].upper()}"),
+        Fault("corrupt_crc", *at(0.25, 0.05), "TIP_SENSORS"),
+        Fault("amplifier", *at(0.375, 0.1), joints[len(joints) // 2], amplifier_fault="over_temperature"),
+        Fault("bus_off", *at(0.5, 0.05)),
+    )

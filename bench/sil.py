@@ -12,9 +12,10 @@ from typing import Any
 import numpy as np
 
 from smartjoint.bench import busload, firmware, safety
-from smartjoint.bench.faults import Fault, check_faults
+from smartjoint.bench.faults import check_faults, demo_faults
 from smartjoint.bench.loop import SilLoop
 from smartjoint.common import figures
+from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
@@ -355,34 +356,6 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     return [path]
 
 
-def demo_faults(artifact, duration: float) -> tuple:
-    """Four faults in sequence for the report, on the design's own frames and joints.
-
-    A dropped joint frame, a damaged sensor frame, an over-heated amplifier, the bus off — at
-    1/8, 1/4, 3/8 and 1/2 of the study.
-
-    Parameters
-    ----------
-    artifact : ControllerArtifact
-        The artefact (its joint names).
-    duration : float
-        The study's length [s].
-
-    Returns
-    -------
-    tuple of Fault
-        The four faults.
-    """
-    joints = list(artifact.joint_names)
-    at = lambda fraction, length: (fraction * duration, fraction * duration + length)  # noqa: E731
-    return (
-        Fault("drop", *at(0.125, 0.1), f"JOINT_{joints[0].upper()}"),
-        Fault("corrupt_crc", *at(0.25, 0.05), "TIP_SENSORS"),
-        Fault("amplifier", *at(0.375, 0.1), joints[len(joints) // 2], amplifier_fault="over_temperature"),
-        Fault("bus_off", *at(0.5, 0.05)),
-    )
-
-
 def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "float") -> dict:
     """One SIL run of the study with a sequence of faults.
 
@@ -406,6 +379,10 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
         the safe state is passive), samples in the safe state, the record, result and statistics.
     """
     faults = demo_faults(artifact, setup.duration) if faults is None else tuple(faults)
+    _check_faults_against(protocol.database(artifact), artifact, faults)
+    late = [f.label() for f in faults if not f.start < setup.duration]
+    if late:  # it would never act, and its cycles could not be counted
+        raise ModelError(f"faults {', '.join(late)}: start at or after the study's end t_e = {setup.duration:g} s")
     loop = SilLoop(firmware.Firmware(artifact, law, real), closed_loop.PULSE_DURATION, faults=faults)
     result = run_loop(setup, loop)
     rows = [

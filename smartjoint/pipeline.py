@@ -34,6 +34,7 @@ import numpy as np
 from smartjoint import __version__
 from smartjoint import report as plots
 from smartjoint.bench import busload, safety, safety_report, sil
+from smartjoint.bench.faults import demo_faults
 from smartjoint.codegen import backtoback, can_layer, generate, identifiers, output
 from smartjoint.design import build_model, load_design, solve_modes, updated_design
 from smartjoint.design.control import artifact, artifact_building
@@ -268,7 +269,7 @@ def _sil_stage(r: _Results, staging: Path, progress) -> None:
             law["log"] = Path(law["log"]).relative_to(staging).as_posix()
     r.sil_check = sil_check
     r.bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
-    demo = sil.demo_faults(controller, control_study.setup.duration)
+    demo = demo_faults(controller, control_study.setup.duration)
     progress("      injected faults in the study: " + ", ".join(f.label() for f in demo))
     r.fault_check = sil.fault_run(control_study.setup, controller, faults=demo)
     progress("      safe state under every fault kind on every frame (docs/safety.md) …")

@@ -263,6 +263,18 @@ def test_bad_fault_specifications_are_named():
         check_faults([Fault("bus_off", 0.3, 0.2)], set(), [])
 
 
+def test_a_fault_the_run_cannot_inject_is_refused_not_dropped(reference):
+    """fault_run checks every fault against the artefact's bus and the study window before the
+    run: a frame of another design, or a fault starting at t_e, is an error naming it."""
+    from types import SimpleNamespace
+
+    study = SimpleNamespace(duration=1.0)
+    with pytest.raises(ModelError, match="target 'JOINT_JA'"):
+        sil.fault_run(study, reference, faults=[Fault("drop", 0.5, 0.6, "JOINT_JA")])
+    with pytest.raises(ModelError, match=r"faults bus_off bus: start at or after the study's end t_e = 1 s"):
+        sil.fault_run(study, reference, faults=[Fault("bus_off", 1.0, 1.1)])
+
+
 @pytest.mark.parametrize("suffix", [".blf", ".asc"])
 def test_bench_log_records_a_live_bus_that_reopens_and_converts(reference, tmp_path, suffix):
     """``bench log`` (logs.record) on a python-can bus while a node sends: the file reopens with
