@@ -135,8 +135,22 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
 @pytest.mark.parametrize(
     "change, message",
     [
-        (lambda d: d.update(schema_version=3), r"schema_version: 3 — unknown; this version reads schema_version 2"),
+        (lambda d: d.update(schema_version=4), r"schema_version: 4 — unknown; this version reads schema_version 3"),
         (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
+        (
+            lambda d: d.update(schema_version=2),
+            r"schema_version: 2 — .* has no joint friction: re-run `smartjoint design`",
+        ),
+        (lambda d: d.update(joint_types=["A", "C"]), r"joint_types\[1\]: 'C' — joint 'JB': allowed: A, B"),
+        (
+            lambda d: d["friction_parameters"][0].__setitem__(0, 0.0),
+            r"friction_parameters\[0\].*σ0, F_c, v_s must be > 0",
+        ),
+        (
+            lambda d: d.update(friction_radius=[0.0, 0.0]),
+            r"friction_radius\[1\]: 0.0 — joint 'JB': > 0 \[m\] for type B",
+        ),
+        (lambda d: d.update(friction_sources=["x"]), r"friction_sources: 1 entries — expected one per joint \(l = 2\)"),
         (
             lambda d: d.update(safe_normal_force=[5.0, 400.0]),
             r"safe_normal_force\[0\]: 5.0 N for joint 'JA' — must lie "
