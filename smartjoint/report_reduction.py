@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.common import figures
-from smartjoint.design.reduction import hankel_values, study_summary
+from smartjoint.design.reduction import channel_references, hankel_values, modal_gramians, study_summary
 from smartjoint.design.structure import modal
 
 
@@ -20,7 +20,9 @@ def plot_study(study: dict, folder) -> list:
     fe = study["fe"]
     considered = modal.modal_model(fe, first)
     fig, ax = plt.subplots(figsize=(7, 3.5))
-    control_u = (considered.joint_input**2) / (4 * considered.damping * considered.omega)[:, None]
+    # Each joint's gramian over its reference: the scale the selection ranks on (unit-free).
+    references = [c.value for c in channel_references(considered) if c.kind == "joint"]
+    control_u = modal_gramians(considered)["joint"] / np.asarray(references)
     for j, name in enumerate(study["joint_names"]):
         ax.semilogy(np.arange(1, first.omega.size + 1), control_u[:, j], ".", label=f"joint {name}")
     kept = study["runs"][0]["reduction"].kept_modes
@@ -33,7 +35,7 @@ def plot_study(study: dict, folder) -> list:
             ax,
             folder / "hankel.png",
             "mode",
-            "w_i^c (Eq. 17)",
+            "w_ij^c / r_j (Eq. 17)",
             "Controllability of the modes by each joint (Fig. 9)",
         )
     )
@@ -121,6 +123,10 @@ def study_markdown(study: dict) -> str:
         f"Full model: all modes of the released truss ({s['full_states']} states); reduced: {s['kept_modes']} "
         f"of the first {s['considered_modes']} modes by Hankel singular values, plus Krylov vectors for the "
         f"active joint {s['active_joint']}. Plant step {s['step_s']:g} s.",
+        "",
+        "Each channel of the Hankel ranking is scaled by its largest modal gramian (mode): "
+        + ", ".join(f"{c['name']} {c['value']:.3g} {c['unit']} ({c['mode']})" for c in s["hankel_references"])
+        + ".",
         "",
         "| Krylov vectors | states | friction RMS error "
         + " | ".join(f"0–{w} s" for w in s["runs"][0]["friction_rms_error"])

@@ -141,7 +141,9 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
         assert (out / "can" / f"sil_{law}.blf").stat().st_size > 0
     assert (out / "firmware" / "bus.dbc").exists() and "Software in the loop" in (out / "report.md").read_text()
     labels = [fault["fault"] for fault in sil_summary["faults"]["faults"]]  # the user's frames and joints
-    assert labels == ["drop JOINT_JA", "corrupt_crc TIP_SENSORS", "amplifier JB over_temperature", "bus_off bus"], labels
+    assert labels == ["drop JOINT_JA", "corrupt_crc TIP_SENSORS", "amplifier JB over_temperature", "bus_off bus"], (
+        labels
+    )
     for fault in sil_summary["faults"]["faults"]:  # the demonstration faults: safe within 3 cycles, recovered
         assert fault["joints"] is not None and fault["joints"] <= 3 and fault["firmware"] <= 3, fault
         assert fault["recovery"] is not None

@@ -42,14 +42,17 @@ def test_state_space_matches_the_fe_model_frequency_response(small):
 
 
 def test_hankel_values_match_the_lyapunov_gramians(small):
-    """Eq. 17–18: the closed-form values agree with the exact gramians for ξ ≪ 1."""
+    """Eq. 17–18: the closed-form values agree with the exact gramians for ξ ≪ 1 — of the state
+    space whose joint inputs (and so v = Bᵀx) are scaled by their references, u_j = √r_j·ũ_j."""
     import control
 
     fe, modes = small
     few = modal.modal_model(fe, modes, np.arange(8))
     A, B, H, Cv, Cy = few.state_space()
+    references = np.array([c.value for c in reduction.channel_references(few) if c.kind == "joint"])
+    B = B / np.sqrt(references)
     Wc = control.lyap(A, B @ B.T)
-    Wo = control.lyap(A.T, Cv.T @ Cv)
+    Wo = control.lyap(A.T, B @ B.T)
     exact = np.sqrt(np.sort(np.linalg.eigvals(Wc @ Wo).real)[::-1])
     closed = np.sort(np.repeat(reduction.hankel_values(few)["uv"], 2))[::-1]
     top = closed[:4]  # the dominant ones, where the diagonal approximation matters

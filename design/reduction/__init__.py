@@ -1,6 +1,7 @@
 """Model reduction of the linear subsystem (paper Section 4).
 
-``selection`` scores the modes by their closed-form Hankel singular values (Eq. 16–18),
+``selection`` scores the modes by their closed-form Hankel singular values (Eq. 16–18), each
+input and output channel scaled by its own reference so that the ranking does not depend on units,
 ``krylov`` adds the Krylov correction vectors and builds the reduced model (Eq. 24–29),
 ``metrics`` compares a reduced model with the full one (frequency responses, static compliance,
 band-limited H2/H∞), and ``study`` runs the reduction example of Section 4.3 (Fig. 10).
@@ -17,20 +18,30 @@ from smartjoint.design.reduction.metrics import (
     modal_compliance,
     static_compliance,
 )
-from smartjoint.design.reduction.selection import PATHS, hankel_values, select_modes
+from smartjoint.design.reduction.selection import (
+    PATHS,
+    ChannelReference,
+    channel_references,
+    hankel_values,
+    modal_gramians,
+    select_modes,
+)
 from smartjoint.design.reduction.study import WINDOWS, reduction_study, study_summary
 
 __all__ = [
+    "ChannelReference",
     "ModelError",
     "PATHS",
     "Reduction",
     "WINDOWS",
     "band_norms",
+    "channel_references",
     "error_metrics",
     "frequency_grid",
     "frequency_response",
     "hankel_values",
     "krylov_vectors",
+    "modal_gramians",
     "modal_compliance",
     "reduce",
     "reduction_study",

@@ -17,7 +17,13 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.reduction.selection import PATHS, hankel_values, select_modes
+from smartjoint.design.reduction.selection import (
+    PATHS,
+    ChannelReference,
+    channel_references,
+    hankel_values,
+    select_modes,
+)
 from smartjoint.design.structure.modal import ModalModel, Modes, modal_model
 
 
@@ -105,6 +111,7 @@ class Reduction:
     kept_modes: np.ndarray  # 0-based indices into the considered modes
     krylov_per_joint: int
     hankel: dict[str, np.ndarray] = field(default_factory=dict)  # per considered mode
+    references: list[ChannelReference] = field(default_factory=list)  # the channels' scales of `hankel`
 
 
 def reduce(
@@ -135,7 +142,8 @@ def reduce(
     Returns
     -------
     Reduction
-        The reduced modal model, the kept modes and the Hankel values of the considered modes.
+        The reduced modal model, the kept modes, the Hankel values of the considered modes and
+        the reference that scales each input and output channel in them.
 
     Examples
     --------
@@ -167,8 +175,13 @@ def reduce(
             reduced.sensor_names,
             reduced.disturbance_names,
             basis,
+            reduced.joint_units,
+            reduced.sensor_units,
+            reduced.disturbance_units,
         )
-    return Reduction(reduced, len(modes), kept, krylov_per_joint, hankel_values(considered))
+    return Reduction(
+        reduced, len(modes), kept, krylov_per_joint, hankel_values(considered), channel_references(considered)
+    )
 
 
 __all__ = ["Reduction", "krylov_vectors", "reduce"]

@@ -172,7 +172,8 @@ def study_summary(study: dict) -> dict:
     Returns
     -------
     dict
-        Joints, forces, sizes, the Hankel values u_R → v and per run the kept modes, the Krylov
+        Joints, forces, sizes, the (scaled) Hankel values u_R → v with the reference of each
+        channel (kind, name, value, unit, the mode it sits at) and per run the kept modes, the Krylov
         frequencies [Hz], the friction RMS errors, the energy ratio and the error metrics.
     """
     hankel = study["runs"][0]["reduction"].hankel
@@ -186,6 +187,10 @@ def study_summary(study: dict) -> dict:
         "duration_s": study["duration"],
         "step_s": study["step"],
         "hankel_uv": hankel["uv"].tolist(),
+        "hankel_references": [
+            {"kind": c.kind, "name": c.name, "value": c.value, "unit": c.unit, "mode": c.mode}
+            for c in study["runs"][0]["reduction"].references
+        ],
         "runs": [
             {
                 "krylov_per_joint": r["krylov_per_joint"],

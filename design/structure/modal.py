@@ -7,7 +7,7 @@ Lanczos (ARPACK) around a slightly negative shift, which also works for nearly s
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
@@ -247,6 +247,11 @@ class ModalModel:
     sensor_names: list[str]
     disturbance_names: list[str]
     basis: np.ndarray | None = None  # (N, n) shapes in z, kept for the reduction and plots
+    # Units of u_R, y and w per channel ("N", "N·m"; "m", "m/s", "rad", "rad/s"), for the
+    # references of the mode selection; empty when the model was built without a design.
+    joint_units: list[str] = field(default_factory=list)
+    sensor_units: list[str] = field(default_factory=list)
+    disturbance_units: list[str] = field(default_factory=list)
 
     @property
     def n_coordinates(self) -> int:
@@ -277,6 +282,31 @@ class ModalModel:
         return A, B, H, B.T.copy(), Cy
 
 
+def channel_units(model) -> tuple[list[str], list[str], list[str]]:
+    """The units of the joint inputs u_R, the sensor outputs y and the disturbances w of an FE model.
+
+    Parameters
+    ----------
+    model : FEModel
+        The FE model; its design gives the joint types, sensor quantities and directions.
+
+    Returns
+    -------
+    tuple of list of str
+        Per joint "N" (type A: force along the member, slip in m) or "N·m" (type B: torque,
+        rotation in rad); per sensor "m", "m/s", "rad" or "rad/s"; per disturbance "N" or "N·m".
+    """
+    design = model.design
+    types = {joint.name: joint.type for joint in design.joints}
+    joints = ["N" if types[name] == "A" else "N·m" for name in model.joint_names]
+    sensors = [
+        ("rad" if any(sensor.direction[3:]) else "m") + ("/s" if sensor.quantity == "velocity" else "")
+        for sensor in design.sensors
+    ]
+    disturbances = ["N·m" if any(d.direction[3:]) else "N" for d in design.disturbances]
+    return joints, sensors, disturbances
+
+
 def modal_model(model, modes: Modes, indices=None) -> ModalModel:
     """The modal model of an FE model's (released-joint) modes, optionally a subset ``indices``.
 
@@ -296,6 +326,7 @@ def modal_model(model, modes: Modes, indices=None) -> ModalModel:
     """
     indices = np.arange(len(modes)) if indices is None else np.asarray(indices, dtype=int)
     shapes = modes.shapes[:, indices]
+    joint_units, sensor_units, disturbance_units = channel_units(model)
     return ModalModel(
         omega=modes.omega[indices].copy(),
         damping=modes.damping[indices].copy(),
@@ -308,10 +339,14 @@ def modal_model(model, modes: Modes, indices=None) -> ModalModel:
         sensor_names=list(model.sensor_names),
         disturbance_names=list(model.disturbance_names),
         basis=shapes,
+        joint_units=joint_units,
+        sensor_units=sensor_units,
+        disturbance_units=disturbance_units,
     )
 
 
 __all__ = [
+    "channel_units",
     "count_zero_energy_modes",
     "DENSE_LIMIT",
     "eigensolve",
