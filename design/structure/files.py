@@ -94,7 +94,13 @@ def _chain_names(chain: list[Path]) -> str:
 
 
 def read_toml(
-    path: Path, source: str, raw: bytes, chain: list[Path], max_bytes: int, max_depth: int
+    path: Path,
+    source: str,
+    raw: bytes,
+    chain: list[Path],
+    max_bytes: int,
+    max_depth: int,
+    origins: dict[str, str] | None = None,
 ) -> tuple[dict[str, Any], bytes]:
     """Parse a design file; ``base = "other.toml"`` (relative to the file) supplies every
     top-level key the file does not set itself. The hash covers the whole chain of bytes.
@@ -113,6 +119,8 @@ def read_toml(
         The largest base file read.
     max_depth : int
         The most base files behind the first.
+    origins : dict, optional
+        Filled with the file each top-level key of the merged data was written in.
 
     Returns
     -------
@@ -124,7 +132,9 @@ def read_toml(
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise DesignError("<file>", source, f"not valid TOML: {error}") from None
     anchor_paths(data, path.parent)
+    origins = {} if origins is None else origins
     if "base" not in data:
+        origins.update(dict.fromkeys(data, str(path)))
         return data, raw
     base = data.pop("base")
     if not isinstance(base, str) or not base:
@@ -141,7 +151,10 @@ def read_toml(
             "base", base, f"{_chain_names(chain + [base_path])}: at most {max_depth} levels of base files", source
         )
     base_raw = read_file(base_path, "base", base, source, max_bytes)
-    base_data, base_chain = read_toml(base_path, str(base_path), base_raw, chain + [base_path], max_bytes, max_depth)
+    base_data, base_chain = read_toml(
+        base_path, str(base_path), base_raw, chain + [base_path], max_bytes, max_depth, origins
+    )
+    origins.update(dict.fromkeys(data, str(path)))
     return {**base_data, **data}, base_chain + b"\0" + raw
 
 

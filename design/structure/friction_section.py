@@ -43,13 +43,16 @@ METADATA_TABLES = ("identification",)
 MAY_BE_ZERO = ("sigma1", "sigma2", "stribeck")
 
 
-def parse_friction(root: DesignTable) -> tuple[dict[str, JointFriction], tuple[str, ...]]:
+def parse_friction(root: DesignTable, written_in: str) -> tuple[dict[str, JointFriction], tuple[str, ...]]:
     """The ``[friction]`` table: LuGre parameters by joint type and the rig records.
 
     Parameters
     ----------
     root : DesignTable
         The design's root table.
+    written_in : str
+        The file the table was written in (a base of the design, maybe), named as the source of
+        inline parameters.
 
     Returns
     -------
@@ -62,13 +65,13 @@ def parse_friction(root: DesignTable) -> tuple[dict[str, JointFriction], tuple[s
     by_type = {}
     for joint_type in JOINT_TYPES:
         if joint_type in t.data:
-            by_type[joint_type] = joint_friction(t.table(joint_type), joint_type)
+            by_type[joint_type] = joint_friction(t.table(joint_type), joint_type, written_in)
     records = _records(t) if "records" in t.data else ()
     t.finish()
     return by_type, records
 
 
-def joint_friction(t: DesignTable, joint_type: str) -> JointFriction:
+def joint_friction(t: DesignTable, joint_type: str, written_in: str) -> JointFriction:
     """One set of LuGre parameters: inline in ``t`` or in the file ``t.file``.
 
     Parameters
@@ -77,6 +80,8 @@ def joint_friction(t: DesignTable, joint_type: str) -> JointFriction:
         ``[friction.A]``, ``[friction.B]`` or a joint's ``friction`` table.
     joint_type : str
         The type the parameters are for.
+    written_in : str
+        The design file ``t`` was written in.
 
     Returns
     -------
@@ -86,9 +91,34 @@ def joint_friction(t: DesignTable, joint_type: str) -> JointFriction:
         name = t.string("file")
         t.finish()
         return _parameter_file(Path(name), joint_type, t.key("file"), t.source)
-    friction = _values(t, joint_type, f"{Path(t.source).name} [{t.path}]", "")
+    friction = _values(t, joint_type, f"{Path(written_in).name} [{t.path}]", "")
     t.finish()
     return friction
+
+
+def joint_own_friction(t: DesignTable, joint_type: str, written_in: str) -> JointFriction | None:
+    """A joint's own LuGre parameters: ``friction = "file.toml"`` or an inline table.
+
+    Parameters
+    ----------
+    t : DesignTable
+        The joint's ``[[joints]]`` entry.
+    joint_type : str
+        Its type.
+    written_in : str
+        The design file the entry was written in.
+
+    Returns
+    -------
+    JointFriction or None
+        None when the joint takes its type's parameters.
+    """
+    if "friction" not in t.data:
+        return None
+    value = t.get("friction")
+    if isinstance(value, str):
+        value = {"file": value}
+    return joint_friction(DesignTable(value, t.key("friction"), t.source), joint_type, written_in)
 
 
 def _values(t: DesignTable, joint_type: str, source: str, sha256: str) -> JointFriction:
@@ -140,4 +170,4 @@ def _records(t: DesignTable) -> tuple[str, ...]:
     return tuple(found)
 
 
-__all__ = ["MAX_PARAMETER_FILE_BYTES", "MAX_RECORDS", "joint_friction", "parse_friction"]
+__all__ = ["MAX_PARAMETER_FILE_BYTES", "MAX_RECORDS", "joint_friction", "joint_own_friction", "parse_friction"]

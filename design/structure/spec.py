@@ -35,7 +35,7 @@ from smartjoint.design.structure.description import (
     TubeSection,
 )
 from smartjoint.design.structure.files import read_file, read_toml
-from smartjoint.design.structure.friction_section import joint_friction, parse_friction
+from smartjoint.design.structure.friction_section import joint_own_friction, parse_friction
 from smartjoint.design.structure.sections import (
     check_member_lengths,
     joint_axis,
@@ -90,12 +90,13 @@ def load_design(path: str | Path | None = None) -> Design:
     path = Path(path) if path is not None else REFERENCE_DESIGN
     source = str(path)
     raw = read_file(path, "<file>", source, None, MAX_FILE_BYTES)
-    data, raw = read_toml(path, source, raw, [path], MAX_FILE_BYTES, MAX_BASE_DEPTH)
-    design = parse_design(data, source=source)
+    origins: dict[str, str] = {}
+    data, raw = read_toml(path, source, raw, [path], MAX_FILE_BYTES, MAX_BASE_DEPTH, origins)
+    design = parse_design(data, source=source, origins=origins)
     return dataclasses.replace(design, sha256=hashlib.sha256(raw).hexdigest())
 
 
-def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
+def parse_design(data: dict[str, Any], source: str = "<memory>", origins: dict[str, str] | None = None) -> Design:
     """Validate a design given as a (TOML-like) dictionary.
 
     Parameters
@@ -104,6 +105,8 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
         The tables of a design file (docs/design-file.md), ``base`` already merged.
     source : str
         Where it came from, for the messages.
+    origins : dict, optional
+        The file each top-level key was written in (a base chain); ``source`` for the others.
 
     Returns
     -------
@@ -127,8 +130,9 @@ def parse_design(data: dict[str, Any], source: str = "<memory>") -> Design:
     materials, sections, connectors, node_types = _parse_components(root)
     nodes, members, truss_settings, dofs = _parse_geometry(root, node_types, sections, connectors)
     point_masses, supports = _parse_attachments(root, nodes, truss_settings)
-    joints = _parse_joints(root, members, nodes)
-    friction, friction_records = parse_friction(root)
+    origins = origins or {}
+    joints = _parse_joints(root, members, nodes, origins.get("joints", source))
+    friction, friction_records = parse_friction(root, origins.get("friction", source))
     placement = parse_placement(root.table("placement")) if "placement" in root.data else None
     sensors, disturbances = _parse_signals(root, nodes)
 
@@ -323,7 +327,7 @@ def _parse_attachments(root: DesignTable, nodes, truss_settings):
     return point_masses, supports
 
 
-def _parse_joints(root: DesignTable, members, nodes) -> list[Joint]:
+def _parse_joints(root: DesignTable, members, nodes, written_in: str) -> list[Joint]:
     """[[joints]]: unique names, at most one joint per member end, the axis of type B."""
     joints = []
     names: set[str] = set()
@@ -341,7 +345,7 @@ def _parse_joints(root: DesignTable, members, nodes) -> list[Joint]:
         elif "axis" in t.data:
             t.get("axis")
             raise t.error("axis", t.data["axis"], "type A slips along the member axis; axis is only for type B")
-        joints.append(Joint(joint_name, member, end, joint_type, axis, _own_friction(t, joint_type)))
+        joints.append(Joint(joint_name, member, end, joint_type, axis, joint_own_friction(t, joint_type, written_in)))
         t.finish()
     ends = [(j.member, j.end) for j in joints]
     for i, joint_end in enumerate(ends):
@@ -353,16 +357,6 @@ def _parse_joints(root: DesignTable, members, nodes) -> list[Joint]:
                 root.source,
             )
     return joints
-
-
-def _own_friction(t: DesignTable, joint_type: str):
-    """A joint's own LuGre parameters: ``friction = "file.toml"`` or an inline table."""
-    if "friction" not in t.data:
-        return None
-    value = t.get("friction")
-    if isinstance(value, str):
-        value = {"file": value}
-    return joint_friction(DesignTable(value, t.key("friction"), t.source), joint_type)
 
 
 def _parse_signals(root: DesignTable, nodes):
