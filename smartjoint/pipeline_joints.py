@@ -105,13 +105,16 @@ def friction_stage(design: Design, staging: Path, progress) -> tuple[Design, lis
     design : Design
         The design with joints.
     staging : Path
-        The report folder being written.
+        The report folder being written: the result files ``friction_A.toml``, … go there.
     progress : callable
+        Receives the identification's progress lines.
 
     Returns
     -------
-    tuple
-        (the design with identified parameters in place, one result per joint type in A, B order).
+    design : Design
+        The design with the identified parameters in place of the design file's.
+    results : list of JointTypeFriction
+        One per joint type, in A, B order.
     """
     types = sorted({j.type for j in design.joints})
     named: dict[str, list[tuple[str, Record]]] = {}

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from conftest import cli_error, run_cli
+from test_rig_cli import JOINT_B
 
 from smartjoint.cli import main
 
@@ -52,15 +53,7 @@ USER_TYPE_A = {
     "stribeck": 0.2,
     "stribeck_velocity": 0.015,
 }
-USER_TYPE_B = {
-    "sigma0": 9e4,
-    "sigma1": 0.03,
-    "sigma2": 0.02,
-    "coulomb": 0.35,
-    "stribeck": 0.12,
-    "stribeck_velocity": 0.03,
-    "radius": 0.015,
-}
+USER_TYPE_B = JOINT_B  # test_rig_cli's type B joint, not Table 1's
 
 
 class _Forbidden(dict):

@@ -119,7 +119,7 @@ def hankel_values(model: ModalModel) -> dict[str, np.ndarray]:
     Parameters
     ----------
     model : ModalModel
-        The modal model whose modes are scored.
+        The considered modes, with the channels' units where known.
 
     Returns
     -------
