@@ -65,19 +65,17 @@ class _Forbidden(dict):
     get = __getitem__
 
 
-def _user_design(tmp_path) -> Path:
+def _user_design(tmp_path, capsys) -> Path:
     """small_truss (not the paper's: 2 bays, a type B joint, a velocity sensor) with its own
-    friction: type A inline, type B from rig records simulated with USER_TYPE_B at 1 % noise."""
+    friction: type A inline, type B from the records `smartjoint rig` writes for USER_TYPE_B at
+    1 % noise, the design file's own type B file a wrong prior the records replace."""
     import tomli_w
     from conftest import small_truss
 
-    from smartjoint.design.friction import lugre, rig
-    from smartjoint.design.friction.records import write_record
-
-    truth = lugre.LuGreParameters(**USER_TYPE_B)
-    (tmp_path / "rig").mkdir()
-    for test in rig.campaign("B", truth, noise=0.01, cycles=8):
-        write_record(rig.simulate(test, truth, source="user joint B"), tmp_path / "rig" / f"{test.name}.csv")
+    (tmp_path / "joint_b.toml").write_text(tomli_w.dumps({"joint_type": "B", **USER_TYPE_B}))
+    rig = ["rig", "--parameters", str(tmp_path / "joint_b.toml"), "--campaign", "--noise", "0.01", "--cycles", "8"]
+    assert main([*rig, "-o", str(tmp_path / "rig"), "--json"]) == 0
+    capsys.readouterr()
     data = small_truss()
     data["friction"] = {"A": dict(USER_TYPE_A), "B": {"file": "joint_b_prior.toml"}, "records": ["rig/*.csv"]}
     (tmp_path / "joint_b_prior.toml").write_text(tomli_w.dumps({**USER_TYPE_B, "sigma0": 5e4, "coulomb": 0.5}))
@@ -96,7 +94,7 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
     from smartjoint.common import package_data
     from smartjoint.design.friction import lugre
 
-    design = _user_design(tmp_path)
+    design = _user_design(tmp_path, capsys)
     bundled = package_data.folder("smartjoint.design", "data").resolve()
 
     def guarded(opener):
@@ -145,7 +143,13 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
     assert safety["cases"] > 100 and safety["failed"] == [] and safety["worst_joint_cycles"] <= 3
     assert (out / "safety_cases.md").read_text().count("\n|") > safety["cases"]
     assert (out / "safety_cycles.png").stat().st_size > 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["joint_b_prior.toml", "report", "rig", "small.toml"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "joint_b.toml",
+        "joint_b_prior.toml",
+        "report",
+        "rig",
+        "small.toml",
+    ]
 
 
 def _user_friction_reaches_the_artifact(out: Path, summary: dict) -> None:
