@@ -60,7 +60,8 @@ def test_metrics_follow_their_definitions(small_study):
     for r in result.runs:
         m = r.metrics
         after = r.time > study.PULSE_DURATION
-        assert m["tip_peak"] == pytest.approx(np.max(np.abs(r.sensors[after]), axis=0).tolist())
+        deflection = r.sensors[after][:, [q == "displacement" for q in result.sensor_quantities]]
+        assert m["tip_peak"] == pytest.approx(np.max(np.abs(deflection), axis=0).tolist())
         assert m["energy_measure"] == pytest.approx(np.trapezoid(2 * r.energy, r.time))
         if m["settling_time"] is not None:
             later = r.time >= m["settling_time"]
@@ -190,3 +191,39 @@ def test_design_and_study_commands(tmp_path):
     path.write_text(tomli_w.dumps(data))
     assert "normal_force_min" in cli_error("design", path, "-o", tmp_path / "x.json")
     assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.numerics
+def test_deflection_figures_come_from_the_displacement_sensors_alone(small_study):
+    design, result = small_study
+    assert result.sensor_names == ["tip_y", "tip_vz"]
+    assert result.sensor_quantities == ["displacement", "velocity"]
+    assert study.summary(result)["sensor_quantities"] == ["displacement", "velocity"]
+    for r in result.runs:
+        m = r.metrics
+        after = r.sensors[r.time > study.PULSE_DURATION + 1e-12]
+        # The same figures as from a study with tip_y as its only sensor, bit for bit.
+        alone = study.sensor_metrics(after[:, [0]], ["displacement"])
+        assert m["tip_rms"] == alone["tip_rms"] and m["tip_peak"] == alone["tip_peak"]
+        assert m["tip_rms_total"] == alone["tip_rms_total"] == float(np.sqrt(np.mean(after[:, 0] ** 2)))
+        assert alone["velocity_rms"] is None and alone["velocity_peak"] is None
+        # tip_vz in m/s under its own keys
+        assert m["velocity_rms"] == pytest.approx([np.sqrt(np.mean(after[:, 1] ** 2))], rel=1e-12)
+        assert m["velocity_peak"] == pytest.approx([np.max(np.abs(after[:, 1]))], rel=1e-12)
+    orderings = result.orderings()
+    m = {r.name: r.metrics for r in result.runs}
+    assert orderings["clqg_tip_rms_below_siso"] == (m["cLQG"]["tip_rms_total"] < m["SISO"]["tip_rms_total"])
+
+
+def test_displacement_sensors_alone_keep_the_figures_bit_for_bit():
+    y = np.random.default_rng(18).normal(scale=1e-3, size=(500, 3))
+    figures = study.sensor_metrics(y, ["displacement"] * 3)
+    assert figures["tip_rms"] == [float(v) for v in np.sqrt(np.mean(y**2, axis=0))]
+    assert figures["tip_rms_total"] == float(np.sqrt(np.mean(np.sum(y**2, axis=1))))
+    assert figures["tip_peak"] == [float(v) for v in np.max(np.abs(y), axis=0)]
+    assert figures["velocity_rms"] is None and figures["velocity_peak"] is None
+    with pytest.raises(ModelError, match="sensor quantities"):
+        study.sensor_metrics(y, ["displacement", "acceleration", "velocity"])
+    with pytest.raises(ModelError, match="sensor quantities"):
+        study.sensor_metrics(y, ["displacement"])
+
