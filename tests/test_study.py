@@ -227,3 +227,64 @@ def test_displacement_sensors_alone_keep_the_figures_bit_for_bit():
     with pytest.raises(ModelError, match="sensor quantities"):
         study.sensor_metrics(y, ["displacement"])
 
+
+def _velocity_only(result):
+    """The small study with every sensor read as a velocity: no deflection to compare."""
+    kinds = ["velocity"] * len(result.sensor_names)
+    reference = result.run("passive F_max")
+    runs = [dataclasses.replace(r, metrics=study.metrics(r, reference, kinds)) for r in result.runs]
+    return dataclasses.replace(result, runs=runs, sensor_quantities=kinds)
+
+
+def test_without_a_displacement_sensor_the_deflection_orderings_say_so(small_study):
+    from smartjoint.codegen import backtoback
+    from smartjoint.report_control import control_markdown
+
+    moved = _velocity_only(small_study[1])
+    for r in moved.runs:
+        assert r.metrics["tip_rms"] is r.metrics["tip_rms_total"] is r.metrics["tip_peak"] is None
+        assert len(r.metrics["velocity_rms"]) == 2
+    orderings = moved.orderings()
+    assert orderings["clqg_tip_rms_below_siso"] is None and orderings["active_tip_rms_below_clqg"] is None
+    assert isinstance(orderings["siso_below_both_passive"], bool)
+    text = control_markdown(moved)
+    assert "cLQG RMS tip deflection below SISO: — (no displacement sensor)" in text
+    assert "RMS tip — (no displacement sensor)" in text
+    assert "RMS tip_y [mm/s]" in text and "RMS tip_vz [mm/s]" in text
+    row = next(line for line in text.splitlines() if line.startswith("| SISO |"))
+    assert row.split(" | ")[6] == "—"  # peak tip [mm]: no deflection measured
+    section = backtoback.markdown({"float_orderings": orderings}, _artifact_stub())
+    assert "not judged without a displacement sensor: clqg_tip_rms_below_siso, active_tip_rms_below_clqg" in section
+
+
+def _artifact_stub():
+    """What backtoback.markdown reads of an artefact: the normal-force span."""
+    return type("Stub", (), {"normal_force_max": np.array([100.0]), "normal_force_min": np.array([5.0])})()
+
+
+@pytest.mark.numerics
+def test_the_report_gives_each_sensor_its_unit(small_study, monkeypatch, tmp_path):
+    from smartjoint import report_control
+    from smartjoint.common import figures
+
+    _, result = small_study
+    text = report_control.control_markdown(result)
+    assert "RMS tip_y [mm]" in text and "RMS tip_vz [mm/s]" in text and "tip_vz [mm]" not in text
+    header = next(line for line in text.splitlines() if line.startswith("| run |"))
+    columns = [cell.strip() for cell in header.strip("|").split("|")]
+    for r in result.runs:
+        row = next(line for line in text.splitlines() if line.startswith(f"| {r.name} |"))
+        cells = dict(zip(columns, (cell.strip() for cell in row.strip("|").split("|"))))
+        assert cells["RMS tip_y [mm]"] == f"{1e3 * r.metrics['tip_rms'][0]:.2f}"
+        assert cells["RMS tip_vz [mm/s]"] == f"{1e3 * r.metrics['velocity_rms'][0]:.2f}"
+        assert cells["peak tip [mm]"] == f"{1e3 * max(r.metrics['tip_peak']):.1f}"
+        assert cells["peak tip velocity [mm/s]"] == f"{1e3 * max(r.metrics['velocity_peak']):.1f}"
+    labels = {}
+
+    def keep_labels(fig, path, dpi):
+        labels[path.name] = [axes.get_ylabel() for axes in fig.axes]
+        figures.pyplot().close(fig)
+
+    monkeypatch.setattr(figures, "save", keep_labels)
+    report_control.plot_control_study(result, tmp_path)
+    assert labels["control_tip.png"] == ["tip_y [mm]", "tip_vz [mm/s]"]
