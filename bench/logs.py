@@ -316,6 +316,7 @@ class Decoded:
     """Signal values of a decoded log and the frames it skipped, counted by kind."""
 
     rows: list = field(default_factory=list)  # (time, frame, signal, value)
+    units: dict = field(default_factory=dict)  # (frame, signal) -> the DBC's unit, where it gives one
     frames: int = 0
     unknown_ids: dict = field(default_factory=lambda: defaultdict(int))
     wrong_length: dict = field(default_factory=lambda: defaultdict(int))
@@ -372,12 +373,13 @@ def decode(messages, db, problem: str | None = None) -> Decoded:
     Returns
     -------
     Decoded
-        (time, frame, signal, value) rows and the counts.
+        (time, frame, signal, value) rows, the signals' units and the counts.
     """
     out = Decoded(problem=problem)
     if isinstance(messages, LogContent):
         out.problem, out.log, messages = problem or messages.problem(), messages.skipped(), messages.messages
     known = {m.frame_id: m for m in db.messages}
+    out.units = {(m.name, s.name): s.unit for m in db.messages for s in m.signals if s.unit}
     for message in messages:
         out.frames += 1
         if message.is_error_frame:
@@ -427,7 +429,8 @@ def write_csv(decoded: Decoded, path) -> None:
 
 
 def plot(decoded: Decoded, folder, frames=None) -> list[Path]:
-    """One PNG per frame with its physical signals over time (E2E bytes left out).
+    """One PNG per frame with its physical signals over time in the DBC's units (E2E bytes left out;
+    a TIP_SENSORS signal in m or m/s by its sensor's quantity).
 
     Parameters
     ----------
@@ -459,7 +462,8 @@ def plot(decoded: Decoded, folder, frames=None) -> list[Path]:
         for ax, (signal, points) in zip(axes[:, 0], sorted(signals.items())):
             t, v = np.array(points).T
             ax.plot(t, v, lw=0.8)
-            ax.set_ylabel(signal, fontsize=7)
+            unit = decoded.units.get((frame, signal))
+            ax.set_ylabel(f"{signal} [{unit}]" if unit else signal, fontsize=7)
         axes[-1, 0].set_xlabel("t [s]")
         axes[0, 0].set_title(frame)
         path = folder / f"{frame}.png"

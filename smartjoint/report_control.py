@@ -10,6 +10,8 @@ from smartjoint.common import figures
 from smartjoint.design.control import study as closed_loop
 from smartjoint.report_reduction import save_figure
 
+# How the report shows each sensor quantity: the unit and the factor from SI (m, m/s).
+SHOWN = {"displacement": ("mm", 1e3, "Tip deflection"), "velocity": ("mm/s", 1e3, "Tip velocity")}
 COLOURS = {
     "passive F_min": "tab:gray",
     "passive F_max": "k",
@@ -64,16 +66,17 @@ def _plot_energy(plt, study: closed_loop.Study, folder: Path) -> Path:
 
 
 def _plot_tip(plt, study: closed_loop.Study, folder: Path) -> Path:
-    """control_tip.png: the tip deflections of the runs, one panel per sensor (Fig. 14)."""
+    """control_tip.png: the tip sensors of the runs, one panel per sensor in its unit (Fig. 14)."""
     fig, axes = plt.subplots(1, len(study.sensor_names), figsize=(10, 3.6), squeeze=False)
-    for i, (ax, sensor) in enumerate(zip(axes[0], study.sensor_names)):
+    for i, (ax, sensor, quantity) in enumerate(zip(axes[0], study.sensor_names, study.sensor_quantities)):
+        unit, factor, what = SHOWN[quantity]
         for r in study.runs:
             if r.name == "passive F_min":
                 continue  # its large slow swing hides the others
-            ax.plot(r.time, 1e3 * r.sensors[:, i], color=COLOURS[r.name], lw=0.8, label=r.name)
+            ax.plot(r.time, factor * r.sensors[:, i], color=COLOURS[r.name], lw=0.8, label=r.name)
         ax.set_xlabel("t [s]")
-        ax.set_ylabel(f"{sensor} [mm]")
-        ax.set_title(f"Tip deflection {sensor} (Fig. 14)")
+        ax.set_ylabel(f"{sensor} [{unit}]")
+        ax.set_title(f"{what} {sensor} (Fig. 14)")
         ax.legend(fontsize=7)
     figures.save(fig, folder / "control_tip.png", dpi=110)
     return folder / "control_tip.png"
@@ -121,10 +124,49 @@ def _plot_boundary_layer(plt, optimum, folder: Path) -> Path:
     )
 
 
+def _runs_table(s: dict) -> list[str]:
+    """The table of the runs' metrics: one RMS column per sensor in its unit (mm, mm/s), the peak
+    tip deflection from the displacement sensors and, with velocity sensors, their peak.
+
+    Parameters
+    ----------
+    s : dict
+        The study's summary (``closed_loop.summary``).
+
+    Returns
+    -------
+    list of str
+        The Markdown lines, a blank line first.
+    """
+    sensors = list(zip(s["sensors"], s["sensor_quantities"]))
+    velocity = any(quantity == "velocity" for _, quantity in sensors)
+    lines = [
+        "",
+        "| run | e(t_e) [J] | e(t_e) / passive F^max | E(t_e) Eq. 32 [J·s] | "
+        + " | ".join(f"RMS {name} [{SHOWN[quantity][0]}]" for name, quantity in sensors)
+        + " | peak tip [mm] | "
+        + ("peak tip velocity [mm/s] | " if velocity else "")
+        + "settling to 10 % [s] | mean control power [W] |",
+        "|---|" + "---:|" * (6 + len(sensors) + velocity),
+    ]
+    for name, m in s["runs"].items():
+        # Each kind's figures come in sensor order: take them one by one as the columns go.
+        figures = {"displacement": iter(m["tip_rms"] or ()), "velocity": iter(m["velocity_rms"] or ())}
+        rms = [f"{SHOWN[quantity][1] * next(figures[quantity]):.2f}" for _, quantity in sensors]
+        settle = "—" if m["settling_time"] is None else f"{m['settling_time']:.3f}"
+        peak = "—" if m["tip_peak"] is None else f"{1e3 * max(m['tip_peak']):.1f}"
+        peak += f" | {1e3 * max(m['velocity_peak']):.1f}" if velocity else ""
+        lines.append(
+            f"| {name} | {m['energy_end']:.3g} | {m['energy_end_relative']:.3g} | {m['energy_measure']:.4g} | "
+            + " | ".join(rms)
+            + f" | {peak} | {settle} | {m['control_power']:.3g} ({m['power_kind']}) |"
+        )
+    return lines
+
+
 def control_markdown(study: closed_loop.Study) -> str:
     s = closed_loop.summary(study)
     o = s["boundary_layer_optimisation"]
-    runs = s["runs"]
     lines = [
         "## Semi-active control (paper Sections 5–6, Figs. 12–14)",
         "",
@@ -145,24 +187,15 @@ def control_markdown(study: closed_loop.Study) -> str:
         )
     else:
         lines.append(f"- SISO boundary layer (Eq. 30) from the design file: ε = {s['siso_boundary_layer']} m/s.")
-    sensors = s["sensors"]
-    lines += [
-        "",
-        "| run | e(t_e) [J] | e(t_e) / passive F^max | E(t_e) Eq. 32 [J·s] | "
-        + " | ".join(f"RMS {n} [mm]" for n in sensors)
-        + " | peak tip [mm] | settling to 10 % [s] | "
-        "mean control power [W] |",
-        "|---|" + "---:|" * (6 + len(sensors)),
-    ]
-    for name, m in runs.items():
-        settle = "—" if m["settling_time"] is None else f"{m['settling_time']:.3f}"
-        lines.append(
-            f"| {name} | {m['energy_end']:.3g} | {m['energy_end_relative']:.3g} | {m['energy_measure']:.4g} | "
-            + " | ".join(f"{1e3 * v:.2f}" for v in m["tip_rms"])
-            + f" | {1e3 * max(m['tip_peak']):.1f} | {settle} | {m['control_power']:.3g} ({m['power_kind']}) |"
-        )
+    lines += _runs_table(s)
     c = s["orderings"]
-    mark = {True: "yes", False: "**no**"}
+    mark = {True: "yes", False: "**no**", None: "— (no displacement sensor)"}
+    tip = c["active_tip_rms_below_clqg"]
+    active = (
+        f"(energy, RMS tip): {mark[c['active_energy_below_clqg'] and tip]}"
+        if tip is not None
+        else f"(energy): {mark[c['active_energy_below_clqg']]}; RMS tip {mark[None]}"
+    )
     lines += [
         "",
         "Orderings of the paper (Section 6):",
@@ -170,8 +203,7 @@ def control_markdown(study: closed_loop.Study) -> str:
         f"- SISO ends below both passive settings: {mark[c['siso_below_both_passive']]}",
         f"- cLQG ends below both passive settings: {mark[c['clqg_below_both_passive']]}",
         f"- cLQG RMS tip deflection below SISO: {mark[c['clqg_tip_rms_below_siso']]}",
-        f"- active LQG better than cLQG (energy, RMS tip): "
-        f"{mark[c['active_energy_below_clqg'] and c['active_tip_rms_below_clqg']]}; control power ratio "
+        f"- active LQG better than cLQG {active}; control power ratio "
         f"active / cLQG = {c['power_ratio_active_to_clqg']:.2f}",
         "",
         "Control power: semi-active runs — electrical energy to charge the piezo stacks, "

@@ -163,3 +163,47 @@ def test_bus_load_worst_case_frames_and_the_limit(reference):
         busload.check(db, 1_000_000)
     with pytest.raises(ModelError, match="bitrate"):
         busload.bus_load(db, 12)
+
+
+def _small_artifact(velocity_limit=None):
+    """The artefact of the small truss: tip_y a displacement, tip_vz a velocity."""
+    from conftest import small_truss
+
+    from smartjoint.design import control, parse_design
+    from smartjoint.design.control import artifact_building
+    from smartjoint.design.structure import modal
+    from smartjoint.design.structure.fem import build_model
+
+    data = small_truss()
+    if velocity_limit is not None:
+        data["safety"] = {"velocity_limit": velocity_limit}
+    design = parse_design(data)
+    fe = build_model(design, joints="released")
+    model = modal.modal_model(fe, modal.solve_modes(fe, 8))
+    lqg = control.design_lqg(model, design.control.sample_time)
+    return artifact_building.from_design(design, model, lqg, 1e-3)
+
+
+def test_tip_sensor_signals_carry_the_unit_and_range_of_their_quantity():
+    import can
+
+    from smartjoint.bench import logs
+    from smartjoint.codegen import can_layer
+
+    built = _small_artifact()
+    assert built.sensor_quantities == ("displacement", "velocity")
+    tip = protocol.load_dbc(protocol.dbc_text(protocol.database(built))).get_message_by_name("TIP_SENSORS")
+    shown = {s.name: (s.unit, s.minimum, s.maximum) for s in tip.signals[3:]}
+    assert shown == {"tip_y": ("m", -20.0, 20.0), "tip_vz": ("m/s", -10.0, 10.0)}
+    header = can_layer.render_can(built)["smartjoint_can.h"]
+    assert "sensor tip_y [m] */" in header and "sensor tip_vz [m/s] */" in header
+    values = {"crc": 0, "counter": 1, "sync": 0, "tip_y": 1e-3, "tip_vz": -0.25}
+    payload = e2e.protect(tip.frame_id, bytearray(tip.encode(values)), 1)
+    decoded = logs.decode(
+        [can.Message(arbitration_id=tip.frame_id, data=payload, is_fd=True)], protocol.database(built)
+    )
+    assert {row[2]: row[3] for row in decoded.rows[3:]} == pytest.approx({"tip_y": 1e-3, "tip_vz": -0.25}, abs=1e-8)
+    assert decoded.units[("TIP_SENSORS", "tip_y")] == "m" and decoded.units[("TIP_SENSORS", "tip_vz")] == "m/s"
+    # A velocity limit beyond what the frame carries would never trip: refused before rendering.
+    with pytest.raises(ModelError, match=r"sensor_limit\[1\]: 15.0 for sensor 'tip_vz'.*up to 10"):
+        can_layer.check_can(_small_artifact(velocity_limit=15.0), protocol.Amplifier())

@@ -60,7 +60,8 @@ def test_metrics_follow_their_definitions(small_study):
     for r in result.runs:
         m = r.metrics
         after = r.time > study.PULSE_DURATION
-        assert m["tip_peak"] == pytest.approx(np.max(np.abs(r.sensors[after]), axis=0).tolist())
+        deflection = r.sensors[after][:, [q == "displacement" for q in result.sensor_quantities]]
+        assert m["tip_peak"] == pytest.approx(np.max(np.abs(deflection), axis=0).tolist())
         assert m["energy_measure"] == pytest.approx(np.trapezoid(2 * r.energy, r.time))
         if m["settling_time"] is not None:
             later = r.time >= m["settling_time"]
@@ -190,3 +191,100 @@ def test_design_and_study_commands(tmp_path):
     path.write_text(tomli_w.dumps(data))
     assert "normal_force_min" in cli_error("design", path, "-o", tmp_path / "x.json")
     assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.numerics
+def test_deflection_figures_come_from_the_displacement_sensors_alone(small_study):
+    design, result = small_study
+    assert result.sensor_names == ["tip_y", "tip_vz"]
+    assert result.sensor_quantities == ["displacement", "velocity"]
+    assert study.summary(result)["sensor_quantities"] == ["displacement", "velocity"]
+    for r in result.runs:
+        m = r.metrics
+        after = r.sensors[r.time > study.PULSE_DURATION + 1e-12]
+        # The same figures as from a study with tip_y as its only sensor, bit for bit.
+        alone = study.sensor_metrics(after[:, [0]], ["displacement"])
+        assert m["tip_rms"] == alone["tip_rms"] and m["tip_peak"] == alone["tip_peak"]
+        assert m["tip_rms_total"] == alone["tip_rms_total"] == float(np.sqrt(np.mean(after[:, 0] ** 2)))
+        assert alone["velocity_rms"] is None and alone["velocity_peak"] is None
+        # tip_vz in m/s under its own keys
+        assert m["velocity_rms"] == pytest.approx([np.sqrt(np.mean(after[:, 1] ** 2))], rel=1e-12)
+        assert m["velocity_peak"] == pytest.approx([np.max(np.abs(after[:, 1]))], rel=1e-12)
+    orderings = result.orderings()
+    m = {r.name: r.metrics for r in result.runs}
+    assert orderings["clqg_tip_rms_below_siso"] == (m["cLQG"]["tip_rms_total"] < m["SISO"]["tip_rms_total"])
+
+
+def test_displacement_sensors_alone_keep_the_figures_bit_for_bit():
+    y = np.random.default_rng(18).normal(scale=1e-3, size=(500, 3))
+    figures = study.sensor_metrics(y, ["displacement"] * 3)
+    assert figures["tip_rms"] == [float(v) for v in np.sqrt(np.mean(y**2, axis=0))]
+    assert figures["tip_rms_total"] == float(np.sqrt(np.mean(np.sum(y**2, axis=1))))
+    assert figures["tip_peak"] == [float(v) for v in np.max(np.abs(y), axis=0)]
+    assert figures["velocity_rms"] is None and figures["velocity_peak"] is None
+    with pytest.raises(ModelError, match="sensor quantities"):
+        study.sensor_metrics(y, ["displacement", "acceleration", "velocity"])
+    with pytest.raises(ModelError, match="sensor quantities"):
+        study.sensor_metrics(y, ["displacement"])
+
+
+def _velocity_only(result):
+    """The small study with every sensor read as a velocity: no deflection to compare."""
+    kinds = ["velocity"] * len(result.sensor_names)
+    reference = result.run("passive F_max")
+    runs = [dataclasses.replace(r, metrics=study.metrics(r, reference, kinds)) for r in result.runs]
+    return dataclasses.replace(result, runs=runs, sensor_quantities=kinds)
+
+
+def test_without_a_displacement_sensor_the_deflection_orderings_say_so(small_study):
+    from smartjoint.codegen import backtoback
+    from smartjoint.report_control import control_markdown
+
+    moved = _velocity_only(small_study[1])
+    for r in moved.runs:
+        assert r.metrics["tip_rms"] is r.metrics["tip_rms_total"] is r.metrics["tip_peak"] is None
+        assert len(r.metrics["velocity_rms"]) == 2
+    orderings = moved.orderings()
+    assert orderings["clqg_tip_rms_below_siso"] is None and orderings["active_tip_rms_below_clqg"] is None
+    assert isinstance(orderings["siso_below_both_passive"], bool)
+    text = control_markdown(moved)
+    assert "cLQG RMS tip deflection below SISO: — (no displacement sensor)" in text
+    assert "RMS tip — (no displacement sensor)" in text
+    assert "RMS tip_y [mm/s]" in text and "RMS tip_vz [mm/s]" in text
+    row = next(line for line in text.splitlines() if line.startswith("| SISO |"))
+    assert row.split(" | ")[6] == "—"  # peak tip [mm]: no deflection measured
+    section = backtoback.markdown({"float_orderings": orderings}, _artifact_stub())
+    assert "not judged without a displacement sensor: clqg_tip_rms_below_siso, active_tip_rms_below_clqg" in section
+
+
+def _artifact_stub():
+    """What backtoback.markdown reads of an artefact: the normal-force span."""
+    return type("Stub", (), {"normal_force_max": np.array([100.0]), "normal_force_min": np.array([5.0])})()
+
+
+@pytest.mark.numerics
+def test_the_report_gives_each_sensor_its_unit(small_study, monkeypatch, tmp_path):
+    from smartjoint import report_control
+    from smartjoint.common import figures
+
+    _, result = small_study
+    text = report_control.control_markdown(result)
+    assert "RMS tip_y [mm]" in text and "RMS tip_vz [mm/s]" in text and "tip_vz [mm]" not in text
+    header = next(line for line in text.splitlines() if line.startswith("| run |"))
+    columns = [cell.strip() for cell in header.strip("|").split("|")]
+    for r in result.runs:
+        row = next(line for line in text.splitlines() if line.startswith(f"| {r.name} |"))
+        cells = dict(zip(columns, (cell.strip() for cell in row.strip("|").split("|"))))
+        assert cells["RMS tip_y [mm]"] == f"{1e3 * r.metrics['tip_rms'][0]:.2f}"
+        assert cells["RMS tip_vz [mm/s]"] == f"{1e3 * r.metrics['velocity_rms'][0]:.2f}"
+        assert cells["peak tip [mm]"] == f"{1e3 * max(r.metrics['tip_peak']):.1f}"
+        assert cells["peak tip velocity [mm/s]"] == f"{1e3 * max(r.metrics['velocity_peak']):.1f}"
+    labels = {}
+
+    def keep_labels(fig, path, dpi):
+        labels[path.name] = [axes.get_ylabel() for axes in fig.axes]
+        figures.pyplot().close(fig)
+
+    monkeypatch.setattr(figures, "save", keep_labels)
+    report_control.plot_control_study(result, tmp_path)
+    assert labels["control_tip.png"] == ["tip_y [mm]", "tip_vz [mm/s]"]

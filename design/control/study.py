@@ -33,6 +33,7 @@ from smartjoint.design.control.runs import (
     siso,
 )
 from smartjoint.design.structure import modal
+from smartjoint.design.structure.description import SENSOR_QUANTITIES
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.modal import ModalModel
 
@@ -164,10 +165,57 @@ def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) ->
 
 
 # ------------------------------------------------------------------------------------ metrics
-def metrics(run: Run, reference: Run) -> dict:
+def _root_mean_square(values: np.ndarray) -> list[float]:
+    """RMS of each column."""
+    return [float(v) for v in np.sqrt(np.mean(values**2, axis=0))]
+
+
+def _peak(values: np.ndarray) -> list[float]:
+    """max |·| of each column."""
+    return [float(v) for v in np.max(np.abs(values), axis=0)]
+
+
+def sensor_metrics(sensors: np.ndarray, quantities) -> dict:
+    """RMS and peak of the measured outputs y (Eq. 10) after the pulse, by the sensors' quantity.
+
+    Tip deflection figures come from the displacement sensors only (m); velocity sensors get
+    their own figures (m/s), so a velocity never enters a deflection.
+
+    Parameters
+    ----------
+    sensors : ndarray
+        y after the pulse, one column per sensor.
+    quantities : sequence of str
+        Each column's quantity, ``"displacement"`` or ``"velocity"`` (``SENSOR_QUANTITIES``).
+
+    Returns
+    -------
+    dict
+        ``tip_rms`` and ``tip_peak`` per displacement sensor [m] and ``tip_rms_total``, the RMS
+        of the norm of the displacement sensors' y [m], all None without a displacement sensor;
+        ``velocity_rms`` and ``velocity_peak`` per velocity sensor [m/s], None without one.
+    """
+    kinds = list(quantities)
+    if len(kinds) != sensors.shape[1] or not set(kinds) <= set(SENSOR_QUANTITIES):
+        raise ModelError(f"sensor quantities: {kinds} — one of {', '.join(SENSOR_QUANTITIES)} per sensor")
+    # All displacement (the paper's sensors): y as it is, so the figures stay bit for bit the same.
+    displacement = sensors if "velocity" not in kinds else sensors[:, [q == "displacement" for q in kinds]]
+    velocity = sensors[:, [q == "velocity" for q in kinds]]
+    deflection = displacement.shape[1] > 0
+    return {
+        "tip_rms": _root_mean_square(displacement) if deflection else None,
+        "tip_rms_total": float(np.sqrt(np.mean(np.sum(displacement**2, axis=1)))) if deflection else None,
+        "tip_peak": _peak(displacement) if deflection else None,
+        "velocity_rms": _root_mean_square(velocity) if velocity.shape[1] else None,
+        "velocity_peak": _peak(velocity) if velocity.shape[1] else None,
+    }
+
+
+def metrics(run: Run, reference: Run, quantities) -> dict:
     """Table of Section 6: energy at t_e (absolute and relative to the reference, passive F^max),
-    E(t_e) of Eq. 32, RMS and peak tip deflection after the pulse, settling time to 10 % of the
-    energy at the end of the pulse, mean control power.
+    E(t_e) of Eq. 32, RMS and peak tip deflection after the pulse (displacement sensors; the
+    velocity sensors' own RMS and peak beside), settling time to 10 % of the energy at the end
+    of the pulse, mean control power.
 
     Parameters
     ----------
@@ -175,14 +223,16 @@ def metrics(run: Run, reference: Run) -> dict:
         The run measured.
     reference : Run
         The run the final energy is related to (passive F^max in the study).
+    quantities : sequence of str
+        Each sensor's quantity in the run's sensor order (``Study.sensor_quantities``).
 
     Returns
     -------
     dict
-        JSON-ready figures; ``settling_time`` is None when the run has not settled by t_e.
+        JSON-ready figures (:func:`sensor_metrics` for the sensors); ``settling_time`` is None
+        when the run has not settled by t_e.
     """
     after = run.time > PULSE_DURATION + 1e-12
-    tip = run.sensors[after]
     start = int(np.searchsorted(run.time, PULSE_DURATION - 1e-12))
     threshold = SETTLING_FRACTION * run.energy[start]
     above = np.flatnonzero(run.energy > threshold)
@@ -195,9 +245,7 @@ def metrics(run: Run, reference: Run) -> dict:
         "energy_end": float(run.energy[-1]),
         "energy_end_relative": float(run.energy[-1] / reference.energy[-1]),
         "energy_measure": run.energy_measure(),
-        "tip_rms": [float(v) for v in np.sqrt(np.mean(tip**2, axis=0))],
-        "tip_rms_total": float(np.sqrt(np.mean(np.sum(tip**2, axis=1)))),
-        "tip_peak": [float(v) for v in np.max(np.abs(tip), axis=0)],
+        **sensor_metrics(run.sensors[after], quantities),
         "settling_time": settled,
         "control_power": run.control_power,
         "power_kind": run.power_kind,
@@ -207,6 +255,9 @@ def metrics(run: Run, reference: Run) -> dict:
 # -------------------------------------------------------------------------------- the study
 @dataclass
 class Study:
+    """The study's runs and what they were made with; ``sensor_quantities`` gives each sensor's
+    quantity (``"displacement"`` in m or ``"velocity"`` in m/s) in ``sensor_names`` order."""
+
     setup: StudySetup
     lqg: LqgDesign
     boundary_layer: np.ndarray  # SISO ε per joint [m/s]
@@ -215,6 +266,7 @@ class Study:
     runs: list[Run]
     sensor_names: list[str]
     joint_names: list[str]
+    sensor_quantities: list[str]
 
     def run(self, name: str) -> Run:
         return next(r for r in self.runs if r.name == name)
@@ -225,14 +277,20 @@ class Study:
         return float(1.0 - np.max(np.abs(self.lqg.closed_loop_poles())))
 
     def orderings(self) -> dict:
-        """The paper's claims (Section 6) as booleans on this study."""
+        """The paper's claims (Section 6) as booleans on this study; the RMS tip deflection
+        claims are None when no sensor measures a displacement (nothing to compare)."""
         m = {r.name: r.metrics for r in self.runs}
         passive = min(m["passive F_min"]["energy_end"], m["passive F_max"]["energy_end"])
+
+        def below(run: str, other: str) -> bool | None:
+            low, high = m[run]["tip_rms_total"], m[other]["tip_rms_total"]
+            return None if low is None or high is None else low < high
+
         return {
             "siso_below_both_passive": m["SISO"]["energy_end"] < passive,
             "clqg_below_both_passive": m["cLQG"]["energy_end"] < passive,
-            "clqg_tip_rms_below_siso": m["cLQG"]["tip_rms_total"] < m["SISO"]["tip_rms_total"],
-            "active_tip_rms_below_clqg": m["active LQG"]["tip_rms_total"] < m["cLQG"]["tip_rms_total"],
+            "clqg_tip_rms_below_siso": below("cLQG", "SISO"),
+            "active_tip_rms_below_clqg": below("active LQG", "cLQG"),
             "active_energy_below_clqg": m["active LQG"]["energy_end"] < m["cLQG"]["energy_end"],
             "power_ratio_active_to_clqg": m["active LQG"]["control_power"] / m["cLQG"]["control_power"],
         }
@@ -253,6 +311,33 @@ def lqg_for(design, model: ModalModel) -> LqgDesign:
     """
     c = design.control
     return design_lqg(model, c.sample_time, c.state_weight, c.control_weight, c.process_noise, c.measurement_noise)
+
+
+def sensor_quantities(design, model: ModalModel) -> list[str]:
+    """Each measured output's quantity, from the design's sensors in the model's order.
+
+    Parameters
+    ----------
+    design : Design
+        The design whose ``[[sensors]]`` say what each one measures.
+    model : ModalModel
+        The design model; its ``sensor_names`` give the order of y (Eq. 10).
+
+    Returns
+    -------
+    list of str
+        ``"displacement"`` or ``"velocity"`` per sensor of ``model.sensor_names``.
+
+    Raises
+    ------
+    ModelError
+        When the model measures a sensor the design does not have.
+    """
+    by_name = {sensor.name: sensor.quantity for sensor in design.sensors}
+    missing = [name for name in model.sensor_names if name not in by_name]
+    if missing:
+        raise ModelError(f"sensors {missing} of the design model are not among the design's [[sensors]]")
+    return [by_name[name] for name in model.sensor_names]
 
 
 def run_study(design, model: ModalModel | None = None, progress=print) -> Study:
@@ -306,10 +391,19 @@ def run_study(design, model: ModalModel | None = None, progress=print) -> Study:
         progress(f"      {name}: {s.duration:g} s …")
         runs.append(make())
     reference = runs[1]
+    quantities = sensor_quantities(design, model)
     for r in runs:
-        r.metrics = metrics(r, reference)
+        r.metrics = metrics(r, reference, quantities)
     return Study(
-        s, lqg, width, optimum, float(c.clqg_boundary_layer), runs, list(model.sensor_names), list(model.joint_names)
+        s,
+        lqg,
+        width,
+        optimum,
+        float(c.clqg_boundary_layer),
+        runs,
+        list(model.sensor_names),
+        list(model.joint_names),
+        quantities,
     )
 
 
@@ -323,7 +417,8 @@ def summary(study: Study) -> dict:
     Returns
     -------
     dict
-        Timing, limits, ε, the LQG's stability margin, each run's metrics and the orderings.
+        Timing, limits, ε, the LQG's stability margin, each run's metrics and the orderings, the
+        joints, the sensors and each sensor's quantity.
     """
     s = study.setup
     optimum = study.optimum
@@ -348,6 +443,7 @@ def summary(study: Study) -> dict:
         "orderings": study.orderings(),
         "joints": study.joint_names,
         "sensors": study.sensor_names,
+        "sensor_quantities": study.sensor_quantities,
     }
 
 
@@ -371,6 +467,8 @@ __all__ = [
     "run_passive",
     "run_semi_active",
     "run_study",
+    "sensor_metrics",
+    "sensor_quantities",
     "setup",
     "siso",
     "summary",

@@ -37,11 +37,17 @@ from cantools.database.can.formats.dbc.dbc_writer import ATTRIBUTE_DEFINITION_GE
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
+from smartjoint.design.structure.sections import MAX_DISPLACEMENT
 
 JOINT_BASE, TIP_ID, SETPOINT_BASE, STATUS_BASE, CONTROLLER_ID = 0x100, 0x180, 0x200, 0x280, 0x080
 MAX_JOINTS = 0x80  # identifier blocks of 128
 MAX_SENSORS = 15  # 2 + 4·15 = 62 bytes ≤ 64 (CAN FD)
 FD_LENGTHS = (8, 12, 16, 20, 24, 32, 48, 64)
+# A TIP_SENSORS signal's unit and the |y| it carries, by the sensor's quantity; both int32·1e-8
+# (±21.47). A displacement up to MAX_DISPLACEMENT, the bound of [safety] displacement_limit; a
+# tip velocity ω·amplitude stays below 10 m/s (centimetres at some ten hertz), five times the
+# default velocity_limit, so a limit beyond what the frame carries is refused at codegen.
+TIP_SIGNALS = {"displacement": ("m", MAX_DISPLACEMENT), "velocity": ("m/s", 10.0)}
 
 CONTROLLER = "CONTROLLER"
 MODES = {0: "INIT", 1: "SISO", 2: "CLQG", 3: "SAFE"}
@@ -286,12 +292,14 @@ def _joint_frames(j: int, name: str, amplifier: Amplifier, cycle: int) -> tuple[
     return nodes, messages
 
 
-def _tip_message(sensors: list[str], cycle: int) -> can.Message:
-    """The TIP_SENSORS frame: one signal per sensor of the design's y."""
-    tip = _e2e(TIP_ID, sync=12) + [
-        _scaled(_identifier(s, "sensor").lower(), 16 + 32 * k, 32, 1e-8, True, "m", -20.0, 20.0, f"sensor {s}")
-        for k, s in enumerate(sensors)
-    ]
+def _tip_message(sensors: list[str], quantities: list[str], cycle: int) -> can.Message:
+    """The TIP_SENSORS frame: one signal per sensor of the design's y, in its quantity's unit
+    and range (``TIP_SIGNALS``)."""
+    tip = _e2e(TIP_ID, sync=12)
+    for k, (s, quantity) in enumerate(zip(sensors, quantities)):
+        unit, carried = TIP_SIGNALS[quantity]
+        name = _identifier(s, "sensor").lower()
+        tip.append(_scaled(name, 16 + 32 * k, 32, 1e-8, True, unit, -carried, carried, f"sensor {s}"))
     return can.Message(
         TIP_ID,
         "TIP_SENSORS",
@@ -393,7 +401,7 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
         joint_nodes, joint_messages = _joint_frames(j, name, amplifier, cycle)
         nodes += joint_nodes
         messages += joint_messages
-    messages.append(_tip_message(sensors, cycle))
+    messages.append(_tip_message(sensors, list(artifact.sensor_quantities), cycle))
     messages.append(_controller_status_message(cycle))
     messages.sort(key=lambda m: m.frame_id)
     db = can.Database(
