@@ -30,6 +30,10 @@ def pytest_addoption(parser):
 
 
 def pytest_configure(config):
+    if getattr(config.option, "numprocesses", None) and "PYTEST_XDIST_WORKER" not in os.environ:
+        # One BLAS thread per worker (inherited by the workers started after this): n workers ×
+        # OpenBLAS's one thread per core would oversubscribe the cores and spin.
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     relative = config.getoption("perturb_inputs")
     if relative == 0.0:
         return
