@@ -80,10 +80,11 @@ def _user_design(tmp_path) -> Path:
 
     from smartjoint.design.friction import lugre, rig
     from smartjoint.design.friction.records import write_record
+    from smartjoint.design.friction.rig_campaign import standard_campaign
 
     truth = lugre.LuGreParameters(**USER_TYPE_B)
     (tmp_path / "rig").mkdir()
-    for test in rig.campaign("B", truth, noise=0.01, cycles=8):
+    for test in standard_campaign("B", prior=truth, noise=0.01, cycles=8):  # prior = the simulated parameters
         write_record(rig.simulate(test, truth, source="user joint B"), tmp_path / "rig" / f"{test.name}.csv")
     data = small_truss()
     data["friction"] = {"A": dict(USER_TYPE_A), "B": {"file": "joint_b_prior.toml"}, "records": ["rig/*.csv"]}
