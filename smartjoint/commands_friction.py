@@ -55,12 +55,14 @@ def _campaign_prior(args, chosen):
 def _run_campaign(tests, prior, measure, args):
     """The campaign's records to write, rung by rung upwards (`rig_campaign.run_campaign`); says
     which rungs stuck near the break-away (not written) and which did not run."""
-    from smartjoint.design.friction.rig_campaign import STICK_SPAN, run_campaign
+    from smartjoint.design.friction.rig_campaign import MICRO_SPAN, STICK_SPAN, run_campaign
 
     measured = run_campaign(tests, prior, measure)
     if not args.json:
         for record in measured.left_out:
-            print(f"left out {record.name}: stuck above half the lowest rung that slid (near the break-away)")
+            print(
+                f"left out {record.name}: stuck above {MICRO_SPAN:g}× the lowest rung that slid (near the break-away)"
+            )
         for test in measured.not_run:
             print(f"not run {test.name}: above {STICK_SPAN:g}× the lowest rung that slid")
     return measured.micro + measured.stick
