@@ -117,7 +117,7 @@ def test_identification_recovers_table_1_from_noisy_rig_records(joint_type):
 
 @pytest.mark.numerics
 def test_campaign_from_a_prior_off_by_two_identifies_the_joint():
-    """The experimenter believes F_c, F_d, σ0 and v_s all twice type A's true values (Table 1):
+    """The experimenter believes F_c, F_d, σ0 and v_s all twice type B's true values (Table 1):
     the campaign designed from that prior (amplitude ladder run upwards, records sorted by the
     regime they show) still holds both regimes, and σ0, F_c, F_d, v_s come out within 5 % at 1 %
     noise. The standard set designed from the same prior has no micro-slip record: its lowest
@@ -125,7 +125,7 @@ def test_campaign_from_a_prior_off_by_two_identifies_the_joint():
     from smartjoint.design.friction.identify import identify
     from smartjoint.design.friction.rig_campaign import campaign, run_campaign
 
-    truth = lugre.TYPE_A
+    truth = lugre.TYPE_B
     prior = lugre.LuGreParameters(
         sigma0=2.0 * truth.sigma0,
         sigma1=truth.sigma1,
@@ -133,10 +133,11 @@ def test_campaign_from_a_prior_off_by_two_identifies_the_joint():
         coulomb=2.0 * truth.coulomb,
         stribeck=2.0 * truth.stribeck,
         stribeck_velocity=2.0 * truth.stribeck_velocity,
+        radius=truth.radius,
     )
-    old = [rig.simulate(test, truth) for test in standard_campaign("A", prior, cycles=1)]
+    old = [rig.simulate(test, truth) for test in standard_campaign("B", prior, cycles=1)]
     assert {classify(r) for r in old} == {"stick-slip"}
-    tests = campaign("A", prior, noise=0.01, cycles=8)
+    tests = campaign("B", prior, noise=0.01, cycles=8)
     measured = run_campaign(tests, prior, lambda test: rig.simulate(test, truth))  # the truth enters here only
     assert measured.micro and measured.stick
     result = identify(measured.micro, measured.stick)
