@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import subprocess
 import sys
@@ -125,20 +124,9 @@ def main() -> int:
                 f"target {bays} bays ≤ {limit:g} s: {target['total_s']:.2f} s → "
                 f"{'met' if target['total_s'] <= limit else 'MISSED'}"
             )
-    import numpy
-    import scipy
-    from machine import cpu_model
+    from machine import python_machine
 
-    machine = {
-        "python": platform.python_version(),
-        "numpy": numpy.__version__,
-        "scipy": scipy.__version__,
-        "machine": platform.machine(),
-        "cpu": cpu_model(),
-        "cpus": os.cpu_count(),
-        "blas_threads": environment["OPENBLAS_NUM_THREADS"],
-        "load_average_1min": os.getloadavg()[0],
-    }
+    machine = python_machine(blas_threads=environment["OPENBLAS_NUM_THREADS"])
     Path(args.json).write_text(
         json.dumps(
             {"benchmark": "fe_scale", "modes": MODES, "machine": machine, "rows": rows, "failed": failed}, indent=1

@@ -17,6 +17,35 @@ def cpu_model() -> str:
     return model or platform.processor()
 
 
+def python_machine(**extra) -> dict:
+    """Python, numpy and scipy versions, CPU, core count and the 1-minute load average.
+
+    Parameters
+    ----------
+    **extra
+        Further facts of the benchmark (e.g. ``blas_threads``), added before the load average.
+
+    Returns
+    -------
+    dict
+    """
+    import os
+
+    import numpy
+    import scipy
+
+    return {
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "scipy": scipy.__version__,
+        "machine": platform.machine(),
+        "cpu": cpu_model(),
+        "cpus": os.cpu_count(),
+        **extra,
+        "load_average_1min": os.getloadavg()[0],
+    }
+
+
 def artifact_header(benchmark: str, facts: dict, artifact_path, artifact) -> dict:
     """The entries that open the JSON of a benchmark run on a controller artefact.
 

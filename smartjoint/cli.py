@@ -154,7 +154,17 @@ def _add_friction_commands(sub, o: SimpleNamespace) -> None:
     p.add_argument("--inertia", type=float, help="friction element inertia [kg] or [kg·m²] (default 1 / 2e-3)")
     p.add_argument("--noise", type=float, default=0.0, help="measurement noise, relative to RMS (0 … 1, e.g. 0.01)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--campaign", action="store_true", help="write the standard micro-/stick-slip set into -o DIR")
+    p.add_argument(
+        "--campaign",
+        action="store_true",
+        help="write the micro-/stick-slip campaign (amplitude ladder around the prior's break-away) into -o DIR",
+    )
+    p.add_argument(
+        "--prior",
+        metavar="FILE",
+        help="with --campaign: the LuGre parameters the campaign is designed from (format of --parameters; "
+        "default: the simulated parameters)",
+    )
     p.add_argument("-o", "--output", required=True, help="record file (CSV), or folder with --campaign")
     p.set_defaults(func=cmd_rig)
 

@@ -42,6 +42,32 @@ def _rig_parameters(args):
     return rig.parameter_set(joint_type, values, "command line")
 
 
+def _campaign_prior(args, chosen):
+    """The parameter set a campaign is designed from: --prior FILE, else the simulated one."""
+    from smartjoint.design.friction import rig
+
+    if args.prior is None:
+        return chosen
+    prior = rig.load_parameter_set(args.prior, chosen.joint_type)
+    return rig.ParameterSet(prior.joint_type, prior.parameters, f"prior: {prior.source}")
+
+
+def _run_campaign(tests, prior, measure, args):
+    """The campaign's records to write, rung by rung upwards (`rig_campaign.run_campaign`); says
+    which rungs stuck near the break-away (not written) and which did not run."""
+    from smartjoint.design.friction.rig_campaign import MICRO_SPAN, STICK_SPAN, run_campaign
+
+    measured = run_campaign(tests, prior, measure)
+    if not args.json:
+        for record in measured.left_out:
+            print(
+                f"left out {record.name}: stuck above {MICRO_SPAN:g}× the lowest rung that slid (near the break-away)"
+            )
+        for test in measured.not_run:
+            print(f"not run {test.name}: above {STICK_SPAN:g}× the lowest rung that slid")
+    return measured.micro + measured.stick
+
+
 def _rig_test(args, joint_type, normal_force, amplitude, frequency, seed):
     from smartjoint.design.friction.rig import RigTest
 
@@ -67,6 +93,7 @@ def cmd_rig(args) -> dict:
     """
     from smartjoint.design.friction import rig
     from smartjoint.design.friction.records import write_record
+    from smartjoint.design.friction.rig_campaign import campaign
 
     output = Path(args.output)
     chosen = _rig_parameters(args)
@@ -76,28 +103,37 @@ def cmd_rig(args) -> dict:
             raise SmartjointError(
                 f"-o {output}: exists and is not a folder — --campaign writes its records into a folder"
             )
-        tests = rig.campaign(joint_type, parameters, noise=args.noise, seed=args.seed, cycles=args.cycles)
-        paths = [output / f"{t.name}.csv" for t in tests]
+        prior = _campaign_prior(args, chosen)
+        tests = campaign(joint_type, prior.parameters, noise=args.noise, seed=args.seed, cycles=args.cycles)
     else:
         missing = [n for n in ("normal_force", "amplitude", "frequency") if getattr(args, n) is None]
         if missing:
             raise SmartjointError(f"give --{missing[0].replace('_', '-')} (or --campaign)")
         if output.is_dir():
             raise SmartjointError(f"-o {output}: is a folder — give a record file name (or --campaign)")
+        if args.prior is not None:
+            raise SmartjointError("--prior: designs a campaign — give it with --campaign")
         tests = [_rig_test(args, joint_type, args.normal_force, args.amplitude, args.frequency, args.seed)]
-        paths = [output]
     for test in tests:  # every test is checked before anything is written
         rig.check_test(test, parameters)
     if not args.json:
         print(chosen.describe())
+        if args.campaign:
+            print(prior.describe() if args.prior is not None else "prior = the simulated parameters")
     if args.campaign:
         try:
             output.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             raise SmartjointError(f"-o {output}: cannot create folder ({error.strerror or error})") from None
+    if args.campaign:
+        records = _run_campaign(
+            tests, prior.parameters, lambda test: rig.simulate(test, parameters, chosen.source), args
+        )
+    else:
+        records = [rig.simulate(tests[0], parameters, chosen.source)]
     written = []
-    for test, path in zip(tests, paths):
-        record = rig.simulate(test, parameters, chosen.source)
+    for record in records:
+        path = output / f"{record.name}.csv" if args.campaign else output
         write_record(record, path)
         written.append(
             {
@@ -109,7 +145,10 @@ def cmd_rig(args) -> dict:
         )
         if not args.json:
             print(f"wrote {path} ({record.metadata['regime']}, {record.time.size} samples)")
-    return {"parameters": chosen.as_dict(), "records": written}
+    summary = {"parameters": chosen.as_dict(), "records": written}
+    if args.campaign:
+        summary["prior"] = prior.as_dict() if args.prior is not None else "the simulated parameters"
+    return summary
 
 
 def cmd_identify(args) -> dict:

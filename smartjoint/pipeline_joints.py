@@ -22,6 +22,7 @@ from smartjoint.design.friction.identify import Identification, identify
 from smartjoint.design.friction.parameter_file import file_hashes, provenance, result_text
 from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.friction.records import Record, read_record
+from smartjoint.design.friction.rig_campaign import campaign, run_campaign
 from smartjoint.design.structure import placement
 from smartjoint.design.structure.description import FRICTION_PARAMETERS, Design, JointFriction
 
@@ -159,17 +160,20 @@ def _identify_records(design: Design, joint_type: str, named, staging: Path, pro
 
 def _rig_check(design: Design, joint_type: str, progress) -> JointTypeFriction:
     """No records: the rig simulated with the design's parameters of ``joint_type`` (1 % noise)
-    and identified back; the design's parameters stay in use."""
+    and identified back; the design's parameters stay in use. The campaign is designed from the
+    same parameters as its prior (a check of the identification, not an experiment)."""
     joint = next(j for j in design.joints if j.type == joint_type)
     stated = design.joint_friction(joint)
     assert stated is not None  # lugre.joint_laws checked every joint
     truth = lugre.joint_laws(dataclasses.replace(design, joints=(joint,)))[0]
     progress(
         f"      type {joint_type}: no records named — the rig simulated with the design's parameters "
-        f"({os.path.basename(stated.source)}), {RIG_NOISE:.0%} noise, then identified back"
+        f"({os.path.basename(stated.source)}; prior = the simulated parameters), {RIG_NOISE:.0%} noise, "
+        "then identified back"
     )
-    tests = rig.campaign(joint_type, truth, noise=RIG_NOISE, cycles=RIG_CYCLES)
-    records = [rig.simulate(test, truth, source=stated.source) for test in tests]
+    tests = campaign(joint_type, prior=truth, noise=RIG_NOISE, cycles=RIG_CYCLES)  # prior = the simulated parameters
+    measured = run_campaign(tests, truth, lambda test: rig.simulate(test, truth, source=stated.source))
+    records = measured.micro + measured.stick
     identification = _identify(records, progress)
     return JointTypeFriction(joint_type, identification, stated, stated, [r.name for r in records], True, None)
 

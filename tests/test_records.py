@@ -8,6 +8,7 @@ from scipy.integrate import solve_ivp
 
 from smartjoint.design.friction import lugre, rig
 from smartjoint.design.friction.records import RecordError, read_record, write_record
+from smartjoint.design.friction.rig_campaign import standard_campaign
 
 
 def test_rig_matches_radau_reference():
@@ -253,7 +254,9 @@ def test_write_record_refuses_what_it_could_not_read_back(tmp_path):
 def _records(joint_type="A", cycles=0.5, normal_forces=(200.0, 400.0)):
     from smartjoint.design.friction.record_screening import classify
 
-    records = [rig.simulate(t) for t in rig.campaign(joint_type, cycles=cycles) if t.normal_force in normal_forces]
+    # prior = the simulated parameters (Table 1): the campaign of earlier versions
+    tests = standard_campaign(joint_type, lugre.TABLE_1[joint_type], cycles=cycles)
+    records = [rig.simulate(t) for t in tests if t.normal_force in normal_forces]
     return ([r for r in records if classify(r) == "micro-slip"], [r for r in records if classify(r) == "stick-slip"])
 
 

@@ -121,6 +121,7 @@ def test_parameter_file_that_is_not_text_or_missing(tmp_path, capsys):
         (("--noise", "nan"), "noise: nan — allowed: 0 … 1"),
         (("--cycles", "1e9"), "allowed: at most 500000 samples per record"),
         (("--inertia", "inf"), "inertia: inf — must be a finite number > 0"),
+        (("--prior", "joint.toml"), "--prior: designs a campaign — give it with --campaign"),
     ],
 )
 def test_bad_rig_options_are_one_line_errors(tmp_path, capsys, monkeypatch, arguments, expected):
@@ -145,19 +146,28 @@ def test_campaign_output_must_be_a_folder_and_nothing_is_written_on_error(tmp_pa
 
 
 def test_identify_recovers_a_non_table_1_parameter_set_from_a_rig_campaign(tmp_path):
-    """`rig --campaign --parameters joint.toml` (type B, 1 % noise, 8 cycles) → `identify`:
-    the assertions of tests/test_identify.py for Table 1 — σ0, F_c, F_d, v_s within 5 %, σ1
-    weakly identifiable, the output-error 95 % interval of σ2 holding the true value — and the
-    radius taken from the records (15 mm, not Table 1's 11 mm: a Table 1 radius would put σ0,
-    F_c and σ2 off by 36 %). The 5 % is the identification's accuracy at 1 % noise, not fitted to
-    one run: the errors are 0.1–0.3 % (docs/identification.md, seeds 0–3 and 100 for Table 1)."""
+    """`rig --campaign --parameters joint.toml --prior handbook.toml` (type B, 1 % noise, 8 cycles)
+    → `identify`: the experimenter designs the campaign from Table 1 (a handbook value, with the
+    joint's 15 mm radius) while the rig simulates JOINT_B. The assertions of
+    tests/test_identify.py for Table 1 — σ0, F_c, F_d, v_s within 5 %, σ1 weakly identifiable,
+    the output-error 95 % interval of σ2 holding the true value — and the radius taken from the
+    records (15 mm, not Table 1's 11 mm: a Table 1 radius would put σ0, F_c and σ2 off by 36 %).
+    The 5 % is the identification's accuracy at 1 % noise, not fitted to one run: the errors are
+    0.1–0.3 % (docs/identification.md, seeds 0–3 and 100 for Table 1)."""
+    from smartjoint.design.friction import lugre
+
     (tmp_path / "joint.toml").write_text(_toml(JOINT_B))
+    handbook = {name: getattr(lugre.TYPE_B, name) for name in JOINT_B if name != "radius"}
+    (tmp_path / "handbook.toml").write_text(_toml({**handbook, "radius": 0.015}))
     folder = tmp_path / "campaign"
     campaign = ("--campaign", "--noise", "0.01", "--cycles", "8")  # 1 % noise, 8 cycles a record
-    done = run_cli("rig", "--parameters", tmp_path / "joint.toml", *campaign, "-o", folder, "--json")
+    prior = ("--prior", tmp_path / "handbook.toml")
+    done = run_cli("rig", "--parameters", tmp_path / "joint.toml", *prior, *campaign, "-o", folder, "--json")
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
-    assert summary["parameters"]["source"] == str(tmp_path / "joint.toml") and len(summary["records"]) == 6
+    assert summary["parameters"]["source"] == str(tmp_path / "joint.toml")
+    assert {r["regime"] for r in summary["records"]} == {"micro-slip", "stick-slip"}
+    assert summary["prior"]["source"] == f"prior: {tmp_path / 'handbook.toml'}"
     records = sorted(str(p) for p in folder.glob("*.csv"))
     assert all("# radius = 0.015 m" in open(p).read(300) for p in records)
     done = run_cli("identify", *records, "--json")
@@ -172,3 +182,17 @@ def test_identify_recovers_a_non_table_1_parameter_set_from_a_rig_campaign(tmp_p
     lower, upper = values["sigma2"]["ci95"]
     assert values["sigma2"]["step"] == "output error" and lower <= JOINT_B["sigma2"] <= upper
     assert max(result["velocity_nrmse"].values()) < 0.012  # down to the 1 % measurement noise
+
+
+def test_campaign_says_its_prior_is_the_simulated_parameters_unless_one_is_given(tmp_path, capsys):
+    """Without --prior the campaign is designed from the simulated parameters, and says so."""
+    assert main(["rig", "--type", "A", "--campaign", "--cycles", "0.5", "-o", str(tmp_path / "out")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("LuGre parameters (paper Table 1, type A)")
+    assert lines[1] == "prior = the simulated parameters"
+    # rung by rung upwards: micro-slip at 0.12, 0.25 × break-away, 0.6 and 0.85 stuck nearer it
+    # (left out), stick-slip at 1.2 and 1.7, and 2.4, 3.4 not run (above 1.5× the lowest that slid)
+    written = sorted(line.split()[1] for line in lines if line.startswith("wrote "))
+    assert sorted(str(p) for p in (tmp_path / "out").glob("*.csv")) == written and len(written) == 4
+    assert sum(line.startswith("left out ") for line in lines) == 2
+    assert sum(line.startswith("not run ") for line in lines) == 2
