@@ -36,6 +36,12 @@ def _cpu() -> str:
 
 
 def cache_dir() -> Path:
+    """Where compiled modules are kept: ``$SMARTJOINT_CACHE``, else ``~/.cache/smartjoint``.
+
+    Returns
+    -------
+    Path
+    """
     return Path(os.environ.get("SMARTJOINT_CACHE") or Path.home() / ".cache" / "smartjoint")
 
 
@@ -45,8 +51,32 @@ _LOADED: dict[tuple, object] = {}  # per process: a short simulation should not 
 def load(
     stem: str, declarations: str, source: Path, *, objects: tuple[Path, ...] = (), includes: tuple[Path, ...] = ()
 ):
-    """The cffi module (``.ffi``, ``.lib``) of ``source`` with the C ``declarations``; ``objects``:
-    compiled object files linked into it, ``includes``: header folders."""
+    """The cffi module (``.ffi``, ``.lib``) of ``source`` with the C ``declarations``, compiled on
+    first use and cached per machine (the key hashes the source, declarations, flags, Python and CPU).
+
+    Parameters
+    ----------
+    stem : str
+        The module's name stem.
+    declarations : str
+        The C declarations cffi binds (read from the source's header).
+    source : Path
+        The C source.
+    objects : tuple of Path
+        Compiled object files linked into the module.
+    includes : tuple of Path
+        Header folders.
+
+    Returns
+    -------
+    module
+        With ``ffi`` and ``lib``.
+
+    Raises
+    ------
+    ModelError
+        When the compiler fails (no compiler, headers missing): one line.
+    """
     stamp = tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) for p in (Path(source), *map(Path, objects)))
     key = (stem, declarations, stamp, tuple(map(str, includes)))
     if key not in _LOADED:
@@ -100,6 +130,24 @@ def choose(backend: str, what: str, compiled, mirror, failures: list[str], stack
 
     Under 'auto' a failed build warns once (``failures`` remembers why, per kernel) and every
     later call goes straight to the Python mirror; under 'c' the build error reaches the caller.
+
+    Parameters
+    ----------
+    backend : str
+        'auto', 'c' or 'python'.
+    what : str
+        The kernel's name in the warning.
+    compiled, mirror : callable
+        Return the C kernel and its Python mirror.
+    failures : list of str
+        The kernel's build failures so far (filled here).
+    stacklevel : int
+        Of the warning, from this function's caller.
+
+    Returns
+    -------
+    object
+        What ``compiled()`` or ``mirror()`` returned.
     """
     if backend not in ("auto", "c", "python"):
         raise ModelError(f"backend: {backend!r} — must be 'auto', 'c' or 'python'")

@@ -84,10 +84,10 @@ class ControllerArtifact:
     piezo_force_per_volt: float
     piezo_preload: float
     sensor_quantities: tuple[str, ...]
-    joint_types: tuple[str, ...]
-    friction_parameters: np.ndarray
-    friction_radius: np.ndarray
-    friction_sources: tuple[str, ...]
+    joint_types: tuple[str, ...]  # "A" | "B", per joint
+    friction_parameters: np.ndarray  # (l, 6): σ0, σ1, σ2, F_c, F_d, v_s per unit F_N
+    friction_radius: np.ndarray  # (l,) [m], 0 for type A
+    friction_sources: tuple[str, ...]  # where each joint's parameters came from
     safe_normal_force: np.ndarray
     sliding_velocity_limit: np.ndarray
     friction_force_limit: np.ndarray
