@@ -261,3 +261,25 @@ def test_mac_plot_is_written(tmp_path):
     )
     plot_mac(correlation, tmp_path / "mac.png")
     assert (tmp_path / "mac.png").stat().st_size > 1000
+
+
+@pytest.mark.numerics
+def test_the_run_report_shows_the_mac_table_and_matrix(tmp_path, capsys):
+    """`smartjoint run` on the surveyed truss (without joints: the run ends after the structure):
+    the report pairs the EMA by MAC like Fig. 7, warns the swap and draws the MAC matrix."""
+    import json
+
+    from smartjoint.cli import main
+
+    truth = {"connectors.c.axial_stiffness": 2.0e6}
+    design, _ = _swapped_survey(truth)
+    bare = {k: v for k, v in small_truss().items() if k != "joints"}
+    path = _design_file(tmp_path, bare, design.updating)
+    assert main(["run", path, "-o", str(tmp_path / "report"), "--json"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert [p["fe_mode"] for p in summary["updating"]["correlation"]["updated"]["pairing"]] == [1, 3, 4, 5, 6, 8, 7]
+    assert "measured mode 7 pairs with FE mode 8" in captured.err + captured.out
+    report = (tmp_path / "report" / "report.md").read_text()
+    assert "MAC pairing of the EMA shapes" in report and "![MAC](mac.png)" in report
+    assert (tmp_path / "report" / "mac.png").stat().st_size > 0
