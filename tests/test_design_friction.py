@@ -98,3 +98,16 @@ def test_records_are_found_by_pattern_in_sorted_order(tmp_path):
     data["friction"]["records"] = [str(tmp_path / "rig" / "*.csv"), str(tmp_path / "rig" / "r1.csv")]
     design = parse_design(data)
     assert design.friction_records == (str(tmp_path / "rig" / "r1.csv"), str(tmp_path / "rig" / "r2.csv"))
+
+
+def test_a_design_named_by_a_relative_path_gives_absolute_file_names(tmp_path, monkeypatch):
+    """The run reports records and parameter files from its own folder: they must not depend on
+    the working directory the design was named from."""
+    record = rig.simulate(rig.RigTest("B", 200.0, 0.5, 10.0, cycles=1.0, inertia=2e-3, sample_rate=2000.0))
+    (tmp_path / "rig").mkdir()
+    write_record(record, tmp_path / "rig" / "r1.csv")
+    data = small_truss()
+    data["friction"]["records"] = ["rig/*.csv"]
+    (tmp_path / "design.toml").write_text(tomli_w.dumps(data))
+    monkeypatch.chdir(tmp_path)
+    assert load_design("design.toml").friction_records == (str(tmp_path / "rig" / "r1.csv"),)

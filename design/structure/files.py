@@ -173,7 +173,7 @@ def anchor_paths(data: dict[str, Any], folder: Path) -> None:
 
     def anchored(value: Any) -> Any:
         if isinstance(value, str) and value and not Path(value).is_absolute():
-            return os.path.normpath(folder / value)
+            return os.path.abspath(folder / value)  # absolute: the run reports them from another folder
         return value
 
     friction = data.get("friction")
