@@ -213,7 +213,7 @@ def friction_entries(design: Design, results: list[JointTypeFriction], staging: 
             file = f"friction/{Path(friction.source).name}"
             (staging / "friction").mkdir(exist_ok=True)
             (staging / file).write_bytes(Path(friction.source).read_bytes())
-            source = f"parameter file {Path(friction.source).name}"
+            source = "parameter file (copied into the report)"
         elif id(friction) in identified:  # identified by this run: its result file is in the report
             file = identified[id(friction)]
         entries[joint.name] = {
