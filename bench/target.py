@@ -27,9 +27,11 @@ from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 
 BOARD = "mps2-an386"
-TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "make", "qemu-system-arm")
+TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "arm-none-eabi-nm", "make", "qemu-system-arm")
 PREFIX = "smartjoint"  # the self-test calls the controllers by this prefix
 FIRMWARE_OBJECTS = ("smartjoint_clqg.o", "smartjoint_siso.o", "smartjoint_can.o", "sj_e2e.o")
+# The self-test's own arrays (the sequence and what it gave), not firmware.
+SEQUENCE_TABLES = ("sj_clqg_inputs", "sj_siso_inputs", "clqg_outputs", "siso_outputs", "clqg_status", "siso_status")
 INPUT_FIELDS = {"clqg": ("sensors", "friction_force", "normal_force"),
                 "siso": ("sliding_velocity", "friction_force", "normal_force")}  # fmt: skip
 
@@ -97,18 +99,30 @@ def _run(command: list[str], what: str, timeout: float, cwd: Path | None = None)
 
 
 def _sizes(elf: Path, objects: list[Path]) -> dict[str, int]:
-    """Flash (text + data) and RAM (data + bss) of the image and of the firmware objects alone."""
+    """Flash (text + data) and RAM (data + bss) of the firmware objects alone and of the linked
+    image (startup, board support, self-test, library routines) without the self-test's sequence
+    tables and the stack reservation (``stack_reserved``; the stack's use is measured apart)."""
 
     def berkeley(paths: list[Path]) -> np.ndarray:
         lines = _run(["arm-none-eabi-size", *map(str, paths)], "arm-none-eabi-size", 60).stdout.splitlines()[1:]
         return np.array([[int(word) for word in line.split()[:3]] for line in lines]).sum(axis=0)
 
+    tables = {"flash": 0, "ram": 0}
+    for line in _run(["arm-none-eabi-nm", "-S", str(elf)], "arm-none-eabi-nm", 60).stdout.splitlines():
+        words = line.split()
+        if len(words) == 4 and words[3] in SEQUENCE_TABLES:
+            tables["flash" if words[2] in "rR" else "ram"] += int(words[1], 16)
     image, own = berkeley([elf]), berkeley(objects)
+    stack = int(
+        _run(["arm-none-eabi-size", "-A", str(elf)], "arm-none-eabi-size", 60).stdout.split(".stack")[1].split()[0]
+    )
     return {
-        "image_flash": int(image[0] + image[1]),
-        "image_ram": int(image[1] + image[2]),
         "firmware_flash": int(own[0] + own[1]),
         "firmware_ram": int(own[1] + own[2]),
+        "image_flash": int(image[0] + image[1]) - tables["flash"],
+        "image_ram": int(image[1] + image[2]) - tables["ram"] - stack,
+        "sequence_tables": tables["flash"] + tables["ram"],
+        "stack_reserved": stack,
     }
 
 
@@ -167,7 +181,8 @@ def run_selftest(artifact: ControllerArtifact, steps: int = 200, seed: int = 19,
     dict
         ``inputs`` and ``outputs`` per law (float32 rows), ``status`` per law, ``exit_code``,
         ``instructions`` per step per law (mean over the sequence, the empty loop subtracted),
-        ``stack`` (bytes: ``clqg``, ``siso`` loops below main, ``high_water`` of the program),
+        ``stack`` (bytes below main's frame: the ``clqg`` and ``siso`` loops, the ``can`` entry
+        points; ``high_water`` of the whole program),
         ``size`` (bytes, :func:`_sizes`), ``command`` and the raw ``figures``.
 
     Raises
@@ -192,7 +207,8 @@ def run_selftest(artifact: ControllerArtifact, steps: int = 200, seed: int = 19,
         law: per_tick * (figures[f"ticks_{law}"] - figures[f"ticks_{law}_empty"]) / figures["steps"]
         for law in ("clqg", "siso")
     }
-    stack = {"clqg": figures["stack_clqg"], "siso": figures["stack_siso"], "high_water": figures["stack_high_water"]}
+    stack = {law: figures[f"stack_{law}"] for law in ("clqg", "siso", "can")}
+    stack["high_water"] = figures["stack_high_water"]
     command[-1] = "selftest.elf"
     return {
         **result,

@@ -64,7 +64,8 @@ def test_instructions_per_step_and_stack_are_measured_and_bounded(selftest):
     assert 20 < selftest["instructions"]["siso"] < 1000, selftest["instructions"]
     assert selftest["instructions"]["siso"] < selftest["instructions"]["clqg"]
     stack = selftest["stack"]
-    assert 0 < stack["clqg"] <= 1024 and 0 < stack["siso"] <= 1024, stack
-    assert max(stack["clqg"], stack["siso"]) < stack["high_water"] <= 4096, stack
+    assert all(0 < stack[part] <= 1024 for part in ("clqg", "siso", "can")), stack
+    assert max(stack["clqg"], stack["siso"], stack["can"]) < stack["high_water"] <= 4096, stack
     size = selftest["size"]
-    assert 0 < size["firmware_flash"] <= size["image_flash"] <= 64 * 1024, size
+    assert 0 < size["firmware_flash"] <= 64 * 1024 and 0 < size["image_flash"] <= 64 * 1024, size
+    assert 0 < size["image_ram"] <= 4096, size
