@@ -85,6 +85,16 @@ uint32_t {n}_counter(const uint8_t *state, int which)
     )
 
 
+def sources(artifact: ControllerArtifact, real: str = "float", prefix: str = "smartjoint", **can_options) -> dict:
+    """The generated sources of the firmware image (controllers + CAN layer + E2E runtime), file
+    name → text: what the SIL bench compiles on the host and the target self-test on the target
+    (``bench/target.py``). Arguments as for :class:`Firmware`."""
+    return {
+        **generate.render(artifact, real, prefix),
+        **can_layer.render_can(artifact, prefix, full_codec=True, **can_options),
+    }
+
+
 COUNTERS = (
     "rx_frames",
     "crc_errors",
@@ -123,10 +133,7 @@ class Firmware:
     ):
         if law not in LAWS:
             raise ModelError(f"law: {law!r} — allowed: {', '.join(LAWS)}")
-        files = {
-            **generate.render(artifact, real, prefix),
-            **can_layer.render_can(artifact, prefix, full_codec=True, **can_options),
-        }
+        files = sources(artifact, real, prefix, **can_options)
         files[f"_{prefix}_can_driver.h"] = _driver_header(prefix)
         files[f"_{prefix}_can_driver.c"] = _driver(prefix)
         # The generated sources and the driver compile with the strict flags; the declarations

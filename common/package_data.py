@@ -40,7 +40,15 @@ FILES: dict[str, tuple[str, ...]] = {
             "types.h.j2",
         )
     ),
-    "smartjoint.firmware": ("runtime/sj_e2e.c", "runtime/sj_e2e.h", "runtime/replay.c"),
+    "smartjoint.firmware": (
+        "runtime/sj_e2e.c",
+        "runtime/sj_e2e.h",
+        "runtime/replay.c",
+        *(
+            f"target/mps2_an386/{name}"
+            for name in ("Makefile", "board.c", "board.h", "mps2_an386.ld", "selftest.c", "startup.c")
+        ),
+    ),
 }
 
 
