@@ -22,6 +22,7 @@ import numpy as np
 
 from smartjoint.codegen import build, can_layer, output, rendering
 from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.control.filter import output_terms
 
 
 def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: str, lit, row) -> dict:
@@ -60,6 +61,11 @@ def _clqg_context(common: dict, artifact: artifacts.ControllerArtifact, prefix: 
         "gamma1": [row(g) for g in artifact.gamma1],
         "joint_input": [row(e) for e in artifact.joint_input],
         "output": [row(c) for c in artifact.output],
+        # The components of each coordinate a sensor reads (0 velocity, 1 displacement): the
+        # structural zeros of C are skipped at generation time (control.output_terms).
+        "output_components": [
+            [q for q in (0, 1) if used[q]] for used in output_terms(np.asarray(artifact.output, dtype=float))[:, :2]
+        ],
         "estimator_gain": [row(m) for m in artifact.estimator_gain],
         "feedback_gain": [row(k) for k in artifact.feedback_gain],
         "clqg_boundary_layer": lit(artifact.clqg_boundary_layer),

@@ -71,14 +71,37 @@ class _Lqg:
         d = self.design
         prior = self._time_update(force)
         # Before the first sample the prediction is 0 (not C·0, whose zeros may carry a sign).
-        predicted = ordered_product(d.output, prior) if self.started else np.zeros(d.output.shape[0])
+        # C's structural zeros are skipped as in the generated C (``output_terms``).
+        predicted = (
+            ordered_product(d.output, prior, output_terms(d.output)) if self.started else np.zeros(d.output.shape[0])
+        )
         innovation = np.asarray(sensors, dtype=float) - predicted
         self.estimate = prior + ordered_product(d.estimator_gain, innovation)
         self.started = True
         return -ordered_product(d.feedback_gain, self.estimate)
 
 
-def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
+def output_terms(output: np.ndarray) -> np.ndarray:
+    """The terms of C·x the generated C computes: column 2i + q of sensor row r unless that
+    sensor reads component q (velocity q = 0, displacement q = 1) of no coordinate, i.e. unless
+    C[r, q::2] is all exact zeros (a displacement sensor reads no velocity). A zero inside a
+    partly used component stays a term, so the loops keep their fixed stride.
+
+    Parameters
+    ----------
+    output : ndarray, shape (n_y, 2n)
+
+    Returns
+    -------
+    ndarray of bool, shape (n_y, 2n)
+    """
+    used = np.zeros(output.shape, dtype=bool)
+    for component in (0, 1):
+        used[:, component::2] = np.any(output[:, component::2] != 0.0, axis=1)[:, None]
+    return used
+
+
+def ordered_product(matrix: np.ndarray, vector: np.ndarray, terms: np.ndarray | None = None) -> np.ndarray:
     """matrix @ vector summed strictly left to right over the columns, starting with the first
     product — the order of the generated C, so the double build reproduces this reference bit
     for bit (BLAS sums in blocks and with FMA, which differs in the last bits).
@@ -87,6 +110,9 @@ def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
     ----------
     matrix : ndarray, shape (m, n)
     vector : ndarray, shape (n,)
+    terms : ndarray of bool, shape (m, n), optional
+        Only these products are summed (structural zeros skipped at generation time, which
+        changes x·0 = NaN for x = ±Inf/NaN); a row without a term is 0.
 
     Returns
     -------
@@ -97,9 +123,21 @@ def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
     >>> ordered_product(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([1.0, 1.0]))
     array([3., 7.])
     """
+    if terms is not None:
+        return np.array([_row_sum(row, vector, used) for row, used in zip(matrix, terms)])
     total = matrix[:, 0] * vector[0]
     for k in range(1, matrix.shape[1]):
         total = total + matrix[:, k] * vector[k]
+    return total
+
+
+def _row_sum(row: np.ndarray, vector: np.ndarray, used: np.ndarray) -> float:
+    columns = np.flatnonzero(used)
+    if columns.size == 0:
+        return 0.0
+    total = row[columns[0]] * vector[columns[0]]
+    for k in columns[1:]:
+        total = total + row[k] * vector[k]
     return total
 
 
@@ -214,4 +252,4 @@ class ActiveLqg(_Lqg):
         return command
 
 
-__all__ = ["ActiveLqg", "ClippedLqg", "ordered_product"]
+__all__ = ["ActiveLqg", "ClippedLqg", "ordered_product", "output_terms"]

@@ -189,9 +189,10 @@ unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint
     }
     /* Time update, block by block (never a dense STATES x STATES product), with a first-order
      * hold on the friction forces between the previous sample and now, fused with the
-     * prediction C x_prior of the sensors. Every sum runs left to right from its first term:
-     * the order of the Python reference (control.ordered_product), so the double build is
-     * bit-identical to it. */
+     * prediction C x_prior of the sensors. C's structural zeros are skipped: a sensor sums only
+     * the components it reads (velocity p0, displacement p1), as in control.output_terms. Every
+     * sum runs left to right from its first term: the order of the Python reference
+     * (control.ordered_product), so the double build is bit-identical to it. */
     if (state->started) {
         {
             const smartjoint_real start = joint_input[0][0] * state->previous_force[0] + joint_input[0][1] * state->previous_force[1] + joint_input[0][2] * state->previous_force[2];
@@ -202,10 +203,8 @@ unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint
             const smartjoint_real p1 = (blocks[0][2] * x0 + blocks[0][3] * x1) - gamma0[0][1] * start - gamma1[0][1] * end;
             prior[0] = p0;
             prior[1] = p1;
-            predicted0 = output_matrix[0][0] * p0;
-            predicted0 += output_matrix[0][1] * p1;
-            predicted1 = output_matrix[1][0] * p0;
-            predicted1 += output_matrix[1][1] * p1;
+            predicted0 = output_matrix[0][1] * p1;
+            predicted1 = output_matrix[1][1] * p1;
         }
         for (i = 1; i < COORDINATES; ++i) {
         {
@@ -217,9 +216,7 @@ unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint
             const smartjoint_real p1 = (blocks[i][2] * x0 + blocks[i][3] * x1) - gamma0[i][1] * start - gamma1[i][1] * end;
             prior[2 * i] = p0;
             prior[2 * i + 1] = p1;
-            predicted0 += output_matrix[0][2 * i] * p0;
             predicted0 += output_matrix[0][2 * i + 1] * p1;
-            predicted1 += output_matrix[1][2 * i] * p0;
             predicted1 += output_matrix[1][2 * i + 1] * p1;
         }
         }
