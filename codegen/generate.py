@@ -22,7 +22,7 @@ import numpy as np
 
 from smartjoint.codegen import build, can_layer, output, rendering
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.control.filter import output_terms
+from smartjoint.design.control.filter import hold_products, output_terms
 
 
 def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: str, lit, row) -> dict:
@@ -68,8 +68,21 @@ def _clqg_context(common: dict, artifact: artifacts.ControllerArtifact, prefix: 
         ],
         "estimator_gain": [row(m) for m in artifact.estimator_gain],
         "feedback_gain": [row(k) for k in artifact.feedback_gain],
+        **_hold_context(artifact, row),
         "clqg_boundary_layer": lit(artifact.clqg_boundary_layer),
         "sensor_limit": row(artifact.sensor_limit),
+    }
+
+
+def _hold_context(artifact: artifacts.ControllerArtifact, row) -> dict:
+    """The constant products of the cLQG's output phase (control.hold_products)."""
+    output_hold, feedback_hold, feedback_estimator = hold_products(
+        artifact.output, artifact.feedback_gain, artifact.estimator_gain, artifact.gamma1, artifact.joint_input
+    )
+    return {
+        "output_hold": [row(c) for c in output_hold],
+        "feedback_hold": [row(k) for k in feedback_hold],
+        "feedback_estimator": [row(k) for k in feedback_estimator],
     }
 
 

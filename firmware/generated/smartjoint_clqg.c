@@ -102,6 +102,22 @@ static const smartjoint_real feedback_gain[JOINTS][STATES] = { /* K (Eq. 33) */
     {546.43414f, 435.19675f, -233.56396f, -116.20649f, -560.37646f, 115.75594f, 691.4978f, 75.17648f, -11.913705f, -8.676489f, 453.199f, 164.38893f, -335.2167f, -13.293027f, 342.67822f, 11.399993f, 529.77563f, -25.60028f, -353.7666f, -92.61489f, -674.3962f, 172.34456f, 289.52908f, -307.86487f},
     {4.3778655e-08f, 3.50742e-08f, -614.1899f, -333.31784f, -78.53272f, 76.93195f, 2.8991607e-08f, -8.9503943e-10f, -752.5798f, 85.778694f, 389.32074f, 223.05533f, 581.00006f, -46.52238f, 620.7858f, 45.67524f, 313.22128f, -3.8093114f, -613.1213f, -20.12687f, -2.6500497e-06f, 4.778179e-08f, -346.87936f, 332.5452f},
 };
+/* Constant products of the output phase (Gamma1 E: rows gamma1[i][c] E[i]), so that the command
+ * needs only the new measurement: C Gamma1 E, K Gamma1 E and K M. */
+static const smartjoint_real output_hold[SENSORS][JOINTS] = {
+    {2.7557292e-09f, -3.5210233e-09f, -1.7400179e-09f},
+    {3.5210233e-09f, -2.7557292e-09f, 1.7400179e-09f},
+};
+static const smartjoint_real feedback_hold[JOINTS][JOINTS] = {
+    {-0.22280152f, 0.006084709f, -0.11127695f},
+    {0.006084709f, -0.22280152f, -0.11127695f},
+    {-0.07316987f, -0.07316987f, -0.26804638f},
+};
+static const smartjoint_real feedback_estimator[JOINTS][SENSORS] = {
+    {136213.17f, -233385.89f},
+    {233385.89f, -136213.17f},
+    {202961.2f, -202961.2f},
+};
 static const smartjoint_real normal_force_min[JOINTS] = {10.0f, 10.0f, 10.0f};
 static const smartjoint_real normal_force_range[JOINTS] = {390.0f, 390.0f, 390.0f}; /* F^max - F^min */
 static const smartjoint_real boundary_layer = 100.0f; /* eps [N] (Eq. 34) */
@@ -121,12 +137,19 @@ void smartjoint_clqg_init(smartjoint_clqg_state *state)
         return;
     }
     for (k = 0; k < STATES; ++k) {
-        state->estimate[k] = 0.0f;
+        state->propagated[k] = 0.0f;
+    }
+    for (k = 0; k < SENSORS; ++k) {
+        state->predicted[k] = 0.0f;
+        state->innovation[k] = 0.0f;
     }
     for (k = 0; k < JOINTS; ++k) {
+        state->feedback[k] = 0.0f;
+        state->friction_force[k] = 0.0f;
         state->previous_force[k] = 0.0f;
     }
     state->started = 0;
+    state->pending = 0;
 }
 
 /* Safe state: filter restarted, every joint at the safe force, no desired force. */
@@ -167,17 +190,17 @@ static unsigned int check_inputs(const smartjoint_clqg_input *input)
     return status;
 }
 
-unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
+/* Output phase, right after the measurements arrive: the command from the new measurement and the
+ * products the previous update phase left in the state (x_prior = q - Gamma1 E u):
+ *   innovation = y - (C q - (C Gamma1 E) u),   u_d = -((K q - (K Gamma1 E) u) + (K M) innovation).
+ * Every sum runs left to right from its first term: the order of the Python reference
+ * (control.ordered_product), so the double build is bit-identical to it. */
+unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
 {
-    smartjoint_real prior[STATES];
-    smartjoint_real predicted0;
     smartjoint_real innovation0;
-    smartjoint_real predicted1;
     smartjoint_real innovation1;
-    smartjoint_real force0;
-    smartjoint_real force1;
-    smartjoint_real force2;
-    int i, j, k;
+    smartjoint_real force[JOINTS];
+    int j;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
     }
@@ -187,85 +210,125 @@ unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint
             return fault(state, output, input_status);
         }
     }
-    /* Time update, block by block (never a dense STATES x STATES product), with a first-order
-     * hold on the friction forces between the previous sample and now, fused with the
-     * prediction C x_prior of the sensors. C's structural zeros are skipped: a sensor sums only
-     * the components it reads (velocity p0, displacement p1), as in control.output_terms. Every
-     * sum runs left to right from its first term: the order of the Python reference
-     * (control.ordered_product), so the double build is bit-identical to it. */
     if (state->started) {
-        {
-            const smartjoint_real start = joint_input[0][0] * state->previous_force[0] + joint_input[0][1] * state->previous_force[1] + joint_input[0][2] * state->previous_force[2];
-            const smartjoint_real end = joint_input[0][0] * input->friction_force[0] + joint_input[0][1] * input->friction_force[1] + joint_input[0][2] * input->friction_force[2];
-            const smartjoint_real x0 = state->estimate[0];
-            const smartjoint_real x1 = state->estimate[1];
-            const smartjoint_real p0 = (blocks[0][0] * x0 + blocks[0][1] * x1) - gamma0[0][0] * start - gamma1[0][0] * end;
-            const smartjoint_real p1 = (blocks[0][2] * x0 + blocks[0][3] * x1) - gamma0[0][1] * start - gamma1[0][1] * end;
-            prior[0] = p0;
-            prior[1] = p1;
-            predicted0 = output_matrix[0][1] * p1;
-            predicted1 = output_matrix[1][1] * p1;
+        innovation0 = input->sensors[0] - (state->predicted[0] - (output_hold[0][0] * input->friction_force[0] + output_hold[0][1] * input->friction_force[1] + output_hold[0][2] * input->friction_force[2]));
+        innovation1 = input->sensors[1] - (state->predicted[1] - (output_hold[1][0] * input->friction_force[0] + output_hold[1][1] * input->friction_force[1] + output_hold[1][2] * input->friction_force[2]));
+        for (j = 0; j < JOINTS; ++j) {
+            force[j] = (state->feedback[j] - (feedback_hold[j][0] * input->friction_force[0] + feedback_hold[j][1] * input->friction_force[1] + feedback_hold[j][2] * input->friction_force[2])) + (feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1);
         }
-        for (i = 1; i < COORDINATES; ++i) {
-        {
-            const smartjoint_real start = joint_input[i][0] * state->previous_force[0] + joint_input[i][1] * state->previous_force[1] + joint_input[i][2] * state->previous_force[2];
-            const smartjoint_real end = joint_input[i][0] * input->friction_force[0] + joint_input[i][1] * input->friction_force[1] + joint_input[i][2] * input->friction_force[2];
-            const smartjoint_real x0 = state->estimate[2 * i];
-            const smartjoint_real x1 = state->estimate[2 * i + 1];
-            const smartjoint_real p0 = (blocks[i][0] * x0 + blocks[i][1] * x1) - gamma0[i][0] * start - gamma1[i][0] * end;
-            const smartjoint_real p1 = (blocks[i][2] * x0 + blocks[i][3] * x1) - gamma0[i][1] * start - gamma1[i][1] * end;
-            prior[2 * i] = p0;
-            prior[2 * i + 1] = p1;
-            predicted0 += output_matrix[0][2 * i + 1] * p1;
-            predicted1 += output_matrix[1][2 * i + 1] * p1;
-        }
-        }
-    } else {
-        for (k = 0; k < STATES; ++k) {
-            prior[k] = 0.0f;
-        }
-        predicted0 = 0.0f;
-        predicted1 = 0.0f;
-    }
-    innovation0 = input->sensors[0] - predicted0;
-    innovation1 = input->sensors[1] - predicted1;
-    /* Measurement update x_hat = prior + M (y - C prior), fused with u_d = -K x_hat (Eq. 33).
-     * A non-finite estimate makes every K x_hat non-finite (inf * 0 is NaN), so checking the
-     * forces covers it. */
-        {
-            const smartjoint_real estimate = prior[0] + (estimator_gain[0][0] * innovation0 + estimator_gain[0][1] * innovation1);
-            state->estimate[0] = estimate;
-            force0 = feedback_gain[0][0] * estimate;
-            force1 = feedback_gain[1][0] * estimate;
-            force2 = feedback_gain[2][0] * estimate;
-        }
-    for (k = 1; k < STATES; ++k) {
-        {
-            const smartjoint_real estimate = prior[k] + (estimator_gain[k][0] * innovation0 + estimator_gain[k][1] * innovation1);
-            state->estimate[k] = estimate;
-            force0 += feedback_gain[0][k] * estimate;
-            force1 += feedback_gain[1][k] * estimate;
-            force2 += feedback_gain[2][k] * estimate;
+    } else { /* no prior before the first sample */
+        innovation0 = input->sensors[0];
+        innovation1 = input->sensors[1];
+        for (j = 0; j < JOINTS; ++j) {
+            force[j] = feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1;
         }
     }
-    if (!(isfinite(force0) && isfinite(force1) && isfinite(force2))) {
-        return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
-    }
-    output->desired_force[0] = -force0;
-    output->desired_force[1] = -force1;
-    output->desired_force[2] = -force2;
-    /* The clipped law of Eq. 34. */
+    /* The clipped law of Eq. 34. A non-finite estimate makes K q non-finite (inf * 0 is NaN), so
+     * checking the forces covers it. */
     for (j = 0; j < JOINTS; ++j) {
         const smartjoint_real friction = input->friction_force[j];
         const smartjoint_real applied = input->normal_force[j];
         const smartjoint_real sign = friction > 0.0f ? 1.0f : (friction < 0.0f ? -1.0f : 0.0f);
-        smartjoint_real ratio = ((output->desired_force[j] - friction) * sign) / boundary_layer;
+        smartjoint_real ratio;
+        if (!isfinite(force[j])) {
+            return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
+        }
+        output->desired_force[j] = -force[j];
+        ratio = ((output->desired_force[j] - friction) * sign) / boundary_layer;
         ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
         output->normal_force[j] = normal_force_min[j] + normal_force_range[j] * ratio;
         /* u_R = F_N mu with mu continuous: the friction just after this sample scales with the
          * new normal force; it starts the next time update's first-order hold. */
         state->previous_force[j] = applied > 0.0f ? (friction * output->normal_force[j]) / applied : friction;
+        state->friction_force[j] = friction;
     }
-    state->started = 1;
+    state->innovation[0] = innovation0;
+    state->innovation[1] = innovation1;
+    state->pending = 1;
     return SMARTJOINT_STATUS_OK;
+}
+
+/* Update phase, after the command is sent: the measurement update x_hat = x_prior + M innovation
+ * and the time update to the next sample, q = Phi x_hat - Gamma0 E u+ (a first-order hold on the
+ * friction forces from just after this sample), block by block (never a dense STATES x STATES
+ * product), fused with the products C q and K q of the next output phase. C's structural zeros
+ * are skipped: a sensor sums only the components it reads (velocity q0, displacement q1), as in
+ * control.output_terms. Nothing happens without a successful output phase before it. */
+void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
+{
+    smartjoint_real friction0, friction1, friction2;
+    smartjoint_real previous0, previous1, previous2;
+    smartjoint_real feedback0, feedback1, feedback2;
+    smartjoint_real innovation0, innovation1;
+    smartjoint_real predicted0, predicted1;
+    int i;
+    if (state == NULL || !state->pending) {
+        return;
+    }
+    if (!state->started) { /* the first sample has no prior: q = 0 and no hold */
+        for (i = 0; i < STATES; ++i) {
+            state->propagated[i] = 0.0f;
+        }
+        for (i = 0; i < JOINTS; ++i) {
+            state->friction_force[i] = 0.0f;
+        }
+    }
+    friction0 = state->friction_force[0];
+    friction1 = state->friction_force[1];
+    friction2 = state->friction_force[2];
+    previous0 = state->previous_force[0];
+    previous1 = state->previous_force[1];
+    previous2 = state->previous_force[2];
+    innovation0 = state->innovation[0];
+    innovation1 = state->innovation[1];
+    {
+        const smartjoint_real end = joint_input[0][0] * friction0 + joint_input[0][1] * friction1 + joint_input[0][2] * friction2;
+        const smartjoint_real start = joint_input[0][0] * previous0 + joint_input[0][1] * previous1 + joint_input[0][2] * previous2;
+        const smartjoint_real x0 = (state->propagated[0] - gamma1[0][0] * end) + (estimator_gain[0][0] * innovation0 + estimator_gain[0][1] * innovation1);
+        const smartjoint_real x1 = (state->propagated[1] - gamma1[0][1] * end) + (estimator_gain[1][0] * innovation0 + estimator_gain[1][1] * innovation1);
+        const smartjoint_real q0 = (blocks[0][0] * x0 + blocks[0][1] * x1) - gamma0[0][0] * start;
+        const smartjoint_real q1 = (blocks[0][2] * x0 + blocks[0][3] * x1) - gamma0[0][1] * start;
+        state->propagated[0] = q0;
+        state->propagated[1] = q1;
+        predicted0 = output_matrix[0][1] * q1;
+        predicted1 = output_matrix[1][1] * q1;
+        feedback0 = feedback_gain[0][0] * q0;
+        feedback0 += feedback_gain[0][1] * q1;
+        feedback1 = feedback_gain[1][0] * q0;
+        feedback1 += feedback_gain[1][1] * q1;
+        feedback2 = feedback_gain[2][0] * q0;
+        feedback2 += feedback_gain[2][1] * q1;
+    }
+    for (i = 1; i < COORDINATES; ++i) {
+        const smartjoint_real end = joint_input[i][0] * friction0 + joint_input[i][1] * friction1 + joint_input[i][2] * friction2;
+        const smartjoint_real start = joint_input[i][0] * previous0 + joint_input[i][1] * previous1 + joint_input[i][2] * previous2;
+        const smartjoint_real x0 = (state->propagated[2 * i] - gamma1[i][0] * end) + (estimator_gain[2 * i][0] * innovation0 + estimator_gain[2 * i][1] * innovation1);
+        const smartjoint_real x1 = (state->propagated[2 * i + 1] - gamma1[i][1] * end) + (estimator_gain[2 * i + 1][0] * innovation0 + estimator_gain[2 * i + 1][1] * innovation1);
+        const smartjoint_real q0 = (blocks[i][0] * x0 + blocks[i][1] * x1) - gamma0[i][0] * start;
+        const smartjoint_real q1 = (blocks[i][2] * x0 + blocks[i][3] * x1) - gamma0[i][1] * start;
+        state->propagated[2 * i] = q0;
+        state->propagated[2 * i + 1] = q1;
+        predicted0 += output_matrix[0][2 * i + 1] * q1;
+        predicted1 += output_matrix[1][2 * i + 1] * q1;
+        feedback0 += feedback_gain[0][2 * i] * q0;
+        feedback0 += feedback_gain[0][2 * i + 1] * q1;
+        feedback1 += feedback_gain[1][2 * i] * q0;
+        feedback1 += feedback_gain[1][2 * i + 1] * q1;
+        feedback2 += feedback_gain[2][2 * i] * q0;
+        feedback2 += feedback_gain[2][2 * i + 1] * q1;
+    }
+    state->predicted[0] = predicted0;
+    state->predicted[1] = predicted1;
+    state->feedback[0] = feedback0;
+    state->feedback[1] = feedback1;
+    state->feedback[2] = feedback2;
+    state->started = 1;
+    state->pending = 0;
+}
+
+unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
+{
+    const unsigned int status = smartjoint_clqg_output_phase(state, input, output);
+    smartjoint_clqg_update_phase(state);
+    return status;
 }
