@@ -94,8 +94,9 @@ void smartjoint_clqg_init(smartjoint_clqg_state *state)
     if (state == NULL) {
         return;
     }
-    for (k = 0; k < STATES; ++k) {
-        state->propagated[k] = 0.0f;
+    for (k = 0; k < COORDINATES; ++k) {
+        state->velocity[k] = 0.0f;
+        state->displacement[k] = 0.0f;
     }
     for (k = 0; k < SENSORS; ++k) {
         state->predicted[k] = 0.0f;
@@ -124,13 +125,15 @@ static unsigned int fault(smartjoint_clqg_state *state, smartjoint_clqg_output *
 
 /* How an input can be used: INPUT_INVALID for NaN/Inf, INPUT_IMPLAUSIBLE for a number outside
  * [low, high], OK within (a value at a limit is plausible). The range test is written as
- * "within", which is false for NaN, so no NaN can ever pass it. */
+ * "within", which is false for NaN, so no NaN can ever pass it; the limits are finite (an
+ * artefact holds finite numbers only), so neither can an infinity, and the finiteness test is
+ * needed only for a value outside. */
 static unsigned int check_input(smartjoint_real value, smartjoint_real low, smartjoint_real high)
 {
-    if (!isfinite(value)) {
-        return SMARTJOINT_STATUS_INPUT_INVALID;
+    if (value >= low && value <= high) {
+        return SMARTJOINT_STATUS_OK;
     }
-    return (value >= low && value <= high) ? SMARTJOINT_STATUS_OK : SMARTJOINT_STATUS_INPUT_IMPLAUSIBLE;
+    return isfinite(value) ? SMARTJOINT_STATUS_INPUT_IMPLAUSIBLE : SMARTJOINT_STATUS_INPUT_INVALID;
 }
 
 /* The status bits of all inputs (check_input); any bit means the filter cannot use them. */
@@ -155,9 +158,7 @@ static unsigned int check_inputs(const smartjoint_clqg_input *input)
  * (control.ordered_product), so the double build is bit-identical to it. */
 unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
 {
-    smartjoint_real innovation0;
-    smartjoint_real innovation1;
-    smartjoint_real force[JOINTS];
+    smartjoint_real innovation0, innovation1;
     int j;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
@@ -171,27 +172,26 @@ unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const sm
     if (state->started) {
         innovation0 = input->sensors[0] - (state->predicted[0] - (output_hold[0][0] * input->friction_force[0] + output_hold[0][1] * input->friction_force[1] + output_hold[0][2] * input->friction_force[2]));
         innovation1 = input->sensors[1] - (state->predicted[1] - (output_hold[1][0] * input->friction_force[0] + output_hold[1][1] * input->friction_force[1] + output_hold[1][2] * input->friction_force[2]));
-        for (j = 0; j < JOINTS; ++j) {
-            force[j] = (state->feedback[j] - (feedback_hold[j][0] * input->friction_force[0] + feedback_hold[j][1] * input->friction_force[1] + feedback_hold[j][2] * input->friction_force[2])) + (feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1);
-        }
     } else { /* no prior before the first sample */
         innovation0 = input->sensors[0];
         innovation1 = input->sensors[1];
-        for (j = 0; j < JOINTS; ++j) {
-            force[j] = feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1;
-        }
     }
-    /* The clipped law of Eq. 34. A non-finite estimate makes K q non-finite (inf * 0 is NaN), so
-     * checking the forces covers it. */
+    /* u_d and the clipped law of Eq. 34, joint by joint. A non-finite estimate makes K q
+     * non-finite (inf * 0 is NaN), so checking the forces covers it. */
     for (j = 0; j < JOINTS; ++j) {
         const smartjoint_real friction = input->friction_force[j];
         const smartjoint_real applied = input->normal_force[j];
         const smartjoint_real sign = friction > 0.0f ? 1.0f : (friction < 0.0f ? -1.0f : 0.0f);
-        smartjoint_real ratio;
-        if (!isfinite(force[j])) {
+        smartjoint_real force, ratio;
+        if (state->started) {
+            force = (state->feedback[j] - (feedback_hold[j][0] * input->friction_force[0] + feedback_hold[j][1] * input->friction_force[1] + feedback_hold[j][2] * input->friction_force[2])) + (feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1);
+        } else {
+            force = feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1;
+        }
+        if (!isfinite(force)) {
             return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
         }
-        output->desired_force[j] = -force[j];
+        output->desired_force[j] = -force;
         ratio = ((output->desired_force[j] - friction) * sign) / boundary_layer;
         ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
         output->normal_force[j] = normal_force_min[j] + normal_force_range[j] * ratio;
@@ -224,8 +224,9 @@ void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
         return;
     }
     if (!state->started) { /* the first sample has no prior: q = 0 and no hold */
-        for (i = 0; i < STATES; ++i) {
-            state->propagated[i] = 0.0f;
+        for (i = 0; i < COORDINATES; ++i) {
+            state->velocity[i] = 0.0f;
+            state->displacement[i] = 0.0f;
         }
         for (i = 0; i < JOINTS; ++i) {
             state->friction_force[i] = 0.0f;
@@ -243,12 +244,12 @@ void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
         const coordinate_model *m = &model[0];
         const smartjoint_real end = m->joint_input[0] * friction0 + m->joint_input[1] * friction1 + m->joint_input[2] * friction2;
         const smartjoint_real start = m->joint_input[0] * previous0 + m->joint_input[1] * previous1 + m->joint_input[2] * previous2;
-        const smartjoint_real x0 = (state->propagated[0] - m->gamma1[0] * end) + (m->estimator_gain[0][0] * innovation0 + m->estimator_gain[1][0] * innovation1);
-        const smartjoint_real x1 = (state->propagated[1] - m->gamma1[1] * end) + (m->estimator_gain[0][1] * innovation0 + m->estimator_gain[1][1] * innovation1);
+        const smartjoint_real x0 = (state->velocity[0] - m->gamma1[0] * end) + (m->estimator_gain[0][0] * innovation0 + m->estimator_gain[1][0] * innovation1);
+        const smartjoint_real x1 = (state->displacement[0] - m->gamma1[1] * end) + (m->estimator_gain[0][1] * innovation0 + m->estimator_gain[1][1] * innovation1);
         const smartjoint_real q0 = (m->phi[0][0] * x0 + m->phi[1][0] * x1) - m->gamma0[0] * start;
         const smartjoint_real q1 = (m->phi[0][1] * x0 + m->phi[1][1] * x1) - m->gamma0[1] * start;
-        state->propagated[0] = q0;
-        state->propagated[1] = q1;
+        state->velocity[0] = q0;
+        state->displacement[0] = q1;
         predicted0 = m->output[1][0] * q1;
         predicted1 = m->output[1][1] * q1;
         feedback0 = m->feedback_gain[0][0] * q0;
@@ -262,12 +263,12 @@ void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
         const coordinate_model *m = &model[i];
         const smartjoint_real end = m->joint_input[0] * friction0 + m->joint_input[1] * friction1 + m->joint_input[2] * friction2;
         const smartjoint_real start = m->joint_input[0] * previous0 + m->joint_input[1] * previous1 + m->joint_input[2] * previous2;
-        const smartjoint_real x0 = (state->propagated[2 * i] - m->gamma1[0] * end) + (m->estimator_gain[0][0] * innovation0 + m->estimator_gain[1][0] * innovation1);
-        const smartjoint_real x1 = (state->propagated[2 * i + 1] - m->gamma1[1] * end) + (m->estimator_gain[0][1] * innovation0 + m->estimator_gain[1][1] * innovation1);
+        const smartjoint_real x0 = (state->velocity[i] - m->gamma1[0] * end) + (m->estimator_gain[0][0] * innovation0 + m->estimator_gain[1][0] * innovation1);
+        const smartjoint_real x1 = (state->displacement[i] - m->gamma1[1] * end) + (m->estimator_gain[0][1] * innovation0 + m->estimator_gain[1][1] * innovation1);
         const smartjoint_real q0 = (m->phi[0][0] * x0 + m->phi[1][0] * x1) - m->gamma0[0] * start;
         const smartjoint_real q1 = (m->phi[0][1] * x0 + m->phi[1][1] * x1) - m->gamma0[1] * start;
-        state->propagated[2 * i] = q0;
-        state->propagated[2 * i + 1] = q1;
+        state->velocity[i] = q0;
+        state->displacement[i] = q1;
         predicted0 += m->output[1][0] * q1;
         predicted1 += m->output[1][1] * q1;
         feedback0 += m->feedback_gain[0][0] * q0;

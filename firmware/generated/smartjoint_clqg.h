@@ -40,7 +40,9 @@ typedef struct {
 } smartjoint_clqg_output;
 
 typedef struct {
-    smartjoint_real propagated[SMARTJOINT_CLQG_STATES];     /* q = Phi x_hat - Gamma0 E u+, x_hat = [eta_dot_1, w_1 eta_1, ...] */
+    /* q = Phi x_hat - Gamma0 E u+ by component (x_hat = [eta_dot_1, w_1 eta_1, ...]): */
+    smartjoint_real velocity[SMARTJOINT_CLQG_COORDINATES];     /* eta_dot_i */
+    smartjoint_real displacement[SMARTJOINT_CLQG_COORDINATES]; /* w_i eta_i */
     smartjoint_real predicted[SMARTJOINT_CLQG_SENSORS];     /* C q */
     smartjoint_real feedback[SMARTJOINT_CLQG_JOINTS];       /* K q */
     smartjoint_real innovation[SMARTJOINT_CLQG_SENSORS];    /* y - C x_prior of the pending update */
