@@ -73,7 +73,10 @@ def _coordinate_models(artifact: artifacts.ControllerArtifact, row) -> list[dict
     gains on its two states: M[2i:2i+2] by columns, and C[:, 2i+c], K[:, 2i+c] for c = 0, 1 —
     the state's component outermost, so that each pair the step forms lies side by side."""
     output = np.asarray(artifact.output, dtype=float)
-    estimator, feedback = np.asarray(artifact.estimator_gain, dtype=float), np.asarray(artifact.feedback_gain, dtype=float)
+    estimator, feedback = (
+        np.asarray(artifact.estimator_gain, dtype=float),
+        np.asarray(artifact.feedback_gain, dtype=float),
+    )
     return [
         {
             "phi": [row(np.asarray(artifact.blocks[i], dtype=float)[:, k]) for k in (0, 1)],
