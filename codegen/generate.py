@@ -22,6 +22,7 @@ import numpy as np
 
 from smartjoint.codegen import build, can_layer, output, rendering
 from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.control.filter import hold_products, output_terms
 
 
 def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: str, lit, row) -> dict:
@@ -55,15 +56,50 @@ def _clqg_context(common: dict, artifact: artifacts.ControllerArtifact, prefix: 
         "name": f"{prefix}_clqg",
         "NAME": f"{prefix}_clqg".upper(),
         "coordinates": int(np.asarray(artifact.blocks).shape[0]),
-        "blocks": [row(b) for b in artifact.blocks],
-        "gamma0": [row(g) for g in artifact.gamma0],
-        "gamma1": [row(g) for g in artifact.gamma1],
-        "joint_input": [row(e) for e in artifact.joint_input],
-        "output": [row(c) for c in artifact.output],
-        "estimator_gain": [row(m) for m in artifact.estimator_gain],
-        "feedback_gain": [row(k) for k in artifact.feedback_gain],
+        "coordinate_models": _coordinate_models(artifact, row),
+        # The components of each coordinate a sensor reads (0 velocity, 1 displacement): the
+        # structural zeros of C are skipped at generation time (control.output_terms).
+        "output_components": [
+            [q for q in (0, 1) if used[q]] for used in output_terms(np.asarray(artifact.output, dtype=float))[:, :2]
+        ],
+        **_hold_context(artifact, row),
         "clqg_boundary_layer": lit(artifact.clqg_boundary_layer),
         "sensor_limit": row(artifact.sensor_limit),
+    }
+
+
+def _coordinate_models(artifact: artifacts.ControllerArtifact, row) -> list[dict]:
+    """One entry per coordinate i: its 2×2 block Φ_i by columns, γ0, γ1, row i of E, then the
+    gains on its two states: M[2i:2i+2] by columns, and C[:, 2i+c], K[:, 2i+c] for c = 0, 1 —
+    the state's component outermost, so that each pair the step forms lies side by side."""
+    output = np.asarray(artifact.output, dtype=float)
+    estimator, feedback = (
+        np.asarray(artifact.estimator_gain, dtype=float),
+        np.asarray(artifact.feedback_gain, dtype=float),
+    )
+    return [
+        {
+            "phi": [row(np.asarray(artifact.blocks[i], dtype=float)[:, k]) for k in (0, 1)],
+            "gamma0": row(artifact.gamma0[i]),
+            "gamma1": row(artifact.gamma1[i]),
+            "joint_input": row(artifact.joint_input[i]),
+            "estimator_gain": [row(estimator[2 * i : 2 * i + 2, r]) for r in range(estimator.shape[1])],
+            "output": [row(output[:, 2 * i + c]) for c in (0, 1)],
+            "feedback_gain": [row(feedback[:, 2 * i + c]) for c in (0, 1)],
+        }
+        for i in range(len(artifact.blocks))
+    ]
+
+
+def _hold_context(artifact: artifacts.ControllerArtifact, row) -> dict:
+    """The constant products of the cLQG's output phase (control.hold_products)."""
+    output_hold, feedback_hold, feedback_estimator = hold_products(
+        artifact.output, artifact.feedback_gain, artifact.estimator_gain, artifact.gamma1, artifact.joint_input
+    )
+    return {
+        "output_hold": [row(c) for c in output_hold],
+        "feedback_hold": [row(k) for k in feedback_hold],
+        "feedback_estimator": [row(k) for k in feedback_estimator],
     }
 
 

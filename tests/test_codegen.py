@@ -5,6 +5,7 @@ committed reference firmware: tests/test_codegen_source.py)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -19,6 +20,7 @@ from smartjoint.codegen import build, controllers, generate, output
 from smartjoint.design import plant
 from smartjoint.design.control import artifact, study
 from smartjoint.design.control import laws as control
+from smartjoint.design.control.filter import output_terms
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated"
@@ -405,3 +407,63 @@ def test_bad_artefacts_and_options_write_nothing(reference, tmp_path):
     done = run_cli("codegen", REFERENCE / "controller.json", "-o", tmp_path / "ok", "--real", "double", "--json")
     assert done.returncode == 0, done.stderr
     assert len(json.loads(done.stdout)["files"]) == 13  # controllers, example, build files, CAN layer, E2E, DBC
+
+
+def _in_phases(reference_controller, compiled, lib, prefix="smartjoint"):
+    """The Python reference stepped as ``output`` then ``update`` and the C as
+    ``<prefix>_clqg_output_phase`` then ``<prefix>_clqg_update_phase`` (instead of ``_step``)."""
+    output_phase, update_phase = (
+        getattr(lib, f"{prefix}_clqg_output_phase"),
+        getattr(lib, f"{prefix}_clqg_update_phase"),
+    )
+
+    def c_step(state, inputs, outputs):
+        status = output_phase(state, inputs, outputs)
+        update_phase(state)
+        return status
+
+    def python_step(m):
+        command = reference_controller.output(m)
+        reference_controller.update()
+        return command
+
+    compiled._step, reference_controller.step = c_step, python_step
+    return reference_controller, compiled
+
+
+@pytest.mark.numerics
+def test_the_two_phases_are_the_step_bit_for_bit(reference, builds):
+    """Output phase then update phase, in C and in Python, with NaN/±Inf and absurd inputs among
+    them: the same commands, desired forces and status bits as the reference's whole step."""
+    sequence = _sequence(reference, count=1500)
+    pair = _in_phases(artifact.clipped_lqg(reference), builds["double"].clipped_lqg(), builds["double"].lib)
+    _check_pair(*pair, sequence, exact=True)
+    stepped, split = artifact.clipped_lqg(reference), artifact.clipped_lqg(reference)
+    for m in sequence:
+        command = split.output(m)
+        split.update()
+        assert command.tobytes() == stepped.step(m).tobytes() and split.status == stepped.status
+
+
+@pytest.mark.numerics
+def test_zeros_of_c_are_skipped_alike_for_every_sensor_kind(reference):
+    """C with a velocity sensor, a sensor reading both components (with zeros inside a used
+    component) and one reading nothing: the double build skips the same terms as the reference
+    and stays bit-identical, faults included."""
+    c = np.zeros((3, 2 * len(reference.blocks)))
+    measured = np.asarray(reference.output, dtype=float)
+    c[0, 0::2] = measured[0, 1::2]  # velocity sensor
+    c[1, 1::2], c[1, 6] = measured[1, 1::2], 0.5  # displacement plus one velocity entry
+    gain = np.asarray(reference.estimator_gain, dtype=float)
+    changed = dataclasses.replace(
+        reference,
+        output=c.tolist(),
+        estimator_gain=np.column_stack([gain, gain[:, :1]]).tolist(),
+        sensor_names=[*reference.sensor_names, "T3"],
+        sensor_quantities=[*reference.sensor_quantities, reference.sensor_quantities[0]],
+        sensor_limit=[*reference.sensor_limit, reference.sensor_limit[0]],
+    )
+    assert [list(u[:2]) for u in output_terms(c)] == [[True, False], [True, True], [False, False]]
+    compiled = controllers.compile_controllers(changed, "double")
+    assert "* q0" in compiled.files["smartjoint_clqg.c"] and "reads no state" in compiled.files["smartjoint_clqg.c"]
+    _check_pair(artifact.clipped_lqg(changed), compiled.clipped_lqg(), _sequence(changed, count=1500), exact=True)

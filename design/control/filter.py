@@ -41,44 +41,119 @@ class _Lqg:
         u_d = −K·x̂_k                             (Eq. 33)
 
     u is the joint force that acts on the structure: the measured friction force for the
-    clipped controller, the previous command for the active one."""
+    clipped controller, the previous command for the active one.
+
+    Computed in two phases, as the generated C (``<prefix>_clqg_output_phase``, ``_update_phase``):
+    the update phase after sample k−1 has sent its command precomputes q = Φ·x̂_k−1 − Γ0·E·u_k−1,
+    C·q and K·q; the output phase at sample k needs only the new measurement::
+
+        ν = y_k − (C·q − (CΓ1E)·u_k),   u_d = −((K·q − (KΓ1E)·u_k) + (KM)·ν)
+
+    and the update phase then forms x̂_k = (q − Γ1·E·u_k) + M·ν and the next q (``hold_products``:
+    the three small matrices)."""
 
     def __init__(self, design: LqgDesign):
         self.design = design
         self.sample_time = design.sample_time
+        self.products = hold_products(
+            design.output, design.feedback_gain, design.estimator_gain, design.gamma1, design.joint_input
+        )
+        self.output_used = output_terms(design.output)
         self.reset()
 
     def reset(self) -> None:
-        n2 = self.design.output.shape[1]
-        self.estimate = np.zeros(n2)
-        self.previous_force = np.zeros(self.design.joint_input.shape[1])
+        d = self.design
+        self.estimate = np.zeros(d.output.shape[1])
+        self.propagated = np.zeros(d.output.shape[1])  # q = Φ·x̂ − Γ0·E·u⁺
+        self.predicted = np.zeros(d.output.shape[0])  # C·q
+        self.feedback = np.zeros(d.feedback_gain.shape[0])  # K·q
+        self.previous_force = np.zeros(d.joint_input.shape[1])
+        self.force = np.zeros(d.joint_input.shape[1])  # u_k of the pending update
+        self.innovation = np.zeros(d.output.shape[0])
         self.started = False
+        self.pending = False
 
-    def _time_update(self, force: np.ndarray) -> np.ndarray:
+    def _output(self, sensors: np.ndarray, force: np.ndarray) -> np.ndarray:
+        """The output phase: u_d from the new measurement and the precomputed products."""
+        output_hold, feedback_hold, feedback_estimator = self.products
+        force = np.asarray(force, dtype=float)
+        if self.started:
+            innovation = np.asarray(sensors, dtype=float) - (self.predicted - ordered_product(output_hold, force))
+            feedback = (self.feedback - ordered_product(feedback_hold, force)) + ordered_product(
+                feedback_estimator, innovation
+            )
+        else:  # no prior before the first sample: ν = y, u_d = −(KM)·ν
+            innovation = np.array(sensors, dtype=float)
+            feedback = ordered_product(feedback_estimator, innovation)
+        self.innovation, self.force, self.pending = innovation, force.copy(), True
+        return -feedback
+
+    def _update(self) -> None:
+        """The update phase (after the command is sent): x̂_k, then q, C·q and K·q for the next
+        sample with u⁺ = ``previous_force``. Nothing without a pending output phase."""
+        if not self.pending:
+            return
         d = self.design
         n = d.blocks.shape[0]
+        if not self.started:  # the first sample has no prior: q = 0 and no hold term
+            self.propagated, self.force = np.zeros(2 * n), np.zeros(self.force.size)
+        end = ordered_product(d.joint_input, self.force)
+        q = self.propagated.reshape(n, 2)
+        prior = np.stack([q[:, 0] - d.gamma1[:, 0] * end, q[:, 1] - d.gamma1[:, 1] * end], axis=1).reshape(2 * n)
+        self.estimate = prior + ordered_product(d.estimator_gain, self.innovation)
         x = self.estimate.reshape(n, 2)
-        if not self.started:
-            return np.zeros(2 * n)
-        start, end = ordered_product(d.joint_input, self.previous_force), ordered_product(d.joint_input, force)
+        start = ordered_product(d.joint_input, self.previous_force)
         b = d.blocks
         out = np.empty((n, 2))
-        out[:, 0] = (b[:, 0, 0] * x[:, 0] + b[:, 0, 1] * x[:, 1]) - d.gamma0[:, 0] * start - d.gamma1[:, 0] * end
-        out[:, 1] = (b[:, 1, 0] * x[:, 0] + b[:, 1, 1] * x[:, 1]) - d.gamma0[:, 1] * start - d.gamma1[:, 1] * end
-        return out.reshape(2 * n)
-
-    def _estimate(self, sensors: np.ndarray, force: np.ndarray) -> np.ndarray:
-        d = self.design
-        prior = self._time_update(force)
-        # Before the first sample the prediction is 0 (not C·0, whose zeros may carry a sign).
-        predicted = ordered_product(d.output, prior) if self.started else np.zeros(d.output.shape[0])
-        innovation = np.asarray(sensors, dtype=float) - predicted
-        self.estimate = prior + ordered_product(d.estimator_gain, innovation)
-        self.started = True
-        return -ordered_product(d.feedback_gain, self.estimate)
+        out[:, 0] = (b[:, 0, 0] * x[:, 0] + b[:, 0, 1] * x[:, 1]) - d.gamma0[:, 0] * start
+        out[:, 1] = (b[:, 1, 0] * x[:, 0] + b[:, 1, 1] * x[:, 1]) - d.gamma0[:, 1] * start
+        self.propagated = out.reshape(2 * n)
+        self.predicted = ordered_product(d.output, self.propagated, self.output_used)
+        self.feedback = ordered_product(d.feedback_gain, self.propagated)
+        self.started, self.pending = True, False
 
 
-def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
+def hold_products(output, feedback_gain, estimator_gain, gamma1, joint_input) -> tuple:
+    """The constant products of the output phase: C·Γ1·E (n_y × l), K·Γ1·E (l × l) and K·M
+    (l × n_y), with Γ1·E the 2n × l matrix of rows γ1[i, c]·E[i, :]. Computed once (any order);
+    the generated C holds these very numbers, so both sum them the same way.
+
+    Returns
+    -------
+    tuple of ndarray
+        (output_hold, feedback_hold, feedback_estimator).
+    """
+    gamma1, joint_input = np.asarray(gamma1, dtype=float), np.asarray(joint_input, dtype=float)
+    hold = (gamma1[:, :, None] * joint_input[:, None, :]).reshape(-1, joint_input.shape[1])
+    feedback_gain = np.asarray(feedback_gain, dtype=float)
+    return (
+        np.asarray(output, dtype=float) @ hold,
+        feedback_gain @ hold,
+        feedback_gain @ np.asarray(estimator_gain, dtype=float),
+    )
+
+
+def output_terms(output: np.ndarray) -> np.ndarray:
+    """The terms of C·x the generated C computes: column 2i + q of sensor row r unless that
+    sensor reads component q (velocity q = 0, displacement q = 1) of no coordinate, i.e. unless
+    C[r, q::2] is all exact zeros (a displacement sensor reads no velocity). A zero inside a
+    partly used component stays a term, so the loops keep their fixed stride.
+
+    Parameters
+    ----------
+    output : ndarray, shape (n_y, 2n)
+
+    Returns
+    -------
+    ndarray of bool, shape (n_y, 2n)
+    """
+    used = np.zeros(output.shape, dtype=bool)
+    for component in (0, 1):
+        used[:, component::2] = np.any(output[:, component::2] != 0.0, axis=1)[:, None]
+    return used
+
+
+def ordered_product(matrix: np.ndarray, vector: np.ndarray, terms: np.ndarray | None = None) -> np.ndarray:
     """matrix @ vector summed strictly left to right over the columns, starting with the first
     product — the order of the generated C, so the double build reproduces this reference bit
     for bit (BLAS sums in blocks and with FMA, which differs in the last bits).
@@ -87,6 +162,9 @@ def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
     ----------
     matrix : ndarray, shape (m, n)
     vector : ndarray, shape (n,)
+    terms : ndarray of bool, shape (m, n), optional
+        Only these products are summed (structural zeros skipped at generation time, which
+        changes x·0 = NaN for x = ±Inf/NaN); a row without a term is 0.
 
     Returns
     -------
@@ -97,9 +175,21 @@ def ordered_product(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
     >>> ordered_product(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([1.0, 1.0]))
     array([3., 7.])
     """
+    if terms is not None:
+        return np.array([_row_sum(row, vector, used) for row, used in zip(matrix, terms)])
     total = matrix[:, 0] * vector[0]
     for k in range(1, matrix.shape[1]):
         total = total + matrix[:, k] * vector[k]
+    return total
+
+
+def _row_sum(row: np.ndarray, vector: np.ndarray, used: np.ndarray) -> float:
+    columns = np.flatnonzero(used)
+    if columns.size == 0:
+        return 0.0
+    total = row[columns[0]] * vector[columns[0]]
+    for k in columns[1:]:
+        total = total + row[k] * vector[k]
     return total
 
 
@@ -166,6 +256,13 @@ class ClippedLqg(_Lqg):
         return self.safe_normal_force.copy()
 
     def step(self, measurements: Measurements) -> np.ndarray:
+        """``output`` then ``update``: one sample (the generated C's ``<prefix>_clqg_step``)."""
+        normal_force = self.output(measurements)
+        self.update()
+        return normal_force
+
+    def output(self, measurements: Measurements) -> np.ndarray:
+        """The output phase: the command F_N from the new measurement (``<prefix>_clqg_output_phase``)."""
         sensors = np.asarray(measurements.sensors, dtype=float)
         friction = np.asarray(measurements.friction_force, dtype=float)
         applied = np.asarray(measurements.normal_force, dtype=float)
@@ -177,8 +274,9 @@ class ClippedLqg(_Lqg):
         if status != STATUS_OK:
             return self._fault(status)
         with np.errstate(all="ignore"):
-            self.desired_force = self._estimate(sensors, friction)
-        if not (np.all(np.isfinite(self.estimate)) and np.all(np.isfinite(self.desired_force))):
+            self.desired_force = self._output(sensors, friction)
+        # A non-finite K·q or C·q (from a non-finite estimate) makes u_d non-finite (inf·0 is NaN).
+        if not np.all(np.isfinite(self.desired_force)):
             return self._fault(STATUS_ESTIMATE_RESET)
         self.status = STATUS_OK
         error = self.desired_force - friction
@@ -191,6 +289,12 @@ class ClippedLqg(_Lqg):
             applied > 0.0, friction * normal_force / np.where(applied > 0.0, applied, 1.0), friction
         )
         return normal_force
+
+    def update(self) -> None:
+        """The update phase, after the command of ``output`` is sent (the generated C's
+        ``<prefix>_clqg_update_phase``): the time update and the products of the next output phase."""
+        with np.errstate(all="ignore"):
+            self._update()
 
 
 class ActiveLqg(_Lqg):
@@ -207,11 +311,12 @@ class ActiveLqg(_Lqg):
         self.hold_until = float(hold_until)
 
     def step(self, measurements: Measurements) -> np.ndarray:
-        command = self._estimate(measurements.sensors, self.previous_force)
+        command = self._output(measurements.sensors, self.previous_force)
         if measurements.time < self.hold_until - 1e-12:
             command = np.zeros(command.size)
         self.previous_force = command.copy()
+        self._update()
         return command
 
 
-__all__ = ["ActiveLqg", "ClippedLqg", "ordered_product"]
+__all__ = ["ActiveLqg", "ClippedLqg", "hold_products", "ordered_product", "output_terms"]

@@ -10,97 +10,71 @@
 #define JOINTS SMARTJOINT_CLQG_JOINTS
 #define SENSORS SMARTJOINT_CLQG_SENSORS
 
-/* Exact discretisation of each coordinate at the sample time: x+ = Phi_i x - g0_i (e_i.u_k) - g1_i (e_i.u_k+1). */
-static const smartjoint_real blocks[COORDINATES][4] = {
-    {0.9999947f, -0.0018269717f, 0.0018269717f, 0.99999833f},
-    {0.99996454f, -0.0066557224f, 0.0066557224f, 0.9999778f},
-    {0.9935786f, -0.111165866f, 0.111165866f, 0.99380094f},
-    {0.9926272f, -0.11922905f, 0.11922905f, 0.9928656f},
-    {0.99064046f, -0.13451819f, 0.13451819f, 0.99090946f},
-    {0.97995865f, -0.19722433f, 0.19722433f, 0.9803531f},
-    {0.9609691f, -0.27468884f, 0.27468884f, 0.96151847f},
-    {0.93421614f, -0.35475636f, 0.35475636f, 0.9349256f},
-    {0.87644255f, -0.4795908f, 0.4795908f, 0.87740177f},
-    {0.6453327f, -0.76212096f, 0.76212096f, 0.64685696f},
-    {0.6210892f, -0.7819722f, 0.7819722f, 0.6226531f},
-    {-0.09411621f, -0.99398506f, 0.99398506f, -0.09212824f},
+/* The model one coordinate i at a time, with the gains that act on its two states: the exact
+ * discretisation x+ = Phi_i x - g0_i (e_i.u_k) - g1_i (e_i.u_k+1) at the sample time, rows 2i and
+ * 2i+1 of M (current form) and columns 2i and 2i+1 of C and of K (Eq. 33). */
+typedef struct {
+    smartjoint_real phi[2][2];                  /* by columns: phi[k][c] = Phi_i[c][k] */
+    smartjoint_real gamma0[2];
+    smartjoint_real gamma1[2];
+    smartjoint_real joint_input[JOINTS];        /* e_i: row i of E */
+    smartjoint_real estimator_gain[SENSORS][2]; /* M, by columns */
+    smartjoint_real output[2][SENSORS];         /* C */
+    smartjoint_real feedback_gain[2][JOINTS];   /* K */
+} coordinate_model;
+static const coordinate_model model[COORDINATES] = {
+    {{{0.9999947f, 0.0018269717f}, {-0.0018269717f, 0.99999833f}}, {0.00049999834f, 6.08991e-07f}, {0.00049999927f, 3.0449567e-07f}, {0.013385896f, -0.013385896f, -1.1750552e-12f},
+        {{754.2693f, 2.6096344f}, {754.2693f, 2.6096344f}}, {{0.0f, 0.0f}, {0.073473476f, 0.073473476f}},
+        {{-546.43414f, 546.43414f, 4.3778655e-08f}, {-435.19675f, 435.19675f, 3.50742e-08f}}},
+    {{{0.99996454f, 0.0066557224f}, {-0.0066557224f, 0.9999778f}}, {0.00049999f, 2.2185843e-06f}, {0.00049999595f, 1.1092965e-06f}, {0.010994903f, 0.010994903f, 0.029236147f},
+        {{-796.5796f, -10.042156f}, {796.5796f, 10.042156f}}, {{0.0f, 0.0f}, {-0.02092028f, 0.02092028f}},
+        {{-233.56396f, -233.56396f, -614.1899f}, {-116.20649f, -116.20649f, -333.31784f}}},
+    {{{0.9935786f, 0.111165866f}, {-0.111165866f, 0.99380094f}}, {0.0004983755f, 3.7087022e-05f}, {0.00049944595f, 1.8555542e-05f}, {0.050948355f, 0.050948355f, 0.036421407f},
+        {{195.57892f, 36.48142f}, {-195.57892f, -36.48142f}}, {{0.0f, 0.0f}, {0.0003126039f, -0.0003126039f}},
+        {{-560.37646f, -560.37646f, -78.53272f}, {115.75594f, 115.75594f, 76.93195f}}},
+    {{{0.9926272f, 0.11922905f}, {-0.11922905f, 0.9928656f}}, {0.0004981361f, 3.978211e-05f}, {0.0004993652f, 1.990587e-05f}, {0.03320363f, -0.03320363f, 3.8624952e-15f},
+        {{-648.1347f, -133.18579f}, {-648.1347f, -133.18579f}}, {{0.0f, 0.0f}, {-0.0009862148f, -0.0009862148f}},
+        {{-691.4978f, 691.4978f, 2.8991607e-08f}, {-75.17648f, 75.17648f, -8.9503943e-10f}}},
+    {{{0.99064046f, 0.13451819f}, {-0.13451819f, 0.99090946f}}, {0.0004976364f, 4.4895445e-05f}, {0.0004991968f, 2.246894e-05f}, {0.018716885f, 0.018716885f, 0.07130933f},
+        {{564.7978f, 133.27081f}, {-564.7978f, -133.27081f}}, {{0.0f, 0.0f}, {0.0007525981f, -0.0007525981f}},
+        {{-11.913705f, -11.913705f, -752.5798f}, {-8.676489f, -8.676489f, 85.778694f}}},
+    {{{0.97995865f, 0.19722433f}, {-0.19722433f, 0.9803531f}}, {0.0004949509f, 6.5918175e-05f}, {0.0004982934f, 3.3025837e-05f}, {-0.06004578f, -0.06004578f, -0.07415168f},
+        {{189.95251f, 68.8703f}, {-189.95251f, -68.87031f}}, {{0.0f, 0.0f}, {0.0001784373f, -0.0001784373f}},
+        {{453.199f, 453.199f, 389.32074f}, {164.38893f, 164.38893f, 223.05533f}}},
+    {{{0.9609691f, 0.27468884f}, {-0.27468884f, 0.96151847f}}, {0.0004901744f, 9.204582e-05f}, {0.00049668807f, 4.6205136e-05f}, {0.019318573f, 0.019318573f, -0.034829162f},
+        {{33.02761f, 18.80554f}, {-33.02761f, -18.80554f}}, {{0.0f, 0.0f}, {2.4098543e-05f, -2.4098543e-05f}},
+        {{-335.2167f, -335.2167f, 581.00006f}, {-13.293027f, -13.293027f, -46.52238f}}},
+    {{{0.93421614f, 0.35475636f}, {-0.35475636f, 0.9349256f}}, {0.00048343226f, 0.00011931377f}, {0.00049442064f, 6.0057653e-05f}, {-0.019669058f, -0.019669058f, -0.04350446f},
+        {{5.8617864f, 4.9025097f}, {-5.861786f, -4.90251f}}, {{0.0f, 0.0f}, {3.7739203e-06f, -3.7739203e-06f}},
+        {{342.67822f, 342.67822f, 620.7858f}, {11.399993f, 11.399993f, 45.67524f}}},
+    {{{0.87644255f, 0.4795908f}, {-0.4795908f, 0.87740177f}}, {0.0004688081f, 0.00016261874f}, {0.0004894882f, 8.235145e-05f}, {-0.04902565f, -0.04902565f, -0.049195945f},
+        {{-4.147668f, -6.4278593f}, {4.147668f, 6.4278593f}}, {{0.0f, 0.0f}, {-2.894243e-06f, 2.894243e-06f}},
+        {{529.77563f, 529.77563f, 313.22128f}, {-25.60028f, -25.60028f, -3.8093114f}}},
+    {{{0.6453327f, 0.76212096f}, {-0.76212096f, 0.64685696f}}, {0.00040927483f, 0.00026783667f}, {0.0004691445f, 0.0001391954f}, {0.2305183f, 0.2305183f, 0.5120973f},
+        {{-43.919296f, -78.50704f}, {43.919296f, 78.50704f}}, {{0.0f, 0.0f}, {-2.2278515e-05f, 2.2278515e-05f}},
+        {{-353.7666f, -353.7666f, -613.1213f}, {-92.61488f, -92.61489f, -20.12687f}}},
+    {{{0.6210892f, 0.7819722f}, {-0.7819722f, 0.6226531f}}, {0.00040292385f, 0.0002759398f}, {0.00046694654f, 0.00014382302f}, {-0.342165f, 0.342165f, 2.2346553e-09f},
+        {{-207.21538f, -268.3981f}, {-207.21538f, -268.3981f}}, {{0.0f, 0.0f}, {-7.0933806e-05f, -7.0933806e-05f}},
+        {{674.3962f, -674.3962f, -2.6500497e-06f}, {-172.34456f, 172.34456f, 4.778179e-08f}}},
+    {{{-0.09411621f, 0.99398506f}, {-0.99398506f, -0.09212824f}}, {0.00020294367f, 0.00041503893f}, {0.00039432765f, 0.0002412052f}, {-0.46372765f, -0.46372765f, 0.64317596f},
+        {{3.4563155f, -2.9665098f}, {-3.4563158f, 2.9665098f}}, {{0.0f, 0.0f}, {-2.6860562e-06f, 2.6860562e-06f}},
+        {{289.52908f, 289.52908f, -346.87936f}, {-307.86487f, -307.86487f, 332.5452f}}},
 };
-static const smartjoint_real gamma0[COORDINATES][2] = {
-    {0.00049999834f, 6.08991e-07f},
-    {0.00049999f, 2.2185843e-06f},
-    {0.0004983755f, 3.7087022e-05f},
-    {0.0004981361f, 3.978211e-05f},
-    {0.0004976364f, 4.4895445e-05f},
-    {0.0004949509f, 6.5918175e-05f},
-    {0.0004901744f, 9.204582e-05f},
-    {0.00048343226f, 0.00011931377f},
-    {0.0004688081f, 0.00016261874f},
-    {0.00040927483f, 0.00026783667f},
-    {0.00040292385f, 0.0002759398f},
-    {0.00020294367f, 0.00041503893f},
+/* Constant products of the output phase (Gamma1 E: rows gamma1[i][c] E[i]), so that the command
+ * needs only the new measurement: C Gamma1 E, K Gamma1 E and K M. */
+static const smartjoint_real output_hold[SENSORS][JOINTS] = {
+    {2.7557292e-09f, -3.5210233e-09f, -1.7400179e-09f},
+    {3.5210233e-09f, -2.7557292e-09f, 1.7400179e-09f},
 };
-static const smartjoint_real gamma1[COORDINATES][2] = {
-    {0.00049999927f, 3.0449567e-07f},
-    {0.00049999595f, 1.1092965e-06f},
-    {0.00049944595f, 1.8555542e-05f},
-    {0.0004993652f, 1.990587e-05f},
-    {0.0004991968f, 2.246894e-05f},
-    {0.0004982934f, 3.3025837e-05f},
-    {0.00049668807f, 4.6205136e-05f},
-    {0.00049442064f, 6.0057653e-05f},
-    {0.0004894882f, 8.235145e-05f},
-    {0.0004691445f, 0.0001391954f},
-    {0.00046694654f, 0.00014382302f},
-    {0.00039432765f, 0.0002412052f},
+static const smartjoint_real feedback_hold[JOINTS][JOINTS] = {
+    {-0.22280152f, 0.006084709f, -0.11127695f},
+    {0.006084709f, -0.22280152f, -0.11127695f},
+    {-0.07316987f, -0.07316987f, -0.26804638f},
 };
-static const smartjoint_real joint_input[COORDINATES][JOINTS] = { /* E */
-    {0.013385896f, -0.013385896f, -1.1750552e-12f},
-    {0.010994903f, 0.010994903f, 0.029236147f},
-    {0.050948355f, 0.050948355f, 0.036421407f},
-    {0.03320363f, -0.03320363f, 3.8624952e-15f},
-    {0.018716885f, 0.018716885f, 0.07130933f},
-    {-0.06004578f, -0.06004578f, -0.07415168f},
-    {0.019318573f, 0.019318573f, -0.034829162f},
-    {-0.019669058f, -0.019669058f, -0.04350446f},
-    {-0.04902565f, -0.04902565f, -0.049195945f},
-    {0.2305183f, 0.2305183f, 0.5120973f},
-    {-0.342165f, 0.342165f, 2.2346553e-09f},
-    {-0.46372765f, -0.46372765f, 0.64317596f},
-};
-static const smartjoint_real output_matrix[SENSORS][STATES] = { /* C */
-    {0.0f, 0.073473476f, 0.0f, -0.02092028f, 0.0f, 0.0003126039f, 0.0f, -0.0009862148f, 0.0f, 0.0007525981f, 0.0f, 0.0001784373f, 0.0f, 2.4098543e-05f, 0.0f, 3.7739203e-06f, 0.0f, -2.894243e-06f, 0.0f, -2.2278515e-05f, 0.0f, -7.0933806e-05f, 0.0f, -2.6860562e-06f},
-    {0.0f, 0.073473476f, 0.0f, 0.02092028f, 0.0f, -0.0003126039f, 0.0f, -0.0009862148f, 0.0f, -0.0007525981f, 0.0f, -0.0001784373f, 0.0f, -2.4098543e-05f, 0.0f, -3.7739203e-06f, 0.0f, 2.894243e-06f, 0.0f, 2.2278515e-05f, 0.0f, -7.0933806e-05f, 0.0f, 2.6860562e-06f},
-};
-static const smartjoint_real estimator_gain[STATES][SENSORS] = { /* M (current form) */
-    {754.2693f, 754.2693f},
-    {2.6096344f, 2.6096344f},
-    {-796.5796f, 796.5796f},
-    {-10.042156f, 10.042156f},
-    {195.57892f, -195.57892f},
-    {36.48142f, -36.48142f},
-    {-648.1347f, -648.1347f},
-    {-133.18579f, -133.18579f},
-    {564.7978f, -564.7978f},
-    {133.27081f, -133.27081f},
-    {189.95251f, -189.95251f},
-    {68.8703f, -68.87031f},
-    {33.02761f, -33.02761f},
-    {18.80554f, -18.80554f},
-    {5.8617864f, -5.861786f},
-    {4.9025097f, -4.90251f},
-    {-4.147668f, 4.147668f},
-    {-6.4278593f, 6.4278593f},
-    {-43.919296f, 43.919296f},
-    {-78.50704f, 78.50704f},
-    {-207.21538f, -207.21538f},
-    {-268.3981f, -268.3981f},
-    {3.4563155f, -3.4563158f},
-    {-2.9665098f, 2.9665098f},
-};
-static const smartjoint_real feedback_gain[JOINTS][STATES] = { /* K (Eq. 33) */
-    {-546.43414f, -435.19675f, -233.56396f, -116.20649f, -560.37646f, 115.75594f, -691.4978f, -75.17648f, -11.913705f, -8.676489f, 453.199f, 164.38893f, -335.2167f, -13.293027f, 342.67822f, 11.399993f, 529.77563f, -25.60028f, -353.7666f, -92.61488f, 674.3962f, -172.34456f, 289.52908f, -307.86487f},
-    {546.43414f, 435.19675f, -233.56396f, -116.20649f, -560.37646f, 115.75594f, 691.4978f, 75.17648f, -11.913705f, -8.676489f, 453.199f, 164.38893f, -335.2167f, -13.293027f, 342.67822f, 11.399993f, 529.77563f, -25.60028f, -353.7666f, -92.61489f, -674.3962f, 172.34456f, 289.52908f, -307.86487f},
-    {4.3778655e-08f, 3.50742e-08f, -614.1899f, -333.31784f, -78.53272f, 76.93195f, 2.8991607e-08f, -8.9503943e-10f, -752.5798f, 85.778694f, 389.32074f, 223.05533f, 581.00006f, -46.52238f, 620.7858f, 45.67524f, 313.22128f, -3.8093114f, -613.1213f, -20.12687f, -2.6500497e-06f, 4.778179e-08f, -346.87936f, 332.5452f},
+static const smartjoint_real feedback_estimator[JOINTS][SENSORS] = {
+    {136213.17f, -233385.89f},
+    {233385.89f, -136213.17f},
+    {202961.2f, -202961.2f},
 };
 static const smartjoint_real normal_force_min[JOINTS] = {10.0f, 10.0f, 10.0f};
 static const smartjoint_real normal_force_range[JOINTS] = {390.0f, 390.0f, 390.0f}; /* F^max - F^min */
@@ -120,13 +94,21 @@ void smartjoint_clqg_init(smartjoint_clqg_state *state)
     if (state == NULL) {
         return;
     }
-    for (k = 0; k < STATES; ++k) {
-        state->estimate[k] = 0.0f;
+    for (k = 0; k < COORDINATES; ++k) {
+        state->velocity[k] = 0.0f;
+        state->displacement[k] = 0.0f;
+    }
+    for (k = 0; k < SENSORS; ++k) {
+        state->predicted[k] = 0.0f;
+        state->innovation[k] = 0.0f;
     }
     for (k = 0; k < JOINTS; ++k) {
+        state->feedback[k] = 0.0f;
+        state->friction_force[k] = 0.0f;
         state->previous_force[k] = 0.0f;
     }
     state->started = 0;
+    state->pending = 0;
 }
 
 /* Safe state: filter restarted, every joint at the safe force, no desired force. */
@@ -143,13 +125,15 @@ static unsigned int fault(smartjoint_clqg_state *state, smartjoint_clqg_output *
 
 /* How an input can be used: INPUT_INVALID for NaN/Inf, INPUT_IMPLAUSIBLE for a number outside
  * [low, high], OK within (a value at a limit is plausible). The range test is written as
- * "within", which is false for NaN, so no NaN can ever pass it. */
+ * "within", which is false for NaN, so no NaN can ever pass it; the limits are finite (an
+ * artefact holds finite numbers only), so neither can an infinity, and the finiteness test is
+ * needed only for a value outside. */
 static unsigned int check_input(smartjoint_real value, smartjoint_real low, smartjoint_real high)
 {
-    if (!isfinite(value)) {
-        return SMARTJOINT_STATUS_INPUT_INVALID;
+    if (value >= low && value <= high) {
+        return SMARTJOINT_STATUS_OK;
     }
-    return (value >= low && value <= high) ? SMARTJOINT_STATUS_OK : SMARTJOINT_STATUS_INPUT_IMPLAUSIBLE;
+    return isfinite(value) ? SMARTJOINT_STATUS_INPUT_IMPLAUSIBLE : SMARTJOINT_STATUS_INPUT_INVALID;
 }
 
 /* The status bits of all inputs (check_input); any bit means the filter cannot use them. */
@@ -167,17 +151,15 @@ static unsigned int check_inputs(const smartjoint_clqg_input *input)
     return status;
 }
 
-unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
+/* Output phase, right after the measurements arrive: the command from the new measurement and the
+ * products the previous update phase left in the state (x_prior = q - Gamma1 E u):
+ *   innovation = y - (C q - (C Gamma1 E) u),   u_d = -((K q - (K Gamma1 E) u) + (K M) innovation).
+ * Every sum runs left to right from its first term: the order of the Python reference
+ * (control.ordered_product), so the double build is bit-identical to it. */
+unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
 {
-    smartjoint_real prior[STATES];
-    smartjoint_real predicted0;
-    smartjoint_real innovation0;
-    smartjoint_real predicted1;
-    smartjoint_real innovation1;
-    smartjoint_real force0;
-    smartjoint_real force1;
-    smartjoint_real force2;
-    int i, j, k;
+    smartjoint_real innovation0, innovation1;
+    int j;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
     }
@@ -187,88 +169,127 @@ unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint
             return fault(state, output, input_status);
         }
     }
-    /* Time update, block by block (never a dense STATES x STATES product), with a first-order
-     * hold on the friction forces between the previous sample and now, fused with the
-     * prediction C x_prior of the sensors. Every sum runs left to right from its first term:
-     * the order of the Python reference (control.ordered_product), so the double build is
-     * bit-identical to it. */
     if (state->started) {
-        {
-            const smartjoint_real start = joint_input[0][0] * state->previous_force[0] + joint_input[0][1] * state->previous_force[1] + joint_input[0][2] * state->previous_force[2];
-            const smartjoint_real end = joint_input[0][0] * input->friction_force[0] + joint_input[0][1] * input->friction_force[1] + joint_input[0][2] * input->friction_force[2];
-            const smartjoint_real x0 = state->estimate[0];
-            const smartjoint_real x1 = state->estimate[1];
-            const smartjoint_real p0 = (blocks[0][0] * x0 + blocks[0][1] * x1) - gamma0[0][0] * start - gamma1[0][0] * end;
-            const smartjoint_real p1 = (blocks[0][2] * x0 + blocks[0][3] * x1) - gamma0[0][1] * start - gamma1[0][1] * end;
-            prior[0] = p0;
-            prior[1] = p1;
-            predicted0 = output_matrix[0][0] * p0;
-            predicted0 += output_matrix[0][1] * p1;
-            predicted1 = output_matrix[1][0] * p0;
-            predicted1 += output_matrix[1][1] * p1;
-        }
-        for (i = 1; i < COORDINATES; ++i) {
-        {
-            const smartjoint_real start = joint_input[i][0] * state->previous_force[0] + joint_input[i][1] * state->previous_force[1] + joint_input[i][2] * state->previous_force[2];
-            const smartjoint_real end = joint_input[i][0] * input->friction_force[0] + joint_input[i][1] * input->friction_force[1] + joint_input[i][2] * input->friction_force[2];
-            const smartjoint_real x0 = state->estimate[2 * i];
-            const smartjoint_real x1 = state->estimate[2 * i + 1];
-            const smartjoint_real p0 = (blocks[i][0] * x0 + blocks[i][1] * x1) - gamma0[i][0] * start - gamma1[i][0] * end;
-            const smartjoint_real p1 = (blocks[i][2] * x0 + blocks[i][3] * x1) - gamma0[i][1] * start - gamma1[i][1] * end;
-            prior[2 * i] = p0;
-            prior[2 * i + 1] = p1;
-            predicted0 += output_matrix[0][2 * i] * p0;
-            predicted0 += output_matrix[0][2 * i + 1] * p1;
-            predicted1 += output_matrix[1][2 * i] * p0;
-            predicted1 += output_matrix[1][2 * i + 1] * p1;
-        }
-        }
-    } else {
-        for (k = 0; k < STATES; ++k) {
-            prior[k] = 0.0f;
-        }
-        predicted0 = 0.0f;
-        predicted1 = 0.0f;
+        innovation0 = input->sensors[0] - (state->predicted[0] - (output_hold[0][0] * input->friction_force[0] + output_hold[0][1] * input->friction_force[1] + output_hold[0][2] * input->friction_force[2]));
+        innovation1 = input->sensors[1] - (state->predicted[1] - (output_hold[1][0] * input->friction_force[0] + output_hold[1][1] * input->friction_force[1] + output_hold[1][2] * input->friction_force[2]));
+    } else { /* no prior before the first sample */
+        innovation0 = input->sensors[0];
+        innovation1 = input->sensors[1];
     }
-    innovation0 = input->sensors[0] - predicted0;
-    innovation1 = input->sensors[1] - predicted1;
-    /* Measurement update x_hat = prior + M (y - C prior), fused with u_d = -K x_hat (Eq. 33).
-     * A non-finite estimate makes every K x_hat non-finite (inf * 0 is NaN), so checking the
-     * forces covers it. */
-        {
-            const smartjoint_real estimate = prior[0] + (estimator_gain[0][0] * innovation0 + estimator_gain[0][1] * innovation1);
-            state->estimate[0] = estimate;
-            force0 = feedback_gain[0][0] * estimate;
-            force1 = feedback_gain[1][0] * estimate;
-            force2 = feedback_gain[2][0] * estimate;
-        }
-    for (k = 1; k < STATES; ++k) {
-        {
-            const smartjoint_real estimate = prior[k] + (estimator_gain[k][0] * innovation0 + estimator_gain[k][1] * innovation1);
-            state->estimate[k] = estimate;
-            force0 += feedback_gain[0][k] * estimate;
-            force1 += feedback_gain[1][k] * estimate;
-            force2 += feedback_gain[2][k] * estimate;
-        }
-    }
-    if (!(isfinite(force0) && isfinite(force1) && isfinite(force2))) {
-        return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
-    }
-    output->desired_force[0] = -force0;
-    output->desired_force[1] = -force1;
-    output->desired_force[2] = -force2;
-    /* The clipped law of Eq. 34. */
+    /* u_d and the clipped law of Eq. 34, joint by joint. A non-finite estimate makes K q
+     * non-finite (inf * 0 is NaN), so checking the forces covers it. */
     for (j = 0; j < JOINTS; ++j) {
         const smartjoint_real friction = input->friction_force[j];
         const smartjoint_real applied = input->normal_force[j];
         const smartjoint_real sign = friction > 0.0f ? 1.0f : (friction < 0.0f ? -1.0f : 0.0f);
-        smartjoint_real ratio = ((output->desired_force[j] - friction) * sign) / boundary_layer;
+        smartjoint_real force, ratio;
+        if (state->started) {
+            force = (state->feedback[j] - (feedback_hold[j][0] * input->friction_force[0] + feedback_hold[j][1] * input->friction_force[1] + feedback_hold[j][2] * input->friction_force[2])) + (feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1);
+        } else {
+            force = feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1;
+        }
+        if (!isfinite(force)) {
+            return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
+        }
+        output->desired_force[j] = -force;
+        ratio = ((output->desired_force[j] - friction) * sign) / boundary_layer;
         ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
         output->normal_force[j] = normal_force_min[j] + normal_force_range[j] * ratio;
         /* u_R = F_N mu with mu continuous: the friction just after this sample scales with the
          * new normal force; it starts the next time update's first-order hold. */
         state->previous_force[j] = applied > 0.0f ? (friction * output->normal_force[j]) / applied : friction;
+        state->friction_force[j] = friction;
     }
-    state->started = 1;
+    state->innovation[0] = innovation0;
+    state->innovation[1] = innovation1;
+    state->pending = 1;
     return SMARTJOINT_STATUS_OK;
+}
+
+/* Update phase, after the command is sent: the measurement update x_hat = x_prior + M innovation
+ * and the time update to the next sample, q = Phi x_hat - Gamma0 E u+ (a first-order hold on the
+ * friction forces from just after this sample), block by block (never a dense STATES x STATES
+ * product), fused with the products C q and K q of the next output phase. C's structural zeros
+ * are skipped: a sensor sums only the components it reads (velocity q0, displacement q1), as in
+ * control.output_terms. Nothing happens without a successful output phase before it. */
+void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
+{
+    smartjoint_real friction0, friction1, friction2;
+    smartjoint_real previous0, previous1, previous2;
+    smartjoint_real feedback0, feedback1, feedback2;
+    smartjoint_real innovation0, innovation1;
+    smartjoint_real predicted0, predicted1;
+    int i;
+    if (state == NULL || !state->pending) {
+        return;
+    }
+    if (!state->started) { /* the first sample has no prior: q = 0 and no hold */
+        for (i = 0; i < COORDINATES; ++i) {
+            state->velocity[i] = 0.0f;
+            state->displacement[i] = 0.0f;
+        }
+        for (i = 0; i < JOINTS; ++i) {
+            state->friction_force[i] = 0.0f;
+        }
+    }
+    friction0 = state->friction_force[0];
+    friction1 = state->friction_force[1];
+    friction2 = state->friction_force[2];
+    previous0 = state->previous_force[0];
+    previous1 = state->previous_force[1];
+    previous2 = state->previous_force[2];
+    innovation0 = state->innovation[0];
+    innovation1 = state->innovation[1];
+    {
+        const coordinate_model *m = &model[0];
+        const smartjoint_real end = m->joint_input[0] * friction0 + m->joint_input[1] * friction1 + m->joint_input[2] * friction2;
+        const smartjoint_real start = m->joint_input[0] * previous0 + m->joint_input[1] * previous1 + m->joint_input[2] * previous2;
+        const smartjoint_real x0 = (state->velocity[0] - m->gamma1[0] * end) + (m->estimator_gain[0][0] * innovation0 + m->estimator_gain[1][0] * innovation1);
+        const smartjoint_real x1 = (state->displacement[0] - m->gamma1[1] * end) + (m->estimator_gain[0][1] * innovation0 + m->estimator_gain[1][1] * innovation1);
+        const smartjoint_real q0 = (m->phi[0][0] * x0 + m->phi[1][0] * x1) - m->gamma0[0] * start;
+        const smartjoint_real q1 = (m->phi[0][1] * x0 + m->phi[1][1] * x1) - m->gamma0[1] * start;
+        state->velocity[0] = q0;
+        state->displacement[0] = q1;
+        predicted0 = m->output[1][0] * q1;
+        predicted1 = m->output[1][1] * q1;
+        feedback0 = m->feedback_gain[0][0] * q0;
+        feedback0 += m->feedback_gain[1][0] * q1;
+        feedback1 = m->feedback_gain[0][1] * q0;
+        feedback1 += m->feedback_gain[1][1] * q1;
+        feedback2 = m->feedback_gain[0][2] * q0;
+        feedback2 += m->feedback_gain[1][2] * q1;
+    }
+    for (i = 1; i < COORDINATES; ++i) {
+        const coordinate_model *m = &model[i];
+        const smartjoint_real end = m->joint_input[0] * friction0 + m->joint_input[1] * friction1 + m->joint_input[2] * friction2;
+        const smartjoint_real start = m->joint_input[0] * previous0 + m->joint_input[1] * previous1 + m->joint_input[2] * previous2;
+        const smartjoint_real x0 = (state->velocity[i] - m->gamma1[0] * end) + (m->estimator_gain[0][0] * innovation0 + m->estimator_gain[1][0] * innovation1);
+        const smartjoint_real x1 = (state->displacement[i] - m->gamma1[1] * end) + (m->estimator_gain[0][1] * innovation0 + m->estimator_gain[1][1] * innovation1);
+        const smartjoint_real q0 = (m->phi[0][0] * x0 + m->phi[1][0] * x1) - m->gamma0[0] * start;
+        const smartjoint_real q1 = (m->phi[0][1] * x0 + m->phi[1][1] * x1) - m->gamma0[1] * start;
+        state->velocity[i] = q0;
+        state->displacement[i] = q1;
+        predicted0 += m->output[1][0] * q1;
+        predicted1 += m->output[1][1] * q1;
+        feedback0 += m->feedback_gain[0][0] * q0;
+        feedback0 += m->feedback_gain[1][0] * q1;
+        feedback1 += m->feedback_gain[0][1] * q0;
+        feedback1 += m->feedback_gain[1][1] * q1;
+        feedback2 += m->feedback_gain[0][2] * q0;
+        feedback2 += m->feedback_gain[1][2] * q1;
+    }
+    state->predicted[0] = predicted0;
+    state->predicted[1] = predicted1;
+    state->feedback[0] = feedback0;
+    state->feedback[1] = feedback1;
+    state->feedback[2] = feedback2;
+    state->started = 1;
+    state->pending = 0;
+}
+
+unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
+{
+    const unsigned int status = smartjoint_clqg_output_phase(state, input, output);
+    smartjoint_clqg_update_phase(state);
+    return status;
 }

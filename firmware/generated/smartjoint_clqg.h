@@ -12,9 +12,11 @@ extern "C" {
 /* Clipped-optimal LQG of paper Eq. 33-34: a current-form Kalman filter on the reduced modal
  * model (2x2 block per coordinate) with the measured friction forces as known input, the LQR
  * forces u_d = -K x_hat and the clipped normal-force law with a boundary layer [N].
- * Call smartjoint_clqg_step once every SMARTJOINT_CLQG_SAMPLE_TIME seconds. An input that is NaN/Inf or outside
- * its plausible range, or an estimate that leaves the finite numbers, restarts the filter and
- * puts every joint at the safe normal force with u_d = 0 (status bits: smartjoint_types.h). */
+ * Call smartjoint_clqg_step once every SMARTJOINT_CLQG_SAMPLE_TIME seconds, or split it (same results):
+ * smartjoint_clqg_output_phase as soon as the measurements arrive, smartjoint_clqg_update_phase once its
+ * command is sent. An input that is NaN/Inf or outside its plausible range, or an estimate that
+ * leaves the finite numbers, restarts the filter and puts every joint at the safe normal force
+ * with u_d = 0 (status bits: smartjoint_types.h). */
 #define SMARTJOINT_CLQG_JOINTS 3
 #define SMARTJOINT_CLQG_SENSORS 2
 #define SMARTJOINT_CLQG_COORDINATES 12
@@ -38,12 +40,24 @@ typedef struct {
 } smartjoint_clqg_output;
 
 typedef struct {
-    smartjoint_real estimate[SMARTJOINT_CLQG_STATES];       /* x_hat = [eta_dot_1, w_1 eta_1, ...] */
-    smartjoint_real previous_force[SMARTJOINT_CLQG_JOINTS]; /* friction just after the previous sample [N] */
-    int started;                                         /* 0 until the first sample */
+    /* q = Phi x_hat - Gamma0 E u+ by component (x_hat = [eta_dot_1, w_1 eta_1, ...]): */
+    smartjoint_real velocity[SMARTJOINT_CLQG_COORDINATES];     /* eta_dot_i */
+    smartjoint_real displacement[SMARTJOINT_CLQG_COORDINATES]; /* w_i eta_i */
+    smartjoint_real predicted[SMARTJOINT_CLQG_SENSORS];     /* C q */
+    smartjoint_real feedback[SMARTJOINT_CLQG_JOINTS];       /* K q */
+    smartjoint_real innovation[SMARTJOINT_CLQG_SENSORS];    /* y - C x_prior of the pending update */
+    smartjoint_real friction_force[SMARTJOINT_CLQG_JOINTS]; /* measured u_R of the pending update [N] */
+    smartjoint_real previous_force[SMARTJOINT_CLQG_JOINTS]; /* friction just after the last sample [N] */
+    int started;                                         /* 0 until the first update */
+    int pending;                                         /* 1 from an output phase to its update */
 } smartjoint_clqg_state;
 
 void smartjoint_clqg_init(smartjoint_clqg_state *state);
+/* Output phase: the command from the new measurements (status bits). */
+unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output);
+/* Update phase: after the command is sent, before the next output phase. */
+void smartjoint_clqg_update_phase(smartjoint_clqg_state *state);
+/* smartjoint_clqg_output_phase then smartjoint_clqg_update_phase. */
 unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output);
 
 #ifdef __cplusplus
