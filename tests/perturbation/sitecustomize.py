@@ -5,7 +5,8 @@ result that holds only for one machine's rounding is not a result. Multiplying e
 input of the model by ``1 + RELATIVE·r`` with ``r`` in [−1, 1] has the same effect portably,
 without touching the machine's BLAS settings: every design that ``parse_design`` (hence
 ``load_design``) returns gets its material constants, tube sections, connector properties, node
-type and point masses and node coordinates perturbed, and so do the LuGre parameters of Table 1.
+type and point masses and node coordinates perturbed, and so do the joints' LuGre parameters
+(the design's ``[friction]``, a joint's own, and Table 1 where the rig command uses it).
 Mirror-symmetric positions stop being bit-for-bit mirrors, as they are not on other machines.
 
 ``r`` is a hash of the value's place (e.g. ``nodes/N3_1/position/2``), so every run, process and
@@ -53,7 +54,12 @@ def perturb_design(design, relative: float):
         for table in ("materials", "sections", "connectors", "node_types", "nodes")
     }
     masses = tuple(_scaled(m, relative, "point_masses", k, m.node) for k, m in enumerate(design.point_masses))
-    return dataclasses.replace(design, point_masses=masses, **tables)
+    friction = {kind: _scaled(f, relative, "friction", kind) for kind, f in design.friction.items()}
+    joints = tuple(
+        j if j.friction is None else dataclasses.replace(j, friction=_scaled(j.friction, relative, "joints", j.name))
+        for j in design.joints
+    )
+    return dataclasses.replace(design, point_masses=masses, friction=friction, joints=joints, **tables)
 
 
 def install(relative: float) -> None:
@@ -67,8 +73,8 @@ def install(relative: float) -> None:
         return
     original = spec.parse_design
 
-    def parse_design(data, source="<memory>"):
-        return perturb_design(original(data, source), relative)
+    def parse_design(data, source="<memory>", origins=None):
+        return perturb_design(original(data, source, origins), relative)
 
     parse_design.__doc__ = original.__doc__
     parse_design.perturbation = relative
