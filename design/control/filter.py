@@ -127,10 +127,16 @@ def hold_products(output, feedback_gain, estimator_gain, gamma1, joint_input) ->
     hold = (gamma1[:, :, None] * joint_input[:, None, :]).reshape(-1, joint_input.shape[1])
     feedback_gain = np.asarray(feedback_gain, dtype=float)
     return (
-        np.asarray(output, dtype=float) @ hold,
-        feedback_gain @ hold,
-        feedback_gain @ np.asarray(estimator_gain, dtype=float),
+        _ordered_matrix_product(np.asarray(output, dtype=float), hold),
+        _ordered_matrix_product(feedback_gain, hold),
+        _ordered_matrix_product(feedback_gain, np.asarray(estimator_gain, dtype=float)),
     )
+
+
+def _ordered_matrix_product(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """left @ right column by column with :func:`ordered_product`: these numbers become literals
+    of the generated C, which must not depend on the BLAS kernels of the machine that generates it."""
+    return np.column_stack([ordered_product(left, right[:, j]) for j in range(right.shape[1])])
 
 
 def output_terms(output: np.ndarray) -> np.ndarray:
