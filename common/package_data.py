@@ -46,7 +46,7 @@ FILES: dict[str, tuple[str, ...]] = {
         "runtime/replay.c",
         *(
             f"target/mps2_an386/{name}"
-            for name in ("Makefile", "board.c", "board.h", "mps2_an386.ld", "selftest.c", "startup.c")
+            for name in ("Makefile", "board.c", "board.h", "mps2_an386.ld", "pil.c", "selftest.c", "startup.c")
         ),
     ),
 }

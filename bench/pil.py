@@ -1,0 +1,292 @@
+"""Processor in the loop: the generated firmware executing on its target, QEMU's ``mps2-an386``
+(Cortex-M4 with FPU), in lock-step with the Python plant.
+
+:class:`TargetFirmware` is the SIL bench's firmware (``bench.firmware.Firmware``: ``reset``,
+``rx``, ``step``, ``tx``, ``safe``, ``faults``, ``command``, ``counters``) with the compiled image
+replaced by the target: ``firmware/target/mps2_an386/pil.c`` makes the board an SLCAN adapter on
+its UART 0, QEMU serves that UART on a local TCP port, and the bench talks to it through
+python-can's own ``slcan`` interface (``socket://`` channel of pyserial). So
+``bench.loop.SilLoop`` runs unchanged, faults included, and every frame the target sees is one a
+python-can bus carried. The bench is the target's sample clock: a ``TICK`` frame (extended id
+0x1FFFFF01, the sample time in µs) runs ``<prefix>_can_step`` and every ``<prefix>_can_tx``;
+the target answers with its frames, the commanded normal forces (raw bytes of its state) and a
+``SAMPLE`` frame (status, fault bits, safe state). The firmware is the float build of exactly the
+sources the SIL bench compiles (``bench.firmware.sources``); instructions are counted by SysTick
+under ``-icount shift=0`` and the stack by painting (``pil.c``).
+"""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smartjoint.bench import firmware, target
+from smartjoint.common import package_data
+from smartjoint.common.errors import ModelError
+from smartjoint.design.control.artifact import ControllerArtifact
+from smartjoint.design.network import protocol
+
+ID_TIME, ID_TICK, ID_RESET, ID_QUERY, ID_EXIT = 0x1FFFFF00, 0x1FFFFF01, 0x1FFFFF02, 0x1FFFFF03, 0x1FFFFF04
+ID_READY, ID_SAMPLE, ID_COUNTERS, ID_MEASURED, ID_COMMAND = 0x1FFFFF10, 0x1FFFFF11, 0x1FFFFF12, 0x1FFFFF13, 0x1FFFFF20
+ENTRY_POINTS = ("rx", "step", "tx", "empty")  # the MEASURED frame's timings, in order
+
+
+def build_image(artifact: ControllerArtifact, work: Path, timeout: float = 180.0) -> Path:
+    """Make ``pil.elf`` in ``work`` from the SIL bench's generated float sources.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact the firmware is generated from.
+    work : Path
+        An empty folder for the sources and the build.
+    timeout : float
+        Seconds for the build.
+
+    Returns
+    -------
+    Path
+        The image.
+    """
+    reason = target.missing_tools()
+    if reason:
+        raise ModelError(reason)
+    generated = work / "generated"
+    generated.mkdir(parents=True)
+    for name, text in firmware.sources(artifact, "float", target.PREFIX).items():
+        (generated / name).write_text(text)
+    board = package_data.folder("smartjoint.firmware", "target/mps2_an386")
+    command = ["make", "-s", "-C", str(board), f"GENERATED={generated}", f"BUILD={work / 'build'}", "pil"]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise ModelError(f"target {target.BOARD}: the PIL build did not finish within {timeout:g} s") from None
+    if done.returncode != 0:
+        raise ModelError(f"target {target.BOARD}: the PIL build failed:\n{(done.stderr or done.stdout).strip()}")
+    return work / "build" / "pil.elf"
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+class TargetFirmware:
+    """The firmware image running on the emulated target, behind a python-can ``slcan`` bus.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design artefact the firmware is generated from.
+    law : str
+        ``"siso"`` or ``"clqg"``.
+    timeout : float
+        Seconds the target may take to answer one request before the run is stopped.
+
+    Notes
+    -----
+    ``rx`` returns 0: the target's RX result bits are counted in its ``counters``, not sent back
+    frame by frame (a round trip per frame would not change what the loop does). Close it (or use
+    it as a context manager): that ends the emulation.
+    """
+
+    def __init__(self, artifact: ControllerArtifact, law: str = "siso", timeout: float = 30.0):
+        if law not in firmware.LAWS:
+            raise ModelError(f"law: {law!r} — allowed: {', '.join(firmware.LAWS)}")
+        self.artifact, self.law, self.timeout = artifact, law, float(timeout)
+        self.db = protocol.database(artifact)
+        self._scratch = tempfile.TemporaryDirectory(prefix="smartjoint-pil-")
+        self.elf = build_image(artifact, Path(self._scratch.name))
+        self.process: subprocess.Popen | None = None
+        self.bus: Any = None  # the python-can slcan bus while the emulator runs
+        self._start()
+        try:
+            self.reset()
+        except BaseException:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------------ the emulator and its bus
+    def _start(self) -> None:
+        import can
+
+        port = _free_port()
+        command = target.qemu_command(self.elf)
+        command[command.index("-nographic") + 1 : command.index("-nographic") + 1] = [
+            "-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on",
+        ]  # fmt: skip
+        self.qemu_command = " ".join(command)
+        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + self.timeout
+        while True:
+            try:
+                self.bus = can.Bus(interface="slcan", channel=f"socket://127.0.0.1:{port}", sleep_after_open=0.0)
+                # Small frames both ways: without TCP_NODELAY, Nagle's algorithm against delayed
+                # ACKs holds each SLCAN line up to 40 ms (pyserial's socket:// does not set it).
+                self.bus.serialPortOrig._socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                return
+            except Exception as error:  # QEMU not listening yet
+                if self.process.poll() is not None or time.monotonic() > deadline:
+                    self.close()
+                    raise ModelError(f"target {target.BOARD}: cannot reach the emulated UART ({error})") from None
+                time.sleep(0.05)
+
+    def close(self) -> None:
+        """End the emulation (EXIT frame, then kill if it does not end) and shut the bus."""
+        process, self.process = self.process, None
+        bus, self.bus = self.bus, None
+        if bus is not None:
+            try:
+                self._send(ID_EXIT, b"\x00", bus)
+            except Exception:
+                pass
+        if process is not None:
+            try:
+                process.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+            for stream in (process.stdout, process.stderr):
+                if stream is not None:
+                    stream.close()
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except Exception:
+                pass
+        self._scratch.cleanup()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _send(self, frame_id: int, data: bytes, bus=None) -> None:
+        import can
+
+        extended = frame_id > 0x7FF
+        (bus or self.bus).send(
+            can.Message(arbitration_id=frame_id, is_extended_id=extended, data=data, is_fd=len(data) > 8)
+        )
+
+    def _until(self, frame_id: int, what: str) -> list:
+        """Every frame the target sends up to and including ``frame_id``."""
+        frames = []
+        deadline = time.monotonic() + self.timeout
+        while True:
+            message = self.bus.recv(timeout=0.5)
+            if message is not None:
+                frames.append(message)
+                if message.is_extended_id and message.arbitration_id == frame_id:
+                    return frames
+            elif time.monotonic() > deadline or (self.process is not None and self.process.poll() is not None):
+                raise ModelError(f"target {target.BOARD}: no answer to {what} within {self.timeout:g} s")
+
+    # ------------------------------------------------------------------ the firmware interface
+    def reset(self) -> None:
+        """Power-up of the CAN layer with the law (``<prefix>_can_init``); clears the measurements."""
+        self._time_us: int | None = None
+        self._frames: list[tuple[int, bytes]] = []
+        frames = self._until_sample(ID_RESET, bytes([firmware.LAWS[self.law]]), "RESET")
+        ready = next(m for m in frames if m.is_extended_id and m.arbitration_id == ID_READY)
+        if ready.data[0] != 0:
+            raise ModelError(f"firmware: the CAN layer on the target refused law {self.law!r}")
+
+    def _until_sample(self, frame_id: int, data: bytes, what: str) -> list:
+        self._send(frame_id, data)
+        frames = self._until(ID_SAMPLE, what)
+        commands = range(ID_COMMAND, ID_COMMAND + 64)
+        chunks = [bytes(m.data) for m in frames if m.is_extended_id and m.arbitration_id in commands]
+        sample = bytes(frames[-1].data)
+        self.status = int.from_bytes(sample[0:4], "little")
+        self._faults = int.from_bytes(sample[4:8], "little")
+        self._safe = bool(sample[8])
+        size = sample[10]
+        joints = len(self.artifact.joint_names)
+        raw = b"".join(chunks)[: size * joints]
+        self._command = np.frombuffer(raw, dtype=np.float32 if size == 4 else np.float64).astype(float)
+        self._frames = [(m.arbitration_id, bytes(m.data)) for m in frames if not m.is_extended_id]
+        if len(self._frames) != sample[9]:
+            raise ModelError(f"target {target.BOARD}: {sample[9]} frames sent, {len(self._frames)} received")
+        return frames
+
+    def rx(self, frame_id: int, data: bytes, time_us: int) -> int:
+        """One frame to the target's ``<prefix>_can_rx`` (after a TIME frame when the time changed)."""
+        if time_us != self._time_us:
+            self._send(ID_TIME, int(time_us & 0xFFFFFFFF).to_bytes(4, "little"))
+            self._time_us = time_us
+        self._send(frame_id, bytes(data))
+        return 0
+
+    def step(self, time_us: int) -> int:
+        """One sample on the target: ``<prefix>_can_step`` and every ``<prefix>_can_tx``; returns the status."""
+        self._until_sample(ID_TICK, int(time_us & 0xFFFFFFFF).to_bytes(4, "little"), f"TICK at {time_us} µs")
+        self._time_us = time_us
+        return self.status
+
+    def tx(self) -> list[tuple[int, bytes]]:
+        """The frames of the last step, as (identifier, payload)."""
+        frames, self._frames = self._frames, []
+        return frames
+
+    @property
+    def safe(self) -> bool:
+        return self._safe
+
+    @property
+    def faults(self) -> int:
+        return self._faults
+
+    def fault_names(self) -> list[str]:
+        return [name for k, name in enumerate(protocol.CONTROLLER_FAULTS) if self._faults >> k & 1]
+
+    @property
+    def command(self) -> np.ndarray:
+        return self._command.copy()
+
+    def _query(self) -> tuple[bytes, bytes]:
+        self._send(ID_QUERY, b"")
+        frames = self._until(ID_MEASURED, "QUERY")
+        counters = next(m for m in frames if m.is_extended_id and m.arbitration_id == ID_COUNTERS)
+        return bytes(counters.data), bytes(frames[-1].data)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        raw = self._query()[0]
+        return {name: int.from_bytes(raw[4 * k : 4 * k + 4], "little") for k, name in enumerate(firmware.COUNTERS)}
+
+    def measurements(self) -> dict:
+        """What the target measured since the last reset: per entry point the calls and the
+        instructions (mean with the measurement's own overhead subtracted, and the largest
+        single call), the stack's high-water mark below ``main``, the stack's size and the
+        CAN state's size.
+
+        Returns
+        -------
+        dict
+        """
+        words = np.frombuffer(self._query()[1], dtype="<u4").astype(int)
+        per_tick = int(words[14])
+        timing = {name: words[3 * k : 3 * k + 3] for k, name in enumerate(ENTRY_POINTS)}
+        overhead = timing["empty"][1] / max(timing["empty"][0], 1)
+        out: dict = {}
+        for name in ("rx", "step", "tx"):
+            calls, ticks, largest = (int(v) for v in timing[name])
+            out[name] = {
+                "calls": calls,
+                "instructions_mean": per_tick * (ticks / calls - overhead) if calls else None,
+                "instructions_largest": per_tick * (largest - overhead) if calls else None,
+            }
+        out["stack_high_water"] = int(words[12])
+        out["stack_size"] = int(words[13])
+        out["instructions_per_tick"] = per_tick
+        out["can_state_size"] = int(words[15])
+        return out
