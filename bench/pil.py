@@ -78,6 +78,15 @@ def _free_port() -> int:
         return int(probe.getsockname()[1])
 
 
+def emulator_command(elf, port) -> list[str]:
+    """QEMU's command line for the PIL image: the self-test's (``target.qemu_command``) with
+    UART 0 served on ``127.0.0.1:port`` (QEMU waits for the bench to connect; no Nagle delay)."""
+    command = target.qemu_command(elf)
+    at = command.index("-nographic") + 1
+    command[at:at] = ["-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on"]
+    return command
+
+
 class TargetFirmware:
     """The firmware image running on the emulated target, behind a python-can ``slcan`` bus.
 
@@ -118,11 +127,7 @@ class TargetFirmware:
         import can
 
         port = _free_port()
-        command = target.qemu_command(self.elf)
-        command[command.index("-nographic") + 1 : command.index("-nographic") + 1] = [
-            "-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on",
-        ]  # fmt: skip
-        self.qemu_command = " ".join(command)
+        command = emulator_command(self.elf, port)
         self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + self.timeout
         while True:
@@ -169,20 +174,33 @@ class TargetFirmware:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def _send(self, frame_id: int, data: bytes, bus=None) -> None:
+    def _lost(self, what: str, error) -> ModelError:
+        """The error of a target that can no longer be reached (the emulator ended or hung)."""
+        status = None if self.process is None else self.process.poll()
+        ended = "" if status is None else f"; the emulator ended with status {status}"
+        return ModelError(f"target {target.BOARD}: no answer to {what} ({error}){ended}")
+
+    def _send(self, frame_id: int, data: bytes, bus=None, what: str = "a frame") -> None:
         import can
 
         extended = frame_id > 0x7FF
-        (bus or self.bus).send(
-            can.Message(arbitration_id=frame_id, is_extended_id=extended, data=data, is_fd=len(data) > 8)
-        )
+        message = can.Message(arbitration_id=frame_id, is_extended_id=extended, data=data, is_fd=len(data) > 8)
+        try:
+            (bus or self.bus).send(message)
+        except can.CanError as error:
+            raise self._lost(what, error) from None
 
     def _until(self, frame_id: int, what: str) -> list:
         """Every frame the target sends up to and including ``frame_id``."""
+        import can
+
         frames = []
         deadline = time.monotonic() + self.timeout
         while True:
-            message = self.bus.recv(timeout=0.5)
+            try:
+                message = self.bus.recv(timeout=0.5)
+            except can.CanError as error:
+                raise self._lost(what, error) from None
             if message is not None:
                 frames.append(message)
                 if message.is_extended_id and message.arbitration_id == frame_id:
@@ -201,7 +219,7 @@ class TargetFirmware:
             raise ModelError(f"firmware: the CAN layer on the target refused law {self.law!r}")
 
     def _until_sample(self, frame_id: int, data: bytes, what: str) -> list:
-        self._send(frame_id, data)
+        self._send(frame_id, data, what=what)
         frames = self._until(ID_SAMPLE, what)
         commands = range(ID_COMMAND, ID_COMMAND + 64)
         chunks = [bytes(m.data) for m in frames if m.is_extended_id and m.arbitration_id in commands]

@@ -14,6 +14,7 @@ the target's SISO and cLQG runs in place of the Python ones.
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -23,33 +24,49 @@ from smartjoint.bench import firmware, pil, target
 from smartjoint.bench.loop import SilLoop
 from smartjoint.common import figures
 from smartjoint.common.errors import ModelError
+from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import runs as study_runs
 from smartjoint.design.control import study as closed_loop
 
 RUN_NAMES = {"siso": "SISO", "clqg": "cLQG"}  # the Study's run names of the laws
+COMPARED = ("command", "status", "faults", "safe")  # what the target and the host must agree on
 CLOCK_HZ = 168e6  # the budget's stated clock: an STM32F4-class Cortex-M4F at its top speed
 
 
-def reference_runs(setup, lqg, artifact) -> list:
-    """The study's runs that need no firmware: passive F^min, passive F^max, active LQG.
+def mil_study(design, model, artifact, progress=print):
+    """The model-in-the-loop study of an artefact: the five runs of Section 6 with the Python
+    reference controllers of the artefact (its ε, its gains), no ε optimisation.
 
     Parameters
     ----------
-    setup : study.StudySetup
-    lqg : LqgDesign
-        The LQR and Kalman gains of the active reference.
+    design : Design
+        The (updated) design the artefact was made from.
+    model : ModalModel
+        Its design model.
     artifact : ControllerArtifact
-        Its force limits are the passive settings.
+    progress : callable
 
     Returns
     -------
-    list of Run
+    design.control.study.Study
     """
-    return [
-        study_runs.run_passive(setup, "passive F_min", artifact.normal_force_min),
-        study_runs.run_passive(setup, "passive F_max", artifact.normal_force_max),
-        study_runs.run_active(setup, lqg),
+    s = closed_loop.setup(design, model)
+    lqg = closed_loop.lqg_for(design, model)
+    laws = {"SISO": artifacts.siso_law(artifact), "cLQG": artifacts.clipped_lqg(artifact)}
+    progress(f"      model in the loop: passive, SISO, cLQG, active LQG ({s.duration:g} s each) …")
+    runs = [
+        study_runs.run_passive(s, "passive F_min", s.normal_force_min),
+        study_runs.run_passive(s, "passive F_max", s.normal_force_max),
+        *(study_runs.run_semi_active(s, name, law) for name, law in laws.items()),
+        study_runs.run_active(s, lqg),
     ]
+    quantities = closed_loop.sensor_quantities(design, model)
+    for run in runs:
+        run.metrics = closed_loop.metrics(run, runs[1], quantities)
+    return closed_loop.Study(
+        s, lqg, np.asarray(artifact.siso_boundary_layer, float), None, float(artifact.clqg_boundary_layer), runs,
+        list(model.sensor_names), list(model.joint_names), quantities,
+    )  # fmt: skip
 
 
 def _loop_run(setup, image, law: str, faults) -> tuple:
@@ -77,7 +94,7 @@ def first_difference(host, on_target) -> dict:
         of the first sample where the two differ or None; ``command_max_difference`` [N].
     """
     out: dict = {"samples": len(host.time)}
-    for name in ("command", "status", "faults", "safe"):
+    for name in COMPARED:
         a, b = np.asarray(getattr(host, name)), np.asarray(getattr(on_target, name))
         if a.shape != b.shape:
             out[name] = 0
@@ -143,7 +160,9 @@ def image_size(elf: Path) -> dict:
     return {"flash": flash, "ram": sections.get(".data", 0) + sections.get(".bss", 0), "stack": sections.get(".stack")}
 
 
-def law_on_target(setup, artifact, law: str, faults=(), clock_hz: float = CLOCK_HZ, timeout: float = 30.0) -> dict:
+def law_on_target(
+    setup, artifact, law: str, faults=(), clock_hz: float = CLOCK_HZ, timeout: float = 30.0, image_folder=None
+) -> dict:
     """One law's PIL run beside the host float build's, compared sample by sample.
 
     Parameters
@@ -158,6 +177,8 @@ def law_on_target(setup, artifact, law: str, faults=(), clock_hz: float = CLOCK_
         The clock of the budget.
     timeout : float
         Seconds the target may take to answer one request.
+    image_folder : path, optional
+        Where a copy of the image, ``pil.elf``, goes.
 
     Returns
     -------
@@ -169,7 +190,10 @@ def law_on_target(setup, artifact, law: str, faults=(), clock_hz: float = CLOCK_
     with pil.TargetFirmware(artifact, law, timeout=timeout) as image:
         run, record = _loop_run(setup, image, law, faults)
         measured, counters = image.measurements(), image.counters
-        size, command = image_size(image.elf), image.qemu_command
+        size = image_size(image.elf)
+        if image_folder is not None:  # the image beside the report, for the command shown
+            Path(image_folder).mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(image.elf, Path(image_folder) / "pil.elf")
     samples = max(len(record.time), 1)
     frames = {"rx": measured["rx"]["calls"] / samples, "tx": measured["tx"]["calls"] / samples}
     return {
@@ -183,11 +207,13 @@ def law_on_target(setup, artifact, law: str, faults=(), clock_hz: float = CLOCK_
         "counters": counters,
         "budget": budget(measured, setup.sample_time, frames, clock_hz),
         "size": size,
-        "command": command,
+        "command": " ".join(pil.emulator_command("pil.elf", "PORT")),
     }
 
 
-def pil_study(study, artifact, laws=("siso", "clqg"), faults=(), clock_hz: float = CLOCK_HZ, progress=print) -> dict:
+def pil_study(
+    study, artifact, laws=("siso", "clqg"), faults=(), clock_hz: float = CLOCK_HZ, progress=print, image_folder=None
+) -> dict:
     """The study with each law's firmware on the target; the orderings with the target's runs.
 
     Parameters
@@ -202,6 +228,8 @@ def pil_study(study, artifact, laws=("siso", "clqg"), faults=(), clock_hz: float
     clock_hz : float
         The clock of the budget.
     progress : callable
+    image_folder : path, optional
+        Where a copy of the image, ``pil.elf``, goes.
 
     Returns
     -------
@@ -216,7 +244,7 @@ def pil_study(study, artifact, laws=("siso", "clqg"), faults=(), clock_hz: float
     runs = {r.name: r for r in study.runs}
     for law in laws:
         progress(f"      {law}: host float build and the target ({target.BOARD}) in lock-step …")
-        figures_ = law_on_target(study.setup, artifact, law, faults, clock_hz)
+        figures_ = law_on_target(study.setup, artifact, law, faults, clock_hz, image_folder=image_folder)
         runs[RUN_NAMES[law]] = figures_["run"]
         out["laws"][law] = figures_
     reference = runs["passive F_max"]
@@ -226,6 +254,7 @@ def pil_study(study, artifact, laws=("siso", "clqg"), faults=(), clock_hz: float
     out["orderings"] = with_target.orderings() if set(laws) == set(RUN_NAMES) else None
     for law, figures_ in out["laws"].items():
         figures_["metrics"] = runs[RUN_NAMES[law]].metrics
+        figures_["energy_measure_mil"] = study.run(RUN_NAMES[law]).metrics["energy_measure"]
     return out
 
 
@@ -240,3 +269,110 @@ def plot_pil(out: dict, path) -> Path:
     ax.legend(fontsize=8)
     figures.save(fig, path, dpi=110)
     return Path(path)
+
+
+def summary(out: dict) -> dict:
+    """The JSON-ready figures of :func:`pil_study` (runs and records left out).
+
+    Parameters
+    ----------
+    out : dict
+        What :func:`pil_study` returned (a ``fault_matrix`` entry too, when one was run).
+
+    Returns
+    -------
+    dict
+    """
+    keep = ("difference", "measured", "frames_per_sample", "counters", "budget", "size", "command", "metrics",
+            "energy_measure_mil")  # fmt: skip
+    laws = {law: {key: f[key] for key in keep} for law, f in out["laws"].items()}
+    for law, f in out["laws"].items():
+        laws[law]["bit_identical"] = identical(f["difference"])
+    matrix = out.get("fault_matrix")
+    if matrix is not None:
+        matrix = {k: v for k, v in matrix.items() if k != "rows"}
+    return {"board": out["board"], "clock_hz": out["clock_hz"], "laws": laws, "orderings": out["orderings"],
+            "fault_matrix": matrix}  # fmt: skip
+
+
+def identical(difference: dict) -> bool:
+    """Whether the target and the host float build agreed on every sample (forces, status, faults, safe state)."""
+    return all(difference[name] is None for name in COMPARED)
+
+
+def _law_rows(out: dict) -> list[str]:
+    lines = [
+        "| law | samples | same as the host float build | E(t_e) (Eq. 32) PIL / MIL | e(t_e) "
+        "| step: instructions mean / largest | per frame received / sent | frames in / out per sample "
+        "| share of a sample (mean / worst) | stack |",
+        "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for law, f in out["laws"].items():
+        d, m, b = f["difference"], f["measured"], f["budget"]
+        parted = [d[name] for name in COMPARED if d[name] is not None]
+        same = "bit for bit, every sample" if not parted else f"**no**: first at sample {min(parted)}"
+        lines.append(
+            f"| {law} | {d['samples']} | {same} | "
+            f"{f['metrics']['energy_measure']:.4g} / {f['energy_measure_mil']:.4g} | "
+            f"{f['metrics']['energy_end']:.3g} | {m['step']['instructions_mean']:.0f} / "
+            f"{m['step']['instructions_largest']:.0f} | {m['rx']['instructions_mean']:.0f} / "
+            f"{m['tx']['instructions_mean']:.0f} | {f['frames_per_sample']['rx']:.1f} / "
+            f"{f['frames_per_sample']['tx']:.1f} | {100 * b['share_mean']:.1f} / {100 * b['share_worst']:.1f} % | "
+            f"{m['stack_high_water']} B |"
+        )
+    return lines
+
+
+def pil_markdown(out: dict) -> str:
+    """The report section of a PIL study.
+
+    Parameters
+    ----------
+    out : dict
+        What :func:`pil_study` returned.
+
+    Returns
+    -------
+    str
+        Markdown: one row per law (agreement with the host float build, E(t_e), the target's
+        instructions, budget and stack), the image's size, the orderings and the fault matrix.
+    """
+    any_law = next(iter(out["laws"].values()))
+    size = any_law["size"]
+    lines = [
+        f"## Processor in the loop: the firmware on its target ({out['board']}, Cortex-M4F, float build)",
+        "",
+        "The same sources as SIL, built with arm-none-eabi-gcc -O2 and run in QEMU in lock-step with the plant; "
+        "the bench reaches the target through python-can's `slcan` interface on the emulated UART "
+        f"(`{any_law['command']}`). Instructions are counted on the target (SysTick under `-icount shift=0`), "
+        f"the budget is stated at {out['clock_hz'] / 1e6:g} MHz with one cycle per instruction "
+        "(a real part adds wait states), the stack is the painted high-water mark below `main`.",
+        "",
+        *_law_rows(out),
+        "",
+        f"Image (firmware + SLCAN harness + startup): {size['flash']} B flash, {size['ram']} B RAM "
+        f"(+ {size['stack']} B stack reserved).",
+    ]
+    c = out["orderings"]
+    if c is not None:
+        mark = {True: "yes", False: "**no**", None: "— (no displacement sensor)"}
+        lines += [
+            "",
+            "Orderings of the paper (Section 6) with the target's SISO and cLQG runs:",
+            "",
+            f"- SISO ends below both passive settings: {mark[c['siso_below_both_passive']]}",
+            f"- cLQG ends below both passive settings: {mark[c['clqg_below_both_passive']]}",
+            f"- cLQG RMS tip deflection below SISO: {mark[c['clqg_tip_rms_below_siso']]}",
+            f"- active LQG below cLQG in energy: {mark[c['active_energy_below_clqg']]}, in RMS tip deflection: "
+            f"{mark[c['active_tip_rms_below_clqg']]}",
+        ]
+    matrix = out.get("fault_matrix")
+    if matrix is not None:
+        lines += [
+            "",
+            f"Fault matrix on the target ({matrix['law']}): {matrix['cases']} cases, worst "
+            f"{matrix['worst_joints']} cycles to the safe force at every joint (firmware: {matrix['worst_firmware']}), "
+            f"worst recovery {matrix['worst_recovery']} cycles, {len(matrix['failed'])} failing"
+            + (": " + ", ".join(matrix["failed"]) if matrix["failed"] else "."),
+        ]
+    return "\n".join(lines) + "\n"

@@ -386,7 +386,7 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
 
 
 def fault_matrix(
-    artifact, law: str = "clqg", real: str = "float", measurements=None, timings=TIMINGS, progress=None
+    artifact, law: str = "clqg", real: str = "float", measurements=None, timings=TIMINGS, progress=None, image=None
 ) -> dict:
     """Every case of :func:`cases` on one compiled firmware: rows and the worst figures.
 
@@ -404,6 +404,9 @@ def fault_matrix(
         Some of :data:`TIMINGS`.
     progress : callable, optional
         ``progress(message)`` hears every 50 cases.
+    image : firmware, optional
+        The firmware to run the cases on (default: the host build of ``law`` and ``real``; the
+        target's, ``bench.pil.TargetFirmware``, for processor in the loop).
 
     Returns
     -------
@@ -417,7 +420,7 @@ def fault_matrix(
     >>> out["failed"]  # doctest: +SKIP
     []
     """
-    image = firmware_module.Firmware(artifact, law, real)
+    image = firmware_module.Firmware(artifact, law, real) if image is None else image
     todo = cases(artifact, image.db, timings=timings)
     seen = signals(measurements, artifact, max(c.cycles for c in todo))
     rows = []

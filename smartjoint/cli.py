@@ -22,7 +22,7 @@ from smartjoint.commands import (
     cmd_simulate,
     cmd_update,
 )
-from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_sil, cmd_study
+from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_pil, cmd_sil, cmd_study
 from smartjoint.commands_friction import cmd_identify, cmd_rig
 from smartjoint.common.errors import SmartjointError
 
@@ -243,7 +243,7 @@ def _add_dynamics_commands(sub, o: SimpleNamespace) -> None:
 
 
 def _add_control_commands(sub, o: SimpleNamespace) -> None:
-    """design, codegen, sil."""
+    """design, codegen, sil, pil."""
     rates = _bus_rates("CAN (arbitration) bitrate (default: %(default)s)", "CAN FD data bitrate, 0: classical CAN")
     p = sub.add_parser(
         "design",
@@ -310,6 +310,26 @@ def _add_control_commands(sub, o: SimpleNamespace) -> None:
     p.set_defaults(func=cmd_sil)
 
 
+def _add_target_commands(sub, o: SimpleNamespace) -> None:
+    """pil."""
+    p = sub.add_parser(
+        "pil",
+        parents=[o.design, o.no_update, o.json_results],
+        help="the study with the firmware on its target: QEMU mps2-an386 (Cortex-M4F) in lock-step with "
+        "the plant (processor in the loop)",
+    )
+    p.add_argument("--artifact", help="controller artefact (default: designed from DESIGN now)")
+    p.add_argument("--law", choices=("siso", "clqg", "both"), default="both")
+    p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
+    p.add_argument("--fault", action="append", help="inject a fault as `sil --fault` takes it, repeatable")
+    p.add_argument(
+        "--fault-matrix", action="store_true", help="also run every case of the SIL fault matrix on the target (cLQG)"
+    )
+    p.add_argument("--clock", type=float, default=168.0, help="processor clock of the budget [MHz] (default: 168)")
+    p.add_argument("--plots", help="folder for pil_energy.png")
+    p.set_defaults(func=cmd_pil)
+
+
 def _add_bench_commands(sub, o: SimpleNamespace) -> None:
     """bench dbc, log, decode, replay."""
     p = sub.add_parser("bench", help="CAN bench tools: dbc, log, decode, replay")
@@ -372,6 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_friction_commands(sub, shared)
     _add_dynamics_commands(sub, shared)
     _add_control_commands(sub, shared)
+    _add_target_commands(sub, shared)
     _add_bench_commands(sub, shared)
     _add_study_command(sub, shared)
     return parser

@@ -190,6 +190,41 @@ def cmd_sil(args) -> dict:
     return out
 
 
+def cmd_pil(args) -> dict:
+    from smartjoint.bench import pil, pil_study, safety, target
+    from smartjoint.bench.faults import parse_fault
+    from smartjoint.common.errors import ModelError
+    from smartjoint.design.control import study as closed_loop
+
+    if not (args.clock > 0):
+        raise ModelError(f"--clock: {args.clock!r} MHz — must be > 0")
+    reason = target.missing_tools()
+    if reason:
+        raise ModelError(reason)
+    design = _control_design(args, firmware_names=True)
+    model = closed_loop.design_model(design, report_progress)
+    controller = _controller_artifact(args, design, model)
+    faults = [parse_fault(text) for text in args.fault or []]
+    laws = ("siso", "clqg") if args.law == "both" else (args.law,)
+    report_progress(
+        f"processor in the loop on {design.name!r}: {', '.join(laws)} on {target.BOARD}, "
+        f"t_e = {design.control.study_duration:g} s"
+    )
+    study = pil_study.mil_study(design, model, controller, report_progress)
+    out = pil_study.pil_study(study, controller, laws, faults, args.clock * 1e6, report_progress)
+    if args.fault_matrix:
+        report_progress("      every case of the fault matrix on the target (cLQG) …")
+        with pil.TargetFirmware(controller, "clqg") as image:
+            out["fault_matrix"] = safety.fault_matrix(controller, progress=report_progress, image=image)
+    if not args.json:
+        print(pil_study.pil_markdown(out))
+    summary = pil_study.summary(out)
+    write_plots(args, summary, lambda folder: [pil_study.plot_pil(out, Path(folder) / "pil_energy.png")])
+    summary["design"] = {"name": design.name, "sha256": design.sha256}
+    summary["artifact_sha256"] = controller.artifact_sha256
+    return summary
+
+
 def _bench_database(args):
     from smartjoint.common.errors import ModelError
     from smartjoint.design.control import artifact

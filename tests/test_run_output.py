@@ -278,7 +278,7 @@ def test_an_interrupted_run_ends_with_one_line_and_leaves_the_earlier_report(
     assert main(["run", "-o", str(output)]) == 0  # an earlier, finished report
     earlier = _snapshot(output)
     run = _Run(small_design, output, temporary)
-    progress = run.wait_for("[4/9]")  # friction identification: seconds of work ahead
+    progress = run.wait_for("[4/10]")  # friction identification: seconds of work ahead
     time.sleep(0.5)
     assert any(p.name.endswith(".staging") for p in tmp_path.iterdir())  # it was writing beside the report
     run.process.send_signal(number)
@@ -286,7 +286,7 @@ def test_an_interrupted_run_ends_with_one_line_and_leaves_the_earlier_report(
     assert code == 130
     assert "Traceback" not in "".join(rest) and rest and rest[-1] == f"smartjoint run: interrupted ({name})\n"
     lines = progress + rest
-    # Besides the progress lines ("[k/9] …" and their indented details) exactly one line: the last.
+    # Besides the progress lines ("[k/10] …" and their indented details) exactly one line: the last.
     assert [line for line in lines if not line.startswith(("[", " "))] == [lines[-1]]
     assert _snapshot(output) == earlier  # the earlier report as it was, no partial one
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "small.toml", "tmp"]
@@ -296,7 +296,7 @@ def test_an_interrupted_run_ends_with_one_line_and_leaves_the_earlier_report(
 def test_what_a_killed_run_left_is_cleared_by_the_next_and_only_that(tmp_path, small_design, monkeypatch):
     output, temporary = tmp_path / "report", tmp_path / "tmp"
     run = _Run(small_design, output, temporary)
-    run.wait_for("[2/9]")
+    run.wait_for("[2/10]")
     run.process.kill()
     run.finish()
     left = sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".report.smartjoint-"))
