@@ -124,6 +124,18 @@ def _same_bus(db, loaded) -> bool:
     return frames(db) == frames(loaded)
 
 
+# The codec functions the layer calls itself (and the decode of every tip sensor).
+SENT_LAYOUTS = ("setpoint", "controller_status")
+USED = {
+    ("setpoint", "voltage", "encode"),
+    ("setpoint", "voltage", "decode"),
+    ("amp_status", "monitor_voltage", "decode"),
+    ("joint", "sliding_velocity", "decode"),
+    ("joint", "friction_force", "decode"),
+    ("joint", "normal_force", "decode"),
+}
+
+
 def _messages(db, joints: list[str], real: str, full_codec: bool) -> tuple[list[dict], list[dict]]:
     """The template's frames (by identifier) and layouts (``can_codec.layouts``); a layout is
     packed when the controller sends one of its frames, unpacked when it receives one (both with
@@ -137,6 +149,18 @@ def _messages(db, joints: list[str], real: str, full_codec: bool) -> tuple[list[
         layout = by_name[of[m.name]]
         layout["packed"] = layout.get("packed", False) or sent or full_codec
         layout["unpacked"] = layout.get("unpacked", False) or not sent or full_codec
+    for layout in layouts:  # what the layer itself calls; the rest is API (cppcheck told so)
+        layout["api_only"] = {
+            "pack": layout["packed"] and layout["name"] not in SENT_LAYOUTS,
+            "unpack": layout["unpacked"] and layout["name"] in SENT_LAYOUTS,
+        }
+        for s in layout["signals"]:
+            sensor = layout["name"] == "tip_sensors" and s["name"] not in protocol.E2E_SIGNALS
+            s["used"] = [
+                f
+                for f in ("encode", "decode", "is_in_range")
+                if (layout["name"], s["name"], f) in USED or (sensor and f == "decode")
+            ]
     return messages, layouts
 
 
@@ -217,6 +241,21 @@ def _limit_literals(artifact: ControllerArtifact, amplifier: protocol.Amplifier,
         "preload": lit(amplifier.preload),
         "amplifier_text": f"F_N = {amplifier.force_per_volt:g} N/V * V + {amplifier.preload:g} N, "
         f"V within [0, {amplifier.voltage_max:g}] V",
+    }
+
+
+def _raw_types(db, artifact: ControllerArtifact, layouts: list[dict]) -> dict:
+    """The raw C types the layer's state and limits take from the frames it reads and sends."""
+    kinds = {layout["name"]: {s["name"]: s["ctype"] for s in layout["signals"]} for layout in layouts}
+    sensor_ctypes = {kinds["tip_sensors"][s.lower()] for s in artifact.sensor_names}
+    if len(sensor_ctypes) != 1:
+        raise ModelError("TIP_SENSORS: the sensors' signals need one raw type (design/network/protocol.py)")
+    return {
+        "joint_ctypes": kinds["joint"],
+        "amp_ctypes": kinds["amp_status"],
+        "sensor_ctype": sensor_ctypes.pop(),
+        "setpoint_ctype": kinds["setpoint"]["voltage"],
+        "setpoint_length": db.get_message_by_name(f"SETPOINT_{artifact.joint_names[0].upper()}").length,
     }
 
 
@@ -312,37 +351,27 @@ def render_can(
     db = protocol.database(artifact, amplifier)
     joints = [j.upper() for j in artifact.joint_names]
     messages, layouts = _messages(db, joints, real, full_codec)
-    kinds = {layout["name"]: {s["name"]: s["ctype"] for s in layout["signals"]} for layout in layouts}
-    sensor_ctypes = {kinds["tip_sensors"][s.lower()] for s in artifact.sensor_names}
-    if len(sensor_ctypes) != 1:
-        raise ModelError("TIP_SENSORS: the sensors' signals need one raw type (design/network/protocol.py)")
     cycle_us = int(round(artifact.sample_time * 1e6))
-    inputs = _inputs(db, joints, cycle_us)
     digest = artifact.artifact_sha256
-    banner = rendering.banner(digest, part="codegen, CAN layer")
     context = {
         "prefix": prefix,
         "PREFIX": prefix.upper(),
         "name": f"{prefix}_can",
         "NAME": f"{prefix}_can".upper(),
-        "banner": banner,
+        "banner": rendering.banner(digest, part="codegen, CAN layer"),
         "joints": joints,
         "sensors": [s.upper() for s in artifact.sensor_names],
         "messages": messages,
         "layouts": layouts,
-        "inputs": inputs,
+        "inputs": _inputs(db, joints, cycle_us),
         "cycle_us": cycle_us,
         "timeout_cycles": artifact.timeout_cycles,
         "recovery_cycles": artifact.recovery_cycles,
         "full_codec": full_codec,
         "mode_safe": protocol.MODE_SAFE,
         "einval": can_codec.EINVAL,
-        "joint_ctypes": kinds["joint"],
-        "amp_ctypes": kinds["amp_status"],
-        "sensor_ctype": sensor_ctypes.pop(),
-        "setpoint_ctype": kinds["setpoint"]["voltage"],
-        "setpoint_length": db.get_message_by_name(f"SETPOINT_{joints[0]}").length,
         "limits": _raw_limits(db, artifact),
+        **_raw_types(db, artifact, layouts),
         **_limit_literals(artifact, amplifier, real),
         **_arithmetic(real),
     }
