@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from smartjoint.codegen import build, can_layer, generate
+from smartjoint.codegen import build, can_codec, can_layer, generate
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.network import protocol
@@ -65,7 +65,7 @@ int {n}_tx_opaque(uint8_t *state, uint32_t *id, uint8_t *data, uint8_t *length)
 int {n}_safe(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->safe; }}
 unsigned int {n}_faults(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->faults; }}
 double {n}_command(const uint8_t *state, int joint)
-{{ return ((const {n}_state *)(const void *)state)->command[joint]; }}
+{{ return (double)((const {n}_state *)(const void *)state)->command[joint]; }}
 void {n}_set_steps(uint8_t *state, uint32_t steps) {{ (({n}_state *)(void *)state)->steps = steps; }}
 uint32_t {n}_counter(const uint8_t *state, int which)
 {{
@@ -91,7 +91,7 @@ def sources(artifact: ControllerArtifact, real: str = "float", prefix: str = "sm
     (``bench/target.py``). Arguments as for :class:`Firmware`."""
     return {
         **generate.render(artifact, real, prefix),
-        **can_layer.render_can(artifact, prefix, full_codec=True, **can_options),
+        **can_layer.render_can(artifact, prefix, full_codec=True, real=real, **can_options),
     }
 
 
@@ -221,31 +221,64 @@ class Firmware:
         """The CAN layer's diagnostic counters (:data:`COUNTERS`)."""
         return {name: int(self._call("counter", self._state, k)) for k, name in enumerate(COUNTERS)}
 
+    def _layout(self, message: str):
+        """(the frame, the C name of its layout, a new struct of its raw fields)."""
+        m = self.db.get_message_by_name(message)
+        layout = f"{self._name}_{can_codec.layout_name(m.name, list(self.artifact.joint_names))}"
+        return m, layout, self.ffi.new(f"struct {layout}_t *")
+
     def pack(self, message: str, values: dict) -> bytes:
-        """Pack signal values into a frame's payload with the generated codec.
+        """Pack signal values into a frame's payload with the generated codec: each value
+        through its signal's ``encode`` (in the build's scalar type), then the layout's ``pack``.
 
         Parameters
         ----------
         message : str
             The frame's name (``JOINT_A1``, …).
         values : dict of str to float
-            Signal values; signals not given pack as 0.
+            Physical signal values; signals not given encode 0.
 
         Returns
         -------
         bytes
             The payload.
         """
-        m = self.db.get_message_by_name(message)
-        signals = self.ffi.new(f"{self._name}_{message.lower()}_t *")
-        for key, value in values.items():
-            setattr(signals, key, float(value))
+        m, layout, raw = self._layout(message)
+        for s in m.signals:
+            setattr(raw, s.name, getattr(self.lib, f"{layout}_{s.name}_encode")(float(values.get(s.name, 0.0))))
+        return self.pack_raw(message, raw)
+
+    def pack_raw(self, message: str, raw) -> bytes:
+        """Pack raw signal values (a dict, or the layout's struct) with the layout's ``pack``.
+
+        Returns
+        -------
+        bytes
+            The payload.
+        """
+        m, layout, fields = self._layout(message)
+        if isinstance(raw, dict):
+            for name, value in raw.items():
+                setattr(fields, name, int(value))
+        else:
+            fields = raw
         data = self.ffi.new("uint8_t[]", m.length)
-        self._call(f"pack_{message.lower()}", signals, data)
+        written = getattr(self.lib, f"{layout}_pack")(data, fields, m.length)
+        if written != m.length:
+            raise ModelError(f"{message}: pack returned {written} for a {m.length}-byte frame")
         return bytes(self.ffi.buffer(data, m.length))
 
+    def unpack_raw(self, message: str, data: bytes) -> dict:
+        """The raw signal values of a payload (the layout's ``unpack``), by signal name."""
+        m, layout, raw = self._layout(message)
+        read = getattr(self.lib, f"{layout}_unpack")(raw, bytes(data), len(data))
+        if read != m.length:
+            raise ModelError(f"{message}: unpack returned {read} for {len(data)} bytes (frame length {m.length})")
+        return {s.name: int(getattr(raw, s.name)) for s in m.signals}
+
     def unpack(self, message: str, data: bytes) -> dict:
-        """Unpack a frame's payload with the generated codec.
+        """Unpack a frame's payload with the generated codec: the layout's ``unpack``, then each
+        raw value through its signal's ``decode``.
 
         Parameters
         ----------
@@ -259,7 +292,6 @@ class Firmware:
         dict of str to float
             The value of every signal.
         """
-        m = self.db.get_message_by_name(message)
-        signals = self.ffi.new(f"{self._name}_{message.lower()}_t *")
-        self._call(f"unpack_{message.lower()}", bytes(data), signals)
-        return {s.name: getattr(signals, s.name) for s in m.signals}
+        _, layout, _ = self._layout(message)
+        raw = self.unpack_raw(message, data)
+        return {name: float(getattr(self.lib, f"{layout}_{name}_decode")(value)) for name, value in raw.items()}

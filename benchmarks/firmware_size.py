@@ -23,6 +23,12 @@ modules in the double build at -O2 (every double operation a libgcc soft-float c
 single-precision FPU — the alternative a firmware author would actually choose: the ratio
 shows what the float build buys), and the float build at -O0 (what the optimiser buys).
 
+Then the whole image (``benchmarks/firmware_image.py``): controllers + CAN layer + E2E + a
+minimal runtime main with the target's startup and board support, float -O2, --gc-sections:
+flash, RAM (.data + .bss), the double-precision routines linked (none is the target) and the
+static stack bound of each CAN entry point (init, rx, step with the controller step, tx), with
+the machinery above (``benchmarks/elf_tools.py``). Targets: flash ≤ 8 KiB, RAM ≤ 512 B.
+
     python benchmarks/firmware_size.py [--artifact firmware/generated/controller.json] \
         [--json benchmarks/firmware_size.json]
 """
@@ -31,183 +37,33 @@ from __future__ import annotations
 
 import argparse
 import platform
-import re
-import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py (the script's folder is on sys.path)
+from elf_tools import (  # benchmarks/elf_tools.py (the script's folder is on sys.path)
+    BASE_FLAGS,
+    TARGET,
+    Disassembly,
+    berkeley,
+    callgraph_ci,
+    check_tools,
+    run,
+    sections,
+    stack_usage,
+    supports_callgraph_info,
+    worst_stack,
+)
+from firmware_image import measure_image, print_whole_image
+from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py
 
-from smartjoint.codegen import build, generate, output
+from smartjoint.codegen import generate, output
 from smartjoint.design.control import artifact as artifacts
 
 ROOT = Path(__file__).resolve().parents[1]
-TARGET = ["-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"]
-BASE_FLAGS = [f for f in build.FLAGS if f != "-O2"]
-TOOLS = (
-    "arm-none-eabi-gcc",
-    "arm-none-eabi-size",
-    "arm-none-eabi-objdump",
-    "arm-none-eabi-objcopy",
-    "arm-none-eabi-nm",
-)
 LAWS = (("siso", "SISO"), ("clqg", "clipped LQG"))
 BUILDS = (("float", "-O2"), ("double", "-O2"), ("float", "-O0"))  # ours first, then the two baselines
 LIMITS = {"flash": 8 * 1024, "ram": 1024, "stack": 512}
-
-
-def run(command: list[str], cwd: Path | None = None) -> str:
-    done = subprocess.run(command, cwd=cwd, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise SystemExit(f"error: {' '.join(command)} failed:\n{done.stderr.strip()}")
-    return done.stdout
-
-
-def check_tools() -> None:
-    missing = [t for t in TOOLS if shutil.which(t) is None]
-    if missing:
-        raise SystemExit(
-            f"error: {', '.join(missing)} not found on PATH — this benchmark needs the GNU Arm "
-            "Embedded toolchain with newlib (Debian/Ubuntu: apt-get install gcc-arm-none-eabi "
-            "binutils-arm-none-eabi libnewlib-arm-none-eabi)"
-        )
-
-
-def supports_callgraph_info(folder: Path) -> bool:
-    probe = folder / "cg_probe.c"
-    probe.write_text("int cg_probe(void);\nint cg_probe(void) { return 0; }\n")
-    done = subprocess.run(
-        ["arm-none-eabi-gcc", *TARGET, "-fcallgraph-info=su", "-c", str(probe), "-o", str(folder / "cg_probe.o")],
-        cwd=folder,
-        capture_output=True,
-        text=True,
-    )
-    return done.returncode == 0
-
-
-def sections(path: Path) -> dict[str, int]:
-    """``arm-none-eabi-size -A``: section name → bytes."""
-    out = {}
-    for line in run(["arm-none-eabi-size", "-A", str(path)]).splitlines():
-        parts = line.split()
-        if len(parts) == 3 and parts[0].startswith(".") and parts[1].isdigit():
-            out[parts[0]] = int(parts[1])
-    return out
-
-
-def berkeley(path: Path) -> dict[str, int]:
-    """``arm-none-eabi-size`` (Berkeley): text (incl. .rodata), data, bss."""
-    line = run(["arm-none-eabi-size", str(path)]).splitlines()[1].split()
-    return {"text": int(line[0]), "data": int(line[1]), "bss": int(line[2])}
-
-
-def stack_usage(su: Path) -> dict[str, tuple[int, str]]:
-    """function → (frame bytes, qualifier) from a gcc .su file."""
-    out = {}
-    for line in su.read_text().splitlines():
-        location, size, qualifier = line.rsplit("\t", 2)
-        out[location.rsplit(":", 1)[-1]] = (int(size), qualifier)
-    return out
-
-
-def callgraph_ci(ci: Path) -> dict[str, set[str]]:
-    """caller → callees from gcc's -fcallgraph-info (VCG); static functions lose their file prefix."""
-    name = lambda title: title.rsplit(":", 1)[-1]  # noqa: E731
-    graph: dict[str, set[str]] = {}
-    for source, target in re.findall(r'edge: \{ sourcename: "([^"]+)" targetname: "([^"]+)"', ci.read_text()):
-        graph.setdefault(name(source), set()).add(name(target))
-    return graph
-
-
-class Disassembly:
-    """Functions of a linked Thumb image: address ranges (``nm -S``), instructions (objdump)."""
-
-    def __init__(self, elf: Path):
-        self.symbols: dict[str, tuple[int, int]] = {}
-        for line in run(["arm-none-eabi-nm", "-S", str(elf)]).splitlines():
-            parts = line.split()
-            if len(parts) == 4 and parts[2] in "Tt":
-                self.symbols[parts[3]] = (int(parts[0], 16) & ~1, int(parts[1], 16))
-        self.instructions: list[tuple[int, str, str]] = []
-        for line in run(["arm-none-eabi-objdump", "-d", "--no-show-raw-insn", str(elf)]).splitlines():
-            m = re.match(r"\s+([0-9a-f]+):\s+(\S+)\s*(.*)$", line)
-            if m:
-                self.instructions.append((int(m.group(1), 16), m.group(2), m.group(3)))
-
-    def body(self, name: str) -> list[tuple[int, str, str]]:
-        start, size = self.symbols[name]
-        return [i for i in self.instructions if start <= i[0] < start + size]
-
-    def owner(self, address: int) -> str | None:
-        """The symbol starting at ``address``, else the smallest one containing it."""
-        exact = sorted(n for n, (s, _) in self.symbols.items() if s == address and not n.startswith("$"))
-        if exact:
-            return exact[0]
-        inside = [(size, n) for n, (s, size) in self.symbols.items() if s <= address < s + size]
-        return min(inside)[1] if inside else None
-
-    def frame(self, name: str) -> int:
-        """Upper bound of the bytes the routine puts on the stack: every push/vpush/stmdb sp!/sub sp."""
-        total = 0
-        for _, op, args in self.body(name):
-            op = op.split(".")[0]
-            if op in ("push", "vpush") or (op == "stmdb" and args.startswith("sp!")):
-                registers = re.search(r"\{([^}]*)\}", args).group(1)
-                for item in (r.strip() for r in registers.split(",")):
-                    width = 8 if item.startswith("d") else 4
-                    if "-" in item:
-                        low, high = (int(re.sub(r"\D", "", x)) for x in item.split("-"))
-                        total += width * (high - low + 1)
-                    else:
-                        total += width
-            elif op in ("sub", "subw") and re.match(r"sp,\s*(sp,\s*)?#", args):
-                total += int(re.search(r"#(\d+)", args).group(1))
-        return total
-
-    def callees(self, name: str) -> set[str]:
-        """bl/blx targets, and branch targets outside the routine (tail jumps into shared code)."""
-        start, size = self.symbols[name]
-        out = set()
-        for _, op, args in self.body(name):
-            m = re.match(r"([0-9a-f]+) <", args)
-            if not m or not op.startswith("b") or op.startswith(("bic", "bfc", "bfi")):
-                continue
-            target = int(m.group(1), 16)
-            if op.startswith("bl") or not start <= target < start + size:
-                owner = self.owner(target)
-                if owner and owner != name:
-                    out.add(owner)
-        return out
-
-
-def worst_stack(entry: str, frames: dict[str, int], graph: dict[str, set[str]], image: Disassembly):
-    """(bytes, chain) of the deepest call chain from ``entry``; library routines are looked up
-    in the linked image. Recursion has no bound: refuse it."""
-    memo: dict[str, tuple[int, list[str]]] = {}
-
-    def visit(name: str, path: tuple[str, ...]):
-        if name in path:
-            raise SystemExit(f"error: recursion {' → '.join(path + (name,))}: no static stack bound")
-        if name in memo:
-            return memo[name]
-        if name in frames:
-            own, callees = frames[name], graph.get(name, set())
-        elif name in image.symbols:
-            own, callees = image.frame(name), image.callees(name)
-        else:
-            raise SystemExit(f"error: {name} is called from the module but is not in the linked image")
-        best = (0, [])
-        for callee in sorted(callees):
-            depth = visit(callee, path + (name,))
-            if depth[0] > best[0]:
-                best = depth
-        memo[name] = (own + best[0], [f"{name} ({own} B)"] + best[1])
-        return memo[name]
-
-    depth, chain = visit(entry, ())
-    return depth, chain, sorted(memo)
 
 
 def struct_sizes(folder: Path, prefix: str) -> dict[str, dict[str, int]]:
@@ -286,67 +142,6 @@ def measure(a, real: str, level: str, folder: Path, callgraph: bool, prefix: str
     return out
 
 
-def measure_image(a, folder: Path, callgraph: bool, prefix: str = "smartjoint") -> dict:
-    """The whole float firmware at -O2: both controllers, the CAN message layer and the E2E
-    runtime, linked from the CAN entry points (rx, step, tx, init). The layer packs and unpacks
-    in double (bit-exact with cantools), which pulls libgcc's soft-float routines on this FPU."""
-    from smartjoint.codegen import can_layer
-
-    folder.mkdir(parents=True)
-    files = {**generate.render(a, "float", prefix), **can_layer.render_can(a, prefix)}
-    output.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, folder)
-    sources = [f"{prefix}_siso", f"{prefix}_clqg", f"{prefix}_can", "sj_e2e"]
-    extra = ["-fstack-usage"] + (["-fcallgraph-info=su"] if callgraph else [])
-    for name in sources:
-        run(
-            ["arm-none-eabi-gcc", *TARGET, "-O2", *extra, *BASE_FLAGS, "-c", f"{name}.c", "-o", f"{name}.o"], cwd=folder
-        )
-    entries = [f"{prefix}_can_{e}" for e in ("step", "rx", "tx", "init")]
-    run(
-        [
-            "arm-none-eabi-gcc",
-            *TARGET,
-            "-nostartfiles",
-            "-Wl,--gc-sections",
-            f"-Wl,--entry={entries[0]}",
-            *[f"-Wl,--undefined={e}" for e in entries[1:]],
-            *[f"{n}.o" for n in sources],
-            "-lm",
-            "-o",
-            "image.elf",
-        ],
-        cwd=folder,
-    )
-    image = Disassembly(folder / "image.elf")
-    su: dict = {}
-    graph: dict = {}
-    for name in sources:
-        su.update(stack_usage(folder / f"{name}.su"))
-        graph.update(callgraph_ci(folder / f"{name}.ci") if callgraph else {})
-    if not callgraph:
-        graph = {f: image.callees(f) for f in su}
-    frames = {f: size for f, (size, _) in su.items()}
-    stacks = {e: worst_stack(e, frames, graph, image)[:2] for e in entries}
-    worst = max(stacks, key=lambda e: stacks[e][0])
-    (folder / "probe.c").write_text(
-        f'#include "{prefix}_can.h"\nextern const unsigned long probe;\n'
-        f"const unsigned long probe = sizeof({prefix}_can_state);\n"
-    )
-    run(["arm-none-eabi-gcc", *TARGET, "-O2", *BASE_FLAGS, "-c", "probe.c", "-o", "probe.o"], cwd=folder)
-    run(["arm-none-eabi-objcopy", "-O", "binary", "-j", ".rodata", "probe.o", "probe.bin"], cwd=folder)
-    state = int.from_bytes((folder / "probe.bin").read_bytes()[:4], "little")
-    elf = berkeley(folder / "image.elf")
-    return {
-        "flash": elf["text"] + elf["data"],
-        "static_ram": elf["data"] + elf["bss"],
-        "state": state,
-        "ram": elf["data"] + elf["bss"] + state + 64 + 64,  # + one rx and one tx frame buffer
-        "stack": stacks[worst][0],
-        "stack_chain": stacks[worst][1],
-        "modules": {n: berkeley(folder / f"{n}.o")["text"] for n in sources},
-    }
-
-
 def machine() -> dict:
     return {
         "platform": platform.platform(),
@@ -414,22 +209,6 @@ def _print_targets(results: dict, ours: str, baselines: tuple[str, ...]) -> dict
     return verdict
 
 
-def _print_whole_image(whole: dict) -> None:
-    """Flash, RAM and stack of the whole linked firmware image."""
-    print("\nwhole firmware image (float -O2: SISO + clipped LQG + CAN layer + E2E, linked from the CAN entry points):")
-    print(
-        f"  flash {whole['flash']:5d} B  (modules .text: "
-        + ", ".join(f"{k} {v}" for k, v in whole["modules"].items())
-        + "; the rest: libgcc soft-float for the "
-        "double codec, libm floor)"
-    )
-    print(
-        f"  RAM   {whole['ram']:5d} B  (static {whole['static_ram']} B + state {whole['state']} B + two 64-byte "
-        "frame buffers)"
-    )
-    print(f"  stack {whole['stack']:5d} B  ({' → '.join(whole['stack_chain'])})")
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--artifact", default=str(ROOT / "firmware" / "generated" / "controller.json"))
@@ -460,7 +239,7 @@ def main() -> int:
     verdict = _print_targets(results, ours, baselines)
     with tempfile.TemporaryDirectory(prefix="firmware_image-") as temporary:
         whole = measure_image(a, Path(temporary) / "image", callgraph)
-    _print_whole_image(whole)
+    print_whole_image(whole)
     write_json(
         args.json,
         {

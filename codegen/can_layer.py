@@ -9,37 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from smartjoint.codegen import identifiers, rendering
+from smartjoint.codegen import can_codec, identifiers, rendering
 from smartjoint.common import package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.network import protocol
 
 RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
-
-
-def _signal(signal) -> dict:
-    lit = lambda value: rendering.literal(float(value), "double")  # noqa: E731
-    length, signed = signal.length, signal.is_signed
-    if length > 32:  # raw limits must stay exact doubles and the int64 cast defined
-        raise ModelError(f"signal {signal.name}: {length} bits — the generated codec handles up to 32")
-    raw_min = -(2 ** (length - 1)) if signed else 0
-    raw_max = 2 ** (length - 1) - 1 if signed else 2**length - 1
-    return {
-        "name": signal.name,
-        "start": signal.start,
-        "length": length,
-        "signed": signed,
-        "scale": lit(signal.conversion.scale),
-        "offset": lit(signal.conversion.offset),
-        # A range clamps only when both ends are given; else only the raw field limits apply.
-        "minimum": None if signal.minimum is None or signal.maximum is None else lit(signal.minimum),
-        "maximum": None if signal.minimum is None or signal.maximum is None else lit(signal.maximum),
-        "raw_min": lit(raw_min),
-        "raw_max": lit(raw_max),
-        "unit": signal.unit or "",
-        "comment": (signal.comment or signal.name).replace("*/", "* /"),
-    }
 
 
 def check_can(artifact: ControllerArtifact, amplifier: protocol.Amplifier) -> None:
@@ -127,6 +103,7 @@ def _same_bus(db, loaded) -> bool:
                 m.is_fd,
                 m.cycle_time,
                 tuple(m.senders or ()),
+                tuple(sorted(m.receivers)),
                 tuple(
                     (
                         s.name,
@@ -147,28 +124,43 @@ def _same_bus(db, loaded) -> bool:
     return frames(db) == frames(loaded)
 
 
-def _messages(db) -> tuple[list[dict], list[dict]]:
-    """The template's frames (signals in bit order) and their layout tables: frames with
-    identical signal rows share one layout table in the C."""
-    messages = [
-        {
-            "name": m.name,
-            "frame_id": m.frame_id,
-            "length": m.length,
-            "received": protocol.CONTROLLER not in (m.senders or []),
-            "signals": [_signal(s) for s in sorted(m.signals, key=lambda s: s.start)],
+# The codec functions the layer calls itself (and the decode of every tip sensor).
+SENT_LAYOUTS = ("setpoint", "controller_status")
+USED = {
+    ("setpoint", "voltage", "encode"),
+    ("setpoint", "voltage", "decode"),
+    ("amp_status", "monitor_voltage", "decode"),
+    ("joint", "sliding_velocity", "decode"),
+    ("joint", "friction_force", "decode"),
+    ("joint", "normal_force", "decode"),
+}
+
+
+def _messages(db, joints: list[str], real: str, full_codec: bool) -> tuple[list[dict], list[dict]]:
+    """The template's frames (by identifier) and layouts (``can_codec.layouts``); a layout is
+    packed when the controller sends one of its frames, unpacked when it receives one (both with
+    ``full_codec``)."""
+    layouts, of = can_codec.layouts(db, joints, real)
+    by_name = {layout["name"]: layout for layout in layouts}
+    messages = []
+    for m in sorted(db.messages, key=lambda m: m.frame_id):
+        sent = protocol.CONTROLLER in (m.senders or [])
+        messages.append({"name": m.name, "frame_id": m.frame_id, "length": m.length, "layout": of[m.name]})
+        layout = by_name[of[m.name]]
+        layout["packed"] = layout.get("packed", False) or sent or full_codec
+        layout["unpacked"] = layout.get("unpacked", False) or not sent or full_codec
+    for layout in layouts:  # what the layer itself calls; the rest is API (cppcheck told so)
+        layout["api_only"] = {
+            "pack": layout["packed"] and layout["name"] not in SENT_LAYOUTS,
+            "unpack": layout["unpacked"] and layout["name"] in SENT_LAYOUTS,
         }
-        for m in db.messages
-    ]
-    layouts: list[dict] = []
-    keys: list = []
-    for m in messages:
-        fields = ("start", "length", "signed", "scale", "offset", "minimum", "maximum", "raw_min", "raw_max")
-        key = tuple(tuple(sig[f] for f in fields) for sig in m["signals"])
-        if key not in keys:
-            keys.append(key)
-            layouts.append({"signals": m["signals"]})
-        m["layout"] = keys.index(key)
+        for s in layout["signals"]:
+            sensor = layout["name"] == "tip_sensors" and s["name"] not in protocol.E2E_SIGNALS
+            s["used"] = [
+                f
+                for f in ("encode", "decode", "is_in_range")
+                if (layout["name"], s["name"], f) in USED or (sensor and f == "decode")
+            ]
     return messages, layouts
 
 
@@ -176,10 +168,13 @@ def _inputs(db, joints: list[str], cycle_us: int) -> list[dict]:
     """The frames the controller receives, in the order the C ages them; each must come once per
     controller cycle, since ages count steps (design/network/protocol.py)."""
     by_name = {m.name: m for m in db.messages}
-    inputs = [{"kind": "joint", "index": j, "message": f"JOINT_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)]
-    inputs.append({"kind": "tip", "index": 0, "message": "TIP_SENSORS", "clqg_only": 1})
+    inputs = [
+        {"kind_c": "INPUT_JOINT", "index": j, "message": f"JOINT_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)
+    ]
+    inputs.append({"kind_c": "INPUT_TIP", "index": 0, "message": "TIP_SENSORS", "clqg_only": 1})
     inputs += [
-        {"kind": "amp", "index": j, "message": f"AMP_STATUS_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)
+        {"kind_c": "INPUT_AMPLIFIER", "index": j, "message": f"AMP_STATUS_{tag}", "clqg_only": 0}
+        for j, tag in enumerate(joints)
     ]
     for i in inputs:
         if int(by_name[i["message"]].cycle_time) * 1000 != cycle_us:
@@ -187,25 +182,93 @@ def _inputs(db, joints: list[str], cycle_us: int) -> list[dict]:
                 f"{i['message']}: cycle time {by_name[i['message']].cycle_time} ms — the CAN layer ages "
                 f"inputs in controller cycles and needs every input at Δt = {cycle_us / 1000:g} ms"
             )
-    return inputs
+    # ascending identifiers: the order rx searches and the order of the per-input arrays
+    return sorted(inputs, key=lambda i: by_name[i["message"]].frame_id)
 
 
-def _limit_literals(artifact: ControllerArtifact, amplifier: protocol.Amplifier) -> dict[str, str]:
-    """The safe state's force, the plausibility limits and the amplifier's scaling as C literals."""
-    doubles = lambda values: ", ".join(rendering.literal(float(v), "double") for v in values)  # noqa: E731
+def _raw_limits(db, artifact: ControllerArtifact) -> dict[str, str]:
+    """The plausibility limits of the artefact as raw bounds of the signals they apply to: the
+    raw values whose decoded value (double, as the layer decoded before) lies within."""
+    joint = db.get_message_by_name(f"JOINT_{artifact.joint_names[0].upper()}")
+    tip = db.get_message_by_name("TIP_SENSORS")
+    status = db.get_message_by_name(f"AMP_STATUS_{artifact.joint_names[0].upper()}")
+    out: dict[str, str] = {}
+
+    def bounds(key, signal, lows, highs, text):
+        pairs = [can_codec.raw_bounds(signal, float(lo), float(hi)) for lo, hi in zip(lows, highs)]
+        c = can_codec.ctype(signal.length, signal.is_signed)
+        out[f"{key}_low"] = ", ".join(can_codec.c_int(p[0], c) for p in pairs)
+        out[f"{key}_high"] = ", ".join(can_codec.c_int(p[1], c) for p in pairs)
+        out[f"{key}_text"] = text
+
+    v, u = np.asarray(artifact.sliding_velocity_limit), np.asarray(artifact.friction_force_limit)
+    bounds("sliding_velocity", joint.get_signal_by_name("sliding_velocity"), -v, v, "|v| <= sliding_velocity_limit")
+    bounds("friction_force", joint.get_signal_by_name("friction_force"), -u, u, "|u_R| <= friction_force_limit")
+    bounds(
+        "normal_force",
+        joint.get_signal_by_name("normal_force"),
+        artifact.measured_normal_force_min,
+        artifact.measured_normal_force_max,
+        "measured F_N within [measured_normal_force_min, measured_normal_force_max]",
+    )
+    y = np.asarray(artifact.sensor_limit)
+    for r, sensor in enumerate(artifact.sensor_names):
+        bounds(f"sensor{r}", tip.get_signal_by_name(sensor.lower()), [-y[r]], [y[r]], "")
+    out["sensor_low"] = ", ".join(out.pop(f"sensor{r}_low") for r in range(len(y)))
+    out["sensor_high"] = ", ".join(out.pop(f"sensor{r}_high") for r in range(len(y)))
+    out["sensor_text"] = "|y| <= sensor_limit"
+    for r in range(len(y)):
+        out.pop(f"sensor{r}_text")
+    bounds(
+        "temperature",
+        status.get_signal_by_name("temperature"),
+        [-1000.0],
+        [artifact.amplifier_temperature_limit],
+        f"amplifier_temperature_limit = {artifact.amplifier_temperature_limit:g} degC",
+    )
+    current = artifact.amplifier_current_limit
+    bounds("current", status.get_signal_by_name("current"), [-current], [current], f"|I| <= {current:g} A")
+    return out
+
+
+def _limit_literals(artifact: ControllerArtifact, amplifier: protocol.Amplifier, real: str) -> dict[str, str]:
+    """The safe state's force, the tracking tolerance and the amplifier's scaling as C literals."""
+    lit = lambda value: rendering.literal(float(value), real)  # noqa: E731
     return {
-        "safe_normal_force": doubles(artifact.safe_normal_force),
-        "sliding_velocity_limit": doubles(artifact.sliding_velocity_limit),
-        "friction_force_limit": doubles(artifact.friction_force_limit),
-        "normal_force_low": doubles(artifact.measured_normal_force_min),
-        "normal_force_high": doubles(artifact.measured_normal_force_max),
-        "sensor_limit": doubles(artifact.sensor_limit),
-        "temperature_limit": rendering.literal(artifact.amplifier_temperature_limit, "double"),
-        "current_limit": rendering.literal(artifact.amplifier_current_limit, "double"),
-        "tracking_tolerance": rendering.literal(artifact.tracking_tolerance, "double"),
-        "voltage_max": rendering.literal(amplifier.voltage_max, "double"),
-        "force_per_volt": rendering.literal(amplifier.force_per_volt, "double"),
-        "preload": rendering.literal(amplifier.preload, "double"),
+        "safe_normal_force": ", ".join(lit(v) for v in artifact.safe_normal_force),
+        "tracking_tolerance": lit(artifact.tracking_tolerance),
+        "force_per_volt": lit(amplifier.force_per_volt),
+        "preload": lit(amplifier.preload),
+        "amplifier_text": f"F_N = {amplifier.force_per_volt:g} N/V * V + {amplifier.preload:g} N, "
+        f"V within [0, {amplifier.voltage_max:g}] V",
+    }
+
+
+def _raw_types(db, artifact: ControllerArtifact, layouts: list[dict]) -> dict:
+    """The raw C types the layer's state and limits take from the frames it reads and sends."""
+    kinds = {layout["name"]: {s["name"]: s["ctype"] for s in layout["signals"]} for layout in layouts}
+    sensor_ctypes = {kinds["tip_sensors"][s.lower()] for s in artifact.sensor_names}
+    if len(sensor_ctypes) != 1:
+        raise ModelError("TIP_SENSORS: the sensors' signals need one raw type (design/network/protocol.py)")
+    return {
+        "joint_ctypes": kinds["joint"],
+        "amp_ctypes": kinds["amp_status"],
+        "sensor_ctype": sensor_ctypes.pop(),
+        "setpoint_ctype": kinds["setpoint"]["voltage"],
+        "setpoint_length": db.get_message_by_name(f"SETPOINT_{artifact.joint_names[0].upper()}").length,
+    }
+
+
+def _arithmetic(real: str) -> dict[str, str]:
+    """The constants of the codec's rounding in the scalar type: from ``exact_integers`` on every
+    value is an integer, below it ``truncation`` holds the integer part exactly."""
+    lit = lambda value: rendering.literal(float(value), real)  # noqa: E731
+    return {
+        "exact_integers": "8388608.0f" if real == "float" else "4503599627370496.0",
+        "truncation": "int32_t" if real == "float" else "int64_t",
+        "zero": lit(0.0),
+        "half": lit(0.5),
+        "one": lit(1.0),
     }
 
 
@@ -266,7 +329,8 @@ def render_can(
         The firmware packs what it sends and unpacks what it receives; ``True`` adds the other
         direction (test benches).
     real : str
-        The scalar type of the controllers the example ``main.c`` drives.
+        The scalar type of the controllers the layer drives (``<prefix>_real``): the codec's
+        encode/decode compute in it, so the float build uses no double arithmetic.
 
     Returns
     -------
@@ -285,29 +349,31 @@ def render_can(
     )
     check_can(artifact, amplifier)
     db = protocol.database(artifact, amplifier)
-    messages, layouts = _messages(db)
     joints = [j.upper() for j in artifact.joint_names]
+    messages, layouts = _messages(db, joints, real, full_codec)
     cycle_us = int(round(artifact.sample_time * 1e6))
-    inputs = _inputs(db, joints, cycle_us)
     digest = artifact.artifact_sha256
-    banner = rendering.banner(digest, part="codegen, CAN layer")
     context = {
         "prefix": prefix,
         "PREFIX": prefix.upper(),
         "name": f"{prefix}_can",
         "NAME": f"{prefix}_can".upper(),
-        "banner": banner,
+        "banner": rendering.banner(digest, part="codegen, CAN layer"),
         "joints": joints,
         "sensors": [s.upper() for s in artifact.sensor_names],
         "messages": messages,
         "layouts": layouts,
-        "inputs": inputs,
+        "inputs": _inputs(db, joints, cycle_us),
         "cycle_us": cycle_us,
         "timeout_cycles": artifact.timeout_cycles,
         "recovery_cycles": artifact.recovery_cycles,
         "full_codec": full_codec,
         "mode_safe": protocol.MODE_SAFE,
-        **_limit_literals(artifact, amplifier),
+        "einval": can_codec.EINVAL,
+        "limits": _raw_limits(db, artifact),
+        **_raw_types(db, artifact, layouts),
+        **_limit_literals(artifact, amplifier, real),
+        **_arithmetic(real),
     }
     env = rendering.environment()
     files = {

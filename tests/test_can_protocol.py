@@ -196,7 +196,7 @@ def test_tip_sensor_signals_carry_the_unit_and_range_of_their_quantity():
     shown = {s.name: (s.unit, s.minimum, s.maximum) for s in tip.signals[3:]}
     assert shown == {"tip_y": ("m", -20.0, 20.0), "tip_vz": ("m/s", -10.0, 10.0)}
     header = can_layer.render_can(built)["smartjoint_can.h"]
-    assert "sensor tip_y [m] */" in header and "sensor tip_vz [m/s] */" in header
+    assert "sensor tip_y [m];" in header and "sensor tip_vz [m/s];" in header
     values = {"crc": 0, "counter": 1, "sync": 0, "tip_y": 1e-3, "tip_vz": -0.25}
     payload = e2e.protect(tip.frame_id, bytearray(tip.encode(values)), 1)
     decoded = logs.decode(

@@ -205,28 +205,38 @@ def test_an_unknown_law_is_refused_and_holds_the_safe_state(reference_firmware):
 def test_packing_does_not_depend_on_the_fpu_rounding_mode(reference_firmware):
     """rint rounds by the current mode (under FE_DOWNWARD 2.7 becomes 2: a whole step off); the
     layer rounds half to even itself. Under FE_DOWNWARD / FE_UPWARD / FE_TOWARDZERO every
-    setpoint still packs as cantools encodes it — values whose quotient lies a fraction away
-    from a half step; an exact tie may go either way, as the division (value − offset)/scale
-    itself rounds by the mode by one ulp (docs/safety.md)."""
+    setpoint of the double build still packs as cantools encodes it — values whose quotient
+    lies a fraction away from a half step; an exact tie may go either way, as the division
+    (value − offset)/scale itself rounds by the mode by one ulp (docs/safety.md). The float
+    build's quotient of a 32-bit field is already an integer (its ulp is 8 raw steps at 10⁸):
+    there the mode moves the raw value by the two roundings before the rounding step (the
+    value's conversion to float and the division), at most two ulps of the quotient."""
     import cffi
 
     ffi = cffi.FFI()
     ffi.cdef("int fesetround(int mode); int fegetround(void);")
     libm = ffi.dlopen(None)
+    double_build = firmware.Firmware(LOADED, "clqg", "double")
     m = reference_firmware.db.get_message_by_name("SETPOINT_A1")
     values = [12.34567898, 0.00000017, 49.99999987, 44.55078122, 1.00000003, 0.00000013]
     for v in values:  # each fraction is clearly off a half step, and rounding by the mode would move 3 of them
         fraction = v / 1e-7 - math.floor(v / 1e-7)
         assert 0.1 < abs(fraction - 0.5) < 0.4
     expected = [m.encode({"crc": 0, "counter": 0, "voltage": v}) for v in values]
+    encode = reference_firmware.lib.smartjoint_can_setpoint_voltage_encode
+    quotients = [np.float32(v) / np.float32(1e-7) for v in values]
+    nearest = [int(np.rint(q)) for q in quotients]
     default = libm.fegetround()
     for mode in (0x400, 0x800, 0xC00):  # x86-64 glibc: downward, upward, toward zero
         try:
             assert libm.fesetround(mode) == 0
-            packed = [reference_firmware.pack("SETPOINT_A1", {"voltage": v}) for v in values]
+            packed = [double_build.pack("SETPOINT_A1", {"voltage": v}) for v in values]
+            raw = [encode(v) for v in values]
         finally:
             libm.fesetround(default)
         assert packed == expected, hex(mode)
+        for r, n, q in zip(raw, nearest, quotients):
+            assert abs(r - n) <= 2.0 * float(np.spacing(q)), hex(mode)
 
 
 def test_implausible_controller_inputs_reach_the_safe_state_and_name_their_bit(reference_firmware):

@@ -5,13 +5,13 @@ cycle time. Frames (11-bit identifiers, all CAN FD with bit-rate switch — at 1
 bus cannot carry them: 8-byte classical frames take 135 µs each; every frame
 starts with the E2E bytes of ``bench/e2e.py``: byte 0 CRC-8 J1850, bits 8–11 alive counter):
 
-| frame | id | sender | cycle | payload |
+| frame | id | sender → receivers | cycle | payload |
 |---|---|---|---|---|
-| ``JOINT_<j>`` | 0x100 + j | joint sensor node | Δt | sliding velocity v_j, friction u_R,j, applied normal F_N,j |
-| ``TIP_SENSORS`` | 0x180 | tip sensor node | Δt | the design's sensors y (m or m/s) |
-| ``SETPOINT_<j>`` | 0x200 + j | controller | Δt | piezo voltage setpoint V_j (F_N = k·V + preload) |
-| ``AMP_STATUS_<j>`` | 0x280 + j | amplifier j | Δt | monitor voltage, current, temperature, faults, own safe state |
-| ``CONTROLLER_STATUS`` | 0x080 | controller | Δt | heartbeat: mode, inputs missing, step status, fault bits |
+| ``JOINT_<j>`` | 0x100 + j | joint sensor node → controller | Δt | sliding velocity v_j, friction u_R,j, F_N,j |
+| ``TIP_SENSORS`` | 0x180 | tip sensor node → controller | Δt | the design's sensors y (m or m/s) |
+| ``SETPOINT_<j>`` | 0x200 + j | controller → amplifier j | Δt | piezo voltage setpoint V_j (F_N = k·V + preload) |
+| ``AMP_STATUS_<j>`` | 0x280 + j | amplifier j → controller | Δt | monitor voltage, current, temperature, faults |
+| ``CONTROLLER_STATUS`` | 0x080 | controller → every other node | Δt | heartbeat: mode, inputs missing, status, faults |
 
 The heartbeat goes every cycle: the amplifiers watch it (and their setpoints) and go to the
 safe normal force on their own when either stops, fails its E2E check or says "safe"
@@ -347,6 +347,23 @@ def _controller_status_message(cycle: int) -> can.Message:
     )
 
 
+def _set_receivers(messages: list[can.Message], tags: list[str]) -> None:
+    """Every signal's receivers, so the DBC names who reads each frame: the controller reads the
+    sensor and amplifier frames, amplifier j its setpoint, and every other node the heartbeat
+    (the amplifiers watch it, the sensor nodes echo its counter)."""
+    amplifiers = [f"AMPLIFIER_{tag}" for tag in tags]
+    sensor_nodes = [f"JOINT_NODE_{tag}" for tag in tags] + ["TIP_NODE"]
+    for m in messages:
+        if m.name == "CONTROLLER_STATUS":
+            readers = amplifiers + sensor_nodes
+        elif m.name.startswith("SETPOINT_"):
+            readers = [f"AMPLIFIER_{m.name[len('SETPOINT_') :]}"]
+        else:
+            readers = [CONTROLLER]
+        for signal in m.signals:
+            signal.receivers = list(readers)
+
+
 def _fd_specifics() -> DbcSpecifics:
     """The DBC specifics that mark the bus as CAN FD."""
     # BusType "CAN FD" makes cantools write VFrameFormat per frame, so is_fd survives the DBC.
@@ -404,6 +421,7 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
     messages.append(_tip_message(sensors, list(artifact.sensor_quantities), cycle))
     messages.append(_controller_status_message(cycle))
     messages.sort(key=lambda m: m.frame_id)
+    _set_receivers(messages, [name.upper() for name in joints])
     db = can.Database(
         messages, nodes, version=f"smartjoint artefact {artifact.artifact_sha256[:16]}", dbc_specifics=_fd_specifics()
     )

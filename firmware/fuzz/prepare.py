@@ -3,8 +3,14 @@
 Writes into FOLDER:
 
 - ``double/``: the double build of the controllers of ``firmware/generated/controller.json``;
-- ``codec/``: the CAN layer of the same artefact with both directions of every frame
-  (``full_codec``, as the SIL bench compiles it), so pack and unpack can be fuzzed as a pair;
+- ``codec/``: the CAN layer of the same artefact in the double build with both directions of
+  every frame (``full_codec``, as the SIL bench compiles it), so pack and unpack can be fuzzed as
+  a pair and encode/decode checked bit for bit against the double reference (the raw
+  pack/unpack code is the same text in the float build), with the double controllers' headers;
+- ``fuzz_codec.h/.c``: the binding of the codec under test, one ``fuzz_codec`` per frame:
+  adaptors from the generated layout struct and per-signal functions (named by the documented
+  rule ``<prefix>_can_<layout>_<signal>_<encode|decode|is_in_range>``) to arrays in start-bit
+  order;
 - ``fuzz_reference.h/.c``: what the harnesses check against, taken from the protocol and the
   artefact rather than from the generated C: the signal layout of ``bus.dbc``, F^min and F^max,
   the safe normal force, the amplifier gain and the plausible ranges of the controller inputs.
@@ -158,11 +164,81 @@ def _source_lines(messages, artifact) -> list[str]:
     return source
 
 
+def _codec_binding(messages, layout_of) -> tuple[str, str]:
+    """fuzz_codec.h and fuzz_codec.c: per frame, adaptors of its layout's generated codec."""
+    header = [
+        "/* Written by firmware/fuzz/prepare.py: the generated codec of every frame behind arrays. */",
+        "#ifndef FUZZ_CODEC_H",
+        "#define FUZZ_CODEC_H",
+        "",
+        "#include <stddef.h>",
+        "#include <stdint.h>",
+        "",
+        "/* Raw values as int64_t (signed fields sign-extended), physical values as double. */",
+        "typedef struct {",
+        "    int (*pack)(const int64_t *raw, uint8_t *dst, size_t size);",
+        "    int (*unpack)(const uint8_t *src, size_t size, int64_t *raw);",
+        "    void (*encode)(const double *values, int64_t *raw);",
+        "    void (*decode)(const int64_t *raw, double *values);",
+        "    void (*is_in_range)(const int64_t *raw, int *in_range);",
+        "} fuzz_codec;",
+        "",
+    ]
+    source = ["/* Written by firmware/fuzz/prepare.py. */", '#include "fuzz_codec.h"', f'#include "{PREFIX}_can.h"', ""]
+    for m in messages:
+        lower, layout = m.name.lower(), f"{PREFIX}_can_{layout_of(m.name)}"
+        signals = sorted(m.signals, key=lambda s: s.start)
+        header.append(f"extern const fuzz_codec fuzz_codec_{lower};")
+        body = {
+            "pack": [f"    struct {layout}_t s;"]
+            + [f"    s.{sig.name} = ({_ctype(sig)})raw[{k}];" for k, sig in enumerate(signals)]
+            + [f"    return {layout}_pack(dst, &s, size);"],
+            "unpack": [f"    struct {layout}_t s;", f"    const int result = {layout}_unpack(&s, src, size);"]
+            + [f"    raw[{k}] = (int64_t)s.{sig.name};" for k, sig in enumerate(signals)]
+            + ["    return result;"],
+            "encode": [
+                f"    raw[{k}] = (int64_t){layout}_{sig.name}_encode(values[{k}]);" for k, sig in enumerate(signals)
+            ],
+            "decode": [
+                f"    values[{k}] = {layout}_{sig.name}_decode(({_ctype(sig)})raw[{k}]);"
+                for k, sig in enumerate(signals)
+            ],
+            "is_in_range": [
+                f"    in_range[{k}] = {layout}_{sig.name}_is_in_range(({_ctype(sig)})raw[{k}]);"
+                for k, sig in enumerate(signals)
+            ],
+        }
+        heads = {
+            "pack": "int {}(const int64_t *raw, uint8_t *dst, size_t size)",
+            "unpack": "int {}(const uint8_t *src, size_t size, int64_t *raw)",
+            "encode": "void {}(const double *values, int64_t *raw)",
+            "decode": "void {}(const int64_t *raw, double *values)",
+            "is_in_range": "void {}(const int64_t *raw, int *in_range)",
+        }
+        for what, lines in body.items():
+            if what == "unpack":  # struct fields set before read: no uninitialised copy on failure
+                lines.insert(1, "    memset(&s, 0, sizeof s);")
+            source += [f"static {heads[what].format(f'{what}_{lower}')}", "{", *lines, "}", ""]
+        source.append(
+            f"const fuzz_codec fuzz_codec_{lower} = "
+            f"{{pack_{lower}, unpack_{lower}, encode_{lower}, decode_{lower}, is_in_range_{lower}}};"
+        )
+        source.append("")
+    header += ["", "#endif /* FUZZ_CODEC_H */", ""]
+    source.insert(1, "#include <string.h>")
+    return "\n".join(header), "\n".join(source)
+
+
+def _ctype(signal) -> str:
+    width = next(w for w in (8, 16, 32) if signal.length <= w)
+    return f"{'int' if signal.is_signed else 'uint'}{width}_t"
+
+
 def main(argv: list[str]) -> int:
     if len(argv) != 1:
         print("usage: prepare.py FOLDER", file=sys.stderr)
         return 2
-    from smartjoint.codegen import can_layer, generate
+    from smartjoint.codegen import can_codec, can_layer, generate
     from smartjoint.design.control import artifact as artifacts
     from smartjoint.design.network import protocol
 
@@ -181,10 +257,16 @@ def main(argv: list[str]) -> int:
         for name, text in generate.render(artifact, "double", PREFIX).items()
         if name.endswith((".c", ".h")) and name != "main.c"
     }
-    codec = can_layer.render_can(artifact, PREFIX, full_codec=True)
+    codec = can_layer.render_can(artifact, PREFIX, full_codec=True, real="double")
     files.update({f"codec/{name}": codec[name] for name in (f"{PREFIX}_can.h", f"{PREFIX}_can.c")})
+    headers = {name: text for name, text in files.items() if name.startswith("double/") and name.endswith(".h")}
+    files.update({f"codec/{name[len('double/') :]}": text for name, text in headers.items()})
     db = protocol.load_dbc((REFERENCE / "bus.dbc").read_text())
     files["fuzz_reference.h"], files["fuzz_reference.c"] = _layout(db, artifact)
+    joints = [j.upper() for j in artifact.joint_names]
+    messages = sorted(db.messages, key=lambda m: m.frame_id)
+    layout_of = lambda name: can_codec.layout_name(name, joints)  # noqa: E731
+    files["fuzz_codec.h"], files["fuzz_codec.c"] = _codec_binding(messages, layout_of)
     for name, text in files.items():
         path = folder / name
         path.parent.mkdir(parents=True, exist_ok=True)

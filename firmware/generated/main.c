@@ -59,7 +59,7 @@ int main(void)
             }
         }
         printf("CAN layer: %u frames sent in %d samples, safe state %d, F_N[0] = %g N\n", sent, k, can.safe,
-               can.command[0]);
+               (double)can.command[0]);
     }
     return status == 0u ? 0 : 1;
 }

@@ -3,6 +3,8 @@
 #ifndef SMARTJOINT_CAN_H
 #define SMARTJOINT_CAN_H
 
+#include <stdbool.h>
+#include <stddef.h>
 #include <stdint.h>
 
 #include "smartjoint_clqg.h"
@@ -18,8 +20,11 @@ extern "C" {
  * (or holds the safe state); frames out <- smartjoint_can_tx() until it returns 0: the setpoints, then
  * the heartbeat CONTROLLER_STATUS. Inputs age in controller cycles by the heartbeat counter their
  * senders echo, so time stamps (uint32_t microseconds, wrapping) are diagnostics only.
- * Pack/unpack are bit-exact with cantools' encode/decode; values are clamped to each signal's
- * range before packing (NaN packs as raw 0). */
+ * The codec has the shape of cantools' generated C: per frame layout a struct of raw fields,
+ * pack/unpack (bit-exact with cantools on raw values) and per signal encode (physical -> raw:
+ * NaN to raw 0, clamped to the signal's range, rounded half to even, kept within the field),
+ * decode (raw * scale + offset) and is_in_range (the signal's range, else the field's), all in
+ * smartjoint_real: the float build computes in float (docs/codegen.md). */
 #define SMARTJOINT_CAN_JOINTS 3
 #define SMARTJOINT_CAN_SENSORS 2
 #define SMARTJOINT_CAN_INPUTS 7
@@ -62,177 +67,221 @@ typedef enum {
 #define SMARTJOINT_CAN_FAULT_CONTROLLER 0x0800u      /* the controller step reported a status */
 #define SMARTJOINT_CAN_FAULT_LAW 0x1000u             /* no valid law was given to smartjoint_can_init */
 
-#define SMARTJOINT_CAN_CONTROLLER_STATUS_ID 0x080u
+/* Codec errors: pack and unpack return the frame length, or -SMARTJOINT_CAN_EINVAL for a NULL
+ * pointer or a buffer shorter than the frame (errno's EINVAL, as cantools' generated C). */
+#define SMARTJOINT_CAN_EINVAL 22
+
+/* Frames: identifier, length and layout (one struct of raw fields per layout). */
+#define SMARTJOINT_CAN_CONTROLLER_STATUS_ID 0x080u /* layout controller_status */
 #define SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH 8u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double mode; /* 0 init, 1 SISO, 2 cLQG, 3 safe state */
-    double missing_inputs; /* inputs in timeout or invalid */
-    double step_status; /* status bits of the last step */
-    double faults; /* why the safe state holds: bits 0 velocity, 1 friction, 2 normal_force, 3 sensor, 4 temperature, 5 current, 6 tracking, 7 amplifier, 8 amplifier_safe, 9 timeout, 10 e2e, 11 controller, 12 law */
-} smartjoint_can_controller_status_t;
-void smartjoint_can_pack_controller_status(const smartjoint_can_controller_status_t *signals, uint8_t *data);
-
-#define SMARTJOINT_CAN_JOINT_A1_ID 0x100u
+#define SMARTJOINT_CAN_JOINT_A1_ID 0x100u /* layout joint */
 #define SMARTJOINT_CAN_JOINT_A1_LENGTH 12u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md) */
-    double sliding_velocity; /* v of joint A1 [m/s] */
-    double friction_force; /* u_R of joint A1 [N] */
-    double normal_force; /* applied F_N of joint A1 [N] */
-} smartjoint_can_joint_a1_t;
-void smartjoint_can_unpack_joint_a1(const uint8_t *data, smartjoint_can_joint_a1_t *signals);
-
-#define SMARTJOINT_CAN_JOINT_A2_ID 0x101u
+#define SMARTJOINT_CAN_JOINT_A2_ID 0x101u /* layout joint */
 #define SMARTJOINT_CAN_JOINT_A2_LENGTH 12u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md) */
-    double sliding_velocity; /* v of joint A2 [m/s] */
-    double friction_force; /* u_R of joint A2 [N] */
-    double normal_force; /* applied F_N of joint A2 [N] */
-} smartjoint_can_joint_a2_t;
-void smartjoint_can_unpack_joint_a2(const uint8_t *data, smartjoint_can_joint_a2_t *signals);
-
-#define SMARTJOINT_CAN_JOINT_A3_ID 0x102u
+#define SMARTJOINT_CAN_JOINT_A3_ID 0x102u /* layout joint */
 #define SMARTJOINT_CAN_JOINT_A3_LENGTH 12u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md) */
-    double sliding_velocity; /* v of joint A3 [m/s] */
-    double friction_force; /* u_R of joint A3 [N] */
-    double normal_force; /* applied F_N of joint A3 [N] */
-} smartjoint_can_joint_a3_t;
-void smartjoint_can_unpack_joint_a3(const uint8_t *data, smartjoint_can_joint_a3_t *signals);
-
-#define SMARTJOINT_CAN_TIP_SENSORS_ID 0x180u
+#define SMARTJOINT_CAN_TIP_SENSORS_ID 0x180u /* layout tip_sensors */
 #define SMARTJOINT_CAN_TIP_SENSORS_LENGTH 12u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md) */
-    double tip_y; /* sensor tip_y [m] */
-    double tip_z; /* sensor tip_z [m] */
-} smartjoint_can_tip_sensors_t;
-void smartjoint_can_unpack_tip_sensors(const uint8_t *data, smartjoint_can_tip_sensors_t *signals);
-
-#define SMARTJOINT_CAN_SETPOINT_A1_ID 0x200u
+#define SMARTJOINT_CAN_SETPOINT_A1_ID 0x200u /* layout setpoint */
 #define SMARTJOINT_CAN_SETPOINT_A1_LENGTH 6u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double voltage; /* piezo voltage setpoint of joint A1: F_N = 8*V + 0 N [V] */
-} smartjoint_can_setpoint_a1_t;
-void smartjoint_can_pack_setpoint_a1(const smartjoint_can_setpoint_a1_t *signals, uint8_t *data);
-
-#define SMARTJOINT_CAN_SETPOINT_A2_ID 0x201u
+#define SMARTJOINT_CAN_SETPOINT_A2_ID 0x201u /* layout setpoint */
 #define SMARTJOINT_CAN_SETPOINT_A2_LENGTH 6u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double voltage; /* piezo voltage setpoint of joint A2: F_N = 8*V + 0 N [V] */
-} smartjoint_can_setpoint_a2_t;
-void smartjoint_can_pack_setpoint_a2(const smartjoint_can_setpoint_a2_t *signals, uint8_t *data);
-
-#define SMARTJOINT_CAN_SETPOINT_A3_ID 0x202u
+#define SMARTJOINT_CAN_SETPOINT_A3_ID 0x202u /* layout setpoint */
 #define SMARTJOINT_CAN_SETPOINT_A3_LENGTH 6u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double voltage; /* piezo voltage setpoint of joint A3: F_N = 8*V + 0 N [V] */
-} smartjoint_can_setpoint_a3_t;
-void smartjoint_can_pack_setpoint_a3(const smartjoint_can_setpoint_a3_t *signals, uint8_t *data);
-
-#define SMARTJOINT_CAN_AMP_STATUS_A1_ID 0x280u
+#define SMARTJOINT_CAN_AMP_STATUS_A1_ID 0x280u /* layout amp_status */
 #define SMARTJOINT_CAN_AMP_STATUS_A1_LENGTH 8u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double over_temperature; /* fault bit: over temperature */
-    double no_response; /* fault bit: no response */
-    double stuck_output; /* fault bit: stuck output */
-    double over_current; /* fault bit: over current */
-    double monitor_voltage; /* measured output [V] */
-    double current; /* output current [A] */
-    double temperature; /* amplifier temperature [degC] */
-    double safe_state; /* the amplifier's watchdog tripped and holds the safe force (no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold before the first command, nor following the heartbeat's mode) */
-    double sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md) */
-} smartjoint_can_amp_status_a1_t;
-void smartjoint_can_unpack_amp_status_a1(const uint8_t *data, smartjoint_can_amp_status_a1_t *signals);
-
-#define SMARTJOINT_CAN_AMP_STATUS_A2_ID 0x281u
+#define SMARTJOINT_CAN_AMP_STATUS_A2_ID 0x281u /* layout amp_status */
 #define SMARTJOINT_CAN_AMP_STATUS_A2_LENGTH 8u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double over_temperature; /* fault bit: over temperature */
-    double no_response; /* fault bit: no response */
-    double stuck_output; /* fault bit: stuck output */
-    double over_current; /* fault bit: over current */
-    double monitor_voltage; /* measured output [V] */
-    double current; /* output current [A] */
-    double temperature; /* amplifier temperature [degC] */
-    double safe_state; /* the amplifier's watchdog tripped and holds the safe force (no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold before the first command, nor following the heartbeat's mode) */
-    double sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md) */
-} smartjoint_can_amp_status_a2_t;
-void smartjoint_can_unpack_amp_status_a2(const uint8_t *data, smartjoint_can_amp_status_a2_t *signals);
-
-#define SMARTJOINT_CAN_AMP_STATUS_A3_ID 0x282u
+#define SMARTJOINT_CAN_AMP_STATUS_A3_ID 0x282u /* layout amp_status */
 #define SMARTJOINT_CAN_AMP_STATUS_A3_LENGTH 8u
-typedef struct {
-    double crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1 */
-    double counter; /* alive counter, +1 per frame, mod 16 */
-    double over_temperature; /* fault bit: over temperature */
-    double no_response; /* fault bit: no response */
-    double stuck_output; /* fault bit: stuck output */
-    double over_current; /* fault bit: over current */
-    double monitor_voltage; /* measured output [V] */
-    double current; /* output current [A] */
-    double temperature; /* amplifier temperature [degC] */
-    double safe_state; /* the amplifier's watchdog tripped and holds the safe force (no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold before the first command, nor following the heartbeat's mode) */
-    double sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md) */
-} smartjoint_can_amp_status_a3_t;
-void smartjoint_can_unpack_amp_status_a3(const uint8_t *data, smartjoint_can_amp_status_a3_t *signals);
+
+/* Layout controller_status (CONTROLLER_STATUS): the raw signal values as on the bus. */
+struct smartjoint_can_controller_status_t {
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
+    uint8_t mode; /* 0 init, 1 SISO, 2 cLQG, 3 safe state; 4 bits at 16 */
+    uint8_t missing_inputs; /* inputs in timeout or invalid; 4 bits at 20 */
+    uint8_t step_status; /* status bits of the last step; 8 bits at 24 */
+    uint16_t faults; /* why the safe state holds: bits 0 velocity, 1 friction, 2 normal_force, 3 sensor, 4 temperature, 5 current, 6 tracking, 7 amplifier, 8 amplifier_safe, 9 timeout, 10 e2e, 11 controller, 12 law; 16 bits at 32 */
+};
+
+int smartjoint_can_controller_status_pack(uint8_t *dst_p, const struct smartjoint_can_controller_status_t *src_p, size_t size);
+uint8_t smartjoint_can_controller_status_crc_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_controller_status_crc_decode(uint8_t value);
+bool smartjoint_can_controller_status_crc_is_in_range(uint8_t value);
+uint8_t smartjoint_can_controller_status_counter_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_controller_status_counter_decode(uint8_t value);
+bool smartjoint_can_controller_status_counter_is_in_range(uint8_t value);
+uint8_t smartjoint_can_controller_status_mode_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_controller_status_mode_decode(uint8_t value);
+bool smartjoint_can_controller_status_mode_is_in_range(uint8_t value);
+uint8_t smartjoint_can_controller_status_missing_inputs_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_controller_status_missing_inputs_decode(uint8_t value);
+bool smartjoint_can_controller_status_missing_inputs_is_in_range(uint8_t value);
+uint8_t smartjoint_can_controller_status_step_status_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_controller_status_step_status_decode(uint8_t value);
+bool smartjoint_can_controller_status_step_status_is_in_range(uint8_t value);
+uint16_t smartjoint_can_controller_status_faults_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_controller_status_faults_decode(uint16_t value);
+bool smartjoint_can_controller_status_faults_is_in_range(uint16_t value);
+
+/* Layout joint (JOINT_A1, JOINT_A2, JOINT_A3): the raw signal values as on the bus. */
+struct smartjoint_can_joint_t {
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
+    uint8_t sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md); 4 bits at 12 */
+    int32_t sliding_velocity; /* v of the joint [m/s]; 32 bits at 16 */
+    int32_t friction_force; /* u_R of the joint [N]; 32 bits at 48 */
+    uint16_t normal_force; /* applied F_N of the joint [N]; 16 bits at 80 */
+};
+
+int smartjoint_can_joint_unpack(struct smartjoint_can_joint_t *dst_p, const uint8_t *src_p, size_t size);
+uint8_t smartjoint_can_joint_crc_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_joint_crc_decode(uint8_t value);
+bool smartjoint_can_joint_crc_is_in_range(uint8_t value);
+uint8_t smartjoint_can_joint_counter_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_joint_counter_decode(uint8_t value);
+bool smartjoint_can_joint_counter_is_in_range(uint8_t value);
+uint8_t smartjoint_can_joint_sync_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_joint_sync_decode(uint8_t value);
+bool smartjoint_can_joint_sync_is_in_range(uint8_t value);
+int32_t smartjoint_can_joint_sliding_velocity_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_joint_sliding_velocity_decode(int32_t value);
+bool smartjoint_can_joint_sliding_velocity_is_in_range(int32_t value);
+int32_t smartjoint_can_joint_friction_force_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_joint_friction_force_decode(int32_t value);
+bool smartjoint_can_joint_friction_force_is_in_range(int32_t value);
+uint16_t smartjoint_can_joint_normal_force_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_joint_normal_force_decode(uint16_t value);
+bool smartjoint_can_joint_normal_force_is_in_range(uint16_t value);
+
+/* Layout tip_sensors (TIP_SENSORS): the raw signal values as on the bus. */
+struct smartjoint_can_tip_sensors_t {
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
+    uint8_t sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md); 4 bits at 12 */
+    int32_t tip_y; /* sensor tip_y [m]; 32 bits at 16 */
+    int32_t tip_z; /* sensor tip_z [m]; 32 bits at 48 */
+};
+
+int smartjoint_can_tip_sensors_unpack(struct smartjoint_can_tip_sensors_t *dst_p, const uint8_t *src_p, size_t size);
+uint8_t smartjoint_can_tip_sensors_crc_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_tip_sensors_crc_decode(uint8_t value);
+bool smartjoint_can_tip_sensors_crc_is_in_range(uint8_t value);
+uint8_t smartjoint_can_tip_sensors_counter_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_tip_sensors_counter_decode(uint8_t value);
+bool smartjoint_can_tip_sensors_counter_is_in_range(uint8_t value);
+uint8_t smartjoint_can_tip_sensors_sync_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_tip_sensors_sync_decode(uint8_t value);
+bool smartjoint_can_tip_sensors_sync_is_in_range(uint8_t value);
+int32_t smartjoint_can_tip_sensors_tip_y_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_tip_sensors_tip_y_decode(int32_t value);
+bool smartjoint_can_tip_sensors_tip_y_is_in_range(int32_t value);
+int32_t smartjoint_can_tip_sensors_tip_z_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_tip_sensors_tip_z_decode(int32_t value);
+bool smartjoint_can_tip_sensors_tip_z_is_in_range(int32_t value);
+
+/* Layout setpoint (SETPOINT_A1, SETPOINT_A2, SETPOINT_A3): the raw signal values as on the bus. */
+struct smartjoint_can_setpoint_t {
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
+    uint32_t voltage; /* piezo voltage setpoint of the joint: F_N = 8*V + 0 N [V]; 32 bits at 16 */
+};
+
+int smartjoint_can_setpoint_pack(uint8_t *dst_p, const struct smartjoint_can_setpoint_t *src_p, size_t size);
+uint8_t smartjoint_can_setpoint_crc_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_setpoint_crc_decode(uint8_t value);
+bool smartjoint_can_setpoint_crc_is_in_range(uint8_t value);
+uint8_t smartjoint_can_setpoint_counter_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_setpoint_counter_decode(uint8_t value);
+bool smartjoint_can_setpoint_counter_is_in_range(uint8_t value);
+uint32_t smartjoint_can_setpoint_voltage_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_setpoint_voltage_decode(uint32_t value);
+bool smartjoint_can_setpoint_voltage_is_in_range(uint32_t value);
+
+/* Layout amp_status (AMP_STATUS_A1, AMP_STATUS_A2, AMP_STATUS_A3): the raw signal values as on the bus. */
+struct smartjoint_can_amp_status_t {
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
+    uint8_t over_temperature; /* fault bit: over temperature; 1 bits at 12 */
+    uint8_t no_response; /* fault bit: no response; 1 bits at 13 */
+    uint8_t stuck_output; /* fault bit: stuck output; 1 bits at 14 */
+    uint8_t over_current; /* fault bit: over current; 1 bits at 15 */
+    uint16_t monitor_voltage; /* measured output [V]; 16 bits at 16 */
+    int16_t current; /* output current [A]; 16 bits at 32 */
+    uint8_t temperature; /* amplifier temperature [degC]; 8 bits at 48 */
+    uint8_t safe_state; /* the amplifier's watchdog tripped and holds the safe force (no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold before the first command, nor following the heartbeat's mode); 1 bits at 56 */
+    uint8_t sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md); 4 bits at 60 */
+};
+
+int smartjoint_can_amp_status_unpack(struct smartjoint_can_amp_status_t *dst_p, const uint8_t *src_p, size_t size);
+uint8_t smartjoint_can_amp_status_crc_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_crc_decode(uint8_t value);
+bool smartjoint_can_amp_status_crc_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_counter_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_counter_decode(uint8_t value);
+bool smartjoint_can_amp_status_counter_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_over_temperature_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_over_temperature_decode(uint8_t value);
+bool smartjoint_can_amp_status_over_temperature_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_no_response_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_no_response_decode(uint8_t value);
+bool smartjoint_can_amp_status_no_response_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_stuck_output_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_stuck_output_decode(uint8_t value);
+bool smartjoint_can_amp_status_stuck_output_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_over_current_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_over_current_decode(uint8_t value);
+bool smartjoint_can_amp_status_over_current_is_in_range(uint8_t value);
+uint16_t smartjoint_can_amp_status_monitor_voltage_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_monitor_voltage_decode(uint16_t value);
+bool smartjoint_can_amp_status_monitor_voltage_is_in_range(uint16_t value);
+int16_t smartjoint_can_amp_status_current_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_current_decode(int16_t value);
+bool smartjoint_can_amp_status_current_is_in_range(int16_t value);
+uint8_t smartjoint_can_amp_status_temperature_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_temperature_decode(uint8_t value);
+bool smartjoint_can_amp_status_temperature_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_safe_state_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_safe_state_decode(uint8_t value);
+bool smartjoint_can_amp_status_safe_state_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_sync_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_sync_decode(uint8_t value);
+bool smartjoint_can_amp_status_sync_is_in_range(uint8_t value);
 
 typedef struct {
     smartjoint_siso_state siso;
     smartjoint_clqg_state clqg;
     smartjoint_can_law law;
     int safe;                                            /* 1 while in the safe state */
-    double sliding_velocity[SMARTJOINT_CAN_JOINTS];          /* latest accepted inputs */
-    double friction_force[SMARTJOINT_CAN_JOINTS];
-    double normal_force[SMARTJOINT_CAN_JOINTS];
-    double sensors[SMARTJOINT_CAN_SENSORS];
-    uint8_t amplifier_fault[SMARTJOINT_CAN_JOINTS];          /* the last status frame showed a fault */
-    uint8_t tracking_frames[SMARTJOINT_CAN_JOINTS];          /* status frames in a row off the setpoint */
-    double command[SMARTJOINT_CAN_JOINTS];                   /* normal force of the last step [N] */
-    double sent_voltage[SMARTJOINT_CAN_JOINTS];              /* setpoint voltage of the last step [V] */
-    double earlier_voltage[SMARTJOINT_CAN_JOINTS];           /* and of the step before */
+    /* latest accepted inputs, raw as on the bus (decoded by the step) */
+    int32_t sliding_velocity[SMARTJOINT_CAN_JOINTS];
+    int32_t friction_force[SMARTJOINT_CAN_JOINTS];
+    uint16_t normal_force[SMARTJOINT_CAN_JOINTS];
+    int32_t sensors[SMARTJOINT_CAN_SENSORS];
+    smartjoint_real command[SMARTJOINT_CAN_JOINTS];        /* normal force of the last step [N] */
+    uint32_t setpoint[SMARTJOINT_CAN_JOINTS];    /* raw setpoint voltage of the last step */
+    uint32_t earlier_setpoint[SMARTJOINT_CAN_JOINTS]; /* and of the step before */
     uint32_t last_time[SMARTJOINT_CAN_INPUTS];               /* receive time of the last accepted frame (diagnostics) */
+    uint16_t implausible[SMARTJOINT_CAN_INPUTS];             /* fault bits of the last accepted frame */
     uint8_t age[SMARTJOINT_CAN_INPUTS];                      /* cycles since the newest frame was sampled */
     uint8_t echo[SMARTJOINT_CAN_INPUTS];                     /* heartbeat counter the newest frame echoes */
     uint8_t silent_steps[SMARTJOINT_CAN_INPUTS];             /* steps without a frame */
     uint8_t timed_out[SMARTJOINT_CAN_INPUTS];
     uint8_t seen[SMARTJOINT_CAN_INPUTS];
     uint8_t healthy[SMARTJOINT_CAN_INPUTS];
-    uint16_t implausible[SMARTJOINT_CAN_INPUTS];             /* fault bits of the last accepted frame */
     sj_e2e_receiver receivers[SMARTJOINT_CAN_INPUTS];
+    uint8_t tracking_frames[SMARTJOINT_CAN_JOINTS];          /* status frames in a row off the setpoint */
     uint8_t cycle;                                       /* alive counter of the last step's frames */
     uint8_t heartbeats;                                  /* 1 once a heartbeat went out */
     uint8_t clear_steps;                                 /* fault-free steps in a row */
     uint8_t started;                                     /* the controller has run since power-up */
+    uint8_t step_status;                                 /* status bits of the last step */
+    uint8_t missing;                                     /* inputs the law needs that are missing */
+    uint8_t tx_next;                                     /* next frame smartjoint_can_tx sends; JOINTS + 1: none */
+    uint16_t faults;                                     /* FAULT_ bits of the last step */
     uint32_t steps;                                      /* diagnostics only: wraps after 2^32 steps */
     uint32_t step_time;
-    unsigned int step_status;
-    uint16_t faults;                                     /* FAULT_ bits of the last step */
-    unsigned int missing;                                /* inputs the law needs that are missing */
-    unsigned int tx_next;                                /* next frame smartjoint_can_tx sends */
-    unsigned int tx_count;                               /* frames queued by the last step */
     uint32_t rx_frames, crc_errors, counter_errors, length_errors, unknown_ids, timeouts, implausible_frames;
 } smartjoint_can_state;
 

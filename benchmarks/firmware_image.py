@@ -1,0 +1,200 @@
+"""The whole float firmware image on the Cortex-M4F (a part of ``benchmarks/firmware_size.py``).
+
+Both controllers, the CAN message layer, the E2E runtime and a minimal runtime — a ``main``
+that feeds frames from the UART into ``<prefix>_can_rx``, runs ``<prefix>_can_step`` once per
+sample and hands ``<prefix>_can_tx``'s frames back, with the committed startup, board support
+and linker script of ``firmware/target/mps2_an386`` (compiled read-only) — built as the target
+Makefile builds it: ``-O2 -ffunction-sections -fdata-sections``, newlib-nano,
+``--gc-sections``. Reported: flash (every section the image loads into flash: vectors, .text,
+.rodata, .ARM.exidx and the .data image), RAM (.data + .bss: the layer's state, controllers
+included, and the frame buffer; the linker script's fixed stack region is not part of it — the
+stack bound is), every double-precision routine linked (libgcc's soft-float ``__aeabi_d*`` and
+``__*df*`` helpers and libm's double functions, from ``nm`` of the linked image and the map),
+and the static stack bound of each CAN entry point (the deepest call chain, the controller
+step included in ``step``).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from elf_tools import BASE_FLAGS, TARGET, Disassembly, callgraph_ci, run, sections, stack_usage, worst_stack
+
+from smartjoint.codegen import can_layer, generate, output
+
+ROOT = Path(__file__).resolve().parents[1]
+BOARD = ROOT / "firmware" / "target" / "mps2_an386"
+FLASH_SECTIONS = (".vectors", ".text", ".rodata", ".ARM.exidx", ".data")
+RAM_SECTIONS = (".data", ".bss")
+LIMITS = {"flash": 8 * 1024, "ram": 512}
+ENTRIES = ("init", "rx", "step", "tx")
+# libm's double functions a C99 float build could pull in by mistake (floor instead of floorf …)
+LIBM_DOUBLE = ("floor", "ceil", "fabs", "sqrt", "fmod", "rint", "nearbyint", "round", "trunc", "ldexp", "frexp")
+DOUBLE_ROUTINE = re.compile(r"^(__aeabi_(d\w+|[a-z0-9]*2d)|__\w*df\d*)$")
+
+MAIN = """/* Minimal runtime of the whole-image benchmark (benchmarks/firmware_image.py): frames from
+ * the UART (id: 4 bytes little-endian, length, payload) into the CAN layer, a step per sample
+ * when the host sends an empty frame, the step's frames back over the UART. */
+#include <stdint.h>
+
+#include "board.h"
+#include "{prefix}_can.h"
+
+static {prefix}_can_state state;
+static uint8_t frame[64];
+
+static uint32_t get_u32(void)
+{{
+    uint32_t value = 0u;
+    unsigned int k;
+    for (k = 0u; k < 4u; ++k) {{
+        value |= (uint32_t)sj_uart_getc() << (8u * k);
+    }}
+    return value;
+}}
+
+int main(void)
+{{
+    uint32_t now = 0u;
+    uint32_t id = 0u;
+    uint8_t length = 0u;
+    (void){prefix}_can_init(&state, {PREFIX}_CAN_LAW_CLQG);
+    for (;;) {{
+        unsigned int k;
+        id = get_u32();
+        length = (uint8_t)sj_uart_getc();
+        if (length == 0u) {{
+            (void){prefix}_can_step(&state, now);
+            while ({prefix}_can_tx(&state, &id, frame, &length) != 0) {{
+                for (k = 0u; k < 4u; ++k) {{
+                    sj_uart_putc((char)(id >> (8u * k)));
+                }}
+                sj_uart_putc((char)length);
+                for (k = 0u; k < length; ++k) {{
+                    sj_uart_putc((char)frame[k]);
+                }}
+            }}
+            now += {PREFIX}_CAN_CYCLE_US;
+            continue;
+        }}
+        for (k = 0u; k < length && k < sizeof frame; ++k) {{
+            frame[k] = (uint8_t)sj_uart_getc();
+        }}
+        (void){prefix}_can_rx(&state, id, frame, length, now);
+    }}
+}}
+"""
+
+
+def _compile_and_link(a, folder: Path, callgraph: bool, prefix: str) -> list[str]:
+    """The image's objects built and linked into ``image.elf`` (with ``image.map``); the names
+    of the compiled modules."""
+    files = {**generate.render(a, "float", prefix), **can_layer.render_can(a, prefix, real="float")}
+    output.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, folder)
+    (folder / "image_main.c").write_text(MAIN.format(prefix=prefix, PREFIX=prefix.upper()))
+    modules = [f"{prefix}_siso", f"{prefix}_clqg", f"{prefix}_can", "sj_e2e", "image_main", "startup", "board"]
+    flags = [*TARGET, "-O2", "-ffunction-sections", "-fdata-sections", "-fstack-usage", *BASE_FLAGS]
+    flags += ["-fcallgraph-info=su"] if callgraph else []
+    for name in modules:
+        source = BOARD / f"{name}.c" if name in ("startup", "board") else folder / f"{name}.c"
+        run(["arm-none-eabi-gcc", *flags, f"-I{BOARD}", "-I.", "-c", str(source), "-o", f"{name}.o"], cwd=folder)
+    run(
+        [
+            "arm-none-eabi-gcc",
+            *TARGET,
+            "--specs=nano.specs",
+            "-nostartfiles",
+            "-Wl,--gc-sections",
+            f"-Wl,-T,{BOARD / 'mps2_an386.ld'}",
+            "-Wl,-Map,image.map",
+            *[f"{n}.o" for n in modules],
+            "-lm",
+            "-o",
+            "image.elf",
+        ],
+        cwd=folder,
+    )
+    return modules
+
+
+def double_routines(folder: Path) -> list[str]:
+    """Every double-precision routine in the linked image (``nm``), and any the map names."""
+    names = {line.split()[-1] for line in run(["arm-none-eabi-nm", "image.elf"], cwd=folder).splitlines() if line}
+    found = {n for n in names if DOUBLE_ROUTINE.match(n) or n in LIBM_DOUBLE}
+    mapped = (folder / "image.map").read_text()
+    found |= {m for m in re.findall(r"\b(__aeabi_d\w+|__\w+df\d)\b", mapped) if m in names}
+    return sorted(found)
+
+
+def _code(obj: Path) -> int:
+    """.text and .rodata of an object compiled with -ffunction-sections -fdata-sections (before
+    --gc-sections drops what no entry point reaches)."""
+    return sum(size for name, size in sections(obj).items() if name.startswith((".text", ".rodata")))
+
+
+def measure_image(a, folder: Path, callgraph: bool, prefix: str = "smartjoint") -> dict:
+    """Flash, RAM, double routines and the stack bound of each CAN entry point of the image."""
+    folder.mkdir(parents=True)
+    modules = _compile_and_link(a, folder, callgraph, prefix)
+    image = Disassembly(folder / "image.elf")
+    su: dict = {}
+    graph: dict = {}
+    for name in modules:
+        su.update(stack_usage(folder / f"{name}.su"))
+        graph.update(callgraph_ci(folder / f"{name}.ci") if callgraph else {})
+    if not callgraph:
+        graph = {f: image.callees(f) for f in su}
+    frames = {f: size for f, (size, _) in su.items()}
+    stacks = {}
+    for entry in ENTRIES:
+        depth, chain, _ = worst_stack(f"{prefix}_can_{entry}", frames, graph, image)
+        stacks[entry] = {"bytes": depth, "chain": chain}
+    parts = sections(folder / "image.elf")
+    flash = sum(parts.get(s, 0) for s in FLASH_SECTIONS)
+    ram = sum(parts.get(s, 0) for s in RAM_SECTIONS)
+    symbols = {}
+    for line in run(["arm-none-eabi-nm", "-S", "--size-sort", "image.elf"], cwd=folder).splitlines():
+        fields = line.split()
+        if len(fields) == 4 and fields[2] in "bBdD":
+            symbols[fields[3]] = int(fields[1], 16)
+    return {
+        "flash": flash,
+        "ram": ram,
+        "sections": {s: parts.get(s, 0) for s in FLASH_SECTIONS + (".bss", ".stack")},
+        "ram_symbols": dict(sorted(symbols.items(), key=lambda kv: -kv[1])),
+        "double_routines": double_routines(folder),
+        "stack": stacks,
+        "stack_max": max(s["bytes"] for s in stacks.values()),
+        "modules_code": {n: _code(folder / f"{n}.o") for n in modules},
+        "limits_bytes": LIMITS,
+        "targets_met": {"flash": flash <= LIMITS["flash"], "ram": ram <= LIMITS["ram"]},
+        "flags": [*TARGET, "-O2", "-ffunction-sections", "-fdata-sections", *BASE_FLAGS],
+        "link": "--specs=nano.specs -nostartfiles -Wl,--gc-sections -T mps2_an386.ld -lm",
+    }
+
+
+def print_whole_image(whole: dict) -> None:
+    """Flash, RAM, double routines and stack bounds of the whole linked firmware image."""
+    mark = lambda ok: "✔" if ok else "✘"  # noqa: E731
+    print(
+        "\nwhole firmware image (float -O2, --gc-sections: SISO + clipped LQG + CAN layer + E2E + runtime main "
+        "with firmware/target/mps2_an386 startup and board):"
+    )
+    s = whole["sections"]
+    print(
+        f"  flash {whole['flash']:5d} B {mark(whole['targets_met']['flash'])} ≤ {whole['limits_bytes']['flash']}  "
+        + "("
+        + ", ".join(f"{k} {s[k]}" for k in FLASH_SECTIONS)
+        + "; modules' .text + .rodata before --gc-sections: "
+        + ", ".join(f"{k} {v}" for k, v in whole["modules_code"].items())
+        + ")"
+    )
+    top = ", ".join(f"{k} {v}" for k, v in list(whole["ram_symbols"].items())[:4])
+    print(
+        f"  RAM   {whole['ram']:5d} B {mark(whole['targets_met']['ram'])} ≤ {whole['limits_bytes']['ram']}  "
+        f"(.data {s['.data']} + .bss {s['.bss']}: {top}; the {s['.stack']} B stack region apart)"
+    )
+    print(f"  double-precision routines linked: {', '.join(whole['double_routines']) or 'none'}")
+    for entry, bound in whole["stack"].items():
+        print(f"  stack bound {entry:5s} {bound['bytes']:4d} B  ({' → '.join(bound['chain'])})")
