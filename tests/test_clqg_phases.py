@@ -1,17 +1,21 @@
 """The clipped LQG in two phases (issue 19): the reference's split — the output phase from
 r = (K − KM·C)·q and the small constant products, the innovation in the update phase — is the
 textbook current-form Kalman filter; the float build (fused multiply-adds) splits into its phases
-bit for bit, with a repeatable output phase."""
+bit for bit, with a repeatable output phase; and the float build refuses precomputed products it
+cannot hold (codegen/rendering.check_products_fit_float)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.linalg import block_diag
 
-from smartjoint.codegen import controllers
+from smartjoint import cli
+from smartjoint.codegen import controllers, generate
+from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
 from smartjoint.design.control import artifact
 
@@ -105,3 +109,33 @@ def test_the_phases_are_the_step_bit_for_bit_and_the_output_phase_repeats(refere
     for m in faulty(reference, count=1500):
         assert split.step(m).tobytes() == stepped.step(m).tobytes(), m.time
         assert split.status == stepped.status and split.desired_force.tobytes() == stepped.desired_force.tobytes()
+
+
+def _scaled(reference, **factors):
+    return dataclasses.replace(
+        reference, **{field: (np.asarray(getattr(reference, field)) * f).tolist() for field, f in factors.items()}
+    )
+
+
+@pytest.mark.parametrize(
+    "factors, product, words",
+    [
+        ({"feedback_gain": 1e25, "estimator_gain": 1e25}, "feedback_hold", "exceeds the float range"),
+        ({"gamma1": 1e-37}, "output_hold", "underflows to 0 in float"),
+    ],
+)
+def test_the_float_build_refuses_products_it_cannot_hold(reference, tmp_path, capsys, factors, product, words):
+    """Every field fits a float, a precomputed product does not: one line naming the product and
+    entry, nothing written; the double build takes the same artefact."""
+    changed = _scaled(reference, **factors)
+    with pytest.raises(ModelError) as refused:
+        generate.render(changed, "float")
+    message = str(refused.value)
+    assert message.startswith(f"{product}[") and words in message and "--real double" in message
+    assert "\n" not in message
+    generate.render(changed, "double")
+    source = tmp_path / "scaled.json"
+    source.write_text(artifact.dumps(changed))
+    assert cli.main(["codegen", str(source), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert product in err and err.count("\n") == 0 and not (tmp_path / "out").exists(), err
