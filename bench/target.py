@@ -209,8 +209,7 @@ def run_selftest(artifact: ControllerArtifact, steps: int = 200, seed: int = 19,
         for law in ("clqg", "siso")
     }
     # The loop whose step runs the cLQG's output phase once more, less the one with an empty call there.
-    extra = figures["ticks_clqg_output_twice"] - figures["ticks_clqg_empty_then_step"]
-    instructions["clqg_output_phase"] = per_tick * extra / figures["steps"]
+    instructions["clqg_output_phase"] = per_tick * figures["ticks_clqg_output_phase"] / figures["steps"]
     stack = {law: figures[f"stack_{law}"] for law in ("clqg", "siso", "can")}
     stack["high_water"] = figures["stack_high_water"]
     command[-1] = "selftest.elf"
