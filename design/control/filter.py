@@ -230,6 +230,9 @@ def multiply_add(
     >>> multiply_add(np.array([1.0, 0.0]), np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([1.0, 1.0]))
     array([4., 7.])
     """
+    if matrix.shape[1] > matrix.shape[0]:  # a few long rows: one scalar chain each (the same IEEE doubles)
+        used = np.ones(matrix.shape, dtype=bool) if terms is None else terms
+        return np.array([_chain(float(x), row, vector, keep) for x, row, keep in zip(start, matrix, used)])
     total = np.array(start, dtype=float)
     for k in range(matrix.shape[1]):
         if terms is None:
@@ -237,6 +240,14 @@ def multiply_add(
         else:
             total = np.where(terms[:, k], total + matrix[:, k] * vector[k], total)
     return total
+
+
+def _chain(x: float, row: np.ndarray, vector: np.ndarray, used: np.ndarray) -> float:
+    """x + row·vector over the used terms, left to right, in Python floats (IEEE doubles)."""
+    for a, b, keep in zip(row.tolist(), vector.tolist(), used.tolist()):
+        if keep:
+            x = x + a * b
+    return x
 
 
 def _row_sum(row: np.ndarray, vector: np.ndarray, used: np.ndarray) -> float:
