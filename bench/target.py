@@ -180,7 +180,8 @@ def run_selftest(artifact: ControllerArtifact, steps: int = 200, seed: int = 19,
     -------
     dict
         ``inputs`` and ``outputs`` per law (float32 rows), ``status`` per law, ``exit_code``,
-        ``instructions`` per step per law (mean over the sequence, the empty loop subtracted),
+        ``instructions`` per step per law (mean over the sequence, the empty loop subtracted;
+        ``clqg_output_phase``: the cLQG's output phase alone, less an empty function's call),
         ``stack`` (bytes below main's frame: the ``clqg`` and ``siso`` loops, the ``can`` entry
         points; ``high_water`` of the whole program),
         ``size`` (bytes, :func:`_sizes`), ``command`` and the raw ``figures``.
@@ -207,6 +208,8 @@ def run_selftest(artifact: ControllerArtifact, steps: int = 200, seed: int = 19,
         law: per_tick * (figures[f"ticks_{law}"] - figures[f"ticks_{law}_empty"]) / figures["steps"]
         for law in ("clqg", "siso")
     }
+    # The loop whose step runs the cLQG's output phase once more, less the one with an empty call there.
+    instructions["clqg_output_phase"] = per_tick * figures["ticks_clqg_output_phase"] / figures["steps"]
     stack = {law: figures[f"stack_{law}"] for law in ("clqg", "siso", "can")}
     stack["high_water"] = figures["stack_high_water"]
     command[-1] = "selftest.elf"

@@ -143,23 +143,25 @@ def inputs(a, count: int, seed: int = 11):
 
 
 def structural_macs(n: int, l: int, ny: int, output_nonzero: int) -> dict:
-    """The multiply-adds a step needs, by phase: the output phase forms the command from the
-    constant products CΓ1E, KΓ1E, KM; the update phase sums C·q over the nonzero entries of C only
-    (the generated step skips its structural zeros, ``output_nonzero`` of n_y·2n). "counted":
-    with every entry of C; "one phase": the minimum of the earlier single-phase step."""
+    """The multiply-adds a step needs, by phase: the output phase forms the command from the new
+    measurement with the constant products KM·CΓ1E − KΓ1E and KM and the r = (K − KM·C)·q the
+    last update left; the update phase forms the innovation and sums C·q over the nonzero entries
+    of C only (the generated step skips its structural zeros, ``output_nonzero`` of n_y·2n).
+    "counted": with every entry of C; "one phase": the minimum of the earlier single-phase step."""
     output_phase = {
-        "CΓ1E·u_k (output phase)": ny * l,
-        "KΓ1E·u_k (output phase)": l * l,
-        "KM·innovation (output phase)": l * ny,
-        "clipped law (e·sgn/ε, F^min + ΔF·r, u_R·F_N/F_applied) (output phase)": 3 * l,
+        "(KM·CΓ1E − KΓ1E)·u_k (output phase)": l * l,
+        "KM·y_k (output phase)": l * ny,
+        "clipped law (e·sgn/ε, F^min + ΔF·r) (output phase)": 2 * l,
     }
     update_phase = {
+        "ν = y − (C·q − CΓ1E·u_k)": ny * l,
+        "u⁺ = u_R·F_N/F_applied": l,
         "E·u_k and E·u_k+": 2 * n * l,
         "γ1, γ0 terms": 4 * n,
-        "M·innovation": 2 * n * ny,
+        "M·ν": 2 * n * ny,
         "blocks Φ_i (2×2 per coordinate)": 4 * n,
         "C·q (nonzero entries of C)": output_nonzero,
-        "K·q": l * 2 * n,
+        "(K − KM·C)·q": l * 2 * n,
     }
     clqg = {**output_phase, **update_phase}
     siso = {"μ = u_R/F_N, μ·v/ε, F^min + ΔF·r": 3 * l}
@@ -170,7 +172,7 @@ def structural_macs(n: int, l: int, ny: int, output_nonzero: int) -> dict:
             "output_phase": sum(output_phase.values()),
             "counted": sum(clqg.values()) - output_nonzero + ny * 2 * n,
             "one_phase": 4 * n + 2 * n * l + 4 * n + output_nonzero + 2 * n * ny + l * 2 * n + 3 * l,
-            "formula": "(n_y·l + l² + l·n_y + 3l) + (2·n·l + 4n + 2n·n_y + 4n + nnz(C) + l·2n)",
+            "formula": "(l² + l·n_y + 2l) + (n_y·l + l + 2·n·l + 4n + 2n·n_y + 4n + nnz(C) + l·2n)",
         },
         "siso": {"terms": siso, "total": sum(siso.values()), "formula": "3l"},
     }

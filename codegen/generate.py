@@ -22,7 +22,7 @@ import numpy as np
 
 from smartjoint.codegen import build, can_layer, output, rendering
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.control.filter import hold_products, output_terms
+from smartjoint.design.control.filter import HoldProducts, hold_products, output_terms
 
 
 def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: str, lit, row) -> dict:
@@ -70,13 +70,11 @@ def _clqg_context(common: dict, artifact: artifacts.ControllerArtifact, prefix: 
 
 def _coordinate_models(artifact: artifacts.ControllerArtifact, row) -> list[dict]:
     """One entry per coordinate i: its 2×2 block Φ_i by columns, γ0, γ1, row i of E, then the
-    gains on its two states: M[2i:2i+2] by columns, and C[:, 2i+c], K[:, 2i+c] for c = 0, 1 —
-    the state's component outermost, so that each pair the step forms lies side by side."""
+    gains on its two states: M[2i:2i+2] by columns, and C[:, 2i+c], (K − KM·C)[:, 2i+c] for
+    c = 0, 1 (control.hold_products) — the state's component outermost, so that each pair the
+    step forms lies side by side."""
     output = np.asarray(artifact.output, dtype=float)
-    estimator, feedback = (
-        np.asarray(artifact.estimator_gain, dtype=float),
-        np.asarray(artifact.feedback_gain, dtype=float),
-    )
+    estimator, feedback = np.asarray(artifact.estimator_gain, dtype=float), _products(artifact).feedback_prior
     return [
         {
             "phi": [row(np.asarray(artifact.blocks[i], dtype=float)[:, k]) for k in (0, 1)],
@@ -91,15 +89,24 @@ def _coordinate_models(artifact: artifacts.ControllerArtifact, row) -> list[dict
     ]
 
 
-def _hold_context(artifact: artifacts.ControllerArtifact, row) -> dict:
-    """The constant products of the cLQG's output phase (control.hold_products)."""
-    output_hold, feedback_hold, feedback_estimator = hold_products(
+def _products(artifact: artifacts.ControllerArtifact) -> HoldProducts:
+    """The constant products of the cLQG's two phases (control.hold_products)."""
+    return hold_products(
         artifact.output, artifact.feedback_gain, artifact.estimator_gain, artifact.gamma1, artifact.joint_input
     )
+
+
+def _hold_context(artifact: artifacts.ControllerArtifact, row) -> dict:
+    """The small constant products of the cLQG's phases as table rows (control.hold_products)."""
+    products = _products(artifact)
     return {
-        "output_hold": [row(c) for c in output_hold],
-        "feedback_hold": [row(k) for k in feedback_hold],
-        "feedback_estimator": [row(k) for k in feedback_estimator],
+        "output_hold": [row(c) for c in products.output_hold],
+        "feedback_hold": [row(k) for k in products.feedback_hold],
+        "feedback_estimator": [row(k) for k in products.feedback_estimator],
+        "normal_force_min_each": [row([v]) for v in np.asarray(artifact.normal_force_min, dtype=float)],
+        "normal_force_range_each": [
+            row([v]) for v in np.asarray(artifact.normal_force_max, dtype=float) - np.asarray(artifact.normal_force_min)
+        ],
     }
 
 

@@ -16,9 +16,11 @@ from smartjoint.codegen import identifiers
 from smartjoint.common import package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.control.filter import hold_products
 
 REALS = ("float", "double")
 FLOAT_MAX = float(np.finfo(np.float32).max)
+FLOAT_TRUE_MIN = float(np.finfo(np.float32).smallest_subnormal)
 TEMPLATES = package_data.folder("smartjoint.codegen", "templates")
 # Artefact fields spliced into the controllers as literals of the scalar type.
 FLOAT_FIELDS = (
@@ -145,7 +147,8 @@ def check(artifact: artifacts.ControllerArtifact, real: str, prefix: str) -> Non
     ------
     ModelError
         An unknown scalar type, a prefix or name that cannot become a C identifier, or (float
-        build) a value beyond the float range.
+        build) a value beyond the float range, or a precomputed product the float build cannot
+        hold (:func:`check_products_fit_float`).
     """
     if real not in REALS:
         raise ModelError(f"--real: {real!r} — allowed: {', '.join(REALS)}")
@@ -158,4 +161,34 @@ def check(artifact: artifacts.ControllerArtifact, real: str, prefix: str) -> Non
                 raise ModelError(
                     f"{field}: a value of magnitude {float(np.abs(values).max()):.3g} does not fit the "
                     f"float build (max {FLOAT_MAX:.3g}) — use --real double"
+                )
+        check_products_fit_float(artifact)
+
+
+def check_products_fit_float(artifact: artifacts.ControllerArtifact) -> None:
+    """Refuse a float build whose precomputed cLQG products (``control.hold_products``) become
+    literals that are not the numbers: non-finite, beyond the float range, or nonzero but 0 in float.
+
+    Raises
+    ------
+    ModelError
+        One line naming the product, the entry and its value.
+    """
+    products = hold_products(
+        artifact.output, artifact.feedback_gain, artifact.estimator_gain, artifact.gamma1, artifact.joint_input
+    )
+    for name, values in products._asdict().items():
+        with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+            rounded = np.asarray(values, dtype=float).astype(np.float32)
+        problems = (
+            (~np.isfinite(values), "is not finite"),
+            (~np.isfinite(rounded) & np.isfinite(values), f"exceeds the float range (max {FLOAT_MAX:.3g})"),
+            ((rounded == 0.0) & (values != 0.0), f"underflows to 0 in float (min {FLOAT_TRUE_MIN:.3g})"),
+        )
+        for bad, reason in problems:
+            if np.any(bad):
+                at = tuple(int(k) for k in np.argwhere(bad)[0])
+                raise ModelError(
+                    f"{name}{list(at)} = {float(values[at]):.3g} (control.hold_products) {reason}: the float "
+                    "build cannot hold it — use --real double"
                 )

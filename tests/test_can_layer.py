@@ -114,7 +114,11 @@ def test_sil_matches_the_model_in_the_loop_study(bench, tmp_path):
     out = sil.sil_study(setup, reference, spread_runs=4, log_folder=tmp_path, progress=lambda m: None)
     assert out["planned_bus_load"] < 0.7
     for law, f in out["laws"].items():
+        # The unperturbed MIL run belongs to its own spread: in this 1 s run every perturbed run
+        # ends 1-3 % below it (the 6e-8 perturbations move commands off their exact clip limits),
+        # and the SIL, unperturbed as well, sits next to it.
         low, high = f["mil_spread_under_float_rounding"]
+        low, high = min(low, 0.0), max(high, 0.0)
         assert low - 0.01 <= f["energy_measure_difference"] <= high + 0.01, (law, f["energy_measure_difference"])
         assert f["bus"]["e2e_errors"] == 0 and f["bus"]["firmware"]["timeouts"] == 0 and f["bus"]["safe_samples"] == 0
         assert f["bus"]["bus_load"] == pytest.approx(out["planned_bus_load"], rel=0.02)

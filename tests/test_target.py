@@ -63,6 +63,8 @@ def test_instructions_per_step_and_stack_are_measured_and_bounded(selftest):
     assert 200 < selftest["instructions"]["clqg"] < 5000, selftest["instructions"]
     assert 20 < selftest["instructions"]["siso"] < 1000, selftest["instructions"]
     assert selftest["instructions"]["siso"] < selftest["instructions"]["clqg"]
+    # The cLQG's output phase alone (a repeated output phase against an empty call): part of the step.
+    assert 20 < selftest["instructions"]["clqg_output_phase"] < selftest["instructions"]["clqg"] / 2
     stack = selftest["stack"]
     assert all(0 < stack[part] <= 1024 for part in ("clqg", "siso", "can")), stack
     assert max(stack["clqg"], stack["siso"], stack["can"]) < stack["high_water"] <= 4096, stack

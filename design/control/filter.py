@@ -13,6 +13,7 @@ The gains come from ``lqg.design_lqg``.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -45,12 +46,14 @@ class _Lqg:
 
     Computed in two phases, as the generated C (``<prefix>_clqg_output_phase``, ``_update_phase``):
     the update phase after sample k−1 has sent its command precomputes q = Φ·x̂_k−1 − Γ0·E·u_k−1,
-    C·q and K·q; the output phase at sample k needs only the new measurement::
+    C·q and r = (K − KM·C)·q; the output phase at sample k needs only the products that involve
+    the new measurement (``hold_products``: the small constant matrices)::
 
-        ν = y_k − (C·q − (CΓ1E)·u_k),   u_d = −((K·q − (KΓ1E)·u_k) + (KM)·ν)
+        u_d = −(r + (KM·CΓ1E − KΓ1E)·u_k + KM·y_k)
 
-    and the update phase then forms x̂_k = (q − Γ1·E·u_k) + M·ν and the next q (``hold_products``:
-    the three small matrices)."""
+    and the update phase then forms ν = y_k − (C·q − CΓ1E·u_k), x̂_k = (q − Γ1·E·u_k) + M·ν and
+    the next q. Every sum is a chain of multiply-adds in a fixed order (``multiply_add``), the
+    generated C's: its double build reproduces this reference bit for bit."""
 
     def __init__(self, design: LqgDesign):
         self.design = design
@@ -66,41 +69,42 @@ class _Lqg:
         self.estimate = np.zeros(d.output.shape[1])
         self.propagated = np.zeros(d.output.shape[1])  # q = Φ·x̂ − Γ0·E·u⁺
         self.predicted = np.zeros(d.output.shape[0])  # C·q
-        self.feedback = np.zeros(d.feedback_gain.shape[0])  # K·q
+        self.feedback = np.zeros(d.feedback_gain.shape[0])  # (K − KM·C)·q
         self.previous_force = np.zeros(d.joint_input.shape[1])
         self.force = np.zeros(d.joint_input.shape[1])  # u_k of the pending update
+        self.sensors = np.zeros(d.output.shape[0])  # y_k of the pending update
         self.innovation = np.zeros(d.output.shape[0])
         self.started = False
         self.pending = False
 
     def _output(self, sensors: np.ndarray, force: np.ndarray) -> np.ndarray:
-        """The output phase: u_d from the new measurement and the precomputed products."""
-        output_hold, feedback_hold, feedback_estimator = self.products
-        force = np.asarray(force, dtype=float)
+        """The output phase: u_d from the new measurement and the precomputed r = (K − KM·C)·q
+        (zero before the first sample, which has no prior and no hold term)."""
+        p = self.products
+        sensors, force = np.array(sensors, dtype=float), np.array(force, dtype=float)
+        feedback = self.feedback
         if self.started:
-            innovation = np.asarray(sensors, dtype=float) - (self.predicted - ordered_product(output_hold, force))
-            feedback = (self.feedback - ordered_product(feedback_hold, force)) + ordered_product(
-                feedback_estimator, innovation
-            )
-        else:  # no prior before the first sample: ν = y, u_d = −(KM)·ν
-            innovation = np.array(sensors, dtype=float)
-            feedback = ordered_product(feedback_estimator, innovation)
-        self.innovation, self.force, self.pending = innovation, force.copy(), True
+            feedback = multiply_add(feedback, p.feedback_hold, force)
+        feedback = multiply_add(feedback, p.feedback_estimator, sensors)
+        self.sensors, self.force, self.pending = sensors, force, True
         return -feedback
 
     def _update(self) -> None:
-        """The update phase (after the command is sent): x̂_k, then q, C·q and K·q for the next
-        sample with u⁺ = ``previous_force``. Nothing without a pending output phase."""
+        """The update phase (after the command is sent): ν, x̂_k, then q, C·q and (K − KM·C)·q
+        for the next sample with u⁺ = ``previous_force``. Nothing without a pending output phase."""
         if not self.pending:
             return
         d = self.design
         n = d.blocks.shape[0]
-        if not self.started:  # the first sample has no prior: q = 0 and no hold term
-            self.propagated, self.force = np.zeros(2 * n), np.zeros(self.force.size)
-        end = ordered_product(d.joint_input, self.force)
-        q = self.propagated.reshape(n, 2)
+        if self.started:
+            force, q = self.force, self.propagated.reshape(n, 2)
+            self.innovation = self.sensors - multiply_add(self.predicted, -self.products.output_hold, force)
+        else:  # the first sample has no prior: q = 0, no hold term, ν = y
+            force, q = np.zeros(self.force.size), np.zeros((n, 2))
+            self.innovation = self.sensors.copy()
+        end = ordered_product(d.joint_input, force)
         prior = np.stack([q[:, 0] - d.gamma1[:, 0] * end, q[:, 1] - d.gamma1[:, 1] * end], axis=1).reshape(2 * n)
-        self.estimate = prior + ordered_product(d.estimator_gain, self.innovation)
+        self.estimate = multiply_add(prior, d.estimator_gain, self.innovation)
         x = self.estimate.reshape(n, 2)
         start = ordered_product(d.joint_input, self.previous_force)
         b = d.blocks
@@ -108,28 +112,41 @@ class _Lqg:
         out[:, 0] = (b[:, 0, 0] * x[:, 0] + b[:, 0, 1] * x[:, 1]) - d.gamma0[:, 0] * start
         out[:, 1] = (b[:, 1, 0] * x[:, 0] + b[:, 1, 1] * x[:, 1]) - d.gamma0[:, 1] * start
         self.propagated = out.reshape(2 * n)
-        self.predicted = ordered_product(d.output, self.propagated, self.output_used)
-        self.feedback = ordered_product(d.feedback_gain, self.propagated)
+        self.predicted = multiply_add(np.zeros(d.output.shape[0]), d.output, self.propagated, self.output_used)
+        self.feedback = multiply_add(np.zeros(d.feedback_gain.shape[0]), self.products.feedback_prior, self.propagated)
         self.started, self.pending = True, False
 
 
-def hold_products(output, feedback_gain, estimator_gain, gamma1, joint_input) -> tuple:
-    """The constant products of the output phase: C·Γ1·E (n_y × l), K·Γ1·E (l × l) and K·M
-    (l × n_y), with Γ1·E the 2n × l matrix of rows γ1[i, c]·E[i, :]. Computed once (any order);
-    the generated C holds these very numbers, so both sum them the same way.
+class HoldProducts(NamedTuple):
+    """The constant products of the two-phase filter, with Γ1·E the 2n × l matrix of rows
+    γ1[i, c]·E[i, :]: C·Γ1·E (n_y × l, the update phase's innovation), KM·CΓ1E − K·Γ1·E (l × l)
+    and K·M (l × n_y), the output phase's, and K − KM·C (l × 2n), the update phase's gain on q."""
+
+    output_hold: np.ndarray
+    feedback_hold: np.ndarray
+    feedback_estimator: np.ndarray
+    feedback_prior: np.ndarray
+
+
+def hold_products(output, feedback_gain, estimator_gain, gamma1, joint_input) -> HoldProducts:
+    """The constant products of the two-phase filter (:class:`HoldProducts`). Computed once in a
+    fixed order; the generated C holds these very numbers, so both sum them the same way.
 
     Returns
     -------
-    tuple of ndarray
-        (output_hold, feedback_hold, feedback_estimator).
+    HoldProducts
+        (output_hold, feedback_hold, feedback_estimator, feedback_prior).
     """
     gamma1, joint_input = np.asarray(gamma1, dtype=float), np.asarray(joint_input, dtype=float)
     hold = (gamma1[:, :, None] * joint_input[:, None, :]).reshape(-1, joint_input.shape[1])
-    feedback_gain = np.asarray(feedback_gain, dtype=float)
-    return (
-        _ordered_matrix_product(np.asarray(output, dtype=float), hold),
-        _ordered_matrix_product(feedback_gain, hold),
-        _ordered_matrix_product(feedback_gain, np.asarray(estimator_gain, dtype=float)),
+    output, feedback_gain = np.asarray(output, dtype=float), np.asarray(feedback_gain, dtype=float)
+    feedback_estimator = _ordered_matrix_product(feedback_gain, np.asarray(estimator_gain, dtype=float))
+    output_hold = _ordered_matrix_product(output, hold)
+    return HoldProducts(
+        output_hold,
+        _ordered_matrix_product(feedback_estimator, output_hold) - _ordered_matrix_product(feedback_gain, hold),
+        feedback_estimator,
+        feedback_gain - _ordered_matrix_product(feedback_estimator, output),
     )
 
 
@@ -187,6 +204,50 @@ def ordered_product(matrix: np.ndarray, vector: np.ndarray, terms: np.ndarray | 
     for k in range(1, matrix.shape[1]):
         total = total + matrix[:, k] * vector[k]
     return total
+
+
+def multiply_add(
+    start: np.ndarray, matrix: np.ndarray, vector: np.ndarray, terms: np.ndarray | None = None
+) -> np.ndarray:
+    """start + matrix @ vector as a chain of multiply-adds, x ← x + a·b column by column from
+    ``start``: the generated C's ``MULTIPLY_ADD`` in its double build (two roundings each, so the
+    two agree bit for bit; its float build fuses each into one rounding, ``fmaf``).
+
+    Parameters
+    ----------
+    start : ndarray, shape (m,)
+    matrix : ndarray, shape (m, n)
+    vector : ndarray, shape (n,)
+    terms : ndarray of bool, shape (m, n), optional
+        Only these products are added (structural zeros skipped, as in :func:`ordered_product`).
+
+    Returns
+    -------
+    ndarray, shape (m,)
+
+    Examples
+    --------
+    >>> multiply_add(np.array([1.0, 0.0]), np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([1.0, 1.0]))
+    array([4., 7.])
+    """
+    if matrix.shape[1] > matrix.shape[0]:  # a few long rows: one scalar chain each (the same IEEE doubles)
+        used = np.ones(matrix.shape, dtype=bool) if terms is None else terms
+        return np.array([_chain(float(x), row, vector, keep) for x, row, keep in zip(start, matrix, used)])
+    total = np.array(start, dtype=float)
+    for k in range(matrix.shape[1]):
+        if terms is None:
+            total = total + matrix[:, k] * vector[k]
+        else:
+            total = np.where(terms[:, k], total + matrix[:, k] * vector[k], total)
+    return total
+
+
+def _chain(x: float, row: np.ndarray, vector: np.ndarray, used: np.ndarray) -> float:
+    """x + row·vector over the used terms, left to right, in Python floats (IEEE doubles)."""
+    for a, b, keep in zip(row.tolist(), vector.tolist(), used.tolist()):
+        if keep:
+            x = x + a * b
+    return x
 
 
 def _row_sum(row: np.ndarray, vector: np.ndarray, used: np.ndarray) -> float:
@@ -254,6 +315,8 @@ class ClippedLqg(_Lqg):
     def reset(self) -> None:
         super().reset()
         self.desired_force = np.zeros(self.design.joint_input.shape[1])
+        self.applied = np.zeros(self.design.joint_input.shape[1])  # F_N measured at the pending update
+        self.command = np.zeros(self.design.joint_input.shape[1])  # F_N commanded at the pending update
         self.status = STATUS_OK
 
     def _fault(self, status: int) -> np.ndarray:
@@ -289,16 +352,19 @@ class ClippedLqg(_Lqg):
         normal_force = self.normal_force_min + self.normal_force_range * boundary_layer(
             error * np.sign(friction), self.boundary_layer
         )
-        # The friction force just after this sample: u_R = F_N·μ with μ continuous, so it scales
-        # with the new normal force — the start value of the next time update's first-order hold.
-        self.previous_force = np.where(
-            applied > 0.0, friction * normal_force / np.where(applied > 0.0, applied, 1.0), friction
-        )
+        self.applied, self.command = applied, normal_force
         return normal_force
 
     def update(self) -> None:
         """The update phase, after the command of ``output`` is sent (the generated C's
         ``<prefix>_clqg_update_phase``): the time update and the products of the next output phase."""
+        if self.pending:
+            # The friction force just after the sample: u_R = F_N·μ with μ continuous, so it scales
+            # with the new normal force — the start value of the next time update's first-order hold.
+            applied, friction = self.applied, self.force
+            self.previous_force = np.where(
+                applied > 0.0, friction * self.command / np.where(applied > 0.0, applied, 1.0), friction
+            )
         with np.errstate(all="ignore"):
             self._update()
 
@@ -325,4 +391,12 @@ class ActiveLqg(_Lqg):
         return command
 
 
-__all__ = ["ActiveLqg", "ClippedLqg", "hold_products", "ordered_product", "output_terms"]
+__all__ = [
+    "ActiveLqg",
+    "ClippedLqg",
+    "HoldProducts",
+    "hold_products",
+    "multiply_add",
+    "ordered_product",
+    "output_terms",
+]

@@ -9,10 +9,16 @@
 #define STATES SMARTJOINT_CLQG_STATES
 #define JOINTS SMARTJOINT_CLQG_JOINTS
 #define SENSORS SMARTJOINT_CLQG_SENSORS
+/* x + a b and x - a b rounded once (fmaf: one vfma.f32/vfms.f32 on an FPU that has it, correctly
+ * rounded in every C99 library, so every float build of this file agrees bit for bit). */
+#define MULTIPLY_ADD(x, a, b) fmaf((a), (b), (x))
+#define MULTIPLY_SUBTRACT(x, a, b) fmaf(-(a), (b), (x))
+#define MAGNITUDE(x) fabsf(x)
 
 /* The model one coordinate i at a time, with the gains that act on its two states: the exact
  * discretisation x+ = Phi_i x - g0_i (e_i.u_k) - g1_i (e_i.u_k+1) at the sample time, rows 2i and
- * 2i+1 of M (current form) and columns 2i and 2i+1 of C and of K (Eq. 33). */
+ * 2i+1 of M (current form) and columns 2i and 2i+1 of C and of K - K M C (Eq. 33: K x_hat with
+ * the measurement update's K M C x_prior taken out, control.hold_products). */
 typedef struct {
     smartjoint_real phi[2][2];                  /* by columns: phi[k][c] = Phi_i[c][k] */
     smartjoint_real gamma0[2];
@@ -20,64 +26,65 @@ typedef struct {
     smartjoint_real joint_input[JOINTS];        /* e_i: row i of E */
     smartjoint_real estimator_gain[SENSORS][2]; /* M, by columns */
     smartjoint_real output[2][SENSORS];         /* C */
-    smartjoint_real feedback_gain[2][JOINTS];   /* K */
+    smartjoint_real feedback_gain[2][JOINTS];   /* K - K M C */
 } coordinate_model;
 static const coordinate_model model[COORDINATES] = {
     {{{0.9999947f, 0.0018269717f}, {-0.0018269717f, 0.99999833f}}, {0.00049999834f, 6.08991e-07f}, {0.00049999927f, 3.0449567e-07f}, {0.013385896f, -0.013385896f, -1.1750552e-12f},
         {{754.2693f, 2.6096344f}, {754.2693f, 2.6096344f}}, {{0.0f, 0.0f}, {0.073473476f, 0.073473476f}},
-        {{-546.43414f, 546.43414f, 4.3778655e-08f}, {-435.19675f, 435.19675f, 3.50742e-08f}}},
+        {{-546.43414f, 546.43414f, 4.3778655e-08f}, {6704.421f, -6704.421f, -2.2261242e-05f}}},
     {{{0.99996454f, 0.0066557224f}, {-0.0066557224f, 0.9999778f}}, {0.00049999f, 2.2185843e-06f}, {0.00049999595f, 1.1092965e-06f}, {0.010994903f, 0.010994903f, 0.029236147f},
         {{-796.5796f, -10.042156f}, {796.5796f, 10.042156f}}, {{0.0f, 0.0f}, {-0.02092028f, 0.02092028f}},
-        {{-233.56396f, -233.56396f, -614.1899f}, {-116.20649f, -116.20649f, -333.31784f}}},
+        {{-233.56396f, -233.56396f, -614.1899f}, {7615.9097f, 7615.9097f, 8158.6934f}}},
     {{{0.9935786f, 0.111165866f}, {-0.111165866f, 0.99380094f}}, {0.0004983755f, 3.7087022e-05f}, {0.00049944595f, 1.8555542e-05f}, {0.050948355f, 0.050948355f, 0.036421407f},
         {{195.57892f, 36.48142f}, {-195.57892f, -36.48142f}}, {{0.0f, 0.0f}, {0.0003126039f, -0.0003126039f}},
-        {{-560.37646f, -560.37646f, -78.53272f}, {115.75594f, 115.75594f, 76.93195f}}},
+        {{-560.37646f, -560.37646f, -78.53272f}, {0.21784219f, 0.21784239f, -49.96097f}}},
     {{{0.9926272f, 0.11922905f}, {-0.11922905f, 0.9928656f}}, {0.0004981361f, 3.978211e-05f}, {0.0004993652f, 1.990587e-05f}, {0.03320363f, -0.03320363f, 3.8624952e-15f},
         {{-648.1347f, -133.18579f}, {-648.1347f, -133.18579f}}, {{0.0f, 0.0f}, {-0.0009862148f, -0.0009862148f}},
-        {{-691.4978f, 691.4978f, 2.8991607e-08f}, {-75.17648f, 75.17648f, -8.9503943e-10f}}},
+        {{-691.4978f, 691.4978f, 2.8991607e-08f}, {-171.00966f, 171.00966f, 2.812476e-07f}}},
     {{{0.99064046f, 0.13451819f}, {-0.13451819f, 0.99090946f}}, {0.0004976364f, 4.4895445e-05f}, {0.0004991968f, 2.246894e-05f}, {0.018716885f, 0.018716885f, 0.07130933f},
         {{564.7978f, 133.27081f}, {-564.7978f, -133.27081f}}, {{0.0f, 0.0f}, {0.0007525981f, -0.0007525981f}},
-        {{-11.913705f, -11.913705f, -752.5798f}, {-8.676489f, -8.676489f, 85.778694f}}},
+        {{-11.913705f, -11.913705f, -752.5798f}, {-286.83603f, -286.83603f, -219.71774f}}},
     {{{0.97995865f, 0.19722433f}, {-0.19722433f, 0.9803531f}}, {0.0004949509f, 6.5918175e-05f}, {0.0004982934f, 3.3025837e-05f}, {-0.06004578f, -0.06004578f, -0.07415168f},
         {{189.95251f, 68.8703f}, {-189.95251f, -68.87031f}}, {{0.0f, 0.0f}, {0.0001784373f, -0.0001784373f}},
-        {{453.199f, 453.199f, 389.32074f}, {164.38893f, 164.38893f, 223.05533f}}},
+        {{453.199f, 453.199f, 389.32074f}, {98.43867f, 98.43867f, 150.62363f}}},
     {{{0.9609691f, 0.27468884f}, {-0.27468884f, 0.96151847f}}, {0.0004901744f, 9.204582e-05f}, {0.00049668807f, 4.6205136e-05f}, {0.019318573f, 0.019318573f, -0.034829162f},
         {{33.02761f, 18.80554f}, {-33.02761f, -18.80554f}}, {{0.0f, 0.0f}, {2.4098543e-05f, -2.4098543e-05f}},
-        {{-335.2167f, -335.2167f, 581.00006f}, {-13.293027f, -13.293027f, -46.52238f}}},
+        {{-335.2167f, -335.2167f, 581.00006f}, {-22.199825f, -22.199825f, -56.30452f}}},
     {{{0.93421614f, 0.35475636f}, {-0.35475636f, 0.9349256f}}, {0.00048343226f, 0.00011931377f}, {0.00049442064f, 6.0057653e-05f}, {-0.019669058f, -0.019669058f, -0.04350446f},
         {{5.8617864f, 4.9025097f}, {-5.861786f, -4.90251f}}, {{0.0f, 0.0f}, {3.7739203e-06f, -3.7739203e-06f}},
-        {{342.67822f, 342.67822f, 620.7858f}, {11.399993f, 11.399993f, 45.67524f}}},
+        {{342.67822f, 342.67822f, 620.7858f}, {10.005156f, 10.005156f, 44.14332f}}},
     {{{0.87644255f, 0.4795908f}, {-0.4795908f, 0.87740177f}}, {0.0004688081f, 0.00016261874f}, {0.0004894882f, 8.235145e-05f}, {-0.04902565f, -0.04902565f, -0.049195945f},
         {{-4.147668f, -6.4278593f}, {4.147668f, 6.4278593f}}, {{0.0f, 0.0f}, {-2.894243e-06f, 2.894243e-06f}},
-        {{529.77563f, 529.77563f, 313.22128f}, {-25.60028f, -25.60028f, -3.8093114f}}},
+        {{529.77563f, 529.77563f, 313.22128f}, {-24.530571f, -24.530571f, -2.6344736f}}},
     {{{0.6453327f, 0.76212096f}, {-0.76212096f, 0.64685696f}}, {0.00040927483f, 0.00026783667f}, {0.0004691445f, 0.0001391954f}, {0.2305183f, 0.2305183f, 0.5120973f},
         {{-43.919296f, -78.50704f}, {43.919296f, 78.50704f}}, {{0.0f, 0.0f}, {-2.2278515e-05f, 2.2278515e-05f}},
-        {{-353.7666f, -353.7666f, -613.1213f}, {-92.61488f, -92.61489f, -20.12687f}}},
+        {{-353.7666f, -353.7666f, -613.1213f}, {-84.38077f, -84.38077f, -11.083521f}}},
     {{{0.6210892f, 0.7819722f}, {-0.7819722f, 0.6226531f}}, {0.00040292385f, 0.0002759398f}, {0.00046694654f, 0.00014382302f}, {-0.342165f, 0.342165f, 2.2346553e-09f},
         {{-207.21538f, -268.3981f}, {-207.21538f, -268.3981f}}, {{0.0f, 0.0f}, {-7.0933806e-05f, -7.0933806e-05f}},
-        {{674.3962f, -674.3962f, -2.6500497e-06f}, {-172.34456f, 172.34456f, 4.778179e-08f}}},
+        {{674.3962f, -674.3962f, -2.6500497e-06f}, {-179.23738f, 179.23738f, 2.8944624e-08f}}},
     {{{-0.09411621f, 0.99398506f}, {-0.99398506f, -0.09212824f}}, {0.00020294367f, 0.00041503893f}, {0.00039432765f, 0.0002412052f}, {-0.46372765f, -0.46372765f, 0.64317596f},
         {{3.4563155f, -2.9665098f}, {-3.4563158f, 2.9665098f}}, {{0.0f, 0.0f}, {-2.6860562e-06f, 2.6860562e-06f}},
-        {{289.52908f, 289.52908f, -346.87936f}, {-307.86487f, -307.86487f, 332.5452f}}},
+        {{289.52908f, 289.52908f, -346.87936f}, {-306.8721f, -306.8721f, 333.63553f}}},
 };
-/* Constant products of the output phase (Gamma1 E: rows gamma1[i][c] E[i]), so that the command
- * needs only the new measurement: C Gamma1 E, K Gamma1 E and K M. */
+/* Constant products of the two phases (control.hold_products, Gamma1 E: rows gamma1[i][c] E[i]):
+ * the output phase needs K M C Gamma1 E - K Gamma1 E and K M, the update phase C Gamma1 E. */
 static const smartjoint_real output_hold[SENSORS][JOINTS] = {
     {2.7557292e-09f, -3.5210233e-09f, -1.7400179e-09f},
     {3.5210233e-09f, -2.7557292e-09f, 1.7400179e-09f},
 };
-static const smartjoint_real feedback_hold[JOINTS][JOINTS] = {
-    {-0.22280152f, 0.006084709f, -0.11127695f},
-    {0.006084709f, -0.22280152f, -0.11127695f},
-    {-0.07316987f, -0.07316987f, -0.26804638f},
+/* The output phase one joint j at a time: row j of K M C Gamma1 E - K Gamma1 E and of K M, and
+ * the joint's command range. */
+typedef struct {
+    smartjoint_real feedback_hold[JOINTS];
+    smartjoint_real feedback_estimator[SENSORS];
+    smartjoint_real normal_force_min;
+    smartjoint_real normal_force_range; /* F^max - F^min */
+} joint_law;
+static const joint_law law[JOINTS] = {
+    {{0.22235514f, -0.00592117f, 0.110633835f}, {136213.17f, -233385.89f}, 10.0f, 390.0f},
+    {{-0.00592117f, 0.22235514f, 0.110633835f}, {233385.89f, -136213.17f}, 10.0f, 390.0f},
+    {{0.07301455f, 0.07301455f, 0.26734006f}, {202961.2f, -202961.2f}, 10.0f, 390.0f},
 };
-static const smartjoint_real feedback_estimator[JOINTS][SENSORS] = {
-    {136213.17f, -233385.89f},
-    {233385.89f, -136213.17f},
-    {202961.2f, -202961.2f},
-};
-static const smartjoint_real normal_force_min[JOINTS] = {10.0f, 10.0f, 10.0f};
-static const smartjoint_real normal_force_range[JOINTS] = {390.0f, 390.0f, 390.0f}; /* F^max - F^min */
 static const smartjoint_real boundary_layer = 100.0f; /* eps [N] (Eq. 34) */
 /* Commanded to every joint whenever the filter cannot use its inputs (docs/safety.md). */
 static const smartjoint_real safe_normal_force[JOINTS] = {400.0f, 400.0f, 400.0f};
@@ -100,12 +107,13 @@ void smartjoint_clqg_init(smartjoint_clqg_state *state)
     }
     for (k = 0; k < SENSORS; ++k) {
         state->predicted[k] = 0.0f;
-        state->innovation[k] = 0.0f;
+        state->measured.sensors[k] = 0.0f;
     }
     for (k = 0; k < JOINTS; ++k) {
         state->feedback[k] = 0.0f;
-        state->friction_force[k] = 0.0f;
-        state->previous_force[k] = 0.0f;
+        state->measured.friction_force[k] = 0.0f;
+        state->measured.normal_force[k] = 0.0f;
+        state->command[k] = 0.0f;
     }
     state->started = 0;
     state->pending = 0;
@@ -151,66 +159,79 @@ static unsigned int check_inputs(const smartjoint_clqg_input *input)
     return status;
 }
 
-/* Output phase, right after the measurements arrive: the command from the new measurement and the
- * products the previous update phase left in the state (x_prior = q - Gamma1 E u):
- *   innovation = y - (C q - (C Gamma1 E) u),   u_d = -((K q - (K Gamma1 E) u) + (K M) innovation).
- * Every sum runs left to right from its first term: the order of the Python reference
- * (control.ordered_product), so the double build is bit-identical to it. */
+/* Whether every input can be used (check_inputs gives OK), tested first: each value within its
+ * range, written as "within" as there (false for NaN; the limits are finite, so an infinity is
+ * never within either), with |x| <= L for the ranges [-L, L]. */
+static int inputs_plausible(const smartjoint_clqg_input *input)
+{
+    return MAGNITUDE(input->sensors[0]) <= sensor_limit[0] &&
+           MAGNITUDE(input->sensors[1]) <= sensor_limit[1] &&
+           MAGNITUDE(input->friction_force[0]) <= friction_force_limit[0] &&
+           input->normal_force[0] >= measured_normal_force_min[0] && input->normal_force[0] <= measured_normal_force_max[0] &&
+           MAGNITUDE(input->friction_force[1]) <= friction_force_limit[1] &&
+           input->normal_force[1] >= measured_normal_force_min[1] && input->normal_force[1] <= measured_normal_force_max[1] &&
+           MAGNITUDE(input->friction_force[2]) <= friction_force_limit[2] &&
+           input->normal_force[2] >= measured_normal_force_min[2] && input->normal_force[2] <= measured_normal_force_max[2];
+}
+
+/* Output phase, right after the measurements arrive: the command from the new measurement and what
+ * the previous update phase left in the state, r = (K - K M C) q (control.hold_products):
+ *   u_d = -((r + (K M C Gamma1 E - K Gamma1 E) u) + (K M) y),
+ * each sum a chain of multiply-adds in the order of the Python reference (control.multiply_add).
+ * The first sample has no prior (r = 0) and no hold term. The inputs are kept for the update. */
 unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
 {
-    smartjoint_real innovation0, innovation1;
-    int j;
+    smartjoint_real friction0, friction1, friction2;
+    smartjoint_real sensor0, sensor1;
+    int started, j;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
     }
-    {
-        const unsigned int input_status = check_inputs(input);
-        if (input_status != SMARTJOINT_STATUS_OK) {
-            return fault(state, output, input_status);
-        }
+    if (!inputs_plausible(input)) {
+        return fault(state, output, check_inputs(input));
     }
-    if (state->started) {
-        innovation0 = input->sensors[0] - (state->predicted[0] - (output_hold[0][0] * input->friction_force[0] + output_hold[0][1] * input->friction_force[1] + output_hold[0][2] * input->friction_force[2]));
-        innovation1 = input->sensors[1] - (state->predicted[1] - (output_hold[1][0] * input->friction_force[0] + output_hold[1][1] * input->friction_force[1] + output_hold[1][2] * input->friction_force[2]));
-    } else { /* no prior before the first sample */
-        innovation0 = input->sensors[0];
-        innovation1 = input->sensors[1];
-    }
-    /* u_d and the clipped law of Eq. 34, joint by joint. A non-finite estimate makes K q
-     * non-finite (inf * 0 is NaN), so checking the forces covers it. */
+    friction0 = input->friction_force[0];
+    friction1 = input->friction_force[1];
+    friction2 = input->friction_force[2];
+    sensor0 = input->sensors[0];
+    sensor1 = input->sensors[1];
+    started = state->started;
+    /* u_d and the clipped law of Eq. 34, joint by joint. A non-finite estimate makes r
+     * non-finite, so checking the forces covers it. */
     for (j = 0; j < JOINTS; ++j) {
+        const joint_law *g = &law[j];
         const smartjoint_real friction = input->friction_force[j];
-        const smartjoint_real applied = input->normal_force[j];
-        const smartjoint_real sign = friction > 0.0f ? 1.0f : (friction < 0.0f ? -1.0f : 0.0f);
-        smartjoint_real force, ratio;
-        if (state->started) {
-            force = (state->feedback[j] - (feedback_hold[j][0] * input->friction_force[0] + feedback_hold[j][1] * input->friction_force[1] + feedback_hold[j][2] * input->friction_force[2])) + (feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1);
-        } else {
-            force = feedback_estimator[j][0] * innovation0 + feedback_estimator[j][1] * innovation1;
+        smartjoint_real force = state->feedback[j], desired, ratio;
+        if (started) {
+            force = MULTIPLY_ADD(force, g->feedback_hold[0], friction0);
+            force = MULTIPLY_ADD(force, g->feedback_hold[1], friction1);
+            force = MULTIPLY_ADD(force, g->feedback_hold[2], friction2);
         }
+        force = MULTIPLY_ADD(force, g->feedback_estimator[0], sensor0);
+        force = MULTIPLY_ADD(force, g->feedback_estimator[1], sensor1);
         if (!isfinite(force)) {
             return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
         }
-        output->desired_force[j] = -force;
-        ratio = ((output->desired_force[j] - friction) * sign) / boundary_layer;
+        desired = -force;
+        /* (u_d - u_R) sgn(u_R) / eps clipped to [0, 1]: the same numbers as the product with
+         * sgn(u_R), as -(a - b) = b - a exactly; for u_R = 0 the product's +-0 clips to 0. */
+        ratio = (friction > 0.0f ? desired - friction : (friction < 0.0f ? friction - desired : 0.0f)) / boundary_layer;
         ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
-        output->normal_force[j] = normal_force_min[j] + normal_force_range[j] * ratio;
-        /* u_R = F_N mu with mu continuous: the friction just after this sample scales with the
-         * new normal force; it starts the next time update's first-order hold. */
-        state->previous_force[j] = applied > 0.0f ? (friction * output->normal_force[j]) / applied : friction;
-        state->friction_force[j] = friction;
+        output->desired_force[j] = desired;
+        output->normal_force[j] = MULTIPLY_ADD(g->normal_force_min, g->normal_force_range, ratio);
+        state->command[j] = output->normal_force[j];
     }
-    state->innovation[0] = innovation0;
-    state->innovation[1] = innovation1;
+    state->measured = *input;
     state->pending = 1;
     return SMARTJOINT_STATUS_OK;
 }
 
-/* Update phase, after the command is sent: the measurement update x_hat = x_prior + M innovation
- * and the time update to the next sample, q = Phi x_hat - Gamma0 E u+ (a first-order hold on the
- * friction forces from just after this sample), block by block (never a dense STATES x STATES
- * product), fused with the products C q and K q of the next output phase. C's structural zeros
- * are skipped: a sensor sums only the components it reads (velocity q0, displacement q1), as in
+/* Update phase, after the command is sent: the innovation nu = y - (C q - (C Gamma1 E) u) of the
+ * inputs the output phase kept, the measurement update x_hat = (q - Gamma1 E u) + M nu and the time
+ * update to the next sample, q = Phi x_hat - Gamma0 E u+ (a first-order hold on the friction forces
+ * from just after this sample), block by block (never a dense STATES x STATES product), fused with
+ * the products C q and (K - K M C) q of the next output phase. C's structural zeros are skipped: a
+ * sensor sums only the components it reads (velocity q0, displacement q1), as in
  * control.output_terms. Nothing happens without a successful output phase before it. */
 void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
 {
@@ -219,64 +240,76 @@ void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
     smartjoint_real feedback0, feedback1, feedback2;
     smartjoint_real innovation0, innovation1;
     smartjoint_real predicted0, predicted1;
+    const smartjoint_clqg_input *measured;
     int i;
     if (state == NULL || !state->pending) {
         return;
     }
-    if (!state->started) { /* the first sample has no prior: q = 0 and no hold */
+    measured = &state->measured;
+    /* u_R = F_N mu with mu continuous: the friction just after this sample scales with the new
+     * normal force; it starts the next time update's first-order hold. */
+    previous0 = measured->normal_force[0] > 0.0f ? (measured->friction_force[0] * state->command[0]) / measured->normal_force[0] : measured->friction_force[0];
+    previous1 = measured->normal_force[1] > 0.0f ? (measured->friction_force[1] * state->command[1]) / measured->normal_force[1] : measured->friction_force[1];
+    previous2 = measured->normal_force[2] > 0.0f ? (measured->friction_force[2] * state->command[2]) / measured->normal_force[2] : measured->friction_force[2];
+    if (state->started) {
+        friction0 = measured->friction_force[0];
+        friction1 = measured->friction_force[1];
+        friction2 = measured->friction_force[2];
+        innovation0 = state->predicted[0];
+        innovation0 = MULTIPLY_SUBTRACT(innovation0, output_hold[0][0], friction0);
+        innovation0 = MULTIPLY_SUBTRACT(innovation0, output_hold[0][1], friction1);
+        innovation0 = MULTIPLY_SUBTRACT(innovation0, output_hold[0][2], friction2);
+        innovation0 = measured->sensors[0] - innovation0;
+        innovation1 = state->predicted[1];
+        innovation1 = MULTIPLY_SUBTRACT(innovation1, output_hold[1][0], friction0);
+        innovation1 = MULTIPLY_SUBTRACT(innovation1, output_hold[1][1], friction1);
+        innovation1 = MULTIPLY_SUBTRACT(innovation1, output_hold[1][2], friction2);
+        innovation1 = measured->sensors[1] - innovation1;
+    } else { /* the first sample has no prior: q = 0, no hold, nu = y */
         for (i = 0; i < COORDINATES; ++i) {
             state->velocity[i] = 0.0f;
             state->displacement[i] = 0.0f;
         }
-        for (i = 0; i < JOINTS; ++i) {
-            state->friction_force[i] = 0.0f;
-        }
+        friction0 = 0.0f;
+        friction1 = 0.0f;
+        friction2 = 0.0f;
+        innovation0 = measured->sensors[0];
+        innovation1 = measured->sensors[1];
     }
-    friction0 = state->friction_force[0];
-    friction1 = state->friction_force[1];
-    friction2 = state->friction_force[2];
-    previous0 = state->previous_force[0];
-    previous1 = state->previous_force[1];
-    previous2 = state->previous_force[2];
-    innovation0 = state->innovation[0];
-    innovation1 = state->innovation[1];
-    {
-        const coordinate_model *m = &model[0];
-        const smartjoint_real end = m->joint_input[0] * friction0 + m->joint_input[1] * friction1 + m->joint_input[2] * friction2;
-        const smartjoint_real start = m->joint_input[0] * previous0 + m->joint_input[1] * previous1 + m->joint_input[2] * previous2;
-        const smartjoint_real x0 = (state->velocity[0] - m->gamma1[0] * end) + (m->estimator_gain[0][0] * innovation0 + m->estimator_gain[1][0] * innovation1);
-        const smartjoint_real x1 = (state->displacement[0] - m->gamma1[1] * end) + (m->estimator_gain[0][1] * innovation0 + m->estimator_gain[1][1] * innovation1);
-        const smartjoint_real q0 = (m->phi[0][0] * x0 + m->phi[1][0] * x1) - m->gamma0[0] * start;
-        const smartjoint_real q1 = (m->phi[0][1] * x0 + m->phi[1][1] * x1) - m->gamma0[1] * start;
-        state->velocity[0] = q0;
-        state->displacement[0] = q1;
-        predicted0 = m->output[1][0] * q1;
-        predicted1 = m->output[1][1] * q1;
-        feedback0 = m->feedback_gain[0][0] * q0;
-        feedback0 += m->feedback_gain[1][0] * q1;
-        feedback1 = m->feedback_gain[0][1] * q0;
-        feedback1 += m->feedback_gain[1][1] * q1;
-        feedback2 = m->feedback_gain[0][2] * q0;
-        feedback2 += m->feedback_gain[1][2] * q1;
-    }
-    for (i = 1; i < COORDINATES; ++i) {
+    predicted0 = 0.0f;
+    predicted1 = 0.0f;
+    feedback0 = 0.0f;
+    feedback1 = 0.0f;
+    feedback2 = 0.0f;
+    for (i = 0; i < COORDINATES; ++i) {
         const coordinate_model *m = &model[i];
-        const smartjoint_real end = m->joint_input[0] * friction0 + m->joint_input[1] * friction1 + m->joint_input[2] * friction2;
-        const smartjoint_real start = m->joint_input[0] * previous0 + m->joint_input[1] * previous1 + m->joint_input[2] * previous2;
-        const smartjoint_real x0 = (state->velocity[i] - m->gamma1[0] * end) + (m->estimator_gain[0][0] * innovation0 + m->estimator_gain[1][0] * innovation1);
-        const smartjoint_real x1 = (state->displacement[i] - m->gamma1[1] * end) + (m->estimator_gain[0][1] * innovation0 + m->estimator_gain[1][1] * innovation1);
-        const smartjoint_real q0 = (m->phi[0][0] * x0 + m->phi[1][0] * x1) - m->gamma0[0] * start;
-        const smartjoint_real q1 = (m->phi[0][1] * x0 + m->phi[1][1] * x1) - m->gamma0[1] * start;
+        smartjoint_real end = m->joint_input[0] * friction0, start = m->joint_input[0] * previous0, x0, x1, q0, q1;
+        end = MULTIPLY_ADD(end, m->joint_input[1], friction1);
+        end = MULTIPLY_ADD(end, m->joint_input[2], friction2);
+        start = MULTIPLY_ADD(start, m->joint_input[1], previous1);
+        start = MULTIPLY_ADD(start, m->joint_input[2], previous2);
+        x0 = MULTIPLY_SUBTRACT(state->velocity[i], m->gamma1[0], end);
+        x1 = MULTIPLY_SUBTRACT(state->displacement[i], m->gamma1[1], end);
+        x0 = MULTIPLY_ADD(x0, m->estimator_gain[0][0], innovation0);
+        x0 = MULTIPLY_ADD(x0, m->estimator_gain[1][0], innovation1);
+        x1 = MULTIPLY_ADD(x1, m->estimator_gain[0][1], innovation0);
+        x1 = MULTIPLY_ADD(x1, m->estimator_gain[1][1], innovation1);
+        q0 = m->phi[0][0] * x0;
+        q0 = MULTIPLY_ADD(q0, m->phi[1][0], x1);
+        q0 = MULTIPLY_SUBTRACT(q0, m->gamma0[0], start);
+        q1 = m->phi[0][1] * x0;
+        q1 = MULTIPLY_ADD(q1, m->phi[1][1], x1);
+        q1 = MULTIPLY_SUBTRACT(q1, m->gamma0[1], start);
         state->velocity[i] = q0;
         state->displacement[i] = q1;
-        predicted0 += m->output[1][0] * q1;
-        predicted1 += m->output[1][1] * q1;
-        feedback0 += m->feedback_gain[0][0] * q0;
-        feedback0 += m->feedback_gain[1][0] * q1;
-        feedback1 += m->feedback_gain[0][1] * q0;
-        feedback1 += m->feedback_gain[1][1] * q1;
-        feedback2 += m->feedback_gain[0][2] * q0;
-        feedback2 += m->feedback_gain[1][2] * q1;
+        predicted0 = MULTIPLY_ADD(predicted0, m->output[1][0], q1);
+        predicted1 = MULTIPLY_ADD(predicted1, m->output[1][1], q1);
+        feedback0 = MULTIPLY_ADD(feedback0, m->feedback_gain[0][0], q0);
+        feedback0 = MULTIPLY_ADD(feedback0, m->feedback_gain[1][0], q1);
+        feedback1 = MULTIPLY_ADD(feedback1, m->feedback_gain[0][1], q0);
+        feedback1 = MULTIPLY_ADD(feedback1, m->feedback_gain[1][1], q1);
+        feedback2 = MULTIPLY_ADD(feedback2, m->feedback_gain[0][2], q0);
+        feedback2 = MULTIPLY_ADD(feedback2, m->feedback_gain[1][2], q1);
     }
     state->predicted[0] = predicted0;
     state->predicted[1] = predicted1;

@@ -44,10 +44,9 @@ typedef struct {
     smartjoint_real velocity[SMARTJOINT_CLQG_COORDINATES];     /* eta_dot_i */
     smartjoint_real displacement[SMARTJOINT_CLQG_COORDINATES]; /* w_i eta_i */
     smartjoint_real predicted[SMARTJOINT_CLQG_SENSORS];     /* C q */
-    smartjoint_real feedback[SMARTJOINT_CLQG_JOINTS];       /* K q */
-    smartjoint_real innovation[SMARTJOINT_CLQG_SENSORS];    /* y - C x_prior of the pending update */
-    smartjoint_real friction_force[SMARTJOINT_CLQG_JOINTS]; /* measured u_R of the pending update [N] */
-    smartjoint_real previous_force[SMARTJOINT_CLQG_JOINTS]; /* friction just after the last sample [N] */
+    smartjoint_real feedback[SMARTJOINT_CLQG_JOINTS];       /* (K - K M C) q */
+    smartjoint_clqg_input measured;                   /* the inputs of the pending update */
+    smartjoint_real command[SMARTJOINT_CLQG_JOINTS];        /* F_N commanded at the pending update [N] */
     int started;                                         /* 0 until the first update */
     int pending;                                         /* 1 from an output phase to its update */
 } smartjoint_clqg_state;

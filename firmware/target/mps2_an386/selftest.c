@@ -4,6 +4,9 @@
  * prints every output word in hex (the host compares them bit for bit with its own float build),
  * the SysTick ticks of each law's step loop and of the same loop around an empty step (the
  * difference is the steps' own time), and the stack depth of each law's loop by painting.
+ * The cLQG's output phase is timed apart: a loop whose step runs the output phase twice before
+ * the update phase (the output phase only reads what the last update left, so its second run
+ * computes and stores the same again), less the same loop with an empty call in its place.
  * The program returns 0 (semihosting exit status) when it ran to the end. */
 #include <stddef.h>
 #include <stdint.h>
@@ -51,6 +54,24 @@ static unsigned int siso_status[SJ_SELFTEST_STEPS];
 SJ_LAW_LOOP(clqg)
 SJ_LAW_LOOP(siso)
 
+/* The cLQG step after a second call: of its output phase (which repeats the step's own exactly),
+ * or of the empty step. The loops around the two differ by one output phase less one empty call. */
+__attribute__((noinline)) static unsigned int clqg_output_twice(smartjoint_clqg_state *state,
+                                                                const smartjoint_clqg_input *input,
+                                                                smartjoint_clqg_output *output)
+{
+    (void)smartjoint_clqg_output_phase(state, input, output);
+    return smartjoint_clqg_step(state, input, output);
+}
+
+__attribute__((noinline)) static unsigned int clqg_empty_then_step(smartjoint_clqg_state *state,
+                                                                   const smartjoint_clqg_input *input,
+                                                                   smartjoint_clqg_output *output)
+{
+    (void)clqg_empty(state, input, output);
+    return smartjoint_clqg_step(state, input, output);
+}
+
 static void put_words(const void *data, size_t size)
 {
     const unsigned char *bytes = (const unsigned char *)data;
@@ -77,7 +98,7 @@ int main(void)
     uint8_t frame[64] = {0u};
     uint32_t frame_id = 0u, can_frames = 0u;
     uint8_t frame_length = 0u;
-    uint32_t clqg_ticks, clqg_empty_ticks, siso_ticks, siso_empty_ticks, clqg_stack, siso_stack, can_stack, high_water;
+    uint32_t clqg_ticks, clqg_empty_ticks, clqg_output_ticks, siso_ticks, siso_empty_ticks, clqg_stack, siso_stack, can_stack, high_water;
     int k;
 
     sj_ticks_start();
@@ -95,6 +116,8 @@ int main(void)
     }
     can_stack = sj_stack_depth(mark);
     clqg_empty_ticks = clqg_loop(clqg_empty);
+    /* Before the plain step's loop, whose outputs are printed. */
+    clqg_output_ticks = clqg_loop(clqg_output_twice) - clqg_loop(clqg_empty_then_step);
     sj_stack_paint();
     clqg_ticks = clqg_loop(smartjoint_clqg_step);
     clqg_stack = sj_stack_depth(mark);
@@ -118,6 +141,7 @@ int main(void)
     put_figure("instructions_per_tick", SJ_INSTRUCTIONS_PER_TICK);
     put_figure("ticks_clqg", clqg_ticks);
     put_figure("ticks_clqg_empty", clqg_empty_ticks);
+    put_figure("ticks_clqg_output_phase", clqg_output_ticks);
     put_figure("ticks_siso", siso_ticks);
     put_figure("ticks_siso_empty", siso_empty_ticks);
     put_figure("stack_clqg", clqg_stack);

@@ -1,0 +1,141 @@
+"""The clipped LQG in two phases (issue 19): the reference's split — the output phase from
+r = (K − KM·C)·q and the small constant products, the innovation in the update phase — is the
+textbook current-form Kalman filter; the float build (fused multiply-adds) splits into its phases
+bit for bit, with a repeatable output phase; and the float build refuses precomputed products it
+cannot hold (codegen/rendering.check_products_fit_float)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.linalg import block_diag
+
+from smartjoint import cli
+from smartjoint.codegen import controllers, generate
+from smartjoint.common.errors import ModelError
+from smartjoint.design import plant
+from smartjoint.design.control import artifact
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return artifact.load(ROOT / "firmware" / "generated" / "controller.json")
+
+
+def _sequence(a, count=400, seed=3):
+    """Plausible measurements only (no fault), most commands between the force limits."""
+    rng = np.random.default_rng(seed)
+    l, ny = len(a.joint_names), len(a.sensor_names)
+    return [
+        plant.Measurements(
+            k * a.sample_time,
+            rng.normal(0, 1e-4, ny),
+            rng.normal(0, 1e-3, l),
+            rng.normal(0, 20, l),
+            rng.uniform(10, 400, l),
+        )
+        for k in range(count)
+    ]
+
+
+def _textbook(design):
+    """Φ, Γ0·E, Γ1·E of the whole state from the per-coordinate blocks."""
+    e = np.asarray(design.joint_input)
+    hold = [(np.asarray(g)[:, :, None] * e[:, None, :]).reshape(-1, e.shape[1]) for g in (design.gamma0, design.gamma1)]
+    return block_diag(*design.blocks), hold[0], hold[1]
+
+
+@pytest.mark.numerics
+def test_the_two_phase_reference_is_the_textbook_kalman_filter(reference):
+    """x̂⁻ = Φ·x̂ − Γ0·E·u⁺ − Γ1·E·u_k (0 at the first sample), x̂ = x̂⁻ + M·(y − C·x̂⁻),
+    u_d = −K·x̂, computed densely: the reference's estimate and desired forces agree to rounding."""
+    law = artifact.clipped_lqg(reference)
+    d = law.design
+    phi, hold0, hold1 = _textbook(d)
+    estimate, previous, started = np.zeros(phi.shape[0]), np.zeros(hold0.shape[1]), False
+    worst = 0.0
+    for m in _sequence(reference):
+        law.step(m)
+        assert law.status == 0, m.time
+        prior = phi @ estimate - hold0 @ previous - hold1 @ m.friction_force if started else np.zeros(phi.shape[0])
+        estimate = prior + d.estimator_gain @ (m.sensors - d.output @ prior)
+        desired = -d.feedback_gain @ estimate
+        scale = np.abs(d.feedback_gain) @ np.abs(estimate)
+        worst = max(worst, float(np.max(np.abs(law.desired_force - desired) / scale)))
+        np.testing.assert_allclose(law.estimate, estimate, rtol=1e-9, atol=1e-12 * np.abs(estimate).max())
+        previous, started = law.previous_force.copy(), True
+    assert worst < 1e-10, worst
+
+
+def _phases(compiled):
+    """A compiled cLQG stepped as output phase, output phase again, update phase."""
+    lib, prefix = compiled.c.lib, compiled.c.prefix
+    output_phase, update_phase = (
+        getattr(lib, f"{prefix}_clqg_output_phase"),
+        getattr(lib, f"{prefix}_clqg_update_phase"),
+    )
+
+    def step(state, inputs, outputs):
+        first = output_phase(state, inputs, outputs)
+        again = output_phase(state, inputs, outputs)
+        assert again == first
+        update_phase(state)
+        return first
+
+    compiled._step = step
+    return compiled
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("real", ["float", "double"])
+def test_the_phases_are_the_step_bit_for_bit_and_the_output_phase_repeats(reference, real):
+    """Faults included (the sequence of test_codegen with NaN/±Inf and absurd values): the C
+    stepped as output, output again, update gives the commands, desired forces and status bits of
+    its own step — in the float build with its fused multiply-adds too. The target's self-test
+    times the output phase by that repetition."""
+    from test_codegen import _sequence as faulty
+
+    build = controllers.compile_controllers(reference, real)
+    if real == "float":
+        assert "fmaf(" in build.files["smartjoint_clqg.c"]
+    else:
+        assert "fma" not in build.files["smartjoint_clqg.c"].replace("MULTIPLY", "")
+    stepped, split = build.clipped_lqg(), _phases(build.clipped_lqg())
+    for m in faulty(reference, count=1500):
+        assert split.step(m).tobytes() == stepped.step(m).tobytes(), m.time
+        assert split.status == stepped.status and split.desired_force.tobytes() == stepped.desired_force.tobytes()
+
+
+def _scaled(reference, **factors):
+    return dataclasses.replace(
+        reference, **{field: (np.asarray(getattr(reference, field)) * f).tolist() for field, f in factors.items()}
+    )
+
+
+@pytest.mark.parametrize(
+    "factors, product, words",
+    [
+        ({"feedback_gain": 1e25, "estimator_gain": 1e25}, "feedback_hold", "exceeds the float range"),
+        ({"gamma1": 1e-37}, "output_hold", "underflows to 0 in float"),
+    ],
+)
+def test_the_float_build_refuses_products_it_cannot_hold(reference, tmp_path, capsys, factors, product, words):
+    """Every field fits a float, a precomputed product does not: one line naming the product and
+    entry, nothing written; the double build takes the same artefact."""
+    changed = _scaled(reference, **factors)
+    with pytest.raises(ModelError) as refused:
+        generate.render(changed, "float")
+    message = str(refused.value)
+    assert message.startswith(f"{product}[") and words in message and "--real double" in message
+    assert "\n" not in message
+    generate.render(changed, "double")
+    source = tmp_path / "scaled.json"
+    source.write_text(artifact.dumps(changed))
+    assert cli.main(["codegen", str(source), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert product in err and err.count("\n") == 0 and not (tmp_path / "out").exists(), err
