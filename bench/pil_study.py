@@ -69,8 +69,9 @@ def mil_study(design, model, artifact, progress=print):
     )  # fmt: skip
 
 
-def _loop_run(setup, image, law: str, faults) -> tuple:
-    """One law through the CAN loop around ``image``: the Run and the loop's record."""
+def loop_run(setup, image, law: str, faults=()) -> tuple:
+    """One law through the CAN loop around ``image`` (a host or a target firmware): the Run and
+    the loop's record."""
     loop = SilLoop(image, 0.0, faults=faults, channel=f"smartjoint-pil-{id(image)}")
     try:
         run = study_runs.run_semi_active(setup, RUN_NAMES[law], loop)
@@ -186,9 +187,9 @@ def law_on_target(
         The target's ``run`` and ``record``, the host's, ``difference`` (:func:`first_difference`),
         ``measured`` (instructions, stack), ``counters``, ``budget``, ``size`` and the QEMU command.
     """
-    host_run, host_record = _loop_run(setup, firmware.Firmware(artifact, law, "float"), law, faults)
+    host_run, host_record = loop_run(setup, firmware.Firmware(artifact, law, "float"), law, faults)
     with pil.TargetFirmware(artifact, law, timeout=timeout) as image:
-        run, record = _loop_run(setup, image, law, faults)
+        run, record = loop_run(setup, image, law, faults)
         measured, counters = image.measurements(), image.counters
         size = image_size(image.elf)
         if image_folder is not None:  # the image beside the report, for the command shown

@@ -124,18 +124,6 @@ def _same_bus(db, loaded) -> bool:
     return frames(db) == frames(loaded)
 
 
-# The codec functions the layer calls itself (and the decode of every tip sensor).
-SENT_LAYOUTS = ("setpoint", "controller_status")
-USED = {
-    ("setpoint", "voltage", "encode"),
-    ("setpoint", "voltage", "decode"),
-    ("amp_status", "monitor_voltage", "decode"),
-    ("joint", "sliding_velocity", "decode"),
-    ("joint", "friction_force", "decode"),
-    ("joint", "normal_force", "decode"),
-}
-
-
 def _messages(db, joints: list[str], real: str, full_codec: bool) -> tuple[list[dict], list[dict]]:
     """The template's frames (by identifier) and layouts (``can_codec.layouts``); a layout is
     packed when the controller sends one of its frames, unpacked when it receives one (both with
@@ -149,18 +137,6 @@ def _messages(db, joints: list[str], real: str, full_codec: bool) -> tuple[list[
         layout = by_name[of[m.name]]
         layout["packed"] = layout.get("packed", False) or sent or full_codec
         layout["unpacked"] = layout.get("unpacked", False) or not sent or full_codec
-    for layout in layouts:  # what the layer itself calls; the rest is API (cppcheck told so)
-        layout["api_only"] = {
-            "pack": layout["packed"] and layout["name"] not in SENT_LAYOUTS,
-            "unpack": layout["unpacked"] and layout["name"] in SENT_LAYOUTS,
-        }
-        for s in layout["signals"]:
-            sensor = layout["name"] == "tip_sensors" and s["name"] not in protocol.E2E_SIGNALS
-            s["used"] = [
-                f
-                for f in ("encode", "decode", "is_in_range")
-                if (layout["name"], s["name"], f) in USED or (sensor and f == "decode")
-            ]
     return messages, layouts
 
 

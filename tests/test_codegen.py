@@ -363,7 +363,10 @@ def test_cppcheck_reports_nothing(reference, tmp_path, real):
 
     files = {**generate.render(reference, real), **can_layer.render_can(reference, real=real)}
     output.write({k: v for k, v in files.items() if not k.endswith(".dbc")}, tmp_path)
-    checks = ("--enable=all", "--std=c99", "--error-exitcode=1", "--inline-suppr", "--suppress=missingIncludeSystem")
+    # The CAN codec is a library API like cantools' generated C: every frame's pack/unpack and
+    # every signal's encode/decode/is_in_range, whether or not this firmware calls it.
+    checks = ("--enable=all", "--std=c99", "--error-exitcode=1", "--inline-suppr", "--suppress=missingIncludeSystem",
+              "--suppress=unusedFunction:*smartjoint_can.c")  # fmt: skip
     done = run("cppcheck", *checks, "--quiet", tmp_path)
     assert done.returncode == 0 and done.stdout.strip() == "" and done.stderr.strip() == "", done.stderr
 

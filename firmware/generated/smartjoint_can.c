@@ -63,20 +63,17 @@ int smartjoint_can_controller_status_pack(uint8_t *dst_p, const struct smartjoin
 }
 
 /* controller_status.crc: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_controller_status_crc_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 256.0f ? 255u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_controller_status_crc_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_controller_status_crc_is_in_range(uint8_t value)
 {
     (void)value;
@@ -84,80 +81,68 @@ bool smartjoint_can_controller_status_crc_is_in_range(uint8_t value)
 }
 
 /* controller_status.counter: scale 1, offset 0, range [0, 15] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_controller_status_counter_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_controller_status_counter_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_controller_status_counter_is_in_range(uint8_t value)
 {
     return value <= 15u;
 }
 
 /* controller_status.mode: scale 1, offset 0, range [0, 3] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_controller_status_mode_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 3.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_controller_status_mode_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_controller_status_mode_is_in_range(uint8_t value)
 {
     return value <= 3u;
 }
 
 /* controller_status.missing_inputs: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_controller_status_missing_inputs_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_controller_status_missing_inputs_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_controller_status_missing_inputs_is_in_range(uint8_t value)
 {
     return value <= 15u;
 }
 
 /* controller_status.step_status: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_controller_status_step_status_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 256.0f ? 255u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_controller_status_step_status_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_controller_status_step_status_is_in_range(uint8_t value)
 {
     (void)value;
@@ -165,20 +150,17 @@ bool smartjoint_can_controller_status_step_status_is_in_range(uint8_t value)
 }
 
 /* controller_status.faults: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint16_t smartjoint_can_controller_status_faults_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 65536.0f ? UINT16_MAX : (uint16_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_controller_status_faults_decode(uint16_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_controller_status_faults_is_in_range(uint16_t value)
 {
     (void)value;
@@ -219,20 +201,17 @@ int smartjoint_can_joint_unpack(struct smartjoint_can_joint_t *dst_p, const uint
 }
 
 /* joint.crc: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_joint_crc_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 256.0f ? 255u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_joint_crc_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_joint_crc_is_in_range(uint8_t value)
 {
     (void)value;
@@ -240,47 +219,40 @@ bool smartjoint_can_joint_crc_is_in_range(uint8_t value)
 }
 
 /* joint.counter: scale 1, offset 0, range [0, 15] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_joint_counter_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_joint_counter_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_joint_counter_is_in_range(uint8_t value)
 {
     return value <= 15u;
 }
 
 /* joint.sync: scale 1, offset 0, range [0, 15] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_joint_sync_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_joint_sync_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_joint_sync_is_in_range(uint8_t value)
 {
     return value <= 15u;
 }
 
 /* joint.sliding_velocity: scale 1e-09, offset 0, range [-2, 2] */
-/* cppcheck-suppress unusedFunction ; codec API */
 int32_t smartjoint_can_joint_sliding_velocity_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, -2.0f, 2.0f), 1e-09f, 0.0f);
@@ -292,14 +264,12 @@ smartjoint_real smartjoint_can_joint_sliding_velocity_decode(int32_t value)
     return (smartjoint_real)value * 1e-09f;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_joint_sliding_velocity_is_in_range(int32_t value)
 {
     return value >= -2000000000 && value <= 2000000000;
 }
 
 /* joint.friction_force: scale 1e-05, offset 0, range [-20000, 20000] */
-/* cppcheck-suppress unusedFunction ; codec API */
 int32_t smartjoint_can_joint_friction_force_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, -20000.0f, 20000.0f), 1e-05f, 0.0f);
@@ -311,14 +281,12 @@ smartjoint_real smartjoint_can_joint_friction_force_decode(int32_t value)
     return (smartjoint_real)value * 1e-05f;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_joint_friction_force_is_in_range(int32_t value)
 {
     return value >= -2000000000 && value <= 2000000000;
 }
 
 /* joint.normal_force: scale 0.02, offset 0, range [0, 1310] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint16_t smartjoint_can_joint_normal_force_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 1310.0f), 0.02f, 0.0f);
@@ -330,7 +298,6 @@ smartjoint_real smartjoint_can_joint_normal_force_decode(uint16_t value)
     return (smartjoint_real)value * 0.02f;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_joint_normal_force_is_in_range(uint16_t value)
 {
     return value <= 65500u;
@@ -366,20 +333,17 @@ int smartjoint_can_tip_sensors_unpack(struct smartjoint_can_tip_sensors_t *dst_p
 }
 
 /* tip_sensors.crc: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_tip_sensors_crc_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 256.0f ? 255u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_tip_sensors_crc_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_tip_sensors_crc_is_in_range(uint8_t value)
 {
     (void)value;
@@ -387,47 +351,40 @@ bool smartjoint_can_tip_sensors_crc_is_in_range(uint8_t value)
 }
 
 /* tip_sensors.counter: scale 1, offset 0, range [0, 15] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_tip_sensors_counter_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_tip_sensors_counter_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_tip_sensors_counter_is_in_range(uint8_t value)
 {
     return value <= 15u;
 }
 
 /* tip_sensors.sync: scale 1, offset 0, range [0, 15] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_tip_sensors_sync_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_tip_sensors_sync_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_tip_sensors_sync_is_in_range(uint8_t value)
 {
     return value <= 15u;
 }
 
 /* tip_sensors.tip_y: scale 1e-08, offset 0, range [-20, 20] */
-/* cppcheck-suppress unusedFunction ; codec API */
 int32_t smartjoint_can_tip_sensors_tip_y_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, -20.0f, 20.0f), 1e-08f, 0.0f);
@@ -439,14 +396,12 @@ smartjoint_real smartjoint_can_tip_sensors_tip_y_decode(int32_t value)
     return (smartjoint_real)value * 1e-08f;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_tip_sensors_tip_y_is_in_range(int32_t value)
 {
     return value >= -2000000000 && value <= 2000000000;
 }
 
 /* tip_sensors.tip_z: scale 1e-08, offset 0, range [-20, 20] */
-/* cppcheck-suppress unusedFunction ; codec API */
 int32_t smartjoint_can_tip_sensors_tip_z_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, -20.0f, 20.0f), 1e-08f, 0.0f);
@@ -458,7 +413,6 @@ smartjoint_real smartjoint_can_tip_sensors_tip_z_decode(int32_t value)
     return (smartjoint_real)value * 1e-08f;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_tip_sensors_tip_z_is_in_range(int32_t value)
 {
     return value >= -2000000000 && value <= 2000000000;
@@ -483,20 +437,17 @@ int smartjoint_can_setpoint_pack(uint8_t *dst_p, const struct smartjoint_can_set
 }
 
 /* setpoint.crc: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_setpoint_crc_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 256.0f ? 255u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_setpoint_crc_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_setpoint_crc_is_in_range(uint8_t value)
 {
     (void)value;
@@ -504,20 +455,17 @@ bool smartjoint_can_setpoint_crc_is_in_range(uint8_t value)
 }
 
 /* setpoint.counter: scale 1, offset 0, range [0, 15] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_setpoint_counter_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_setpoint_counter_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_setpoint_counter_is_in_range(uint8_t value)
 {
     return value <= 15u;
@@ -535,7 +483,6 @@ smartjoint_real smartjoint_can_setpoint_voltage_decode(uint32_t value)
     return (smartjoint_real)value * 1e-07f;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_setpoint_voltage_is_in_range(uint32_t value)
 {
     return value <= 1500000000u;
@@ -585,20 +532,17 @@ int smartjoint_can_amp_status_unpack(struct smartjoint_can_amp_status_t *dst_p, 
 }
 
 /* amp_status.crc: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_amp_status_crc_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 256.0f ? 255u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_crc_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_crc_is_in_range(uint8_t value)
 {
     (void)value;
@@ -606,107 +550,91 @@ bool smartjoint_can_amp_status_crc_is_in_range(uint8_t value)
 }
 
 /* amp_status.counter: scale 1, offset 0, range [0, 15] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_amp_status_counter_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_counter_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_counter_is_in_range(uint8_t value)
 {
     return value <= 15u;
 }
 
 /* amp_status.over_temperature: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_amp_status_over_temperature_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_over_temperature_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_over_temperature_is_in_range(uint8_t value)
 {
     return value <= 1u;
 }
 
 /* amp_status.no_response: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_amp_status_no_response_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_no_response_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_no_response_is_in_range(uint8_t value)
 {
     return value <= 1u;
 }
 
 /* amp_status.stuck_output: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_amp_status_stuck_output_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_stuck_output_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_stuck_output_is_in_range(uint8_t value)
 {
     return value <= 1u;
 }
 
 /* amp_status.over_current: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_amp_status_over_current_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_over_current_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_over_current_is_in_range(uint8_t value)
 {
     return value <= 1u;
 }
 
 /* amp_status.monitor_voltage: scale 0.005, offset 0, range [0, 150] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint16_t smartjoint_can_amp_status_monitor_voltage_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 150.0f), 0.005f, 0.0f);
@@ -718,47 +646,40 @@ smartjoint_real smartjoint_can_amp_status_monitor_voltage_decode(uint16_t value)
     return (smartjoint_real)value * 0.005f;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_monitor_voltage_is_in_range(uint16_t value)
 {
     return value <= 30000u;
 }
 
 /* amp_status.current: scale 0.0001, offset 0, range [-3, 3] */
-/* cppcheck-suppress unusedFunction ; codec API */
 int16_t smartjoint_can_amp_status_current_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, -3.0f, 3.0f), 1e-04f, 0.0f);
     return raw < -32768.0f ? INT16_MIN : (raw >= 32768.0f ? INT16_MAX : (int16_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_current_decode(int16_t value)
 {
     return (smartjoint_real)value * 1e-04f;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_current_is_in_range(int16_t value)
 {
     return value >= -30000 && value <= 30000;
 }
 
 /* amp_status.temperature: scale 1, offset -40, range [-40, 215] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_amp_status_temperature_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, -40.0f, 215.0f), 1.0f, -40.0f);
     return raw < 0.0f ? 0u : (raw >= 256.0f ? 255u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_temperature_decode(uint8_t value)
 {
     return (smartjoint_real)value + -40.0f;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_temperature_is_in_range(uint8_t value)
 {
     (void)value;
@@ -766,40 +687,34 @@ bool smartjoint_can_amp_status_temperature_is_in_range(uint8_t value)
 }
 
 /* amp_status.safe_state: scale 1, offset 0, range none (the field's) */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_amp_status_safe_state_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_safe_state_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_safe_state_is_in_range(uint8_t value)
 {
     return value <= 1u;
 }
 
 /* amp_status.sync: scale 1, offset 0, range [0, 15] */
-/* cppcheck-suppress unusedFunction ; codec API */
 uint8_t smartjoint_can_amp_status_sync_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 smartjoint_real smartjoint_can_amp_status_sync_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-/* cppcheck-suppress unusedFunction ; codec API */
 bool smartjoint_can_amp_status_sync_is_in_range(uint8_t value)
 {
     return value <= 15u;
