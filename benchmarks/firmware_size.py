@@ -106,6 +106,7 @@ def measure(a, real: str, level: str, folder: Path, callgraph: bool, prefix: str
                 f"-Wl,--entry={name}_step",
                 f"-Wl,--undefined={name}_init",
                 f"{name}.o",
+                "-lm",  # the float build's fmaf: a vfma.f32 at -O2, a libm call in the -O0 baseline
                 "-o",
                 f"{name}.elf",
             ],
