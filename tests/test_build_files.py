@@ -16,6 +16,7 @@ from conftest import run
 
 from smartjoint.codegen import build, build_files, generate, output
 from smartjoint.common import package_data
+from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -172,3 +173,12 @@ def test_cmake_with_the_toolchain_file_builds_the_cortex_m4_image(folder, tmp_pa
     assert (cross / f"{IMAGE}.map").stat().st_size > 0 and (cross / f"{IMAGE}.hex").stat().st_size > 0
     assert run("make", "-C", folder).returncode == 0
     check_self_check(cross / f"{IMAGE}.elf", run(folder / "example").stdout)
+
+
+def test_codegen_refuses_to_replace_a_board_file_it_did_not_write(reference, tmp_path):
+    """The board support is copied under the board's own names: a hand-written startup.c in the
+    output folder stops codegen (nothing written), as any file of the set it did not write."""
+    (tmp_path / "startup.c").write_text("/* my startup */\n")
+    with pytest.raises(ModelError, match="startup.c: not written by smartjoint codegen"):
+        generate.generate(reference, tmp_path)
+    assert [p.name for p in tmp_path.iterdir()] == ["startup.c"]

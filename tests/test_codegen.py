@@ -412,7 +412,8 @@ def test_bad_artefacts_and_options_write_nothing(reference, tmp_path):
     assert done.returncode == 2 and "--prefix" in done.stderr and not (tmp_path / "p").exists()
     done = run_cli("codegen", REFERENCE / "controller.json", "-o", tmp_path / "ok", "--real", "double", "--json")
     assert done.returncode == 0, done.stderr
-    assert len(json.loads(done.stdout)["files"]) == 13  # controllers, example, build files, CAN layer, E2E, DBC
+    # controllers, example, build files, CAN layer, E2E, DBC, the target's self-check and board support
+    assert len(json.loads(done.stdout)["files"]) == 19
 
 
 def _in_phases(reference_controller, compiled, lib, prefix="smartjoint"):
