@@ -57,7 +57,7 @@ def board_support(banner: str) -> dict[str, str]:
     return files
 
 
-def render(context: dict) -> dict[str, str]:
+def render(context: dict, digest: str) -> dict[str, str]:
     """Render the build files, the target's self-check and the board support.
 
     Parameters
@@ -65,6 +65,9 @@ def render(context: dict) -> dict[str, str]:
     context : dict
         The example's template context (``generate.render``): ``prefix``, ``PREFIX``, ``real``,
         ``banner``, ``banner_hash`` and the example's stimulus literals.
+    digest : str
+        The artefact's sha256, named in the board files' banner (they do not depend on the
+        scalar type, so their banner does not name one).
 
     Returns
     -------
@@ -92,5 +95,5 @@ def render(context: dict) -> dict[str, str]:
         TOOLCHAIN: env.get_template("toolchain.cmake.j2").render(build),
         TARGET_MAIN: env.get_template("target_main.c.j2").render(build),
     }
-    files.update(board_support(context["banner"]))
+    files.update(board_support(rendering.banner(digest, part=f"codegen, board support {BOARD}")))
     return files

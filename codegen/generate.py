@@ -166,7 +166,7 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
         "sensor_scale": lit(10.0),
     }
     files["main.c"] = env.get_template("main.c.j2").render(example)
-    files.update(build_files.render(example))
+    files.update(build_files.render(example, artifact.artifact_sha256))
     return files
 
 
