@@ -11,7 +11,12 @@
 #define UART_DATA REG(UART0_BASE + 0x000u)
 #define UART_STATE REG(UART0_BASE + 0x004u) /* bit 0: TX buffer full, bit 1: RX buffer full */
 #define UART_CTRL REG(UART0_BASE + 0x008u)  /* bit 0: TX enable, bit 1: RX enable */
+#define UART_INTSTATUS REG(UART0_BASE + 0x00Cu) /* bit 1: RX interrupt; write 1 to clear */
 #define UART_BAUDDIV REG(UART0_BASE + 0x010u)
+#define UART_RX_INTERRUPT 2u
+#define NVIC_ISER0 REG(0xE000E100u)
+#define NVIC_ICPR0 REG(0xE000E280u)
+#define UART0_RX_IRQ 0u /* mps2-an386: UART n's RX interrupt is IRQ 2n */
 #define UART_TX_FULL 1u
 #define UART_RX_FULL 2u
 
@@ -28,7 +33,11 @@ extern uint32_t __sj_stack_top[];
 void sj_uart_init(void)
 {
     UART_BAUDDIV = 16u; /* the smallest divider the UART accepts; the emulator ignores the rate */
-    UART_CTRL = 3u;
+    /* TX and RX enabled, and the RX interrupt: not to be taken (PRIMASK stays set, no handler),
+     * only to wake sj_uart_getc from WFI, so a waiting target leaves the host's cores free. */
+    UART_CTRL = 3u | (1u << 3);
+    __asm__ volatile("cpsid i" ::: "memory");
+    NVIC_ISER0 = 1u << UART0_RX_IRQ;
 }
 
 void sj_uart_putc(char c)
@@ -40,9 +49,14 @@ void sj_uart_putc(char c)
 
 int sj_uart_getc(void)
 {
+    int c;
     while (!(UART_STATE & UART_RX_FULL)) {
+        __asm__ volatile("wfi" ::: "memory"); /* wakes on the pending RX interrupt (masked) */
     }
-    return (int)(UART_DATA & 0xFFu);
+    c = (int)(UART_DATA & 0xFFu);
+    UART_INTSTATUS = UART_RX_INTERRUPT;
+    NVIC_ICPR0 = 1u << UART0_RX_IRQ;
+    return c;
 }
 
 void sj_uart_puts(const char *text)
