@@ -20,7 +20,7 @@ import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-from smartjoint.codegen import output
+from smartjoint.codegen import build_files, output
 from smartjoint.common import native
 from smartjoint.common.errors import ModelError
 
@@ -77,7 +77,8 @@ def check_folder(folder: Path, flags: list[str] | None = None) -> dict:
     """Compile everything C in ``folder`` as written.
 
     Every header alone (each must be self-contained), every ``.c`` with ``flags`` (any warning
-    an error), then link them into the example program. Build products go to a temporary folder
+    an error) but the target image's own (``build_files.TARGET_SOURCES``), then link them into
+    the example program. Build products go to a temporary folder
     of their own.
 
     Parameters
@@ -103,7 +104,7 @@ def check_folder(folder: Path, flags: list[str] | None = None) -> dict:
     if shutil.which(compiler) is None:
         raise ModelError(f"--check: no C compiler {compiler!r} found (install one or set CC)")
     headers = sorted(p.name for p in folder.glob("*.h"))
-    sources = sorted(p.name for p in folder.glob("*.c"))
+    sources = sorted(p.name for p in folder.glob("*.c") if p.name not in build_files.TARGET_SOURCES)
     with tempfile.TemporaryDirectory(prefix="smartjoint-check-") as scratch:
         work = Path(scratch)
 

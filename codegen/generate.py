@@ -2,7 +2,9 @@
 
 One call gives a self-contained folder: ``<prefix>_types.h`` (the scalar type and status bits),
 ``<prefix>_siso.h/.c`` (Eq. 30–31 in every joint), ``<prefix>_clqg.h/.c`` (Eq. 33–34), an
-example ``main.c``, a ``Makefile`` and a ``CMakeLists.txt``. The C mirrors the Python reference
+example ``main.c``, and (``build_files.py``) a ``Makefile``, a ``CMakeLists.txt`` and a CMake
+toolchain file for the host example and the Cortex-M4F image, with the image's self-check and
+the board support it links. The C mirrors the Python reference
 controllers of ``design/control/laws.py`` statement by statement (update order, clipping, boundary
 layers, fault handling) and exploits the model's structure: the predictor is a 2×2 block per
 coordinate. Rendering is deterministic: the same artefact and options give byte-identical
@@ -20,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from smartjoint.codegen import build, can_layer, output, rendering
+from smartjoint.codegen import build, build_files, can_layer, output, rendering
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.filter import HoldProducts, hold_products, output_terms
 
@@ -164,8 +166,7 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
         "sensor_scale": lit(10.0),
     }
     files["main.c"] = env.get_template("main.c.j2").render(example)
-    files["Makefile"] = env.get_template("Makefile.j2").render(common)
-    files["CMakeLists.txt"] = env.get_template("CMakeLists.txt.j2").render(common)
+    files.update(build_files.render(example, artifact.artifact_sha256))
     return files
 
 

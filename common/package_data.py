@@ -37,6 +37,8 @@ FILES: dict[str, tuple[str, ...]] = {
             "main_can.c.j2",
             "siso.c.j2",
             "siso.h.j2",
+            "target_main.c.j2",
+            "toolchain.cmake.j2",
             "types.h.j2",
         )
     ),

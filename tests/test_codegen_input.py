@@ -251,20 +251,20 @@ def test_an_existing_folder_keeps_every_file_codegen_did_not_write(reference, tm
     target = tmp_path / "firmware"
     target.mkdir()
     (target / "main.c").write_text("/* my own main */\nint main(void) { return 0; }\n")
-    (target / "board.c").write_text("/* my board support */\n")
+    (target / "my_board.c").write_text("/* my board support */\n")
     code, err = _codegen(capsys, str(REFERENCE / "controller.json"), "-o", str(target))
     assert code == 2 and "main.c: not written by smartjoint codegen" in err and len(err.strip().splitlines()) == 1
-    assert sorted(p.name for p in target.iterdir()) == ["board.c", "main.c"]  # nothing added, nothing changed
+    assert sorted(p.name for p in target.iterdir()) == ["main.c", "my_board.c"]  # nothing added, nothing changed
     assert (target / "main.c").read_text().startswith("/* my own main */")
 
     (target / "main.c").unlink()
     code, err = _codegen(capsys, str(REFERENCE / "controller.json"), "-o", str(target), "--json")
     assert code == 0, err
-    assert json.loads(_codegen.out)["untouched"] == [str(target / "board.c")]
-    assert (target / "board.c").read_text() == "/* my board support */\n"
+    assert json.loads(_codegen.out)["untouched"] == [str(target / "my_board.c")]
+    assert (target / "my_board.c").read_text() == "/* my board support */\n"
     # A second run with another prefix replaces nothing of the first and leaves it untouched.
     placed = generate.generate(reference, target, prefix="other", can=False)
-    assert {p.name for p in placed.untouched} >= {"board.c", "smartjoint_can.c", "smartjoint_siso.c"}
+    assert {p.name for p in placed.untouched} >= {"my_board.c", "smartjoint_can.c", "smartjoint_siso.c"}
     assert (target / "main.c").read_text() != (REFERENCE / "main.c").read_text()  # the controllers-only example
 
     a_file = tmp_path / "file"
