@@ -150,8 +150,8 @@ def _controller_artifact(args, design, model):
     return artifact_building.from_design(design, model, closed_loop.lqg_for(design, model), width)
 
 
-def cmd_sil(args) -> dict:
-    from smartjoint.bench import sil
+def _loop_inputs(args) -> tuple:
+    """What sil and pil run: the design, its design model, the artefact, the faults and the laws."""
     from smartjoint.bench.faults import parse_fault
     from smartjoint.design.control import study as closed_loop
 
@@ -159,7 +159,14 @@ def cmd_sil(args) -> dict:
     model = closed_loop.design_model(design, report_progress)
     controller = _controller_artifact(args, design, model)
     faults = [parse_fault(text) for text in args.fault or []]
-    laws = ("siso", "clqg") if args.law == "both" else (args.law,)
+    return design, model, controller, faults, ("siso", "clqg") if args.law == "both" else (args.law,)
+
+
+def cmd_sil(args) -> dict:
+    from smartjoint.bench import sil
+    from smartjoint.design.control import study as closed_loop
+
+    design, model, controller, faults, laws = _loop_inputs(args)
     report_progress(
         f"software in the loop on {design.name!r}: {', '.join(laws)}, t_e = {design.control.study_duration:g} s"
     )
@@ -192,20 +199,14 @@ def cmd_sil(args) -> dict:
 
 def cmd_pil(args) -> dict:
     from smartjoint.bench import pil, pil_study, safety, target
-    from smartjoint.bench.faults import parse_fault
     from smartjoint.common.errors import ModelError
-    from smartjoint.design.control import study as closed_loop
 
     if not (args.clock > 0):
         raise ModelError(f"--clock: {args.clock!r} MHz — must be > 0")
     reason = target.missing_tools()
     if reason:
         raise ModelError(reason)
-    design = _control_design(args, firmware_names=True)
-    model = closed_loop.design_model(design, report_progress)
-    controller = _controller_artifact(args, design, model)
-    faults = [parse_fault(text) for text in args.fault or []]
-    laws = ("siso", "clqg") if args.law == "both" else (args.law,)
+    design, model, controller, faults, laws = _loop_inputs(args)
     report_progress(
         f"processor in the loop on {design.name!r}: {', '.join(laws)} on {target.BOARD}, "
         f"t_e = {design.control.study_duration:g} s"

@@ -184,3 +184,24 @@ def quiet_joint_frame(message, counter: int) -> bytearray:
 
     signals = {"crc": 0, "counter": 0, "sync": 0, "sliding_velocity": 0.0, "friction_force": 0.0, "normal_force": 100.0}
     return e2e.protect(message.frame_id, bytearray(message.encode(signals)), counter)
+
+
+def plausible_measurements(a, count: int, seed: int, sensor: float, slip: float, friction: float) -> list:
+    """``count`` samples of measurements well inside every range of artefact ``a``: sensors, sliding
+    velocities and friction forces normal with these standard deviations, F_N uniform in 10…400 N."""
+    import numpy as np
+
+    from smartjoint.design import plant
+
+    rng = np.random.default_rng(seed)
+    l, ny = len(a.joint_names), len(a.sensor_names)
+    return [
+        plant.Measurements(
+            k * a.sample_time,
+            rng.normal(0, sensor, ny),
+            rng.normal(0, slip, l),
+            rng.normal(0, friction, l),
+            rng.uniform(10, 400, l),
+        )
+        for k in range(count)
+    ]

@@ -11,12 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import plausible_measurements
 from scipy.linalg import block_diag
 
 from smartjoint import cli
 from smartjoint.codegen import controllers, generate
 from smartjoint.common.errors import ModelError
-from smartjoint.design import plant
 from smartjoint.design.control import artifact
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,18 +29,7 @@ def reference():
 
 def _sequence(a, count=400, seed=3):
     """Plausible measurements only (no fault), most commands between the force limits."""
-    rng = np.random.default_rng(seed)
-    l, ny = len(a.joint_names), len(a.sensor_names)
-    return [
-        plant.Measurements(
-            k * a.sample_time,
-            rng.normal(0, 1e-4, ny),
-            rng.normal(0, 1e-3, l),
-            rng.normal(0, 20, l),
-            rng.uniform(10, 400, l),
-        )
-        for k in range(count)
-    ]
+    return plausible_measurements(a, count, seed, sensor=1e-4, slip=1e-3, friction=20)
 
 
 def _textbook(design):

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run, run_cli
+from conftest import plausible_measurements, run, run_cli
 
 from smartjoint.bench import sil
 from smartjoint.codegen import build, build_files, controllers, generate, output
@@ -193,18 +193,7 @@ def _probes(low, high):
 
 def _plausible_run(a, count, seed):
     """Measurements well inside every range, with the stick-slip scales of the study."""
-    rng = np.random.default_rng(seed)
-    l, ny = len(a.joint_names), len(a.sensor_names)
-    return [
-        plant.Measurements(
-            k * a.sample_time,
-            rng.normal(0, 1e-2, ny),
-            rng.normal(0, 1e-2, l),
-            rng.normal(0, 100, l),
-            rng.uniform(10, 400, l),
-        )
-        for k in range(count)
-    ]
+    return plausible_measurements(a, count, seed, sensor=1e-2, slip=1e-2, friction=100)
 
 
 def _inject(m, field, index, value):
