@@ -185,7 +185,8 @@ def law_on_target(
     -------
     dict
         The target's ``run`` and ``record``, the host's, ``difference`` (:func:`first_difference`),
-        ``measured`` (instructions, stack), ``counters``, ``budget``, ``size`` and the QEMU command.
+        ``measured`` (instructions, stack), ``counters``, ``budget``, ``size`` and the QEMU arguments
+        (``emulator``).
     """
     host_run, host_record = loop_run(setup, firmware.Firmware(artifact, law, "float"), law, faults)
     with pil.TargetFirmware(artifact, law, timeout=timeout) as image:
@@ -208,7 +209,8 @@ def law_on_target(
         "counters": counters,
         "budget": budget(measured, setup.sample_time, frames, clock_hz),
         "size": size,
-        "command": " ".join(pil.emulator_command("pil.elf", "PORT")),
+        # The emulator's arguments (a list: the image, its last word, is a file of the report).
+        "emulator": pil.emulator_command("pil.elf", "PORT"),
     }
 
 
@@ -284,7 +286,7 @@ def summary(out: dict) -> dict:
     -------
     dict
     """
-    keep = ("difference", "measured", "frames_per_sample", "counters", "budget", "size", "command", "metrics",
+    keep = ("difference", "measured", "frames_per_sample", "counters", "budget", "size", "emulator", "metrics",
             "energy_measure_mil")  # fmt: skip
     laws = {law: {key: f[key] for key in keep} for law, f in out["laws"].items()}
     for law, f in out["laws"].items():
@@ -345,7 +347,8 @@ def pil_markdown(out: dict) -> str:
         "",
         "The same sources as SIL, built with arm-none-eabi-gcc -O2 and run in QEMU in lock-step with the plant; "
         "the bench reaches the target through python-can's `slcan` interface on the emulated UART "
-        f"(`{any_law['command']}`). Instructions are counted on the target (SysTick under `-icount shift=0`), "
+        f"(`{' '.join(any_law['emulator'])}`). Instructions are counted on the target "
+        "(SysTick under `-icount shift=0`), "
         f"the budget is stated at {out['clock_hz'] / 1e6:g} MHz with one cycle per instruction "
         "(a real part adds wait states), the stack is the painted high-water mark below `main`.",
         "",
