@@ -195,8 +195,11 @@ def open_output(folder: Path, prepared: Prepared, resume: bool) -> list[int]:
             found = json.loads(path.read_text())
         except (OSError, ValueError) as error:
             raise SweepError(f"-o {folder}: {MANIFEST} cannot be read ({error})") from None
-        if found != manifest:
-            changed = sorted(k for k in manifest if found.get(k) != manifest[k]) if isinstance(found, dict) else []
+        where = ("sweep", "design")  # the files' paths may be given otherwise; their hashes decide
+        changed = sorted(
+            k for k in manifest if k not in where and (found.get(k) if isinstance(found, dict) else None) != manifest[k]
+        )
+        if changed:
             raise SweepError(
                 f"-o {folder}: results of another sweep ({', '.join(changed) or MANIFEST} differ); "
                 "--resume continues only the same sweep file and design"

@@ -9,6 +9,7 @@ import dataclasses
 import io
 import socket
 import time
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -16,12 +17,12 @@ import pytest
 import tomli_w
 from conftest import cli_error, small_truss
 
-from smartjoint.common.errors import DesignError
+from smartjoint.common.errors import DesignError, ModelError
 from smartjoint.design.control import ensemble, sweep_sampling
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.control.sweep_file import load_sweep
 from smartjoint.design.structure.spec import parse_design
-from smartjoint.sweep_runner import SweepError, batch_path, prepare, read_results, run_sweep
+from smartjoint.sweep_runner import SweepError, batch_path, connect, prepare, read_results, run_sweep
 
 SWEEP = """\
 design = "small.toml"
@@ -139,6 +140,11 @@ def test_zero_samples_is_one_line_on_the_command_line(folder):
     assert "samples: 0 — must be an integer 1" in cli_error("sweep", str(folder / "zero.toml"))
 
 
+def test_the_example_sweep_reads():
+    sweep = load_sweep(Path(__file__).resolve().parents[1] / "examples" / "three_type_a_sweep.toml")
+    assert sweep.design.is_file() and sweep.samples == 16 and "active LQG" not in sweep.laws
+
+
 # ------------------------------------------------------------------------------- the samples
 def test_random_samples_depend_only_on_seed_and_index():
     few, many = (sweep_sampling.unit_samples("random", n, 3, 7) for n in (3, 10))
@@ -193,6 +199,13 @@ def test_a_sample_perturbs_plant_friction_and_pulse(prepared):
     assert s.model is base.setup.model  # the controllers keep the nominal design model
 
 
+def test_a_grid_point_against_the_design_limits_is_refused(prepared):
+    with pytest.raises(ModelError, match=r"normal_force_min \[500.0, 500.0\] / normal_force_max \[400.0, 400.0\]"):
+        ensemble.point_limits(prepared.base.setup, {"normal_force_min": 500.0})
+    low, high = ensemble.point_limits(prepared.base.setup, {"normal_force_max": 300.0})
+    assert low.tolist() == prepared.base.setup.normal_force_min.tolist() and high.tolist() == [300.0, 300.0]
+
+
 # -------------------------------------------------------------------------------- the runner
 def _bytes(table) -> bytes:
     """The table as Parquet bytes (``Table.equals`` holds NaN unequal to itself)."""
@@ -236,14 +249,20 @@ def test_one_and_two_workers_give_identical_tables_and_resume_fills_a_gap(folder
         run_sweep(other, folder / "two", scheduler=two_workers, resume=True, progress=quiet.append)
 
 
-def test_an_unreachable_scheduler_fails_within_ten_seconds(folder):
-    with socket.socket() as probe:  # a port nothing listens on
+def _free_port() -> int:
+    with socket.socket() as probe:  # a port nothing listens on once closed
         probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+        return probe.getsockname()[1]
+
+
+def test_an_unreachable_scheduler_fails_within_ten_seconds(folder):
+    """Timed in this process (a loaded machine may take seconds just to start an interpreter);
+    the command line then refuses with the one line."""
+    address = f"tcp://127.0.0.1:{_free_port()}"
     start = time.monotonic()
-    line = cli_error(
-        "sweep", str(folder / "sweep.toml"), "--scheduler", f"tcp://127.0.0.1:{port}", "-o", str(folder / "x")
-    )
+    with pytest.raises(SweepError, match="cannot reach a Dask scheduler within 3 s"):
+        connect(address, None)
     assert time.monotonic() - start < 10.0
-    assert f"--scheduler tcp://127.0.0.1:{port}: cannot reach a Dask scheduler within" in line
+    line = cli_error("sweep", str(folder / "sweep.toml"), "--scheduler", address, "-o", str(folder / "x"))
+    assert f"smartjoint sweep: error: --scheduler {address}: cannot reach a Dask scheduler within 3 s" in line
     assert not (folder / "x").exists()

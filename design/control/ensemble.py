@@ -94,8 +94,11 @@ def build_base(sweep, design, input_columns, progress=print) -> EnsembleBase:
         )
     needs_lqg = "cLQG" in sweep.laws or "active LQG" in sweep.laws
     count = len(design.joints)
+    shared = setup(design, model)
+    for point in sweep.points():  # in the driver, before any task: a grid against the design's limits
+        point_limits(shared, point)
     return EnsembleBase(
-        setup=setup(design, model),
+        setup=shared,
         lqg=lqg_for(design, model) if needs_lqg else None,
         siso_boundary_layer=None if width is None else tuple(np.broadcast_to(np.asarray(width, float), (count,))),
         clqg_boundary_layer=float(design.control.clqg_boundary_layer),
@@ -137,6 +140,17 @@ def perturbed_plant(model: ModalModel, inputs: dict[str, float]) -> ModalModel:
     )
 
 
+def point_limits(s: StudySetup, point: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """F_N^min and F_N^max per joint at a grid point: the point's where it sets them, else the
+    design's; checked (0 <= F_N^min <= F_N^max)."""
+    low = np.full_like(s.normal_force_min, point.get("normal_force_min", 0.0))
+    high = np.full_like(s.normal_force_max, point.get("normal_force_max", 0.0))
+    low = low if "normal_force_min" in point else s.normal_force_min
+    high = high if "normal_force_max" in point else s.normal_force_max
+    check_limits(low, high)
+    return low, high
+
+
 def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, float]) -> StudySetup:
     """The study set-up of one sample at one grid point: perturbed plant and friction, the
     point's normal-force limits, the sample's pulse amplitude."""
@@ -147,11 +161,7 @@ def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, 
             name.rpartition(".")[2]: value for name, value in inputs.items() if name.startswith(f"friction.{joint}.")
         }
         laws.append(dataclasses.replace(law, **{p: getattr(law, p) * f for p, f in factors.items()}))
-    low = np.full_like(s.normal_force_min, point["normal_force_min"]) if "normal_force_min" in point else None
-    high = np.full_like(s.normal_force_max, point["normal_force_max"]) if "normal_force_max" in point else None
-    low = s.normal_force_min if low is None else low
-    high = s.normal_force_max if high is None else high
-    check_limits(low, high)
+    low, high = point_limits(s, point)
     return dataclasses.replace(
         s,
         plant=perturbed_plant(s.model, inputs),
@@ -256,6 +266,7 @@ __all__ = [
     "EnsembleBase",
     "build_base",
     "perturbed_plant",
+    "point_limits",
     "run_batch",
     "run_sample",
     "sample_setup",
