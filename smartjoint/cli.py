@@ -24,6 +24,7 @@ from smartjoint.commands import (
 )
 from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_pil, cmd_sil, cmd_study
 from smartjoint.commands_friction import cmd_identify, cmd_rig
+from smartjoint.commands_sweep import cmd_sweep
 from smartjoint.common.errors import SmartjointError
 
 
@@ -365,7 +366,7 @@ def _add_bench_commands(sub, o: SimpleNamespace) -> None:
 
 
 def _add_study_command(sub, o: SimpleNamespace) -> None:
-    """study."""
+    """study, sweep."""
     p = sub.add_parser(
         "study",
         parents=[o.design, o.no_update, o.json_results],
@@ -374,6 +375,17 @@ def _add_study_command(sub, o: SimpleNamespace) -> None:
     p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
     p.add_argument("--plots", help="folder for control_energy.png, control_tip.png, … (PNG)")
     p.set_defaults(func=cmd_study)
+    p = sub.add_parser(
+        "sweep",
+        parents=[o.json_results],
+        help="a robustness ensemble or design sweep of the closed-loop study on Dask (docs/sweep.md)",
+    )
+    p.add_argument("sweep", help="sweep file (TOML)")
+    p.add_argument("-o", "--output", help="results folder (default: SWEEP's name + -results, here)")
+    p.add_argument("--scheduler", help="address of a running Dask scheduler (default: a LocalCluster here)")
+    p.add_argument("--workers", type=_positive_int, help="LocalCluster worker processes (default: one per core)")
+    p.add_argument("--resume", action="store_true", help="continue the results in -o: run only the missing batches")
+    p.set_defaults(func=cmd_sweep)
 
 
 def build_parser() -> argparse.ArgumentParser:

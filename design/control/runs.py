@@ -46,13 +46,14 @@ class StudySetup:
     piezo_capacitance: float
     piezo_force_per_volt: float
     piezo_preload: float
+    pulse_amplitude: float = PULSE_AMPLITUDE  # N: the tip pulse's peak (a sweep's uncertain input)
 
     @property
     def plant_step(self) -> float:
         return self.sample_time / PLANT_STEPS_PER_SAMPLE
 
     def pulse(self) -> TriangularPulse:
-        return triangular_pulse(PULSE_AMPLITUDE, PULSE_DURATION, np.ones(self.plant.disturbance_input.shape[1]))
+        return triangular_pulse(self.pulse_amplitude, PULSE_DURATION, np.ones(self.plant.disturbance_input.shape[1]))
 
 
 @dataclass

@@ -1,0 +1,273 @@
+"""One sample of a sweep: the closed-loop study's laws on a perturbed plant, as table rows.
+
+What every sample shares (:class:`EnsembleBase`: the design model, the LQG gains, the nominal
+friction laws, the study's set-up) is built once (:func:`build_base`) and handed to the workers;
+a sample changes only what it draws — the plant's modal frequencies and damping, each joint's
+LuGre parameters, the pulse amplitude — and the design variables of its grid point (ε, F_N^min,
+F_N^max). The controllers stay those designed on the nominal model, as on the real structure.
+
+Rows (:func:`run_batch`): one per sample, grid point and law, with the inputs and the metrics of
+``study.metrics`` (Eq. 32's E(t_e), e(t_e), RMS and peak tip deflection, settling time, control
+power) and the controller samples spent in the safe state. Deterministic: a row depends only on
+the base, the grid point and the sample's inputs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from smartjoint.common.errors import ModelError
+from smartjoint.design.control.filter import ClippedLqg
+from smartjoint.design.control.laws import STATUS_OK, check_limits
+from smartjoint.design.control.lqg import LqgDesign
+from smartjoint.design.control.runs import Run, StudySetup, run_active, run_passive, run_semi_active, setup, siso
+from smartjoint.design.control.study import design_model, lqg_for, metrics, sensor_quantities
+from smartjoint.design.structure.modal import ModalModel
+
+# The metric columns of every row, in order (None in ``study.metrics`` becomes NaN).
+METRICS = (
+    "energy_end",
+    "energy_end_relative",
+    "energy_measure",
+    "tip_rms_total",
+    "tip_peak",
+    "settling_time",
+    "control_power",
+    "safe_state_samples",
+)
+KEYS = ("sample", "point", "law")
+
+
+@dataclass(frozen=True)
+class EnsembleBase:
+    """What every sample shares: the nominal study set-up (its ``model`` the design model the
+    controllers are designed on), the LQG, ε of the design, the laws to run and the columns."""
+
+    setup: StudySetup
+    lqg: LqgDesign | None
+    siso_boundary_layer: tuple[float, ...] | None  # the design's ε per joint, None: none given
+    clqg_boundary_layer: float
+    laws: tuple[str, ...]
+    joint_names: tuple[str, ...]
+    quantities: tuple[str, ...]
+    grid_columns: tuple[str, ...]
+    input_columns: tuple[str, ...]
+
+    def columns(self) -> tuple[str, ...]:
+        """Every column of a row, in order."""
+        return (*KEYS, *self.grid_columns, *self.input_columns, *METRICS)
+
+
+def build_base(sweep, design, input_columns, progress=print) -> EnsembleBase:
+    """The design model, LQG and set-up every sample shares (built once, then shared).
+
+    Parameters
+    ----------
+    sweep : Sweep
+        The sweep (its laws and grid).
+    design : Design
+        The base design (updated, its study duration already the sweep's).
+    input_columns : sequence of str
+        The sampled inputs' columns (``sweep_sampling.input_columns``).
+    progress : callable
+        Receives progress lines.
+
+    Returns
+    -------
+    EnsembleBase
+
+    Raises
+    ------
+    ModelError
+        When SISO is run without an ε in the grid or the design's [control].
+    """
+    model = design_model(design, progress)
+    width = design.control.siso_boundary_layer
+    if "SISO" in sweep.laws and width is None and "siso_boundary_layer" not in sweep.grid:
+        raise ModelError(
+            f"{sweep.source}: the SISO law needs ε — give grid.siso_boundary_layer or the design's "
+            "control.siso_boundary_layer (`smartjoint design` optimises it)"
+        )
+    needs_lqg = "cLQG" in sweep.laws or "active LQG" in sweep.laws
+    count = len(design.joints)
+    shared = setup(design, model)
+    for point in sweep.points():  # in the driver, before any task: a grid against the design's limits
+        point_limits(shared, point)
+    return EnsembleBase(
+        setup=shared,
+        lqg=lqg_for(design, model) if needs_lqg else None,
+        siso_boundary_layer=None if width is None else tuple(np.broadcast_to(np.asarray(width, float), (count,))),
+        clqg_boundary_layer=float(design.control.clqg_boundary_layer),
+        laws=tuple(sweep.laws),
+        joint_names=tuple(j.name for j in design.joints),
+        quantities=tuple(sensor_quantities(design, model)),
+        grid_columns=tuple(sweep.grid),
+        input_columns=tuple(input_columns),
+    )
+
+
+class _CountingSafeState:
+    """A controller wrapper counting the samples whose status is not OK (the safe state)."""
+
+    def __init__(self, inner):
+        self.inner, self.sample_time, self.count = inner, inner.sample_time, 0
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.count = 0
+
+    def step(self, measurements) -> np.ndarray:
+        out = self.inner.step(measurements)
+        self.count += int(getattr(self.inner, "status", STATUS_OK) != STATUS_OK)
+        return out
+
+
+def perturbed_plant(model: ModalModel, inputs: dict[str, float]) -> ModalModel:
+    """The design model with the sample's modal frequency scale and damping (itself when the
+    sample changes neither)."""
+    scale = inputs.get("modal_frequency_scale")
+    damping = inputs.get("modal_damping")
+    if scale is None and damping is None:
+        return model
+    return dataclasses.replace(
+        model,
+        omega=model.omega * (1.0 if scale is None else scale),
+        damping=model.damping if damping is None else np.full_like(model.damping, damping),
+    )
+
+
+def point_limits(s: StudySetup, point: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """F_N^min and F_N^max per joint at a grid point: the point's where it sets them, else the
+    design's; checked (0 <= F_N^min <= F_N^max)."""
+    low = np.full_like(s.normal_force_min, point.get("normal_force_min", 0.0))
+    high = np.full_like(s.normal_force_max, point.get("normal_force_max", 0.0))
+    low = low if "normal_force_min" in point else s.normal_force_min
+    high = high if "normal_force_max" in point else s.normal_force_max
+    check_limits(low, high)
+    return low, high
+
+
+def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, float]) -> StudySetup:
+    """The study set-up of one sample at one grid point: perturbed plant and friction, the
+    point's normal-force limits, the sample's pulse amplitude."""
+    s = base.setup
+    laws = []
+    for joint, law in zip(base.joint_names, s.laws):
+        factors = {
+            name.rpartition(".")[2]: value for name, value in inputs.items() if name.startswith(f"friction.{joint}.")
+        }
+        laws.append(dataclasses.replace(law, **{p: getattr(law, p) * f for p, f in factors.items()}))
+    low, high = point_limits(s, point)
+    return dataclasses.replace(
+        s,
+        plant=perturbed_plant(s.model, inputs),
+        laws=laws,
+        normal_force_min=low,
+        normal_force_max=high,
+        pulse_amplitude=float(inputs.get("pulse_amplitude", s.pulse_amplitude)),
+    )
+
+
+def _run_law(base: EnsembleBase, s: StudySetup, law: str, point: dict[str, float]) -> tuple[Run, int]:
+    """One law's run and its safe-state sample count."""
+    if law == "passive F_min":
+        return run_passive(s, law, s.normal_force_min), 0
+    if law == "passive F_max":
+        return run_passive(s, law, s.normal_force_max), 0
+    if law == "active LQG":
+        assert base.lqg is not None
+        return run_active(dataclasses.replace(s, model=s.plant), base.lqg), 0  # nominal gains, perturbed plant
+    if law == "SISO":
+        width = point.get("siso_boundary_layer", base.siso_boundary_layer)
+        controller = _CountingSafeState(siso(s, width))
+    else:
+        assert base.lqg is not None
+        controller = _CountingSafeState(
+            ClippedLqg(base.lqg, s.normal_force_min, s.normal_force_max, base.clqg_boundary_layer)
+        )
+    return run_semi_active(s, law, controller), controller.count
+
+
+def _number(value) -> float:
+    return math.nan if value is None else float(value)
+
+
+def run_sample(base: EnsembleBase, sample: int, index: int, point: dict[str, float], inputs: dict[str, float]):
+    """The rows of one sample at one grid point, one per law (the base's order).
+
+    Parameters
+    ----------
+    base : EnsembleBase
+    sample, index : int
+        The sample's number and the grid point's.
+    point : dict
+        The grid point's design variables.
+    inputs : dict
+        The sample's uncertain inputs by column.
+
+    Returns
+    -------
+    list of dict
+        Rows with the columns of ``base.columns()``.
+    """
+    s = sample_setup(base, point, inputs)
+    runs = [(law, *_run_law(base, s, law, point)) for law in base.laws]
+    reference = next((run for law, run, _ in runs if law == "passive F_max"), None)
+    rows = []
+    for law, run, safe in runs:
+        m = metrics(run, reference if reference is not None else run, base.quantities)
+        figures = {
+            "energy_end": m["energy_end"],
+            "energy_end_relative": m["energy_end_relative"] if reference is not None else math.nan,
+            "energy_measure": m["energy_measure"],
+            "tip_rms_total": _number(m["tip_rms_total"]),
+            "tip_peak": math.nan if m["tip_peak"] is None else max(m["tip_peak"]),
+            "settling_time": _number(m["settling_time"]),
+            "control_power": m["control_power"],
+            "safe_state_samples": safe,
+        }
+        rows.append({"sample": sample, "point": index, "law": law, **point, **inputs, **figures})
+    return rows
+
+
+def run_batch(base: EnsembleBase, points, samples, values) -> list[dict]:
+    """The rows of a batch: every sample of ``samples`` at every grid point (the task a worker runs).
+
+    Parameters
+    ----------
+    base : EnsembleBase
+    points : list of dict
+        The grid points (``Sweep.points``; one empty point without a grid).
+    samples : sequence of int
+        The batch's sample numbers.
+    values : array_like
+        The batch's uncertain inputs, one row per sample in ``base.input_columns`` order.
+
+    Returns
+    -------
+    list of dict
+        Sample by sample, point by point, law by law.
+    """
+    rows = []
+    for sample, row in zip(samples, np.asarray(values, dtype=float).reshape(len(samples), -1)):
+        inputs = {name: float(v) for name, v in zip(base.input_columns, row)}
+        for index, point in enumerate(points):
+            rows.extend(run_sample(base, int(sample), index, point, inputs))
+    return rows
+
+
+__all__ = [
+    "KEYS",
+    "METRICS",
+    "EnsembleBase",
+    "build_base",
+    "perturbed_plant",
+    "point_limits",
+    "run_batch",
+    "run_sample",
+    "sample_setup",
+]

@@ -1,0 +1,308 @@
+"""The sweep file: a TOML description of a robustness ensemble or design sweep over the closed-loop
+study (issue 20, ``docs/sweep.md``), read with the design file's one-line errors.
+
+A sweep names the base design, the laws to run, the uncertain inputs with their distributions,
+the design variables on grids, the sample count, the seed and the sampler. Every check fails with
+a :class:`~smartjoint.common.errors.DesignError` naming the key path, the value found and what is
+allowed; a key no reader asks for is refused (``unknown key``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from smartjoint.common.errors import MISSING, DesignError
+from smartjoint.design.structure.description import FRICTION_PARAMETERS
+from smartjoint.design.structure.files import read_file, read_toml
+from smartjoint.design.structure.table import DesignTable
+
+SCHEMA = "smartjoint-sweep/1"
+LAWS = ("passive F_min", "passive F_max", "SISO", "cLQG", "active LQG")
+SAMPLERS = ("random", "latin-hypercube", "sobol")
+DISTRIBUTIONS = ("uniform", "normal", "lognormal")
+GRID_VARIABLES = ("siso_boundary_layer", "normal_force_min", "normal_force_max")
+MAX_FILE_BYTES = 1024 * 1024
+MAX_SAMPLES = 10_000_000
+MAX_BATCH = 100_000
+MAX_GRID_POINTS = 100_000
+MAX_SEED = 2**63 - 1
+MAX_NORMAL_FORCE = 1e5  # [N], as [control] (design.structure.control_section)
+
+
+@dataclass(frozen=True)
+class Support:
+    """Where an uncertain input may lie: (low, high), ``low`` excluded, ``high`` included."""
+
+    low: float
+    high: float
+    meaning: str
+
+    def text(self) -> str:
+        high = "∞)" if math.isinf(self.high) else f"{self.high:g}]"
+        return f"({self.low:g}, {high}: {self.meaning}"
+
+
+FACTOR = Support(0.0, math.inf, "a factor on the nominal value")
+# The scalar uncertain inputs of one sample and their supports (friction factors: FACTOR).
+SCALAR_INPUTS = {
+    "modal_frequency_scale": Support(0.0, math.inf, "a factor on every modal frequency ω_i of the simulated plant"),
+    "modal_damping": Support(0.0, 0.99, "the modal damping ratio ξ of every coordinate of the simulated plant"),
+    "pulse_amplitude": Support(0.0, math.inf, "the peak of the triangular tip pulse [N]"),
+}
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """One uncertain input's distribution, truncated to [low, high] (``normal`` always, the
+    others where given): ``uniform`` on [low, high]; ``normal`` of ``mean`` and ``std``;
+    ``lognormal`` of ``median`` and ``sigma`` (the standard deviation of its logarithm)."""
+
+    kind: str
+    low: float
+    high: float
+    mean: float = math.nan  # normal
+    std: float = math.nan  # normal
+    median: float = math.nan  # lognormal
+    sigma: float = math.nan  # lognormal
+
+
+@dataclass(frozen=True)
+class UncertainInput:
+    """An uncertain input: ``name`` is ``modal_frequency_scale``, ``modal_damping``,
+    ``pulse_amplitude`` or ``friction.<parameter>`` (a factor on that LuGre parameter, drawn
+    for every joint independently)."""
+
+    name: str
+    distribution: Distribution
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A validated sweep file. ``grid``: each design variable's values (the sweep runs their
+    Cartesian product, every sample at every point); ``design`` the base design file."""
+
+    source: str
+    sha256: str
+    design: Path
+    update: bool
+    laws: tuple[str, ...]
+    inputs: tuple[UncertainInput, ...]
+    grid: dict[str, tuple[float, ...]]
+    samples: int
+    seed: int
+    sampler: str
+    batch: int
+    study_duration: float | None
+
+    def points(self) -> list[dict[str, float]]:
+        """The grid points: every combination of the grid's values, first variable slowest."""
+        names = list(self.grid)
+        return [dict(zip(names, values)) for values in itertools.product(*(self.grid[n] for n in names))]
+
+    def batches(self) -> list[range]:
+        """The samples of each batch (one task, one result file), in order."""
+        return [range(start, min(start + self.batch, self.samples)) for start in range(0, self.samples, self.batch)]
+
+
+def load_sweep(path: str | Path) -> Sweep:
+    """Read and validate a sweep file (``docs/sweep.md``).
+
+    Parameters
+    ----------
+    path : str or Path
+        The sweep file (TOML); ``design`` inside is relative to it.
+
+    Returns
+    -------
+    Sweep
+        ``sha256`` over the file's bytes.
+
+    Raises
+    ------
+    DesignError
+        Naming the key path, the value and what is allowed.
+    """
+    path = Path(path)
+    source = str(path)
+    raw = read_file(path, "<file>", source, None, MAX_FILE_BYTES)
+    data, _ = read_toml(path, source, raw, [path], MAX_FILE_BYTES, 0)
+    return parse_sweep(data, path.parent, source, hashlib.sha256(raw).hexdigest())
+
+
+def parse_sweep(data: dict[str, Any], folder: Path, source: str = "<memory>", sha256: str = "") -> Sweep:
+    """Validate a sweep given as a (TOML-like) dictionary; ``design`` is relative to ``folder``."""
+    root = DesignTable(data, "", source)
+    schema = root.string("schema", SCHEMA)
+    if schema != SCHEMA:
+        raise root.error("schema", schema, f"this version reads {SCHEMA!r}")
+    design = folder / root.string("design")
+    if not design.is_file():
+        raise root.error("design", str(root.data["design"]), f"no design file {design} (relative to the sweep file)")
+    laws = _laws(root)
+    samples = root.integer("samples", maximum=MAX_SAMPLES)
+    sampler = root.string("sampler", "random", SAMPLERS)
+    if sampler == "sobol" and samples & (samples - 1):
+        raise root.error("samples", samples, "the sobol sampler takes a power of two (its balance needs 2^m points)")
+    duration = root.get("study_duration", None)
+    if duration is not None:
+        duration = root.number("study_duration", positive=True, maximum=3600.0)
+    sweep = Sweep(
+        source=source,
+        sha256=sha256,
+        design=design,
+        update=root.boolean("update", True),
+        laws=laws,
+        inputs=_inputs(root.table("uncertain", {})) if "uncertain" in root.data else (),
+        grid=_grid(root.table("grid", {})) if "grid" in root.data else {},
+        samples=samples,
+        seed=root.integer("seed", minimum=0, maximum=MAX_SEED),
+        sampler=sampler,
+        batch=root.integer("batch", 8, maximum=MAX_BATCH),
+        study_duration=duration,
+    )
+    if len(sweep.points()) > MAX_GRID_POINTS:
+        raise root.error("grid", len(sweep.points()), f"at most {MAX_GRID_POINTS} grid points")
+    _check_limits(root, sweep.grid)
+    root.finish()
+    return sweep
+
+
+def _laws(root: DesignTable) -> tuple[str, ...]:
+    value = root.get("laws", list(LAWS))
+    allowed = "a non-empty list of distinct laws: " + ", ".join(repr(law) for law in LAWS)
+    if not isinstance(value, list) or not value or len(set(map(str, value))) != len(value):
+        raise root.error("laws", value, allowed)
+    for law in value:
+        if law not in LAWS:
+            raise root.error("laws", law, allowed)
+    return tuple(law for law in LAWS if law in value)  # the study's order, whatever the file's
+
+
+def _inputs(table: DesignTable) -> tuple[UncertainInput, ...]:
+    """The [uncertain] table: scalar inputs and the [uncertain.friction] factors."""
+    found = []
+    for name in table.data:
+        if name == "friction":
+            friction = table.table("friction")
+            for parameter in friction.data:
+                if parameter not in FRICTION_PARAMETERS:
+                    allowed = "unknown LuGre parameter; allowed: " + ", ".join(FRICTION_PARAMETERS)
+                    raise friction.error(parameter, friction.data[parameter], allowed)
+                distribution = distribution_of(friction.table(parameter), FACTOR)
+                found.append(UncertainInput(f"friction.{parameter}", distribution))
+            friction.finish()
+        elif name in SCALAR_INPUTS:
+            found.append(UncertainInput(name, distribution_of(table.table(name), SCALAR_INPUTS[name])))
+        else:
+            allowed = "unknown uncertain input; allowed: " + ", ".join([*SCALAR_INPUTS, "friction"])
+            raise table.error(name, table.data[name], allowed)
+    table.finish()
+    return tuple(found)
+
+
+def distribution_of(t: DesignTable, support: Support) -> Distribution:
+    """One distribution table (``distribution = …`` and its parameters), its truncation inside
+    the input's support.
+
+    Parameters
+    ----------
+    t : DesignTable
+        The table, e.g. ``uncertain.friction.sigma0``.
+    support : Support
+        Where the input may lie.
+
+    Returns
+    -------
+    Distribution
+
+    Raises
+    ------
+    DesignError
+        For an unknown kind or key, a parameter out of range, or a range outside the support.
+    """
+    kind = t.string("distribution", choices=DISTRIBUTIONS)
+    if kind == "uniform":
+        d = Distribution(kind, t.number("low"), t.number("high"))
+    elif kind == "normal":
+        d = Distribution(
+            kind, t.number("low"), t.number("high"), mean=t.number("mean"), std=t.number("std", positive=True)
+        )
+    else:
+        if "high" not in t.data and not math.isinf(support.high):
+            raise t.error("high", MISSING, f"required: the lognormal must end inside the support {support.text()}")
+        d = Distribution(
+            kind,
+            t.number("low", 0.0),
+            t.number("high") if "high" in t.data else math.inf,
+            median=t.number("median", positive=True),
+            sigma=t.number("sigma", positive=True),
+        )
+    # The lowest value of an open support is allowed where the density vanishes (lognormal at 0).
+    if d.low < support.low or (d.low == support.low and kind != "lognormal"):
+        raise t.error("low", d.low, f"outside the support {support.text()}")
+    if d.high > support.high:
+        raise t.error("high", d.high, f"outside the support {support.text()}")
+    if not d.low < d.high:
+        raise t.error("high", d.high, f"must be > low ({d.low:g})")
+    t.finish()
+    return d
+
+
+def _grid(table: DesignTable) -> dict[str, tuple[float, ...]]:
+    """The [grid] table: each design variable's values, one for every joint."""
+    grid: dict[str, tuple[float, ...]] = {}
+    for name in table.data:
+        if name not in GRID_VARIABLES:
+            raise table.error(name, table.data[name], "unknown design variable; allowed: " + ", ".join(GRID_VARIABLES))
+        value = table.get(name)
+        if not (
+            isinstance(value, list)
+            and value
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            and all(math.isfinite(v) and 0.0 <= v <= MAX_NORMAL_FORCE for v in value)
+            and len(set(value)) == len(value)
+        ):
+            raise table.error(
+                name, value, f"expected a non-empty list of distinct numbers in [0, {MAX_NORMAL_FORCE:g}]"
+            )
+        if name == "siso_boundary_layer" and min(value) <= 0.0:
+            raise table.error(name, value, "ε must be > 0 [m/s]")
+        grid[name] = tuple(float(v) for v in value)
+    table.finish()
+    return grid
+
+
+def _check_limits(root: DesignTable, grid: dict[str, tuple[float, ...]]) -> None:
+    """Every grid point keeps F_N^min < F_N^max where the grid sets both."""
+    lows, highs = grid.get("normal_force_min", ()), grid.get("normal_force_max", ())
+    for low, high in itertools.product(lows, highs):
+        if not low < high:
+            raise DesignError(
+                "grid.normal_force_min",
+                low,
+                f"every point needs F_N^min < F_N^max (normal_force_max {high:g})",
+                root.source,
+            )
+
+
+__all__ = [
+    "DISTRIBUTIONS",
+    "FACTOR",
+    "GRID_VARIABLES",
+    "LAWS",
+    "SAMPLERS",
+    "SCALAR_INPUTS",
+    "SCHEMA",
+    "Distribution",
+    "Support",
+    "Sweep",
+    "UncertainInput",
+    "distribution_of",
+    "load_sweep",
+    "parse_sweep",
+]

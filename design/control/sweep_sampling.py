@@ -1,0 +1,122 @@
+"""The samples of a sweep: points of the unit cube from the sweep's sampler and seed, mapped
+through each uncertain input's (truncated) inverse distribution function.
+
+Deterministic: sample i depends only on the seed and i (``random``: the i-th child of the seed's
+``numpy.random.SeedSequence``), or on the seed, i and the sample count (``latin-hypercube`` and
+``sobol`` of ``scipy.stats.qmc`` with the seed as their generator) — never on how many workers
+run the sweep nor in which order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+from scipy.stats import qmc
+
+from smartjoint.design.control.sweep_file import Distribution, Sweep
+
+
+def input_columns(sweep: Sweep, joint_names) -> list[str]:
+    """The names of the sampled columns: the scalar inputs as named, each friction factor once
+    per joint (``friction.A1.sigma0``), in the sweep file's order.
+
+    Parameters
+    ----------
+    sweep : Sweep
+    joint_names : sequence of str
+        The design's joints, in design order.
+
+    Returns
+    -------
+    list of str
+    """
+    columns: list[str] = []
+    for uncertain in sweep.inputs:
+        if uncertain.name.startswith("friction."):
+            parameter = uncertain.name.removeprefix("friction.")
+            columns.extend(f"friction.{joint}.{parameter}" for joint in joint_names)
+        else:
+            columns.append(uncertain.name)
+    return columns
+
+
+def unit_samples(sampler: str, samples: int, dimensions: int, seed: int) -> np.ndarray:
+    """Points of the open unit cube, one row per sample.
+
+    Parameters
+    ----------
+    sampler : str
+        ``random``, ``latin-hypercube`` or ``sobol`` (scrambled; ``samples`` a power of two).
+    samples, dimensions : int
+    seed : int
+
+    Returns
+    -------
+    ndarray
+        (samples, dimensions), in [0, 1).
+    """
+    if dimensions == 0:
+        return np.zeros((samples, 0))
+    if sampler == "random":
+        return np.array([np.random.default_rng(child).random(dimensions) for child in _children(seed, samples)])
+    if sampler == "latin-hypercube":
+        return qmc.LatinHypercube(dimensions, rng=np.random.default_rng(seed)).random(samples)
+    return qmc.Sobol(dimensions, rng=np.random.default_rng(seed)).random(samples)
+
+
+def _children(seed: int, count: int) -> list[np.random.SeedSequence]:
+    """The first ``count`` children of the seed's SeedSequence, each made from its index alone
+    (``SeedSequence(seed).spawn`` gives the same ones in order)."""
+    return [np.random.SeedSequence(seed, spawn_key=(i,)) for i in range(count)]
+
+
+def inverse(distribution: Distribution, unit: np.ndarray) -> np.ndarray:
+    """Values of ``distribution`` truncated to [low, high] at the unit-cube coordinates ``unit``.
+
+    Parameters
+    ----------
+    distribution : Distribution
+    unit : ndarray
+        Coordinates in [0, 1).
+
+    Returns
+    -------
+    ndarray
+        Within [low, high].
+    """
+    d = distribution
+    if d.kind == "uniform":
+        return d.low + unit * (d.high - d.low)
+    frozen = stats.norm(d.mean, d.std) if d.kind == "normal" else stats.lognorm(d.sigma, scale=d.median)
+    bottom, top = frozen.cdf(d.low), frozen.cdf(d.high)
+    if not top > bottom:  # the whole mass outside [low, high]: numerically a point
+        return np.full_like(unit, np.clip(frozen.median(), d.low, d.high))
+    return np.clip(frozen.ppf(bottom + unit * (top - bottom)), d.low, d.high)
+
+
+def sample_inputs(sweep: Sweep, joint_names) -> tuple[list[str], np.ndarray]:
+    """Every sample's uncertain inputs.
+
+    Parameters
+    ----------
+    sweep : Sweep
+    joint_names : sequence of str
+        The design's joints, in design order.
+
+    Returns
+    -------
+    tuple
+        (the column names of :func:`input_columns`, an array of one row per sample).
+    """
+    columns = input_columns(sweep, joint_names)
+    unit = unit_samples(sweep.sampler, sweep.samples, len(columns), sweep.seed)
+    values = np.empty_like(unit)
+    column = 0
+    for uncertain in sweep.inputs:
+        width = len(joint_names) if uncertain.name.startswith("friction.") else 1
+        values[:, column : column + width] = inverse(uncertain.distribution, unit[:, column : column + width])
+        column += width
+    return columns, values
+
+
+__all__ = ["input_columns", "inverse", "sample_inputs", "unit_samples"]

@@ -1,0 +1,24 @@
+"""``smartjoint sweep``: a robustness ensemble or design sweep of the closed-loop study on Dask
+(``docs/sweep.md``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from smartjoint.commands import report_progress
+
+
+def cmd_sweep(args) -> dict:
+    from smartjoint.design.control.sweep_file import load_sweep
+    from smartjoint.sweep_runner import run_sweep
+
+    sweep = load_sweep(args.sweep)
+    folder = Path(args.output) if args.output else Path(f"{Path(args.sweep).stem}-results")
+    out = run_sweep(sweep, folder, args.scheduler, args.workers, args.resume, report_progress)
+    if not args.json:
+        for key, value in out.items():
+            print(f"{key}: {value}")
+    return out
+
+
+__all__ = ["cmd_sweep"]

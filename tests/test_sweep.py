@@ -1,0 +1,268 @@
+"""Sweeps of the closed-loop study (issue 20, docs/sweep.md): the sweep file and its one-line
+errors, deterministic samples, one sample against the study, and the Dask runner — the same
+table on 1 and on 2 workers, ``--resume`` recomputing only a missing batch, an unreachable
+scheduler refused within 10 s. Small truss, 0.2 s studies, a handful of samples."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import tomli_w
+from conftest import cli_error, small_truss
+
+from smartjoint.common.errors import DesignError, ModelError
+from smartjoint.design.control import ensemble, sweep_sampling
+from smartjoint.design.control import study as closed_loop
+from smartjoint.design.control.sweep_file import load_sweep
+from smartjoint.design.structure.spec import parse_design
+from smartjoint.sweep_runner import SweepError, batch_path, connect, prepare, read_results, run_sweep
+
+SWEEP = """\
+design = "small.toml"
+laws = ["passive F_min", "passive F_max", "SISO", "cLQG", "active LQG"]
+samples = 5
+seed = 20
+batch = 2
+sampler = "latin-hypercube"
+study_duration = 0.2
+
+[uncertain]
+modal_frequency_scale = { distribution = "normal", mean = 1.0, std = 0.01, low = 0.97, high = 1.03 }
+modal_damping = { distribution = "lognormal", median = 0.001, sigma = 0.3, high = 0.01 }
+pulse_amplitude = { distribution = "uniform", low = 180.0, high = 220.0 }
+
+[uncertain.friction]
+sigma0 = { distribution = "uniform", low = 0.95, high = 1.05 }
+coulomb = { distribution = "normal", mean = 1.0, std = 0.03, low = 0.9, high = 1.1 }
+
+[grid]
+siso_boundary_layer = [1e-4, 1e-3]
+"""
+
+
+def _small_design() -> dict:
+    design = small_truss()
+    design["control"] = {"modes": 4, "considered_modes": 10, "study_duration": 0.2}
+    return design
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """A folder with the small truss's design file and the sweep file."""
+    path = tmp_path_factory.mktemp("sweep")
+    (path / "small.toml").write_text(tomli_w.dumps(_small_design()))
+    (path / "sweep.toml").write_text(SWEEP)
+    return path
+
+
+def _error(folder, text: str) -> str:
+    path = folder / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(DesignError) as caught:
+        load_sweep(path)
+    message = str(caught.value)
+    assert "\n" not in message
+    return message
+
+
+def _replace(key_line: str, new: str) -> str:
+    assert key_line in SWEEP
+    return SWEEP.replace(key_line, new)
+
+
+# ---------------------------------------------------------------------------------- the file
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ("samples = 5", "samples = 0", "samples: 0 — must be an integer 1"),
+        ("seed = 20", "seed = 20\nworkers = 3", "workers: 3 — unknown key"),
+        (
+            "study_duration = 0.2",
+            "study_duration = 0.2\n[uncertain.jitter]",
+            "uncertain.jitter: {} — unknown uncertain",
+        ),
+        ("sigma0 = {", "sigma3 = {", "uncertain.friction.sigma3:"),
+        (
+            "low = 0.95, high = 1.05",
+            "low = -0.05, high = 0.05",
+            "uncertain.friction.sigma0.low: -0.05 — outside the support (0, ∞)",
+        ),
+        ("sigma = 0.3, high = 0.01", "sigma = 0.3", "uncertain.modal_damping.high: missing — required"),
+        (
+            "sigma = 0.3, high = 0.01",
+            "sigma = 0.3, high = 1.5",
+            "uncertain.modal_damping.high: 1.5 — outside the support (0, 0.99]",
+        ),
+        ("std = 0.01,", "std = 0.0,", "uncertain.modal_frequency_scale.std: 0.0 — must be > 0"),
+        (
+            '"uniform", low = 180.0',
+            '"beta", low = 180.0',
+            "uncertain.pulse_amplitude.distribution: 'beta' — allowed: 'uniform'",
+        ),
+        ('"cLQG", ', '"cLQR", ', "laws: 'cLQR' — a non-empty list"),
+        ('sampler = "latin-hypercube"', 'sampler = "sobol"', "samples: 5 — the sobol sampler takes a power of two"),
+        (
+            "[grid]",
+            "[grid]\nnormal_force_min = [10.0, 500.0]\nnormal_force_max = [400.0]",
+            "grid.normal_force_min: 500.0",
+        ),
+        ("[grid]", "[grid]\nplacement = [1]", "grid.placement: [1] — unknown design variable"),
+        ('design = "small.toml"', 'design = "missing.toml"', "design: 'missing.toml' — no design file"),
+    ],
+)
+def test_sweep_file_errors_name_key_value_and_what_is_allowed(folder, old, new, expected):
+    assert expected in _error(folder, _replace(old, new))
+
+
+def test_sweep_file_reads_inputs_grid_and_laws(folder):
+    sweep = load_sweep(folder / "sweep.toml")
+    assert [i.name for i in sweep.inputs] == [
+        "modal_frequency_scale",
+        "modal_damping",
+        "pulse_amplitude",
+        "friction.sigma0",
+        "friction.coulomb",
+    ]
+    assert sweep.points() == [{"siso_boundary_layer": 1e-4}, {"siso_boundary_layer": 1e-3}]
+    assert [list(b) for b in sweep.batches()] == [[0, 1], [2, 3], [4]]
+    assert len(sweep.sha256) == 64
+
+
+def test_zero_samples_is_one_line_on_the_command_line(folder):
+    (folder / "zero.toml").write_text(_replace("samples = 5", "samples = 0"))
+    assert "samples: 0 — must be an integer 1" in cli_error("sweep", str(folder / "zero.toml"))
+
+
+def test_the_example_sweep_reads():
+    sweep = load_sweep(Path(__file__).resolve().parents[1] / "examples" / "three_type_a_sweep.toml")
+    assert sweep.design.is_file() and sweep.samples == 16 and "active LQG" not in sweep.laws
+
+
+# ------------------------------------------------------------------------------- the samples
+def test_random_samples_depend_only_on_seed_and_index():
+    few, many = (sweep_sampling.unit_samples("random", n, 3, 7) for n in (3, 10))
+    np.testing.assert_array_equal(few, many[:3])
+    children = np.random.SeedSequence(7).spawn(10)
+    np.testing.assert_array_equal(many[9], np.random.default_rng(children[9]).random(3))
+    for sampler in ("latin-hypercube", "sobol"):
+        a, b = (sweep_sampling.unit_samples(sampler, 8, 2, 5) for _ in range(2))
+        np.testing.assert_array_equal(a, b)
+        assert np.all((a >= 0) & (a < 1))
+
+
+def test_samples_lie_within_their_truncation(folder):
+    sweep = dataclasses.replace(load_sweep(folder / "sweep.toml"), samples=200, sampler="random")
+    columns, values = sweep_sampling.sample_inputs(sweep, ["JA", "JB"])
+    assert columns[3:] == ["friction.JA.sigma0", "friction.JB.sigma0", "friction.JA.coulomb", "friction.JB.coulomb"]
+    for column, (low, high) in zip(columns, [(0.97, 1.03), (0.0, 0.01), (180, 220), *[(0.9, 1.1)] * 4]):
+        values_of = values[:, columns.index(column)]
+        assert np.all((values_of >= low) & (values_of <= high)), column
+    assert 0.0008 < np.median(values[:, 1]) < 0.00125  # lognormal of median 1e-3
+
+
+@pytest.fixture(scope="module")
+def prepared(folder):
+    """The sweep prepared once: design model, reduction, gains and the samples' inputs."""
+    return prepare(load_sweep(folder / "sweep.toml"), progress=lambda line: None)
+
+
+def test_a_nominal_sample_is_the_study(prepared):
+    """No uncertain input, the design's own limits: the rows carry the study's metrics."""
+    design = parse_design(_small_design())
+    design = dataclasses.replace(design, control=dataclasses.replace(design.control, siso_boundary_layer=(3e-4,)))
+    base = dataclasses.replace(prepared.base, input_columns=())
+    rows = ensemble.run_batch(base, [{"siso_boundary_layer": 3e-4}], [0], np.zeros((1, 0)))
+    study = closed_loop.run_study(design, base.setup.model, progress=lambda line: None)
+    assert [row["law"] for row in rows] == [run.name for run in study.runs]
+    for row in rows:
+        m = study.run(row["law"]).metrics
+        assert row["energy_measure"] == m["energy_measure"] and row["energy_end"] == m["energy_end"]
+        assert row["tip_peak"] == max(m["tip_peak"]) and row["control_power"] == m["control_power"]
+        assert row["energy_end_relative"] == m["energy_end_relative"]
+
+
+def test_a_sample_perturbs_plant_friction_and_pulse(prepared):
+    base = prepared.base
+    inputs = dict(zip(base.input_columns, prepared.values[0]))
+    s = ensemble.sample_setup(base, {"siso_boundary_layer": 1e-4}, inputs)
+    np.testing.assert_array_equal(s.plant.omega, base.setup.model.omega * inputs["modal_frequency_scale"])
+    assert np.all(s.plant.damping == inputs["modal_damping"]) and s.pulse_amplitude == inputs["pulse_amplitude"]
+    assert s.laws[1].sigma0 == base.setup.laws[1].sigma0 * inputs["friction.JB.sigma0"]
+    assert s.laws[0].sigma1 == base.setup.laws[0].sigma1  # not sampled: nominal
+    assert s.model is base.setup.model  # the controllers keep the nominal design model
+
+
+def test_a_grid_point_against_the_design_limits_is_refused(prepared):
+    with pytest.raises(ModelError, match=r"normal_force_min \[500.0, 500.0\] / normal_force_max \[400.0, 400.0\]"):
+        ensemble.point_limits(prepared.base.setup, {"normal_force_min": 500.0})
+    low, high = ensemble.point_limits(prepared.base.setup, {"normal_force_max": 300.0})
+    assert low.tolist() == prepared.base.setup.normal_force_min.tolist() and high.tolist() == [300.0, 300.0]
+
+
+# -------------------------------------------------------------------------------- the runner
+def _bytes(table) -> bytes:
+    """The table as Parquet bytes (``Table.equals`` holds NaN unequal to itself)."""
+    buffer = io.BytesIO()
+    pq.write_table(table, buffer)
+    return buffer.getvalue()
+
+
+@pytest.fixture(scope="module")
+def two_workers():
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        yield cluster.scheduler_address
+
+
+def test_one_and_two_workers_give_identical_tables_and_resume_fills_a_gap(folder, two_workers):
+    sweep = load_sweep(folder / "sweep.toml")
+    quiet = []
+    one = run_sweep(sweep, folder / "one", workers=1, progress=quiet.append)
+    two = run_sweep(sweep, folder / "two", scheduler=two_workers, progress=quiet.append)
+    assert (one["workers"], two["workers"], one["rows"]) == (1, 2, 5 * 2 * 5)
+    assert any("5/5 samples (100 %)" in line and "ETA" in line for line in quiet)
+    for k in range(3):  # byte for byte, file by file
+        assert batch_path(folder / "one", k).read_bytes() == batch_path(folder / "two", k).read_bytes()
+    table = read_results(folder / "one")
+    assert _bytes(table) == _bytes(read_results(folder / "two")) and table.num_rows == 50
+    assert table.column("sample").to_pylist()[:10] == [0] * 10
+
+    kept = {k: batch_path(folder / "two", k).stat().st_mtime_ns for k in (0, 2)}
+    batch_path(folder / "two", 1).unlink()
+    again = run_sweep(sweep, folder / "two", scheduler=two_workers, resume=True, progress=quiet.append)
+    assert (again["batches_computed"], again["samples_computed"]) == (1, 2)
+    assert {k: batch_path(folder / "two", k).stat().st_mtime_ns for k in (0, 2)} == kept
+    assert batch_path(folder / "two", 1).read_bytes() == batch_path(folder / "one", 1).read_bytes()
+
+    with pytest.raises(SweepError, match="--resume continues it"):
+        run_sweep(sweep, folder / "two", scheduler=two_workers, progress=quiet.append)
+    other = dataclasses.replace(sweep, seed=21, sha256="0" * 64)
+    with pytest.raises(SweepError, match="results of another sweep"):
+        run_sweep(other, folder / "two", scheduler=two_workers, resume=True, progress=quiet.append)
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:  # a port nothing listens on once closed
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_an_unreachable_scheduler_fails_within_ten_seconds(folder):
+    """Timed in this process (a loaded machine may take seconds just to start an interpreter);
+    the command line then refuses with the one line."""
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    start = time.monotonic()
+    with pytest.raises(SweepError, match="cannot reach a Dask scheduler within 3 s"):
+        connect(address, None)
+    assert time.monotonic() - start < 10.0
+    line = cli_error("sweep", str(folder / "sweep.toml"), "--scheduler", address, "-o", str(folder / "x"))
+    assert f"smartjoint sweep: error: --scheduler {address}: cannot reach a Dask scheduler within 3 s" in line
+    assert not (folder / "x").exists()
