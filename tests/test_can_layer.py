@@ -124,7 +124,8 @@ def test_sil_matches_the_model_in_the_loop_study(bench, tmp_path):
         low, high = f["mil_spread_under_float_rounding"]
         low, high = min(low, 0.0), max(high, 0.0)
         margin = max(high - low, 0.01)
-        assert low - margin <= f["energy_measure_difference"] <= high + margin, (law, f["energy_measure_difference"], low, high)
+        difference = f["energy_measure_difference"]
+        assert low - margin <= difference <= high + margin, (law, difference, low, high)
         assert f["bus"]["e2e_errors"] == 0 and f["bus"]["firmware"]["timeouts"] == 0 and f["bus"]["safe_samples"] == 0
         assert f["bus"]["bus_load"] == pytest.approx(out["planned_bus_load"], rel=0.02)
     # The log replays through the firmware bit-exactly.
