@@ -174,6 +174,16 @@ static int inputs_plausible(const smartjoint_clqg_input *input)
            input->normal_force[2] >= measured_normal_force_min[2] && input->normal_force[2] <= measured_normal_force_max[2];
 }
 
+/* Eq. 34 for one joint: F_N = F^min + (F^max - F^min) clip((u_d - u_R) sgn(u_R) / eps, 0, 1).
+ * The same numbers as the product with sgn(u_R), as -(a - b) = b - a exactly; for u_R = 0 the
+ * product's +-0 clips to 0. */
+static smartjoint_real clipped_command(const joint_law *g, smartjoint_real desired, smartjoint_real friction)
+{
+    smartjoint_real ratio = (friction > 0.0f ? desired - friction : (friction < 0.0f ? friction - desired : 0.0f)) / boundary_layer;
+    ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
+    return MULTIPLY_ADD(g->normal_force_min, g->normal_force_range, ratio);
+}
+
 /* Output phase, right after the measurements arrive: the command from the new measurement and what
  * the previous update phase left in the state, r = (K - K M C) q (control.hold_products):
  *   u_d = -((r + (K M C Gamma1 E - K Gamma1 E) u) + (K M) y),
@@ -183,7 +193,8 @@ unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const sm
 {
     smartjoint_real friction0, friction1, friction2;
     smartjoint_real sensor0, sensor1;
-    int started, j;
+    smartjoint_real force0, force1, force2;
+    smartjoint_real finite_test = 0.0f;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
     }
@@ -195,31 +206,43 @@ unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const sm
     friction2 = input->friction_force[2];
     sensor0 = input->sensors[0];
     sensor1 = input->sensors[1];
-    started = state->started;
-    /* u_d and the clipped law of Eq. 34, joint by joint. A non-finite estimate makes r
-     * non-finite, so checking the forces covers it. */
-    for (j = 0; j < JOINTS; ++j) {
-        const joint_law *g = &law[j];
-        const smartjoint_real friction = input->friction_force[j];
-        smartjoint_real force = state->feedback[j], desired, ratio;
-        if (started) {
-            force = MULTIPLY_ADD(force, g->feedback_hold[0], friction0);
-            force = MULTIPLY_ADD(force, g->feedback_hold[1], friction1);
-            force = MULTIPLY_ADD(force, g->feedback_hold[2], friction2);
-        }
-        force = MULTIPLY_ADD(force, g->feedback_estimator[0], sensor0);
-        force = MULTIPLY_ADD(force, g->feedback_estimator[1], sensor1);
-        if (!isfinite(force)) {
-            return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
-        }
-        desired = -force;
-        /* (u_d - u_R) sgn(u_R) / eps clipped to [0, 1]: the same numbers as the product with
-         * sgn(u_R), as -(a - b) = b - a exactly; for u_R = 0 the product's +-0 clips to 0. */
-        ratio = (friction > 0.0f ? desired - friction : (friction < 0.0f ? friction - desired : 0.0f)) / boundary_layer;
-        ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
-        output->desired_force[j] = desired;
-        output->normal_force[j] = MULTIPLY_ADD(g->normal_force_min, g->normal_force_range, ratio);
-        state->command[j] = output->normal_force[j];
+    /* u_d = -force_j, joint by joint, each force a chain of multiply-adds in the reference's order.
+     * A non-finite estimate makes r non-finite, so testing the forces covers it: force * 0 is NaN
+     * exactly when force is not finite, so one test after the last covers them all. */
+    force0 = state->feedback[0];
+    force1 = state->feedback[1];
+    force2 = state->feedback[2];
+    if (state->started) {
+        force0 = MULTIPLY_ADD(force0, law[0].feedback_hold[0], friction0);
+        force0 = MULTIPLY_ADD(force0, law[0].feedback_hold[1], friction1);
+        force0 = MULTIPLY_ADD(force0, law[0].feedback_hold[2], friction2);
+        force1 = MULTIPLY_ADD(force1, law[1].feedback_hold[0], friction0);
+        force1 = MULTIPLY_ADD(force1, law[1].feedback_hold[1], friction1);
+        force1 = MULTIPLY_ADD(force1, law[1].feedback_hold[2], friction2);
+        force2 = MULTIPLY_ADD(force2, law[2].feedback_hold[0], friction0);
+        force2 = MULTIPLY_ADD(force2, law[2].feedback_hold[1], friction1);
+        force2 = MULTIPLY_ADD(force2, law[2].feedback_hold[2], friction2);
+    }
+    force0 = MULTIPLY_ADD(force0, law[0].feedback_estimator[0], sensor0);
+    force0 = MULTIPLY_ADD(force0, law[0].feedback_estimator[1], sensor1);
+    finite_test = MULTIPLY_ADD(finite_test, force0, 0.0f);
+    force1 = MULTIPLY_ADD(force1, law[1].feedback_estimator[0], sensor0);
+    force1 = MULTIPLY_ADD(force1, law[1].feedback_estimator[1], sensor1);
+    finite_test = MULTIPLY_ADD(finite_test, force1, 0.0f);
+    force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[0], sensor0);
+    force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[1], sensor1);
+    finite_test = MULTIPLY_ADD(finite_test, force2, 0.0f);
+    output->desired_force[0] = -force0;
+    output->normal_force[0] = clipped_command(&law[0], -force0, friction0);
+    state->command[0] = output->normal_force[0];
+    output->desired_force[1] = -force1;
+    output->normal_force[1] = clipped_command(&law[1], -force1, friction1);
+    state->command[1] = output->normal_force[1];
+    output->desired_force[2] = -force2;
+    output->normal_force[2] = clipped_command(&law[2], -force2, friction2);
+    state->command[2] = output->normal_force[2];
+    if (isnan(finite_test)) {
+        return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
     }
     state->measured = *input;
     state->pending = 1;
