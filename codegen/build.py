@@ -206,7 +206,14 @@ def _header_declarations(text: str) -> str:
     return _IDENTIFIER.sub(lambda match: sizes.get(match.group(0), match.group(0)), "\n".join(kept))
 
 
-def load(stem: str, files: Mapping[str, str], header: str, sources: Iterable[str], flags: list[str] | None = None):
+def load(
+    stem: str,
+    files: Mapping[str, str],
+    header: str,
+    sources: Iterable[str],
+    flags: list[str] | None = None,
+    source_flags: Mapping[str, list[str]] | None = None,
+):
     """Compile a set of generated files in the build cache and load it with cffi.
 
     The set goes to a cache folder named by its hash (files already there as they are stay
@@ -227,6 +234,8 @@ def load(stem: str, files: Mapping[str, str], header: str, sources: Iterable[str
         The ``.c`` files linked into the module.
     flags : list of str, optional
         The compiler flags of the sources; default :data:`FLAGS`.
+    source_flags : mapping of str to list of str, optional
+        Other flags for some of the sources (a hand-written source not held to the warning set).
 
     Returns
     -------
@@ -244,6 +253,7 @@ def load(stem: str, files: Mapping[str, str], header: str, sources: Iterable[str
     if stale:
         output.write(stale, folder)
     flags = FLAGS if flags is None else flags
-    objects = tuple(compile_object(folder / name, flags) for name in sources)
+    chosen = dict(source_flags or {})
+    objects = tuple(compile_object(folder / name, chosen.get(name, flags)) for name in sources)
     module = native.load(stem, declarations(files, [header]), folder / "_glue.c", objects=objects, includes=(folder,))
     return folder, module

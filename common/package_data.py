@@ -33,6 +33,8 @@ FILES: dict[str, tuple[str, ...]] = {
             "can.h.j2",
             "clqg.c.j2",
             "clqg.h.j2",
+            "closed_loop.c.j2",
+            "closed_loop.h.j2",
             "main.c.j2",
             "main_can.c.j2",
             "siso.c.j2",

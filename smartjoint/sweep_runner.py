@@ -28,7 +28,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from smartjoint.common.errors import SmartjointError
+from smartjoint.codegen.closed_loop import LAWS, CompiledLoops
+from smartjoint.common.errors import ModelError, SmartjointError
 from smartjoint.design.control import ensemble, sweep_sampling
 from smartjoint.design.control.sweep_file import Sweep
 
@@ -50,6 +51,7 @@ class Prepared:
     points: list[dict[str, float]]
     values: np.ndarray  # (samples, inputs)
     design_sha256: str
+    compiled: CompiledLoops | None = None  # the semi-active laws' compiled closed loop; None: Python
 
     def schema(self) -> pa.Schema:
         """The columns of every batch file."""
@@ -91,7 +93,22 @@ def prepare(sweep: Sweep, progress=print) -> Prepared:
     columns, values = sweep_sampling.sample_inputs(sweep, joints)
     progress(f"design model, reduction and gains of {design.name!r} (built once, shared with the workers) …")
     base = ensemble.build_base(sweep, design, columns, progress)
-    return Prepared(sweep, base, sweep.points(), values, design.sha256)
+    return Prepared(sweep, base, sweep.points(), values, design.sha256, _compiled_loops(base, progress))
+
+
+def _compiled_loops(base: ensemble.EnsembleBase, progress) -> CompiledLoops | None:
+    """The compiled closed loop of every grid point's artefact, built here once (the workers load
+    it from the build cache); None, said once, where it cannot be built (no C compiler)."""
+    if not any(law in LAWS for law in base.laws):
+        return None
+    loops = CompiledLoops()
+    try:
+        for artifact in base.artifacts:
+            loops(artifact)
+    except ModelError as error:
+        progress(f"the semi-active laws run in Python (about 10x slower): {str(error).splitlines()[0]}")
+        return None
+    return loops
 
 
 def connect(scheduler: str | None, workers: int | None):
@@ -292,49 +309,43 @@ def run_sweep(
             cluster.close()
 
 
-def _warm_up() -> None:
-    """On a worker: import the closed loop and load the plant's C kernel (compiled once per cache)."""
+def _warm_up(artifacts) -> None:
+    """On a worker: import the closed loop and load the plant's C kernel and the compiled loops
+    of ``artifacts`` (compiled once per cache)."""
     from smartjoint.design.control import ensemble  # noqa: F401 - the import is the point
     from smartjoint.design.plant import kernel
 
     try:
         kernel.native_module()
+        loops = CompiledLoops()
+        for artifact in artifacts:
+            loops(artifact)
     except Exception:  # no compiler here: the runs fall back to the numpy mirror and say so
         pass
 
 
 def _compute(client, prepared: Prepared, folder: Path, todo: list[int], progress) -> dict:
     """Submit the missing batches, write each as it finishes, report progress."""
-    from dask.distributed import as_completed
+    from dask.distributed import get_task_stream
 
     sweep, batches = prepared.sweep, prepared.sweep.batches()
-    done = sweep.samples - sum(len(batches[k]) for k in todo)
     workers = len(client.scheduler_info().get("workers", {}))
     progress(f"sweep {Path(sweep.source).name}: {len(todo)} of {len(batches)} batches to run on {workers} worker(s)")
-    schema, computed, started = prepared.schema(), 0, time.perf_counter()
+    started, base = time.perf_counter(), None
     if todo:
         base = client.scatter(prepared.base, broadcast=True)
-        client.run(_warm_up)  # the workers import the simulation and load its C kernel before the clock runs
+        # The workers import the simulation and load its C kernels before the clock runs.
+        client.run(_warm_up, prepared.base.artifacts if prepared.compiled is not None else ())
     start = time.perf_counter()
-    if todo:
-        futures = {
-            client.submit(
-                ensemble.run_batch,
-                base,
-                prepared.points,
-                list(batches[k]),
-                prepared.values[batches[k].start : batches[k].stop],
-                key=f"smartjoint-sweep-{sweep.sha256[:12]}-batch-{k}",
-                pure=False,
-            ): k
-            for k in todo
-        }
-        for future in as_completed(futures, loop=client.loop):
-            k = futures[future]
-            write_batch(folder, k, future.result(), schema)
-            done, computed = done + len(batches[k]), computed + len(batches[k])
-            progress("  " + _eta(done, sweep.samples, computed, time.perf_counter() - start))
+    with get_task_stream(client) as stream:  # the workers' compute time, from Dask's own records
+        computed = _submit_and_write(client, prepared, folder, todo, base, progress, start)
     elapsed = time.perf_counter() - start
+    compute = sum(
+        part["stop"] - part["start"]
+        for task in stream.data
+        for part in task["startstops"]
+        if part["action"] == "compute"
+    )
     return {
         "output": str(folder),
         "samples": sweep.samples,
@@ -346,7 +357,41 @@ def _compute(client, prepared: Prepared, folder: Path, todo: list[int], progress
         "startup_seconds": start - started,  # scattering the base, the workers' imports
         "seconds": elapsed,
         "samples_per_second": computed / elapsed if elapsed > 0 and computed else None,
+        "samples_per_core_second": computed / (workers * elapsed) if elapsed > 0 and computed else None,
+        "compute_seconds": compute,
+        # Worker time not spent in the batches' simulations: scheduling, serialisation, idle
+        # workers, and the driver's Parquet writing, which shares the machine's cores.
+        "outside_share": 1.0 - compute / (workers * elapsed) if elapsed > 0 and computed else None,
     }
+
+
+def _submit_and_write(client, prepared: Prepared, folder: Path, todo: list[int], base, progress, start) -> int:
+    """Submit the missing batches and write each as it finishes; the samples computed."""
+    from dask.distributed import as_completed
+
+    sweep, batches = prepared.sweep, prepared.sweep.batches()
+    done, computed = sweep.samples - sum(len(batches[k]) for k in todo), 0
+    schema = prepared.schema()
+    if todo:
+        futures = {
+            client.submit(
+                ensemble.run_batch,
+                base,
+                prepared.points,
+                list(batches[k]),
+                prepared.values[batches[k].start : batches[k].stop],
+                prepared.compiled,
+                key=f"smartjoint-sweep-{sweep.sha256[:12]}-batch-{k}",
+                pure=False,
+            ): k
+            for k in todo
+        }
+        for future in as_completed(futures, loop=client.loop):
+            k = futures[future]
+            write_batch(folder, k, future.result(), schema)
+            done, computed = done + len(batches[k]), computed + len(batches[k])
+            progress("  " + _eta(done, sweep.samples, computed, time.perf_counter() - start))
+    return computed
 
 
 __all__ = [

@@ -177,8 +177,11 @@ def test_a_nominal_sample_is_the_study(prepared):
     """No uncertain input, the design's own limits: the rows carry the study's metrics."""
     design = parse_design(_small_design())
     design = dataclasses.replace(design, control=dataclasses.replace(design.control, siso_boundary_layer=(3e-4,)))
-    base = dataclasses.replace(prepared.base, input_columns=())
-    rows = ensemble.run_batch(base, [{"siso_boundary_layer": 3e-4}], [0], np.zeros((1, 0)))
+    point = {"siso_boundary_layer": 3e-4}
+    model, lqg = prepared.base.setup.model, prepared.base.lqg
+    artifact = ensemble.point_artifact(design, model, lqg, point)
+    base = dataclasses.replace(prepared.base, input_columns=(), artifacts=(artifact,))
+    rows = ensemble.run_batch(base, [point], [0], np.zeros((1, 0)), prepared.compiled)
     study = closed_loop.run_study(design, base.setup.model, progress=lambda line: None)
     assert [row["law"] for row in rows] == [run.name for run in study.runs]
     for row in rows:
@@ -266,3 +269,46 @@ def test_an_unreachable_scheduler_fails_within_ten_seconds(folder):
     line = cli_error("sweep", str(folder / "sweep.toml"), "--scheduler", address, "-o", str(folder / "x"))
     assert f"smartjoint sweep: error: --scheduler {address}: cannot reach a Dask scheduler within 3 s" in line
     assert not (folder / "x").exists()
+
+
+def test_the_compiled_loop_gives_the_rows_of_the_python_reference(prepared):
+    """Every row of two perturbed samples at both grid points: the compiled closed loop (the
+    default where a compiler builds) and the Python reference laws give the same numbers."""
+    assert prepared.compiled is not None
+    points, values = prepared.points, prepared.values[:2]
+    compiled = ensemble.run_batch(prepared.base, points, [0, 1], values, prepared.compiled)
+    python = ensemble.run_batch(prepared.base, points, [0, 1], values)
+    assert len(compiled) == len(python) == 2 * len(points) * len(prepared.base.laws)
+    for c, p in zip(compiled, python):
+        assert c.keys() == p.keys()
+        assert all(c[k] == p[k] or (c[k] != c[k] and p[k] != p[k]) for k in c), (c, p)
+
+
+def test_killing_a_worker_mid_sweep_loses_no_sample(folder):
+    """One worker process killed (SIGKILL) as soon as the first batch is written: Dask re-runs
+    its tasks on the other worker (and the nanny's restarted one); every batch is written and the
+    table is the undisturbed run's byte for byte."""
+    import os
+    import signal
+
+    from dask.distributed import Client, LocalCluster
+
+    text = _replace("samples = 5", "samples = 12").replace("batch = 2", "batch = 1")
+    (folder / "long.toml").write_text(text)
+    sweep = load_sweep(folder / "long.toml")
+    killed = []
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        with Client(cluster) as client:
+            victim = next(iter(client.run(os.getpid).values()))
+
+            def kill_once(line: str) -> None:
+                if "samples (" in line and not killed:
+                    os.kill(victim, signal.SIGKILL)
+                    killed.append(line)
+
+            out = run_sweep(sweep, folder / "killed", scheduler=cluster.scheduler_address, progress=kill_once)
+    assert killed and killed[0].lstrip().startswith("1/12 samples")
+    assert (out["samples_computed"], out["batches_computed"]) == (12, 12)
+    calm = run_sweep(sweep, folder / "calm", workers=1, progress=lambda line: None)
+    assert calm["rows"] == out["rows"] == 12 * 2 * 5
+    assert _bytes(read_results(folder / "killed")) == _bytes(read_results(folder / "calm"))

@@ -21,10 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.control.filter import ClippedLqg
+from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.control.artifact import ControllerArtifact
+from smartjoint.design.control.artifact_building import from_design
 from smartjoint.design.control.laws import STATUS_OK, check_limits
 from smartjoint.design.control.lqg import LqgDesign
-from smartjoint.design.control.runs import Run, StudySetup, run_active, run_passive, run_semi_active, setup, siso
+from smartjoint.design.control.runs import Run, StudySetup, run_active, run_passive, run_semi_active, setup
 from smartjoint.design.control.study import design_model, lqg_for, metrics, sensor_quantities
 from smartjoint.design.structure.modal import ModalModel
 
@@ -48,9 +50,8 @@ class EnsembleBase:
     controllers are designed on), the LQG, ε of the design, the laws to run and the columns."""
 
     setup: StudySetup
-    lqg: LqgDesign | None
-    siso_boundary_layer: tuple[float, ...] | None  # the design's ε per joint, None: none given
-    clqg_boundary_layer: float
+    lqg: LqgDesign
+    artifacts: tuple[ControllerArtifact, ...]  # the laws at each grid point, as the firmware gets them
     laws: tuple[str, ...]
     joint_names: tuple[str, ...]
     quantities: tuple[str, ...]
@@ -92,22 +93,47 @@ def build_base(sweep, design, input_columns, progress=print) -> EnsembleBase:
             f"{sweep.source}: the SISO law needs ε — give grid.siso_boundary_layer or the design's "
             "control.siso_boundary_layer (`smartjoint design` optimises it)"
         )
-    needs_lqg = "cLQG" in sweep.laws or "active LQG" in sweep.laws
-    count = len(design.joints)
     shared = setup(design, model)
-    for point in sweep.points():  # in the driver, before any task: a grid against the design's limits
+    lqg = lqg_for(design, model)
+    points = sweep.points()
+    for point in points:  # in the driver, before any task: a grid against the design's limits
         point_limits(shared, point)
     return EnsembleBase(
         setup=shared,
-        lqg=lqg_for(design, model) if needs_lqg else None,
-        siso_boundary_layer=None if width is None else tuple(np.broadcast_to(np.asarray(width, float), (count,))),
-        clqg_boundary_layer=float(design.control.clqg_boundary_layer),
+        lqg=lqg,
+        artifacts=tuple(point_artifact(design, model, lqg, point) for point in points),
         laws=tuple(sweep.laws),
         joint_names=tuple(j.name for j in design.joints),
         quantities=tuple(sensor_quantities(design, model)),
         grid_columns=tuple(sweep.grid),
         input_columns=tuple(input_columns),
     )
+
+
+def point_artifact(design, model: ModalModel, lqg: LqgDesign, point: dict[str, float]) -> ControllerArtifact:
+    """The controller artefact at a grid point: the design's with the point's ε and normal-force
+    limits (and the plausibility ranges the design derives from them).
+
+    Parameters
+    ----------
+    design : Design
+    model : ModalModel
+        The design model the LQG was designed on.
+    lqg : LqgDesign
+    point : dict
+        The grid point's design variables.
+
+    Returns
+    -------
+    ControllerArtifact
+    """
+    control = design.control
+    changed = {k: point[k] for k in ("normal_force_min", "normal_force_max", "siso_boundary_layer") if k in point}
+    if changed:
+        design = dataclasses.replace(design, control=dataclasses.replace(control, **changed))
+    width = design.control.siso_boundary_layer
+    # A sweep without the SISO law needs no ε; the artefact holds one, which nothing runs.
+    return from_design(design, model, lqg, 1.0 if width is None else width)
 
 
 class _CountingSafeState:
@@ -172,23 +198,23 @@ def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, 
     )
 
 
-def _run_law(base: EnsembleBase, s: StudySetup, law: str, point: dict[str, float]) -> tuple[Run, int]:
-    """One law's run and its safe-state sample count."""
+def _run_law(base: EnsembleBase, s: StudySetup, law: str, index: int, point: dict, compiled) -> tuple[Run, int]:
+    """One law's run and its safe-state sample count: the semi-active laws of the grid point's
+    artefact through ``compiled(artifact).run`` where given, else the Python reference."""
     if law == "passive F_min":
         return run_passive(s, law, s.normal_force_min), 0
     if law == "passive F_max":
         return run_passive(s, law, s.normal_force_max), 0
     if law == "active LQG":
-        assert base.lqg is not None
         return run_active(dataclasses.replace(s, model=s.plant), base.lqg), 0  # nominal gains, perturbed plant
-    if law == "SISO":
-        width = point.get("siso_boundary_layer", base.siso_boundary_layer)
-        controller = _CountingSafeState(siso(s, width))
-    else:
-        assert base.lqg is not None
-        controller = _CountingSafeState(
-            ClippedLqg(base.lqg, s.normal_force_min, s.normal_force_max, base.clqg_boundary_layer)
-        )
+    artifact = base.artifacts[index]
+    width = point.get("siso_boundary_layer")
+    if width is not None and not np.all(np.asarray(artifact.siso_boundary_layer) == width):
+        raise ModelError(f"grid point {index}: ε = {width!r} m/s, its artefact's {list(artifact.siso_boundary_layer)}")
+    if compiled is not None:
+        return compiled(artifact).run(s, law)
+    reference = artifacts.siso_law(artifact) if law == "SISO" else artifacts.clipped_lqg(artifact)
+    controller = _CountingSafeState(reference)
     return run_semi_active(s, law, controller), controller.count
 
 
@@ -196,7 +222,9 @@ def _number(value) -> float:
     return math.nan if value is None else float(value)
 
 
-def run_sample(base: EnsembleBase, sample: int, index: int, point: dict[str, float], inputs: dict[str, float]):
+def run_sample(
+    base: EnsembleBase, sample: int, index: int, point: dict[str, float], inputs: dict[str, float], compiled=None
+):
     """The rows of one sample at one grid point, one per law (the base's order).
 
     Parameters
@@ -208,6 +236,10 @@ def run_sample(base: EnsembleBase, sample: int, index: int, point: dict[str, flo
         The grid point's design variables.
     inputs : dict
         The sample's uncertain inputs by column.
+    compiled : callable, optional
+        ``compiled(artifact)`` gives the compiled closed loop of an artefact
+        (``codegen.closed_loop.CompiledLoops``); None runs the Python reference laws. Both give
+        the same rows.
 
     Returns
     -------
@@ -215,7 +247,7 @@ def run_sample(base: EnsembleBase, sample: int, index: int, point: dict[str, flo
         Rows with the columns of ``base.columns()``.
     """
     s = sample_setup(base, point, inputs)
-    runs = [(law, *_run_law(base, s, law, point)) for law in base.laws]
+    runs = [(law, *_run_law(base, s, law, index, point, compiled)) for law in base.laws]
     reference = next((run for law, run, _ in runs if law == "passive F_max"), None)
     rows = []
     for law, run, safe in runs:
@@ -234,7 +266,7 @@ def run_sample(base: EnsembleBase, sample: int, index: int, point: dict[str, flo
     return rows
 
 
-def run_batch(base: EnsembleBase, points, samples, values) -> list[dict]:
+def run_batch(base: EnsembleBase, points, samples, values, compiled=None) -> list[dict]:
     """The rows of a batch: every sample of ``samples`` at every grid point (the task a worker runs).
 
     Parameters
@@ -246,6 +278,8 @@ def run_batch(base: EnsembleBase, points, samples, values) -> list[dict]:
         The batch's sample numbers.
     values : array_like
         The batch's uncertain inputs, one row per sample in ``base.input_columns`` order.
+    compiled : callable, optional
+        As in :func:`run_sample`.
 
     Returns
     -------
@@ -256,7 +290,7 @@ def run_batch(base: EnsembleBase, points, samples, values) -> list[dict]:
     for sample, row in zip(samples, np.asarray(values, dtype=float).reshape(len(samples), -1)):
         inputs = {name: float(v) for name, v in zip(base.input_columns, row)}
         for index, point in enumerate(points):
-            rows.extend(run_sample(base, int(sample), index, point, inputs))
+            rows.extend(run_sample(base, int(sample), index, point, inputs, compiled))
     return rows
 
 
@@ -266,6 +300,7 @@ __all__ = [
     "EnsembleBase",
     "build_base",
     "perturbed_plant",
+    "point_artifact",
     "point_limits",
     "run_batch",
     "run_sample",

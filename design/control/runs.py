@@ -22,7 +22,7 @@ from smartjoint.design.control.lqg import LqgDesign, check_sample_time
 from smartjoint.design.friction import lugre
 from smartjoint.design.plant.disturbance import TriangularPulse, triangular_pulse
 from smartjoint.design.plant.interface import ConstantNormalForce, HoldDuringExcitation
-from smartjoint.design.plant.loop import simulate
+from smartjoint.design.plant.loop import SimulationResult, simulate
 from smartjoint.design.structure.modal import ModalModel
 
 PULSE_DURATION = 0.04  # s (Section 4.3)
@@ -164,6 +164,23 @@ def run_semi_active(s: StudySetup, name: str, controller) -> Run:
         record_every=PLANT_STEPS_PER_SAMPLE,
         energy_books=False,
     )
+    return semi_active_run(s, name, r)
+
+
+def semi_active_run(s: StudySetup, name: str, r: SimulationResult) -> Run:
+    """The :class:`Run` of a normal-force law from its simulation (recorded every sample), with
+    its mean piezo charging power.
+
+    Parameters
+    ----------
+    s : StudySetup
+    name : str
+    r : SimulationResult
+
+    Returns
+    -------
+    Run
+    """
     return Run(
         name,
         r.time,
@@ -258,6 +275,7 @@ __all__ = [
     "run_active",
     "run_passive",
     "run_semi_active",
+    "semi_active_run",
     "setup",
     "siso",
 ]

@@ -32,6 +32,7 @@ import numpy as np
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design.plant.discretisation import discretise, step_works, work_coefficients
+from smartjoint.design.plant.interface import Measurements
 from smartjoint.design.plant.joints import JointLaws
 from smartjoint.design.plant.kernel import LAW_FIELDS, NativeStructs, PlantRun, Recorder, State, choose_kernel
 from smartjoint.design.structure.modal import ModalModel
@@ -218,6 +219,12 @@ class _CKernel(_Kernel):
     def _pull(self):
         cs = self.cs
         self.s.works[:] = (cs.work_in, cs.work_joints, cs.work_damping)
+
+    def measure(self, time: float):
+        sensors = np.zeros(self.p.ny)
+        self.lib.sj_measure(self.cp, self.cs, self.ffi.cast("double *", self.ffi.from_buffer(sensors)))
+        s = self.s
+        return Measurements(time, sensors, s.v.copy(), s.u.copy(), s.fn.copy())
 
     def set_normal_force(self, normal_force):
         fn = np.ascontiguousarray(normal_force, dtype=float)

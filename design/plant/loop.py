@@ -35,7 +35,7 @@ from smartjoint.design.plant import disturbance as disturbances
 from smartjoint.design.plant import schemes
 from smartjoint.design.plant.fixed_step import MAX_DISTURBANCES
 from smartjoint.design.plant.interface import Controller
-from smartjoint.design.plant.kernel import PlantRun
+from smartjoint.design.plant.kernel import Kernel, PlantRun
 from smartjoint.design.structure.modal import ModalModel
 
 
@@ -155,7 +155,7 @@ def _run_loop(run: PlantRun, kernel, w: np.ndarray, l: int, friction: bool, rati
         kernel.record_row(steps // record_every)
 
 
-def _result(r, model: ModalModel, step: float, record_every: int) -> SimulationResult:
+def result(r, model: ModalModel, step: float, record_every: int) -> SimulationResult:
     """The kernel's recorded rows as a :class:`SimulationResult` on the time grid ``step·record_every``."""
     time = np.arange(r.energy.size) * step * record_every
     return SimulationResult(
@@ -230,19 +230,60 @@ def simulate(
         The recorded rows at ``step·record_every`` (docs/simulation.md has an example).
     """
     chosen = schemes.scheme(scheme if scheme is not None else "fixed" if stick_step is None else "stick_exact")
-    l, ratio = _check(model, joints, duration, step, controller, initial_state, chosen.FRICTION)
-    _check_options(record_every, energy_books)
-    run = PlantRun(
-        model, joints, controller, duration, step, initial_state, record_every, backend, energy_books, stick_step
+    prepared = prepare(
+        chosen,
+        PlantRun(
+            model, joints, controller, duration, step, initial_state, record_every, backend, energy_books, stick_step
+        ),
+        disturbance,
     )
+    _run_loop(prepared.run, prepared.kernel, prepared.w, prepared.joints, chosen.FRICTION, prepared.ratio, progress)
+    return result(prepared.kernel.recorder, model, step, record_every)
+
+
+@dataclass(frozen=True)
+class PreparedRun:
+    """A checked run with its kernel at the initial state: the disturbance rows ``w`` at the plant
+    steps, the number of joints and the plant steps per controller sample (``ratio``)."""
+
+    run: PlantRun
+    kernel: Kernel
+    w: np.ndarray
+    joints: int
+    ratio: int
+
+
+def prepare(chosen, run: PlantRun, disturbance: Callable[[float], np.ndarray] | None) -> PreparedRun:
+    """Check a run for the scheme ``chosen`` (a module of ``schemes.SCHEMES``) and build its kernel
+    and disturbance rows: what :func:`simulate` steps, and what a compiled closed loop (which
+    steps the kernel from C, ``codegen.closed_loop``) starts from.
+
+    Parameters
+    ----------
+    chosen : Scheme
+        The scheme (``schemes.scheme(name)``).
+    run : PlantRun
+        The run; its controller need only carry ``sample_time``.
+    disturbance : callable or None
+        ``w(t)`` along the disturbance inputs.
+
+    Returns
+    -------
+    PreparedRun
+
+    Raises
+    ------
+    ModelError
+        For anything :func:`simulate` refuses, one line naming the field.
+    """
+    l, ratio = _check(run.model, run.joints, run.duration, run.step, run.controller, run.initial_state, chosen.FRICTION)
+    _check_options(run.record_every, run.energy_books)
     chosen.check(run)
     kernel = chosen.kernel(run)
-    steps = run.steps
     w = disturbances.at_steps(
-        disturbance, steps, step, model.disturbance_input.shape[1], compact=chosen.COMPACT_DISTURBANCE
+        disturbance, run.steps, run.step, run.model.disturbance_input.shape[1], compact=chosen.COMPACT_DISTURBANCE
     )
-    _run_loop(run, kernel, w, l, chosen.FRICTION, ratio, progress)
-    return _result(kernel.recorder, model, step, record_every)
+    return PreparedRun(run, kernel, w, l, ratio)
 
 
-__all__ = ["SimulationResult", "simulate"]
+__all__ = ["PreparedRun", "SimulationResult", "prepare", "result", "simulate"]

@@ -360,6 +360,14 @@ void sj_start(const sj_plant *p, sj_state *s, const double *w0)
     s->work_in = s->work_joints = s->work_damping = p->books ? 0.0 : NAN;
 }
 
+/* The sensors y = Vy eta_dot + Dy omega eta, as the controller reads them and the recorder
+ * stores them (one function, so a compiled closed loop sees the numbers the Python loop sees). */
+void sj_measure(const sj_plant *p, const sj_state *s, double *sensors)
+{
+    for (int k = 0; k < p->ny; ++k)
+        sensors[k] = dot(p->Vy + (size_t)k * p->n, s->x, p->n) + dot(p->Dy + (size_t)k * p->n, s->x + p->n, p->n);
+}
+
 void sj_record_row(const sj_plant *p, const sj_state *s, const sj_record *r, long row)
 {
     double e = 0.0;
@@ -369,9 +377,7 @@ void sj_record_row(const sj_plant *p, const sj_state *s, const sj_record *r, lon
         r->fn[row * p->l + j] = s->fn[j];
         r->phi[row * p->l + j] = s->phi[j];
     }
-    for (int k = 0; k < p->ny; ++k)
-        r->sensors[row * p->ny + k] = dot(p->Vy + (size_t)k * p->n, s->x, p->n)
-                                      + dot(p->Dy + (size_t)k * p->n, s->x + p->n, p->n);
+    sj_measure(p, s, r->sensors + row * p->ny);
     e = dot(s->x, s->x, 2 * p->n);
     r->energy[row] = 0.5 * e;
     r->works[3 * row] = s->work_in;

@@ -26,6 +26,7 @@ typedef struct {
 
 void sj_set_normal_force(const sj_plant *p, sj_state *s, const double *normal_force);
 void sj_start(const sj_plant *p, sj_state *s, const double *w0);
+void sj_measure(const sj_plant *p, const sj_state *s, double *sensors);
 void sj_record_row(const sj_plant *p, const sj_state *s, const sj_record *r, long row);
 long sj_run(const sj_plant *p, sj_state *s, const double *w, long steps, long k0, long record_every,
             const sj_record *r);

@@ -1,0 +1,209 @@
+"""The study's closed loop compiled: the plant kernel stepped from C with a generated law.
+
+An ensemble sample runs the study's semi-active laws thousands of times; the Python loop
+(``design.plant.loop.simulate``) crosses into Python at every controller sample — measure, the
+law, the command — which costs several times the plant itself. Here one C call runs a whole
+run: ``closed_loop.c.j2`` renders ``<prefix>_siso_closed_loop`` and ``<prefix>_clqg_closed_loop``,
+which step the fixed-step plant kernel (``plant_kernel.c``, compiled with the flags of its
+Python use) and call the generated law (double build, the firmware's source) every sample, in
+the statements and order of the Python loop. The Python loop with the Python reference laws
+stays the specification: both give the same trajectory bit for bit (``tests/test_closed_loop.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, cast
+
+import numpy as np
+
+from smartjoint.codegen import build, generate, rendering
+from smartjoint.common import native, package_data
+from smartjoint.common.errors import ModelError
+from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.control.runs import PLANT_STEPS_PER_SAMPLE, PULSE_DURATION, Run, StudySetup, semi_active_run
+from smartjoint.design.plant import loop, schemes
+from smartjoint.design.plant.interface import Controller
+from smartjoint.design.plant.kernel import PlantRun
+
+LAWS = {"SISO": "siso", "cLQG": "clqg"}  # the study's law names → the generated laws
+
+
+@dataclass(frozen=True)
+class _Schedule:
+    """What the loop's checks ask of a controller: its sample time (the law itself runs in C)."""
+
+    sample_time: float
+
+
+def render(artifact: artifacts.ControllerArtifact, prefix: str = "smartjoint") -> dict[str, str]:
+    """The files of the compiled closed loop: the laws (double), the plant kernel and the loop.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+    prefix : str
+        The prefix of the generated identifiers.
+
+    Returns
+    -------
+    dict of str to str
+        File name → text.
+    """
+    laws = generate.render(artifact, "double", prefix)
+    names = (f"{prefix}_types.h", *(f"{prefix}_{law}.{kind}" for law in LAWS.values() for kind in "hc"))
+    files = {name: laws[name] for name in names}
+    for name in ("plant_kernel.h", "plant_kernel.c"):
+        files[name] = package_data.path("smartjoint.design.plant", name).read_text()
+    context = {
+        "prefix": prefix,
+        "PREFIX": prefix.upper(),
+        "laws": list(LAWS.values()),
+        "banner": rendering.banner(artifact.artifact_sha256, "double"),
+    }
+    env = rendering.environment()
+    for kind in "hc":
+        files[f"{prefix}_closed_loop.{kind}"] = env.get_template(f"closed_loop.{kind}.j2").render(context)
+    return files
+
+
+class CompiledLoop:
+    """The compiled closed loop of one artefact (built on first use, cached per machine).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The laws; its normal-force limits and ε are those of the runs.
+    prefix : str
+        The prefix of the generated identifiers.
+    """
+
+    def __init__(self, artifact: artifacts.ControllerArtifact, prefix: str = "smartjoint"):
+        self.artifact, self.prefix = artifact, prefix
+        files = render(artifact, prefix)
+        sources = (*(f"{prefix}_{law}.c" for law in LAWS.values()), f"{prefix}_closed_loop.c", "plant_kernel.c")
+        _, module = build.load(
+            "closed_loop",
+            files,
+            f"{prefix}_closed_loop.h",
+            sources,
+            source_flags={"plant_kernel.c": native.FLAGS},  # as the Python loop's plant kernel
+        )
+        self.ffi, self.lib = module.ffi, module.lib
+
+    def _pointer(self, kind: str, cdata, owner):
+        """``cdata`` of the plant kernel's cffi module as a pointer of this module."""
+        return self.ffi.cast(kind, owner.cast("uintptr_t", cdata))
+
+    def run(self, s: StudySetup, law: str) -> tuple[Run, int]:
+        """One semi-active run of the study, as ``runs.run_semi_active`` with the artefact's law.
+
+        Parameters
+        ----------
+        s : StudySetup
+            The study; its sample time, limits and joints those of the artefact.
+        law : str
+            "SISO" or "cLQG".
+
+        Returns
+        -------
+        tuple of (Run, int)
+            The run and the number of controller samples in the safe state.
+
+        Raises
+        ------
+        ModelError
+            An unknown law, a set-up the artefact does not fit, a command the plant cannot take or
+            a joint solve that fails, each in one line as the Python loop says it.
+        """
+        if law not in LAWS:
+            raise ModelError(f"law: {law!r} — the compiled loop runs {', '.join(LAWS)}")
+        self._check_fits(s)
+        prepared = loop.prepare(
+            schemes.scheme("fixed"),
+            PlantRun(
+                s.plant,
+                s.laws,
+                cast(Controller, _Schedule(s.sample_time)),
+                s.duration,
+                s.plant_step,
+                None,
+                PLANT_STEPS_PER_SAMPLE,
+                "c",
+                False,
+                None,
+            ),
+            s.pulse(),
+        )
+        kernel: Any = prepared.kernel  # the fixed-step scheme's C kernel (backend "c"): its structs
+        hold = np.ascontiguousarray(s.normal_force_max, dtype=float)
+        w = np.ascontiguousarray(prepared.w, dtype=float)
+        ffi = self.ffi
+        settings = ffi.new(
+            f"{self.prefix}_loop *",
+            {
+                "steps": prepared.run.steps,
+                "ratio": prepared.ratio,
+                "record_every": PLANT_STEPS_PER_SAMPLE,
+                "step": s.plant_step,
+                "hold_until": PULSE_DURATION,
+                "hold_normal_force": ffi.cast("double *", ffi.from_buffer(hold)),
+                "disturbance": ffi.cast("double *", ffi.from_buffer(w)),
+            },
+        )
+        result = ffi.new(f"{self.prefix}_loop_result *")
+        getattr(self.lib, f"{self.prefix}_{LAWS[law]}_closed_loop")(
+            self._pointer("sj_plant *", kernel.cp, kernel.ffi),
+            self._pointer("sj_state *", kernel.cs, kernel.ffi),
+            self._pointer("sj_record *", kernel.cr, kernel.ffi),
+            settings,
+            result,
+        )
+        self._raise_failure(result, kernel, s)
+        r = loop.result(kernel.recorder, s.plant, s.plant_step, PLANT_STEPS_PER_SAMPLE)
+        return semi_active_run(s, law, r), int(result.safe_state_samples)
+
+    def _check_fits(self, s: StudySetup) -> None:
+        """The set-up and the artefact agree on the sample time, joints, sensors and limits."""
+        a = self.artifact
+        if s.sample_time != a.sample_time:
+            raise ModelError(f"sample_time: {s.sample_time!r} s — the artefact's law runs at {a.sample_time!r} s")
+        shapes = {
+            "joints": (len(s.laws), len(a.joint_names)),
+            "sensors": (s.plant.velocity_output.shape[0], len(a.sensor_names)),
+        }
+        for field, (got, want) in shapes.items():
+            if got != want:
+                raise ModelError(f"{field}: the study has {got}, the artefact {want}")
+        for field in ("normal_force_min", "normal_force_max"):
+            if not np.array_equal(getattr(s, field), np.asarray(getattr(a, field), dtype=float)):
+                raise ModelError(f"{field}: the study's {getattr(s, field).tolist()} are not the artefact's")
+
+    @staticmethod
+    def _raise_failure(result, kernel, s: StudySetup) -> None:
+        """The Python loop's errors for a failed run."""
+        if result.failed_sample >= 0:
+            t = result.failed_sample * s.sample_time
+            raise ModelError(f"controller returned normal forces that are not all finite and >= 0 at t = {t:.6g} s")
+        if result.failed_step >= 0:
+            raise ModelError(
+                f"joint solve did not converge at step {kernel.cs.failed_step:.3g} s (residual "
+                f"{kernel.cs.failed_residual:.3g}); reduce the step"
+            )
+
+
+_BUILT: dict[str, CompiledLoop] = {}  # per process: one module per artefact
+
+
+class CompiledLoops:
+    """``loops(artifact)``: the :class:`CompiledLoop` of an artefact, built once per process (an
+    ensemble's workers each load it from the machine's build cache). Picklable: it holds nothing."""
+
+    def __call__(self, artifact: artifacts.ControllerArtifact) -> CompiledLoop:
+        key = artifact.artifact_sha256
+        if key not in _BUILT:
+            _BUILT[key] = CompiledLoop(artifact)
+        return _BUILT[key]
+
+
+__all__ = ["LAWS", "CompiledLoop", "CompiledLoops", "render"]

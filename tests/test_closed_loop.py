@@ -1,0 +1,96 @@
+"""The study's closed loop compiled (codegen.closed_loop, issue 20): the plant kernel stepped from
+C with the generated laws (double build) gives the Python loop's trajectory bit for bit — with the
+Python reference laws of the same artefact, the specification — on a perturbed plant, through
+the pulse and through the safe state; and refuses what it cannot run in one line."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from conftest import small_truss
+
+from smartjoint.codegen.closed_loop import CompiledLoop
+from smartjoint.common.errors import ModelError
+from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.control import ensemble
+from smartjoint.design.control.runs import run_semi_active, setup
+from smartjoint.design.control.study import design_model, lqg_for
+from smartjoint.design.structure.spec import parse_design
+
+FIELDS = ("time", "energy", "sensors", "normal_force", "joint_force", "sliding_velocity")
+
+
+@pytest.fixture(scope="module")
+def study():
+    """The small truss's study over 0.4 s, its artefact (ε = 3e-4 m/s) and the compiled loop."""
+    d = small_truss()
+    d["control"] = {"modes": 4, "considered_modes": 10, "study_duration": 0.4, "siso_boundary_layer": 3e-4}
+    design = parse_design(d)
+    model = design_model(design, lambda line: None)
+    artifact = ensemble.point_artifact(design, model, lqg_for(design, model), {})
+    return setup(design, model), artifact, CompiledLoop(artifact)
+
+
+def _perturbed(s):
+    """The plant 2 % stiffer with 0.3 % damping, the friction 5 % stronger, a 230 N pulse."""
+    plant = dataclasses.replace(s.model, omega=s.model.omega * 1.02, damping=np.full_like(s.model.damping, 3e-3))
+    laws = [dataclasses.replace(law, coulomb=law.coulomb * 1.05, sigma0=law.sigma0 * 0.95) for law in s.laws]
+    return dataclasses.replace(s, plant=plant, laws=laws, pulse_amplitude=230.0)
+
+
+class _Counting:
+    """The Python reference law, counting the samples it spends in the safe state."""
+
+    def __init__(self, inner):
+        self.inner, self.sample_time, self.count = inner, inner.sample_time, 0
+
+    def reset(self):
+        self.inner.reset()
+        self.count = 0
+
+    def step(self, measurements):
+        out = self.inner.step(measurements)
+        self.count += int(self.inner.status != 0)
+        return out
+
+
+def _both(s, artifact, compiled, law):
+    reference = _Counting(artifacts.siso_law(artifact) if law == "SISO" else artifacts.clipped_lqg(artifact))
+    python = run_semi_active(s, law, reference)
+    c, safe = compiled.run(s, law)
+    return python, reference.count, c, safe
+
+
+@pytest.mark.parametrize("law", ["SISO", "cLQG"])
+@pytest.mark.parametrize("perturbed", [False, True], ids=["nominal", "perturbed"])
+def test_the_compiled_loop_is_the_python_loop_bit_for_bit(study, law, perturbed):
+    s, artifact, compiled = study
+    s = _perturbed(s) if perturbed else s
+    python, python_safe, c, c_safe = _both(s, artifact, compiled, law)
+    for field in FIELDS:
+        np.testing.assert_array_equal(getattr(c, field), getattr(python, field), err_msg=field)
+    assert c.control_power == python.control_power and c_safe == python_safe == 0
+    # F_N^max while the pulse acts (40 ms), the law after it: the run must have used both.
+    assert np.all(c.normal_force[:40] == s.normal_force_max) and np.any(c.normal_force[41:] < s.normal_force_max)
+
+
+def test_the_safe_state_is_the_python_loops_too(study):
+    """Plausibility limits the motion exceeds: both loops go to the safe state on the same samples."""
+    s, artifact, _ = study
+    tight = dataclasses.replace(artifact, sliding_velocity_limit=tuple(np.full(2, 2e-4)))
+    python, python_safe, c, c_safe = _both(s, tight, CompiledLoop(tight), "SISO")
+    np.testing.assert_array_equal(c.normal_force, python.normal_force)
+    assert c_safe == python_safe and 0 < c_safe < len(c.time) - 1
+
+
+def test_what_the_compiled_loop_cannot_run_is_one_line(study):
+    s, artifact, compiled = study
+    with pytest.raises(ModelError, match=r"^law: 'active LQG' — the compiled loop runs SISO, cLQG$"):
+        compiled.run(s, "active LQG")
+    other = dataclasses.replace(s, normal_force_max=s.normal_force_max + 1.0)
+    with pytest.raises(ModelError, match=r"^normal_force_max: the study's \[401.0, 401.0\] are not the artefact's$"):
+        compiled.run(other, "cLQG")
+    with pytest.raises(ModelError, match=r"^sample_time: 0.002 s — the artefact's law runs at 0.001 s$"):
+        compiled.run(dataclasses.replace(s, sample_time=0.002), "SISO")
