@@ -119,6 +119,34 @@ class CompiledLoop:
         if law not in LAWS:
             raise ModelError(f"law: {law!r} — the compiled loop runs {', '.join(LAWS)}")
         self._check_fits(s)
+        r, result = self._execute(s, f"{self.prefix}_{LAWS[law]}_closed_loop")
+        return semi_active_run(s, law, r), int(result.safe_state_samples)
+
+    def run_passive(self, s: StudySetup, name: str, normal_forces) -> Run:
+        """A passive run of the study, as ``runs.run_passive``: F_N^max during the pulse, then
+        ``normal_forces`` (one for all joints or one per joint).
+
+        Parameters
+        ----------
+        s : StudySetup
+        name : str
+            The run's name.
+        normal_forces : float or array_like
+            F_N [N] after the pulse.
+
+        Returns
+        -------
+        Run
+        """
+        forces = np.ascontiguousarray(np.broadcast_to(np.asarray(normal_forces, dtype=float), (len(s.laws),)))
+        r, _ = self._execute(
+            s, f"{self.prefix}_passive_closed_loop", self.ffi.cast("double *", self.ffi.from_buffer(forces))
+        )
+        return semi_active_run(s, name, r)
+
+    def _execute(self, s: StudySetup, function: str, *extra):
+        """Run the C loop ``function`` on the study's fixed-step plant; the simulation and the
+        loop's result struct."""
         prepared = loop.prepare(
             schemes.scheme("fixed"),
             PlantRun(
@@ -152,16 +180,16 @@ class CompiledLoop:
             },
         )
         result = ffi.new(f"{self.prefix}_loop_result *")
-        getattr(self.lib, f"{self.prefix}_{LAWS[law]}_closed_loop")(
+        getattr(self.lib, function)(
             self._pointer("sj_plant *", kernel.cp, kernel.ffi),
             self._pointer("sj_state *", kernel.cs, kernel.ffi),
             self._pointer("sj_record *", kernel.cr, kernel.ffi),
             settings,
+            *extra,
             result,
         )
         self._raise_failure(result, kernel, s)
-        r = loop.result(kernel.recorder, s.plant, s.plant_step, PLANT_STEPS_PER_SAMPLE)
-        return semi_active_run(s, law, r), int(result.safe_state_samples)
+        return loop.result(kernel.recorder, s.plant, s.plant_step, PLANT_STEPS_PER_SAMPLE), result
 
     def _check_fits(self, s: StudySetup) -> None:
         """The set-up and the artefact agree on the sample time, joints, sensors and limits."""

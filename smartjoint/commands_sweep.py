@@ -15,6 +15,13 @@ def cmd_sweep(args) -> dict:
     sweep = load_sweep(args.sweep)
     folder = Path(args.output) if args.output else Path(f"{Path(args.sweep).stem}-results")
     out = run_sweep(sweep, folder, args.scheduler, args.workers, args.resume, report_progress)
+    from smartjoint.design.control.ensemble import KEYS, METRICS
+    from smartjoint.sweep_report import write
+    from smartjoint.sweep_runner import read_results
+
+    table = read_results(folder)
+    inputs = [name for name in table.column_names if name not in (*KEYS, *sweep.grid, *METRICS)]
+    out["report"] = str(write(folder, table, inputs, Path(args.sweep).name))
     if not args.json:
         for key, value in out.items():
             print(f"{key}: {value}")

@@ -15,7 +15,7 @@ from smartjoint.codegen.closed_loop import CompiledLoop
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import ensemble
-from smartjoint.design.control.runs import run_semi_active, setup
+from smartjoint.design.control.runs import run_passive, run_semi_active, setup
 from smartjoint.design.control.study import design_model, lqg_for
 from smartjoint.design.structure.spec import parse_design
 
@@ -74,6 +74,17 @@ def test_the_compiled_loop_is_the_python_loop_bit_for_bit(study, law, perturbed)
     assert c.control_power == python.control_power and c_safe == python_safe == 0
     # F_N^max while the pulse acts (40 ms), the law after it: the run must have used both.
     assert np.all(c.normal_force[:40] == s.normal_force_max) and np.any(c.normal_force[41:] < s.normal_force_max)
+
+
+@pytest.mark.parametrize("force", [40.0, 400.0])
+def test_a_passive_run_is_the_python_loops_bit_for_bit(study, force):
+    s, _, compiled = study
+    s = _perturbed(s)
+    forces = np.full(2, force)
+    python, c = run_passive(s, "passive", forces), compiled.run_passive(s, "passive", forces)
+    for field in FIELDS:
+        np.testing.assert_array_equal(getattr(c, field), getattr(python, field), err_msg=field)
+    assert np.all(c.normal_force[:40] == s.normal_force_max) and np.all(c.normal_force[41:] == force)
 
 
 def test_the_safe_state_is_the_python_loops_too(study):

@@ -24,6 +24,7 @@ from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.control.artifact_building import from_design
+from smartjoint.design.control.best_passive import best_passive
 from smartjoint.design.control.laws import STATUS_OK, check_limits
 from smartjoint.design.control.lqg import LqgDesign
 from smartjoint.design.control.runs import Run, StudySetup, run_active, run_passive, run_semi_active, setup
@@ -40,7 +41,10 @@ METRICS = (
     "settling_time",
     "control_power",
     "safe_state_samples",
+    "passive_normal_force",  # the best passive settings' constant F_N [N]; NaN for the other laws
 )
+# The best passive settings (best_passive.py): law → the figure their constant F_N minimises.
+BEST_PASSIVE = {"best passive E": "energy_measure", "best passive e": "energy_end"}
 KEYS = ("sample", "point", "law")
 
 
@@ -198,24 +202,31 @@ def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, 
     )
 
 
-def _run_law(base: EnsembleBase, s: StudySetup, law: str, index: int, point: dict, compiled) -> tuple[Run, int]:
-    """One law's run and its safe-state sample count: the semi-active laws of the grid point's
-    artefact through ``compiled(artifact).run`` where given, else the Python reference."""
-    if law == "passive F_min":
-        return run_passive(s, law, s.normal_force_min), 0
-    if law == "passive F_max":
-        return run_passive(s, law, s.normal_force_max), 0
-    if law == "active LQG":
-        return run_active(dataclasses.replace(s, model=s.plant), base.lqg), 0  # nominal gains, perturbed plant
+def _run_law(
+    base: EnsembleBase, s: StudySetup, law: str, index: int, point: dict, compiled, cache: dict
+) -> tuple[Run, int, float]:
+    """One law's run, its safe-state sample count and its constant F_N (best passive settings):
+    the semi-active and passive laws through ``compiled(artifact)`` where given, else the Python
+    loop with the reference laws (the same numbers). ``cache``: the sample's constant-force runs."""
     artifact = base.artifacts[index]
+    passive = compiled(artifact).run_passive if compiled is not None else run_passive
+    if law == "passive F_min":
+        return passive(s, law, s.normal_force_min), 0, math.nan
+    if law == "passive F_max":
+        return passive(s, law, s.normal_force_max), 0, math.nan
+    if law in BEST_PASSIVE:
+        run, force = best_passive(s, law, BEST_PASSIVE[law], passive, cache)
+        return run, 0, force
+    if law == "active LQG":
+        return run_active(dataclasses.replace(s, model=s.plant), base.lqg), 0, math.nan  # nominal gains
     width = point.get("siso_boundary_layer")
     if width is not None and not np.all(np.asarray(artifact.siso_boundary_layer) == width):
         raise ModelError(f"grid point {index}: ε = {width!r} m/s, its artefact's {list(artifact.siso_boundary_layer)}")
     if compiled is not None:
-        return compiled(artifact).run(s, law)
+        return (*compiled(artifact).run(s, law), math.nan)
     reference = artifacts.siso_law(artifact) if law == "SISO" else artifacts.clipped_lqg(artifact)
     controller = _CountingSafeState(reference)
-    return run_semi_active(s, law, controller), controller.count
+    return run_semi_active(s, law, controller), controller.count, math.nan
 
 
 def _number(value) -> float:
@@ -247,10 +258,11 @@ def run_sample(
         Rows with the columns of ``base.columns()``.
     """
     s = sample_setup(base, point, inputs)
-    runs = [(law, *_run_law(base, s, law, index, point, compiled)) for law in base.laws]
-    reference = next((run for law, run, _ in runs if law == "passive F_max"), None)
+    cache: dict = {}
+    runs = [(law, *_run_law(base, s, law, index, point, compiled, cache)) for law in base.laws]
+    reference = next((run for law, run, _, _ in runs if law == "passive F_max"), None)
     rows = []
-    for law, run, safe in runs:
+    for law, run, safe, force in runs:
         m = metrics(run, reference if reference is not None else run, base.quantities)
         figures = {
             "energy_end": m["energy_end"],
@@ -261,6 +273,7 @@ def run_sample(
             "settling_time": _number(m["settling_time"]),
             "control_power": m["control_power"],
             "safe_state_samples": safe,
+            "passive_normal_force": force,
         }
         rows.append({"sample": sample, "point": index, "law": law, **point, **inputs, **figures})
     return rows
@@ -295,6 +308,7 @@ def run_batch(base: EnsembleBase, points, samples, values, compiled=None) -> lis
 
 
 __all__ = [
+    "BEST_PASSIVE",
     "KEYS",
     "METRICS",
     "EnsembleBase",

@@ -22,7 +22,11 @@ from smartjoint.design.structure.files import read_file, read_toml
 from smartjoint.design.structure.table import DesignTable
 
 SCHEMA = "smartjoint-sweep/1"
-LAWS = ("passive F_min", "passive F_max", "SISO", "cLQG", "active LQG")
+# Every law a sweep can run, in the order of the rows; the two best passive settings search the
+# constant F_N that minimises E(t_e) or e(t_e) per sample (ensemble.best_passive), so they are
+# asked for by name only.
+LAWS = ("passive F_min", "passive F_max", "SISO", "cLQG", "active LQG", "best passive E", "best passive e")
+DEFAULT_LAWS = LAWS[:5]
 SAMPLERS = ("random", "latin-hypercube", "sobol")
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")
 GRID_VARIABLES = ("siso_boundary_layer", "normal_force_min", "normal_force_max")
@@ -173,7 +177,7 @@ def parse_sweep(data: dict[str, Any], folder: Path, source: str = "<memory>", sh
 
 
 def _laws(root: DesignTable) -> tuple[str, ...]:
-    value = root.get("laws", list(LAWS))
+    value = root.get("laws", list(DEFAULT_LAWS))
     allowed = "a non-empty list of distinct laws: " + ", ".join(repr(law) for law in LAWS)
     if not isinstance(value, list) or not value or len(set(map(str, value))) != len(value):
         raise root.error("laws", value, allowed)
@@ -294,6 +298,7 @@ __all__ = [
     "DISTRIBUTIONS",
     "FACTOR",
     "GRID_VARIABLES",
+    "DEFAULT_LAWS",
     "LAWS",
     "SAMPLERS",
     "SCALAR_INPUTS",

@@ -1,0 +1,212 @@
+"""The report of a sweep (``docs/sweep.md``): the paper's orderings as probabilities over the
+ensemble with their Monte Carlo standard error, each law's distribution of Eq. 32's E(t_e), and
+the inputs that drive it (Spearman rank correlations), as Markdown and an ECDF plot.
+
+Read from the results table alone (``sweep_runner.read_results``), so a finished or resumed
+sweep reports the same; written atomically beside the results (``report.md``, ``ecdf.png``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from smartjoint.design.control.ensemble import KEYS
+
+# The paper's claims (Section 6, ``study.Study.orderings``) and two more: name, sentence, the law,
+# the laws it must beat and the metric (smaller is better) — the law's below the others' smallest.
+ORDERINGS = (
+    ("siso_below_both_passive", "SISO ends below both passive settings (e(t_e))", "SISO",
+     ("passive F_min", "passive F_max"), "energy_end"),
+    ("clqg_below_both_passive", "cLQG ends below both passive settings (e(t_e))", "cLQG",
+     ("passive F_min", "passive F_max"), "energy_end"),
+    ("clqg_tip_rms_below_siso", "cLQG's RMS tip deflection below SISO's", "cLQG", ("SISO",), "tip_rms_total"),
+    ("clqg_energy_measure_below_siso", "cLQG's E(t_e) (Eq. 32) below SISO's", "cLQG", ("SISO",), "energy_measure"),
+    ("siso_beats_best_passive_E", "SISO's E(t_e) below the best constant F_N's", "SISO", ("best passive E",),
+     "energy_measure"),
+    ("clqg_beats_best_passive_E", "cLQG's E(t_e) below the best constant F_N's", "cLQG", ("best passive E",),
+     "energy_measure"),
+    ("siso_beats_best_passive_e", "SISO's e(t_e) below the best constant F_N's for e(t_e)", "SISO",
+     ("best passive e",), "energy_end"),
+    ("clqg_beats_best_passive_e", "cLQG's e(t_e) below the best constant F_N's for e(t_e)", "cLQG",
+     ("best passive e",), "energy_end"),
+    ("active_energy_below_clqg", "active LQG ends below cLQG (e(t_e))", "active LQG", ("cLQG",), "energy_end"),
+    ("active_tip_rms_below_clqg", "active LQG's RMS tip deflection below cLQG's", "active LQG", ("cLQG",),
+     "tip_rms_total"),
+)  # fmt: skip
+
+
+def _groups(columns: dict) -> dict:
+    """(point, sample) → law → the row's metrics and inputs."""
+    groups: dict = defaultdict(dict)
+    names = list(columns)
+    for i in range(len(columns["law"])):
+        row = {name: columns[name][i] for name in names}
+        groups[(row["point"], row["sample"])][row["law"]] = row
+    return groups
+
+
+def orderings(columns: dict) -> dict:
+    """Each ordering's probability over the samples of each grid point, with its Monte Carlo
+    standard error √(p(1 − p)/n) (the samples independent; for a Latin hypercube an upper bound).
+
+    Parameters
+    ----------
+    columns : dict
+        The results table as columns (``Table.to_pydict()``).
+
+    Returns
+    -------
+    dict
+        point → ordering name → ``{"probability", "standard_error", "samples"}``; orderings
+        whose laws the sweep did not run, or whose metric is NaN, are left out.
+    """
+    counts: dict = defaultdict(lambda: defaultdict(list))
+    for (point, _), laws in _groups(columns).items():
+        for name, _, law, others, metric in ORDERINGS:
+            if law in laws and all(other in laws for other in others):
+                values = [float(laws[k][metric]) for k in (law, *others)]
+                if all(math.isfinite(v) for v in values):
+                    counts[point][name].append(values[0] < min(values[1:]))
+    out: dict = {}
+    for point, by_name in sorted(counts.items()):
+        out[point] = {}
+        for name, hits in by_name.items():
+            n, p = len(hits), float(np.mean(hits))
+            out[point][name] = {"probability": p, "standard_error": math.sqrt(p * (1.0 - p) / n), "samples": n}
+    return out
+
+
+def sensitivity(columns: dict, inputs: list[str], metric: str = "energy_measure", top: int = 3) -> dict:
+    """Spearman rank correlation of ``metric`` with every uncertain input, per law and grid point;
+    the ``top`` inputs by magnitude.
+
+    Parameters
+    ----------
+    columns : dict
+        The results table as columns.
+    inputs : list of str
+        The uncertain inputs' columns.
+    metric : str
+        A metric column.
+    top : int
+        How many inputs to name.
+
+    Returns
+    -------
+    dict
+        (point, law) → list of (input, rho), largest |rho| first.
+    """
+    from scipy.stats import spearmanr
+
+    law = np.asarray(columns["law"])
+    point = np.asarray(columns["point"])
+    value = np.asarray(columns[metric], dtype=float)
+    out = {}
+    for key in sorted({(int(p), str(w)) for p, w in zip(point, law)}):
+        chosen = (point == key[0]) & (law == key[1]) & np.isfinite(value)
+        if chosen.sum() < 3:
+            continue
+        rhos = []
+        for name in inputs:
+            x = np.asarray(columns[name], dtype=float)[chosen]
+            if np.ptp(x) > 0:
+                rhos.append((name, float(spearmanr(x, value[chosen]).statistic)))
+        out[key] = sorted(rhos, key=lambda item: -abs(item[1]))[:top]
+    return out
+
+
+def _distribution_rows(columns: dict) -> list[str]:
+    law, point = np.asarray(columns["law"]), np.asarray(columns["point"])
+    value = np.asarray(columns["energy_measure"], dtype=float)
+    lines = ["| point | law | samples | median E(t_e) [J·s] | 5 % | 95 % |", "|---:|---|---:|---:|---:|---:|"]
+    for p in sorted(set(point.tolist())):
+        for w in dict.fromkeys(law.tolist()):
+            v = value[(point == p) & (law == w)]
+            v = v[np.isfinite(v)]
+            if v.size:
+                q05, q50, q95 = np.quantile(v, [0.05, 0.5, 0.95])
+                lines.append(f"| {p} | {w} | {v.size} | {q50:.4g} | {q05:.4g} | {q95:.4g} |")
+    return lines
+
+
+def markdown(columns: dict, inputs: list[str], source: str) -> str:
+    """The report's Markdown: distributions, orderings with standard errors, sensitivities."""
+    lines = [f"# Sweep report: {source}", "", "## E(t_e) (Eq. 32) per law", "", *_distribution_rows(columns)]
+    lines += ["", "![ECDF of E(t_e) per law](ecdf.png)", "", "## The paper's orderings over the ensemble", ""]
+    lines += ["| point | ordering | probability | MC standard error | samples |", "|---:|---|---:|---:|---:|"]
+    sentences = {name: sentence for name, sentence, *_ in ORDERINGS}
+    for point, by_name in orderings(columns).items():
+        for name, f in by_name.items():
+            lines.append(
+                f"| {point} | {sentences[name]} | {f['probability']:.3f} | {f['standard_error']:.3f} | {f['samples']} |"
+            )
+    lines += ["", "## What drives E(t_e): Spearman rank correlation, the three largest", ""]
+    lines += ["| point | law | inputs (ρ) |", "|---:|---|---|"]
+    for (point, law), rhos in sensitivity(columns, inputs).items():
+        lines.append(f"| {point} | {law} | " + ", ".join(f"`{n}` ({r:+.2f})" for n, r in rhos) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_ecdf(columns: dict, path: Path) -> None:
+    """ECDF of E(t_e) per law (first grid point), log axis."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    law, point = np.asarray(columns["law"]), np.asarray(columns["point"])
+    value = np.asarray(columns["energy_measure"], dtype=float)
+    figure, axis = plt.subplots(figsize=(6.4, 4.0))
+    for w in dict.fromkeys(law.tolist()):
+        v = np.sort(value[(law == w) & (point == 0) & np.isfinite(value)])
+        if v.size:
+            axis.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=w)
+    axis.set_xscale("log")
+    axis.set_xlabel("E(t_e) = ∫ xᵀx dt [J·s] (Eq. 32)")
+    axis.set_ylabel("fraction of samples")
+    axis.legend()
+    axis.grid(True, alpha=0.3)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def write(folder: str | Path, table, inputs: list[str], source: str) -> Path:
+    """Write ``report.md`` and ``ecdf.png`` into the sweep's folder (each atomically).
+
+    Parameters
+    ----------
+    folder : str or Path
+        The sweep's output folder.
+    table : pyarrow.Table
+        Its results (``sweep_runner.read_results``).
+    inputs : list of str
+        The uncertain inputs' columns.
+    source : str
+        The sweep file's name, for the title.
+
+    Returns
+    -------
+    Path
+        The report.
+    """
+    import os
+
+    folder = Path(folder)
+    columns = table.to_pydict()
+    assert set(KEYS) <= set(columns)
+    temporary = folder / f".ecdf.png.{os.getpid()}.png"
+    plot_ecdf(columns, temporary)
+    os.replace(temporary, folder / "ecdf.png")
+    report = folder / "report.md"
+    staging = folder / f".report.md.{os.getpid()}"
+    staging.write_text(markdown(columns, inputs, source))
+    os.replace(staging, report)
+    return report
+
+
+__all__ = ["ORDERINGS", "markdown", "orderings", "plot_ecdf", "sensitivity", "write"]
