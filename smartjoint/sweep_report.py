@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.design.control.ensemble import KEYS
+from smartjoint.design.control.sweep_file import LAWS
 
 # The paper's claims (Section 6, ``study.Study.orderings``) and two more: name, sentence, the law,
 # the laws it must beat and the metric (smaller is better) — the law's below the others' smallest.
@@ -80,7 +81,7 @@ def orderings(columns: dict) -> dict:
     return out
 
 
-def sensitivity(columns: dict, inputs: list[str], metric: str = "energy_measure", top: int = 3) -> dict:
+def sensitivity(columns: dict, inputs: list[str], metric="energy_measure", top: int = 3) -> dict:
     """Spearman rank correlation of ``metric`` with every uncertain input, per law and grid point;
     the ``top`` inputs by magnitude.
 
@@ -90,8 +91,8 @@ def sensitivity(columns: dict, inputs: list[str], metric: str = "energy_measure"
         The results table as columns.
     inputs : list of str
         The uncertain inputs' columns.
-    metric : str
-        A metric column.
+    metric : str or array_like
+        A metric column, or one value per row (:func:`advantage`'s ratio).
     top : int
         How many inputs to name.
 
@@ -104,7 +105,7 @@ def sensitivity(columns: dict, inputs: list[str], metric: str = "energy_measure"
 
     law = np.asarray(columns["law"])
     point = np.asarray(columns["point"])
-    value = np.asarray(columns[metric], dtype=float)
+    value = np.asarray(columns[metric] if isinstance(metric, str) else metric, dtype=float)
     out = {}
     for key in sorted({(int(p), str(w)) for p, w in zip(point, law)}):
         chosen = (point == key[0]) & (law == key[1]) & np.isfinite(value)
@@ -119,12 +120,51 @@ def sensitivity(columns: dict, inputs: list[str], metric: str = "energy_measure"
     return out
 
 
+def _laws(columns: dict) -> list[str]:
+    """The laws of the table in the sweep's order (``sweep_file.LAWS``)."""
+    present = set(columns["law"])
+    return [law for law in LAWS if law in present]
+
+
+def advantage(columns: dict) -> dict:
+    """Each row's E(t_e) over the reference's in the same sample and grid point — the best
+    passive setting for E(t_e) where the sweep ran it, else passive F^max: the figure whose
+    spread says whether a law's advantage survives the uncertainty (the pulse's scale cancels).
+
+    Parameters
+    ----------
+    columns : dict
+        The results table as columns.
+
+    Returns
+    -------
+    dict
+        ``reference`` (the law, or None without one) and ``ratio``, one value per row (NaN for
+        the reference's own rows and where it is missing).
+    """
+    laws = _laws(columns)
+    reference = next((law for law in ("best passive E", "passive F_max") if law in laws), None)
+    value = np.asarray(columns["energy_measure"], dtype=float)
+    ratio = np.full(value.size, np.nan)
+    if reference is not None:
+        index = {
+            (p, s): i
+            for i, (p, s, w) in enumerate(zip(columns["point"], columns["sample"], columns["law"]))
+            if w == reference
+        }
+        for i, (p, s, w) in enumerate(zip(columns["point"], columns["sample"], columns["law"])):
+            j = index.get((p, s))
+            if j is not None and w != reference:
+                ratio[i] = value[i] / value[j]
+    return {"reference": reference, "ratio": ratio}
+
+
 def _distribution_rows(columns: dict) -> list[str]:
     law, point = np.asarray(columns["law"]), np.asarray(columns["point"])
     value = np.asarray(columns["energy_measure"], dtype=float)
     lines = ["| point | law | samples | median E(t_e) [J·s] | 5 % | 95 % |", "|---:|---|---:|---:|---:|---:|"]
     for p in sorted(set(point.tolist())):
-        for w in dict.fromkeys(law.tolist()):
+        for w in _laws(columns):
             v = value[(point == p) & (law == w)]
             v = v[np.isfinite(v)]
             if v.size:
@@ -145,10 +185,48 @@ def markdown(columns: dict, inputs: list[str], source: str) -> str:
                 f"| {point} | {sentences[name]} | {f['probability']:.3f} | {f['standard_error']:.3f} | {f['samples']} |"
             )
     lines += ["", "## What drives E(t_e): Spearman rank correlation, the three largest", ""]
-    lines += ["| point | law | inputs (ρ) |", "|---:|---|---|"]
-    for (point, law), rhos in sensitivity(columns, inputs).items():
-        lines.append(f"| {point} | {law} | " + ", ".join(f"`{n}` ({r:+.2f})" for n, r in rhos) + " |")
+    lines += _sensitivity_rows(sensitivity(columns, inputs))
+    ratio = advantage(columns)
+    if ratio["reference"] is not None:
+        lines += ["", f"## What drives the advantage: E(t_e) over {ratio['reference']}'s in the same sample", ""]
+        lines += _ratio_rows(columns, ratio["ratio"])
+        lines += ["", "Rank correlations of that ratio (the pulse's scale cancels in it):", ""]
+        lines += _sensitivity_rows(sensitivity(columns, inputs, ratio["ratio"]))
+    forces = np.asarray(columns.get("passive_normal_force", []), dtype=float)
+    if np.any(np.isfinite(forces)):
+        law = np.asarray(columns["law"])
+        lines += [
+            "",
+            "## The best constant normal force",
+            "",
+            "| law | median F_N [N] | 5 % | 95 % |",
+            "|---|---:|---:|---:|",
+        ]
+        for w in ("best passive E", "best passive e"):
+            f = forces[(law == w) & np.isfinite(forces)]
+            if f.size:
+                q05, q50, q95 = np.quantile(f, [0.05, 0.5, 0.95])
+                lines.append(f"| {w} | {q50:.1f} | {q05:.1f} | {q95:.1f} |")
     return "\n".join(lines) + "\n"
+
+
+def _sensitivity_rows(ranked: dict) -> list[str]:
+    lines = ["| point | law | inputs (ρ) |", "|---:|---|---|"]
+    for (point, law), rhos in ranked.items():
+        lines.append(f"| {point} | {law} | " + ", ".join(f"`{n}` ({r:+.2f})" for n, r in rhos) + " |")
+    return lines
+
+
+def _ratio_rows(columns: dict, ratio: np.ndarray) -> list[str]:
+    law, point = np.asarray(columns["law"]), np.asarray(columns["point"])
+    lines = ["| point | law | median ratio | 5 % | 95 % | P(ratio < 1) |", "|---:|---|---:|---:|---:|---:|"]
+    for p in sorted(set(point.tolist())):
+        for w in _laws(columns):
+            r = ratio[(point == p) & (law == w) & np.isfinite(ratio)]
+            if r.size:
+                q05, q50, q95 = np.quantile(r, [0.05, 0.5, 0.95])
+                lines.append(f"| {p} | {w} | {q50:.3f} | {q05:.3f} | {q95:.3f} | {np.mean(r < 1):.3f} |")
+    return lines
 
 
 def plot_ecdf(columns: dict, path: Path) -> None:
@@ -161,7 +239,7 @@ def plot_ecdf(columns: dict, path: Path) -> None:
     law, point = np.asarray(columns["law"]), np.asarray(columns["point"])
     value = np.asarray(columns["energy_measure"], dtype=float)
     figure, axis = plt.subplots(figsize=(6.4, 4.0))
-    for w in dict.fromkeys(law.tolist()):
+    for w in _laws(columns):
         v = np.sort(value[(law == w) & (point == 0) & np.isfinite(value)])
         if v.size:
             axis.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=w)
@@ -209,4 +287,4 @@ def write(folder: str | Path, table, inputs: list[str], source: str) -> Path:
     return report
 
 
-__all__ = ["ORDERINGS", "markdown", "orderings", "plot_ecdf", "sensitivity", "write"]
+__all__ = ["ORDERINGS", "advantage", "markdown", "orderings", "plot_ecdf", "sensitivity", "write"]

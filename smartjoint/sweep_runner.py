@@ -66,7 +66,7 @@ class Prepared:
         return len(batch) * len(self.points) * len(self.base.laws)
 
 
-def prepare(sweep: Sweep, progress=print) -> Prepared:
+def prepare(sweep: Sweep, progress=print, design=None) -> Prepared:
     """Load the sweep's design (updated unless ``update = false``, its study duration the
     sweep's), build the shared base and draw the samples.
 
@@ -75,6 +75,9 @@ def prepare(sweep: Sweep, progress=print) -> Prepared:
     sweep : Sweep
     progress : callable
         Receives progress lines.
+    design : Design, optional
+        The design itself, already as the sweep wants it (``smartjoint run``'s, with its placed
+        joints and identified friction), instead of loading ``sweep.design``.
 
     Returns
     -------
@@ -82,10 +85,11 @@ def prepare(sweep: Sweep, progress=print) -> Prepared:
     """
     from smartjoint.design import load_design, updated_design
 
-    design = load_design(sweep.design)
-    if sweep.update and design.updating is not None:
-        progress(f"updating {len(design.updating.parameters)} parameters of {design.name!r} to its EMA …")
-        design, _ = updated_design(design)
+    if design is None:
+        design = load_design(sweep.design)
+        if sweep.update and design.updating is not None:
+            progress(f"updating {len(design.updating.parameters)} parameters of {design.name!r} to its EMA …")
+            design, _ = updated_design(design)
     if sweep.study_duration is not None:
         control = dataclasses.replace(design.control, study_duration=sweep.study_duration)
         design = dataclasses.replace(design, control=control)
@@ -271,6 +275,7 @@ def run_sweep(
     workers: int | None = None,
     resume: bool = False,
     progress=print,
+    design=None,
 ) -> dict:
     """Run a sweep and write its results (``docs/sweep.md``).
 
@@ -287,6 +292,8 @@ def run_sweep(
         Continue the results in ``folder``: compute only the batches missing there.
     progress : callable
         Receives the progress lines (samples done, rate, time left).
+    design : Design, optional
+        As in :func:`prepare`.
 
     Returns
     -------
@@ -300,7 +307,7 @@ def run_sweep(
             f"sweep {sweep.source}: {sweep.samples} samples × {len(sweep.points())} grid point(s) × "
             f"{len(sweep.laws)} law(s) → {folder}"
         )
-        prepared = prepare(sweep, progress)
+        prepared = prepare(sweep, progress, design)
         todo = open_output(folder, prepared, resume)
         return _compute(client, prepared, folder, todo, progress)
     finally:

@@ -1,0 +1,147 @@
+"""Stage 10 of ``smartjoint run``: a small robustness ensemble of the study (issue 20) — the
+study's laws, passive and semi-active, and the best constant normal forces on plants drawn
+around the design: each joint's LuGre parameters, the modal frequencies and damping and the
+pulse. It runs the sweep machinery (``sweep_runner``: Dask, the compiled closed loop, Parquet)
+on the run's own design and writes the sweep and its report into ``ensemble/``. Every spread is
+relative to the design's own values; ``smartjoint sweep`` runs larger or other ensembles."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from smartjoint import sweep_report
+from smartjoint.design.control.ensemble import KEYS, METRICS
+from smartjoint.design.control.sweep_file import Distribution, Sweep, UncertainInput
+from smartjoint.sweep_runner import read_results, run_sweep
+
+SAMPLES = 16
+SEED = 2026
+LAWS = ("passive F_min", "passive F_max", "SISO", "cLQG", "best passive E", "best passive e")
+FRICTION = ("sigma0", "sigma1", "coulomb", "stribeck", "stribeck_velocity")  # ±5 % each, per joint
+FRICTION_SPREAD, FREQUENCY_SPREAD, PULSE_SPREAD, DAMPING_SIGMA = 0.05, 0.01, 0.10, 0.3
+
+
+def stage_sweep(design, study) -> Sweep:
+    """The stage's sweep of ``design`` (the run's controlled design) around ``study`` (its
+    model-in-the-loop study): uniform factors on the friction, the modal frequencies and the
+    pulse, lognormal damping around the design model's median, Latin hypercube."""
+    damping = float(np.median(study.setup.model.damping))
+    pulse = float(study.setup.pulse_amplitude)
+
+    def uniform(spread: float, centre: float = 1.0) -> Distribution:
+        return Distribution("uniform", centre * (1.0 - spread), centre * (1.0 + spread))
+
+    inputs = (
+        UncertainInput("modal_frequency_scale", uniform(FREQUENCY_SPREAD)),
+        UncertainInput(
+            "modal_damping",
+            Distribution("lognormal", 0.0, min(0.99, 5.0 * damping), median=damping, sigma=DAMPING_SIGMA),
+        ),
+        UncertainInput("pulse_amplitude", uniform(PULSE_SPREAD, pulse)),
+        *(UncertainInput(f"friction.{p}", uniform(FRICTION_SPREAD)) for p in FRICTION),
+    )
+    settings = {"design": design.sha256, "laws": LAWS, "samples": SAMPLES, "seed": SEED, "inputs": repr(inputs)}
+    return Sweep(
+        source="smartjoint run (stage 10)",
+        sha256=hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest(),
+        design=Path(str(design.source)),
+        update=False,
+        laws=LAWS,
+        inputs=inputs,
+        grid={},
+        samples=SAMPLES,
+        seed=SEED,
+        sampler="latin-hypercube",
+        batch=2,
+        study_duration=None,
+    )
+
+
+def ensemble_stage(design, study, staging: Path, progress) -> dict:
+    """Run the stage's sweep into ``staging/ensemble`` and report it.
+
+    Parameters
+    ----------
+    design : Design
+        The run's controlled design (placed joints, identified friction).
+    study : design.control.study.Study
+        Its model-in-the-loop study: the SISO ε it optimised is the ensemble's.
+    staging : Path
+        The report folder being written.
+    progress : callable
+
+    Returns
+    -------
+    dict
+        The summary entry (counts, time, the orderings' probabilities, the three inputs that
+        drive each law's E(t_e), the best passive forces) and ``markdown``, the report section.
+    """
+    sweep = stage_sweep(design, study)
+    progress(
+        f"[10/11] robustness ensemble: {SAMPLES} plants around the design (LuGre ±5 %, modal frequencies ±1 %, "
+        f"damping, pulse ±10 %) × {len(LAWS)} laws, on Dask"
+    )
+    control = dataclasses.replace(design.control, siso_boundary_layer=tuple(float(w) for w in study.boundary_layer))
+    folder = staging / "ensemble"
+    out = run_sweep(
+        sweep,
+        folder,
+        progress=lambda line: progress("      " + line.strip()),
+        design=dataclasses.replace(design, control=control),
+    )
+    table = read_results(folder)
+    inputs = [name for name in table.column_names if name not in (*KEYS, *METRICS)]
+    sweep_report.write(folder, table, inputs, "smartjoint run")
+    columns = table.to_pydict()
+    orderings = sweep_report.orderings(columns).get(0, {})
+    drivers = {law: rhos for (_, law), rhos in sweep_report.sensitivity(columns, inputs).items()}
+    law, force = np.asarray(columns["law"]), np.asarray(columns["passive_normal_force"], dtype=float)
+    best = {name: float(np.median(force[law == name])) for name in ("best passive E", "best passive e")}
+    summary = {
+        "samples": SAMPLES,
+        "laws": list(LAWS),
+        "seconds": out["seconds"],
+        "workers": out["workers"],
+        "orderings": orderings,
+        "drivers": {name: [[n, r] for n, r in rhos] for name, rhos in drivers.items()},
+        "best_passive_normal_force_median": best,
+        "results": "ensemble/results",
+        "report": "ensemble/report.md",
+        "plot": "ensemble/ecdf.png",
+    }
+    return {**summary, "markdown": _markdown(summary)}
+
+
+def _markdown(summary: dict) -> str:
+    sentences = {name: sentence for name, sentence, *_ in sweep_report.ORDERINGS}
+    lines = [
+        "## Robustness ensemble",
+        "",
+        f"{summary['samples']} plants drawn around the design (Latin hypercube: each joint's LuGre parameters "
+        "±5 %, modal frequencies ±1 %, modal damping lognormal around the model's, the pulse ±10 %); the "
+        "controllers stay those designed on the nominal model. The best passive settings search the constant "
+        "F_N that minimises E(t_e) or e(t_e) on each plant. Whole report: [ensemble/report.md](ensemble/report.md).",
+        "",
+        "| ordering | probability | MC standard error |",
+        "|---|---:|---:|",
+    ]
+    for name, f in summary["orderings"].items():
+        lines.append(f"| {sentences[name]} | {f['probability']:.2f} | {f['standard_error']:.2f} |")
+    forces = summary["best_passive_normal_force_median"]
+    lines += [
+        "",
+        f"Best constant F_N (median over the plants): {forces['best passive E']:.0f} N for E(t_e), "
+        f"{forces['best passive e']:.0f} N for e(t_e).",
+        "",
+        "![ECDF of E(t_e)](ensemble/ecdf.png)",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+__all__ = ["LAWS", "SAMPLES", "ensemble_stage", "stage_sweep"]
