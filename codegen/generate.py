@@ -24,7 +24,7 @@ import numpy as np
 
 from smartjoint.codegen import build, build_files, can_layer, output, rendering
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.control.filter import HoldProducts, hold_products, output_terms
+from smartjoint.design.control.filter import FEEDBACK_LIMIT, HoldProducts, hold_products, output_terms
 
 
 def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: str, lit, row) -> dict:
@@ -67,6 +67,7 @@ def _clqg_context(common: dict, artifact: artifacts.ControllerArtifact, prefix: 
         **_hold_context(artifact, row),
         "clqg_boundary_layer": lit(artifact.clqg_boundary_layer),
         "sensor_limit": row(artifact.sensor_limit),
+        "feedback_limit": lit(FEEDBACK_LIMIT),
     }
 
 

@@ -62,7 +62,7 @@ def test_the_two_phase_reference_is_the_textbook_kalman_filter(reference):
 
 
 def _phases(compiled):
-    """A compiled cLQG stepped as output phase, output phase again, update phase."""
+    """A compiled cLQG stepped as output phase, output phase again (when it succeeded), update phase."""
     lib, prefix = compiled.c.lib, compiled.c.prefix
     output_phase, update_phase = (
         getattr(lib, f"{prefix}_clqg_output_phase"),
@@ -71,9 +71,10 @@ def _phases(compiled):
 
     def step(state, inputs, outputs):
         first = output_phase(state, inputs, outputs)
-        again = output_phase(state, inputs, outputs)
-        assert again == first
-        update_phase(state)
+        if first == 0:  # a fault restarts the filter: the call after it is another sample's
+            again = output_phase(state, inputs, outputs)
+            assert again == first
+        update_phase(state, inputs, outputs)
         return first
 
     compiled._step = step
@@ -84,8 +85,8 @@ def _phases(compiled):
 @pytest.mark.parametrize("real", ["float", "double"])
 def test_the_phases_are_the_step_bit_for_bit_and_the_output_phase_repeats(reference, real):
     """Faults included (the sequence of test_codegen with NaN/±Inf and absurd values): the C
-    stepped as output, output again, update gives the commands, desired forces and status bits of
-    its own step — in the float build with its fused multiply-adds too. The target's self-test
+    stepped as output, output again (a successful one repeats exactly), update gives the
+    commands, desired forces and status bits of its own step — in the float build with its fused multiply-adds too. The target's self-test
     times the output phase by that repetition."""
     from test_codegen import _sequence as faulty
 

@@ -117,6 +117,11 @@ class _Lqg:
         self.started, self.pending = True, False
 
 
+# |(K − KM·C)·q| beyond this [N] is a diverged estimate: far beyond any force a joint can take,
+# and small enough that r plus the output phase's measurement terms stays finite in single precision.
+FEEDBACK_LIMIT = 1e30
+
+
 class HoldProducts(NamedTuple):
     """The constant products of the two-phase filter, with Γ1·E the 2n × l matrix of rows
     γ1[i, c]·E[i, :]: C·Γ1·E (n_y × l, the update phase's innovation), KM·CΓ1E − K·Γ1·E (l × l)
@@ -275,9 +280,14 @@ class ClippedLqg(_Lqg):
     outside its plausible range (``STATUS_INPUT_IMPLAUSIBLE``; plausible are |y_r| <=
     sensor_limit, |u_R,j| <= friction_force_limit and measured_normal_force_min <= F_N,j <=
     measured_normal_force_max, limits included) → every joint at ``safe_normal_force``, u_d = 0,
-    and the filter restarts; an estimate or desired force that is no longer finite → the same with
-    ``STATUS_ESTIMATE_RESET``. Without the safety arguments: safe force F_N^max, no ranges
-    beyond finiteness (``clipped_lqg`` of ``design/control/artifact.py`` passes the artefact's).
+    and the filter restarts; an estimate whose feedback (K − KM·C)·q exceeds ``FEEDBACK_LIMIT``
+    (or is NaN) → the same with ``STATUS_ESTIMATE_RESET``. Each input is checked where it is
+    used: the sensors and friction forces by the output phase (the command uses them: the safe
+    state at once); the measured normal forces, which only the update uses, and the new estimate
+    by the update phase, which restarts the filter and leaves the fault for the next output phase
+    (the safe state one sample later; on the bus the CAN layer checks every signal on receipt).
+    Without the safety arguments: safe force F_N^max, no ranges beyond finiteness
+    (``clipped_lqg`` of ``design/control/artifact.py`` passes the artefact's).
     """
 
     def __init__(
@@ -318,6 +328,13 @@ class ClippedLqg(_Lqg):
         self.applied = np.zeros(self.design.joint_input.shape[1])  # F_N measured at the pending update
         self.command = np.zeros(self.design.joint_input.shape[1])  # F_N commanded at the pending update
         self.status = STATUS_OK
+        self.fault = STATUS_OK  # found by an update phase, the status of the next output phase
+
+    def _restart(self, fault: int) -> None:
+        """A fault the update phase found: the filter restarts, the next output phase reports it."""
+        status, desired = self.status, self.desired_force  # this sample's output stays as sent
+        self.reset()
+        self.status, self.desired_force, self.fault = status, desired, fault
 
     def _fault(self, status: int) -> np.ndarray:
         self.reset()
@@ -335,18 +352,15 @@ class ClippedLqg(_Lqg):
         sensors = np.asarray(measurements.sensors, dtype=float)
         friction = np.asarray(measurements.friction_force, dtype=float)
         applied = np.asarray(measurements.normal_force, dtype=float)
-        status = any_status(
+        used = any_status(
             input_status(sensors, -self.sensor_limit, self.sensor_limit),
             input_status(friction, -self.friction_force_limit, self.friction_force_limit),
-            input_status(applied, self.measured_normal_force_min, self.measured_normal_force_max),
         )
-        if status != STATUS_OK:
-            return self._fault(status)
-        with np.errstate(all="ignore"):
-            self.desired_force = self._output(sensors, friction)
-        # A non-finite K·q or C·q (from a non-finite estimate) makes u_d non-finite (inf·0 is NaN).
-        if not np.all(np.isfinite(self.desired_force)):
-            return self._fault(STATUS_ESTIMATE_RESET)
+        if self.fault != STATUS_OK or used != STATUS_OK:
+            every = any_status(np.array([used]), self._applied_status(applied))
+            return self._fault(self.fault | every)
+        # |r| <= FEEDBACK_LIMIT (the update's test) and bounded inputs: every force is finite.
+        self.desired_force = self._output(sensors, friction)
         self.status = STATUS_OK
         error = self.desired_force - friction
         normal_force = self.normal_force_min + self.normal_force_range * boundary_layer(
@@ -355,18 +369,30 @@ class ClippedLqg(_Lqg):
         self.applied, self.command = applied, normal_force
         return normal_force
 
+    def _applied_status(self, applied: np.ndarray) -> np.ndarray:
+        return input_status(applied, self.measured_normal_force_min, self.measured_normal_force_max)
+
     def update(self) -> None:
         """The update phase, after the command of ``output`` is sent (the generated C's
-        ``<prefix>_clqg_update_phase``): the time update and the products of the next output phase."""
-        if self.pending:
-            # The friction force just after the sample: u_R = F_N·μ with μ continuous, so it scales
-            # with the new normal force — the start value of the next time update's first-order hold.
-            applied, friction = self.applied, self.force
-            self.previous_force = np.where(
-                applied > 0.0, friction * self.command / np.where(applied > 0.0, applied, 1.0), friction
-            )
+        ``<prefix>_clqg_update_phase``): the measured normal forces checked, the time update and
+        the products of the next output phase, the new estimate checked."""
+        if not self.pending:
+            return
+        fault = any_status(self._applied_status(self.applied))
+        if fault != STATUS_OK:
+            self._restart(fault)
+            return
+        # The friction force just after the sample: u_R = F_N·μ with μ continuous, so it scales
+        # with the new normal force — the start value of the next time update's first-order hold.
+        applied, friction = self.applied, self.force
+        self.previous_force = np.where(
+            applied > 0.0, friction * self.command / np.where(applied > 0.0, applied, 1.0), friction
+        )
         with np.errstate(all="ignore"):
             self._update()
+        # Written as "within", false for NaN: a feedback beyond the bound is a diverged estimate.
+        if not np.all(np.abs(self.feedback) <= FEEDBACK_LIMIT):
+            self._restart(STATUS_ESTIMATE_RESET)
 
 
 class ActiveLqg(_Lqg):
@@ -392,6 +418,7 @@ class ActiveLqg(_Lqg):
 
 
 __all__ = [
+    "FEEDBACK_LIMIT",
     "ActiveLqg",
     "ClippedLqg",
     "HoldProducts",

@@ -94,6 +94,9 @@ static const smartjoint_real sensor_limit[SENSORS] = {0.5f, 0.5f}; /* [m or m/s]
 static const smartjoint_real friction_force_limit[JOINTS] = {660.0f, 660.0f, 660.0f}; /* [N] */
 static const smartjoint_real measured_normal_force_min[JOINTS] = {-40.0f, -40.0f, -40.0f}; /* [N] */
 static const smartjoint_real measured_normal_force_max[JOINTS] = {440.0f, 440.0f, 440.0f}; /* [N] */
+/* |(K - K M C) q| beyond this [N] is a diverged estimate (control.FEEDBACK_LIMIT): far beyond any
+ * force, and small enough that r plus the measurement's terms stays finite in single precision. */
+static const smartjoint_real feedback_limit = 1e+30f;
 
 void smartjoint_clqg_init(smartjoint_clqg_state *state)
 {
@@ -107,16 +110,13 @@ void smartjoint_clqg_init(smartjoint_clqg_state *state)
     }
     for (k = 0; k < SENSORS; ++k) {
         state->predicted[k] = 0.0f;
-        state->measured.sensors[k] = 0.0f;
     }
     for (k = 0; k < JOINTS; ++k) {
         state->feedback[k] = 0.0f;
-        state->measured.friction_force[k] = 0.0f;
-        state->measured.normal_force[k] = 0.0f;
-        state->command[k] = 0.0f;
     }
     state->started = 0;
     state->pending = 0;
+    state->fault = SMARTJOINT_STATUS_OK;
 }
 
 /* Safe state: filter restarted, every joint at the safe force, no desired force. */
@@ -144,34 +144,42 @@ static unsigned int check_input(smartjoint_real value, smartjoint_real low, smar
     return isfinite(value) ? SMARTJOINT_STATUS_INPUT_IMPLAUSIBLE : SMARTJOINT_STATUS_INPUT_INVALID;
 }
 
+/* The status bits of the measured normal forces (check_input), which only the update uses. */
+static unsigned int check_normal_forces(const smartjoint_clqg_input *input)
+{
+    unsigned int status = SMARTJOINT_STATUS_OK;
+    int j;
+    for (j = 0; j < JOINTS; ++j) {
+        status |= check_input(input->normal_force[j], measured_normal_force_min[j], measured_normal_force_max[j]);
+    }
+    return status;
+}
+
 /* The status bits of all inputs (check_input); any bit means the filter cannot use them. */
 static unsigned int check_inputs(const smartjoint_clqg_input *input)
 {
-    unsigned int status = SMARTJOINT_STATUS_OK;
+    unsigned int status = check_normal_forces(input);
     int r, j;
     for (r = 0; r < SENSORS; ++r) {
         status |= check_input(input->sensors[r], -sensor_limit[r], sensor_limit[r]);
     }
     for (j = 0; j < JOINTS; ++j) {
         status |= check_input(input->friction_force[j], -friction_force_limit[j], friction_force_limit[j]);
-        status |= check_input(input->normal_force[j], measured_normal_force_min[j], measured_normal_force_max[j]);
     }
     return status;
 }
 
-/* Whether every input can be used (check_inputs gives OK), tested first: each value within its
- * range, written as "within" as there (false for NaN; the limits are finite, so an infinity is
- * never within either), with |x| <= L for the ranges [-L, L]. */
+/* Whether the inputs of the command can be used (no bit of check_inputs for the sensors and the
+ * friction forces), tested first: each value within its range, written as "within" as there
+ * (false for NaN; the limits are finite, so an infinity is never within either), |x| <= L. The
+ * measured normal forces are checked where they are used, in the update phase. */
 static int inputs_plausible(const smartjoint_clqg_input *input)
 {
     return MAGNITUDE(input->sensors[0]) <= sensor_limit[0] &&
            MAGNITUDE(input->sensors[1]) <= sensor_limit[1] &&
            MAGNITUDE(input->friction_force[0]) <= friction_force_limit[0] &&
-           input->normal_force[0] >= measured_normal_force_min[0] && input->normal_force[0] <= measured_normal_force_max[0] &&
            MAGNITUDE(input->friction_force[1]) <= friction_force_limit[1] &&
-           input->normal_force[1] >= measured_normal_force_min[1] && input->normal_force[1] <= measured_normal_force_max[1] &&
-           MAGNITUDE(input->friction_force[2]) <= friction_force_limit[2] &&
-           input->normal_force[2] >= measured_normal_force_min[2] && input->normal_force[2] <= measured_normal_force_max[2];
+           MAGNITUDE(input->friction_force[2]) <= friction_force_limit[2];
 }
 
 /* Eq. 34 for one joint: F_N = F^min + (F^max - F^min) clip((u_d - u_R) sgn(u_R) / eps, 0, 1).
@@ -188,27 +196,27 @@ static smartjoint_real clipped_command(const joint_law *g, smartjoint_real desir
  * the previous update phase left in the state, r = (K - K M C) q (control.hold_products):
  *   u_d = -((r + (K M C Gamma1 E - K Gamma1 E) u) + (K M) y),
  * each sum a chain of multiply-adds in the order of the Python reference (control.multiply_add).
- * The first sample has no prior (r = 0) and no hold term. The inputs are kept for the update. */
+ * The first sample has no prior (r = 0) and no hold term. Only what the command needs is tested
+ * here: the sensors and friction forces; the update phase tests the rest (the measured normal
+ * forces, the new estimate) and leaves what it found for this phase of the next sample, so |r|
+ * is within feedback_limit and every force below is finite. */
 unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
 {
     smartjoint_real friction0, friction1, friction2;
     smartjoint_real sensor0, sensor1;
     smartjoint_real force0, force1, force2;
-    smartjoint_real finite_test = 0.0f;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
     }
-    if (!inputs_plausible(input)) {
-        return fault(state, output, check_inputs(input));
+    if (state->fault != SMARTJOINT_STATUS_OK || !inputs_plausible(input)) {
+        return fault(state, output, state->fault | check_inputs(input));
     }
     friction0 = input->friction_force[0];
     friction1 = input->friction_force[1];
     friction2 = input->friction_force[2];
     sensor0 = input->sensors[0];
     sensor1 = input->sensors[1];
-    /* u_d = -force_j, joint by joint, each force a chain of multiply-adds in the reference's order.
-     * A non-finite estimate makes r non-finite, so testing the forces covers it: force * 0 is NaN
-     * exactly when force is not finite, so one test after the last covers them all. */
+    /* u_d = -force_j, joint by joint, each force a chain of multiply-adds in the reference's order. */
     force0 = state->feedback[0];
     force1 = state->feedback[1];
     force2 = state->feedback[2];
@@ -225,69 +233,67 @@ unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const sm
     }
     force0 = MULTIPLY_ADD(force0, law[0].feedback_estimator[0], sensor0);
     force0 = MULTIPLY_ADD(force0, law[0].feedback_estimator[1], sensor1);
-    finite_test = MULTIPLY_ADD(finite_test, force0, 0.0f);
     force1 = MULTIPLY_ADD(force1, law[1].feedback_estimator[0], sensor0);
     force1 = MULTIPLY_ADD(force1, law[1].feedback_estimator[1], sensor1);
-    finite_test = MULTIPLY_ADD(finite_test, force1, 0.0f);
     force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[0], sensor0);
     force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[1], sensor1);
-    finite_test = MULTIPLY_ADD(finite_test, force2, 0.0f);
     output->desired_force[0] = -force0;
     output->normal_force[0] = clipped_command(&law[0], -force0, friction0);
-    state->command[0] = output->normal_force[0];
     output->desired_force[1] = -force1;
     output->normal_force[1] = clipped_command(&law[1], -force1, friction1);
-    state->command[1] = output->normal_force[1];
     output->desired_force[2] = -force2;
     output->normal_force[2] = clipped_command(&law[2], -force2, friction2);
-    state->command[2] = output->normal_force[2];
-    if (isnan(finite_test)) {
-        return fault(state, output, SMARTJOINT_STATUS_ESTIMATE_RESET);
-    }
-    state->measured = *input;
     state->pending = 1;
     return SMARTJOINT_STATUS_OK;
 }
 
-/* Update phase, after the command is sent: the innovation nu = y - (C q - (C Gamma1 E) u) of the
- * inputs the output phase kept, the measurement update x_hat = (q - Gamma1 E u) + M nu and the time
+/* Update phase, after the command is sent, with the input and output of that output phase: the
+ * measured normal forces checked (used here only), the innovation nu = y - (C q - (C Gamma1 E) u),
+ * the measurement update x_hat = (q - Gamma1 E u) + M nu and the time
  * update to the next sample, q = Phi x_hat - Gamma0 E u+ (a first-order hold on the friction forces
  * from just after this sample), block by block (never a dense STATES x STATES product), fused with
  * the products C q and (K - K M C) q of the next output phase. C's structural zeros are skipped: a
  * sensor sums only the components it reads (velocity q0, displacement q1), as in
- * control.output_terms. Nothing happens without a successful output phase before it. */
-void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
+ * control.output_terms. Nothing happens without a successful output phase before it. A fault found
+ * here (an implausible normal force, an estimate beyond feedback_limit) restarts the filter and is
+ * the status of the next output phase, which then commands the safe state. */
+void smartjoint_clqg_update_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, const smartjoint_clqg_output *output)
 {
     smartjoint_real friction0, friction1, friction2;
     smartjoint_real previous0, previous1, previous2;
     smartjoint_real feedback0, feedback1, feedback2;
     smartjoint_real innovation0, innovation1;
     smartjoint_real predicted0, predicted1;
-    const smartjoint_clqg_input *measured;
+    unsigned int status;
     int i;
-    if (state == NULL || !state->pending) {
+    if (state == NULL || input == NULL || output == NULL || !state->pending) {
         return;
     }
-    measured = &state->measured;
+    status = check_normal_forces(input);
+    if (status != SMARTJOINT_STATUS_OK) {
+        smartjoint_clqg_init(state);
+        state->fault = status;
+        return;
+    }
     /* u_R = F_N mu with mu continuous: the friction just after this sample scales with the new
      * normal force; it starts the next time update's first-order hold. */
-    previous0 = measured->normal_force[0] > 0.0f ? (measured->friction_force[0] * state->command[0]) / measured->normal_force[0] : measured->friction_force[0];
-    previous1 = measured->normal_force[1] > 0.0f ? (measured->friction_force[1] * state->command[1]) / measured->normal_force[1] : measured->friction_force[1];
-    previous2 = measured->normal_force[2] > 0.0f ? (measured->friction_force[2] * state->command[2]) / measured->normal_force[2] : measured->friction_force[2];
+    previous0 = input->normal_force[0] > 0.0f ? (input->friction_force[0] * output->normal_force[0]) / input->normal_force[0] : input->friction_force[0];
+    previous1 = input->normal_force[1] > 0.0f ? (input->friction_force[1] * output->normal_force[1]) / input->normal_force[1] : input->friction_force[1];
+    previous2 = input->normal_force[2] > 0.0f ? (input->friction_force[2] * output->normal_force[2]) / input->normal_force[2] : input->friction_force[2];
     if (state->started) {
-        friction0 = measured->friction_force[0];
-        friction1 = measured->friction_force[1];
-        friction2 = measured->friction_force[2];
+        friction0 = input->friction_force[0];
+        friction1 = input->friction_force[1];
+        friction2 = input->friction_force[2];
         innovation0 = state->predicted[0];
         innovation0 = MULTIPLY_SUBTRACT(innovation0, output_hold[0][0], friction0);
         innovation0 = MULTIPLY_SUBTRACT(innovation0, output_hold[0][1], friction1);
         innovation0 = MULTIPLY_SUBTRACT(innovation0, output_hold[0][2], friction2);
-        innovation0 = measured->sensors[0] - innovation0;
+        innovation0 = input->sensors[0] - innovation0;
         innovation1 = state->predicted[1];
         innovation1 = MULTIPLY_SUBTRACT(innovation1, output_hold[1][0], friction0);
         innovation1 = MULTIPLY_SUBTRACT(innovation1, output_hold[1][1], friction1);
         innovation1 = MULTIPLY_SUBTRACT(innovation1, output_hold[1][2], friction2);
-        innovation1 = measured->sensors[1] - innovation1;
+        innovation1 = input->sensors[1] - innovation1;
     } else { /* the first sample has no prior: q = 0, no hold, nu = y */
         for (i = 0; i < COORDINATES; ++i) {
             state->velocity[i] = 0.0f;
@@ -296,8 +302,8 @@ void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
         friction0 = 0.0f;
         friction1 = 0.0f;
         friction2 = 0.0f;
-        innovation0 = measured->sensors[0];
-        innovation1 = measured->sensors[1];
+        innovation0 = input->sensors[0];
+        innovation1 = input->sensors[1];
     }
     predicted0 = 0.0f;
     predicted1 = 0.0f;
@@ -341,11 +347,16 @@ void smartjoint_clqg_update_phase(smartjoint_clqg_state *state)
     state->feedback[2] = feedback2;
     state->started = 1;
     state->pending = 0;
+    /* Written as "within", false for NaN: an estimate whose feedback leaves the bound has diverged. */
+    if (!(MAGNITUDE(feedback0) <= feedback_limit && MAGNITUDE(feedback1) <= feedback_limit && MAGNITUDE(feedback2) <= feedback_limit)) {
+        smartjoint_clqg_init(state);
+        state->fault = SMARTJOINT_STATUS_ESTIMATE_RESET;
+    }
 }
 
 unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
 {
     const unsigned int status = smartjoint_clqg_output_phase(state, input, output);
-    smartjoint_clqg_update_phase(state);
+    smartjoint_clqg_update_phase(state, input, output);
     return status;
 }

@@ -14,9 +14,11 @@ extern "C" {
  * forces u_d = -K x_hat and the clipped normal-force law with a boundary layer [N].
  * Call smartjoint_clqg_step once every SMARTJOINT_CLQG_SAMPLE_TIME seconds, or split it (same results):
  * smartjoint_clqg_output_phase as soon as the measurements arrive, smartjoint_clqg_update_phase once its
- * command is sent. An input that is NaN/Inf or outside its plausible range, or an estimate that
- * leaves the finite numbers, restarts the filter and puts every joint at the safe normal force
- * with u_d = 0 (status bits: smartjoint_types.h). */
+ * command is sent, with the same input and output. An input that is NaN/Inf or outside its
+ * plausible range, or an estimate that diverges, restarts the filter and puts every joint at the
+ * safe normal force with u_d = 0 (status bits: smartjoint_types.h): at once for the sensors and
+ * friction forces, which the command uses; for a measured normal force or the estimate, which the
+ * update phase uses and forms, at the next output phase. */
 #define SMARTJOINT_CLQG_JOINTS 3
 #define SMARTJOINT_CLQG_SENSORS 2
 #define SMARTJOINT_CLQG_COORDINATES 12
@@ -45,17 +47,17 @@ typedef struct {
     smartjoint_real displacement[SMARTJOINT_CLQG_COORDINATES]; /* w_i eta_i */
     smartjoint_real predicted[SMARTJOINT_CLQG_SENSORS];     /* C q */
     smartjoint_real feedback[SMARTJOINT_CLQG_JOINTS];       /* (K - K M C) q */
-    smartjoint_clqg_input measured;                   /* the inputs of the pending update */
-    smartjoint_real command[SMARTJOINT_CLQG_JOINTS];        /* F_N commanded at the pending update [N] */
     int started;                                         /* 0 until the first update */
     int pending;                                         /* 1 from an output phase to its update */
+    unsigned int fault;                                  /* found by an update, for the next output phase */
 } smartjoint_clqg_state;
 
 void smartjoint_clqg_init(smartjoint_clqg_state *state);
 /* Output phase: the command from the new measurements (status bits). */
 unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output);
-/* Update phase: after the command is sent, before the next output phase. */
-void smartjoint_clqg_update_phase(smartjoint_clqg_state *state);
+/* Update phase: after the command is sent, before the next output phase; the same input and
+ * output as the output phase (kept unchanged until then: the update reads them). */
+void smartjoint_clqg_update_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, const smartjoint_clqg_output *output);
 /* smartjoint_clqg_output_phase then smartjoint_clqg_update_phase. */
 unsigned int smartjoint_clqg_step(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output);
 
