@@ -86,8 +86,8 @@ def _phases(compiled):
 def test_the_phases_are_the_step_bit_for_bit_and_the_output_phase_repeats(reference, real):
     """Faults included (the sequence of test_codegen with NaN/±Inf and absurd values): the C
     stepped as output, output again (a successful one repeats exactly), update gives the
-    commands, desired forces and status bits of its own step — in the float build with its fused multiply-adds too. The target's self-test
-    times the output phase by that repetition."""
+    commands, desired forces and status bits of its own step — in the float build with its fused
+    multiply-adds too. The target's self-test times the output phase by that repetition."""
     from test_codegen import _sequence as faulty
 
     build = controllers.compile_controllers(reference, real)
