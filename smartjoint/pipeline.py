@@ -163,7 +163,7 @@ def _stages(design_path: str | None, staging: Path, progress):
         _firmware_stage(r, progress)
         _sil_stage(r, staging, progress)
         r.pil = pil_stage(r.control_study, r.controller, staging, progress)
-        r.ensemble = ensemble_stage(r.controlled, r.control_study, staging, progress)
+        r.ensemble = ensemble_stage(r.controlled, r.control_study, r.friction, staging, progress)
     else:
         r.skipped = NO_JOINTS
         progress(f"[4/11]–[10/11] skipped: {NO_JOINTS}")

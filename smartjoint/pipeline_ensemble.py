@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -22,14 +23,57 @@ from smartjoint.sweep_runner import read_results, run_sweep
 SAMPLES = 16
 SEED = 2026
 LAWS = ("passive F_min", "passive F_max", "SISO", "cLQG", "best passive E", "best passive e")
-FRICTION = ("sigma0", "sigma1", "coulomb", "stribeck", "stribeck_velocity")  # ±5 % each, per joint
+FRICTION = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")  # drawn per joint
 FRICTION_SPREAD, FREQUENCY_SPREAD, PULSE_SPREAD, DAMPING_SIGMA = 0.05, 0.01, 0.10, 0.3
+Z95 = 1.959963984540054  # the 97.5 % point of the normal distribution: a 95 % interval is exp(θ ± Z95·σ_θ)
 
 
-def stage_sweep(design, study) -> Sweep:
+def friction_spreads(friction) -> dict[str, float]:
+    """σ_θ of each LuGre parameter's logarithm from the identification's 95 % intervals
+    (``identify``: exp(θ ± 1.96σ_θ)), the widest over the design's joint types.
+
+    Parameters
+    ----------
+    friction : list of JointTypeFriction
+        The friction stage's results (``pipeline_joints.friction_stage``).
+
+    Returns
+    -------
+    dict
+        Parameter → σ_θ, for the parameters with a finite positive interval.
+    """
+    spreads: dict[str, float] = {}
+    for result in friction:
+        for name, entry in result.identification.as_dict()["parameters"].items():
+            interval = entry.get("ci95")
+            if name in FRICTION and interval and 0.0 < interval[0] < interval[1] < math.inf:
+                spreads[name] = max(spreads.get(name, 0.0), math.log(interval[1] / interval[0]) / (2.0 * Z95))
+    return spreads
+
+
+def _friction_inputs(spreads: dict[str, float]) -> tuple[UncertainInput, ...]:
+    """Each parameter's factor: lognormal of median 1 and σ_θ truncated to the 95 % interval where
+    the identification gives one (however wide: a weakly identifiable parameter is that
+    uncertain), else uniform ±FRICTION_SPREAD."""
+    inputs = []
+    for name in FRICTION:
+        sigma = spreads.get(name)
+        if sigma is None or not sigma > 0.0:
+            low, high = 1.0 - FRICTION_SPREAD, 1.0 + FRICTION_SPREAD
+            inputs.append(UncertainInput(f"friction.{name}", Distribution("uniform", low, high)))
+        else:
+            low, high = math.exp(-Z95 * sigma), math.exp(Z95 * sigma)
+            inputs.append(
+                UncertainInput(f"friction.{name}", Distribution("lognormal", low, high, median=1.0, sigma=sigma))
+            )
+    return tuple(inputs)
+
+
+def stage_sweep(design, study, spreads: dict[str, float] | None = None) -> Sweep:
     """The stage's sweep of ``design`` (the run's controlled design) around ``study`` (its
-    model-in-the-loop study): uniform factors on the friction, the modal frequencies and the
-    pulse, lognormal damping around the design model's median, Latin hypercube."""
+    model-in-the-loop study): the friction factors of ``spreads`` (``friction_spreads``; ±5 %
+    uniform for a parameter without), uniform factors on the modal frequencies and the pulse,
+    lognormal damping around the design model's median, Latin hypercube."""
     damping = float(np.median(study.setup.model.damping))
     pulse = float(study.setup.pulse_amplitude)
 
@@ -43,7 +87,7 @@ def stage_sweep(design, study) -> Sweep:
             Distribution("lognormal", 0.0, min(0.99, 5.0 * damping), median=damping, sigma=DAMPING_SIGMA),
         ),
         UncertainInput("pulse_amplitude", uniform(PULSE_SPREAD, pulse)),
-        *(UncertainInput(f"friction.{p}", uniform(FRICTION_SPREAD)) for p in FRICTION),
+        *_friction_inputs(spreads or {}),
     )
     settings = {"design": design.sha256, "laws": LAWS, "samples": SAMPLES, "seed": SEED, "inputs": repr(inputs)}
     return Sweep(
@@ -62,7 +106,7 @@ def stage_sweep(design, study) -> Sweep:
     )
 
 
-def ensemble_stage(design, study, staging: Path, progress) -> dict:
+def ensemble_stage(design, study, friction, staging: Path, progress) -> dict:
     """Run the stage's sweep into ``staging/ensemble`` and report it.
 
     Parameters
@@ -71,6 +115,8 @@ def ensemble_stage(design, study, staging: Path, progress) -> dict:
         The run's controlled design (placed joints, identified friction).
     study : design.control.study.Study
         Its model-in-the-loop study: the SISO ε it optimised is the ensemble's.
+    friction : list of JointTypeFriction
+        The friction stage's results: their 95 % intervals set the friction's spread.
     staging : Path
         The report folder being written.
     progress : callable
@@ -81,10 +127,12 @@ def ensemble_stage(design, study, staging: Path, progress) -> dict:
         The summary entry (counts, time, the orderings' probabilities, the three inputs that
         drive each law's E(t_e), the best passive forces) and ``markdown``, the report section.
     """
-    sweep = stage_sweep(design, study)
+    spreads = friction_spreads(friction)
+    sweep = stage_sweep(design, study, spreads)
+    shown = ", ".join(f"{name} ×e^±{Z95 * sigma:.2g}" for name, sigma in spreads.items()) or "±5 %"
     progress(
-        f"[10/11] robustness ensemble: {SAMPLES} plants around the design (LuGre ±5 %, modal frequencies ±1 %, "
-        f"damping, pulse ±10 %) × {len(LAWS)} laws, on Dask"
+        f"[10/11] robustness ensemble: {SAMPLES} plants around the design (LuGre within the identification's 95 % "
+        f"intervals: {shown}; modal frequencies ±1 %, damping, pulse ±10 %) × {len(LAWS)} laws, on Dask"
     )
     control = dataclasses.replace(design.control, siso_boundary_layer=tuple(float(w) for w in study.boundary_layer))
     folder = staging / "ensemble"
@@ -104,6 +152,7 @@ def ensemble_stage(design, study, staging: Path, progress) -> dict:
     best = {name: float(np.median(force[law == name])) for name in ("best passive E", "best passive e")}
     summary = {
         "samples": SAMPLES,
+        "friction_log_sigma": spreads,
         "laws": list(LAWS),
         "seconds": out["seconds"],
         "workers": out["workers"],
@@ -123,7 +172,10 @@ def _markdown(summary: dict) -> str:
         "## Robustness ensemble",
         "",
         f"{summary['samples']} plants drawn around the design (Latin hypercube: each joint's LuGre parameters "
-        "±5 %, modal frequencies ±1 %, modal damping lognormal around the model's, the pulse ±10 %); the "
+        "lognormal within the identification's 95 % intervals, the widest over the joint types (σ of the "
+        "logarithm: "
+        + (", ".join(f"{n} {v:.3g}" for n, v in summary["friction_log_sigma"].items()) or "none; ±5 %")
+        + "), modal frequencies ±1 %, modal damping lognormal around the model's, the pulse ±10 %); the "
         "controllers stay those designed on the nominal model. The best passive settings search the constant "
         "F_N that minimises E(t_e) or e(t_e) on each plant. Whole report: [ensemble/report.md](ensemble/report.md).",
         "",
