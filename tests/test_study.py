@@ -146,16 +146,46 @@ def bundled(three_type_a):
 
 
 @pytest.mark.numerics
-def test_the_papers_orderings_hold_on_the_bundled_truss(bundled):
+def test_the_active_reference_needs_more_power_and_the_lqg_loop_is_stable(bundled):
+    """What does not hang on one chaotic trajectory (the energy and deflection orderings are
+    asserted over an ensemble below): the power ranking, and the linear loop's poles."""
     m = {r.name: r.metrics for r in bundled.runs}
-    passive = min(m["passive F_min"]["energy_end"], m["passive F_max"]["energy_end"])
-    assert m["SISO"]["energy_end"] < passive
-    assert m["cLQG"]["energy_end"] < passive
-    assert m["cLQG"]["tip_rms_total"] < m["SISO"]["tip_rms_total"]
-    assert m["active LQG"]["tip_rms_total"] < m["cLQG"]["tip_rms_total"]
-    assert m["active LQG"]["energy_end"] < m["cLQG"]["energy_end"]
     assert m["active LQG"]["control_power"] > m["cLQG"]["control_power"]
     assert bundled.stability_margin > 0
+
+
+@pytest.mark.numerics
+def test_the_papers_orderings_hold_over_plants_drawn_around_the_bundled_truss(bundled, three_type_a):
+    """The loop with stick-slip is chaotic: whether one trajectory's ordering holds can flip with
+    the last bits of another machine's kernels. So the claims are asserted over 16 plants drawn as
+    stage 10 of ``smartjoint run`` draws them (LuGre ±5 %, modal frequencies ±1 %, damping, the
+    pulse ±10 %; the compiled loop): each holds on at least 14 of them (all 16 on this machine;
+    200 plants in benchmarks/RESULTS.md put the least likely, SISO below both passive settings,
+    at 0.995 ± 0.005)."""
+    from smartjoint import sweep_report
+    from smartjoint.design.control import ensemble
+    from smartjoint.pipeline_ensemble import stage_sweep
+    from smartjoint.sweep_runner import prepare
+
+    design, _ = three_type_a
+    control = dataclasses.replace(design.control, siso_boundary_layer=tuple(bundled.boundary_layer.tolist()))
+    design = dataclasses.replace(design, control=control)
+    laws = ("passive F_min", "passive F_max", "SISO", "cLQG", "active LQG")
+    sweep = dataclasses.replace(stage_sweep(design, bundled), laws=laws)
+    prepared = prepare(sweep, progress=lambda line: None, design=design)
+    assert prepared.compiled is not None
+    rows = ensemble.run_batch(prepared.base, prepared.points, list(range(16)), prepared.values, prepared.compiled)
+    columns = {key: [row[key] for row in rows] for key in rows[0]}
+    held = sweep_report.orderings(columns)[0]
+    claims = [
+        "siso_below_both_passive",
+        "clqg_below_both_passive",
+        "clqg_tip_rms_below_siso",
+        "active_energy_below_clqg",
+        "active_tip_rms_below_clqg",
+    ]
+    assert {name: held[name]["samples"] for name in claims} == dict.fromkeys(claims, 16)
+    assert all(held[name]["probability"] >= 14 / 16 for name in claims), held
 
 
 @pytest.mark.numerics
