@@ -167,6 +167,16 @@ class CompiledLoop:
         hold = np.ascontiguousarray(s.normal_force_max, dtype=float)
         w = np.ascontiguousarray(prepared.w, dtype=float)
         ffi = self.ffi
+        noise = ffi.NULL
+        if s.sensor_noise is not None:
+            rows = -(-prepared.run.steps // prepared.ratio)
+            kept = np.ascontiguousarray(s.sensor_noise, dtype=float)
+            if kept.shape[0] < rows or kept.shape[1:] != (s.plant.velocity_output.shape[0],):
+                raise ModelError(
+                    f"sensor_noise: {kept.shape} values — need {rows} rows (samples) of "
+                    f"{s.plant.velocity_output.shape[0]} (sensors)"
+                )
+            noise = ffi.cast("double *", ffi.from_buffer(kept))
         settings = ffi.new(
             f"{self.prefix}_loop *",
             {
@@ -177,6 +187,7 @@ class CompiledLoop:
                 "hold_until": PULSE_DURATION,
                 "hold_normal_force": ffi.cast("double *", ffi.from_buffer(hold)),
                 "disturbance": ffi.cast("double *", ffi.from_buffer(w)),
+                "sensor_noise": noise,
             },
         )
         result = ffi.new(f"{self.prefix}_loop_result *")

@@ -26,6 +26,7 @@ FIELDS = ("time", "energy", "sensors", "normal_force", "joint_force", "sliding_v
 def study():
     """The small truss's study over 0.4 s, its artefact (ε = 3e-4 m/s) and the compiled loop."""
     d = small_truss()
+    d["disturbances"].append({"name": "fz", "node": "TIP", "direction": "uz"})  # a plane for the pulse's angle
     d["control"] = {"modes": 4, "considered_modes": 10, "study_duration": 0.4, "siso_boundary_layer": 3e-4}
     design = parse_design(d)
     model = design_model(design, lambda line: None)
@@ -34,10 +35,14 @@ def study():
 
 
 def _perturbed(s):
-    """The plant 2 % stiffer with 0.3 % damping, the friction 5 % stronger, a 230 N pulse."""
+    """The plant 2 % stiffer with 0.3 % damping, the friction 5 % stronger, a 230 N pulse at 70°,
+    white noise of 20 µm on the tip sensors."""
     plant = dataclasses.replace(s.model, omega=s.model.omega * 1.02, damping=np.full_like(s.model.damping, 3e-3))
     laws = [dataclasses.replace(law, coulomb=law.coulomb * 1.05, sigma0=law.sigma0 * 0.95) for law in s.laws]
-    return dataclasses.replace(s, plant=plant, laws=laws, pulse_amplitude=230.0)
+    noise = 2e-5 * np.random.default_rng(5).standard_normal((400, plant.velocity_output.shape[0]))
+    return dataclasses.replace(
+        s, plant=plant, laws=laws, pulse_amplitude=230.0, pulse_direction=70.0, sensor_noise=noise
+    )
 
 
 class _Counting:
@@ -72,8 +77,14 @@ def test_the_compiled_loop_is_the_python_loop_bit_for_bit(study, law, perturbed)
     for field in FIELDS:
         np.testing.assert_array_equal(getattr(c, field), getattr(python, field), err_msg=field)
     assert c.control_power == python.control_power and c_safe == python_safe == 0
+    assert np.all(np.isfinite(c.energy))
     # F_N^max while the pulse acts (40 ms), the law after it: the run must have used both.
     assert np.all(c.normal_force[:40] == s.normal_force_max) and np.any(c.normal_force[41:] < s.normal_force_max)
+    if perturbed and law == "cLQG":  # the noise and the pulse's angle changed what the law did
+        nominal, _ = compiled.run(dataclasses.replace(s, sensor_noise=None), law)
+        assert not np.array_equal(nominal.normal_force, c.normal_force)
+        turned, _ = compiled.run(dataclasses.replace(s, pulse_direction=45.0, sensor_noise=None), law)
+        assert not np.array_equal(nominal.sensors, turned.sensors)
 
 
 @pytest.mark.parametrize("force", [40.0, 400.0])
@@ -85,6 +96,19 @@ def test_a_passive_run_is_the_python_loops_bit_for_bit(study, force):
     for field in FIELDS:
         np.testing.assert_array_equal(getattr(c, field), getattr(python, field), err_msg=field)
     assert np.all(c.normal_force[:40] == s.normal_force_max) and np.all(c.normal_force[41:] == force)
+
+
+def test_the_pulse_at_45_degrees_is_the_studys_and_one_input_has_no_angle(study):
+    s, _, _ = study
+    at = dataclasses.replace(s, pulse_direction=45.0).pulse()
+    assert np.array_equal(at(0.01), s.pulse()(0.01)) and np.array_equal(at.directions, [1.0, 1.0])
+    turned = dataclasses.replace(s, pulse_direction=-30.0).pulse()
+    assert np.hypot(*turned.directions) == pytest.approx(np.sqrt(2.0), rel=1e-15)
+    one = dataclasses.replace(s.plant, disturbance_input=s.plant.disturbance_input[:, :1])
+    with pytest.raises(
+        ModelError, match=r"^pulse_direction: 10.0 deg — needs two disturbance inputs, the design has 1$"
+    ):
+        dataclasses.replace(s, plant=one, pulse_direction=10.0).pulse()
 
 
 def test_the_safe_state_is_the_python_loops_too(study):

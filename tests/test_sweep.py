@@ -37,6 +37,7 @@ study_duration = 0.2
 modal_frequency_scale = { distribution = "normal", mean = 1.0, std = 0.01, low = 0.97, high = 1.03 }
 modal_damping = { distribution = "lognormal", median = 0.001, sigma = 0.3, high = 0.01 }
 pulse_amplitude = { distribution = "uniform", low = 180.0, high = 220.0 }
+sensor_noise = { distribution = "uniform", low = 1e-6, high = 1e-5 }
 
 [uncertain.friction]
 sigma0 = { distribution = "uniform", low = 0.95, high = 1.05 }
@@ -127,6 +128,7 @@ def test_sweep_file_reads_inputs_grid_and_laws(folder):
         "modal_frequency_scale",
         "modal_damping",
         "pulse_amplitude",
+        "sensor_noise",
         "friction.sigma0",
         "friction.coulomb",
     ]
@@ -160,8 +162,9 @@ def test_random_samples_depend_only_on_seed_and_index():
 def test_samples_lie_within_their_truncation(folder):
     sweep = dataclasses.replace(load_sweep(folder / "sweep.toml"), samples=200, sampler="random")
     columns, values = sweep_sampling.sample_inputs(sweep, ["JA", "JB"])
-    assert columns[3:] == ["friction.JA.sigma0", "friction.JB.sigma0", "friction.JA.coulomb", "friction.JB.coulomb"]
-    for column, (low, high) in zip(columns, [(0.97, 1.03), (0.0, 0.01), (180, 220), *[(0.9, 1.1)] * 4]):
+    assert columns[4:] == ["friction.JA.sigma0", "friction.JB.sigma0", "friction.JA.coulomb", "friction.JB.coulomb"]
+    bounds = [(0.97, 1.03), (0.0, 0.01), (180, 220), (1e-6, 1e-5), *[(0.9, 1.1)] * 4]
+    for column, (low, high) in zip(columns, bounds, strict=True):
         values_of = values[:, columns.index(column)]
         assert np.all((values_of >= low) & (values_of <= high)), column
     assert 0.0008 < np.median(values[:, 1]) < 0.00125  # lognormal of median 1e-3
@@ -200,6 +203,29 @@ def test_a_sample_perturbs_plant_friction_and_pulse(prepared):
     assert s.laws[1].sigma0 == base.setup.laws[1].sigma0 * inputs["friction.JB.sigma0"]
     assert s.laws[0].sigma1 == base.setup.laws[0].sigma1  # not sampled: nominal
     assert s.model is base.setup.model  # the controllers keep the nominal design model
+
+
+def test_the_sensor_noise_depends_on_the_seed_and_the_sample_only(prepared):
+    base = prepared.base
+    s = base.setup
+    one, again = ensemble.sensor_noise(base, 3, s, 1e-5), ensemble.sensor_noise(base, 3, s, 1e-5)
+    assert one.shape == (200, 2) and np.array_equal(one, again)  # 0.2 s at 1 ms, two tip sensors
+    assert not np.array_equal(one, ensemble.sensor_noise(base, 4, s, 1e-5))
+    assert 0.8e-5 < float(np.std(one)) < 1.2e-5
+    noisy = ensemble.sample_setup(base, {"siso_boundary_layer": 1e-4}, {"sensor_noise": 1e-5}, 3)
+    assert np.array_equal(noisy.sensor_noise, one)
+
+
+def test_a_pulse_angle_on_a_design_with_one_disturbance_input_is_one_line(folder):
+    text = _replace(
+        "[uncertain.friction]",
+        'pulse_direction = { distribution = "uniform", low = 0.0, high = 90.0 }\n\n[uncertain.friction]',
+    )
+    (folder / "angle.toml").write_text(text)
+    with pytest.raises(
+        ModelError, match=r"uncertain.pulse_direction: the design has 1 disturbance input — the angle needs two"
+    ):
+        prepare(load_sweep(folder / "angle.toml"), progress=lambda line: None)
 
 
 def test_a_grid_point_against_the_design_limits_is_refused(prepared):

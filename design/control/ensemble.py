@@ -27,7 +27,15 @@ from smartjoint.design.control.artifact_building import from_design
 from smartjoint.design.control.best_passive import best_passive
 from smartjoint.design.control.laws import STATUS_OK, check_limits
 from smartjoint.design.control.lqg import LqgDesign
-from smartjoint.design.control.runs import Run, StudySetup, run_active, run_passive, run_semi_active, setup
+from smartjoint.design.control.runs import (
+    PLANT_STEPS_PER_SAMPLE,
+    Run,
+    StudySetup,
+    run_active,
+    run_passive,
+    run_semi_active,
+    setup,
+)
 from smartjoint.design.control.study import design_model, lqg_for, metrics, sensor_quantities
 from smartjoint.design.structure.modal import ModalModel
 
@@ -57,6 +65,7 @@ class EnsembleBase:
     lqg: LqgDesign
     artifacts: tuple[ControllerArtifact, ...]  # the laws at each grid point, as the firmware gets them
     laws: tuple[str, ...]
+    seed: int  # the sweep's: a sample's sensor noise is drawn from (seed, sample) alone
     joint_names: tuple[str, ...]
     quantities: tuple[str, ...]
     grid_columns: tuple[str, ...]
@@ -102,11 +111,18 @@ def build_base(sweep, design, input_columns, progress=print) -> EnsembleBase:
     points = sweep.points()
     for point in points:  # in the driver, before any task: a grid against the design's limits
         point_limits(shared, point)
+    inputs = model.disturbance_input.shape[1]
+    if "pulse_direction" in input_columns and inputs < 2:
+        raise ModelError(
+            f"{sweep.source}: uncertain.pulse_direction: the design has {inputs} disturbance input — the angle "
+            "needs two (the plane of the first two)"
+        )
     return EnsembleBase(
         setup=shared,
         lqg=lqg,
         artifacts=tuple(point_artifact(design, model, lqg, point) for point in points),
         laws=tuple(sweep.laws),
+        seed=int(sweep.seed),
         joint_names=tuple(j.name for j in design.joints),
         quantities=tuple(sensor_quantities(design, model)),
         grid_columns=tuple(sweep.grid),
@@ -181,9 +197,18 @@ def point_limits(s: StudySetup, point: dict[str, float]) -> tuple[np.ndarray, np
     return low, high
 
 
-def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, float]) -> StudySetup:
+def sensor_noise(base: EnsembleBase, sample: int, s: StudySetup, deviation: float) -> np.ndarray:
+    """The white noise on the tip sensors of sample ``sample``: one row per controller sample,
+    standard normal times ``deviation``, from the sweep's seed and the sample's number alone
+    (``SeedSequence(seed, spawn_key=(sample, 1))``, apart from the inputs' stream)."""
+    samples = -(-int(round(s.duration / s.plant_step)) // PLANT_STEPS_PER_SAMPLE)  # the loop's calls
+    rng = np.random.default_rng(np.random.SeedSequence(base.seed, spawn_key=(sample, 1)))
+    return deviation * rng.standard_normal((samples, s.plant.velocity_output.shape[0]))
+
+
+def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, float], sample: int = 0) -> StudySetup:
     """The study set-up of one sample at one grid point: perturbed plant and friction, the
-    point's normal-force limits, the sample's pulse amplitude."""
+    point's normal-force limits, the sample's pulse amplitude and direction and sensor noise."""
     s = base.setup
     laws = []
     for joint, law in zip(base.joint_names, s.laws):
@@ -192,14 +217,18 @@ def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, 
         }
         laws.append(dataclasses.replace(law, **{p: getattr(law, p) * f for p, f in factors.items()}))
     low, high = point_limits(s, point)
-    return dataclasses.replace(
+    out = dataclasses.replace(
         s,
         plant=perturbed_plant(s.model, inputs),
         laws=laws,
         normal_force_min=low,
         normal_force_max=high,
         pulse_amplitude=float(inputs.get("pulse_amplitude", s.pulse_amplitude)),
+        pulse_direction=inputs.get("pulse_direction", s.pulse_direction),
     )
+    if "sensor_noise" in inputs:
+        out = dataclasses.replace(out, sensor_noise=sensor_noise(base, sample, out, inputs["sensor_noise"]))
+    return out
 
 
 def _run_law(
@@ -257,7 +286,7 @@ def run_sample(
     list of dict
         Rows with the columns of ``base.columns()``.
     """
-    s = sample_setup(base, point, inputs)
+    s = sample_setup(base, point, inputs, sample)
     cache: dict = {}
     runs = [(law, *_run_law(base, s, law, index, point, compiled, cache)) for law in base.laws]
     reference = next((run for law, run, _, _ in runs if law == "passive F_max"), None)
@@ -319,4 +348,5 @@ __all__ = [
     "run_batch",
     "run_sample",
     "sample_setup",
+    "sensor_noise",
 ]

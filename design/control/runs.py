@@ -11,6 +11,8 @@ bit-identical results.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -47,13 +49,26 @@ class StudySetup:
     piezo_force_per_volt: float
     piezo_preload: float
     pulse_amplitude: float = PULSE_AMPLITUDE  # N: the tip pulse's peak (a sweep's uncertain input)
+    pulse_direction: float | None = None  # deg in the plane of the first two disturbance inputs; None: all 1
+    sensor_noise: np.ndarray | None = None  # added to the tip sensors, one row per controller sample; None: none
 
     @property
     def plant_step(self) -> float:
         return self.sample_time / PLANT_STEPS_PER_SAMPLE
 
     def pulse(self) -> TriangularPulse:
-        return triangular_pulse(self.pulse_amplitude, PULSE_DURATION, np.ones(self.plant.disturbance_input.shape[1]))
+        directions = np.ones(self.plant.disturbance_input.shape[1])
+        if self.pulse_direction is not None:
+            if directions.size < 2:
+                raise ModelError(
+                    f"pulse_direction: {self.pulse_direction!r} deg — needs two disturbance inputs, the design has "
+                    f"{directions.size}"
+                )
+            # (cos θ / cos 45°, sin θ / sin 45°): the study's (1, 1) exactly at 45°, and the magnitude
+            # √2 at every angle (to rounding: cos 45° and sin 45° differ in their last bit).
+            angle, diagonal = math.radians(self.pulse_direction), math.radians(45.0)
+            directions[:2] = math.cos(angle) / math.cos(diagonal), math.sin(angle) / math.sin(diagonal)
+        return triangular_pulse(self.pulse_amplitude, PULSE_DURATION, directions)
 
 
 @dataclass
@@ -153,6 +168,8 @@ def run_semi_active(s: StudySetup, name: str, controller) -> Run:
     Run
         The run at the controller samples with its mean piezo charging power.
     """
+    if s.sensor_noise is not None:
+        controller = NoisySensors(controller, s.sensor_noise)
     held = HoldDuringExcitation(controller, PULSE_DURATION, s.normal_force_max)
     r = simulate(
         s.plant,
@@ -165,6 +182,32 @@ def run_semi_active(s: StudySetup, name: str, controller) -> Run:
         energy_books=False,
     )
     return semi_active_run(s, name, r)
+
+
+class NoisySensors:
+    """A controller that reads the tip sensors with ``noise[k]`` added at its k-th sample (the
+    same additions the compiled loop makes, so both see the same numbers)."""
+
+    def __init__(self, inner, noise: np.ndarray):
+        self.inner, self.noise, self.sample_time, self.sample = (
+            inner,
+            np.asarray(noise, dtype=float),
+            inner.sample_time,
+            0,
+        )
+
+    @property
+    def status(self):
+        return getattr(self.inner, "status", 0)
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.sample = 0
+
+    def step(self, measurements):
+        noisy = dataclasses.replace(measurements, sensors=measurements.sensors + self.noise[self.sample])
+        self.sample += 1
+        return self.inner.step(noisy)
 
 
 def semi_active_run(s: StudySetup, name: str, r: SimulationResult) -> Run:
@@ -266,6 +309,7 @@ def siso(s: StudySetup, boundary_layer) -> SisoLaw:
 
 __all__ = [
     "PLANT_STEPS_PER_SAMPLE",
+    "NoisySensors",
     "PULSE_AMPLITUDE",
     "PULSE_DURATION",
     "SETTLING_FRACTION",

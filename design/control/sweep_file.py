@@ -57,6 +57,12 @@ SCALAR_INPUTS = {
     "modal_frequency_scale": Support(0.0, math.inf, "a factor on every modal frequency ω_i of the simulated plant"),
     "modal_damping": Support(0.0, 0.99, "the modal damping ratio ξ of every coordinate of the simulated plant"),
     "pulse_amplitude": Support(0.0, math.inf, "the peak of the triangular tip pulse [N]"),
+    "pulse_direction": Support(
+        -360.0, 360.0, "the pulse's angle in the plane of the first two disturbance inputs [deg]; 45: the study's"
+    ),
+    "sensor_noise": Support(
+        0.0, math.inf, "the standard deviation of white noise on every tip sensor at each sample [m or m/s]"
+    ),
 }
 
 
@@ -78,8 +84,8 @@ class Distribution:
 @dataclass(frozen=True)
 class UncertainInput:
     """An uncertain input: ``name`` is ``modal_frequency_scale``, ``modal_damping``,
-    ``pulse_amplitude`` or ``friction.<parameter>`` (a factor on that LuGre parameter, drawn
-    for every joint independently)."""
+    ``pulse_amplitude``, ``pulse_direction``, ``sensor_noise`` or ``friction.<parameter>`` (a
+    factor on that LuGre parameter, drawn for every joint independently)."""
 
     name: str
     distribution: Distribution
