@@ -21,7 +21,14 @@ from smartjoint.codegen import build, generate, rendering
 from smartjoint.common import native, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.control.runs import PLANT_STEPS_PER_SAMPLE, PULSE_DURATION, Run, StudySetup, semi_active_run
+from smartjoint.design.control.runs import (
+    PLANT_STEPS_PER_SAMPLE,
+    PULSE_DURATION,
+    LaggingAmplifiers,
+    Run,
+    StudySetup,
+    semi_active_run,
+)
 from smartjoint.design.plant import loop, schemes
 from smartjoint.design.plant.interface import Controller
 from smartjoint.design.plant.kernel import PlantRun
@@ -188,6 +195,8 @@ class CompiledLoop:
                 "hold_normal_force": ffi.cast("double *", ffi.from_buffer(hold)),
                 "disturbance": ffi.cast("double *", ffi.from_buffer(w)),
                 "sensor_noise": noise,
+                "lagging": int(s.amplifier_lag is not None),
+                "amplifier_gain": 0.0 if s.amplifier_lag is None else LaggingAmplifiers.gain_of(s),
             },
         )
         result = ffi.new(f"{self.prefix}_loop_result *")

@@ -36,12 +36,12 @@ def study():
 
 def _perturbed(s):
     """The plant 2 % stiffer with 0.3 % damping, the friction 5 % stronger, a 230 N pulse at 70°,
-    white noise of 20 µm on the tip sensors."""
+    white noise of 20 µm on the tip sensors, amplifiers lagging by 2 ms."""
     plant = dataclasses.replace(s.model, omega=s.model.omega * 1.02, damping=np.full_like(s.model.damping, 3e-3))
     laws = [dataclasses.replace(law, coulomb=law.coulomb * 1.05, sigma0=law.sigma0 * 0.95) for law in s.laws]
     noise = 2e-5 * np.random.default_rng(5).standard_normal((400, plant.velocity_output.shape[0]))
     return dataclasses.replace(
-        s, plant=plant, laws=laws, pulse_amplitude=230.0, pulse_direction=70.0, sensor_noise=noise
+        s, plant=plant, laws=laws, pulse_amplitude=230.0, pulse_direction=70.0, sensor_noise=noise, amplifier_lag=2e-3
     )
 
 
@@ -80,6 +80,10 @@ def test_the_compiled_loop_is_the_python_loop_bit_for_bit(study, law, perturbed)
     assert np.all(np.isfinite(c.energy))
     # F_N^max while the pulse acts (40 ms), the law after it: the run must have used both.
     assert np.all(c.normal_force[:40] == s.normal_force_max) and np.any(c.normal_force[41:] < s.normal_force_max)
+    if perturbed:  # the lag: after the pulse F_N leaves F^max by α of the step, not at once
+        alpha = -np.expm1(-1e-3 / 2e-3)
+        step = python.normal_force[40] - s.normal_force_max  # the first sample after the pulse
+        assert np.all(np.abs(step) <= alpha * (s.normal_force_max - s.normal_force_min) * (1 + 1e-12))
     if perturbed and law == "cLQG":  # the noise and the pulse's angle changed what the law did
         nominal, _ = compiled.run(dataclasses.replace(s, sensor_noise=None), law)
         assert not np.array_equal(nominal.normal_force, c.normal_force)
@@ -95,7 +99,12 @@ def test_a_passive_run_is_the_python_loops_bit_for_bit(study, force):
     python, c = run_passive(s, "passive", forces), compiled.run_passive(s, "passive", forces)
     for field in FIELDS:
         np.testing.assert_array_equal(getattr(c, field), getattr(python, field), err_msg=field)
-    assert np.all(c.normal_force[:40] == s.normal_force_max) and np.all(c.normal_force[41:] == force)
+    # The amplifiers lag (τ = 2 ms): the step from F^max to the passive force decays e-fold per 2 ms.
+    gap = c.normal_force[40:] - force
+    assert np.all(c.normal_force[:40] == s.normal_force_max)
+    if force < s.normal_force_max[0]:
+        expected = (s.normal_force_max - force) * np.exp(-np.arange(1, 21) * 0.5)[:, None]
+        np.testing.assert_allclose(gap[:20], expected, rtol=1e-9)
 
 
 def test_the_pulse_at_45_degrees_is_the_studys_and_one_input_has_no_angle(study):

@@ -225,6 +225,7 @@ def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, 
         normal_force_max=high,
         pulse_amplitude=float(inputs.get("pulse_amplitude", s.pulse_amplitude)),
         pulse_direction=inputs.get("pulse_direction", s.pulse_direction),
+        amplifier_lag=inputs.get("amplifier_lag", s.amplifier_lag),
     )
     if "sensor_noise" in inputs:
         out = dataclasses.replace(out, sensor_noise=sensor_noise(base, sample, out, inputs["sensor_noise"]))

@@ -23,7 +23,7 @@ from smartjoint.design.control.laws import SisoLaw
 from smartjoint.design.control.lqg import LqgDesign, check_sample_time
 from smartjoint.design.friction import lugre
 from smartjoint.design.plant.disturbance import TriangularPulse, triangular_pulse
-from smartjoint.design.plant.interface import ConstantNormalForce, HoldDuringExcitation
+from smartjoint.design.plant.interface import ConstantNormalForce, Controller, HoldDuringExcitation
 from smartjoint.design.plant.loop import SimulationResult, simulate
 from smartjoint.design.structure.modal import ModalModel
 
@@ -51,6 +51,7 @@ class StudySetup:
     pulse_amplitude: float = PULSE_AMPLITUDE  # N: the tip pulse's peak (a sweep's uncertain input)
     pulse_direction: float | None = None  # deg in the plane of the first two disturbance inputs; None: all 1
     sensor_noise: np.ndarray | None = None  # added to the tip sensors, one row per controller sample; None: none
+    amplifier_lag: float | None = None  # s: the time constant of the piezo amplifiers' first-order lag; None: none
 
     @property
     def plant_step(self) -> float:
@@ -170,7 +171,9 @@ def run_semi_active(s: StudySetup, name: str, controller) -> Run:
     """
     if s.sensor_noise is not None:
         controller = NoisySensors(controller, s.sensor_noise)
-    held = HoldDuringExcitation(controller, PULSE_DURATION, s.normal_force_max)
+    held: Controller = HoldDuringExcitation(controller, PULSE_DURATION, s.normal_force_max)
+    if s.amplifier_lag is not None:
+        held = LaggingAmplifiers(held, s.amplifier_lag)
     r = simulate(
         s.plant,
         s.laws,
@@ -208,6 +211,39 @@ class NoisySensors:
         noisy = dataclasses.replace(measurements, sensors=measurements.sensors + self.noise[self.sample])
         self.sample += 1
         return self.inner.step(noisy)
+
+
+class LaggingAmplifiers:
+    """The piezo amplifiers as a first-order lag of time constant τ on the commanded normal force,
+    held over each sample: F_k = F_k−1 + α·(F_cmd,k − F_k−1), α = 1 − e^(−Δt/τ) (the step response
+    of the lag sampled at the controller's rate), starting at the first command. The law reads
+    the applied (lagging) force, as it would from the amplifier. The compiled loop computes the
+    same numbers in the same order."""
+
+    def __init__(self, inner, time_constant: float):
+        if not (math.isfinite(time_constant) and time_constant > 0):
+            raise ModelError(f"amplifier_lag: {time_constant!r} s — must be a positive number of seconds")
+        self.inner, self.sample_time = inner, inner.sample_time
+        self.gain = -math.expm1(-self.sample_time / time_constant)  # α, accurate for τ ≫ Δt too (= gain_of)
+        self.applied: np.ndarray | None = None
+
+    @staticmethod
+    def gain_of(s: StudySetup) -> float:
+        """α of the study's amplifiers (``s.amplifier_lag`` set)."""
+        assert s.amplifier_lag is not None
+        return -math.expm1(-s.sample_time / s.amplifier_lag)
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.applied = None
+
+    def step(self, measurements) -> np.ndarray:
+        command = np.asarray(self.inner.step(measurements), dtype=float)
+        if self.applied is None:
+            self.applied = command.copy()
+        else:
+            self.applied = self.applied + self.gain * (command - self.applied)
+        return self.applied.copy()
 
 
 def semi_active_run(s: StudySetup, name: str, r: SimulationResult) -> Run:
@@ -309,6 +345,7 @@ def siso(s: StudySetup, boundary_layer) -> SisoLaw:
 
 __all__ = [
     "PLANT_STEPS_PER_SAMPLE",
+    "LaggingAmplifiers",
     "NoisySensors",
     "PULSE_AMPLITUDE",
     "PULSE_DURATION",

@@ -63,6 +63,7 @@ SCALAR_INPUTS = {
     "sensor_noise": Support(
         0.0, math.inf, "the standard deviation of white noise on every tip sensor at each sample [m or m/s]"
     ),
+    "amplifier_lag": Support(0.0, math.inf, "the time constant of the piezo amplifiers' first-order lag [s]"),
 }
 
 
@@ -84,7 +85,7 @@ class Distribution:
 @dataclass(frozen=True)
 class UncertainInput:
     """An uncertain input: ``name`` is ``modal_frequency_scale``, ``modal_damping``,
-    ``pulse_amplitude``, ``pulse_direction``, ``sensor_noise`` or ``friction.<parameter>`` (a
+    ``pulse_amplitude``, ``pulse_direction``, ``sensor_noise``, ``amplifier_lag`` or ``friction.<parameter>`` (a
     factor on that LuGre parameter, drawn for every joint independently)."""
 
     name: str
