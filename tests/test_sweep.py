@@ -228,6 +228,28 @@ def test_a_pulse_angle_on_a_design_with_one_disturbance_input_is_one_line(folder
         prepare(load_sweep(folder / "angle.toml"), progress=lambda line: None)
 
 
+def test_a_control_weight_on_the_grid_designs_the_lqg_of_its_point(folder, prepared):
+    """ρ of Eq. 33 as a design variable: the point's LQG is designed anew (heavier weight, smaller
+    gains), its artefact carries it, and the compiled and the Python loop still agree row by row."""
+    design = parse_design(_small_design())
+    base = prepared.base
+    rho = design.control.control_weight
+    points = [{"siso_boundary_layer": 1e-4}, {"siso_boundary_layer": 1e-4, "control_weight": 100.0 * rho}]
+    lqgs = [ensemble.point_lqg(design, base.setup.model, base.lqg, point) for point in points]
+    assert lqgs[0] is base.lqg
+    assert np.linalg.norm(lqgs[1].feedback_gain) < 0.5 * np.linalg.norm(base.lqg.feedback_gain)
+    artifacts = tuple(ensemble.point_artifact(design, base.setup.model, q, p) for q, p in zip(lqgs, points))
+    np.testing.assert_array_equal(artifacts[1].feedback_gain, lqgs[1].feedback_gain)
+    base = dataclasses.replace(base, lqgs=tuple(lqgs), artifacts=artifacts, input_columns=())
+    compiled = ensemble.run_batch(base, points, [0], np.zeros((1, 0)), prepared.compiled)
+    python = ensemble.run_batch(base, points, [0], np.zeros((1, 0)))
+    assert [row["energy_measure"] for row in compiled] == [row["energy_measure"] for row in python]
+    clqg = [row["energy_measure"] for row in compiled if row["law"] == "cLQG"]
+    assert clqg[0] != clqg[1]
+    message = _error(folder, _replace("siso_boundary_layer = [1e-4, 1e-3]", "control_weight = [0.0]"))
+    assert "grid.control_weight: [0.0]" in message and "must be > 0" in message
+
+
 def test_a_grid_point_against_the_design_limits_is_refused(prepared):
     with pytest.raises(ModelError, match=r"normal_force_min \[500.0, 500.0\] / normal_force_max \[400.0, 400.0\]"):
         ensemble.point_limits(prepared.base.setup, {"normal_force_min": 500.0})

@@ -62,7 +62,8 @@ class EnsembleBase:
     controllers are designed on), the LQG, ε of the design, the laws to run and the columns."""
 
     setup: StudySetup
-    lqg: LqgDesign
+    lqg: LqgDesign  # of the design's own weights
+    lqgs: tuple[LqgDesign, ...]  # at each grid point (its control weight where the grid sets one)
     artifacts: tuple[ControllerArtifact, ...]  # the laws at each grid point, as the firmware gets them
     laws: tuple[str, ...]
     seed: int  # the sweep's: a sample's sensor noise is drawn from (seed, sample) alone
@@ -117,10 +118,12 @@ def build_base(sweep, design, input_columns, progress=print) -> EnsembleBase:
             f"{sweep.source}: uncertain.pulse_direction: the design has {inputs} disturbance input — the angle "
             "needs two (the plane of the first two)"
         )
+    lqgs = tuple(point_lqg(design, model, lqg, point) for point in points)
     return EnsembleBase(
         setup=shared,
         lqg=lqg,
-        artifacts=tuple(point_artifact(design, model, lqg, point) for point in points),
+        lqgs=lqgs,
+        artifacts=tuple(point_artifact(design, model, q, point) for q, point in zip(lqgs, points)),
         laws=tuple(sweep.laws),
         seed=int(sweep.seed),
         joint_names=tuple(j.name for j in design.joints),
@@ -128,6 +131,19 @@ def build_base(sweep, design, input_columns, progress=print) -> EnsembleBase:
         grid_columns=tuple(sweep.grid),
         input_columns=tuple(input_columns),
     )
+
+
+def _point_design(design, point: dict[str, float]):
+    """The design with the grid point's design variables in its [control] table."""
+    names = ("normal_force_min", "normal_force_max", "siso_boundary_layer", "control_weight")
+    changed = {k: point[k] for k in names if k in point}
+    return dataclasses.replace(design, control=dataclasses.replace(design.control, **changed)) if changed else design
+
+
+def point_lqg(design, model: ModalModel, lqg: LqgDesign, point: dict[str, float]) -> LqgDesign:
+    """The LQG at a grid point: ``lqg`` (the design's), or designed anew with the point's control
+    weight ρ (Eq. 33) on the same model."""
+    return lqg if "control_weight" not in point else lqg_for(_point_design(design, point), model)
 
 
 def point_artifact(design, model: ModalModel, lqg: LqgDesign, point: dict[str, float]) -> ControllerArtifact:
@@ -140,6 +156,7 @@ def point_artifact(design, model: ModalModel, lqg: LqgDesign, point: dict[str, f
     model : ModalModel
         The design model the LQG was designed on.
     lqg : LqgDesign
+        The point's (``point_lqg``).
     point : dict
         The grid point's design variables.
 
@@ -147,10 +164,7 @@ def point_artifact(design, model: ModalModel, lqg: LqgDesign, point: dict[str, f
     -------
     ControllerArtifact
     """
-    control = design.control
-    changed = {k: point[k] for k in ("normal_force_min", "normal_force_max", "siso_boundary_layer") if k in point}
-    if changed:
-        design = dataclasses.replace(design, control=dataclasses.replace(control, **changed))
+    design = _point_design(design, point)
     width = design.control.siso_boundary_layer
     # A sweep without the SISO law needs no ε; the artefact holds one, which nothing runs.
     return from_design(design, model, lqg, 1.0 if width is None else width)
@@ -248,7 +262,8 @@ def _run_law(
         run, force = best_passive(s, law, BEST_PASSIVE[law], passive, cache)
         return run, 0, force
     if law == "active LQG":
-        return run_active(dataclasses.replace(s, model=s.plant), base.lqg), 0, math.nan  # nominal gains
+        # the point's gains, designed on the nominal model, on the perturbed plant
+        return run_active(dataclasses.replace(s, model=s.plant), base.lqgs[index]), 0, math.nan
     width = point.get("siso_boundary_layer")
     if width is not None and not np.all(np.asarray(artifact.siso_boundary_layer) == width):
         raise ModelError(f"grid point {index}: ε = {width!r} m/s, its artefact's {list(artifact.siso_boundary_layer)}")
@@ -345,6 +360,7 @@ __all__ = [
     "build_base",
     "perturbed_plant",
     "point_artifact",
+    "point_lqg",
     "point_limits",
     "run_batch",
     "run_sample",

@@ -29,7 +29,7 @@ LAWS = ("passive F_min", "passive F_max", "SISO", "cLQG", "active LQG", "best pa
 DEFAULT_LAWS = LAWS[:5]
 SAMPLERS = ("random", "latin-hypercube", "sobol")
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")
-GRID_VARIABLES = ("siso_boundary_layer", "normal_force_min", "normal_force_max")
+GRID_VARIABLES = ("siso_boundary_layer", "normal_force_min", "normal_force_max", "control_weight")
 MAX_FILE_BYTES = 1024 * 1024
 MAX_SAMPLES = 10_000_000
 MAX_BATCH = 100_000
@@ -283,6 +283,8 @@ def _grid(table: DesignTable) -> dict[str, tuple[float, ...]]:
             )
         if name == "siso_boundary_layer" and min(value) <= 0.0:
             raise table.error(name, value, "ε must be > 0 [m/s]")
+        if name == "control_weight" and min(value) <= 0.0:
+            raise table.error(name, value, "the LQR's control weight ρ (Eq. 33, R = ρI) must be > 0")
         grid[name] = tuple(float(v) for v in value)
     table.finish()
     return grid
