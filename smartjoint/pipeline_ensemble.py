@@ -26,6 +26,10 @@ LAWS = ("passive F_min", "passive F_max", "SISO", "cLQG", "best passive E", "bes
 FRICTION = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")  # drawn per joint
 FRICTION_SPREAD, FREQUENCY_SPREAD, PULSE_SPREAD, DAMPING_SIGMA = 0.05, 0.01, 0.10, 0.3
 Z95 = 1.959963984540054  # the 97.5 % point of the normal distribution: a 95 % interval is exp(θ ± Z95·σ_θ)
+# A weakly identifiable parameter's interval spans decades (σ1, σ2 in the paper): drawn at most
+# within a factor 2 at 95 % — the identification does not bound it, and factors of 10^±3 leave
+# the friction law's physical range.
+MAX_LOG_SIGMA = math.log(2.0) / Z95
 
 
 def friction_spreads(friction) -> dict[str, float]:
@@ -40,14 +44,16 @@ def friction_spreads(friction) -> dict[str, float]:
     Returns
     -------
     dict
-        Parameter → σ_θ, for the parameters with a finite positive interval.
+        Parameter → σ_θ (at most ``MAX_LOG_SIGMA``), for the parameters with a finite positive
+        interval.
     """
     spreads: dict[str, float] = {}
     for result in friction:
         for name, entry in result.identification.as_dict()["parameters"].items():
             interval = entry.get("ci95")
             if name in FRICTION and interval and 0.0 < interval[0] < interval[1] < math.inf:
-                spreads[name] = max(spreads.get(name, 0.0), math.log(interval[1] / interval[0]) / (2.0 * Z95))
+                sigma = (math.log(interval[1]) - math.log(interval[0])) / (2.0 * Z95)
+                spreads[name] = min(max(spreads.get(name, 0.0), sigma), MAX_LOG_SIGMA)
     return spreads
 
 
@@ -129,7 +135,7 @@ def ensemble_stage(design, study, friction, staging: Path, progress) -> dict:
     """
     spreads = friction_spreads(friction)
     sweep = stage_sweep(design, study, spreads)
-    shown = ", ".join(f"{name} ×e^±{Z95 * sigma:.2g}" for name, sigma in spreads.items()) or "±5 %"
+    shown = ", ".join(f"{name} ×/÷{math.exp(Z95 * sigma):.4g}" for name, sigma in spreads.items()) or "±5 %"
     progress(
         f"[10/11] robustness ensemble: {SAMPLES} plants around the design (LuGre within the identification's 95 % "
         f"intervals: {shown}; modal frequencies ±1 %, damping, pulse ±10 %) × {len(LAWS)} laws, on Dask"

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from smartjoint.pipeline_ensemble import FRICTION, Z95, _friction_inputs, friction_spreads
+from smartjoint.pipeline_ensemble import FRICTION, MAX_LOG_SIGMA, Z95, _friction_inputs, friction_spreads
 
 
 def _type(**intervals):
@@ -20,12 +20,13 @@ def _type(**intervals):
 
 def test_the_spread_is_the_log_sigma_of_the_widest_interval():
     a = _type(sigma0=[0.9, 1.1], coulomb=[0.98, 1.02], sigma1=[0.01, 100.0])
-    b = _type(sigma0=[0.8, 1.25], coulomb=[1.0, math.inf], stribeck=[0.0, 2.0])
+    b = _type(sigma0=[0.8, 1.25], coulomb=[1.0, math.inf], stribeck=[0.0, 2.0], sigma2=[1e-300, 1e300])
     spreads = friction_spreads([a, b])
     assert spreads["sigma0"] == pytest.approx(math.log(1.25 / 0.8) / (2 * Z95), rel=1e-15)
     assert spreads["coulomb"] == pytest.approx(math.log(1.02 / 0.98) / (2 * Z95), rel=1e-15)  # b's is unbounded
-    assert spreads["sigma1"] == pytest.approx(math.log(1e4) / (2 * Z95), rel=1e-15)
-    assert set(spreads) == {"sigma0", "coulomb", "sigma1"}  # no radius, no interval from 0
+    assert spreads["sigma1"] == MAX_LOG_SIGMA  # weakly identifiable: within a factor 2 at 95 %
+    assert spreads["sigma2"] == MAX_LOG_SIGMA  # an interval whose ratio overflows: still capped
+    assert set(spreads) == {"sigma0", "coulomb", "sigma1", "sigma2"}  # no radius, no interval from 0
 
 
 def test_each_factor_is_lognormal_within_its_interval_or_five_percent_uniform():

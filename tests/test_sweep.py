@@ -250,6 +250,23 @@ def test_a_control_weight_on_the_grid_designs_the_lqg_of_its_point(folder, prepa
     assert "grid.control_weight: [0.0]" in message and "must be > 0" in message
 
 
+def test_a_run_that_cannot_finish_is_a_row_of_nan_not_the_end_of_the_sweep(prepared):
+    class Failing:
+        def __call__(self, artifact):
+            return self
+
+        def run(self, s, law):
+            raise ModelError("joint solve did not converge at step 0.001 s (residual 1); reduce the step")
+
+        def run_passive(self, s, name, forces):
+            return prepared.compiled(prepared.base.artifacts[0]).run_passive(s, name, forces)
+
+    rows = ensemble.run_batch(prepared.base, prepared.points[:1], [0], prepared.values[:1], Failing())
+    by_law = {row["law"]: row for row in rows}
+    assert by_law["SISO"]["safe_state_samples"] == by_law["cLQG"]["safe_state_samples"] == ensemble.FAILED
+    assert np.isnan(by_law["cLQG"]["energy_measure"]) and np.isfinite(by_law["passive F_max"]["energy_measure"])
+
+
 def test_a_grid_point_against_the_design_limits_is_refused(prepared):
     with pytest.raises(ModelError, match=r"normal_force_min \[500.0, 500.0\] / normal_force_max \[400.0, 400.0\]"):
         ensemble.point_limits(prepared.base.setup, {"normal_force_min": 500.0})

@@ -54,6 +54,7 @@ METRICS = (
 # The best passive settings (best_passive.py): law → the figure their constant F_N minimises.
 BEST_PASSIVE = {"best passive E": "energy_measure", "best passive e": "energy_end"}
 KEYS = ("sample", "point", "law")
+FAILED = -1  # safe_state_samples of a run that could not finish (its metrics NaN)
 
 
 @dataclass(frozen=True)
@@ -304,10 +305,19 @@ def run_sample(
     """
     s = sample_setup(base, point, inputs, sample)
     cache: dict = {}
-    runs = [(law, *_run_law(base, s, law, index, point, compiled, cache)) for law in base.laws]
+    runs: list = []
+    for law in base.laws:
+        try:
+            runs.append((law, *_run_law(base, s, law, index, point, compiled, cache)))
+        except ModelError:  # one plant the law cannot finish (a joint solve): a row of NaN, not the sweep
+            runs.append((law, None, FAILED, math.nan))
     reference = next((run for law, run, _, _ in runs if law == "passive F_max"), None)
     rows = []
     for law, run, safe, force in runs:
+        if run is None:
+            figures = {**dict.fromkeys(METRICS, math.nan), "safe_state_samples": FAILED}
+            rows.append({"sample": sample, "point": index, "law": law, **point, **inputs, **figures})
+            continue
         m = metrics(run, reference if reference is not None else run, base.quantities)
         figures = {
             "energy_end": m["energy_end"],
@@ -354,6 +364,7 @@ def run_batch(base: EnsembleBase, points, samples, values, compiled=None) -> lis
 
 __all__ = [
     "BEST_PASSIVE",
+    "FAILED",
     "KEYS",
     "METRICS",
     "EnsembleBase",
