@@ -167,6 +167,7 @@ class CompiledLoop:
                 "c",
                 False,
                 None,
+                s.sample_steps,
             ),
             s.pulse(),
         )
@@ -174,16 +175,7 @@ class CompiledLoop:
         hold = np.ascontiguousarray(s.normal_force_max, dtype=float)
         w = np.ascontiguousarray(prepared.w, dtype=float)
         ffi = self.ffi
-        noise = ffi.NULL
-        if s.sensor_noise is not None:
-            rows = -(-prepared.run.steps // prepared.ratio)
-            kept = np.ascontiguousarray(s.sensor_noise, dtype=float)
-            if kept.shape[0] < rows or kept.shape[1:] != (s.plant.velocity_output.shape[0],):
-                raise ModelError(
-                    f"sensor_noise: {kept.shape} values — need {rows} rows (samples) of "
-                    f"{s.plant.velocity_output.shape[0]} (sensors)"
-                )
-            noise = ffi.cast("double *", ffi.from_buffer(kept))
+        noise, schedule, samples, kept = self._sample_inputs(s, prepared)
         settings = ffi.new(
             f"{self.prefix}_loop *",
             {
@@ -195,6 +187,8 @@ class CompiledLoop:
                 "hold_normal_force": ffi.cast("double *", ffi.from_buffer(hold)),
                 "disturbance": ffi.cast("double *", ffi.from_buffer(w)),
                 "sensor_noise": noise,
+                "sample_steps": schedule,
+                "samples": samples,
                 "lagging": int(s.amplifier_lag is not None),
                 "amplifier_gain": 0.0 if s.amplifier_lag is None else LaggingAmplifiers.gain_of(s),
             },
@@ -210,6 +204,27 @@ class CompiledLoop:
         )
         self._raise_failure(result, kernel, s)
         return loop.result(kernel.recorder, s.plant, s.plant_step, PLANT_STEPS_PER_SAMPLE), result
+
+    def _sample_inputs(self, s: StudySetup, prepared):
+        """The per-sample inputs as C pointers: the sensor noise, the jittered schedule and its
+        length (NULL, NULL, 0 without them) and the arrays they point into (kept by the caller)."""
+        ffi = self.ffi
+        noise, schedule, samples, kept = ffi.NULL, ffi.NULL, 0, []
+        rows = -(-prepared.run.steps // prepared.ratio)
+        if s.sample_steps is not None:  # checked by loop.prepare: from 0, increasing, within the run
+            steps = np.ascontiguousarray(s.sample_steps, dtype=np.dtype("l"))  # C long
+            schedule, samples, rows = ffi.cast("long *", ffi.from_buffer(steps)), steps.size, steps.size
+            kept.append(steps)
+        if s.sensor_noise is not None:
+            values = np.ascontiguousarray(s.sensor_noise, dtype=float)
+            if values.shape[0] < rows or values.shape[1:] != (s.plant.velocity_output.shape[0],):
+                raise ModelError(
+                    f"sensor_noise: {values.shape} values — need {rows} rows (samples) of "
+                    f"{s.plant.velocity_output.shape[0]} (sensors)"
+                )
+            noise = ffi.cast("double *", ffi.from_buffer(values))
+            kept.append(values)
+        return noise, schedule, samples, kept
 
     def _check_fits(self, s: StudySetup) -> None:
         """The set-up and the artefact agree on the sample time, joints, sensors and limits."""

@@ -36,12 +36,22 @@ def study():
 
 def _perturbed(s):
     """The plant 2 % stiffer with 0.3 % damping, the friction 5 % stronger, a 230 N pulse at 70°,
-    white noise of 20 µm on the tip sensors, amplifiers lagging by 2 ms."""
+    white noise of 20 µm on the tip sensors, amplifiers lagging by 2 ms, each sample's instant
+    jittered by up to ±9 plant steps (±0.45 ms)."""
     plant = dataclasses.replace(s.model, omega=s.model.omega * 1.02, damping=np.full_like(s.model.damping, 3e-3))
     laws = [dataclasses.replace(law, coulomb=law.coulomb * 1.05, sigma0=law.sigma0 * 0.95) for law in s.laws]
-    noise = 2e-5 * np.random.default_rng(5).standard_normal((400, plant.velocity_output.shape[0]))
+    rng = np.random.default_rng(5)
+    noise = 2e-5 * rng.standard_normal((400, plant.velocity_output.shape[0]))
+    schedule = np.arange(400) * 20 + np.concatenate([[0], rng.integers(-9, 10, 399)])
     return dataclasses.replace(
-        s, plant=plant, laws=laws, pulse_amplitude=230.0, pulse_direction=70.0, sensor_noise=noise, amplifier_lag=2e-3
+        s,
+        plant=plant,
+        laws=laws,
+        pulse_amplitude=230.0,
+        pulse_direction=70.0,
+        sensor_noise=noise,
+        amplifier_lag=2e-3,
+        sample_steps=schedule,
     )
 
 
@@ -89,6 +99,8 @@ def test_the_compiled_loop_is_the_python_loop_bit_for_bit(study, law, perturbed)
         assert not np.array_equal(nominal.normal_force, c.normal_force)
         turned, _ = compiled.run(dataclasses.replace(s, pulse_direction=45.0, sensor_noise=None), law)
         assert not np.array_equal(nominal.sensors, turned.sensors)
+        regular, _ = compiled.run(dataclasses.replace(s, sample_steps=None, sensor_noise=None), law)
+        assert not np.array_equal(nominal.sensors, regular.sensors)
 
 
 @pytest.mark.parametrize("force", [40.0, 400.0])
@@ -99,7 +111,9 @@ def test_a_passive_run_is_the_python_loops_bit_for_bit(study, force):
     python, c = run_passive(s, "passive", forces), compiled.run_passive(s, "passive", forces)
     for field in FIELDS:
         np.testing.assert_array_equal(getattr(c, field), getattr(python, field), err_msg=field)
-    # The amplifiers lag (τ = 2 ms): the step from F^max to the passive force decays e-fold per 2 ms.
+    # The amplifiers lag (τ = 2 ms): the step from F^max to the passive force decays e-fold per 2 ms
+    # (on the regular schedule, where the recorded rows are the samples).
+    c = compiled.run_passive(dataclasses.replace(s, sample_steps=None), "passive", forces)
     gap = c.normal_force[40:] - force
     assert np.all(c.normal_force[:40] == s.normal_force_max)
     if force < s.normal_force_max[0]:
@@ -118,6 +132,14 @@ def test_the_pulse_at_45_degrees_is_the_studys_and_one_input_has_no_angle(study)
         ModelError, match=r"^pulse_direction: 10.0 deg — needs two disturbance inputs, the design has 1$"
     ):
         dataclasses.replace(s, plant=one, pulse_direction=10.0).pulse()
+
+
+def test_a_schedule_out_of_order_is_one_line(study):
+    s, _, compiled = study
+    backwards = np.arange(400) * 20
+    backwards[5] = backwards[4] - 1
+    with pytest.raises(ModelError, match=r"^sample_steps: 400 values — need whole plant steps from 0, strictly"):
+        compiled.run(dataclasses.replace(s, sample_steps=backwards), "cLQG")
 
 
 def test_the_safe_state_is_the_python_loops_too(study):

@@ -216,6 +216,16 @@ def test_the_sensor_noise_depends_on_the_seed_and_the_sample_only(prepared):
     assert np.array_equal(noisy.sensor_noise, one)
 
 
+def test_the_sample_instants_jitter_on_the_plant_step_grid_in_order(prepared):
+    base, s = prepared.base, prepared.base.setup
+    k = ensemble.sample_schedule(base, 3, s, 2e-4)  # 4 plant steps of 50 µs
+    assert k.size == 200 and k[0] == 0 and np.all(np.diff(k) > 0)
+    offsets = k - np.arange(200) * 20
+    assert np.all(np.abs(offsets) <= 9) and 2.0 < float(np.std(offsets)) < 6.0
+    assert np.array_equal(k, ensemble.sample_schedule(base, 3, s, 2e-4))
+    assert not np.array_equal(k, ensemble.sample_schedule(base, 4, s, 2e-4))
+
+
 def test_a_pulse_angle_on_a_design_with_one_disturbance_input_is_one_line(folder):
     text = _replace(
         "[uncertain.friction]",

@@ -221,6 +221,21 @@ def sensor_noise(base: EnsembleBase, sample: int, s: StudySetup, deviation: floa
     return deviation * rng.standard_normal((samples, s.plant.velocity_output.shape[0]))
 
 
+def sample_schedule(base: EnsembleBase, sample: int, s: StudySetup, deviation: float) -> np.ndarray:
+    """The plant step of each controller sample of sample ``sample`` with the sampling instant
+    jittered: k·ratio plus a normal offset of standard deviation ``deviation`` [s], rounded to
+    whole plant steps and clipped to ±(ratio − 1)//2 steps so the samples stay in order; the first
+    at 0. From the sweep's seed and the sample's number alone (``spawn_key=(sample, 2)``)."""
+    ratio = PLANT_STEPS_PER_SAMPLE
+    steps = int(round(s.duration / s.plant_step))
+    count = -(-steps // ratio)
+    rng = np.random.default_rng(np.random.SeedSequence(base.seed, spawn_key=(sample, 2)))
+    widest = (ratio - 1) // 2
+    offsets = np.clip(np.rint(deviation / s.plant_step * rng.standard_normal(count)), -widest, widest)
+    offsets[0] = 0.0
+    return np.minimum(np.arange(count) * ratio + offsets.astype(np.int64), steps - 1)
+
+
 def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, float], sample: int = 0) -> StudySetup:
     """The study set-up of one sample at one grid point: perturbed plant and friction, the
     point's normal-force limits, the sample's pulse amplitude and direction and sensor noise."""
@@ -244,6 +259,8 @@ def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, 
     )
     if "sensor_noise" in inputs:
         out = dataclasses.replace(out, sensor_noise=sensor_noise(base, sample, out, inputs["sensor_noise"]))
+    if "sample_jitter" in inputs:
+        out = dataclasses.replace(out, sample_steps=sample_schedule(base, sample, out, inputs["sample_jitter"]))
     return out
 
 
@@ -375,6 +392,7 @@ __all__ = [
     "point_limits",
     "run_batch",
     "run_sample",
+    "sample_schedule",
     "sample_setup",
     "sensor_noise",
 ]

@@ -52,6 +52,7 @@ class StudySetup:
     pulse_direction: float | None = None  # deg in the plane of the first two disturbance inputs; None: all 1
     sensor_noise: np.ndarray | None = None  # added to the tip sensors, one row per controller sample; None: none
     amplifier_lag: float | None = None  # s: the time constant of the piezo amplifiers' first-order lag; None: none
+    sample_steps: np.ndarray | None = None  # the plant step of each controller sample (jitter); None: regular
 
     @property
     def plant_step(self) -> float:
@@ -183,6 +184,7 @@ def run_semi_active(s: StudySetup, name: str, controller) -> Run:
         s.plant_step,
         record_every=PLANT_STEPS_PER_SAMPLE,
         energy_books=False,
+        sample_steps=s.sample_steps,
     )
     return semi_active_run(s, name, r)
 

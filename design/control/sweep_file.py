@@ -64,6 +64,9 @@ SCALAR_INPUTS = {
         0.0, math.inf, "the standard deviation of white noise on every tip sensor at each sample [m or m/s]"
     ),
     "amplifier_lag": Support(0.0, math.inf, "the time constant of the piezo amplifiers' first-order lag [s]"),
+    "sample_jitter": Support(
+        0.0, math.inf, "the standard deviation of the controller's sampling instant, on the plant step's grid [s]"
+    ),
 }
 
 
@@ -85,8 +88,9 @@ class Distribution:
 @dataclass(frozen=True)
 class UncertainInput:
     """An uncertain input: ``name`` is ``modal_frequency_scale``, ``modal_damping``,
-    ``pulse_amplitude``, ``pulse_direction``, ``sensor_noise``, ``amplifier_lag`` or ``friction.<parameter>`` (a
-    factor on that LuGre parameter, drawn for every joint independently)."""
+    ``pulse_amplitude``, ``pulse_direction``, ``sensor_noise``, ``amplifier_lag``,
+    ``sample_jitter`` or ``friction.<parameter>`` (a factor on that LuGre parameter, drawn for
+    every joint independently)."""
 
     name: str
     distribution: Distribution

@@ -32,6 +32,7 @@ class PlantRun:
     backend: str
     energy_books: bool
     stick_step: float | None
+    sample_steps: np.ndarray | None = None  # the plant step of each controller sample; None: every ratio-th
 
     @property
     def steps(self) -> int:

@@ -125,6 +125,24 @@ def _commands(raw, l: int, t: float, model: ModalModel, friction: bool) -> np.nd
     return new.reshape(l)
 
 
+def _check_schedule(sample_steps, steps: int) -> None:
+    """A sample schedule: whole plant steps from 0, strictly increasing, within the run."""
+    if sample_steps is None:
+        return
+    k = np.asarray(sample_steps)
+    if not (
+        k.ndim == 1
+        and k.size
+        and np.issubdtype(k.dtype, np.integer)
+        and k[0] == 0
+        and np.all(np.diff(k) > 0)
+        and k[-1] < steps
+    ):
+        raise ModelError(
+            f"sample_steps: {k.size} values — need whole plant steps from 0, strictly increasing, below {steps}"
+        )
+
+
 def _check_options(record_every, energy_books) -> None:
     """The recording options: a whole ``record_every`` >= 1 and a boolean ``energy_books``."""
     if not (isinstance(record_every, int) and record_every >= 1):
@@ -140,13 +158,16 @@ def _run_loop(run: PlantRun, kernel, w: np.ndarray, l: int, friction: bool, rati
     duration, record_every = run.duration, run.record_every
     controller.reset()
     kernel.start(w[0] if w.shape[0] else np.zeros(model.disturbance_input.shape[1]))
-    chunk = steps if getattr(controller, "holds_constant", False) else ratio
+    if run.sample_steps is not None:  # a jittered schedule: each sample at its own plant step
+        starts = [int(k) for k in run.sample_steps]
+    else:
+        starts = list(range(0, steps, steps if getattr(controller, "holds_constant", False) else ratio))
     report_every = max(steps // 10, 1)
     next_report = report_every
-    for k0 in range(0, steps, chunk):
+    for k0, end in zip(starts, [*starts[1:], steps]):
         t = k0 * step
         kernel.set_normal_force(_commands(controller.step(kernel.measure(t)), l, t, model, friction))
-        n = min(chunk, steps - k0)
+        n = end - k0
         kernel.run(w[k0 : k0 + n + 1], n, k0, record_every)
         if progress and k0 + n >= next_report:
             progress(f"t = {(k0 + n) * step:.3f} s of {duration:g} s")
@@ -188,6 +209,7 @@ def simulate(
     energy_books: bool = True,
     stick_step: float | None = None,
     scheme: str | None = None,
+    sample_steps: np.ndarray | None = None,
 ) -> SimulationResult:
     """Run the closed loop for ``duration`` seconds at plant step ``step`` (see module docstring).
 
@@ -223,6 +245,9 @@ def simulate(
     scheme : str or None
         A scheme of ``schemes.SCHEMES`` by name; None: "stick_exact" with ``stick_step``, else
         "fixed".
+    sample_steps : array of int, optional
+        The plant step of each controller sample (from 0, strictly increasing): a jittered
+        schedule; None: every ``sample_time``.
 
     Returns
     -------
@@ -233,7 +258,17 @@ def simulate(
     prepared = prepare(
         chosen,
         PlantRun(
-            model, joints, controller, duration, step, initial_state, record_every, backend, energy_books, stick_step
+            model,
+            joints,
+            controller,
+            duration,
+            step,
+            initial_state,
+            record_every,
+            backend,
+            energy_books,
+            stick_step,
+            sample_steps,
         ),
         disturbance,
     )
@@ -278,6 +313,7 @@ def prepare(chosen, run: PlantRun, disturbance: Callable[[float], np.ndarray] | 
     """
     l, ratio = _check(run.model, run.joints, run.duration, run.step, run.controller, run.initial_state, chosen.FRICTION)
     _check_options(run.record_every, run.energy_books)
+    _check_schedule(run.sample_steps, run.steps)
     chosen.check(run)
     kernel = chosen.kernel(run)
     w = disturbances.at_steps(
