@@ -90,6 +90,8 @@ def prepare(sweep: Sweep, progress=print, design=None) -> Prepared:
         if sweep.update and design.updating is not None:
             progress(f"updating {len(design.updating.parameters)} parameters of {design.name!r} to its EMA …")
             design, _ = updated_design(design)
+    if sweep.friction_from_identification:
+        design, sweep = _identified_friction(sweep, design, progress)
     if sweep.study_duration is not None:
         control = dataclasses.replace(design.control, study_duration=sweep.study_duration)
         design = dataclasses.replace(design, control=control)
@@ -98,6 +100,26 @@ def prepare(sweep: Sweep, progress=print, design=None) -> Prepared:
     progress(f"design model, reduction and gains of {design.name!r} (built once, shared with the workers) …")
     base = ensemble.build_base(sweep, design, columns, progress)
     return Prepared(sweep, base, sweep.points(), values, design.sha256, _compiled_loops(base, progress))
+
+
+def _identified_friction(sweep: Sweep, design, progress):
+    """``from = "identification"``: the design's friction identified as ``smartjoint run`` does it
+    (its rig records, else its parameters checked on simulated records; ``friction_stage``) and
+    each LuGre factor the file does not give drawn from the 95 % intervals
+    (``friction_uncertainty``); the design with the identified parameters and the sweep with them."""
+    import tempfile
+
+    from smartjoint.friction_uncertainty import friction_inputs, friction_spreads
+    from smartjoint.pipeline_joints import friction_stage
+
+    progress(f"friction of {design.name!r} identified for the 95 % intervals of its LuGre parameters …")
+    with tempfile.TemporaryDirectory() as scratch:  # the identification's result files are not kept
+        design, friction = friction_stage(design, Path(scratch), lambda line: None)
+    spreads = friction_spreads(friction)
+    progress("  σ of the logarithms: " + ", ".join(f"{name} {sigma:.3g}" for name, sigma in spreads.items()))
+    given = {u.name for u in sweep.inputs}
+    drawn = tuple(u for u in friction_inputs(spreads) if u.name not in given)
+    return design, dataclasses.replace(sweep, inputs=(*sweep.inputs, *drawn))
 
 
 def _compiled_loops(base: ensemble.EnsembleBase, progress) -> CompiledLoops | None:

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from smartjoint.pipeline_ensemble import FRICTION, MAX_LOG_SIGMA, Z95, _friction_inputs, friction_spreads
+from smartjoint.friction_uncertainty import FRICTION, MAX_LOG_SIGMA, Z95, friction_inputs, friction_spreads
 
 
 def _type(**intervals):
@@ -30,7 +30,7 @@ def test_the_spread_is_the_log_sigma_of_the_widest_interval():
 
 
 def test_each_factor_is_lognormal_within_its_interval_or_five_percent_uniform():
-    inputs = {u.name: u.distribution for u in _friction_inputs({"sigma0": 0.1})}
+    inputs = {u.name: u.distribution for u in friction_inputs({"sigma0": 0.1})}
     assert list(inputs) == [f"friction.{p}" for p in FRICTION]
     d = inputs["friction.sigma0"]
     assert (d.kind, d.median, d.sigma) == ("lognormal", 1.0, 0.1)

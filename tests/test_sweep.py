@@ -277,6 +277,34 @@ def test_a_run_that_cannot_finish_is_a_row_of_nan_not_the_end_of_the_sweep(prepa
     assert np.isnan(by_law["cLQG"]["energy_measure"]) and np.isfinite(by_law["passive F_max"]["energy_measure"])
 
 
+def test_friction_from_the_identification_draws_each_factor_within_its_interval(folder):
+    """``from = "identification"``: the design's friction identified as ``smartjoint run`` does (here
+    its parameters checked on simulated rig records); every factor the file does not give is a
+    lognormal of median 1 within the 95 % interval (well identified: σ0 within a few per cent;
+    weakly identified: at most a factor 2), the one it gives stays as given."""
+    from smartjoint.friction_uncertainty import MAX_LOG_SIGMA, Z95
+
+    text = _replace("[uncertain.friction]\n", '[uncertain.friction]\nfrom = "identification"\n')
+    text = text.replace('sigma0 = { distribution = "uniform", low = 0.95, high = 1.05 }\n', "")
+    (folder / "identified.toml").write_text(text)
+    ready = prepare(load_sweep(folder / "identified.toml"), progress=lambda line: None)
+    drawn = {u.name: u.distribution for u in ready.sweep.inputs if u.name.startswith("friction.")}
+    assert drawn["friction.coulomb"].kind == "normal"  # given in the file
+    assert {"friction.sigma0", "friction.sigma1", "friction.stribeck"} <= set(drawn)
+    for name, d in drawn.items():
+        if name != "friction.coulomb" and d.kind == "lognormal":
+            assert d.median == 1.0 and 0.0 < d.sigma <= MAX_LOG_SIGMA
+            assert d.high == pytest.approx(np.exp(Z95 * d.sigma)) and d.low == pytest.approx(np.exp(-Z95 * d.sigma))
+    assert drawn["friction.sigma0"].kind == "lognormal" and drawn["friction.sigma0"].sigma < 0.05
+    columns = ready.base.input_columns
+    for j, column in enumerate(columns):
+        if column.startswith("friction.") and not column.endswith("coulomb"):
+            d = drawn[column.replace(".JA.", ".").replace(".JB.", ".")]
+            assert np.all((ready.values[:, j] >= d.low) & (ready.values[:, j] <= d.high)), column
+    message = _error(folder, text.replace('from = "identification"', 'from = "guess"'))
+    assert "uncertain.friction.from: 'guess'" in message and "only 'identification'" in message
+
+
 def test_a_grid_point_against_the_design_limits_is_refused(prepared):
     with pytest.raises(ModelError, match=r"normal_force_min \[500.0, 500.0\] / normal_force_max \[400.0, 400.0\]"):
         ensemble.point_limits(prepared.base.setup, {"normal_force_min": 500.0})

@@ -113,6 +113,7 @@ class Sweep:
     sampler: str
     batch: int
     study_duration: float | None
+    friction_from_identification: bool = False  # [uncertain.friction] from = "identification"
 
     def points(self) -> list[dict[str, float]]:
         """The grid points: every combination of the grid's values, first variable slowest."""
@@ -163,6 +164,7 @@ def parse_sweep(data: dict[str, Any], folder: Path, source: str = "<memory>", sh
     sampler = root.string("sampler", "random", SAMPLERS)
     if sampler == "sobol" and samples & (samples - 1):
         raise root.error("samples", samples, "the sobol sampler takes a power of two (its balance needs 2^m points)")
+    inputs, identified = _inputs(root.table("uncertain", {})) if "uncertain" in root.data else ((), False)
     duration = root.get("study_duration", None)
     if duration is not None:
         duration = root.number("study_duration", positive=True, maximum=3600.0)
@@ -172,13 +174,14 @@ def parse_sweep(data: dict[str, Any], folder: Path, source: str = "<memory>", sh
         design=design,
         update=root.boolean("update", True),
         laws=laws,
-        inputs=_inputs(root.table("uncertain", {})) if "uncertain" in root.data else (),
+        inputs=inputs,
         grid=_grid(root.table("grid", {})) if "grid" in root.data else {},
         samples=samples,
         seed=root.integer("seed", minimum=0, maximum=MAX_SEED),
         sampler=sampler,
         batch=root.integer("batch", 8, maximum=MAX_BATCH),
         study_duration=duration,
+        friction_from_identification=identified,
     )
     if len(sweep.points()) > MAX_GRID_POINTS:
         raise root.error("grid", len(sweep.points()), f"at most {MAX_GRID_POINTS} grid points")
@@ -198,13 +201,22 @@ def _laws(root: DesignTable) -> tuple[str, ...]:
     return tuple(law for law in LAWS if law in value)  # the study's order, whatever the file's
 
 
-def _inputs(table: DesignTable) -> tuple[UncertainInput, ...]:
-    """The [uncertain] table: scalar inputs and the [uncertain.friction] factors."""
+def _inputs(table: DesignTable) -> tuple[tuple[UncertainInput, ...], bool]:
+    """The [uncertain] table: scalar inputs and the [uncertain.friction] factors, and whether the
+    factors not given come from the identification (``from = "identification"``)."""
     found = []
+    identified = False
     for name in table.data:
         if name == "friction":
             friction = table.table("friction")
             for parameter in friction.data:
+                if parameter == "from":
+                    if friction.get("from") != "identification":
+                        raise friction.error(
+                            "from", friction.data["from"], "only 'identification' (its 95 % intervals)"
+                        )
+                    identified = True
+                    continue
                 if parameter not in FRICTION_PARAMETERS:
                     allowed = "unknown LuGre parameter; allowed: " + ", ".join(FRICTION_PARAMETERS)
                     raise friction.error(parameter, friction.data[parameter], allowed)
@@ -217,7 +229,7 @@ def _inputs(table: DesignTable) -> tuple[UncertainInput, ...]:
             allowed = "unknown uncertain input; allowed: " + ", ".join([*SCALAR_INPUTS, "friction"])
             raise table.error(name, table.data[name], allowed)
     table.finish()
-    return tuple(found)
+    return tuple(found), identified
 
 
 def distribution_of(t: DesignTable, support: Support) -> Distribution:
