@@ -83,23 +83,36 @@ def prepare(sweep: Sweep, progress=print, design=None) -> Prepared:
     -------
     Prepared
     """
-    from smartjoint.design import load_design, updated_design
-
     if design is None:
-        design = load_design(sweep.design)
-        if sweep.update and design.updating is not None:
-            progress(f"updating {len(design.updating.parameters)} parameters of {design.name!r} to its EMA …")
-            design, _ = updated_design(design)
+        design = _loaded(sweep.design, sweep, progress)
     if sweep.friction_from_identification:
         design, sweep = _identified_friction(sweep, design, progress)
-    if sweep.study_duration is not None:
-        control = dataclasses.replace(design.control, study_duration=sweep.study_duration)
-        design = dataclasses.replace(design, control=control)
+    design = _with_duration(design, sweep)
+    # grid.placement: the other designs, loaded (and updated) alike; the friction factors apply to each.
+    placements = [_with_duration(_loaded(path, sweep, progress), sweep) for path in sweep.placements]
     joints = [j.name for j in design.joints]
     columns, values = sweep_sampling.sample_inputs(sweep, joints)
     progress(f"design model, reduction and gains of {design.name!r} (built once, shared with the workers) …")
-    base = ensemble.build_base(sweep, design, columns, progress)
+    base = ensemble.build_base(sweep, design, columns, progress, placements)
     return Prepared(sweep, base, sweep.points(), values, design.sha256, _compiled_loops(base, progress))
+
+
+def _loaded(path, sweep: Sweep, progress):
+    """A design file of the sweep, updated to its EMA unless the sweep says ``update = false``."""
+    from smartjoint.design import load_design, updated_design
+
+    design = load_design(path)
+    if sweep.update and design.updating is not None:
+        progress(f"updating {len(design.updating.parameters)} parameters of {design.name!r} to its EMA …")
+        design, _ = updated_design(design)
+    return design
+
+
+def _with_duration(design, sweep: Sweep):
+    """The design with the sweep's study duration, where it sets one."""
+    if sweep.study_duration is None:
+        return design
+    return dataclasses.replace(design, control=dataclasses.replace(design.control, study_duration=sweep.study_duration))
 
 
 def _identified_friction(sweep: Sweep, design, progress):

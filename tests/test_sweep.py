@@ -114,7 +114,12 @@ def _replace(key_line: str, new: str) -> str:
             "[grid]\nnormal_force_min = [10.0, 500.0]\nnormal_force_max = [400.0]",
             "grid.normal_force_min: 500.0",
         ),
-        ("[grid]", "[grid]\nplacement = [1]", "grid.placement: [1] — unknown design variable"),
+        ("[grid]", "[grid]\nstiffness = [1]", "grid.stiffness: [1] — unknown design variable"),
+        (
+            "[grid]",
+            "[grid]\nplacement = [1]",
+            "grid.placement: [1] — expected a non-empty list of distinct design files",
+        ),
         ('design = "small.toml"', 'design = "missing.toml"', "design: 'missing.toml' — no design file"),
     ],
 )
@@ -303,6 +308,37 @@ def test_friction_from_the_identification_draws_each_factor_within_its_interval(
             assert np.all((ready.values[:, j] >= d.low) & (ready.values[:, j] <= d.high)), column
     message = _error(folder, text.replace('from = "identification"', 'from = "guess"'))
     assert "uncertain.friction.from: 'guess'" in message and "only 'identification'" in message
+
+
+def test_placement_candidates_on_the_grid_each_get_their_model_gains_and_rows(folder, prepared):
+    """grid.placement: the same joints placed elsewhere (JA moved from L2_0's end to L1_0's start):
+    each candidate its own design model, set-up, LQG and artefact; the rows say which; the compiled
+    and the Python loop agree; a candidate with other joints is one line."""
+    moved = _small_design()
+    moved["joints"][0] = {"name": "JA", "member": "L1_0", "end": "start", "type": "A"}
+    (folder / "moved.toml").write_text(tomli_w.dumps(moved))
+    text = _replace(
+        "siso_boundary_layer = [1e-4, 1e-3]", 'siso_boundary_layer = [1e-4]\nplacement = ["small.toml", "moved.toml"]'
+    )
+    (folder / "placed.toml").write_text(text.replace("samples = 5", "samples = 2"))
+    ready = prepare(load_sweep(folder / "placed.toml"), progress=lambda line: None)
+    base = ready.base
+    assert [p["placement"] for p in ready.points] == [0.0, 1.0]
+    assert not np.allclose(base.setups[0].model.joint_input, base.setups[1].model.joint_input)
+    assert not np.array_equal(base.artifacts[0].feedback_gain, base.artifacts[1].feedback_gain)
+    compiled = ensemble.run_batch(base, ready.points, [0], ready.values[:1], ready.compiled)
+    python = ensemble.run_batch(base, ready.points, [0], ready.values[:1])
+    assert [r["energy_measure"] for r in compiled] == [r["energy_measure"] for r in python]
+    clqg = {r["placement"]: r["energy_measure"] for r in compiled if r["law"] == "cLQG"}
+    assert clqg[0.0] != clqg[1.0]
+    other = _small_design()
+    other["joints"][0]["name"] = "JC"
+    (folder / "other.toml").write_text(tomli_w.dumps(other))
+    (folder / "bad_place.toml").write_text(text.replace('"moved.toml"', '"other.toml"'))
+    with pytest.raises(ModelError, match=r"grid.placement: .*other.toml has joints \['JC', 'JB'\] — a placement must"):
+        prepare(load_sweep(folder / "bad_place.toml"), progress=lambda line: None)
+    missing = _error(folder, text.replace('"moved.toml"', '"nowhere.toml"'))
+    assert "grid.placement: 'nowhere.toml' — no design file" in missing
 
 
 def test_a_grid_point_against_the_design_limits_is_refused(prepared):

@@ -62,7 +62,8 @@ class EnsembleBase:
     """What every sample shares: the nominal study set-up (its ``model`` the design model the
     controllers are designed on), the LQG, ε of the design, the laws to run and the columns."""
 
-    setup: StudySetup
+    setup: StudySetup  # of the first grid point
+    setups: tuple[StudySetup, ...]  # at each grid point (its placement's design where the grid sets one)
     lqg: LqgDesign  # of the design's own weights
     lqgs: tuple[LqgDesign, ...]  # at each grid point (its control weight where the grid sets one)
     artifacts: tuple[ControllerArtifact, ...]  # the laws at each grid point, as the firmware gets them
@@ -78,7 +79,7 @@ class EnsembleBase:
         return (*KEYS, *self.grid_columns, *self.input_columns, *METRICS)
 
 
-def build_base(sweep, design, input_columns, progress=print) -> EnsembleBase:
+def build_base(sweep, design, input_columns, progress=print, placements=()) -> EnsembleBase:
     """The design model, LQG and set-up every sample shares (built once, then shared).
 
     Parameters
@@ -91,6 +92,8 @@ def build_base(sweep, design, input_columns, progress=print) -> EnsembleBase:
         The sampled inputs' columns (``sweep_sampling.input_columns``).
     progress : callable
         Receives progress lines.
+    placements : sequence of Design
+        ``grid.placement``'s designs (prepared like ``design``), indexed by the points' value.
 
     Returns
     -------
@@ -99,39 +102,61 @@ def build_base(sweep, design, input_columns, progress=print) -> EnsembleBase:
     Raises
     ------
     ModelError
-        When SISO is run without an ε in the grid or the design's [control].
+        When SISO is run without an ε in the grid or the design's [control], or a placement's
+        joints or sensors are not the design's.
     """
-    model = design_model(design, progress)
     width = design.control.siso_boundary_layer
     if "SISO" in sweep.laws and width is None and "siso_boundary_layer" not in sweep.grid:
         raise ModelError(
             f"{sweep.source}: the SISO law needs ε — give grid.siso_boundary_layer or the design's "
             "control.siso_boundary_layer (`smartjoint design` optimises it)"
         )
-    shared = setup(design, model)
-    lqg = lqg_for(design, model)
-    points = sweep.points()
-    for point in points:  # in the driver, before any task: a grid against the design's limits
+    candidates = [design, *placements]  # the base design, then grid.placement's (point value + 1)
+    built: dict[int, tuple] = {}
+    setups, lqgs, artifacts = [], [], []
+    for point in sweep.points():  # in the driver, before any task: every point checked and built
+        k = int(point["placement"]) + 1 if "placement" in point else 0
+        if k not in built:
+            built[k] = _candidate(sweep, candidates[k], design, input_columns, progress)
+        chosen, model, shared, lqg = built[k]
         point_limits(shared, point)
+        setups.append(shared)
+        lqgs.append(point_lqg(chosen, model, lqg, point))
+        artifacts.append(point_artifact(chosen, model, lqgs[-1], point))
+    first, model, _, lqg = next(iter(built.values()))
+    return EnsembleBase(
+        setup=setups[0],
+        setups=tuple(setups),
+        lqg=lqg,
+        lqgs=tuple(lqgs),
+        artifacts=tuple(artifacts),
+        laws=tuple(sweep.laws),
+        seed=int(sweep.seed),
+        joint_names=tuple(j.name for j in design.joints),
+        quantities=tuple(sensor_quantities(first, model)),
+        grid_columns=tuple(sweep.grid),
+        input_columns=tuple(input_columns),
+    )
+
+
+def _candidate(sweep, chosen, design, input_columns, progress):
+    """One design of the sweep (the base or a placement): its design model, study set-up and LQG,
+    its joints and sensors checked against the base design's."""
+    for what in ("joints", "sensors"):
+        names, base = [x.name for x in getattr(chosen, what)], [x.name for x in getattr(design, what)]
+        if names != base:
+            raise ModelError(
+                f"{sweep.source}: grid.placement: {chosen.source} has {what} {names} — a placement must keep the "
+                f"design's {base} (the rows share their columns)"
+            )
+    model = design_model(chosen, progress)
     inputs = model.disturbance_input.shape[1]
     if "pulse_direction" in input_columns and inputs < 2:
         raise ModelError(
             f"{sweep.source}: uncertain.pulse_direction: the design has {inputs} disturbance input — the angle "
             "needs two (the plane of the first two)"
         )
-    lqgs = tuple(point_lqg(design, model, lqg, point) for point in points)
-    return EnsembleBase(
-        setup=shared,
-        lqg=lqg,
-        lqgs=lqgs,
-        artifacts=tuple(point_artifact(design, model, q, point) for q, point in zip(lqgs, points)),
-        laws=tuple(sweep.laws),
-        seed=int(sweep.seed),
-        joint_names=tuple(j.name for j in design.joints),
-        quantities=tuple(sensor_quantities(design, model)),
-        grid_columns=tuple(sweep.grid),
-        input_columns=tuple(input_columns),
-    )
+    return chosen, model, setup(chosen, model), lqg_for(chosen, model)
 
 
 def _point_design(design, point: dict[str, float]):
@@ -236,10 +261,13 @@ def sample_schedule(base: EnsembleBase, sample: int, s: StudySetup, deviation: f
     return np.minimum(np.arange(count) * ratio + offsets.astype(np.int64), steps - 1)
 
 
-def sample_setup(base: EnsembleBase, point: dict[str, float], inputs: dict[str, float], sample: int = 0) -> StudySetup:
-    """The study set-up of one sample at one grid point: perturbed plant and friction, the
-    point's normal-force limits, the sample's pulse amplitude and direction and sensor noise."""
-    s = base.setup
+def sample_setup(
+    base: EnsembleBase, point: dict[str, float], inputs: dict[str, float], sample: int = 0, index: int = 0
+) -> StudySetup:
+    """The study set-up of one sample at grid point ``index``: its placement's plant perturbed, the
+    friction, the point's normal-force limits, the sample's pulse amplitude and direction, sensor
+    noise, amplifier lag and sampling instants."""
+    s = base.setups[index]
     laws = []
     for joint, law in zip(base.joint_names, s.laws):
         factors = {
@@ -320,7 +348,7 @@ def run_sample(
     list of dict
         Rows with the columns of ``base.columns()``.
     """
-    s = sample_setup(base, point, inputs, sample)
+    s = sample_setup(base, point, inputs, sample, index)
     cache: dict = {}
     runs: list = []
     for law in base.laws:

@@ -29,7 +29,7 @@ LAWS = ("passive F_min", "passive F_max", "SISO", "cLQG", "active LQG", "best pa
 DEFAULT_LAWS = LAWS[:5]
 SAMPLERS = ("random", "latin-hypercube", "sobol")
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")
-GRID_VARIABLES = ("siso_boundary_layer", "normal_force_min", "normal_force_max", "control_weight")
+GRID_VARIABLES = ("siso_boundary_layer", "normal_force_min", "normal_force_max", "control_weight", "placement")
 MAX_FILE_BYTES = 1024 * 1024
 MAX_SAMPLES = 10_000_000
 MAX_BATCH = 100_000
@@ -114,6 +114,7 @@ class Sweep:
     batch: int
     study_duration: float | None
     friction_from_identification: bool = False  # [uncertain.friction] from = "identification"
+    placements: tuple[Path, ...] = ()  # grid.placement's design files; the grid holds their indices
 
     def points(self) -> list[dict[str, float]]:
         """The grid points: every combination of the grid's values, first variable slowest."""
@@ -165,6 +166,7 @@ def parse_sweep(data: dict[str, Any], folder: Path, source: str = "<memory>", sh
     if sampler == "sobol" and samples & (samples - 1):
         raise root.error("samples", samples, "the sobol sampler takes a power of two (its balance needs 2^m points)")
     inputs, identified = _inputs(root.table("uncertain", {})) if "uncertain" in root.data else ((), False)
+    grid, placements = _grid(root.table("grid", {}), folder) if "grid" in root.data else ({}, ())
     duration = root.get("study_duration", None)
     if duration is not None:
         duration = root.number("study_duration", positive=True, maximum=3600.0)
@@ -175,13 +177,14 @@ def parse_sweep(data: dict[str, Any], folder: Path, source: str = "<memory>", sh
         update=root.boolean("update", True),
         laws=laws,
         inputs=inputs,
-        grid=_grid(root.table("grid", {})) if "grid" in root.data else {},
+        grid=grid,
         samples=samples,
         seed=root.integer("seed", minimum=0, maximum=MAX_SEED),
         sampler=sampler,
         batch=root.integer("batch", 8, maximum=MAX_BATCH),
         study_duration=duration,
         friction_from_identification=identified,
+        placements=placements,
     )
     if len(sweep.points()) > MAX_GRID_POINTS:
         raise root.error("grid", len(sweep.points()), f"at most {MAX_GRID_POINTS} grid points")
@@ -280,12 +283,33 @@ def distribution_of(t: DesignTable, support: Support) -> Distribution:
     return d
 
 
-def _grid(table: DesignTable) -> dict[str, tuple[float, ...]]:
-    """The [grid] table: each design variable's values, one for every joint."""
+def _placements(table: DesignTable, folder: Path) -> tuple[Path, ...]:
+    """grid.placement: design files (relative to the sweep file), each the same joints and sensors
+    placed elsewhere."""
+    value = table.get("placement")
+    if not (
+        isinstance(value, list) and value and all(isinstance(v, str) for v in value) and len(set(value)) == len(value)
+    ):
+        raise table.error("placement", value, "expected a non-empty list of distinct design files")
+    paths = tuple(folder / v for v in value)
+    for text, path in zip(value, paths):
+        if not path.is_file():
+            raise table.error("placement", text, f"no design file {path} (relative to the sweep file)")
+    return paths
+
+
+def _grid(table: DesignTable, folder: Path) -> tuple[dict[str, tuple[float, ...]], tuple[Path, ...]]:
+    """The [grid] table: each design variable's values, one for every joint; a placement's value
+    is its index in the returned design files."""
     grid: dict[str, tuple[float, ...]] = {}
+    placements: tuple[Path, ...] = ()
     for name in table.data:
         if name not in GRID_VARIABLES:
             raise table.error(name, table.data[name], "unknown design variable; allowed: " + ", ".join(GRID_VARIABLES))
+        if name == "placement":
+            placements = _placements(table, folder)
+            grid[name] = tuple(float(k) for k in range(len(placements)))
+            continue
         value = table.get(name)
         if not (
             isinstance(value, list)
@@ -303,7 +327,7 @@ def _grid(table: DesignTable) -> dict[str, tuple[float, ...]]:
             raise table.error(name, value, "the LQR's control weight ρ (Eq. 33, R = ρI) must be > 0")
         grid[name] = tuple(float(v) for v in value)
     table.finish()
-    return grid
+    return grid, placements
 
 
 def _check_limits(root: DesignTable, grid: dict[str, tuple[float, ...]]) -> None:
