@@ -150,9 +150,10 @@ def _compiled_loops(base: ensemble.EnsembleBase, progress) -> CompiledLoops | No
     return loops
 
 
-def connect(scheduler: str | None, workers: int | None):
+def connect(scheduler: str | None, workers: int | None, scratch: str | None = None):
     """A Dask client: on the scheduler at ``scheduler``, else on a new LocalCluster of
-    ``workers`` single-threaded processes (default: one per core).
+    ``workers`` single-threaded processes (default: one per core) whose spill and work files go
+    to ``scratch`` (default: Dask's ``dask-scratch-space`` in the temporary folder, which stays).
 
     Returns
     -------
@@ -177,6 +178,7 @@ def connect(scheduler: str | None, workers: int | None):
         processes=True,
         dashboard_address=":0",
         silence_logs=logging.ERROR,
+        local_directory=scratch,
     )
     return Client(cluster, set_as_default=False), cluster
 
@@ -335,20 +337,29 @@ def run_sweep(
     dict
         JSON-ready: the folder, counts of samples, rows and batches, the time and the rate.
     """
+    import tempfile
+
+    import dask
+
     folder = Path(folder)
-    client, cluster = connect(scheduler, workers)  # first: an unreachable scheduler fails at once
-    try:
-        progress(
-            f"sweep {sweep.source}: {sweep.samples} samples × {len(sweep.points())} grid point(s) × "
-            f"{len(sweep.laws)} law(s) → {folder}"
-        )
-        prepared = prepare(sweep, progress, design)
-        todo = open_output(folder, prepared, resume)
-        return _compute(client, prepared, folder, todo, progress)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    # The LocalCluster's work files in a folder of this run, removed with it (nothing left behind).
+    with (
+        tempfile.TemporaryDirectory(prefix="smartjoint-dask-") as scratch,
+        dask.config.set({"temporary-directory": scratch}),
+    ):
+        client, cluster = connect(scheduler, workers, scratch)  # first: an unreachable scheduler fails at once
+        try:
+            progress(
+                f"sweep {sweep.source}: {sweep.samples} samples × {len(sweep.points())} grid point(s) × "
+                f"{len(sweep.laws)} law(s) → {folder}"
+            )
+            prepared = prepare(sweep, progress, design)
+            todo = open_output(folder, prepared, resume)
+            return _compute(client, prepared, folder, todo, progress)
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
 
 
 def _warm_up(artifacts) -> None:

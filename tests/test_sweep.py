@@ -5,6 +5,7 @@ scheduler refused within 10 s. Small truss, 0.2 s studies, a handful of samples.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import io
 import socket
@@ -356,11 +357,23 @@ def _bytes(table) -> bytes:
     return buffer.getvalue()
 
 
-@pytest.fixture(scope="module")
-def two_workers():
+@contextlib.contextmanager
+def _cluster(scratch):
+    """Two single-threaded worker processes whose work files (and Dask's locks) stay in the test's
+    folder, as ``run_sweep`` keeps its own."""
+    import dask
     from dask.distributed import LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+    with dask.config.set({"temporary-directory": str(scratch)}):
+        with LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", local_directory=str(scratch)
+        ) as cluster:
+            yield cluster
+
+
+@pytest.fixture(scope="module")
+def two_workers(tmp_path_factory):
+    with _cluster(tmp_path_factory.mktemp("dask")) as cluster:
         yield cluster.scheduler_address
 
 
@@ -430,13 +443,13 @@ def test_killing_a_worker_mid_sweep_loses_no_sample(folder):
     import os
     import signal
 
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
     text = _replace("samples = 5", "samples = 12").replace("batch = 2", "batch = 1")
     (folder / "long.toml").write_text(text)
     sweep = load_sweep(folder / "long.toml")
     killed = []
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+    with _cluster(folder / "dask") as cluster:
         with Client(cluster) as client:
             victim = next(iter(client.run(os.getpid).values()))
 
