@@ -175,7 +175,7 @@ class CompiledLoop:
         hold = np.ascontiguousarray(s.normal_force_max, dtype=float)
         w = np.ascontiguousarray(prepared.w, dtype=float)
         ffi = self.ffi
-        noise, schedule, samples, kept = self._sample_inputs(s, prepared)
+        noise, schedule, samples, kept = self._sample_inputs(s)
         settings = ffi.new(
             f"{self.prefix}_loop *",
             {
@@ -190,7 +190,9 @@ class CompiledLoop:
                 "sample_steps": schedule,
                 "samples": samples,
                 "lagging": int(s.amplifier_lag is not None),
-                "amplifier_gain": 0.0 if s.amplifier_lag is None else LaggingAmplifiers.gain_of(s),
+                "amplifier_gain": 0.0
+                if s.amplifier_lag is None
+                else LaggingAmplifiers.gain_of(s.sample_time, s.amplifier_lag),
             },
         )
         result = ffi.new(f"{self.prefix}_loop_result *")
@@ -205,12 +207,12 @@ class CompiledLoop:
         self._raise_failure(result, kernel, s)
         return loop.result(kernel.recorder, s.plant, s.plant_step, PLANT_STEPS_PER_SAMPLE), result
 
-    def _sample_inputs(self, s: StudySetup, prepared):
+    def _sample_inputs(self, s: StudySetup):
         """The per-sample inputs as C pointers: the sensor noise, the jittered schedule and its
         length (NULL, NULL, 0 without them) and the arrays they point into (kept by the caller)."""
         ffi = self.ffi
         noise, schedule, samples, kept = ffi.NULL, ffi.NULL, 0, []
-        rows = -(-prepared.run.steps // prepared.ratio)
+        rows = s.samples
         if s.sample_steps is not None:  # checked by loop.prepare: from 0, increasing, within the run
             steps = np.ascontiguousarray(s.sample_steps, dtype=np.dtype("l"))  # C long
             schedule, samples, rows = ffi.cast("long *", ffi.from_buffer(steps)), steps.size, steps.size

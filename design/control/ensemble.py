@@ -241,9 +241,8 @@ def sensor_noise(base: EnsembleBase, sample: int, s: StudySetup, deviation: floa
     """The white noise on the tip sensors of sample ``sample``: one row per controller sample,
     standard normal times ``deviation``, from the sweep's seed and the sample's number alone
     (``SeedSequence(seed, spawn_key=(sample, 1))``, apart from the inputs' stream)."""
-    samples = -(-int(round(s.duration / s.plant_step)) // PLANT_STEPS_PER_SAMPLE)  # the loop's calls
     rng = np.random.default_rng(np.random.SeedSequence(base.seed, spawn_key=(sample, 1)))
-    return deviation * rng.standard_normal((samples, s.plant.velocity_output.shape[0]))
+    return deviation * rng.standard_normal((s.samples, s.plant.velocity_output.shape[0]))
 
 
 def sample_schedule(base: EnsembleBase, sample: int, s: StudySetup, deviation: float) -> np.ndarray:
@@ -251,14 +250,12 @@ def sample_schedule(base: EnsembleBase, sample: int, s: StudySetup, deviation: f
     jittered: k·ratio plus a normal offset of standard deviation ``deviation`` [s], rounded to
     whole plant steps and clipped to ±(ratio − 1)//2 steps so the samples stay in order; the first
     at 0. From the sweep's seed and the sample's number alone (``spawn_key=(sample, 2)``)."""
-    ratio = PLANT_STEPS_PER_SAMPLE
-    steps = int(round(s.duration / s.plant_step))
-    count = -(-steps // ratio)
+    ratio, count = PLANT_STEPS_PER_SAMPLE, s.samples
     rng = np.random.default_rng(np.random.SeedSequence(base.seed, spawn_key=(sample, 2)))
     widest = (ratio - 1) // 2
     offsets = np.clip(np.rint(deviation / s.plant_step * rng.standard_normal(count)), -widest, widest)
     offsets[0] = 0.0
-    return np.minimum(np.arange(count) * ratio + offsets.astype(np.int64), steps - 1)
+    return np.minimum(np.arange(count) * ratio + offsets.astype(np.int64), s.plant_steps - 1)
 
 
 def sample_setup(

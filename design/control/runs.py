@@ -58,6 +58,16 @@ class StudySetup:
     def plant_step(self) -> float:
         return self.sample_time / PLANT_STEPS_PER_SAMPLE
 
+    @property
+    def plant_steps(self) -> int:
+        """The plant steps of a run (``PlantRun.steps``)."""
+        return int(round(self.duration / self.plant_step))
+
+    @property
+    def samples(self) -> int:
+        """The controller samples of a run: the loop's calls, one every ``PLANT_STEPS_PER_SAMPLE``."""
+        return -(-self.plant_steps // PLANT_STEPS_PER_SAMPLE)
+
     def pulse(self) -> TriangularPulse:
         directions = np.ones(self.plant.disturbance_input.shape[1])
         if self.pulse_direction is not None:
@@ -226,14 +236,13 @@ class LaggingAmplifiers:
         if not (math.isfinite(time_constant) and time_constant > 0):
             raise ModelError(f"amplifier_lag: {time_constant!r} s — must be a positive number of seconds")
         self.inner, self.sample_time = inner, inner.sample_time
-        self.gain = -math.expm1(-self.sample_time / time_constant)  # α, accurate for τ ≫ Δt too (= gain_of)
+        self.gain = self.gain_of(self.sample_time, time_constant)
         self.applied: np.ndarray | None = None
 
     @staticmethod
-    def gain_of(s: StudySetup) -> float:
-        """α of the study's amplifiers (``s.amplifier_lag`` set)."""
-        assert s.amplifier_lag is not None
-        return -math.expm1(-s.sample_time / s.amplifier_lag)
+    def gain_of(sample_time: float, time_constant: float) -> float:
+        """α = 1 − e^(−Δt/τ), accurate for τ ≫ Δt too (the compiled loop takes the same number)."""
+        return -math.expm1(-sample_time / time_constant)
 
     def reset(self) -> None:
         self.inner.reset()
