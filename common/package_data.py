@@ -42,6 +42,20 @@ FILES: dict[str, tuple[str, ...]] = {
             "target_main.c.j2",
             "toolchain.cmake.j2",
             "types.h.j2",
+            *(
+                f"fmu/{name}"
+                for name in (
+                    "buildDescription.xml.j2",
+                    "fmi2_functions.c.j2",
+                    "fmi3_functions.c.j2",
+                    "fmu_access.c.j2",
+                    "fmu_controller.c.j2",
+                    "fmu_model.h.j2",
+                    "fmu_plant.c.j2",
+                    "modelDescription2.xml.j2",
+                    "modelDescription3.xml.j2",
+                )
+            ),
         )
     ),
     "smartjoint.firmware": (

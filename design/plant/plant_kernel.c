@@ -47,7 +47,7 @@ static void combine(const double *M, const double *y, int k, int n, double *out)
 {
     for (int i = 0; i < n; ++i) out[i] = 0.0;
     for (int j = 0; j < k; ++j) {
-        const double *row = M + (size_t)j * n;
+        const double *row = M + (size_t)j * (size_t)n;
         double c = y[j];
         for (int i = 0; i < n; ++i) out[i] += row[i] * c;
     }
@@ -202,7 +202,7 @@ static void free_response(const sj_plant *p, const sj_state *s, const double *Ph
         }
     }
     for (int g = 0; g < groups; ++g) {
-        const double *e0 = p->ET + (size_t)(4 * g) * n, *e1 = e0 + n, *e2 = e1 + n, *e3 = e2 + n;
+        const double *e0 = p->ET + (size_t)(4 * g) * (size_t)n, *e1 = e0 + n, *e2 = e1 + n, *e3 = e2 + n;
         double s0[4] = {0.0, 0.0, 0.0, 0.0}, s1[4] = {0.0, 0.0, 0.0, 0.0};
         double s2[4] = {0.0, 0.0, 0.0, 0.0}, s3[4] = {0.0, 0.0, 0.0, 0.0};
         int i = 0;
@@ -291,9 +291,9 @@ static void update(const sj_plant *p, sj_state *s, const double *c, const double
 static int advance(const sj_plant *p, sj_state *s, const double *w_a, const double *w_b, int depth)
 {
     int n = p->n, l = p->l, m = p->m, groups = (l + 3) / 4;
-    const double *Phi = p->phi + (size_t)depth * n * 4, *a = p->g0 + (size_t)depth * n * 2;
-    const double *b = p->g1 + (size_t)depth * n * 2, *G = p->G + (size_t)depth * l * l;
-    const double *c = p->book + (size_t)depth * n * 18;
+    const double *Phi = p->phi + (size_t)(depth * n * 4), *a = p->g0 + (size_t)(depth * n * 2);
+    const double *b = p->g1 + (size_t)(depth * n * 2), *G = p->G + (size_t)(depth * l * l);
+    const double *c = p->book + (size_t)(depth * n * 18);
     double h = p->step / (double)(1L << depth);
     double *q_new = p->work + 4 * n;
     double *w = p->work + 5 * n + 3 * l + l * l;
@@ -324,7 +324,7 @@ static int advance(const sj_plant *p, sj_state *s, const double *w_a, const doub
     }
     /* q_new = E u_R, four joints per pass, then the books and x = x_free - gamma1 q_new. */
     for (int g = 0; g < groups; ++g) {
-        const double *e0 = p->ET + (size_t)(4 * g) * n, *e1 = e0 + n, *e2 = e1 + n, *e3 = e2 + n;
+        const double *e0 = p->ET + (size_t)(4 * g) * (size_t)n, *e1 = e0 + n, *e2 = e1 + n, *e3 = e2 + n;
         for (int k = 0; k < 4; ++k) u4[k] = 4 * g + k < l ? s->u[4 * g + k] : 0.0;
         if (g == 0)
             for (int i = 0; i < n; ++i) q_new[i] = e0[i] * u4[0] + e1[i] * u4[1] + e2[i] * u4[2] + e3[i] * u4[3];
@@ -357,7 +357,7 @@ void sj_set_normal_force(const sj_plant *p, sj_state *s, const double *normal_fo
 void sj_start(const sj_plant *p, sj_state *s, const double *w0)
 {
     (void)w0;
-    s->work_in = s->work_joints = s->work_damping = p->books ? 0.0 : NAN;
+    s->work_in = s->work_joints = s->work_damping = p->books ? 0.0 : (double)NAN;
 }
 
 /* The sensors y = Vy eta_dot + Dy omega eta, as the controller reads them and the recorder
@@ -365,7 +365,7 @@ void sj_start(const sj_plant *p, sj_state *s, const double *w0)
 void sj_measure(const sj_plant *p, const sj_state *s, double *sensors)
 {
     for (int k = 0; k < p->ny; ++k)
-        sensors[k] = dot(p->Vy + (size_t)k * p->n, s->x, p->n) + dot(p->Dy + (size_t)k * p->n, s->x + p->n, p->n);
+        sensors[k] = dot(p->Vy + (size_t)(k * p->n), s->x, p->n) + dot(p->Dy + (size_t)(k * p->n), s->x + p->n, p->n);
 }
 
 void sj_record_row(const sj_plant *p, const sj_state *s, const sj_record *r, long row)
@@ -415,7 +415,7 @@ static void axpy_columns(const double *restrict M, const double *restrict y, int
     if (overwrite)
         for (int i = 0; i < n; ++i) out[i] = 0.0;
     for (int c = 0; c < columns; ++c) {
-        const double *restrict col = M + (size_t)c * stride;
+        const double *restrict col = M + (size_t)(c * stride);
         double yc = y[c];
         for (int i = 0; i < n; ++i) out[i] += col[i] * yc;
     }
@@ -499,11 +499,11 @@ static int stick_advance(const sj_stick *p, sj_stick_state *s, const sj_stick_st
     axpy_columns(k->phi, s->z, N, Np, Np, zf, 1);
     axpy_columns(k->g0, s->d, l, Np, Np, zf, 0);
     if (disturbed) {
-        axpy_columns(k->g0 + (size_t)l * Np, w_a, m, Np, Np, zf, 0);
-        axpy_columns(k->g1 + (size_t)l * Np, w_b, m, Np, Np, zf, 0);
+        axpy_columns(k->g0 + (size_t)(l * Np), w_a, m, Np, Np, zf, 0);
+        axpy_columns(k->g1 + (size_t)(l * Np), w_b, m, Np, Np, zf, 0);
     }
     for (int j = 0; j < l; ++j) {
-        vf[j] = dot(p->Cv + (size_t)j * n2, zf, n2);
+        vf[j] = dot(p->Cv + (size_t)(j * n2), zf, n2);
         pf[j] = zf[n2 + j];
         d1[j] = s->d[j];  /* start from the held slip term */
         scale[j] = fmax(fabs(vf[j]), p->vs[j]) + fabs(s->v[j]);
@@ -580,7 +580,7 @@ void sj_stick_record_row(const sj_stick *p, const sj_stick_state *s, const sj_re
         r->fn[row * p->l + j] = s->fn[j];
         r->phi[row * p->l + j] = s->z[p->n2 + j];
     }
-    for (int k = 0; k < p->ny; ++k) r->sensors[row * p->ny + k] = dot(p->Cy + (size_t)k * p->n2, s->z, p->n2);
+    for (int k = 0; k < p->ny; ++k) r->sensors[row * p->ny + k] = dot(p->Cy + (size_t)(k * p->n2), s->z, p->n2);
     r->energy[row] = 0.5 * dot(s->z, s->z, p->n2);
     r->works[3 * row] = r->works[3 * row + 1] = r->works[3 * row + 2] = NAN;
 }
@@ -597,14 +597,14 @@ static const double sj_zero_row[SJ_MAX_DISTURBANCES];
 
 static const double *stick_w(const sj_stick_w *w, long row)
 {
-    return row < w->rows ? w->w + (size_t)row * w->m : sj_zero_row;
+    return row < w->rows ? w->w + (size_t)row * (size_t)w->m : sj_zero_row;
 }
 
 static int stick_w_zero(const sj_stick_w *w, long row, long count)
 {
     if (row >= w->rows) return 1;
     long end = row + count < w->rows ? row + count : w->rows;
-    return all_zero(w->w + (size_t)row * w->m, (int)((end - row) * w->m));
+    return all_zero(w->w + (size_t)row * (size_t)w->m, (int)((end - row) * w->m));
 }
 
 /* The interval of one step at `level` (length H, from short-step sample `row`): one step there
@@ -621,7 +621,7 @@ static int stick_interval(const sj_stick *p, sj_stick_state *s, int level, const
     }
     int shorts = level == 0 ? p->ratio[0] * p->ratio[1] : p->ratio[1];  /* short steps in this interval */
     if (stick_w_zero(w, row, shorts + 1) && stick_quiet(p, s, H, p->beta[level])) {
-        double *backup = p->work + 2 * p->Np + 8 * l + l * l + (size_t)level * (N + 3 * l);  /* after stick_advance's */
+        double *backup = p->work + 2 * p->Np + 8 * l + l * l + (size_t)(level * (N + 3 * l));  /* after stick_advance's */
         memcpy(backup, s->z, sizeof(double) * (size_t)N);
         memcpy(backup + N, s->d, sizeof(double) * (size_t)l);
         memcpy(backup + N + l, s->v, sizeof(double) * (size_t)l);

@@ -80,12 +80,12 @@ typedef struct {
     smartjoint_real normal_force_min;
     smartjoint_real normal_force_range; /* F^max - F^min */
 } joint_law;
-static const joint_law law[JOINTS] = {
+static SMARTJOINT_TUNABLE joint_law law[JOINTS] = {
     {{0.22235514f, -0.00592117f, 0.110633835f}, {136213.17f, -233385.89f}, 10.0f, 390.0f},
     {{-0.00592117f, 0.22235514f, 0.110633835f}, {233385.89f, -136213.17f}, 10.0f, 390.0f},
     {{0.07301455f, 0.07301455f, 0.26734006f}, {202961.2f, -202961.2f}, 10.0f, 390.0f},
 };
-static const smartjoint_real boundary_layer = 100.0f; /* eps [N] (Eq. 34) */
+static SMARTJOINT_TUNABLE smartjoint_real boundary_layer = 100.0f; /* eps [N] (Eq. 34) */
 /* Commanded to every joint whenever the filter cannot use its inputs (docs/safety.md). */
 static const smartjoint_real safe_normal_force[JOINTS] = {400.0f, 400.0f, 400.0f};
 /* Plausible inputs (from the design): |y_r| and |u_R,j| up to these, the measured F_N,j within

@@ -5,9 +5,9 @@
 
 #include "smartjoint_siso.h"
 
-static const smartjoint_real normal_force_min[SMARTJOINT_SISO_JOINTS] = {10.0f, 10.0f, 10.0f};
-static const smartjoint_real normal_force_range[SMARTJOINT_SISO_JOINTS] = {390.0f, 390.0f, 390.0f}; /* F^max - F^min */
-static const smartjoint_real boundary_layer[SMARTJOINT_SISO_JOINTS] = {3.1622776e-06f, 3.1622776e-06f, 3.1622776e-06f}; /* eps_j [m/s] */
+static SMARTJOINT_TUNABLE smartjoint_real normal_force_min[SMARTJOINT_SISO_JOINTS] = {10.0f, 10.0f, 10.0f};
+static SMARTJOINT_TUNABLE smartjoint_real normal_force_range[SMARTJOINT_SISO_JOINTS] = {390.0f, 390.0f, 390.0f}; /* F^max - F^min */
+static SMARTJOINT_TUNABLE smartjoint_real boundary_layer[SMARTJOINT_SISO_JOINTS] = {3.1622776e-06f, 3.1622776e-06f, 3.1622776e-06f}; /* eps_j [m/s] */
 /* Commanded to every joint whenever an input cannot be used (docs/safety.md). */
 static const smartjoint_real safe_normal_force[SMARTJOINT_SISO_JOINTS] = {400.0f, 400.0f, 400.0f};
 /* Plausible inputs (from the design): |v| and |u_R| up to these, the measured F_N within

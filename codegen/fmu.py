@@ -1,0 +1,418 @@
+"""FMI co-simulation units of the generated controllers and of the nonlinear truss plant.
+
+``smartjoint fmu`` packs what the project already generates into a Functional Mock-up Unit, so a
+controller or the plant can be dropped into Simulink, OpenModelica, Dymola or any co-simulation
+master and give the project's numbers there:
+
+* a **controller FMU** (:func:`controller_fmu`) wraps the firmware's own generated law
+  (``<prefix>_siso.c`` or ``<prefix>_clqg.c``, float or double build) — no second implementation —
+  behind the FMI 2.0 or 3.0 co-simulation API, with the normal-force limits and the boundary layer
+  as tunable parameters and the sample time as the only communication step;
+* a **plant FMU** (:func:`plant_fmu`) wraps the project's fixed-step plant kernel
+  (``design/plant/plant_kernel.c``) with the design's reduced modal model and LuGre joints as data,
+  exact to the bit, and the study's tip pulse.
+
+Each FMU holds ``modelDescription.xml``, the binary for this platform and, under ``sources/``, every
+C file it was built from with the FMI headers of the installed FMPy and a build description, so
+the unpacked FMU compiles alone on other platforms. The files are rendered from
+``templates/fmu/`` (the FMI layer ``fmi{2,3}_functions.c``, the model ``fmu_model.c`` behind
+``fmu_model.h``) and packed deterministically: the same inputs give a byte-identical FMU.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from smartjoint.codegen import build, fmi_headers, fmu_variables, generate, rendering
+from smartjoint.common import package_data
+from smartjoint.common.errors import ModelError
+
+LAWS = {"siso": "SISO law (Eq. 30-31)", "clqg": "clipped-optimal LQG (Eq. 33-34)"}
+VERSIONS = (2, 3)
+UNITS = {
+    "N": (("kg", 1), ("m", 1), ("s", -2)),
+    "m": (("m", 1),),
+    "m/s": (("m", 1), ("s", -1)),
+    "s": (("s", 1),),
+    "J": (("kg", 1), ("m", 2), ("s", -2)),
+}
+# The FMI functions the templates define themselves (the rest of FMI 3 refuses, from the header).
+_FMI3_OWN = {
+    "fmi3SetDebugLogging", "fmi3EnterInitializationMode", "fmi3ExitInitializationMode", "fmi3Terminate",
+    "fmi3Reset", "fmi3GetFloat64", "fmi3GetInt32", "fmi3SetFloat64", "fmi3GetFMUState", "fmi3SetFMUState",
+    "fmi3FreeFMUState", "fmi3SerializedFMUStateSize", "fmi3SerializeFMUState", "fmi3DeserializeFMUState",
+    "fmi3DoStep",
+}  # fmt: skip
+_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # every member's date: the FMU depends on its inputs alone
+
+
+@dataclass(frozen=True)
+class Fmu:
+    """A written FMU: its path, model identifier, FMI version, variables and what it holds."""
+
+    path: Path
+    identifier: str
+    fmi: int
+    variables: list
+    members: list[str]
+    binary: str
+
+
+def identifier_of(path) -> str:
+    """The model identifier an FMU file name gives (``truss.fmu`` → ``truss``).
+
+    Raises
+    ------
+    ModelError
+        The name is not ``<C identifier>.fmu``.
+    """
+    path = Path(path)
+    if path.suffix != ".fmu" or not _IDENTIFIER.fullmatch(path.stem):
+        raise ModelError(
+            f"-o: {path.name!r} — an FMU is named <model identifier>.fmu, the identifier letters, digits and _ "
+            "not starting with a digit"
+        )
+    return path.stem
+
+
+def _check_version(fmi: int) -> None:
+    if fmi not in VERSIONS:
+        raise ModelError(f"--fmi: {fmi!r} — allowed: 2, 3")
+
+
+def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double", prefix: str = "smartjoint") -> Fmu:
+    """Write the controller FMU of one generated law.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The controller design the law is generated from.
+    law : str
+        "siso" or "clqg".
+    path : path-like
+        The FMU to write, ``<model identifier>.fmu``.
+    fmi : int
+        FMI version, 2 or 3.
+    real : str
+        The law's scalar type, "double" or "float" (the firmware's build).
+    prefix : str
+        The generated code's prefix.
+
+    Returns
+    -------
+    Fmu
+    """
+    if law not in LAWS:
+        raise ModelError(f"--law: {law!r} — allowed: {', '.join(LAWS)}")
+    if real not in ("float", "double"):
+        raise ModelError(f"--real: {real!r} — allowed: float, double")
+    _check_version(fmi)
+    identifier = identifier_of(path)
+    variables = fmu_variables.controller_variables(artifact, law)
+    name = f"{prefix}_{law}"
+    banner = rendering.banner(artifact.artifact_sha256, real, "codegen, FMU")
+    laws = generate.render(artifact, real, prefix)
+    sources = {key: laws[key] for key in (f"{prefix}_types.h", f"{name}.h", f"{name}.c")}
+    layers = np.atleast_1d(np.asarray(artifact.siso_boundary_layer if law == "siso" else artifact.clqg_boundary_layer))
+
+    def row(values, kind: str) -> str:
+        return ", ".join(rendering.literal(float(v), kind) for v in np.asarray(values, dtype=float).reshape(-1))
+
+    low, high = np.asarray(artifact.normal_force_min, dtype=float), np.asarray(artifact.normal_force_max, dtype=float)
+    context = {
+        "banner": banner,
+        "prefix": prefix,
+        "PREFIX": prefix.upper(),
+        "name": name,
+        "NAME": name.upper(),
+        "law": law,
+        "title": LAWS[law],
+        "sample_time": rendering.literal(artifact.sample_time, "double"),
+        "boundary_layers": layers.size,
+        "law_normal_force_min": row(low, real),
+        "law_normal_force_range": row(high - low, real),
+        "law_boundary_layer": row(layers, real),
+        "start_normal_force_min": row(low, "double"),
+        "start_normal_force_max": row(high, "double"),
+        "start_boundary_layer": row(layers, "double"),
+    }
+    description = (
+        f"{artifact.name}: {LAWS[law]}, {real} build, from controller artefact {artifact.artifact_sha256[:12]}"
+    )
+    return _write(
+        path, identifier, fmi, variables, "fmu/fmu_controller.c.j2", context, sources, [],
+        dict(description=description, stop_time=1.0, step_size=artifact.sample_time, variable_step="false",
+             fixed_step=None),
+        _controller_dependencies(variables),
+    )  # fmt: skip
+
+
+def _controller_dependencies(variables) -> dict[int, list[int] | None]:
+    """Every output of a controller depends on every input (a law's step at the point)."""
+    inputs = fmu_variables.references(variables, "input")
+    return {v.reference: inputs for v in variables if v.causality == "output"}
+
+
+def plant_fmu(setup, design, path, fmi: int = 2) -> Fmu:
+    """Write the plant FMU of a study set-up: its reduced plant, joints, step and tip pulse.
+
+    Parameters
+    ----------
+    setup : StudySetup
+        The study (``design.control.runs``): plant model, LuGre joints, plant step, pulse.
+    design : Design
+        The design the set-up is made from (its name and hash, in the banner and description).
+    path : path-like
+        The FMU to write.
+    fmi : int
+        FMI version, 2 or 3.
+
+    Returns
+    -------
+    Fmu
+    """
+    _check_version(fmi)
+    identifier = identifier_of(path)
+    pulse = setup.pulse()
+    model = setup.plant
+    variables = fmu_variables.plant_variables(model, pulse.amplitude, pulse.duration, pulse.directions)
+    data = plant_data(setup)
+    banner = (
+        f"/* Generated by smartjoint {rendering.version()} (codegen, FMU) from design sha256 {design.sha256}.\n"
+        " * Do not edit: regenerate with `smartjoint fmu --plant`. */"
+    )
+    context = {
+        "banner": banner,
+        "plant_step": data["plant_step"],
+        **{key: data[key] for key in ("n", "l", "m", "ny", "levels")},
+        "arrays": data["arrays"],
+        "pointer_fields": data["pointer_fields"],
+        "pulse_amplitude": _hex(pulse.amplitude),
+        "pulse_duration": _hex(pulse.duration),
+        "pulse_factors": ", ".join(_hex(v) for v in pulse.directions),
+    }
+    sources = {
+        name: package_data.path("smartjoint.design.plant", name).read_text()
+        for name in ("plant_kernel.h", "plant_kernel.c")
+    }
+    description = f"{design.name}: reduced truss ({data['n']} coordinates) with {data['l']} LuGre joints, fixed step"
+    return _write(
+        path, identifier, fmi, variables, "fmu/fmu_plant.c.j2", context, sources, ["plant_kernel.c"],
+        dict(description=description, stop_time=setup.duration, step_size=setup.sample_time, variable_step="true",
+             fixed_step=repr(float(setup.plant_step))),
+        _plant_dependencies(variables, model.joint_names),
+    )  # fmt: skip
+
+
+def _plant_dependencies(variables, joints) -> dict[int, list[int] | None]:
+    """A joint's friction force and normal force depend on its normal-force input (F_N acts at
+    once); every other output only on the state."""
+    reference = {v.name: v.reference for v in variables}
+    out: dict[int, list[int] | None] = {}
+    for v in variables:
+        if v.causality != "output":
+            continue
+        joint = next((j for j in joints if v.name in (f"JOINT_{j}.friction_force", f"JOINT_{j}.normal_force")), None)
+        out[v.reference] = [] if joint is None else [reference[f"SETPOINT_{joint}.normal_force"]]
+    return out
+
+
+def _hex(value: float) -> str:
+    """A double as an exact C99 hexadecimal literal."""
+    value = float(value)
+    if value == 0.0:
+        return "-0.0" if np.signbit(value) else "0.0"
+    return value.hex()
+
+
+def plant_data(setup) -> dict:
+    """The plant kernel's data of a study's fixed-step plant (``fixed_step`` layout), as C arrays.
+
+    Parameters
+    ----------
+    setup : StudySetup
+
+    Returns
+    -------
+    dict
+        Sizes, the plant step (a C literal), ``arrays`` (name, size, lines of hexadecimal
+        literals) and ``pointer_fields`` (the ``sj_plant`` field each array is).
+    """
+    from smartjoint.design.plant import fixed_step
+    from smartjoint.design.plant.kernel import LAW_FIELDS, PlantRun
+
+    class _Sampled:
+        sample_time = setup.sample_time
+
+    run = PlantRun(
+        setup.plant, setup.laws, _Sampled(), setup.duration, setup.plant_step, None, 1, "python", False, None
+    )
+    plant = fixed_step.kernel(run).p
+    fields = {
+        "phi": plant.phi, "g0": plant.g0, "g1": plant.g1, "G": plant.G, "ET": plant.ET_padded, "HT": plant.HT,
+        "Vy": plant.Vy, "Dy": plant.Dy, "two_xi_w": plant.two_xi_w,
+        **{name: getattr(plant.law, name) for name in (*LAW_FIELDS, "bound")},
+    }  # fmt: skip
+    arrays, pointers = [], []
+    for field, values in fields.items():
+        flat = np.ascontiguousarray(values, dtype=float).reshape(-1)
+        name = f"plant_{field.lower()}" if field != "G" else "plant_joint_compliance"
+        literals = [_hex(v) + "," for v in flat] or ["0.0,"]  # C has no empty arrays
+        lines = [" ".join(literals[k : k + 4]) for k in range(0, len(literals), 4)]
+        arrays.append({"name": name, "size": max(flat.size, 1), "lines": lines})
+        pointers.append({"field": field, "array": name})
+    return {
+        "n": plant.n,
+        "l": plant.l,
+        "m": plant.m,
+        "ny": plant.ny,
+        "levels": fixed_step.MAX_HALVINGS + 1,
+        "plant_step": _hex(setup.plant_step),
+        "arrays": arrays,
+        "pointer_fields": pointers,
+    }
+
+
+def _write(path, identifier, fmi, variables, model_template, context, sources, compiled, xml, dependencies) -> Fmu:
+    """Render the model and the FMI layer, compile the binary, pack the FMU and put it in place."""
+    env = rendering.environment()
+    files = dict(sources)
+    files.update(fmi_headers.files(fmi))
+    files["fmu_model.h"] = env.get_template("fmu/fmu_model.h.j2").render(banner=context["banner"])
+    layer = f"fmi{fmi}_functions.c"
+    units = [{"name": unit, "base": UNITS[unit]} for unit in sorted({v.unit for v in variables if v.unit})]
+    listed = ["fmu_model.c", *compiled, layer]
+    # The token is the hash of everything but itself: the same inputs, the same FMU.
+    draft = _render_all(env, files, model_template, layer, context, variables, fmi, "{TOKEN}")
+    digest = hashlib.sha256("".join(f"{k}\0{draft[k]}\0" for k in sorted(draft)).encode()).hexdigest()
+    token = "{" + "-".join((digest[:8], digest[8:12], digest[12:16], digest[16:20], digest[20:32])) + "}"
+    files = _render_all(env, files, model_template, layer, context, variables, fmi, token)
+    outputs = _outputs(variables, dependencies)
+    comment = (
+        f"Generated by smartjoint {rendering.version()} (codegen, FMU). Do not edit: regenerate with `smartjoint fmu`."
+    )
+    description = env.get_template(f"fmu/modelDescription{fmi}.xml.j2").render(
+        comment=comment, model_name=identifier, token=token, version=rendering.version(), identifier=identifier,
+        sources=listed, units=units, variables=variables, outputs=outputs, **xml,
+    )  # fmt: skip
+    members = {"modelDescription.xml": description.encode()}
+    members.update({f"sources/{name}": text.encode() for name, text in files.items()})
+    if fmi == 3:
+        members["sources/buildDescription.xml"] = (
+            env.get_template("fmu/buildDescription.xml.j2")
+            .render(comment=comment, identifier=identifier, sources=listed, warnings=" ".join(build.WARNINGS))
+            .encode()
+        )
+    binary = f"binaries/{_platform(fmi)}/{identifier}.so"
+    members[binary] = compile_binary(files, listed, identifier)
+    target = Path(path)
+    _pack(target, members)
+    return Fmu(target, identifier, fmi, variables, sorted(members), binary)
+
+
+def _render_all(env, files, model_template, layer, context, variables, fmi, token) -> dict[str, str]:
+    """The sources with the model and the FMI layer rendered for ``token``."""
+    out = dict(files)
+    real_typed = lambda v: v.value.startswith(("m->input.", "m->output."))  # noqa: E731
+    law_real = f"({context['prefix']}_real)" if "prefix" in context else ""
+    out["fmu_model.c"] = env.get_template(model_template).render(
+        **context, token=token, variables=variables, real_value=real_typed,
+        cast=lambda v: law_real if v.value.startswith("m->input.") else "",
+    )  # fmt: skip
+    unsupported = fmi_headers.unsupported_fmi3(_FMI3_OWN) if fmi == 3 else []
+    out[layer] = env.get_template(f"fmu/{layer}.j2").render(banner=context["banner"], unsupported=unsupported)
+    return out
+
+
+def _outputs(variables, dependencies) -> list[dict]:
+    """ModelStructure entries: 1-based index, value reference and dependencies (both ways)."""
+    index = {v.reference: k for k, v in enumerate(variables, start=1)}
+    return [
+        {
+            "index": index[v.reference],
+            "reference": v.reference,
+            "dependencies": None
+            if dependencies.get(v.reference) is None
+            else [index[r] for r in dependencies[v.reference]],
+            "reference_dependencies": dependencies.get(v.reference) or [],
+        }
+        for v in variables
+        if v.causality == "output"
+    ]
+
+
+def _platform(fmi: int) -> str:
+    import fmpy
+
+    return fmpy.platform if fmi == 2 else fmpy.platform_tuple
+
+
+def compile_binary(files: dict[str, str], sources: list[str], identifier: str, flags: list[str] | None = None) -> bytes:
+    """The shared library of an FMU's sources, compiled with the warning set of the generated C
+    (any warning an error), only the FMI functions exported.
+
+    Parameters
+    ----------
+    files : dict of str to str
+        The FMU's ``sources/`` folder: file name → text.
+    sources : list of str
+        The translation units.
+    identifier : str
+    flags : list of str, optional
+        Default :data:`build.FLAGS`.
+
+    Returns
+    -------
+    bytes
+    """
+    compiler = os.environ.get("CC", "cc")
+    if shutil.which(compiler) is None:
+        raise ModelError(f"fmu: no C compiler {compiler!r} found (install one or set CC)")
+    with tempfile.TemporaryDirectory(prefix="smartjoint-fmu-") as scratch:
+        work = Path(scratch)
+        for name, text in files.items():
+            (work / name).write_text(text)
+        library = work / f"{identifier}.so"
+        command = [compiler, *(flags or build.FLAGS), "-fPIC", "-shared", "-fvisibility=hidden", "-I", str(work)]
+        done = subprocess.run(
+            [*command, *(str(work / s) for s in sources), "-o", str(library), "-lm"], capture_output=True, text=True
+        )
+        if done.returncode != 0:
+            first = next((line for line in done.stderr.splitlines() if "error" in line), done.stderr.strip()[:300])
+            raise ModelError(f"fmu: compiling the FMU's sources failed: {first.replace(str(work) + os.sep, '')}")
+        return library.read_bytes()
+
+
+def _pack(target: Path, members: dict[str, bytes]) -> None:
+    """Zip the members deterministically into a temporary file beside ``target``, then move it
+    into place: never a half-written FMU, and an existing one replaced only whole."""
+    if target.is_dir():
+        raise ModelError(f"-o: {str(target)!r} is a folder — name the .fmu file to write")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    os.close(handle)
+    try:
+        with zipfile.ZipFile(temporary, "w", zipfile.ZIP_DEFLATED) as archive:
+            for name in sorted(members):
+                info = zipfile.ZipInfo(name, _ZIP_TIME)
+                info.compress_type = zipfile.ZIP_DEFLATED
+                info.external_attr = (0o755 if name.endswith(".so") else 0o644) << 16
+                archive.writestr(info, members[name])
+        os.replace(temporary, target)
+    finally:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+
+
+__all__ = ["LAWS", "VERSIONS", "Fmu", "compile_binary", "controller_fmu", "identifier_of", "plant_data", "plant_fmu"]

@@ -1,0 +1,364 @@
+"""The variables of the FMUs (``codegen.fmu``): names, value references, causality and units.
+
+A controller FMU's variables are named as the controller artefact and the bus database (DBC)
+name them: the inputs are the signals the controller receives (``TIP_SENSORS.tip_y``,
+``JOINT_A1.friction_force``, ``JOINT_A1.normal_force``, ``JOINT_A1.sliding_velocity``), the
+outputs the command it sends (``SETPOINT_A1.normal_force``, as a force where the bus carries the
+piezo voltage; the cLQG's ``SETPOINT_A1.desired_force``) and the step's status bits
+(``CONTROLLER_STATUS.step_status``). The plant FMU reads what the controller sends and outputs
+what it receives under the same names, so a master connects the two by name. Every variable
+carries the C expression of its value in the model's struct, from which the templates render
+the get/set functions, and the XML its ``<ScalarVariable>``/``<Float64>``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from smartjoint.common.errors import ModelError
+
+TIME = 0  # value reference of the independent variable (FMI 3 requires one; FMI 2 carries it too)
+UNITS = ("N", "m", "m/s", "s", "J", "1")
+_SENSOR_UNITS = {"displacement": "m", "velocity": "m/s"}
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One FMU variable.
+
+    ``kind`` is "real" (FMI 2 Real, FMI 3 Float64) or "integer" (Integer, Int32); ``value`` the C
+    lvalue in the model (``m->...``); ``start`` None for outputs, which are calculated. A set is
+    refused unless the C ``condition`` on ``value`` holds; ``allowed`` says what is allowed (its
+    ``%g`` printed from the C expression ``allowed_value``); ``after`` runs once it is taken.
+    """
+
+    name: str
+    reference: int
+    causality: str  # "independent", "parameter", "input" or "output"
+    variability: str  # "continuous", "discrete", "tunable" or "fixed"
+    value: str
+    unit: str | None
+    description: str
+    start: float | None = None
+    kind: str = "real"
+    condition: str = "isfinite(value)"
+    allowed: str = "a finite number"
+    allowed_value: str | None = None
+    after: str = ""
+    minimum: float | None = None
+
+    @property
+    def settable(self) -> bool:
+        return self.causality in ("parameter", "input")
+
+
+def _numbered(rows: list[dict]) -> list[Variable]:
+    """Variables from keyword rows, value references from 1 in order (0 is time)."""
+    time = Variable("time", TIME, "independent", "continuous", "m->time", "s", "simulation time")
+    return [time, *(Variable(reference=k, **row) for k, row in enumerate(rows, start=1))]
+
+
+def _input(name: str, value: str, unit: str | None, description: str, after: str, **rules) -> dict:
+    return dict(
+        name=name,
+        causality="input",
+        variability="continuous",
+        value=value,
+        unit=unit,
+        description=description,
+        start=0.0,
+        after=after,
+        **rules,
+    )
+
+
+def _output(name: str, value: str, unit: str | None, description: str, variability: str = "continuous") -> dict:
+    return dict(name=name, causality="output", variability=variability, value=value, unit=unit, description=description)
+
+
+def _parameter(
+    name: str,
+    value: str,
+    unit: str | None,
+    description: str,
+    start: float,
+    after: str,
+    variability: str = "tunable",
+    **rules,
+) -> dict:
+    return dict(
+        name=name,
+        causality="parameter",
+        variability=variability,
+        value=value,
+        unit=unit,
+        description=description,
+        start=float(start),
+        after=after,
+        **rules,
+    )
+
+
+POSITIVE = dict(condition="value > 0.0 && isfinite(value)", allowed="a finite number > 0", minimum=0.0)
+NOT_NEGATIVE = dict(condition="value >= 0.0 && isfinite(value)", allowed="a finite number >= 0", minimum=0.0)
+
+
+def sensor_unit(quantity: str) -> str:
+    """The unit of a tip sensor from its quantity ("displacement" or "velocity")."""
+    if quantity not in _SENSOR_UNITS:
+        raise ModelError(f"sensor_quantities: {quantity!r} — allowed: {', '.join(_SENSOR_UNITS)}")
+    return _SENSOR_UNITS[quantity]
+
+
+def controller_variables(artifact, law: str) -> list[Variable]:
+    """The variables of a controller FMU of ``law`` ("siso" or "clqg").
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        Names, units, start values and limits.
+    law : str
+
+    Returns
+    -------
+    list of Variable
+    """
+    joints, sensors = list(artifact.joint_names), list(artifact.sensor_names)
+    fresh, tuned = "m->computed = 0;", "tune(m);"
+    rows = [
+        dict(
+            _output(
+                "CONTROLLER_STATUS.step_status",
+                "m->status",
+                None,
+                "status bits of the law's step (0: all inputs used; smartjoint_types.h)",
+                "discrete",
+            ),
+            kind="integer",
+        ),
+    ]
+    if law == "clqg":
+        for r, (name, quantity) in enumerate(zip(sensors, artifact.sensor_quantities)):
+            rows.append(
+                _input(
+                    f"TIP_SENSORS.{name}",
+                    f"m->input.sensors[{r}]",
+                    sensor_unit(quantity),
+                    f"tip sensor y_{r + 1} ({quantity})",
+                    fresh,
+                )
+            )
+    for j, name in enumerate(joints):
+        if law == "siso":
+            rows.append(
+                _input(
+                    f"JOINT_{name}.sliding_velocity",
+                    f"m->input.sliding_velocity[{j}]",
+                    "m/s",
+                    f"sliding velocity v of joint {name}",
+                    fresh,
+                )
+            )
+        rows.append(
+            _input(
+                f"JOINT_{name}.friction_force",
+                f"m->input.friction_force[{j}]",
+                "N",
+                f"measured friction force u_R of joint {name}",
+                fresh,
+            )
+        )
+        rows.append(
+            _input(
+                f"JOINT_{name}.normal_force",
+                f"m->input.normal_force[{j}]",
+                "N",
+                f"measured applied normal force F_N of joint {name}",
+                fresh,
+            )
+        )
+    for j, name in enumerate(joints):
+        equation = 30 if law == "siso" else 34
+        rows.append(
+            _output(
+                f"SETPOINT_{name}.normal_force",
+                f"m->output.normal_force[{j}]",
+                "N",
+                f"commanded normal force F_N of joint {name} (Eq. {equation})",
+                "discrete",
+            )
+        )
+        if law == "clqg":
+            rows.append(
+                _output(
+                    f"SETPOINT_{name}.desired_force",
+                    f"m->output.desired_force[{j}]",
+                    "N",
+                    f"LQR force u_d = -(K x_hat) of joint {name} (Eq. 33)",
+                    "discrete",
+                )
+            )
+    for j, name in enumerate(joints):
+        low, high = f"m->normal_force_min[{j}]", f"m->normal_force_max[{j}]"
+        rows.append(
+            _parameter(
+                f"JOINT_{name}.normal_force_min",
+                low,
+                "N",
+                f"F_N^min of joint {name}",
+                artifact.normal_force_min[j],
+                tuned,
+                minimum=0.0,
+                condition=f"value >= 0.0 && value < {high}",
+                allowed="0 <= F_N^min < F_N^max = %g N (raise F_N^max first)",
+                allowed_value=high,
+            )
+        )
+        rows.append(
+            _parameter(
+                f"JOINT_{name}.normal_force_max",
+                high,
+                "N",
+                f"F_N^max of joint {name}",
+                artifact.normal_force_max[j],
+                tuned,
+                minimum=0.0,
+                condition=f"value > {low} && isfinite(value)",
+                allowed="F_N^min = %g N < F_N^max, finite",
+                allowed_value=low,
+            )
+        )
+        if law == "siso":
+            rows.append(
+                _parameter(
+                    f"JOINT_{name}.boundary_layer",
+                    f"m->boundary_layer[{j}]",
+                    "m/s",
+                    f"boundary layer eps of joint {name} (Eq. 30)",
+                    artifact.siso_boundary_layer[j],
+                    tuned,
+                    **POSITIVE,
+                )
+            )
+    if law == "clqg":
+        rows.append(
+            _parameter(
+                "boundary_layer",
+                "m->boundary_layer[0]",
+                "N",
+                "boundary layer eps of the clipped law (Eq. 34)",
+                artifact.clqg_boundary_layer,
+                tuned,
+                **POSITIVE,
+            )
+        )
+    return _numbered(rows)
+
+
+def plant_variables(model, pulse_amplitude: float, pulse_duration: float, pulse_factors) -> list[Variable]:
+    """The variables of the plant FMU of a reduced model (``design.structure.modal.ModalModel``).
+
+    Parameters
+    ----------
+    model : ModalModel
+        Joint, sensor and disturbance names and units.
+    pulse_amplitude, pulse_duration : float
+        The study's tip pulse (Section 4.3): peak [N] and length [s], the parameters' start values.
+    pulse_factors : sequence of float
+        Its factor per disturbance input.
+
+    Returns
+    -------
+    list of Variable
+    """
+    rows = []
+    for j, name in enumerate(model.joint_names):
+        rows.append(
+            _input(
+                f"SETPOINT_{name}.normal_force",
+                f"m->normal_force_input[{j}]",
+                "N",
+                f"normal force F_N applied to joint {name} from this communication point on",
+                "m->pending = 1;",
+                **NOT_NEGATIVE,
+            )
+        )
+    disturbances = [_identifier(name, k) for k, name in enumerate(model.disturbance_names)]
+    for k, name in enumerate(model.disturbance_names):
+        rows.append(
+            _input(
+                f"DISTURBANCE.{disturbances[k]}",
+                f"m->disturbance_input[{k}]",
+                "N",
+                f"force along disturbance input {name} (column {k + 1} of H), held over a "
+                "communication step and added to the pulse",
+                "",
+            )
+        )
+    for r, name in enumerate(model.sensor_names):
+        unit = model.sensor_units[r] if r < len(model.sensor_units) and model.sensor_units[r] else None
+        rows.append(_output(f"TIP_SENSORS.{name}", f"m->sensors[{r}]", unit, f"tip sensor y_{r + 1}"))
+    for j, name in enumerate(model.joint_names):
+        rows.append(
+            _output(f"JOINT_{name}.sliding_velocity", f"m->v[{j}]", "m/s", f"sliding velocity v of joint {name}")
+        )
+        rows.append(
+            _output(
+                f"JOINT_{name}.friction_force", f"m->u[{j}]", "N", f"friction force u_R of joint {name} (LuGre, Eq. 1)"
+            )
+        )
+        rows.append(
+            _output(f"JOINT_{name}.normal_force", f"m->fn[{j}]", "N", f"normal force F_N acting in joint {name}")
+        )
+    rows.append(_output("energy", "m->energy", "J", "e(t) = x^T x / 2, the vibration energy (Eq. 32's integrand)"))
+    rows.append(
+        _parameter(
+            "pulse.amplitude",
+            "m->pulse_amplitude",
+            "N",
+            "peak of the triangular tip pulse (Section 4.3), at half its duration",
+            pulse_amplitude,
+            "",
+            "fixed",
+            **NOT_NEGATIVE,
+        )
+    )
+    rows.append(
+        _parameter(
+            "pulse.duration",
+            "m->pulse_duration",
+            "s",
+            "length of the tip pulse; no pulse force after it",
+            pulse_duration,
+            "",
+            "fixed",
+            **POSITIVE,
+        )
+    )
+    for k, name in enumerate(model.disturbance_names):
+        rows.append(
+            _parameter(
+                f"pulse.factor_{disturbances[k]}",
+                f"m->pulse_factor[{k}]",
+                None,
+                f"the pulse's factor along disturbance input {name}",
+                pulse_factors[k],
+                "",
+                "fixed",
+            )
+        )
+    return _numbered(rows)
+
+
+def _identifier(name: str, k: int) -> str:
+    """A disturbance input's name as one FMI name part: letters, digits and '_' (else w<k+1>)."""
+    text = "".join(c if c.isalnum() or c == "_" else "_" for c in str(name))
+    return text if text and (text[0].isalpha() or text[0] == "_") else f"w{k + 1}"
+
+
+def references(variables: list[Variable], causality: str) -> list[int]:
+    """The value references of one causality, in order."""
+    return [v.reference for v in variables if v.causality == causality]
+
+
+__all__ = ["TIME", "UNITS", "Variable", "controller_variables", "plant_variables", "references", "sensor_unit"]
