@@ -160,14 +160,15 @@ def fmu_study(study, design, artifact, folder: Path, progress=print) -> dict:
     dict
         Per FMI version: the FMUs written with their validation problems; per law the replay
         (bit-identical samples, float deviation) and the co-simulation against MIL (identical,
-        largest difference of e(t)); the paper's orderings on the co-simulated runs.
+        largest difference of e(t)); the paper's orderings on the co-simulated runs; ``runs``:
+        per law the co-simulated and the MIL run (of the last FMI version).
     """
     from fmpy.validation import validate_fmu
 
     setup = study.setup
     logs = {name: recorded_inputs(setup, artifact, name) for name in LAWS}
     span = float(np.min(np.asarray(artifact.normal_force_max) - np.asarray(artifact.normal_force_min)))
-    out: dict = {"versions": {}, "float_bound": FLOAT_BOUND * span}
+    out: dict = {"versions": {}, "float_bound": FLOAT_BOUND * span, "runs": {}}
     for version in fmu.VERSIONS:
         place = folder / f"fmi{version}"
         written = {"truss": fmu.plant_fmu(setup, design, place / "truss.fmu", version)}
@@ -188,6 +189,7 @@ def fmu_study(study, design, artifact, folder: Path, progress=print) -> dict:
             same = _identical(run, mil)
             run.metrics = closed_loop.metrics(run, study.run("passive F_max"), study.sensor_quantities)
             runs.append(run)
+            out["runs"][name] = (run, mil)
             figures[name] = {
                 "samples": len(logs[name]),
                 "double_identical_samples": int(np.sum(np.all(double == expected, axis=1))),

@@ -23,6 +23,7 @@ from smartjoint.commands import (
     cmd_update,
 )
 from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_pil, cmd_sil, cmd_study
+from smartjoint.commands_fmu import cmd_fmu
 from smartjoint.commands_friction import cmd_identify, cmd_rig
 from smartjoint.commands_sweep import cmd_sweep
 from smartjoint.common.errors import SmartjointError
@@ -311,6 +312,22 @@ def _add_control_commands(sub, o: SimpleNamespace) -> None:
     p.set_defaults(func=cmd_sil)
 
 
+def _add_fmu_command(sub, o: SimpleNamespace) -> None:
+    """fmu."""
+    p = sub.add_parser(
+        "fmu",
+        parents=[o.no_update, o.json_summary],
+        help="a controller (artefact, --law) or the plant (design, --plant) as an FMI co-simulation FMU",
+    )
+    p.add_argument("source", help="controller artefact (JSON) for a controller FMU; design file (TOML) with --plant")
+    p.add_argument("--plant", action="store_true", help="the design's reduced truss with its LuGre joints")
+    p.add_argument("--law", choices=("siso", "clqg"), help="the controller's law (controller FMUs)")
+    p.add_argument("-o", "--output", required=True, help="the FMU to write, <model identifier>.fmu")
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default: %(default)s)")
+    p.add_argument("--real", choices=("float", "double"), default="double", help="law build (default: %(default)s)")
+    p.set_defaults(func=cmd_fmu)
+
+
 def _add_target_commands(sub, o: SimpleNamespace) -> None:
     """pil."""
     p = sub.add_parser(
@@ -404,6 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_friction_commands(sub, shared)
     _add_dynamics_commands(sub, shared)
     _add_control_commands(sub, shared)
+    _add_fmu_command(sub, shared)
     _add_target_commands(sub, shared)
     _add_bench_commands(sub, shared)
     _add_study_command(sub, shared)

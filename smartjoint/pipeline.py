@@ -11,7 +11,8 @@ control: the controller design artefact and the closed-loop study of Section 6 (
 generated C firmware, checked back to back against the Python reference → the study through the
 CAN loop (software in the loop) → the same firmware executing on its target in the loop
 (processor in the loop, QEMU's mps2-an386, when installed) → a small robustness ensemble on
-plants drawn around the design (Dask, the compiled closed loop) → report (Markdown + PNG). The design
+plants drawn around the design (Dask, the compiled closed loop) → the controllers and the plant as FMI
+co-simulation units, co-simulated in FMPy against the study → report (Markdown + PNG). The design
 file drives every stage; a design without joints and without [placement] stops after the
 structure with the reason.
 
@@ -45,6 +46,7 @@ from smartjoint.design.control import study as closed_loop
 from smartjoint.design.network import protocol
 from smartjoint.design.reduction import reduction_study, study_summary
 from smartjoint.pipeline_ensemble import ensemble_stage
+from smartjoint.pipeline_fmu import fmu_stage
 from smartjoint.pipeline_joints import friction_entries, friction_stage, place_joints
 from smartjoint.pipeline_target import pil_stage
 from smartjoint.pipeline_target import summary_of as pil_summary
@@ -106,7 +108,7 @@ def run(design_path: str | None, output: Path, progress=print) -> dict:
 
 
 # A string in the summary that names a file: a report file name or any absolute path.
-_FILE_NAME = re.compile(r"[\w.@+-]+(/[\w.@+-]+)*\.(png|json|md|blf|dbc|c|h|toml|txt|csv)")
+_FILE_NAME = re.compile(r"[\w.@+-]+(/[\w.@+-]+)*\.(png|json|md|blf|dbc|c|h|toml|txt|csv|fmu)")
 
 
 def _paths(value) -> list[str]:
@@ -147,11 +149,12 @@ class _Results:
     safety_check: Any = None
     pil: Any = None  # stage 9 (pipeline_target.pil_stage)
     ensemble: Any = None  # stage 10 (pipeline_ensemble.ensemble_stage)
+    fmu: Any = None  # stage 11 (pipeline_fmu.fmu_stage)
     hysteresis: list = field(default_factory=list)
 
 
 def _stages(design_path: str | None, staging: Path, progress):
-    """Stages 1–9 into the folder ``staging``: the summary (without the run's id and times) and a
+    """Stages 1–12 into the folder ``staging``: the summary (without the run's id and times) and a
     function of the final summary that gives report.md."""
     r = _Results()
     _structure_stages(r, design_path, progress)
@@ -164,10 +167,11 @@ def _stages(design_path: str | None, staging: Path, progress):
         _sil_stage(r, staging, progress)
         r.pil = pil_stage(r.control_study, r.controller, staging, progress)
         r.ensemble = ensemble_stage(r.controlled, r.control_study, r.friction, staging, progress)
+        r.fmu = fmu_stage(r.controlled, r.control_study, r.controller, staging, progress)
     else:
         r.skipped = NO_JOINTS
-        progress(f"[4/11]–[10/11] skipped: {NO_JOINTS}")
-    progress("[11/11] report")
+        progress(f"[4/12]–[11/12] skipped: {NO_JOINTS}")
+    progress("[12/12] report")
     _write_report_files(r, staging)
     return _summary(r), lambda final: _report_markdown(r, final)
 
@@ -183,18 +187,18 @@ def _structure_stages(r: _Results, design_path: str | None, progress) -> None:
         fields=identifiers.DESIGN_FIELDS,
     )
     progress(
-        f"[1/11] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
+        f"[1/12] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
         f"{len(design.members)} members, {len(design.joints)} joints"
     )
     model = build_model(design, joints="locked")
     progress(
-        f"[2/11] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, mass {model.total_mass:.2f} kg"
+        f"[2/12] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, mass {model.total_mass:.2f} kg"
     )
 
     result = None
     if design.updating is not None:
         progress(
-            f"[3/11] model updating: {len(design.updating.parameters)} parameters, "
+            f"[3/12] model updating: {len(design.updating.parameters)} parameters, "
             f"{len(design.updating.measured)} measured modes"
         )
         design, result = updated_design(
@@ -204,7 +208,7 @@ def _structure_stages(r: _Results, design_path: str | None, progress) -> None:
         )
         model = build_model(design, joints="locked")
     else:
-        progress("[3/11] model updating: skipped (no [updating] section)")
+        progress("[3/12] model updating: skipped (no [updating] section)")
     modes = solve_modes(model, min(REPORT_MODES, model.n_dof))
     r.design, r.source_design, r.model, r.result, r.modes = design, design, model, result, modes
 
@@ -222,7 +226,7 @@ def _friction_stage(r: _Results, staging: Path, progress) -> None:
     """Stage 4: the friction of each joint type, identified from the design's rig records or
     checked on simulated ones (``pipeline_joints.friction_stage``)."""
     types = ", ".join(sorted({j.type for j in r.design.joints}))
-    progress(f"[4/11] friction joints (Section 3.2, Eq. 3 + output error): joint types {types}")
+    progress(f"[4/12] friction joints (Section 3.2, Eq. 3 + output error): joint types {types}")
     r.design, r.friction = friction_stage(r.design, staging, progress)
 
 
@@ -231,7 +235,7 @@ def _reduction_stage(r: _Results, progress) -> None:
     at the type B joints (else the first joint), Krylov vectors for that joint."""
     design = r.design
     progress(
-        f"[5/11] model reduction (Section 4, Fig. 10) on {design.name!r}: joints "
+        f"[5/12] model reduction (Section 4, Fig. 10) on {design.name!r}: joints "
         f"{', '.join(j.name + ' (' + j.type + ')' for j in design.joints)}"
     )
     forces = np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
@@ -246,7 +250,7 @@ def _control_stage(r: _Results, progress) -> None:
     """Stage 6, control (Sections 5–6) on the design's joints."""
     controlled = r.design
     progress(
-        f"[6/11] semi-active control (Sections 5–6) on {controlled.name!r}: joints "
+        f"[6/12] semi-active control (Sections 5–6) on {controlled.name!r}: joints "
         f"{', '.join(j.name for j in controlled.joints)}, t_e = {controlled.control.study_duration:g} s"
     )
     control_study = closed_loop.run_study(controlled, progress=lambda message: progress(message))
@@ -258,7 +262,7 @@ def _control_stage(r: _Results, progress) -> None:
 
 def _firmware_stage(r: _Results, progress) -> None:
     """Stage 7: the generated C and its back-to-back check against the Python reference."""
-    progress("[7/11] firmware: generated C (float and double), back-to-back on the study")
+    progress("[7/12] firmware: generated C (float and double), back-to-back on the study")
     r.firmware_files = generate.render(r.controller, "float")
     r.firmware_check = backtoback.back_to_back(
         r.control_study.setup, r.controller, progress=progress, study=r.control_study
@@ -268,7 +272,7 @@ def _firmware_stage(r: _Results, progress) -> None:
 def _sil_stage(r: _Results, staging: Path, progress) -> None:
     """Stage 8: the study through the CAN loop, the demo faults and the safe-state fault matrix."""
     controller, control_study = r.controller, r.control_study
-    progress("[8/11] software in the loop: the study through CAN (firmware, bus, amplifier models)")
+    progress("[8/12] software in the loop: the study through CAN (firmware, bus, amplifier models)")
     # The bus logs go straight into the report (no temporary folder to leave behind).
     sil_check = sil.sil_study(
         control_study.setup, controller, spread_runs=4, log_folder=staging / "can", progress=progress
@@ -329,7 +333,10 @@ def _summary(r: _Results) -> dict:
         "skipped": r.skipped,
     }
     if r.skipped:
-        return {**out, **dict.fromkeys(("friction", "reduction", "control", "firmware", "sil", "pil", "ensemble"))}
+        return {
+            **out,
+            **dict.fromkeys(("friction", "reduction", "control", "firmware", "sil", "pil", "ensemble", "fmu")),
+        }
     return {**out, **_joint_stages_summary(r)}
 
 
@@ -374,6 +381,7 @@ def _joint_stages_summary(r: _Results) -> dict:
         },
         "pil": pil_summary(r.pil),
         "ensemble": pil_summary(r.ensemble),
+        "fmu": pil_summary(r.fmu),
     }
 
 
@@ -414,6 +422,8 @@ def _report_markdown(r: _Results, final: dict) -> str:
         + r.pil["markdown"]
         + "\n"
         + r.ensemble["markdown"]
+        + "\n"
+        + r.fmu["markdown"]
     )
 
 

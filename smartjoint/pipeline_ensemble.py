@@ -89,7 +89,7 @@ def ensemble_stage(design, study, friction, staging: Path, progress) -> dict:
     sweep = stage_sweep(design, study, spreads)
     shown = ", ".join(f"{name} ×/÷{math.exp(Z95 * sigma):.4g}" for name, sigma in spreads.items()) or "±5 %"
     progress(
-        f"[10/11] robustness ensemble: {SAMPLES} plants around the design (LuGre within the identification's 95 % "
+        f"[10/12] robustness ensemble: {SAMPLES} plants around the design (LuGre within the identification's 95 % "
         f"intervals: {shown}; modal frequencies ±1 %, damping, pulse ±10 %) × {len(LAWS)} laws, on Dask"
     )
     control = dataclasses.replace(design.control, siso_boundary_layer=tuple(float(w) for w in study.boundary_layer))

@@ -30,9 +30,9 @@ def pil_stage(control_study, controller, staging: Path, progress) -> dict:
     """
     reason = target.missing_tools()
     if reason:
-        progress(f"[9/11] processor in the loop: skipped — {reason}")
+        progress(f"[9/12] processor in the loop: skipped — {reason}")
         return {"skipped": reason, "markdown": _skipped_markdown(reason)}
-    progress(f"[9/11] processor in the loop: the firmware on {target.BOARD} (QEMU) in lock-step with the plant")
+    progress(f"[9/12] processor in the loop: the firmware on {target.BOARD} (QEMU) in lock-step with the plant")
     out = pil_study.pil_study(control_study, controller, progress=progress, image_folder=staging)
     pil_study.plot_pil(out, staging / "pil_energy.png")
     for law, figures in out["laws"].items():

@@ -278,7 +278,7 @@ def test_an_interrupted_run_ends_with_one_line_and_leaves_the_earlier_report(
     assert main(["run", "-o", str(output)]) == 0  # an earlier, finished report
     earlier = _snapshot(output)
     run = _Run(small_design, output, temporary)
-    progress = run.wait_for("[4/11]")  # friction identification: seconds of work ahead
+    progress = run.wait_for("[4/12]")  # friction identification: seconds of work ahead
     time.sleep(0.5)
     assert any(p.name.endswith(".staging") for p in tmp_path.iterdir())  # it was writing beside the report
     run.process.send_signal(number)
@@ -296,7 +296,7 @@ def test_an_interrupted_run_ends_with_one_line_and_leaves_the_earlier_report(
 def test_what_a_killed_run_left_is_cleared_by_the_next_and_only_that(tmp_path, small_design, monkeypatch):
     output, temporary = tmp_path / "report", tmp_path / "tmp"
     run = _Run(small_design, output, temporary)
-    run.wait_for("[2/11]")
+    run.wait_for("[2/12]")
     run.process.kill()
     run.finish()
     left = sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".report.smartjoint-"))
