@@ -237,15 +237,18 @@ def _run(s: StudySetup, plant: FmuInstance, controller: FmuInstance, name: str) 
     if steps % ratio == 0:
         record()
     array = {key: np.array(values) for key, values in rows.items()}
+    unknown = np.full(array["energy"].shape[0], np.nan)  # the works are not outputs of the plant FMU
     result = SimulationResult(
         np.arange(array["energy"].shape[0]) * h * ratio,
         array["sensors"],
         array["sliding_velocity"],
         array["friction_force"],
         array["normal_force"],
-        np.full_like(array["normal_force"], np.nan),  # the bristle deflection is not an output
+        np.full_like(array["normal_force"], np.nan),  # nor the bristle deflection
         array["energy"][:, 0],
-        *(np.full(array["energy"].shape[0], np.nan) for _ in range(3)),
+        unknown,
+        unknown,
+        unknown,
         joints,
         list(s.plant.sensor_names),
     )

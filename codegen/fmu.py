@@ -36,6 +36,9 @@ import numpy as np
 from smartjoint.codegen import build, fmi_headers, fmu_variables, generate, rendering
 from smartjoint.common import package_data
 from smartjoint.common.errors import ModelError
+from smartjoint.design.plant import fixed_step
+from smartjoint.design.plant.interface import ConstantNormalForce
+from smartjoint.design.plant.kernel import LAW_FIELDS, PlantRun
 
 LAWS = {"siso": "SISO law (Eq. 30-31)", "clqg": "clipped-optimal LQG (Eq. 33-34)"}
 VERSIONS = (2, 3)
@@ -249,15 +252,8 @@ def plant_data(setup) -> dict:
         Sizes, the plant step (a C literal), ``arrays`` (name, size, lines of hexadecimal
         literals) and ``pointer_fields`` (the ``sj_plant`` field each array is).
     """
-    from smartjoint.design.plant import fixed_step
-    from smartjoint.design.plant.kernel import LAW_FIELDS, PlantRun
-
-    class _Sampled:
-        sample_time = setup.sample_time
-
-    run = PlantRun(
-        setup.plant, setup.laws, _Sampled(), setup.duration, setup.plant_step, None, 1, "python", False, None
-    )
+    held = ConstantNormalForce(np.zeros(len(setup.laws)), setup.sample_time)  # the scheme asks for a sample time only
+    run = PlantRun(setup.plant, setup.laws, held, setup.duration, setup.plant_step, None, 1, "python", False, None)
     plant = fixed_step.kernel(run).p
     fields = {
         "phi": plant.phi, "g0": plant.g0, "g1": plant.g1, "G": plant.G, "ET": plant.ET_padded, "HT": plant.HT,

@@ -14,6 +14,7 @@ the get/set functions, and the XML its ``<ScalarVariable>``/``<Float64>``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from smartjoint.common.errors import ModelError
 
@@ -99,8 +100,10 @@ def _parameter(
     )
 
 
-POSITIVE = dict(condition="value > 0.0 && isfinite(value)", allowed="a finite number > 0", minimum=0.0)
-NOT_NEGATIVE = dict(condition="value >= 0.0 && isfinite(value)", allowed="a finite number >= 0", minimum=0.0)
+POSITIVE: dict[str, Any] = dict(condition="value > 0.0 && isfinite(value)", allowed="a finite number > 0", minimum=0.0)
+NOT_NEGATIVE: dict[str, Any] = dict(
+    condition="value >= 0.0 && isfinite(value)", allowed="a finite number >= 0", minimum=0.0
+)
 
 
 def sensor_unit(quantity: str) -> str:
