@@ -126,136 +126,74 @@ def controller_variables(artifact, law: str) -> list[Variable]:
     -------
     list of Variable
     """
-    joints, sensors = list(artifact.joint_names), list(artifact.sensor_names)
-    fresh, tuned = "m->computed = 0;", "tune(m);"
-    rows = [
-        dict(
-            _output(
-                "CONTROLLER_STATUS.step_status",
-                "m->status",
-                None,
-                "status bits of the law's step (0: all inputs used; smartjoint_types.h)",
-                "discrete",
-            ),
-            kind="integer",
-        ),
-    ]
+    status = _output("CONTROLLER_STATUS.step_status", "m->status", None, "status bits of the law's step (0: all "
+                     "inputs used; smartjoint_types.h)", "discrete")  # fmt: skip
+    return _numbered(
+        [
+            dict(status, kind="integer"),
+            *_controller_inputs(artifact, law),
+            *_controller_outputs(artifact, law),
+            *_controller_parameters(artifact, law),
+        ]
+    )
+
+
+def _controller_inputs(artifact, law: str) -> list[dict]:
+    """The measurements the law reads, as the input struct of its step holds them."""
+    fresh = "m->computed = 0;"
+    rows = []
     if law == "clqg":
-        for r, (name, quantity) in enumerate(zip(sensors, artifact.sensor_quantities)):
-            rows.append(
-                _input(
-                    f"TIP_SENSORS.{name}",
-                    f"m->input.sensors[{r}]",
-                    sensor_unit(quantity),
-                    f"tip sensor y_{r + 1} ({quantity})",
-                    fresh,
-                )
-            )
-    for j, name in enumerate(joints):
-        if law == "siso":
-            rows.append(
-                _input(
-                    f"JOINT_{name}.sliding_velocity",
-                    f"m->input.sliding_velocity[{j}]",
-                    "m/s",
-                    f"sliding velocity v of joint {name}",
-                    fresh,
-                )
-            )
-        rows.append(
-            _input(
-                f"JOINT_{name}.friction_force",
-                f"m->input.friction_force[{j}]",
-                "N",
-                f"measured friction force u_R of joint {name}",
-                fresh,
-            )
-        )
-        rows.append(
-            _input(
-                f"JOINT_{name}.normal_force",
-                f"m->input.normal_force[{j}]",
-                "N",
-                f"measured applied normal force F_N of joint {name}",
-                fresh,
-            )
-        )
-    for j, name in enumerate(joints):
+        for r, (name, quantity) in enumerate(zip(artifact.sensor_names, artifact.sensor_quantities)):
+            rows.append(_input(f"TIP_SENSORS.{name}", f"m->input.sensors[{r}]", sensor_unit(quantity),
+                               f"tip sensor y_{r + 1} ({quantity})", fresh))  # fmt: skip
+    quantities = [("friction_force", "N", "measured friction force u_R"),
+                  ("normal_force", "N", "measured applied normal force F_N")]  # fmt: skip
+    if law == "siso":
+        quantities.insert(0, ("sliding_velocity", "m/s", "sliding velocity v"))
+    for j, name in enumerate(artifact.joint_names):
+        for quantity, unit, what in quantities:
+            rows.append(_input(f"JOINT_{name}.{quantity}", f"m->input.{quantity}[{j}]", unit, f"{what} of joint {name}",
+                               fresh))  # fmt: skip
+    return rows
+
+
+def _controller_outputs(artifact, law: str) -> list[dict]:
+    """The command of each joint (and the cLQG's LQR force u_d)."""
+    rows = []
+    for j, name in enumerate(artifact.joint_names):
         equation = 30 if law == "siso" else 34
-        rows.append(
-            _output(
-                f"SETPOINT_{name}.normal_force",
-                f"m->output.normal_force[{j}]",
-                "N",
-                f"commanded normal force F_N of joint {name} (Eq. {equation})",
-                "discrete",
-            )
-        )
+        rows.append(_output(f"SETPOINT_{name}.normal_force", f"m->output.normal_force[{j}]", "N",
+                            f"commanded normal force F_N of joint {name} (Eq. {equation})", "discrete"))  # fmt: skip
         if law == "clqg":
-            rows.append(
-                _output(
-                    f"SETPOINT_{name}.desired_force",
-                    f"m->output.desired_force[{j}]",
-                    "N",
-                    f"LQR force u_d = -(K x_hat) of joint {name} (Eq. 33)",
-                    "discrete",
-                )
-            )
-    for j, name in enumerate(joints):
+            rows.append(_output(f"SETPOINT_{name}.desired_force", f"m->output.desired_force[{j}]", "N",
+                                f"LQR force u_d = -(K x_hat) of joint {name} (Eq. 33)", "discrete"))  # fmt: skip
+    return rows
+
+
+def _controller_parameters(artifact, law: str) -> list[dict]:
+    """The tunable normal-force limits and boundary layers, refused unless 0 <= F^min < F^max, eps > 0."""
+    tuned = "tune(m);"
+    rows = []
+    for j, name in enumerate(artifact.joint_names):
         low, high = f"m->normal_force_min[{j}]", f"m->normal_force_max[{j}]"
-        rows.append(
-            _parameter(
-                f"JOINT_{name}.normal_force_min",
-                low,
-                "N",
-                f"F_N^min of joint {name}",
-                artifact.normal_force_min[j],
-                tuned,
-                minimum=0.0,
-                condition=f"value >= 0.0 && value < {high}",
-                allowed="0 <= F_N^min < F_N^max = %g N (raise F_N^max first)",
-                allowed_value=high,
-            )
-        )
-        rows.append(
-            _parameter(
-                f"JOINT_{name}.normal_force_max",
-                high,
-                "N",
-                f"F_N^max of joint {name}",
-                artifact.normal_force_max[j],
-                tuned,
-                minimum=0.0,
-                condition=f"value > {low} && isfinite(value)",
-                allowed="F_N^min = %g N < F_N^max, finite",
-                allowed_value=low,
-            )
-        )
+        rows.append(_parameter(f"JOINT_{name}.normal_force_min", low, "N", f"F_N^min of joint {name}",
+                               artifact.normal_force_min[j], tuned, minimum=0.0,
+                               condition=f"value >= 0.0 && value < {high}",
+                               allowed="0 <= F_N^min < F_N^max = %g N (raise F_N^max first)",
+                               allowed_value=high))  # fmt: skip
+        rows.append(_parameter(f"JOINT_{name}.normal_force_max", high, "N", f"F_N^max of joint {name}",
+                               artifact.normal_force_max[j], tuned, minimum=0.0,
+                               condition=f"value > {low} && isfinite(value)",
+                               allowed="F_N^min = %g N < F_N^max, finite", allowed_value=low))  # fmt: skip
         if law == "siso":
-            rows.append(
-                _parameter(
-                    f"JOINT_{name}.boundary_layer",
-                    f"m->boundary_layer[{j}]",
-                    "m/s",
-                    f"boundary layer eps of joint {name} (Eq. 30)",
-                    artifact.siso_boundary_layer[j],
-                    tuned,
-                    **POSITIVE,
-                )
-            )
+            rows.append(_parameter(f"JOINT_{name}.boundary_layer", f"m->boundary_layer[{j}]", "m/s",
+                                   f"boundary layer eps of joint {name} (Eq. 30)", artifact.siso_boundary_layer[j],
+                                   tuned, **POSITIVE))  # fmt: skip
     if law == "clqg":
-        rows.append(
-            _parameter(
-                "boundary_layer",
-                "m->boundary_layer[0]",
-                "N",
-                "boundary layer eps of the clipped law (Eq. 34)",
-                artifact.clqg_boundary_layer,
-                tuned,
-                **POSITIVE,
-            )
-        )
-    return _numbered(rows)
+        rows.append(_parameter("boundary_layer", "m->boundary_layer[0]", "N",
+                               "boundary layer eps of the clipped law (Eq. 34)", artifact.clqg_boundary_layer, tuned,
+                               **POSITIVE))  # fmt: skip
+    return rows
 
 
 def plant_variables(model, pulse_amplitude: float, pulse_duration: float, pulse_factors) -> list[Variable]:
@@ -274,83 +212,42 @@ def plant_variables(model, pulse_amplitude: float, pulse_duration: float, pulse_
     -------
     list of Variable
     """
+    disturbances = [_identifier(name, k) for k, name in enumerate(model.disturbance_names)]
     rows = []
     for j, name in enumerate(model.joint_names):
-        rows.append(
-            _input(
-                f"SETPOINT_{name}.normal_force",
-                f"m->normal_force_input[{j}]",
-                "N",
-                f"normal force F_N applied to joint {name} from this communication point on",
-                "m->pending = 1;",
-                **NOT_NEGATIVE,
-            )
-        )
-    disturbances = [_identifier(name, k) for k, name in enumerate(model.disturbance_names)]
+        rows.append(_input(f"SETPOINT_{name}.normal_force", f"m->normal_force_input[{j}]", "N",
+                           f"normal force F_N applied to joint {name} from this communication point on",
+                           "m->pending = 1;", **NOT_NEGATIVE))  # fmt: skip
     for k, name in enumerate(model.disturbance_names):
-        rows.append(
-            _input(
-                f"DISTURBANCE.{disturbances[k]}",
-                f"m->disturbance_input[{k}]",
-                "N",
-                f"force along disturbance input {name} (column {k + 1} of H), held over a "
-                "communication step and added to the pulse",
-                "",
-            )
-        )
+        rows.append(_input(f"DISTURBANCE.{disturbances[k]}", f"m->disturbance_input[{k}]", "N",
+                           f"force along disturbance input {name} (column {k + 1} of H), held over a "
+                           "communication step and added to the pulse", ""))  # fmt: skip
     for r, name in enumerate(model.sensor_names):
         unit = model.sensor_units[r] if r < len(model.sensor_units) and model.sensor_units[r] else None
         rows.append(_output(f"TIP_SENSORS.{name}", f"m->sensors[{r}]", unit, f"tip sensor y_{r + 1}"))
+    joint_outputs = [("sliding_velocity", "v", "m/s", "sliding velocity v"),
+                     ("friction_force", "u", "N", "friction force u_R (LuGre, Eq. 1)"),
+                     ("normal_force", "fn", "N", "normal force F_N acting")]  # fmt: skip
     for j, name in enumerate(model.joint_names):
-        rows.append(
-            _output(f"JOINT_{name}.sliding_velocity", f"m->v[{j}]", "m/s", f"sliding velocity v of joint {name}")
-        )
-        rows.append(
-            _output(
-                f"JOINT_{name}.friction_force", f"m->u[{j}]", "N", f"friction force u_R of joint {name} (LuGre, Eq. 1)"
-            )
-        )
-        rows.append(
-            _output(f"JOINT_{name}.normal_force", f"m->fn[{j}]", "N", f"normal force F_N acting in joint {name}")
-        )
+        for quantity, state, unit, what in joint_outputs:
+            rows.append(_output(f"JOINT_{name}.{quantity}", f"m->{state}[{j}]", unit, f"{what} in joint {name}"))
     rows.append(_output("energy", "m->energy", "J", "e(t) = x^T x / 2, the vibration energy (Eq. 32's integrand)"))
-    rows.append(
-        _parameter(
-            "pulse.amplitude",
-            "m->pulse_amplitude",
-            "N",
-            "peak of the triangular tip pulse (Section 4.3), at half its duration",
-            pulse_amplitude,
-            "",
-            "fixed",
-            **NOT_NEGATIVE,
-        )
-    )
-    rows.append(
-        _parameter(
-            "pulse.duration",
-            "m->pulse_duration",
-            "s",
-            "length of the tip pulse; no pulse force after it",
-            pulse_duration,
-            "",
-            "fixed",
-            **POSITIVE,
-        )
-    )
+    return _numbered(rows + _pulse_parameters(model, disturbances, pulse_amplitude, pulse_duration, pulse_factors))
+
+
+def _pulse_parameters(model, disturbances, amplitude: float, duration: float, factors) -> list[dict]:
+    """The tip pulse of Section 4.3 as fixed parameters: amplitude, duration, factor per input."""
+    rows = [
+        _parameter("pulse.amplitude", "m->pulse_amplitude", "N", "peak of the triangular tip pulse (Section 4.3), "
+                   "at half its duration", amplitude, "", "fixed", **NOT_NEGATIVE),
+        _parameter("pulse.duration", "m->pulse_duration", "s", "length of the tip pulse; no pulse force after it",
+                   duration, "", "fixed", **POSITIVE),
+    ]  # fmt: skip
     for k, name in enumerate(model.disturbance_names):
-        rows.append(
-            _parameter(
-                f"pulse.factor_{disturbances[k]}",
-                f"m->pulse_factor[{k}]",
-                None,
-                f"the pulse's factor along disturbance input {name}",
-                pulse_factors[k],
-                "",
-                "fixed",
-            )
-        )
-    return _numbered(rows)
+        rows.append(_parameter(f"pulse.factor_{disturbances[k]}", f"m->pulse_factor[{k}]", None,
+                               f"the pulse's factor along disturbance input {name}", factors[k], "",
+                               "fixed"))  # fmt: skip
+    return rows
 
 
 def _identifier(name: str, k: int) -> str:

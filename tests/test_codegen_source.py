@@ -74,4 +74,9 @@ def test_structure_no_dense_predictor_no_heap_no_recursion(reference):
         body = text.split(f"{name}(", 1)[1]
         body = body[: body.find("\n}\n")]
         assert f"{name}(" not in body  # no recursion
-    assert not re.search(r"^static (?!const)[^(]*;", text, flags=re.M)  # no mutable globals
+    # No mutable globals: static data is const, or SMARTJOINT_TUNABLE, which is const but where the
+    # controller FMU includes the law (codegen/fmu.py) to tune its limits and boundary layer.
+    assert not re.search(r"^static (?!const |SMARTJOINT_TUNABLE )[^(]*;", text, flags=re.M)
+    assert "#ifndef SMARTJOINT_TUNABLE\n#define SMARTJOINT_TUNABLE const\n#endif" in files["smartjoint_types.h"]
+    tunable = re.findall(r"^static SMARTJOINT_TUNABLE \w+ (\w+)", text, flags=re.M)
+    assert sorted(tunable) == ["boundary_layer", "boundary_layer", "law", "normal_force_min", "normal_force_range"]
