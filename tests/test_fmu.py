@@ -85,6 +85,7 @@ def test_every_fmu_passes_fmpys_validation_and_is_the_same_bytes_when_written_ag
     assert plant.path.read_bytes() == written[3, "truss"].path.read_bytes()
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("version", VERSIONS)
 @pytest.mark.parametrize("name", ["SISO", "cLQG"])
 def test_a_controller_fmu_answers_the_studys_measurements_as_the_python_reference(written, paper, version, name):
@@ -101,6 +102,7 @@ def test_a_controller_fmu_answers_the_studys_measurements_as_the_python_referenc
     assert 0.0 < deviation <= fmu_check.FLOAT_BOUND * span  # rounded to float, and within the bound
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("version", VERSIONS)
 def test_the_plant_fmu_under_constant_normal_forces_is_the_projects_plant_simulation(written, paper, version):
     design, s, _ = paper
@@ -125,6 +127,7 @@ def _energies(path, setup, step: float, every: int) -> np.ndarray:
         return np.array(out)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("version", VERSIONS)
 def test_plant_and_controller_fmus_co_simulated_are_the_mil_study_and_the_orderings_hold(written, paper, version):
     design, s, a = paper
