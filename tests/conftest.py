@@ -133,6 +133,20 @@ def small_truss() -> dict:
     }
 
 
+def small_control_truss(duration: float, **control) -> dict:
+    """The small truss with a quick control section: 4 of 12 modes, F_N 5–100 N, a short study."""
+    data = small_truss()
+    data["control"] = {
+        "considered_modes": 12,
+        "modes": 4,
+        "normal_force_min": 5.0,
+        "normal_force_max": 100.0,
+        "study_duration": duration,
+        **control,
+    }
+    return data
+
+
 @pytest.fixture
 def truss_dict():
     return copy.deepcopy(small_truss())

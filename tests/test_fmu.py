@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cli_error, run, run_cli, small_truss
+from conftest import cli_error, run, run_cli, small_control_truss
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 
@@ -40,16 +40,7 @@ def paper(three_type_a):
 @pytest.fixture(scope="module")
 def small():
     """Not the paper's truss: the small truss with two joints of its own, other names and limits."""
-    data = small_truss()
-    data["control"] = {
-        "considered_modes": 12,
-        "modes": 4,
-        "normal_force_min": 5.0,
-        "normal_force_max": 100.0,
-        "study_duration": 0.3,
-        "krylov": 1,
-        "siso_boundary_layer": 1e-4,
-    }
+    data = small_control_truss(0.3, krylov=1, siso_boundary_layer=1e-4)
     return _study(parse_design(data), 0.3)
 
 

@@ -8,29 +8,15 @@ import math
 
 import numpy as np
 import pytest
-from conftest import cli_error, run_cli, small_truss
+from conftest import cli_error, run_cli, small_control_truss, small_truss
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design import parse_design
 from smartjoint.design.control import artifact, study
 
 
-def _small_data(duration, **control) -> dict:
-    """The small truss with a quick control section: 4 of 12 modes, F_N 5–100 N, a short study."""
-    data = small_truss()
-    data["control"] = {
-        "considered_modes": 12,
-        "modes": 4,
-        "normal_force_min": 5.0,
-        "normal_force_max": 100.0,
-        "study_duration": duration,
-        **control,
-    }
-    return data
-
-
 def _small(duration=0.3, **control):
-    return parse_design(_small_data(duration, **{"krylov": 1, **control}))
+    return parse_design(small_control_truss(duration, **{"krylov": 1, **control}))
 
 
 @pytest.fixture(scope="module")
@@ -198,7 +184,7 @@ def test_the_optimised_boundary_layer_beats_a_decade_either_side(bundled):
 def test_design_and_study_commands(tmp_path):
     import tomli_w
 
-    data = _small_data(0.2, siso_boundary_layer=1e-4)
+    data = small_control_truss(0.2, siso_boundary_layer=1e-4)
     path = tmp_path / "small.toml"
     path.write_text(tomli_w.dumps(data))
     out = tmp_path / "controller.json"
