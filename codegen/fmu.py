@@ -122,9 +122,9 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
         raise ModelError(f"--real: {real!r} — allowed: float, double")
     _check_version(fmi)
     identifier = identifier_of(path)
-    variables = fmu_variables.controller_variables(artifact, law)
+    variables = fmu_variables.controller_variables(artifact, law, real)
     name = f"{prefix}_{law}"
-    banner = rendering.banner(artifact.artifact_sha256, real, "codegen, FMU")
+    banner = _fmu_banner(rendering.banner(artifact.artifact_sha256, real, "codegen, FMU"))
     laws = generate.render(artifact, real, prefix)
     sources = {key: laws[key] for key in (f"{prefix}_types.h", f"{name}.h", f"{name}.c")}
     layers = np.atleast_1d(np.asarray(artifact.siso_boundary_layer if law == "siso" else artifact.clqg_boundary_layer))
@@ -159,6 +159,11 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
              fixed_step=None),
         _controller_dependencies(variables),
     )  # fmt: skip
+
+
+def _fmu_banner(banner: str) -> str:
+    """The generator's banner, naming the command that writes FMUs."""
+    return banner.replace("regenerate with `smartjoint codegen`", "regenerate with `smartjoint fmu`")
 
 
 def _controller_dependencies(variables) -> dict[int, list[int] | None]:

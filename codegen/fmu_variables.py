@@ -113,7 +113,7 @@ def sensor_unit(quantity: str) -> str:
     return _SENSOR_UNITS[quantity]
 
 
-def controller_variables(artifact, law: str) -> list[Variable]:
+def controller_variables(artifact, law: str, real: str = "double") -> list[Variable]:
     """The variables of a controller FMU of ``law`` ("siso" or "clqg").
 
     Parameters
@@ -121,6 +121,9 @@ def controller_variables(artifact, law: str) -> list[Variable]:
     artifact : ControllerArtifact
         Names, units, start values and limits.
     law : str
+    real : str
+        The law's scalar type: a float build refuses inputs beyond the float range too (the
+        conversion of such a double to float is undefined in C).
 
     Returns
     -------
@@ -131,21 +134,26 @@ def controller_variables(artifact, law: str) -> list[Variable]:
     return _numbered(
         [
             dict(status, kind="integer"),
-            *_controller_inputs(artifact, law),
+            *_controller_inputs(artifact, law, FLOAT_INPUT if real == "float" else {}),
             *_controller_outputs(artifact, law),
             *_controller_parameters(artifact, law),
         ]
     )
 
 
-def _controller_inputs(artifact, law: str) -> list[dict]:
+FLOAT_INPUT: dict[str, Any] = dict(
+    condition="isfinite(value) && fabs(value) <= (double)FLT_MAX", allowed="a finite number within the float range"
+)
+
+
+def _controller_inputs(artifact, law: str, rules: dict) -> list[dict]:
     """The measurements the law reads, as the input struct of its step holds them."""
     fresh = "m->computed = 0;"
     rows = []
     if law == "clqg":
         for r, (name, quantity) in enumerate(zip(artifact.sensor_names, artifact.sensor_quantities)):
             rows.append(_input(f"TIP_SENSORS.{name}", f"m->input.sensors[{r}]", sensor_unit(quantity),
-                               f"tip sensor y_{r + 1} ({quantity})", fresh))  # fmt: skip
+                               f"tip sensor y_{r + 1} ({quantity})", fresh, **rules))  # fmt: skip
     quantities = [("friction_force", "N", "measured friction force u_R"),
                   ("normal_force", "N", "measured applied normal force F_N")]  # fmt: skip
     if law == "siso":
@@ -153,7 +161,7 @@ def _controller_inputs(artifact, law: str) -> list[dict]:
     for j, name in enumerate(artifact.joint_names):
         for quantity, unit, what in quantities:
             rows.append(_input(f"JOINT_{name}.{quantity}", f"m->input.{quantity}[{j}]", unit, f"{what} of joint {name}",
-                               fresh))  # fmt: skip
+                               fresh, **rules))  # fmt: skip
     return rows
 
 

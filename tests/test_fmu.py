@@ -212,6 +212,12 @@ def test_bad_input_is_answered_with_the_fmi_error_status_and_a_message_never_a_c
         controller.step(0.0, s.setup.sample_time)  # and the instance goes on
         controller.fmu.terminate()
         _refused(controller, lambda: controller.step(0.001, s.setup.sample_time), "DoStep", "terminated")
+    with FmuInstance(written[version, "siso", "float"].path) as single:
+        single.initialize()
+        velocity = single.references(["JOINT_A3.sliding_velocity"])
+        _refused(single, lambda: single.set_real(velocity, [1e300]), "JOINT_A3.sliding_velocity", "float range")
+        single.set_real(velocity, [1e30])  # beyond the plausible range, within float's: the law's safe state
+        assert single.get_integer(single.references(["CONTROLLER_STATUS.step_status"])) == [8]
     with FmuInstance(written[version, "truss"].path) as plant:
         ref = {name: v.valueReference for name, v in plant.variables.items()}
         plant.initialize()
