@@ -292,7 +292,7 @@ def _write(path, identifier, fmi, variables, model_template, context, sources, c
     files.update(fmi_headers.files(fmi))
     files["fmu_model.h"] = env.get_template("fmu/fmu_model.h.j2").render(banner=context["banner"])
     layer = f"fmi{fmi}_functions.c"
-    units = [{"name": unit, "base": UNITS[unit]} for unit in sorted({v.unit for v in variables if v.unit})]
+    units = [{"name": unit, "base": UNITS.get(unit, ())} for unit in sorted({v.unit for v in variables if v.unit})]
     listed = ["fmu_model.c", *compiled, layer]
     # The token is the hash of everything but itself: the same inputs, the same FMU.
     draft = _render_all(env, files, model_template, layer, context, variables, fmi, "{TOKEN}")

@@ -62,7 +62,7 @@ def _plant(args):
     if args.law is not None:
         raise ModelError(f"--law: {args.law!r} — a plant FMU has no law (leave --law out with --plant)")
     args.design = args.source
-    design, _ = load_updated(args)
+    design, _ = load_updated(args, firmware_names=True)  # the names become FMI variable names
     if not design.joints:
         raise ModelError(
             f"{args.source}: the design has no [[joints]] — the plant FMU is the truss with its friction joints"

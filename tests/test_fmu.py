@@ -332,9 +332,17 @@ def test_the_command_writes_validated_fmus_and_refuses_bad_arguments_in_one_line
     assert "needs --plant" in cli_error(
         "fmu", str(artefact.with_suffix(".toml")), "--law", "clqg", "-o", str(tmp_path / "a.fmu")
     )
+    design = Path(__file__).parents[1] / "design" / "data" / "three_type_a.toml"
+    done = run_cli(
+        "fmu", str(design), "--plant", "--no-update", "--fmi", "2", "-o", str(tmp_path / "truss.fmu"), "--json"
+    )
+    assert done.returncode == 0 and '"validation_problems": []' in done.stdout, done.stderr
+    assert "a plant FMU has no law" in cli_error(
+        "fmu", str(design), "--plant", "--law", "siso", "-o", str(tmp_path / "t.fmu")
+    )
     (tmp_path / "folder.fmu").mkdir()
     assert "is a folder" in cli_error("fmu", str(artefact), "--law", "clqg", "-o", str(tmp_path / "folder.fmu"))
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.fmu", "siso.fmu"]  # nothing half-written
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.fmu", "siso.fmu", "truss.fmu"]  # nothing half-written
 
 
 def test_a_model_error_names_the_field():
