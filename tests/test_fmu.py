@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import cli_error, run, run_cli, small_control_truss
+from fmpy import read_model_description
+from fmpy.build import build_platform_binary
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 
@@ -152,29 +154,53 @@ def test_a_design_other_than_the_papers_gets_its_own_fmus_and_numbers(small, tmp
     assert run.energy.tobytes() == s.run("cLQG").energy.tobytes()
 
 
+def _listed_sources(folder: Path) -> list[Path]:
+    """The translation units an unpacked FMU names (<SourceFiles> in FMI 2, buildDescription.xml in
+    FMI 3), as FMPy reads them."""
+    (configuration,) = read_model_description(str(folder)).buildConfigurations
+    return [folder / "sources" / name for files in configuration.sourceFileSets for name in files.sourceFiles]
+
+
+def _unpacked(f, folder: Path) -> Path:
+    with zipfile.ZipFile(f.path) as archive:
+        archive.extractall(folder)
+    (folder / f.binary).unlink()
+    return folder
+
+
+def _packed(folder: Path, path: Path) -> Path:
+    with zipfile.ZipFile(path, "w") as archive:
+        for member in sorted(folder.rglob("*")):
+            archive.write(member, member.relative_to(folder).as_posix())
+    return path
+
+
+def _same_numbers(key, rebuilt: Path, shipped: Path, s, a) -> bool:
+    if key[1] == "truss":
+        return fmu_check.constant_force_run(s.setup, rebuilt, [200.0, 150.0, 100.0])["identical"]
+    log = fmu_check.recorded_inputs(s.setup, a, "cLQG" if key[1] == "clqg" else "SISO")[:300]
+    return fmu_check.replay(rebuilt, log)[0].tobytes() == fmu_check.replay(shipped, log)[0].tobytes()
+
+
 def test_the_sources_compile_from_the_unpacked_fmu_alone_with_the_strict_warnings(written, paper, tmp_path):
-    """The build description's sources, compiled with -Werror and the project's warning set, give a
-    library that replays the study as the shipped binary does."""
+    """The sources the FMU lists, compiled with -Werror and the project's warning set, and built by
+    FMPy's own CMake project from the unpacked FMU, give libraries with the shipped numbers."""
     design, s, a = paper
-    for key in ((3, "clqg", "float"), (3, "truss")):
-        folder = tmp_path / "_".join(map(str, key))
-        with zipfile.ZipFile(written[key].path) as archive:
-            archive.extractall(folder)
-        listed = (folder / "sources" / "buildDescription.xml").read_text()
-        sources = [folder / "sources" / name for name in __import__("re").findall(r'SourceFile name="([^"]+)"', listed)]
+    for key in ((2, "siso", "double"), (3, "clqg", "float"), (3, "truss")):
+        folder = _unpacked(written[key], tmp_path / "_".join(map(str, key)))
         library = folder / written[key].binary
-        library.unlink()
-        done = run("cc", *build.FLAGS, "-fPIC", "-shared", "-fvisibility=hidden", *sources, "-o", library, "-lm")
+        done = run("cc", *build.FLAGS, "-fPIC", "-shared", "-fvisibility=hidden", *_listed_sources(folder),
+                   "-o", library, "-lm")  # fmt: skip
         assert done.returncode == 0 and done.stderr == "", done.stderr
-        repacked = tmp_path / f"{written[key].identifier}.fmu"
-        with zipfile.ZipFile(repacked, "w") as archive:
-            for path in sorted(folder.rglob("*")):
-                archive.write(path, path.relative_to(folder).as_posix())
-        if key[1] == "truss":
-            assert fmu_check.constant_force_run(s.setup, repacked, [200.0, 200.0, 200.0])["identical"]
-        else:
-            log = fmu_check.recorded_inputs(s.setup, a, "cLQG")[:300]
-            assert fmu_check.replay(repacked, log)[0].tobytes() == fmu_check.replay(written[key].path, log)[0].tobytes()
+        rebuilt = _packed(folder, tmp_path / f"{written[key].identifier}.fmu")
+        assert _same_numbers(key, rebuilt, written[key].path, s, a), key
+    for key in ((2, "truss"), (3, "clqg", "double")):
+        folder = _unpacked(written[key], tmp_path / ("cmake_" + "_".join(map(str, key))))
+        (work := tmp_path / f"build_{key[0]}_{key[1]}").mkdir()
+        build_platform_binary(folder, work, all_warnings=True)  # cmake with FMPy's CMakeLists, -Wall -Wextra -Wpedantic
+        assert (folder / written[key].binary).is_file(), key
+        rebuilt = _packed(folder, work / f"{written[key].identifier}.fmu")
+        assert _same_numbers(key, rebuilt, written[key].path, s, a), key
 
 
 def _refused(instance: FmuInstance, call, *words: str) -> None:
