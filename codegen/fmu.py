@@ -60,6 +60,23 @@ _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # every member's date: the FMU depends on its inputs alone
 
 
+def _controller_rules(sample_time: float) -> list[str]:
+    return [
+        f"The communication step is the sample time, {sample_time!r} s, and nothing else.",
+        "The outputs at a communication point are the law's step from the inputs set at that point (direct "
+        "feedthrough): set the inputs, read the outputs, then step.",
+        "The normal-force limits and the boundary layer are tunable between steps; the safe normal force is not.",
+    ]
+
+
+def _plant_rules(plant_step: float) -> list[str]:
+    return [
+        f"The plant steps {plant_step!r} s; a communication step is any whole number of plant steps.",
+        "A normal force acts when it is set (the piezo taken as instantaneous); the disturbance inputs are held "
+        "over a communication step and added to the built-in tip pulse (pulse.amplitude, pulse.duration).",
+    ]
+
+
 @dataclass(frozen=True)
 class Fmu:
     """A written FMU: its path, model identifier, FMI version, variables and what it holds."""
@@ -156,7 +173,7 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
     return _write(
         path, identifier, fmi, variables, "fmu/fmu_controller.c.j2", context, sources, [],
         dict(description=description, stop_time=1.0, step_size=artifact.sample_time, variable_step="false",
-             fixed_step=None),
+             fixed_step=None, rules=_controller_rules(artifact.sample_time)),
         _controller_dependencies(variables),
     )  # fmt: skip
 
@@ -203,6 +220,7 @@ def plant_fmu(setup, design, path, fmi: int = 2) -> Fmu:
     context = {
         "banner": banner,
         "plant_step": data["plant_step"],
+        "plant_step_decimal": repr(float(setup.plant_step)),
         **{key: data[key] for key in ("n", "l", "m", "ny", "levels")},
         "arrays": data["arrays"],
         "pointer_fields": data["pointer_fields"],
@@ -218,7 +236,7 @@ def plant_fmu(setup, design, path, fmi: int = 2) -> Fmu:
     return _write(
         path, identifier, fmi, variables, "fmu/fmu_plant.c.j2", context, sources, ["plant_kernel.c"],
         dict(description=description, stop_time=setup.duration, step_size=setup.sample_time, variable_step="true",
-             fixed_step=repr(float(setup.plant_step))),
+             fixed_step=repr(float(setup.plant_step)), rules=_plant_rules(setup.plant_step)),
         _plant_dependencies(variables, model.joint_names),
     )  # fmt: skip
 
@@ -315,6 +333,13 @@ def _write(path, identifier, fmi, variables, model_template, context, sources, c
             .render(comment=comment, identifier=identifier, sources=listed, warnings=" ".join(build.WARNINGS))
             .encode()
         )
+    page = "documentation/_main.html" if fmi == 2 else "documentation/index.html"
+    members[page] = (
+        env.get_template("fmu/documentation.html.j2")
+        .render(comment=comment, identifier=identifier, description=xml["description"], fmi=fmi,
+                version=rendering.version(), rules=xml["rules"], variables=variables)
+        .encode()
+    )  # fmt: skip
     binary = f"binaries/{_platform(fmi)}/{identifier}.so"
     members[binary] = compile_binary(files, listed, identifier)
     target = Path(path)

@@ -46,6 +46,7 @@ FILES: dict[str, tuple[str, ...]] = {
                 f"fmu/{name}"
                 for name in (
                     "buildDescription.xml.j2",
+                    "documentation.html.j2",
                     "fmi2_functions.c.j2",
                     "fmi3_functions.c.j2",
                     "fmu_access.c.j2",

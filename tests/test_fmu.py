@@ -67,7 +67,8 @@ def test_every_fmu_passes_fmpys_validation_and_is_the_same_bytes_when_written_ag
         assert validate_fmu(str(f.path)) == [], key
         with zipfile.ZipFile(f.path) as archive:
             names = set(archive.namelist())
-        assert {"modelDescription.xml", f.binary, "sources/fmu_model.c"} <= names, key
+        page = "documentation/_main.html" if f.fmi == 2 else "documentation/index.html"
+        assert {"modelDescription.xml", f.binary, "sources/fmu_model.c", page} <= names, key
         assert any(n.endswith("Functions.h") for n in names), key  # the FMI headers, from FMPy
     root = Path(__file__).parents[1]
     assert not [p for p in root.rglob("fmi*Function*.h") if ".git" not in p.parts]  # never in the repository
