@@ -13,6 +13,9 @@ at every controller sample t_k (the communication points, one sample time apart)
   3. the plant takes the normal forces (they act at once), and its outputs are the row the
      study records at t_k; both FMUs step to t_k+1.
 
+A set-up's sensor noise and amplifier lag (the ensembles' uncertain inputs) are the master's:
+added to the sensors the controller reads, applied to the commands, as the study's loop does.
+
 :class:`FmuInstance` is the FMPy side of one FMU, FMI 2 and FMI 3 alike, with its log messages
 kept (``messages``) for the reports and tests.
 """
@@ -26,7 +29,14 @@ from ctypes import byref
 import numpy as np
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.control.runs import PLANT_STEPS_PER_SAMPLE, PULSE_DURATION, Run, StudySetup, semi_active_run
+from smartjoint.design.control.runs import (
+    PLANT_STEPS_PER_SAMPLE,
+    PULSE_DURATION,
+    LaggingAmplifiers,
+    Run,
+    StudySetup,
+    semi_active_run,
+)
 from smartjoint.design.plant.loop import SimulationResult
 
 STATUS = "CONTROLLER_STATUS.step_status"
@@ -172,12 +182,17 @@ def cosimulate(s: StudySetup, plant_path, controller_path, name: str) -> tuple[R
     Raises
     ------
     ModelError
-        A set-up the co-simulation does not model, FMUs that do not connect, or a command the
-        plant cannot take, in one line.
+        A jittered schedule (the controller FMU's step is its sample time), FMUs that do not
+        connect, or a command the plant cannot take, in one line.
+
+    Notes
+    -----
+    The set-up's sensor noise is added to the tip sensors the controller reads, and its amplifier
+    lag applied to the commands (``runs.NoisySensors``, ``runs.LaggingAmplifiers``), in the
+    master, as the study's loop does.
     """
-    for field in ("sensor_noise", "amplifier_lag", "sample_steps"):
-        if getattr(s, field) is not None:
-            raise ModelError(f"{field}: the FMU co-simulation runs the nominal study only (no {field})")
+    if s.sample_steps is not None:
+        raise ModelError("sample_steps: the controller FMU steps at its sample time only (no jitter)")
     with FmuInstance(plant_path, "plant") as plant, FmuInstance(controller_path, "controller") as controller:
         return _run(s, plant, controller, name)
 
@@ -207,6 +222,20 @@ def _connections(plant: FmuInstance, controller: FmuInstance, joints: list[str])
     )
 
 
+def _noise_columns(s: StudySetup, controller: FmuInstance):
+    """Where the set-up's sensor noise goes: the positions of the tip sensors among the
+    controller's inputs and their columns of ``sensor_noise`` (None without noise)."""
+    if s.sensor_noise is None:
+        return None
+    inputs = [v.name for v in controller.description.modelVariables if v.causality == "input"]
+    sensors = list(s.plant.sensor_names)
+    slots = [k for k, n in enumerate(inputs) if n.startswith("TIP_SENSORS.")]
+    rows = np.asarray(s.sensor_noise).shape[0]
+    if rows < s.samples:
+        raise ModelError(f"sensor_noise: {rows} rows — need {s.samples} (one per controller sample)")
+    return np.array(slots, dtype=int), np.array([sensors.index(inputs[k].split(".", 1)[1]) for k in slots], dtype=int)
+
+
 def _run(s: StudySetup, plant: FmuInstance, controller: FmuInstance, name: str) -> tuple[Run, int]:
     joints = list(s.plant.joint_names)
     measured, fed, commanded, applied, row_references = _connections(plant, controller, joints)
@@ -216,18 +245,28 @@ def _run(s: StudySetup, plant: FmuInstance, controller: FmuInstance, name: str) 
     steps, ratio, h = s.plant_steps, PLANT_STEPS_PER_SAMPLE, s.plant_step
     rows: dict[str, list] = {key: [] for key in row_references}
     hold = np.asarray(s.normal_force_max, dtype=float)
+    noise = _noise_columns(s, controller)
+    gain = None if s.amplifier_lag is None else LaggingAmplifiers.gain_of(s.sample_time, s.amplifier_lag)
+    lagged = None  # the amplifiers' output (with a lag)
     safe = 0
 
     def record() -> None:
         for key, references in row_references.items():
             rows[key].append(plant.get_real(references))
 
-    for first in range(0, steps, ratio):
+    for sample, first in enumerate(range(0, steps, ratio)):
         time = first * h
-        controller.set_real(fed, plant.get_real(measured))
+        values = plant.get_real(measured)
+        if noise is not None:
+            slots, columns = noise
+            values[slots] = values[slots] + s.sensor_noise[sample, columns]
+        controller.set_real(fed, values)
         command = controller.get_real(commanded)
         safe += int(controller.get_integer(status)[0] != 0)
         command = hold if time < PULSE_DURATION - 1e-12 else command
+        if gain is not None:
+            lagged = command.copy() if lagged is None else lagged + gain * (command - lagged)
+            command = lagged.copy()
         if not np.all(np.isfinite(command) & (command >= 0.0)):
             raise ModelError(f"controller returned normal forces that are not all finite and >= 0 at t = {time:.6g} s")
         plant.set_real(applied, command)

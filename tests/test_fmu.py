@@ -140,6 +140,26 @@ def test_plant_and_controller_fmus_co_simulated_are_the_mil_study_and_the_orderi
     assert both.orderings() == s.orderings()
 
 
+def test_the_co_simulation_master_adds_sensor_noise_and_amplifier_lag_as_the_studys_loop(written, paper):
+    """The ensembles' perturbations on the FMUs: the compiled closed loop's numbers (which are the
+    Python loop's, tests/test_closed_loop.py) with noise on the tip sensors and lagging amplifiers."""
+    from smartjoint.codegen.closed_loop import CompiledLoop
+
+    design, s, a = paper
+    noise = np.random.default_rng(21).normal(0.0, 2e-5, (s.setup.samples, len(s.setup.plant.sensor_names)))
+    perturbed = dataclasses.replace(s.setup, sensor_noise=noise, amplifier_lag=3e-3)
+    loop = CompiledLoop(a)
+    for name, law in (("SISO", "siso"), ("cLQG", "clqg")):
+        run, safe = cosimulate(perturbed, written[2, "truss"].path, written[2, law, "double"].path, name)
+        expected, expected_safe = loop.run(perturbed, name)
+        assert run.energy.tobytes() == expected.energy.tobytes() and safe == expected_safe, name
+        assert run.normal_force.tobytes() == expected.normal_force.tobytes(), name
+        assert run.energy.tobytes() != s.run(name).energy.tobytes()  # the perturbations act
+    jittered = dataclasses.replace(s.setup, sample_steps=np.arange(s.setup.samples) * 20)
+    with pytest.raises(ModelError, match="sample_steps"):
+        cosimulate(jittered, written[2, "truss"].path, written[2, "clqg", "double"].path, "cLQG")
+
+
 def test_a_design_other_than_the_papers_gets_its_own_fmus_and_numbers(small, tmp_path):
     """Two joints with their own names, limits and friction: nothing of the paper's truss leaks in."""
     design, s, a = small
