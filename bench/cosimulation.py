@@ -29,14 +29,8 @@ from ctypes import byref
 import numpy as np
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.control.runs import (
-    PLANT_STEPS_PER_SAMPLE,
-    PULSE_DURATION,
-    LaggingAmplifiers,
-    Run,
-    StudySetup,
-    semi_active_run,
-)
+from smartjoint.design.control import runs
+from smartjoint.design.control.runs import Run, StudySetup
 from smartjoint.design.plant.loop import SimulationResult
 
 STATUS = "CONTROLLER_STATUS.step_status"
@@ -242,11 +236,11 @@ def _run(s: StudySetup, plant: FmuInstance, controller: FmuInstance, name: str) 
     status = controller.references([STATUS])
     plant.initialize()
     controller.initialize()
-    steps, ratio, h = s.plant_steps, PLANT_STEPS_PER_SAMPLE, s.plant_step
+    steps, ratio, h = s.plant_steps, runs.PLANT_STEPS_PER_SAMPLE, s.plant_step
     rows: dict[str, list] = {key: [] for key in row_references}
     hold = np.asarray(s.normal_force_max, dtype=float)
     noise = _noise_columns(s, controller)
-    gain = None if s.amplifier_lag is None else LaggingAmplifiers.gain_of(s.sample_time, s.amplifier_lag)
+    gain = None if s.amplifier_lag is None else runs.LaggingAmplifiers.gain_of(s.sample_time, s.amplifier_lag)
     lagged = None  # the amplifiers' output (with a lag)
     safe = 0
 
@@ -263,7 +257,7 @@ def _run(s: StudySetup, plant: FmuInstance, controller: FmuInstance, name: str) 
         controller.set_real(fed, values)
         command = controller.get_real(commanded)
         safe += int(controller.get_integer(status)[0] != 0)
-        command = hold if time < PULSE_DURATION - 1e-12 else command
+        command = hold if time < runs.PULSE_DURATION - 1e-12 else command
         if gain is not None:
             lagged = command.copy() if lagged is None else lagged + gain * (command - lagged)
             command = lagged.copy()
@@ -291,7 +285,7 @@ def _run(s: StudySetup, plant: FmuInstance, controller: FmuInstance, name: str) 
         joints,
         list(s.plant.sensor_names),
     )
-    return semi_active_run(s, name, result), safe
+    return runs.semi_active_run(s, name, result), safe
 
 
 __all__ = ["STATUS", "FmuInstance", "cosimulate"]
