@@ -218,7 +218,7 @@ def _connections(plant: FmuInstance, controller: FmuInstance, joints: list[str])
 
 def _noise_columns(s: StudySetup, controller: FmuInstance):
     """Where the set-up's sensor noise goes: the positions of the tip sensors among the
-    controller's inputs and their columns of ``sensor_noise`` (None without noise)."""
+    controller's inputs, their columns of ``sensor_noise`` and the noise (None without noise)."""
     if s.sensor_noise is None:
         return None
     inputs = [v.name for v in controller.description.modelVariables if v.causality == "input"]
@@ -227,7 +227,8 @@ def _noise_columns(s: StudySetup, controller: FmuInstance):
     rows = np.asarray(s.sensor_noise).shape[0]
     if rows < s.samples:
         raise ModelError(f"sensor_noise: {rows} rows — need {s.samples} (one per controller sample)")
-    return np.array(slots, dtype=int), np.array([sensors.index(inputs[k].split(".", 1)[1]) for k in slots], dtype=int)
+    columns = np.array([sensors.index(inputs[k].split(".", 1)[1]) for k in slots], dtype=int)
+    return np.array(slots, dtype=int), columns, np.asarray(s.sensor_noise, dtype=float)
 
 
 def _run(s: StudySetup, plant: FmuInstance, controller: FmuInstance, name: str) -> tuple[Run, int]:
@@ -252,8 +253,8 @@ def _run(s: StudySetup, plant: FmuInstance, controller: FmuInstance, name: str) 
         time = first * h
         values = plant.get_real(measured)
         if noise is not None:
-            slots, columns = noise
-            values[slots] = values[slots] + s.sensor_noise[sample, columns]
+            slots, columns, table = noise
+            values[slots] = values[slots] + table[sample, columns]
         controller.set_real(fed, values)
         command = controller.get_real(commanded)
         safe += int(controller.get_integer(status)[0] != 0)
