@@ -67,15 +67,16 @@ def replay(path, log: list) -> tuple[np.ndarray, list[int]]:
         step = float(controller.description.defaultExperiment.stepSize)  # the sample time
         forces, statuses = [], []
         for k, (m, _) in enumerate(log):
-            controller.set_real(references, _inputs(inputs, joints, m))
+            controller.set_real(references, input_values(inputs, joints, m))
             forces.append(controller.get_real(commands))
             statuses.append(controller.get_integer(status)[0])
             controller.step(k * step, step)
         return np.array(forces), statuses
 
 
-def _inputs(names: list[str], joints: list[str], m) -> list[float]:
-    """A controller FMU's input values, in its order, from one sample's measurements."""
+def input_values(names: list[str], joints: list[str], m) -> list[float]:
+    """A controller FMU's input values (its input ``names`` in order) from one sample's measurements
+    ``m``; ``joints`` in the measurements' order."""
     index = {j: k for k, j in enumerate(joints)}
     sensors = [n for n in names if n.startswith("TIP_SENSORS.")]
     values = []
@@ -219,4 +220,4 @@ def _identical(run, mil) -> bool:
     return all(np.array_equal(getattr(run, f), getattr(mil, f)) for f in fields)
 
 
-__all__ = ["FLOAT_BOUND", "LAWS", "constant_force_run", "fmu_study", "recorded_inputs", "replay"]
+__all__ = ["FLOAT_BOUND", "LAWS", "constant_force_run", "fmu_study", "input_values", "recorded_inputs", "replay"]

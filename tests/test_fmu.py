@@ -316,7 +316,7 @@ def test_tuned_limits_and_boundary_layer_are_the_law_generated_with_them(written
         commands = one.references([f"SETPOINT_{j}.normal_force" for j in a.joint_names])
         got, untouched = [], []
         for k, (m, _) in enumerate(log):
-            values = [_value(m, n, a) for n in names]
+            values = fmu_check.input_values(names, list(a.joint_names), m)
             for instance, into in ((one, got), (other, untouched)):
                 instance.set_real(instance.references(names), values)
                 into.append(instance.get_real(commands))
@@ -324,13 +324,6 @@ def test_tuned_limits_and_boundary_layer_are_the_law_generated_with_them(written
     assert np.array(got).tobytes() == expected.tobytes()
     reference = np.array([forces for _, forces in log])
     assert np.array(untouched).tobytes() == reference.tobytes()
-
-
-def _value(m, name: str, a) -> float:
-    part, quantity = name.split(".")
-    if part == "TIP_SENSORS":
-        return float(m.sensors[list(a.sensor_names).index(quantity)])
-    return float(getattr(m, quantity)[list(a.joint_names).index(part[len("JOINT_") :])])
 
 
 @pytest.mark.parametrize("version", VERSIONS)
