@@ -31,15 +31,17 @@ import math
 from dataclasses import dataclass, field
 
 from smartjoint.bench import e2e
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
+from smartjoint.design.network.protocol import MODE_SAFE
 
 FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current", "gain_error")
 OUTPUT_STAGE_FAULTS = ("stuck_output", "gain_error")  # the joint itself cannot reach the safe force
 HOT_TEMPERATURE = 95.0  # °C reported under ``over_temperature``
 HIGH_CURRENT = 2.9  # A reported under ``over_current``
 GAIN_ERROR = 0.5  # output / target under ``gain_error``
-MODE_SAFE = 3
-CONTROLLER_MODES = (1, 2, MODE_SAFE)  # SISO, cLQG, safe: what a heartbeat may say
+# What a heartbeat may say: a law's mode (common.law_registry) or the safe state.
+CONTROLLER_MODES = (*(law.mode for law in law_registry.LAWS.values()), MODE_SAFE)
 
 
 @dataclass

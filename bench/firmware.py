@@ -10,11 +10,12 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.codegen import build, can_codec, can_layer, generate
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.network import protocol
 
-LAWS = {"siso": 1, "clqg": 2}
+LAWS = {law.name: law.mode for law in law_registry.LAWS.values()}  # the CAN layer's law ids
 
 
 def _driver_header(prefix: str) -> str:
@@ -115,7 +116,7 @@ class Firmware:
     artifact : ControllerArtifact
         The controller design artefact the controllers and the CAN layer are generated from.
     law : str
-        The law the CAN layer runs, ``"siso"`` or ``"clqg"``.
+        The law the CAN layer runs, by its registry name (``common.law_registry``).
     real, prefix : str
         The controllers' scalar type and the prefix of every C identifier and file name, as
         ``codegen.generate.render`` takes them.
@@ -126,7 +127,7 @@ class Firmware:
     def __init__(
         self,
         artifact: ControllerArtifact,
-        law: str = "siso",
+        law: str = law_registry.NAMES[0],
         real: str = "float",
         prefix: str = "smartjoint",
         **can_options,
@@ -142,7 +143,12 @@ class Firmware:
             f"firmware_{prefix}_{real}",
             files,
             f"_{prefix}_can_driver.h",
-            (f"{prefix}_siso.c", f"{prefix}_clqg.c", f"{prefix}_can.c", "sj_e2e.c", f"_{prefix}_can_driver.c"),
+            (
+                *(f"{prefix}_{law}.c" for law in law_registry.NAMES),
+                f"{prefix}_can.c",
+                "sj_e2e.c",
+                f"_{prefix}_can_driver.c",
+            ),
         )
         self.db = protocol.load_dbc(files["bus.dbc"])
         self.ffi, self.lib, self.prefix, self.artifact, self.law = module.ffi, module.lib, prefix, artifact, law

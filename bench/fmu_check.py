@@ -21,14 +21,15 @@ import numpy as np
 
 from smartjoint.bench.cosimulation import STATUS, FmuInstance, cosimulate
 from smartjoint.codegen import fmu
-from smartjoint.design.control import artifact as artifacts
+from smartjoint.common import law_registry
 from smartjoint.design.control import runs as study_runs
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.plant.interface import ConstantNormalForce
 from smartjoint.design.plant.loop import simulate
 
 FLOAT_BOUND = 1e-3  # |ΔF_N| of the float build per sample, as a fraction of F^max − F^min (docs/codegen.md)
-LAWS = {"SISO": ("siso", artifacts.siso_law), "cLQG": ("clqg", artifacts.clipped_lqg)}
+# The study's run name of every law of the registry → (its name, its Python reference).
+LAWS = {law.display: (law.name, law.python_reference) for law in law_registry.LAWS.values()}
 
 
 def recorded_inputs(setup, artifact, name: str) -> list:

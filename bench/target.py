@@ -22,18 +22,23 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.bench import firmware
-from smartjoint.common import package_data
+from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 
 BOARD = "mps2-an386"
 TOOLS = ("arm-none-eabi-gcc", "arm-none-eabi-size", "arm-none-eabi-nm", "make", "qemu-system-arm")
 PREFIX = "smartjoint"  # the self-test calls the controllers by this prefix
-FIRMWARE_OBJECTS = ("smartjoint_clqg.o", "smartjoint_siso.o", "smartjoint_can.o", "sj_e2e.o")
+# The laws of the registry by name, in the self-test's order, and the fields of their input structs.
+INPUT_FIELDS = {name: law_registry.LAWS[name].inputs for name in sorted(law_registry.LAWS)}
+FIRMWARE_OBJECTS = (*(f"{PREFIX}_{law}.o" for law in INPUT_FIELDS), f"{PREFIX}_can.o", "sj_e2e.o")
 # The self-test's own arrays (the sequence and what it gave), not firmware.
-SEQUENCE_TABLES = ("sj_clqg_inputs", "sj_siso_inputs", "clqg_outputs", "siso_outputs", "clqg_status", "siso_status")
-INPUT_FIELDS = {"clqg": ("sensors", "friction_force", "normal_force"),
-                "siso": ("sliding_velocity", "friction_force", "normal_force")}  # fmt: skip
+SEQUENCE_TABLES = tuple(
+    f"{kind.format(law)}" for kind in ("sj_{}_inputs", "{}_outputs", "{}_status") for law in INPUT_FIELDS
+)
+# The random measurements of the sequence (before the scale) that not every law reads: standard
+# deviation, drawn in this order, so that every law's rows come from one set of draws.
+_DRAWS = {"sensors": 1e-4, "sliding_velocity": 1e-3}
 
 
 def qemu_command(elf: Path) -> list[str]:
@@ -63,17 +68,18 @@ def sequence(artifact: ControllerArtifact, steps: int = 200, seed: int = 19) -> 
     rng = np.random.default_rng(seed)
     l, ny = len(artifact.joint_names), len(artifact.sensor_names)
     scale = 10.0 ** rng.uniform(-3, 0, (steps, 1))
-    friction = rng.normal(0, 50, (steps, l)) * scale
-    normal = rng.uniform(0, 400, (steps, l))
-    clqg = np.hstack([rng.normal(0, 1e-4, (steps, ny)) * scale, friction, normal])
-    siso = np.hstack([rng.normal(0, 1e-3, (steps, l)) * scale, friction, normal])
-    return {"clqg": clqg.astype(np.float32), "siso": siso.astype(np.float32)}
+    drawn = {"friction_force": rng.normal(0, 50, (steps, l)) * scale, "normal_force": rng.uniform(0, 400, (steps, l))}
+    for field, deviation in _DRAWS.items():
+        drawn[field] = rng.normal(0, deviation, (steps, ny if field == "sensors" else l)) * scale
+    return {
+        law: np.hstack([drawn[field] for field in fields]).astype(np.float32) for law, fields in INPUT_FIELDS.items()
+    }
 
 
 def inputs_header(artifact: ControllerArtifact, rows: dict[str, np.ndarray]) -> str:
     """``selftest_inputs.h``: the sequence as C99 hexadecimal float literals (exact)."""
     sizes = {"sensors": len(artifact.sensor_names)}
-    steps = len(rows["clqg"])
+    steps = len(next(iter(rows.values())))
     out = ["/* Input sequence of the target self-test, written by bench/target.py. */",
            f"#define SJ_SELFTEST_STEPS {steps}"]  # fmt: skip
     for law, fields in INPUT_FIELDS.items():
@@ -128,8 +134,8 @@ def _sizes(elf: Path, objects: list[Path]) -> dict[str, int]:
 
 def parse(text: str) -> dict:
     """The self-test's UART output: output words and status per law and step, and the figures."""
-    words: dict[str, list[list[int]]] = {"clqg": [], "siso": []}
-    status: dict[str, list[int]] = {"clqg": [], "siso": []}
+    words: dict[str, list[list[int]]] = {law: [] for law in INPUT_FIELDS}
+    status: dict[str, list[int]] = {law: [] for law in INPUT_FIELDS}
     figures: dict[str, int] = {}
     lines = text.replace("\r", "").splitlines()
     if "SJ-SELFTEST mps2-an386" not in lines or "END" not in lines:
@@ -206,11 +212,11 @@ def run_selftest(artifact: ControllerArtifact, steps: int = 200, seed: int = 19,
     per_tick = figures["instructions_per_tick"]
     instructions = {
         law: per_tick * (figures[f"ticks_{law}"] - figures[f"ticks_{law}_empty"]) / figures["steps"]
-        for law in ("clqg", "siso")
+        for law in INPUT_FIELDS
     }
     # The loop whose step runs the cLQG's output phase once more, less the one with an empty call there.
     instructions["clqg_output_phase"] = per_tick * figures["ticks_clqg_output_phase"] / figures["steps"]
-    stack = {law: figures[f"stack_{law}"] for law in ("clqg", "siso", "can")}
+    stack = {law: figures[f"stack_{law}"] for law in (*INPUT_FIELDS, "can")}
     stack["high_water"] = figures["stack_high_water"]
     command[-1] = "selftest.elf"
     return {

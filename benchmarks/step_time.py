@@ -5,7 +5,7 @@ Inputs: ROWS random rows at recorded-like scales (tip sensors ~1 mm, sliding vel
 step takes the normal path), seeded. The artefact is firmware/generated/controller.json
 (``--artifact`` to change it).
 
-- C step time: ``Controllers(a, "double").clipped_lqg().run(rows)`` and ``.siso().run(rows)``
+- C step time: ``Controllers(a, "double").law("clqg").run(rows)`` and ``.law("siso").run(rows)``
   (the loop runs inside C; the figure includes the wrapper's copies in and out of the struct
   arrays), best of REPEATS, per step; also the bare batch loop (``lib.<prefix>_<law>_run`` on
   buffers filled once) to show what the copies cost.

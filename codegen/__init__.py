@@ -16,7 +16,7 @@ May import ``smartjoint.common`` and ``smartjoint.design`` (the artefact, the CA
 from smartjoint.codegen.backtoback import back_to_back
 from smartjoint.codegen.build import FLAGS, check_folder, compile_object, declarations
 from smartjoint.codegen.can_layer import check_can, render_can
-from smartjoint.codegen.controllers import CompiledClippedLqg, CompiledSiso, Controllers, compile_controllers
+from smartjoint.codegen.controllers import CompiledLaw, Controllers, compile_controllers
 from smartjoint.codegen.generate import render
 from smartjoint.codegen.identifiers import check_names, check_prefix
 from smartjoint.codegen.output import Placed, place, write
@@ -24,8 +24,7 @@ from smartjoint.codegen.rendering import banner, environment, literal
 
 __all__ = [
     "FLAGS",
-    "CompiledClippedLqg",
-    "CompiledSiso",
+    "CompiledLaw",
     "Controllers",
     "Placed",
     "back_to_back",

@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 
 from smartjoint.codegen import controllers
+from smartjoint.common import law_registry
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
 
@@ -69,13 +70,14 @@ def back_to_back(
     """
     builds = {real: controllers.compile_controllers(artifact, real) for real in ("double", "float")}
     out: dict[str, dict] = {}
-    for name, python, wrapper in (("SISO", artifacts.siso_law, "siso"), ("cLQG", artifacts.clipped_lqg, "clipped_lqg")):
+    for entry in law_registry.LAWS.values():
+        name = entry.display
         progress(f"      {name}: reference run, replay through the double and float builds, float build in the loop")
-        recorder = Recorder(python(artifact))
+        recorder = Recorder(entry.python_reference(artifact))
         reference = closed_loop.run_semi_active(setup, name, recorder)
         figures: dict = {"samples": len(recorder.log), "energy_measure_reference": reference.energy_measure()}
         for real in ("double", "float"):
-            law = getattr(builds[real], wrapper)()
+            law = builds[real].law(entry.name)
             law.reset()
             deviations = []
             identical = 0
@@ -85,7 +87,7 @@ def back_to_back(
                 identical += int(got.tobytes() == expected.tobytes())
             figures[f"{real}_max_deviation"] = max(deviations)
             figures[f"{real}_identical_samples"] = identical
-        in_loop = closed_loop.run_semi_active(setup, name, getattr(builds["float"], wrapper)())
+        in_loop = closed_loop.run_semi_active(setup, name, builds["float"].law(entry.name))
         figures["energy_measure_float"] = in_loop.energy_measure()
         figures["energy_measure_float_relative_error"] = in_loop.energy_measure() / reference.energy_measure() - 1.0
         if study is not None:

@@ -18,7 +18,7 @@ from typing import Any, cast
 import numpy as np
 
 from smartjoint.codegen import build, generate, rendering
-from smartjoint.common import native, package_data
+from smartjoint.common import law_registry, native, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.runs import (
@@ -33,7 +33,7 @@ from smartjoint.design.plant import loop, schemes
 from smartjoint.design.plant.interface import Controller
 from smartjoint.design.plant.kernel import PlantRun
 
-LAWS = {"SISO": "siso", "cLQG": "clqg"}  # the study's law names → the generated laws
+LAWS = {law.display: law.name for law in law_registry.LAWS.values()}  # the study's run names → the generated laws
 
 
 @dataclass(frozen=True)
@@ -66,6 +66,7 @@ def render(artifact: artifacts.ControllerArtifact, prefix: str = "smartjoint") -
         "prefix": prefix,
         "PREFIX": prefix.upper(),
         "laws": list(LAWS.values()),
+        "inputs": {law.name: law.inputs for law in law_registry.LAWS.values()},
         "banner": rendering.banner(artifact.artifact_sha256, "double"),
     }
     env = rendering.environment()
@@ -110,7 +111,7 @@ class CompiledLoop:
         s : StudySetup
             The study; its sample time, limits and joints those of the artefact.
         law : str
-            "SISO" or "cLQG".
+            The display name of a law of the registry (the study's run).
 
         Returns
         -------
@@ -196,10 +197,11 @@ class CompiledLoop:
             },
         )
         result = ffi.new(f"{self.prefix}_loop_result *")
+        plant, state, record, owner = kernel.structs()
         getattr(self.lib, function)(
-            self._pointer("sj_plant *", kernel.cp, kernel.ffi),
-            self._pointer("sj_state *", kernel.cs, kernel.ffi),
-            self._pointer("sj_record *", kernel.cr, kernel.ffi),
+            self._pointer("sj_plant *", plant, owner),
+            self._pointer("sj_state *", state, owner),
+            self._pointer("sj_record *", record, owner),
             settings,
             *extra,
             result,
@@ -251,9 +253,9 @@ class CompiledLoop:
             t = result.failed_sample * s.sample_time
             raise ModelError(f"controller returned normal forces that are not all finite and >= 0 at t = {t:.6g} s")
         if result.failed_step >= 0:
+            step, residual = kernel.failure()
             raise ModelError(
-                f"joint solve did not converge at step {kernel.cs.failed_step:.3g} s (residual "
-                f"{kernel.cs.failed_residual:.3g}); reduce the step"
+                f"joint solve did not converge at step {step:.3g} s (residual {residual:.3g}); reduce the step"
             )
 
 

@@ -3,11 +3,12 @@
 ``compile_controllers`` renders the artefact (``generate.render``), writes the files to the
 build cache and compiles them with the warning set the generated C is held to
 (``build.FLAGS``: any warning is an error); the cffi declarations come from the generated
-headers (``build.declarations``). The wrappers ``CompiledSiso`` and ``CompiledClippedLqg`` have
-the interface of the Python reference controllers (``reset()``, ``step(measurements) ->
-normal_forces``, ``sample_time``, ``status``) so the plant simulation runs either. ``run`` feeds
-a whole input sequence through C in one call (a loop inside C), for back-to-back checks and
-step-time measurements.
+headers (``build.declarations``). ``CompiledLaw`` wraps any law of the registry
+(``common.law_registry``) with the interface of the Python reference controllers
+(``reset()``, ``step(measurements) -> normal_forces``, ``sample_time``, ``status``) so the plant
+simulation runs either; the law's entry names the measurements its input struct holds. ``run``
+feeds a whole input sequence through C in one call (a loop inside C), for back-to-back checks
+and step-time measurements.
 """
 
 from __future__ import annotations
@@ -15,10 +16,10 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.codegen import build, generate
+from smartjoint.common import law_registry
+from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.plant.interface import Measurements
-
-LAWS = ("siso", "clqg")
 
 
 def _driver_header(prefix: str) -> str:
@@ -27,19 +28,19 @@ def _driver_header(prefix: str) -> str:
     prototypes = "".join(
         f"unsigned int {prefix}_{law}_run({prefix}_{law}_state *state, const {prefix}_{law}_input *input,\n"
         f"                                {prefix}_{law}_output *output, unsigned int *status, int count);\n"
-        for law in LAWS
+        for law in law_registry.NAMES
     )
+    includes = "".join(f'#include "{prefix}_{law}.h"\n' for law in law_registry.NAMES)
     return (
         f"/* Batch loops compiled next to the generated controllers (not part of the firmware). */\n"
-        f"#ifndef {guard}\n#define {guard}\n\n"
-        f'#include "{prefix}_siso.h"\n#include "{prefix}_clqg.h"\n\n{prototypes}\n#endif\n'
+        f"#ifndef {guard}\n#define {guard}\n\n{includes}\n{prototypes}\n#endif\n"
     )
 
 
 def _driver(prefix: str) -> str:
     """Batch loops compiled next to the generated code (not part of the firmware)."""
     out = ['#include "_driver.h"']
-    for law in LAWS:
+    for law in law_registry.NAMES:
         out.append(f"""
 unsigned int {prefix}_{law}_run({prefix}_{law}_state *state, const {prefix}_{law}_input *input,
                                 {prefix}_{law}_output *output, unsigned int *status, int count)
@@ -84,28 +85,31 @@ class Controllers:
             f"controllers_{prefix}_{real}",
             batch,
             "_driver.h",
-            (f"{prefix}_siso.c", f"{prefix}_clqg.c", "_driver.c"),
+            (*(f"{prefix}_{law}.c" for law in law_registry.NAMES), "_driver.c"),
             flags,
         )
         self.ffi, self.lib = module.ffi, module.lib
         self.dtype = np.float32 if real == "float" else np.float64
 
-    def siso(self) -> CompiledSiso:
-        """A new instance of the compiled SISO law (Eq. 30–31)."""
-        return CompiledSiso(self)
-
-    def clipped_lqg(self) -> CompiledClippedLqg:
-        """A new instance of the compiled clipped-optimal LQG (Eq. 33–34)."""
-        return CompiledClippedLqg(self)
+    def law(self, name: str) -> CompiledLaw:
+        """A new instance of the compiled law ``name`` (a law of ``common.law_registry``)."""
+        return CompiledLaw(self, law_registry.law(name))
 
 
-class _Compiled:
-    law = ""
-    input_fields: tuple[str, ...] = ()
-    output_fields: tuple[str, ...] = ()
+class CompiledLaw:
+    """One generated law behind the controller interface.
 
-    def __init__(self, controllers: Controllers):
-        self.c = controllers
+    Parameters
+    ----------
+    controllers : Controllers
+        The compiled module.
+    law : law_registry.Law
+        The law; its ``inputs`` are the measurements its input struct holds, in order.
+    """
+
+    def __init__(self, controllers: Controllers, law: law_registry.Law):
+        self.c, self.entry, self.law = controllers, law, law.name
+        self.input_fields, self.output_fields = law.inputs, law.outputs
         p, ffi = controllers.prefix, controllers.ffi
         self.sample_time = float(controllers.artifact.sample_time)
         self._state = ffi.new(f"{p}_{self.law}_state *")
@@ -122,9 +126,6 @@ class _Compiled:
         self._init(self._state)
         self.status = 0
 
-    def _inputs(self, measurements: Measurements) -> list[np.ndarray]:
-        raise NotImplementedError
-
     def step(self, measurements: Measurements) -> np.ndarray:
         """One controller sample through the C.
 
@@ -138,10 +139,25 @@ class _Compiled:
         numpy.ndarray
             The commanded normal forces F_N,j [N]; ``status`` holds the step's status bits.
         """
-        for field, values in zip(self.input_fields, self._inputs(measurements)):
+        for field in self.input_fields:
+            values = np.asarray(getattr(measurements, field))
             getattr(self._input, field)[0 : len(values)] = [float(v) for v in values]
         self.status = int(self._step(self._state, self._input, self._output))
         return np.array(list(self._output.normal_force), dtype=float)
+
+    def output(self, field: str) -> np.ndarray:
+        """A field of the last step's output struct (one of the law's ``outputs``)."""
+        if field not in self.output_fields:
+            raise ModelError(
+                f"output: {field!r} — the {self.entry.display} law outputs {', '.join(self.output_fields)}"
+            )
+        return np.array(list(getattr(self._output, field)), dtype=float)
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        # The law's further outputs read as the Python reference's attributes (``desired_force``).
+        if name in self.__dict__.get("output_fields", ()):
+            return self.output(name)
+        raise AttributeError(name)
 
     def run(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Feed rows of inputs through the C from the current state, in one call.
@@ -169,31 +185,6 @@ class _Compiled:
         return outputs, status
 
 
-class CompiledSiso(_Compiled):
-    """The generated SISO law (Eq. 30–31) behind the controller interface."""
-
-    law = "siso"
-    input_fields = ("sliding_velocity", "friction_force", "normal_force")
-
-    def _inputs(self, m: Measurements):
-        return [np.asarray(m.sliding_velocity), np.asarray(m.friction_force), np.asarray(m.normal_force)]
-
-
-class CompiledClippedLqg(_Compiled):
-    """The generated clipped-optimal LQG (Eq. 33–34) behind the controller interface."""
-
-    law = "clqg"
-    input_fields = ("sensors", "friction_force", "normal_force")
-
-    def _inputs(self, m: Measurements):
-        return [np.asarray(m.sensors), np.asarray(m.friction_force), np.asarray(m.normal_force)]
-
-    @property
-    def desired_force(self) -> np.ndarray:
-        """The LQR forces u_d = -K x_hat of the last step [N] (Eq. 33)."""
-        return np.array(list(self._output.desired_force), dtype=float)
-
-
 def compile_controllers(
     artifact: ControllerArtifact, real: str = "double", prefix: str = "smartjoint", flags: list[str] | None = None
 ) -> Controllers:
@@ -207,11 +198,11 @@ def compile_controllers(
     Returns
     -------
     Controllers
-        The compiled module; ``.siso()`` and ``.clipped_lqg()`` give controllers.
+        The compiled module; ``.law(name)`` gives a controller.
 
     Examples
     --------
-    >>> law = compile_controllers(artifact, "float").siso()  # doctest: +SKIP
+    >>> law = compile_controllers(artifact, "float").law("siso")  # doctest: +SKIP
     >>> law.step(measurements)  # doctest: +SKIP
     """
     return Controllers(artifact, real, prefix, flags)

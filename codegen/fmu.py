@@ -34,13 +34,13 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.codegen import build, fmi_headers, fmu_variables, generate, rendering
-from smartjoint.common import package_data
+from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.plant import fixed_step
 from smartjoint.design.plant.interface import ConstantNormalForce
 from smartjoint.design.plant.kernel import LAW_FIELDS, PlantRun
 
-LAWS = {"siso": "SISO law (Eq. 30-31)", "clqg": "clipped-optimal LQG (Eq. 33-34)"}
+LAWS = {law.name: law.title for law in law_registry.LAWS.values()}
 VERSIONS = (2, 3)
 UNITS = {
     "N": (("kg", 1), ("m", 1), ("s", -2)),
@@ -119,7 +119,7 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
     artifact : ControllerArtifact
         The controller design the law is generated from.
     law : str
-        "siso" or "clqg".
+        A law of the registry (``common.law_registry``) by name.
     path : path-like
         The FMU to write, ``<model identifier>.fmu``.
     fmi : int
@@ -144,7 +144,7 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
     banner = _fmu_banner(rendering.banner(artifact.artifact_sha256, real, "codegen, FMU"))
     laws = generate.render(artifact, real, prefix)
     sources = {key: laws[key] for key in (f"{prefix}_types.h", f"{name}.h", f"{name}.c")}
-    layers = np.atleast_1d(np.asarray(artifact.siso_boundary_layer if law == "siso" else artifact.clqg_boundary_layer))
+    layers = np.atleast_1d(np.asarray(getattr(artifact, law_registry.law(law).boundary_layer.field)))
 
     def row(values, kind: str) -> str:
         return ", ".join(rendering.literal(float(v), kind) for v in np.asarray(values, dtype=float).reshape(-1))
@@ -277,7 +277,7 @@ def plant_data(setup) -> dict:
     """
     held = ConstantNormalForce(np.zeros(len(setup.laws)), setup.sample_time)  # the scheme asks for a sample time only
     run = PlantRun(setup.plant, setup.laws, held, setup.duration, setup.plant_step, None, 1, "python", False, None)
-    plant = fixed_step.kernel(run).p
+    plant = fixed_step.tables(run)
     fields = {
         "phi": plant.phi, "g0": plant.g0, "g1": plant.g1, "G": plant.G, "ET": plant.ET_padded, "HT": plant.HT,
         "Vy": plant.Vy, "Dy": plant.Dy, "two_xi_w": plant.two_xi_w,

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 
 TIME = 0  # value reference of the independent variable (FMI 3 requires one; FMI 2 carries it too)
@@ -114,7 +115,7 @@ def sensor_unit(quantity: str) -> str:
 
 
 def controller_variables(artifact, law: str, real: str = "double") -> list[Variable]:
-    """The variables of a controller FMU of ``law`` ("siso" or "clqg").
+    """The variables of a controller FMU of ``law`` (a law of ``common.law_registry``).
 
     Parameters
     ----------
@@ -150,14 +151,12 @@ def _controller_inputs(artifact, law: str, rules: dict) -> list[dict]:
     """The measurements the law reads, as the input struct of its step holds them."""
     fresh = "m->computed = 0;"
     rows = []
-    if law == "clqg":
+    inputs = law_registry.law(law).inputs
+    if "sensors" in inputs:
         for r, (name, quantity) in enumerate(zip(artifact.sensor_names, artifact.sensor_quantities)):
             rows.append(_input(f"TIP_SENSORS.{name}", f"m->input.sensors[{r}]", sensor_unit(quantity),
                                f"tip sensor y_{r + 1} ({quantity})", fresh, **rules))  # fmt: skip
-    quantities = [("friction_force", "N", "measured friction force u_R"),
-                  ("normal_force", "N", "measured applied normal force F_N")]  # fmt: skip
-    if law == "siso":
-        quantities.insert(0, ("sliding_velocity", "m/s", "sliding velocity v"))
+    quantities = [(quantity, *_JOINT_INPUTS[quantity]) for quantity in inputs if quantity in _JOINT_INPUTS]
     for j, name in enumerate(artifact.joint_names):
         for quantity, unit, what in quantities:
             rows.append(_input(f"JOINT_{name}.{quantity}", f"m->input.{quantity}[{j}]", unit, f"{what} of joint {name}",
@@ -165,14 +164,22 @@ def _controller_inputs(artifact, law: str, rules: dict) -> list[dict]:
     return rows
 
 
+# A joint's measurements a law may read (JOINT_<j> of the DBC): unit and description.
+_JOINT_INPUTS = {
+    "sliding_velocity": ("m/s", "sliding velocity v"),
+    "friction_force": ("N", "measured friction force u_R"),
+    "normal_force": ("N", "measured applied normal force F_N"),
+}
+
+
 def _controller_outputs(artifact, law: str) -> list[dict]:
     """The command of each joint (and the cLQG's LQR force u_d)."""
+    entry = law_registry.law(law)
     rows = []
     for j, name in enumerate(artifact.joint_names):
-        equation = 30 if law == "siso" else 34
-        rows.append(_output(f"SETPOINT_{name}.normal_force", f"m->output.normal_force[{j}]", "N",
-                            f"commanded normal force F_N of joint {name} (Eq. {equation})", "discrete"))  # fmt: skip
-        if law == "clqg":
+        what = f"commanded normal force F_N of joint {name} (Eq. {entry.equation})"
+        rows.append(_output(f"SETPOINT_{name}.normal_force", f"m->output.normal_force[{j}]", "N", what, "discrete"))
+        if "desired_force" in entry.outputs:
             rows.append(_output(f"SETPOINT_{name}.desired_force", f"m->output.desired_force[{j}]", "N",
                                 f"LQR force u_d = -(K x_hat) of joint {name} (Eq. 33)", "discrete"))  # fmt: skip
     return rows
@@ -181,6 +188,7 @@ def _controller_outputs(artifact, law: str) -> list[dict]:
 def _controller_parameters(artifact, law: str) -> list[dict]:
     """The tunable normal-force limits and boundary layers, refused unless 0 <= F^min < F^max, eps > 0."""
     tuned = "tune(m);"
+    layer = law_registry.law(law).boundary_layer
     rows = []
     for j, name in enumerate(artifact.joint_names):
         low, high = f"m->normal_force_min[{j}]", f"m->normal_force_max[{j}]"
@@ -193,14 +201,14 @@ def _controller_parameters(artifact, law: str) -> list[dict]:
                                artifact.normal_force_max[j], tuned, minimum=0.0,
                                condition=f"value > {low} && isfinite(value)",
                                allowed="F_N^min = %g N < F_N^max, finite", allowed_value=low))  # fmt: skip
-        if law == "siso":
-            rows.append(_parameter(f"JOINT_{name}.boundary_layer", f"m->boundary_layer[{j}]", "m/s",
-                                   f"boundary layer eps of joint {name} (Eq. 30)", artifact.siso_boundary_layer[j],
-                                   tuned, **POSITIVE))  # fmt: skip
-    if law == "clqg":
-        rows.append(_parameter("boundary_layer", "m->boundary_layer[0]", "N",
-                               "boundary layer eps of the clipped law (Eq. 34)", artifact.clqg_boundary_layer, tuned,
-                               **POSITIVE))  # fmt: skip
+        if layer.per_joint:
+            rows.append(_parameter(f"JOINT_{name}.boundary_layer", f"m->boundary_layer[{j}]", layer.unit,
+                                   f"boundary layer eps of joint {name} (Eq. {layer.equation})",
+                                   getattr(artifact, layer.field)[j], tuned, **POSITIVE))  # fmt: skip
+    if not layer.per_joint:
+        rows.append(_parameter("boundary_layer", "m->boundary_layer[0]", layer.unit,
+                               f"boundary layer eps of the {law_registry.law(law).display} law (Eq. {layer.equation})",
+                               getattr(artifact, layer.field), tuned, **POSITIVE))  # fmt: skip
     return rows
 
 

@@ -26,6 +26,7 @@ from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_
 from smartjoint.commands_fmu import cmd_fmu
 from smartjoint.commands_friction import cmd_identify, cmd_rig
 from smartjoint.commands_sweep import cmd_sweep
+from smartjoint.common import law_registry
 from smartjoint.common.errors import SmartjointError
 
 
@@ -291,7 +292,7 @@ def _add_control_commands(sub, o: SimpleNamespace) -> None:
         help="the paper's study through the CAN loop: firmware, bus, amplifiers (software in the loop)",
     )
     p.add_argument("--artifact", help="controller artefact (default: designed from DESIGN now)")
-    p.add_argument("--law", choices=("siso", "clqg", "both"), default="both")
+    p.add_argument("--law", choices=(*law_registry.NAMES, "all"), default="all")
     p.add_argument("--real", choices=("float", "double"), default="float", help="firmware build (default: %(default)s)")
     p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
     p.add_argument(
@@ -321,7 +322,7 @@ def _add_fmu_command(sub, o: SimpleNamespace) -> None:
     )
     p.add_argument("source", help="controller artefact (JSON) for a controller FMU; design file (TOML) with --plant")
     p.add_argument("--plant", action="store_true", help="the design's reduced truss with its LuGre joints")
-    p.add_argument("--law", choices=("siso", "clqg"), help="the controller's law (controller FMUs)")
+    p.add_argument("--law", choices=law_registry.NAMES, help="the controller's law (controller FMUs)")
     p.add_argument("-o", "--output", required=True, help="the FMU to write, <model identifier>.fmu")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default: %(default)s)")
     p.add_argument("--real", choices=("float", "double"), default="double", help="law build (default: %(default)s)")
@@ -337,7 +338,7 @@ def _add_target_commands(sub, o: SimpleNamespace) -> None:
         "the plant (processor in the loop)",
     )
     p.add_argument("--artifact", help="controller artefact (default: designed from DESIGN now)")
-    p.add_argument("--law", choices=("siso", "clqg", "both"), default="both")
+    p.add_argument("--law", choices=(*law_registry.NAMES, "all"), default="all")
     p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
     p.add_argument("--fault", action="append", help="inject a fault as `sil --fault` takes it, repeatable")
     p.add_argument(
@@ -375,7 +376,7 @@ def _add_bench_commands(sub, o: SimpleNamespace) -> None:
     )
     q.add_argument("log")
     q.add_argument("--artifact", required=True)
-    q.add_argument("--law", choices=("siso", "clqg"), default="siso")
+    q.add_argument("--law", choices=law_registry.NAMES, default=law_registry.NAMES[0])
     q.add_argument("--real", choices=("float", "double"), default="float")
     q.add_argument("--tolerance", type=float, default=0.0, help="volts counted as equal (default 0: bit-exact)")
     for tool in bench.choices.values():

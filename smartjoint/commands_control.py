@@ -153,13 +153,14 @@ def _controller_artifact(args, design, model):
 def _loop_inputs(args) -> tuple:
     """What sil and pil run: the design, its design model, the artefact, the faults and the laws."""
     from smartjoint.bench.faults import parse_fault
+    from smartjoint.common import law_registry
     from smartjoint.design.control import study as closed_loop
 
     design = _control_design(args, firmware_names=True)
     model = closed_loop.design_model(design, report_progress)
     controller = _controller_artifact(args, design, model)
     faults = [parse_fault(text) for text in args.fault or []]
-    return design, model, controller, faults, ("siso", "clqg") if args.law == "both" else (args.law,)
+    return design, model, controller, faults, law_registry.NAMES if args.law == "all" else (args.law,)
 
 
 def cmd_sil(args) -> dict:

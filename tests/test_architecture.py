@@ -8,7 +8,8 @@ the project is imported, so a broken module cannot hide a broken rule).
   (``smartjoint``), and inside ``design`` the stage order ``structure`` ← ``friction`` ←
   ``reduction`` ← ``plant`` ← ``control`` ← ``network`` (which may take only the controller
   artefact from ``control``). A module imports its own layer or lower ones, never a higher one.
-- No module imports a private name of another module (public functions are the seams).
+- No module imports a private name of another module (public functions are the seams), nor
+  reads the state of another module's private class (``tests/test_seams.py``).
 - Every import of ``smartjoint.…`` anywhere in the tree names a module or a name that exists
   (no import path left behind by a move).
 - Sizes: no module over 500 lines, no function over 80 lines, outside generated code and templates.

@@ -95,7 +95,7 @@ def test_the_phases_are_the_step_bit_for_bit_and_the_output_phase_repeats(refere
         assert "fmaf(" in build.files["smartjoint_clqg.c"]
     else:
         assert "fma" not in build.files["smartjoint_clqg.c"].replace("MULTIPLY", "")
-    stepped, split = build.clipped_lqg(), _phases(build.clipped_lqg())
+    stepped, split = build.law("clqg"), _phases(build.law("clqg"))
     for m in faulty(reference, count=1500):
         assert split.step(m).tobytes() == stepped.step(m).tobytes(), m.time
         assert split.status == stepped.status and split.desired_force.tobytes() == stepped.desired_force.tobytes()

@@ -82,8 +82,8 @@ def _check_pair(reference_controller, compiled, sequence, exact):
 def test_double_build_is_bit_identical_to_the_python_reference(reference, builds):
     c = builds["double"]
     sequence = _sequence(reference)
-    assert _check_pair(artifact.siso_law(reference), c.siso(), sequence, exact=True) == 0.0
-    assert _check_pair(artifact.clipped_lqg(reference), c.clipped_lqg(), sequence, exact=True) == 0.0
+    assert _check_pair(artifact.siso_law(reference), c.law("siso"), sequence, exact=True) == 0.0
+    assert _check_pair(artifact.clipped_lqg(reference), c.law("clqg"), sequence, exact=True) == 0.0
 
 
 @pytest.mark.numerics
@@ -95,8 +95,8 @@ def test_float_build_stays_within_its_documented_bound(reference, builds):
     span = float(np.min(reference.normal_force_max - reference.normal_force_min))
     for seed in (7, 8):
         sequence = _sequence(reference, faults=False, seed=seed)
-        assert _check_pair(artifact.siso_law(reference), c.siso(), sequence, exact=False) <= 1e-4 * span
-        python, compiled = artifact.clipped_lqg(reference), c.clipped_lqg()
+        assert _check_pair(artifact.siso_law(reference), c.law("siso"), sequence, exact=False) <= 1e-4 * span
+        python, compiled = artifact.clipped_lqg(reference), c.law("clqg")
         worst_force = worst_desired = largest = 0.0
         for m in sequence:
             difference = np.abs(python.step(m) - compiled.step(m))
@@ -113,7 +113,7 @@ def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
     INPUT_IMPLAUSIBLE) puts every joint of either law at the artefact's safe normal force."""
     low, high, safe = reference.normal_force_min, reference.normal_force_max, reference.safe_normal_force
     assert np.all((safe >= low) & (safe <= high))
-    for law in (builds[real].siso(), builds[real].clipped_lqg()):
+    for law in (builds[real].law("siso"), builds[real].law("clqg")):
         statuses = set()
         for m in _sequence(reference, count=1500, seed=3):
             out = law.step(m)
@@ -134,12 +134,12 @@ def test_faulty_inputs_never_leave_the_limits(reference, builds, real):
     biggest = float(np.finfo(np.float64 if real == "double" else np.float32).max)
     l, ny = len(reference.joint_names), len(reference.sensor_names)
     m = plant.Measurements(0.0, np.full(ny, biggest), np.zeros(l), np.ones(l), np.full(l, 100.0))
-    law = builds[real].clipped_lqg()
+    law = builds[real].law("clqg")
     assert np.array_equal(law.step(m), safe) and law.status == control.STATUS_INPUT_IMPLAUSIBLE
     # With the sensor range opened to the largest number they drive the estimate out of the
     # finite numbers: ESTIMATE_RESET, the safe force, the filter restarts.
     wide = artifact.loads(json.dumps(dict(json.loads(artifact.dumps(reference)), sensor_limit=[biggest] * ny)))
-    law = controllers.compile_controllers(wide, real).clipped_lqg()
+    law = controllers.compile_controllers(wide, real).law("clqg")
     statuses = []
     for _ in range(5):
         out = law.step(m)
@@ -213,7 +213,7 @@ def test_each_input_channel_is_checked_alike_in_python_and_c(reference, builds, 
     outside (twice the limit, ±1e38, ±Inf, NaN) and status 0 inside."""
     make = artifact.siso_law if law == "siso" else artifact.clipped_lqg
     python = make(reference)
-    compiled = {real: getattr(builds[real], "siso" if law == "siso" else "clipped_lqg")() for real in builds}
+    compiled = {real: builds[real].law(law) for real in builds}
     low, high = (np.asarray(v, dtype=float) for v in _channel_range(reference, field))
     before, after = _plausible_run(reference, 6, seed=11), _plausible_run(reference, 4, seed=12)
     safe, lowest = reference.safe_normal_force, reference.normal_force_min
@@ -302,15 +302,15 @@ def test_study_back_to_back(reference, builds, three_type_a):
             return out
 
     span = float(np.min(reference.normal_force_max - reference.normal_force_min))
-    for name, python, compiled in (("SISO", artifact.siso_law, "siso"), ("cLQG", artifact.clipped_lqg, "clipped_lqg")):
+    for name, python, compiled in (("SISO", artifact.siso_law, "siso"), ("cLQG", artifact.clipped_lqg, "clqg")):
         recorder = Recorder(python(reference))
         run = study.run_semi_active(s, name, recorder)
         for real, bound in (("double", 0.0), ("float", FLOAT_BOUND * span)):
-            law = getattr(builds[real], compiled)()
+            law = builds[real].law(compiled)
             law.reset()
             worst = max(float(np.max(np.abs(law.step(m) - out))) for m, out in recorder.log)
             assert worst <= bound, (name, real, worst)
-        in_loop = study.run_semi_active(s, name, getattr(builds["float"], compiled)())
+        in_loop = study.run_semi_active(s, name, builds["float"].law(compiled))
         deviation = in_loop.energy_measure() / run.energy_measure() - 1.0
         spread = [
             study.run_semi_active(s, name, sil.perturbed(python(reference), 6e-8, seed)).energy_measure()
@@ -321,7 +321,7 @@ def test_study_back_to_back(reference, builds, three_type_a):
         band = SPREAD_MARGIN * max(abs(d) for d in spread)
         assert 0.0 < band < 0.5, (name, spread)  # a measured sensitivity, not a licence for any result
         assert abs(deviation) <= band, (name, deviation, spread)
-        twin = study.run_semi_active(s, name, getattr(builds["double"], compiled)())
+        twin = study.run_semi_active(s, name, builds["double"].law(compiled))
         assert twin.energy.tobytes() == run.energy.tobytes(), name
 
 
@@ -438,7 +438,7 @@ def test_the_two_phases_are_the_step_bit_for_bit(reference, builds):
     """Output phase then update phase, in C and in Python, with NaN/±Inf and absurd inputs among
     them: the same commands, desired forces and status bits as the reference's whole step."""
     sequence = _sequence(reference, count=1500)
-    pair = _in_phases(artifact.clipped_lqg(reference), builds["double"].clipped_lqg(), builds["double"].lib)
+    pair = _in_phases(artifact.clipped_lqg(reference), builds["double"].law("clqg"), builds["double"].lib)
     _check_pair(*pair, sequence, exact=True)
     stepped, split = artifact.clipped_lqg(reference), artifact.clipped_lqg(reference)
     for m in sequence:
@@ -471,4 +471,4 @@ def test_zeros_of_c_are_skipped_alike_for_every_sensor_kind(reference):
         "m->output[0][0], q0)" in compiled.files["smartjoint_clqg.c"]
         and "reads no state" in compiled.files["smartjoint_clqg.c"]
     )
-    _check_pair(artifact.clipped_lqg(changed), compiled.clipped_lqg(), _sequence(changed, count=1500), exact=True)
+    _check_pair(artifact.clipped_lqg(changed), compiled.law("clqg"), _sequence(changed, count=1500), exact=True)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from smartjoint.common import law_registry
 from smartjoint.common.errors import MISSING, DesignError
 from smartjoint.design.structure.description import FRICTION_PARAMETERS
 from smartjoint.design.structure.files import read_file, read_toml
@@ -25,7 +26,7 @@ SCHEMA = "smartjoint-sweep/1"
 # Every law a sweep can run, in the order of the rows; the two best passive settings search the
 # constant F_N that minimises E(t_e) or e(t_e) per sample (ensemble.best_passive), so they are
 # asked for by name only.
-LAWS = ("passive F_min", "passive F_max", "SISO", "cLQG", "active LQG", "best passive E", "best passive e")
+LAWS = ("passive F_min", "passive F_max", *law_registry.DISPLAY, "active LQG", "best passive E", "best passive e")
 DEFAULT_LAWS = LAWS[:5]
 SAMPLERS = ("random", "latin-hypercube", "sobol")
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")

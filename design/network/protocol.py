@@ -35,6 +35,7 @@ from cantools.database.can.formats.dbc.dbc_attribute_definition import DbcAttrib
 from cantools.database.can.formats.dbc.dbc_specifics import DbcSpecifics
 from cantools.database.can.formats.dbc.dbc_writer import ATTRIBUTE_DEFINITION_GENMSGCYCLETIME
 
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.structure.sections import MAX_DISPLACEMENT
@@ -50,9 +51,10 @@ FD_LENGTHS = (8, 12, 16, 20, 24, 32, 48, 64)
 TIP_SIGNALS = {"displacement": ("m", MAX_DISPLACEMENT), "velocity": ("m/s", 10.0)}
 
 CONTROLLER = "CONTROLLER"
-MODES = {0: "INIT", 1: "SISO", 2: "CLQG", 3: "SAFE"}
+MODES = law_registry.by_mode()  # CONTROLLER_STATUS.mode: INIT, each law of the registry, SAFE
 AMPLIFIER_FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current")
-MODE_SAFE = 3
+MODE_SAFE = law_registry.MODE_SAFE
+_MODE_TEXT = {law_registry.MODE_INIT: "init", MODE_SAFE: "safe state"}  # the modes that are no law
 # Fault bits of CONTROLLER_STATUS.faults, in bit order (the C layer's <PREFIX>_CAN_FAULT_*).
 CONTROLLER_FAULTS = (
     "velocity",
@@ -319,8 +321,10 @@ def _controller_status_message(cycle: int) -> can.Message:
         16,
         4,
         minimum=0,
-        maximum=3,
-        comment="0 init, 1 SISO, 2 cLQG, 3 safe state",
+        maximum=max(MODES),
+        comment=", ".join(
+            f"{mode} {_MODE_TEXT.get(mode) or law_registry.law(name.lower()).display}" for mode, name in MODES.items()
+        ),
         conversion=conversion.BaseConversion.factory(1, 0, OrderedDict(MODES)),
     )
     controller = _e2e(CONTROLLER_ID) + [

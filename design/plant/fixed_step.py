@@ -74,10 +74,12 @@ def _solve_joints(law: JointLaws, G, v_free, v_start, phi, normal_force, h, u_st
     raise _SolveFailed(float(np.max(np.abs(residual))))
 
 
-class _Plant:
-    """Everything a run needs that does not change during it, laid out as structure of arrays
-    (rows of length n) like ``plant_kernel.c``: discretisation at step/2^d for
-    d = 0…MAX_HALVINGS, the transposed input matrices, the outputs and the joint laws."""
+class PlantTables:
+    """The fixed-step scheme's tables of a run: what ``plant_kernel.c``'s ``sj_plant`` points
+    into and the plant FMU ships. Everything a run needs that does not change during it, laid
+    out as structure of arrays (rows of length n) like ``plant_kernel.c``: discretisation at
+    step/2^d for d = 0…MAX_HALVINGS, the transposed input matrices, the outputs and the joint
+    laws."""
 
     def __init__(self, model: ModalModel, joints, step: float, books: bool = True):
         self.n, self.l = model.n_coordinates, model.joint_input.shape[1]
@@ -113,7 +115,7 @@ class _Plant:
 class _Kernel:
     """What both fixed-step kernels share: the run's plant, state and recorder."""
 
-    def __init__(self, plant: _Plant, state: State, recorder: Recorder):
+    def __init__(self, plant: PlantTables, state: State, recorder: Recorder):
         self.p, self.s, self.r = plant, state, recorder
 
     @property
@@ -194,7 +196,7 @@ class _CKernel(_Kernel):
 
     name = "c"
 
-    def __init__(self, plant: _Plant, state: State, recorder: Recorder):
+    def __init__(self, plant: PlantTables, state: State, recorder: Recorder):
         super().__init__(plant, state, recorder)
         native = self.native = NativeStructs()  # holds the arrays the C structs point into
         ffi = self.ffi = native.ffi
@@ -215,6 +217,15 @@ class _CKernel(_Kernel):
         )
         self.cs = ffi.new("sj_state *", native.shared(state, ("x", "q", "v", "phi", "u", "fn")))
         self.cr = native.record(recorder)
+
+    def structs(self) -> tuple:
+        """The C structs of this kernel (``sj_plant *``, ``sj_state *``, ``sj_record *``) and
+        their cffi module: what another compiled loop is handed to step this very plant."""
+        return self.cp, self.cs, self.cr, self.ffi
+
+    def failure(self) -> tuple[float, float]:
+        """Where the last joint solve failed: (time [s], residual)."""
+        return float(self.cs.failed_step), float(self.cs.failed_residual)
 
     def _pull(self):
         cs = self.cs
@@ -259,11 +270,15 @@ def check(run: PlantRun) -> None:
     """``Scheme.check`` (``kernel.py``): the general conditions of ``loop.simulate`` suffice."""
 
 
+def tables(run: PlantRun) -> PlantTables:
+    """The scheme's tables of a run (discretisations, inputs, outputs, joint laws)."""
+    return PlantTables(run.model, run.joints, run.step, run.energy_books)
+
+
 def kernel(run: PlantRun):
     """``Scheme.kernel`` (``kernel.py``): ``plant_kernel.c`` (backend "c"), its numpy mirror
     ("python") or the C where it builds ("auto"), state and recorder shared with numpy."""
-    plant = _Plant(run.model, run.joints, run.step, run.energy_books)
-    return choose_kernel(run, "plant simulation", plant, _CKernel, _PythonKernel, _C_FAILURE)
+    return choose_kernel(run, "plant simulation", tables(run), _CKernel, _PythonKernel, _C_FAILURE)
 
 
 FRICTION = True  # LuGre joints; the controller commands normal forces

@@ -56,7 +56,7 @@ def _aligned(shape) -> np.ndarray:
     return raw[offset : offset + count].reshape(shape)
 
 
-class _StickPlant:
+class StickPlant:
     """The run's constant data and the discretisations per set of normal forces."""
 
     def __init__(self, model, law, step: float, long_step: float):
@@ -125,7 +125,7 @@ class _StickPython:
 
     name = "python"
 
-    def __init__(self, plant: _StickPlant, state: State, recorder: Recorder):
+    def __init__(self, plant: StickPlant, state: State, recorder: Recorder):
         self.p, self.s, self.r = plant, state, recorder
         self.recorder = recorder
         self.z = np.zeros(plant.N)
@@ -249,7 +249,7 @@ class _StickC:
 
     name = "c"
 
-    def __init__(self, plant: _StickPlant, state: State, recorder: Recorder):
+    def __init__(self, plant: StickPlant, state: State, recorder: Recorder):
         native = self.native = NativeStructs()  # holds the arrays the C structs point into
         ffi = self.ffi = native.ffi
         self.lib = native.lib
@@ -363,7 +363,7 @@ def kernel(run: PlantRun):
     """``Scheme.kernel`` (``kernel.py``): ``sj_stick_run`` of plant_kernel.c (backend "c"), its
     numpy mirror ("python") or the C where it builds ("auto"); ``counts`` the steps taken per length."""
     assert run.stick_step is not None  # the scheme runs only with a stick step (see check)
-    plant = _StickPlant(run.model, JointLaws(run.joints), run.step, float(run.stick_step))
+    plant = StickPlant(run.model, JointLaws(run.joints), run.step, float(run.stick_step))
     return choose_kernel(run, "stick-exact simulation", plant, _StickC, _StickPython, _C_FAILURE)
 
 
