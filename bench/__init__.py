@@ -6,7 +6,8 @@ amplifier nodes (``amplifier``), the compiled firmware image (``firmware``), the
 injects (``faults``), the per-sample CAN loop behind the controller interface (``loop``), the
 safe-state fault matrix (``safety``) and its table and figure (``safety_report``), the paper's
 study through the loop (``sil``), CAN logs (``logs``) and their replay through the firmware
-(``replay``).
+(``replay``), and the sweep engine (``sweep``: Dask workers running the compiled closed loop,
+Parquet results).
 
 May import ``smartjoint.common``, ``smartjoint.design`` and ``smartjoint.codegen`` (it compiles
 and runs the generated C); only the command line builds on it.

@@ -21,9 +21,9 @@ from pathlib import Path
 import pyarrow.parquet as pq
 from machine import python_machine, write_json  # benchmarks/machine.py (the script's folder is on sys.path)
 
+from smartjoint.bench.sweep import read_results, run_sweep
 from smartjoint.common import package_data
 from smartjoint.design.control.sweep_file import load_sweep
-from smartjoint.sweep_runner import read_results, run_sweep
 
 SWEEP = """\
 schema = "smartjoint-sweep/1"

@@ -9,15 +9,15 @@ from smartjoint.commands import report_progress
 
 
 def cmd_sweep(args) -> dict:
+    from smartjoint.bench.sweep import run_sweep
     from smartjoint.design.control.sweep_file import load_sweep
-    from smartjoint.sweep_runner import run_sweep
 
     sweep = load_sweep(args.sweep)
     folder = Path(args.output) if args.output else Path(f"{Path(args.sweep).stem}-results")
     out = run_sweep(sweep, folder, args.scheduler, args.workers, args.resume, report_progress)
+    from smartjoint.bench.sweep import read_results
     from smartjoint.design.control.ensemble import KEYS, METRICS
     from smartjoint.sweep_report import write
-    from smartjoint.sweep_runner import read_results
 
     table = read_results(folder)
     inputs = [name for name in table.column_names if name not in (*KEYS, *sweep.grid, *METRICS)]

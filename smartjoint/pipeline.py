@@ -43,11 +43,11 @@ from smartjoint.codegen import backtoback, can_layer, generate, identifiers, out
 from smartjoint.design import build_model, load_design, solve_modes, updated_design
 from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
+from smartjoint.design.friction.stage import friction_entries, friction_stage, place_joints
 from smartjoint.design.network import protocol
 from smartjoint.design.reduction import reduction_study, study_summary
 from smartjoint.pipeline_ensemble import ensemble_stage
 from smartjoint.pipeline_fmu import fmu_stage
-from smartjoint.pipeline_joints import friction_entries, friction_stage, place_joints
 from smartjoint.pipeline_target import pil_stage
 from smartjoint.pipeline_target import summary_of as pil_summary
 from smartjoint.report_control import control_markdown, plot_control_study
@@ -134,7 +134,7 @@ class _Results:
     released: Any = None  # modes with the joints released, None without joints
     placed_design: str | None = None  # the design file [placement] wrote into the report
     skipped: str | None = None  # why the stages after the structure did not run
-    friction: list = field(default_factory=list)  # per joint type (pipeline_joints.JointTypeFriction)
+    friction: list = field(default_factory=list)  # per joint type (design.friction.stage.JointTypeFriction)
     friction_entries: dict = field(default_factory=dict)  # per joint: parameters and source
     study: Any = None  # the reduction study
     controlled: Any = None  # the design the controllers are built for
@@ -224,7 +224,7 @@ def _joints(r: _Results, staging: Path, progress) -> None:
 
 def _friction_stage(r: _Results, staging: Path, progress) -> None:
     """Stage 4: the friction of each joint type, identified from the design's rig records or
-    checked on simulated ones (``pipeline_joints.friction_stage``)."""
+    checked on simulated ones (``design.friction.stage.friction_stage``)."""
     types = ", ".join(sorted({j.type for j in r.design.joints}))
     progress(f"[4/12] friction joints (Section 3.2, Eq. 3 + output error): joint types {types}")
     r.design, r.friction = friction_stage(r.design, staging, progress)

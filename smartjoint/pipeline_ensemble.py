@@ -1,7 +1,7 @@
 """Stage 10 of ``smartjoint run``: a small robustness ensemble of the study (issue 20) — the
 study's laws, passive and semi-active, and the best constant normal forces on plants drawn
 around the design: each joint's LuGre parameters, the modal frequencies and damping and the
-pulse. It runs the sweep machinery (``sweep_runner``: Dask, the compiled closed loop, Parquet)
+pulse. It runs the sweep machinery (``bench.sweep``: Dask, the compiled closed loop, Parquet)
 on the run's own design and writes the sweep and its report into ``ensemble/``. Every spread is
 relative to the design's own values; ``smartjoint sweep`` runs larger or other ensembles."""
 
@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint import sweep_report
+from smartjoint.bench.sweep import read_results, run_sweep
 from smartjoint.design.control import sweep_file
 from smartjoint.design.control.ensemble import KEYS, METRICS
+from smartjoint.design.control.friction_uncertainty import Z95, friction_inputs, friction_spreads
 from smartjoint.design.control.sweep_file import Distribution, Sweep, UncertainInput
-from smartjoint.friction_uncertainty import Z95, friction_inputs, friction_spreads
-from smartjoint.sweep_runner import read_results, run_sweep
 
 SAMPLES = 16
 SEED = 2026

@@ -2,7 +2,7 @@
 ensemble with their Monte Carlo standard error, each law's distribution of Eq. 32's E(t_e), and
 the inputs that drive it (Spearman rank correlations), as Markdown and an ECDF plot.
 
-Read from the results table alone (``sweep_runner.read_results``), so a finished or resumed
+Read from the results table alone (``bench.sweep.read_results``), so a finished or resumed
 sweep reports the same; written atomically beside the results (``report.md``, ``ecdf.png``).
 """
 
@@ -261,7 +261,7 @@ def write(folder: str | Path, table, inputs: list[str], source: str) -> Path:
     folder : str or Path
         The sweep's output folder.
     table : pyarrow.Table
-        Its results (``sweep_runner.read_results``).
+        Its results (``bench.sweep.read_results``).
     inputs : list of str
         The uncertain inputs' columns.
     source : str

@@ -9,7 +9,13 @@ from types import SimpleNamespace
 
 import pytest
 
-from smartjoint.friction_uncertainty import FRICTION, MAX_LOG_SIGMA, Z95, friction_inputs, friction_spreads
+from smartjoint.design.control.friction_uncertainty import (
+    FRICTION,
+    MAX_LOG_SIGMA,
+    Z95,
+    friction_inputs,
+    friction_spreads,
+)
 
 
 def _type(**intervals):

@@ -10,7 +10,7 @@ from conftest import small_truss
 
 from smartjoint.cli import main
 from smartjoint.design import load_design, parse_design
-from smartjoint.pipeline_joints import PLACED_DESIGN, place_joints
+from smartjoint.design.friction.stage import PLACED_DESIGN, place_joints
 
 
 def _without_joints() -> dict:

@@ -92,3 +92,34 @@ def private_state_uses() -> list[str]:
 def test_no_module_reads_the_state_of_another_modules_private_class():
     uses = private_state_uses()
     assert not uses, "another module's private object read from outside (offer a public method):\n" + "\n".join(uses)
+
+
+# What the command line never loads itself: the sweep engine (``bench/sweep.py``) owns them.
+ENGINE_PACKAGES = ("dask", "distributed", "pyarrow")
+
+
+def command_line_engine_imports() -> list[str]:
+    """Imports of the sweep engine's packages by a module of the command-line package
+    (``smartjoint.<module>``, not a subpackage), at any depth."""
+    found = []
+    for name, path in modules().items():
+        in_command_line = name == "smartjoint" or (name.count(".") == 1 and path.name != "__init__.py")
+        if not in_command_line:
+            continue
+        for node in _import_statements(path):
+            targets = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+            for target in targets:
+                if target.split(".")[0] in ENGINE_PACKAGES:
+                    found.append(f"{name} imports {target} ({_relative(path)}:{node.lineno})")
+    return found
+
+
+def test_the_command_line_package_imports_no_dask_or_parquet():
+    assert not command_line_engine_imports(), "\n".join(command_line_engine_imports())
+    # The check sees the modules it is about: the sweep engine does import them.
+    engine = modules()["smartjoint.bench.sweep"]
+    assert any(
+        (a.name if isinstance(node, ast.Import) else node.module or "").split(".")[0] in ENGINE_PACKAGES
+        for node in _import_statements(engine)
+        for a in node.names
+    )

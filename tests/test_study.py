@@ -149,9 +149,9 @@ def test_the_papers_orderings_hold_over_plants_drawn_around_the_bundled_truss(bu
     200 plants in benchmarks/RESULTS.md put the least likely, SISO below both passive settings,
     at 0.995 ± 0.005)."""
     from smartjoint import sweep_report
+    from smartjoint.bench.sweep import prepare
     from smartjoint.design.control import ensemble
     from smartjoint.pipeline_ensemble import stage_sweep
-    from smartjoint.sweep_runner import prepare
 
     design, _ = three_type_a
     control = dataclasses.replace(design.control, siso_boundary_layer=tuple(bundled.boundary_layer.tolist()))

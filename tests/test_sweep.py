@@ -18,12 +18,12 @@ import pytest
 import tomli_w
 from conftest import cli_error, small_truss
 
+from smartjoint.bench.sweep import SweepError, batch_path, connect, prepare, read_results, run_sweep
 from smartjoint.common.errors import DesignError, ModelError
 from smartjoint.design.control import ensemble, sweep_sampling
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.control.sweep_file import load_sweep
 from smartjoint.design.structure.spec import parse_design
-from smartjoint.sweep_runner import SweepError, batch_path, connect, prepare, read_results, run_sweep
 
 SWEEP = """\
 design = "small.toml"
@@ -288,7 +288,7 @@ def test_friction_from_the_identification_draws_each_factor_within_its_interval(
     its parameters checked on simulated rig records); every factor the file does not give is a
     lognormal of median 1 within the 95 % interval (well identified: σ0 within a few per cent;
     weakly identified: at most a factor 2), the one it gives stays as given."""
-    from smartjoint.friction_uncertainty import MAX_LOG_SIGMA, Z95
+    from smartjoint.design.control.friction_uncertainty import MAX_LOG_SIGMA, Z95
 
     text = _replace("[uncertain.friction]\n", '[uncertain.friction]\nfrom = "identification"\n')
     text = text.replace('sigma0 = { distribution = "uniform", low = 0.95, high = 1.05 }\n', "")

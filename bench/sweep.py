@@ -122,8 +122,8 @@ def _identified_friction(sweep: Sweep, design, progress):
     (``friction_uncertainty``); the design with the identified parameters and the sweep with them."""
     import tempfile
 
-    from smartjoint.friction_uncertainty import friction_inputs, friction_spreads
-    from smartjoint.pipeline_joints import friction_stage
+    from smartjoint.design.control.friction_uncertainty import friction_inputs, friction_spreads
+    from smartjoint.design.friction.stage import friction_stage
 
     progress(f"friction of {design.name!r} identified for the 95 % intervals of its LuGre parameters …")
     with tempfile.TemporaryDirectory() as scratch:  # the identification's result files are not kept

@@ -25,7 +25,7 @@ def friction_spreads(friction) -> dict[str, float]:
     Parameters
     ----------
     friction : list of JointTypeFriction
-        The friction stage's results (``pipeline_joints.friction_stage``).
+        The friction stage's results (``design.friction.stage.friction_stage``).
 
     Returns
     -------

@@ -1,4 +1,4 @@
-"""The stages of ``smartjoint run`` that concern the friction joints: placing them on a design
+"""The friction-joint stages of ``smartjoint run`` and of sweeps: placing them on a design
 without joints (``[placement]``, paper Section 6) and the friction stage (Section 3.2, Eq. 3).
 
 Everything comes from the design file. The friction stage identifies the rig records the design
@@ -16,7 +16,6 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from smartjoint.design import build_model, load_design, solve_modes
 from smartjoint.design.friction import lugre, rig
 from smartjoint.design.friction.identify import Identification, identify
 from smartjoint.design.friction.parameter_file import file_hashes, provenance, result_text
@@ -25,6 +24,9 @@ from smartjoint.design.friction.records import Record, read_record
 from smartjoint.design.friction.rig_campaign import campaign, run_campaign
 from smartjoint.design.structure import placement
 from smartjoint.design.structure.description import FRICTION_PARAMETERS, Design, JointFriction
+from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.modal import solve_modes
+from smartjoint.design.structure.spec import load_design
 
 PLACED_DESIGN = "placed_design.toml"
 RIG_NOISE = 0.01  # relative measurement noise of the simulated rig records
