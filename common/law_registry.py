@@ -79,6 +79,9 @@ class Law:
         Its tunable boundary layer.
     grid : tuple of str
         The sweep grid variables that re-design this law (beyond the common limits).
+    artifact : tuple of (str, str)
+        Its section ``laws.<name>`` of the controller artefact: (key in the file, field of
+        ``ControllerArtifact``) per entry, in the file's order.
     reference : str
         ``module:function`` of the Python reference, ``function(artifact) -> Controller``
         (``design.plant.interface``): the executable specification that the generated C
@@ -94,6 +97,7 @@ class Law:
     equation: int
     boundary_layer: BoundaryLayer
     grid: tuple[str, ...]
+    artifact: tuple[tuple[str, str], ...]
     reference: str
 
     def python_reference(self, artifact: Any) -> Any:
@@ -129,6 +133,7 @@ LAWS: dict[str, Law] = {
             equation=30,
             boundary_layer=BoundaryLayer("siso_boundary_layer", "m/s", per_joint=True, equation=30),
             grid=("siso_boundary_layer",),
+            artifact=(("boundary_layer", "siso_boundary_layer"),),
             reference="smartjoint.design.control.artifact:siso_law",
         ),
         Law(
@@ -141,6 +146,11 @@ LAWS: dict[str, Law] = {
             equation=34,
             boundary_layer=BoundaryLayer("clqg_boundary_layer", "N", per_joint=False, equation=34),
             grid=(),
+            artifact=(
+                ("boundary_layer", "clqg_boundary_layer"),
+                *((field, field) for field in ("blocks", "gamma0", "gamma1", "joint_input", "output")),
+                *((field, field) for field in ("feedback_gain", "estimator_gain", "modal_frequencies")),
+            ),
             reference="smartjoint.design.control.artifact:clipped_lqg",
         ),
     )

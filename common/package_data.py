@@ -12,11 +12,14 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
+from smartjoint.common import law_registry
+
 # Import package → the files it owns, relative to the package folder.
 FILES: dict[str, tuple[str, ...]] = {
     "smartjoint": ("py.typed",),
     "smartjoint.design.plant": ("plant_kernel.c", "plant_kernel.h"),
     "smartjoint.design.friction": ("rig_kernel.c",),
+    "smartjoint.design.control": ("controller-artifact.schema.json",),
     "smartjoint.design": (
         "data/meroform_10bay.toml",
         "data/fig10_three_joints.toml",
@@ -31,14 +34,11 @@ FILES: dict[str, tuple[str, ...]] = {
             "Makefile.j2",
             "can.c.j2",
             "can.h.j2",
-            "clqg.c.j2",
-            "clqg.h.j2",
             "closed_loop.c.j2",
             "closed_loop.h.j2",
             "main.c.j2",
             "main_can.c.j2",
-            "siso.c.j2",
-            "siso.h.j2",
+            *(f"{law}.{kind}.j2" for law in sorted(law_registry.NAMES) for kind in "ch"),
             "target_main.c.j2",
             "toolchain.cmake.j2",
             "types.h.j2",

@@ -219,3 +219,22 @@ def plausible_measurements(a, count: int, seed: int, sensor: float, slip: float,
         )
         for k in range(count)
     ]
+
+
+def artifact_fields(a) -> dict:
+    """The JSON values of a controller artefact by their Python names (the sections flattened),
+    for a test that changes fields and writes the text again with :func:`artifact_text`."""
+    import json
+
+    from smartjoint.design.control import artifact, artifact_layout
+
+    return artifact_layout.flatten(json.loads(artifact.dumps(a)))
+
+
+def artifact_text(fields: dict) -> str:
+    """The artefact's JSON text of fields by their Python names, laid out in sections."""
+    import json
+
+    from smartjoint.design.control import artifact_layout
+
+    return json.dumps(artifact_layout.nest(fields))

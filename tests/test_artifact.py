@@ -13,7 +13,7 @@ import pytest
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design import control, plant
-from smartjoint.design.control import artifact, artifact_building
+from smartjoint.design.control import artifact, artifact_building, artifact_layout
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import load_design, parse_design
@@ -33,9 +33,17 @@ def setup():
 
 
 def _mutated(built, change) -> str:
-    data = json.loads(artifact.dumps(built))
-    change(data)
-    return json.dumps(data)
+    """The artefact's text with ``change`` made to its fields by their Python names (then laid
+    out in sections again; a field it removes is missing there, one it adds stands at the top)."""
+    flat = artifact_layout.flatten(json.loads(artifact.dumps(built)))
+    change(flat)
+    nested: dict = {"schema_version": flat.pop("schema_version")} if "schema_version" in flat else {}
+    for section, keys in artifact_layout.LAYOUT.items():
+        target = nested
+        for part in section.split("."):
+            target = target.setdefault(part, {})
+        target.update({key: flat.pop(field) for key, field in keys if field in flat})
+    return json.dumps({**nested, **flat})
 
 
 def test_round_trip_is_exact_and_the_text_canonical(setup, tmp_path):
@@ -135,11 +143,15 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
 @pytest.mark.parametrize(
     "change, message",
     [
-        (lambda d: d.update(schema_version=4), r"schema_version: 4 — unknown; this version reads schema_version 3"),
+        (lambda d: d.update(schema_version=5), r"schema_version: 5 — unknown; this version reads schema_version 4"),
+        (
+            lambda d: d.update(schema_version=3),
+            r"schema_version: 3 — .* flat, without the sections of version 4: re-run `smartjoint design`",
+        ),
         (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
         (
             lambda d: d.update(schema_version=2),
-            r"schema_version: 2 — .* has no joint friction: re-run `smartjoint design`",
+            r"schema_version: 2 — .* without the joints' friction: re-run `smartjoint design`",
         ),
         (lambda d: d.update(joint_types=["A", "C"]), r"joint_types\[1\]: 'C' — joint 'JB': allowed: A, B"),
         (
@@ -164,7 +176,8 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
         (lambda d: d.update(measured_normal_force_max=[100.0, 500.0]), r"measured_normal_force_max\[0\]: 100.0 N"),
         (lambda d: d.update(sliding_velocity_limit=[0.0, 1.0]), r"sliding_velocity_limit\[0\]: 0.0 for joint 'JA'"),
         (lambda d: d.pop("schema_version"), r"schema_version: missing"),
-        (lambda d: d.pop("feedback_gain"), r"feedback_gain: missing — required field"),
+        (lambda d: d.pop("feedback_gain"), r"laws.clqg.feedback_gain: missing — required field"),
+        (lambda d: d.pop("siso_boundary_layer"), r"laws.siso.boundary_layer: missing — required field"),
         (
             lambda d: d.update(feedback_gain=[row[:-1] for row in d["feedback_gain"]]),
             r"feedback_gain: shape \(2, 15\) — expected \(2, 16\) = \(l, 2n\)",
@@ -181,7 +194,7 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
         (lambda d: d.update(siso_boundary_layer=[1e-3, -1.0]), r"siso_boundary_layer: -1.0 for joint 'JB'"),
         (lambda d: d.update(gamma0=[[1.0, 2.0], [3.0]]), r"gamma0: .* rectangular"),
         (lambda d: d["blocks"][0][0].__setitem__(0, True), r"blocks: True — expected a \(nested\) list of numbers"),
-        (lambda d: d.update(extra=1), r"extra: 1 — unknown field"),
+        (lambda d: d.update(extra=1), r"extra: 1 — unknown section in schema_version 4"),
         (lambda d: d.update(design_sha256="abc"), r"design_sha256: 'abc'"),
     ],
 )
@@ -226,4 +239,59 @@ def test_bad_text_and_files_raise_model_errors(setup, tmp_path, monkeypatch):
 def test_the_documentation_lists_every_field():
     text = DOCS.read_text(encoding="utf-8")
     for spec in artifact.SCHEMA:
-        assert f"| `{spec.name}` |" in text, spec.name
+        key = spec.name if spec.name == "schema_version" else artifact_layout.path_of(spec.name)
+        assert f"| `{key}` |" in text, key
+
+
+def _sections(built) -> dict:
+    return json.loads(artifact.dumps(built))
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda d: d["safety"].update(extra=1), r"safety.extra: 1 — unknown key in section safety"),
+        (lambda d: d["laws"]["siso"].update(blocks=[]), r"laws.siso.blocks: \[\] — unknown key in section laws.siso"),
+        (lambda d: d["laws"].update(lqr={}), r"laws.lqr: \{\} — unknown law; allowed: siso, clqg"),
+        (lambda d: d.pop("network"), r"network: missing — required section"),
+        (lambda d: d["laws"].pop("clqg"), r"laws.clqg: missing — required section"),
+        (lambda d: d.update(common=[1]), r"common: \[1\] — expected a JSON object"),
+    ],
+)
+def test_the_sections_are_checked_by_their_paths(setup, change, message):
+    data = _sections(setup[3])
+    change(data)
+    with pytest.raises(ModelError, match=message):
+        artifact.loads(json.dumps(data))
+
+
+def test_every_law_of_the_registry_has_its_section_and_every_field_one_place(setup):
+    from smartjoint.common import law_registry
+
+    data = _sections(setup[3])
+    assert set(data) == {"schema_version", "common", "safety", "friction", "network", "laws"}
+    assert list(data["laws"]) == sorted(law_registry.NAMES)  # canonical text: sorted keys
+    for law in law_registry.LAWS.values():
+        assert sorted(data["laws"][law.name]) == sorted(key for key, _ in law.artifact)
+    placed = [field for keys in artifact_layout.LAYOUT.values() for _, field in keys]
+    assert sorted(placed) == sorted(spec.name for spec in artifact.SCHEMA if spec.name != "schema_version")
+    assert artifact_layout.path_of("siso_boundary_layer") == "laws.siso.boundary_layer"
+
+
+def test_the_shipped_json_schema_is_the_layout_and_accepts_the_artefacts(setup):
+    """The JSON Schema in the package is what the layout gives, and a standard validator accepts
+    the bundled firmware's artefact and a built one, and refuses a key out of place."""
+    import jsonschema
+
+    from smartjoint.common import package_data
+
+    shipped = json.loads(package_data.path("smartjoint.design.control", "controller-artifact.schema.json").read_text())
+    assert shipped == artifact_layout.json_schema()
+    jsonschema.Draft202012Validator.check_schema(shipped)
+    reference = Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json"
+    for data in (json.loads(reference.read_text()), _sections(setup[3])):
+        jsonschema.validate(data, shipped)
+    wrong = _sections(setup[3])
+    wrong["common"]["boundary_layer"] = 1.0
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(wrong, shipped)

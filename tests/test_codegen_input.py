@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import artifact_fields, artifact_text
 
 from smartjoint import cli
 from smartjoint.codegen import can_layer, generate, identifiers, output
@@ -37,10 +38,10 @@ def _codegen(capsys, *arguments) -> tuple[int, str]:
 
 
 def _artefact(tmp_path, reference, name, **changes) -> Path:
-    data = json.loads(artifact.dumps(reference))
+    data = artifact_fields(reference)
     data.update(changes)
     path = tmp_path / f"{name}.json"
-    path.write_text(json.dumps(data))
+    path.write_text(artifact_text(data))
     return path
 
 

@@ -7,8 +7,10 @@ The C generator reads only this file, and
 ``siso_law``/``clipped_lqg``/``active_lqg`` rebuild the Python reference controllers from it
 alone, so firmware and reference are checked against the same numbers.
 
-Schema (``schema_version`` 2, documented in ``docs/controller-artifact.md``): a flat JSON
-object whose keys are the fields of :data:`SCHEMA` (``artifact_schema``), SI units. Sizes: l controlled joints
+Schema (``schema_version`` 4, documented in ``docs/controller-artifact.md``): a JSON object of
+sections — ``common``, ``safety``, ``friction``, ``network`` and ``laws.<law>`` per law of the
+registry (``artifact_layout``) — whose keys are the fields of :data:`SCHEMA` (``artifact_schema``),
+SI units; in Python every field is one attribute of :class:`ControllerArtifact`. Sizes: l controlled joints
 (``joint_names``: the column order of E and K and the order of every per-joint vector),
 n_y sensors (``sensor_names``: the rows of C), n retained coordinates, state
 x = [η̇_1, ω_1η_1, η̇_2, ω_2η_2, …] (2n, mode-interleaved). Arrays are nested lists, row-major.
@@ -32,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.common.errors import ModelError
+from smartjoint.design.control import artifact_layout
 from smartjoint.design.control.artifact_schema import (
-    FIELDS,
     SCHEMA,
     SCHEMA_VERSION,
     check_version,
@@ -153,13 +155,13 @@ def dumps(artifact: ControllerArtifact) -> str:
     str
         ASCII text ending in a newline.
     """
-    data = {}
+    data: dict = {}
     for spec in SCHEMA:
         value = getattr(artifact, spec.name)
         data[spec.name] = (
             value.tolist() if spec.kind == "array" else list(value) if spec.kind in ("names", "strings") else value
         )
-    return _encode(data, "") + "\n"
+    return _encode(artifact_layout.nest(data), "") + "\n"
 
 
 def save(artifact: ControllerArtifact, path) -> Path:
@@ -236,16 +238,7 @@ def loads(text: str) -> ControllerArtifact:
     if "schema_version" not in data:
         raise ModelError(f"schema_version: missing — required field; this version reads {SCHEMA_VERSION}")
     check_version(data["schema_version"])  # first: another version may have other fields
-    missing = [spec.name for spec in SCHEMA if spec.name not in data]
-    if missing:
-        raise ModelError(
-            f"{missing[0]}: missing — required field"
-            + (f" (also missing: {', '.join(missing[1:])})" if len(missing) > 1 else "")
-        )
-    unknown = sorted(set(data) - set(FIELDS))
-    if unknown:
-        raise field_error(unknown[0], data[unknown[0]], f"unknown field in schema_version {SCHEMA_VERSION}")
-    return ControllerArtifact(**data)
+    return ControllerArtifact(**artifact_layout.flatten(data))
 
 
 def load(path) -> ControllerArtifact:

@@ -1,4 +1,4 @@
-"""The schema of the controller design artefact (``schema_version`` 2,
+"""The schema of the controller design artefact (``schema_version`` 4,
 ``docs/controller-artifact.md``) and its validation: every field's kind, shape (symbols n, 2n,
 l, n_y), unit and limits, checked with one-line errors that name the field and the value."""
 
@@ -13,7 +13,9 @@ import numpy as np
 
 from smartjoint.common.errors import ModelError
 
-SCHEMA_VERSION = 3  # 2: the safe state and the plausibility ranges (docs/safety.md); 3: the joints' friction
+# 2: the safe state and the plausibility ranges (docs/safety.md); 3: the joints' friction; 4: nested,
+# one section per component (artifact_layout).
+SCHEMA_VERSION = 4
 # Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo
 # stacks block at ~100 kN; 1 MN is a typing error (an exponent too many), not a design.
 NORMAL_FORCE_LIMIT = 1e6  # N
@@ -286,6 +288,14 @@ def _check_safety(out: dict) -> None:
             raise field_error(field, out[field], f"a whole number {low} … {high}")
 
 
+# What an older artefact lacks, for its one-line refusal.
+_OLDER = {
+    1: "without the safe state and the plausibility ranges",
+    2: "without the joints' friction",
+    3: "flat, without the sections of version 4",
+}
+
+
 def check_version(value) -> int:
     """``value`` if it is the schema version this package reads, else an error (with a hint for 1).
 
@@ -301,10 +311,10 @@ def check_version(value) -> int:
     """
     if isinstance(value, bool) or not isinstance(value, int) or value != SCHEMA_VERSION:
         hint = (
-            f" — schema_version {value} has no "
-            + ("safe state or plausibility ranges" if value == 1 else "joint friction")
+            f" — schema_version {value} is "
+            + _OLDER[value]
             + f": re-run `smartjoint design` to write version {SCHEMA_VERSION}"
-            if value in (1, 2) and not isinstance(value, bool)
+            if value in _OLDER and not isinstance(value, bool)
             else ""
         )
         raise field_error("schema_version", value, f"unknown; this version reads schema_version {SCHEMA_VERSION}{hint}")
