@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from smartjoint.bench import firmware, target
-from smartjoint.common import package_data
+from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.network import protocol
@@ -106,7 +106,7 @@ class TargetFirmware:
     it as a context manager): that ends the emulation.
     """
 
-    def __init__(self, artifact: ControllerArtifact, law: str = "siso", timeout: float = 30.0):
+    def __init__(self, artifact: ControllerArtifact, law: str = law_registry.NAMES[0], timeout: float = 30.0):
         if law not in firmware.LAWS:
             raise ModelError(f"law: {law!r} — allowed: {', '.join(firmware.LAWS)}")
         self.artifact, self.law, self.timeout = artifact, law, float(timeout)

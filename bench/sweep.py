@@ -66,7 +66,7 @@ class Prepared:
         return len(batch) * len(self.points) * len(self.base.laws)
 
 
-def prepare(sweep: Sweep, progress=print, design=None) -> Prepared:
+def prepare(sweep: Sweep, progress=print, design=None, model=None) -> Prepared:
     """Load the sweep's design (updated unless ``update = false``, its study duration the
     sweep's), build the shared base and draw the samples.
 
@@ -78,6 +78,9 @@ def prepare(sweep: Sweep, progress=print, design=None) -> Prepared:
     design : Design, optional
         The design itself, already as the sweep wants it (``smartjoint run``'s, with its placed
         joints and identified friction), instead of loading ``sweep.design``.
+    model : ModalModel, optional
+        The design model of ``design`` where the caller has it (``smartjoint run``'s control
+        stage), instead of building it again.
 
     Returns
     -------
@@ -93,7 +96,7 @@ def prepare(sweep: Sweep, progress=print, design=None) -> Prepared:
     joints = [j.name for j in design.joints]
     columns, values = sweep_sampling.sample_inputs(sweep, joints)
     progress(f"design model, reduction and gains of {design.name!r} (built once, shared with the workers) …")
-    base = ensemble.build_base(sweep, design, columns, progress, placements)
+    base = ensemble.build_base(sweep, design, columns, progress, placements, model)
     return Prepared(sweep, base, sweep.points(), values, design.sha256, _compiled_loops(base, progress))
 
 
@@ -313,6 +316,7 @@ def run_sweep(
     resume: bool = False,
     progress=print,
     design=None,
+    model=None,
 ) -> dict:
     """Run a sweep and write its results (``docs/sweep.md``).
 
@@ -329,7 +333,7 @@ def run_sweep(
         Continue the results in ``folder``: compute only the batches missing there.
     progress : callable
         Receives the progress lines (samples done, rate, time left).
-    design : Design, optional
+    design, model : optional
         As in :func:`prepare`.
 
     Returns
@@ -353,7 +357,7 @@ def run_sweep(
                 f"sweep {sweep.source}: {sweep.samples} samples × {len(sweep.points())} grid point(s) × "
                 f"{len(sweep.laws)} law(s) → {folder}"
             )
-            prepared = prepare(sweep, progress, design)
+            prepared = prepare(sweep, progress, design, model)
             todo = open_output(folder, prepared, resume)
             return _compute(client, prepared, folder, todo, progress)
         finally:

@@ -29,6 +29,8 @@ from smartjoint.commands_sweep import cmd_sweep
 from smartjoint.common import law_registry
 from smartjoint.common.errors import SmartjointError
 
+_LAWS_SHOWN = ", ".join(law.display for law in law_registry.LAWS.values())  # the laws, as a reader knows them
+
 
 def _positive_int(text: str) -> int:
     try:
@@ -261,7 +263,7 @@ def _add_control_commands(sub, o: SimpleNamespace) -> None:
     p = sub.add_parser(
         "codegen",
         parents=[o.json_summary],
-        help="generate the C99 controllers (SISO, clipped LQG) from a controller artefact",
+        help=f"generate the C99 controllers ({_LAWS_SHOWN}) from a controller artefact",
     )
     p.add_argument("artifact", help="controller design artefact (JSON, from `smartjoint design`)")
     p.add_argument(
@@ -388,7 +390,7 @@ def _add_study_command(sub, o: SimpleNamespace) -> None:
     p = sub.add_parser(
         "study",
         parents=[o.design, o.no_update, o.json_results],
-        help="the paper's closed-loop study (Section 6): passive, SISO, cLQG, active LQG",
+        help=f"the paper's closed-loop study (Section 6): passive, {_LAWS_SHOWN}, active LQG",
     )
     p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
     p.add_argument("--plots", help="folder for control_energy.png, control_tip.png, … (PNG)")

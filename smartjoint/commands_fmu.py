@@ -43,10 +43,11 @@ def cmd_fmu(args) -> dict:
 
 def _controller(args):
     from smartjoint.codegen import fmu
+    from smartjoint.common import law_registry
     from smartjoint.design.control import artifact
 
     if args.law is None:
-        raise ModelError("--law: required for a controller FMU — allowed: siso, clqg")
+        raise ModelError(f"--law: required for a controller FMU — allowed: {', '.join(law_registry.NAMES)}")
     source = Path(args.source)
     if source.suffix.lower() != ".json":
         raise ModelError(

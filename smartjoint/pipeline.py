@@ -31,7 +31,6 @@ import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -40,12 +39,13 @@ from smartjoint import report as plots
 from smartjoint.bench import busload, safety, safety_report, sil
 from smartjoint.bench.faults import demo_faults
 from smartjoint.codegen import backtoback, can_layer, generate, identifiers, output
-from smartjoint.design import build_model, load_design, solve_modes, updated_design
+from smartjoint.design import build_model, load_design, updated_design
 from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction.stage import friction_entries, friction_stage, place_joints
 from smartjoint.design.network import protocol
 from smartjoint.design.reduction import reduction_study, study_summary
+from smartjoint.design.structure.solved import solved_model
 from smartjoint.pipeline_ensemble import ensemble_stage
 from smartjoint.pipeline_fmu import fmu_stage
 from smartjoint.pipeline_target import pil_stage
@@ -54,6 +54,7 @@ from smartjoint.report_control import control_markdown, plot_control_study
 from smartjoint.report_folder import ReportFolder, iso, new_run_id, utc_now
 from smartjoint.report_friction import friction_markdown
 from smartjoint.report_reduction import plot_study, study_markdown
+from smartjoint.stages import BenchStage, ControlStage, FirmwareStage, FrictionStage, StructureStage
 
 NO_JOINTS = (
     "the design has no [[joints]] and no [placement]: friction, reduction, control, firmware and SIL need "
@@ -122,62 +123,57 @@ def _paths(value) -> list[str]:
     return []
 
 
-@dataclass
-class _Results:
-    """What the stages produce, filled stage by stage; the report and the summary read it."""
+@dataclass(frozen=True)
+class _Run:
+    """Every stage's result of one run; the summary and the report read it. The stages after the
+    structure are None where the design has no joints (``skipped`` says why)."""
 
-    design: Any = None  # the design of stages 4–8: with placed joints, identified friction
-    source_design: Any = None  # the design file's (updated) design
-    model: Any = None
-    result: Any = None  # the updating result, None without [updating]
-    modes: Any = None
-    released: Any = None  # modes with the joints released, None without joints
-    placed_design: str | None = None  # the design file [placement] wrote into the report
-    skipped: str | None = None  # why the stages after the structure did not run
-    friction: list = field(default_factory=list)  # per joint type (design.friction.stage.JointTypeFriction)
-    friction_entries: dict = field(default_factory=dict)  # per joint: parameters and source
-    study: Any = None  # the reduction study
-    controlled: Any = None  # the design the controllers are built for
-    control_study: Any = None
-    controller: Any = None
-    firmware_files: dict = field(default_factory=dict)
-    firmware_check: Any = None
-    sil_check: Any = None
-    sil_logs: list = field(default_factory=list)
-    bus_load: Any = None
-    fault_check: Any = None
-    safety_check: Any = None
-    pil: Any = None  # stage 9 (pipeline_target.pil_stage)
-    ensemble: Any = None  # stage 10 (pipeline_ensemble.ensemble_stage)
-    fmu: Any = None  # stage 11 (pipeline_fmu.fmu_stage)
-    hysteresis: list = field(default_factory=list)
+    structure: StructureStage
+    skipped: str | None = None
+    friction: FrictionStage | None = None
+    reduction: dict | None = None  # the reduction study (design.reduction.reduction_study)
+    control: ControlStage | None = None
+    firmware: FirmwareStage | None = None
+    bench: BenchStage | None = None
+    pil: dict | None = None  # stage 9 (pipeline_target.pil_stage)
+    ensemble: dict | None = None  # stage 10 (pipeline_ensemble.ensemble_stage)
+    fmu: dict | None = None  # stage 11 (pipeline_fmu.fmu_stage)
+
+
+@dataclass(frozen=True)
+class _ReportFiles:
+    """What writing the report's files adds to the summary: the hysteresis plots and the joints'
+    friction entries (with the parameter files they wrote)."""
+
+    hysteresis: tuple[str, ...] = ()
+    friction_entries: dict = field(default_factory=dict)
 
 
 def _stages(design_path: str | None, staging: Path, progress):
     """Stages 1–12 into the folder ``staging``: the summary (without the run's id and times) and a
     function of the final summary that gives report.md."""
-    r = _Results()
-    _structure_stages(r, design_path, progress)
-    _joints(r, staging, progress)
-    if r.design.joints:
-        _friction_stage(r, staging, progress)
-        _reduction_stage(r, progress)
-        _control_stage(r, progress)
-        _firmware_stage(r, progress)
-        _sil_stage(r, staging, progress)
-        r.pil = pil_stage(r.control_study, r.controller, staging, progress)
-        r.ensemble = ensemble_stage(r.controlled, r.control_study, r.friction, staging, progress)
-        r.fmu = fmu_stage(r.controlled, r.control_study, r.controller, staging, progress)
+    structure = _structure_stage(design_path, staging, progress)
+    if structure.design.joints:
+        friction = _friction_stage(structure, staging, progress)
+        reduction = _reduction_stage(structure, friction, progress)
+        control = _control_stage(structure, friction, progress)
+        firmware = _firmware_stage(control, progress)
+        bench = _bench_stage(control, staging, progress)
+        pil = pil_stage(control.study, control.artifact, staging, progress)
+        ensemble = ensemble_stage(control.design, control.study, list(friction.types), staging, progress)
+        fmu = fmu_stage(control.design, control.study, control.artifact, staging, progress)
+        r = _Run(structure, None, friction, reduction, control, firmware, bench, pil, ensemble, fmu)
     else:
-        r.skipped = NO_JOINTS
+        r = _Run(structure, skipped=NO_JOINTS)
         progress(f"[4/12]–[11/12] skipped: {NO_JOINTS}")
     progress("[12/12] report")
-    _write_report_files(r, staging)
-    return _summary(r), lambda final: _report_markdown(r, final)
+    files = _write_report_files(r, staging)
+    return _summary(r, files), lambda final: _report_markdown(r, files, final)
 
 
-def _structure_stages(r: _Results, design_path: str | None, progress) -> None:
-    """Stages 1–3: the design, its FE model, model updating and the modes (locked and released)."""
+def _structure_stage(design_path: str | None, staging: Path, progress) -> StructureStage:
+    """Stages 1–3: the design, its FE model, model updating and the modes (locked and released),
+    and the joints: the design's own, or those [placement] puts on a design without any."""
     design = load_design(design_path)
     # Stage 7 generates C from these names: refuse them now, not after minutes of work.
     identifiers.check_names(
@@ -194,7 +190,6 @@ def _structure_stages(r: _Results, design_path: str | None, progress) -> None:
     progress(
         f"[2/12] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, mass {model.total_mass:.2f} kg"
     )
-
     result = None
     if design.updating is not None:
         progress(
@@ -205,35 +200,37 @@ def _structure_stages(r: _Results, design_path: str | None, progress) -> None:
             design,
             lambda k, n, err: progress(f"      start {k}/{n}: worst error {err:.2f} %"),
             lambda message: progress(f"      warning: {message}"),
+            model=model,
         )
         model = build_model(design, joints="locked")
     else:
         progress("[3/12] model updating: skipped (no [updating] section)")
-    modes = solve_modes(model, min(REPORT_MODES, model.n_dof))
-    r.design, r.source_design, r.model, r.result, r.modes = design, design, model, result, modes
+    # One solution of the locked truss: the report's spectrum and the placement's target modes.
+    targets = design.placement.modes if design.placement is not None and not design.joints else ()
+    locked = solved_model(model, max((REPORT_MODES, *targets)))
+    placed, placed_design = place_joints(design, staging, progress, locked)
+    released = None
+    if placed.joints:
+        # One solution of the released truss: the spectrum, the reduction basis, the design model.
+        released_model = build_model(placed, joints="released")
+        released = solved_model(released_model, max(REPORT_MODES, placed.control.considered_modes))
+    return StructureStage(design, placed, locked, result, released, placed_design)
 
 
-def _joints(r: _Results, staging: Path, progress) -> None:
-    """The design's joints, or those [placement] puts on a design without any; the modes with
-    the joints released (the frictionless linear subsystem of Eq. 12)."""
-    r.design, r.placed_design = place_joints(r.design, staging, progress)
-    if r.design.joints:
-        released_model = build_model(r.design, joints="released")
-        r.released = solve_modes(released_model, min(REPORT_MODES, released_model.n_dof))
-
-
-def _friction_stage(r: _Results, staging: Path, progress) -> None:
+def _friction_stage(structure: StructureStage, staging: Path, progress) -> FrictionStage:
     """Stage 4: the friction of each joint type, identified from the design's rig records or
     checked on simulated ones (``design.friction.stage.friction_stage``)."""
-    types = ", ".join(sorted({j.type for j in r.design.joints}))
+    design = structure.design
+    types = ", ".join(sorted({j.type for j in design.joints}))
     progress(f"[4/12] friction joints (Section 3.2, Eq. 3 + output error): joint types {types}")
-    r.design, r.friction = friction_stage(r.design, staging, progress)
+    design, results = friction_stage(design, staging, progress)
+    return FrictionStage(design, tuple(results))
 
 
-def _reduction_stage(r: _Results, progress) -> None:
+def _reduction_stage(structure: StructureStage, friction: FrictionStage, progress) -> dict:
     """Stage 5, reduction (Section 4.3, Fig. 10) on the design's joints: the largest normal force
     at the type B joints (else the first joint), Krylov vectors for that joint."""
-    design = r.design
+    design = friction.design
     progress(
         f"[5/12] model reduction (Section 4, Fig. 10) on {design.name!r}: joints "
         f"{', '.join(j.name + ' (' + j.type + ')' for j in design.joints)}"
@@ -241,95 +238,110 @@ def _reduction_stage(r: _Results, progress) -> None:
     forces = np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
     if not forces.any():
         forces[0] = 400.0
-    r.study = reduction_study(
-        design, forces, krylov_joints=[int(np.argmax(forces))], progress=lambda message: progress(message)
+    return reduction_study(
+        design,
+        forces,
+        krylov_joints=[int(np.argmax(forces))],
+        progress=lambda message: progress(message),
+        released=structure.released,
     )
 
 
-def _control_stage(r: _Results, progress) -> None:
-    """Stage 6, control (Sections 5–6) on the design's joints."""
-    controlled = r.design
+def _control_stage(structure: StructureStage, friction: FrictionStage, progress) -> ControlStage:
+    """Stage 6, control (Sections 5–6) on the design's joints, designed on the structure stage's
+    released modes."""
+    controlled = friction.design
     progress(
         f"[6/12] semi-active control (Sections 5–6) on {controlled.name!r}: joints "
         f"{', '.join(j.name for j in controlled.joints)}, t_e = {controlled.control.study_duration:g} s"
     )
-    control_study = closed_loop.run_study(controlled, progress=lambda message: progress(message))
-    r.controlled, r.control_study = controlled, control_study
-    r.controller = artifact_building.from_design(
-        controlled, control_study.setup.model, control_study.lqg, control_study.boundary_layer
-    )
+    model = closed_loop.design_model(controlled, lambda message: progress(message), structure.released)
+    study = closed_loop.run_study(controlled, model, progress=lambda message: progress(message))
+    controller = artifact_building.from_design(controlled, study.setup.model, study.lqg, study.boundary_layer)
+    return ControlStage(controlled, study, controller)
 
 
-def _firmware_stage(r: _Results, progress) -> None:
+def _firmware_stage(control: ControlStage, progress) -> FirmwareStage:
     """Stage 7: the generated C and its back-to-back check against the Python reference."""
     progress("[7/12] firmware: generated C (float and double), back-to-back on the study")
-    r.firmware_files = generate.render(r.controller, "float")
-    r.firmware_check = backtoback.back_to_back(
-        r.control_study.setup, r.controller, progress=progress, study=r.control_study
-    )
+    files = generate.render(control.artifact, "float")
+    check = backtoback.back_to_back(control.study.setup, control.artifact, progress=progress, study=control.study)
+    return FirmwareStage(files, check)
 
 
-def _sil_stage(r: _Results, staging: Path, progress) -> None:
+def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
     """Stage 8: the study through the CAN loop, the demo faults and the safe-state fault matrix."""
-    controller, control_study = r.controller, r.control_study
+    controller, control_study = control.artifact, control.study
     progress("[8/12] software in the loop: the study through CAN (firmware, bus, amplifier models)")
     # The bus logs go straight into the report (no temporary folder to leave behind).
     sil_check = sil.sil_study(
         control_study.setup, controller, spread_runs=4, log_folder=staging / "can", progress=progress
     )
-    r.sil_logs = sorted(p.name for p in (staging / "can").iterdir())
+    logs = tuple(sorted(p.name for p in (staging / "can").iterdir()))
     for law in sil_check["laws"].values():
         if law.get("log") is not None:
             law["log"] = Path(law["log"]).relative_to(staging).as_posix()
-    r.sil_check = sil_check
-    r.bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
+    bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
     demo = demo_faults(controller, control_study.setup.duration)
     progress("      injected faults in the study: " + ", ".join(f.label() for f in demo))
-    r.fault_check = sil.fault_run(control_study.setup, controller, faults=demo)
+    fault_check = sil.fault_run(control_study.setup, controller, faults=demo)
     progress("      safe state under every fault kind on every frame (docs/safety.md) …")
     safety_check = safety.fault_matrix(controller, progress=progress)
     progress(
         f"      {safety_check['cases']} fault cases: worst {safety_check['worst_joints']} cycles to the safe force "
         f"at every joint, {len(safety_check['failed'])} failing"
     )
-    r.safety_check = safety_check
+    return BenchStage(sil_check, logs, bus_load, fault_check, safety_check)
 
 
-def _write_report_files(r: _Results, staging: Path) -> None:
+def _write_report_files(r: _Run, staging: Path) -> _ReportFiles:
     """Stage 9: the plots, the artefact, the firmware and the fault tables into the report."""
-    design = r.design
-    plots.plot_mode_shapes(r.model, r.modes, staging / "mode_shapes.png")
+    structure = r.structure
+    design, locked = structure.design, structure.locked
+    spectrum = locked.first(REPORT_MODES)
+    plots.plot_mode_shapes(locked.fe, spectrum, staging / "mode_shapes.png")
     measured = [(m.mode, m.frequency_hz) for m in design.updating.measured] if design.updating else []
-    plots.plot_spectrum(r.modes, measured, staging / "spectrum.png", updated=r.result is not None)
-    if r.result is not None:
-        plots.plot_updating(r.result, staging / "updating.png")
-        if r.result.correlation is not None:  # EMA shapes: the MAC matrix of Fig. 7
-            plots.plot_mac(r.result.correlation, staging / "mac.png")
+    plots.plot_spectrum(spectrum, measured, staging / "spectrum.png", updated=structure.updating is not None)
+    if structure.updating is not None:
+        plots.plot_updating(structure.updating, staging / "updating.png")
+        if structure.updating.correlation is not None:  # EMA shapes: the MAC matrix of Fig. 7
+            plots.plot_mac(structure.updating.correlation, staging / "mac.png")
     if r.skipped:
-        return
-    r.hysteresis = [p.name for f in r.friction for p in plots.plot_hysteresis(f.identification, staging)]
-    r.friction_entries = friction_entries(r.design, r.friction, staging)
-    plot_study(r.study, staging)
-    plot_control_study(r.control_study, staging)
-    artifact.save(r.controller, staging / "controller.json")
-    output.write({**r.firmware_files, **can_layer.render_can(r.controller)}, staging / "firmware")
-    sil.plot_sil(r.sil_check, staging, r.sil_check.get("mil_runs"))
-    sil.plot_faults(r.fault_check, staging / "sil_faults.png")
-    safety_report.plot_matrix(r.safety_check, staging / "safety_cycles.png")
-    (staging / "safety_cases.md").write_text(safety_report.matrix_markdown(r.safety_check), encoding="utf-8")
+        return _ReportFiles()
+    assert r.friction and r.control and r.firmware and r.bench and r.reduction is not None
+    hysteresis = tuple(p.name for f in r.friction.types for p in plots.plot_hysteresis(f.identification, staging))
+    entries = friction_entries(r.friction.design, list(r.friction.types), staging)
+    plot_study(r.reduction, staging)
+    plot_control_study(r.control.study, staging)
+    artifact.save(r.control.artifact, staging / "controller.json")
+    output.write({**r.firmware.files, **can_layer.render_can(r.control.artifact)}, staging / "firmware")
+    sil.plot_sil(r.bench.sil, staging, r.bench.sil.get("mil_runs"))
+    sil.plot_faults(r.bench.faults, staging / "sil_faults.png")
+    safety_report.plot_matrix(r.bench.safety, staging / "safety_cycles.png")
+    (staging / "safety_cases.md").write_text(safety_report.matrix_markdown(r.bench.safety), encoding="utf-8")
+    return _ReportFiles(hysteresis, entries)
 
 
-def _summary(r: _Results) -> dict:
+def _spectra(structure: StructureStage):
+    """The report's modes: the locked truss's and the released truss's (None without joints)."""
+    released = structure.released.first(REPORT_MODES) if structure.released is not None else None
+    return structure.locked.first(REPORT_MODES), released
+
+
+def _summary(r: _Run, files: _ReportFiles) -> dict:
     """summary.json without the run's id and times."""
-    design, model = r.source_design, r.model
+    structure = r.structure
+    design, model = structure.source_design, structure.locked.fe
+    modes, released = _spectra(structure)
     source = os.path.abspath(design.source) if os.path.isfile(design.source) else design.source
+    updating = structure.updating
     out = {
         "smartjoint_version": __version__,
-        "design": {"name": design.name, "source": source, "sha256": design.sha256, "placed": r.placed_design},
+        "design": {"name": design.name, "source": source, "sha256": design.sha256, "placed": structure.placed_design},
         "fe_model": {"n_dof": model.n_dof, "elements": len(model.element_kind), "mass_kg": model.total_mass},
-        "updating": r.result.as_dict() if r.result is not None else None,
-        "modes_hz": [float(f) for f in r.modes.frequencies_hz],
-        "modes_released_hz": [float(f) for f in r.released.frequencies_hz] if r.released is not None else None,
+        "updating": updating.as_dict() if updating is not None else None,
+        "modes_hz": [float(f) for f in modes.frequencies_hz],
+        "modes_released_hz": [float(f) for f in released.frequencies_hz] if released is not None else None,
         "skipped": r.skipped,
     }
     if r.skipped:
@@ -337,29 +349,31 @@ def _summary(r: _Results) -> dict:
             **out,
             **dict.fromkeys(("friction", "reduction", "control", "firmware", "sil", "pil", "ensemble", "fmu")),
         }
-    return {**out, **_joint_stages_summary(r)}
+    return {**out, **_joint_stages_summary(r, files)}
 
 
-def _joint_stages_summary(r: _Results) -> dict:
-    """The summary of stages 4–8, which run on a design with joints."""
-    sil_check, safety_check = r.sil_check, r.safety_check
+def _joint_stages_summary(r: _Run, files: _ReportFiles) -> dict:
+    """The summary of stages 4–11, which run on a design with joints."""
+    assert r.friction and r.control and r.firmware and r.bench and r.reduction is not None
+    assert r.pil is not None and r.ensemble is not None and r.fmu is not None
+    sil_check, safety_check = r.bench.sil, r.bench.safety
     return {
         "friction": {
-            "joints": r.friction_entries,
-            "types": [f.as_dict() for f in r.friction],
+            "joints": files.friction_entries,
+            "types": [f.as_dict() for f in r.friction.types],
         },
-        "reduction": study_summary(r.study),
+        "reduction": study_summary(r.reduction),
         "control": {
-            **closed_loop.summary(r.control_study),
-            "design": r.controlled.name,
+            **closed_loop.summary(r.control.study),
+            "design": r.control.design.name,
             "artifact": "controller.json",
-            "artifact_sha256": r.controller.artifact_sha256,
+            "artifact_sha256": r.control.artifact.artifact_sha256,
         },
         "firmware": {
             "folder": "firmware",
             "real": "float",
-            "files": [f"firmware/{n}" for n in sorted(r.firmware_files)],
-            "back_to_back": r.firmware_check,
+            "files": [f"firmware/{n}" for n in sorted(r.firmware.files)],
+            "back_to_back": r.firmware.check,
         },
         "sil": {
             **{k: v for k, v in sil_check.items() if k not in ("laws", "mil_runs")},
@@ -367,8 +381,8 @@ def _joint_stages_summary(r: _Results) -> dict:
                 law: {k: v for k, v in f.items() if k not in ("record", "result")}
                 for law, f in sil_check["laws"].items()
             },
-            "logs": [f"can/{name}" for name in r.sil_logs],
-            "faults": {k: v for k, v in r.fault_check.items() if k not in ("result", "record")},
+            "logs": [f"can/{name}" for name in r.bench.logs],
+            "faults": {k: v for k, v in r.bench.faults.items() if k not in ("result", "record")},
             "safety": {
                 "cases": safety_check["cases"],
                 "failed": safety_check["failed"],
@@ -385,39 +399,46 @@ def _joint_stages_summary(r: _Results) -> dict:
     }
 
 
-def _report_markdown(r: _Results, final: dict) -> str:
+def _report_markdown(r: _Run, files: _ReportFiles, final: dict) -> str:
     """report.md from the stages' results and the final summary."""
-    head = _markdown(r.source_design, r.model, r.modes, r.released, r.result, final)
-    if r.placed_design:
+    structure = r.structure
+    modes, released = _spectra(structure)
+    head = plots.structure_markdown(
+        structure.source_design, structure.locked.fe, modes, released, structure.updating, final
+    )
+    if structure.placed_design:
         head += (
-            f"The design has no friction joints: [placement] placed {len(r.design.joints)} type A joints "
-            f"(paper Section 6), written as `{r.placed_design}`; every later stage runs on it.\n\n"
+            f"The design has no friction joints: [placement] placed {len(structure.design.joints)} type A joints "
+            f"(paper Section 6), written as `{structure.placed_design}`; every later stage runs on it.\n\n"
         )
     if r.skipped:
         return head + f"\n## Friction joints, reduction, control, firmware and SIL\n\nNot run: {r.skipped}.\n"
+    assert r.friction and r.control and r.firmware and r.bench and r.reduction is not None
+    assert r.pil is not None and r.ensemble is not None and r.fmu is not None
+    bench = r.bench
     return (
         head
-        + friction_markdown(r.design, r.friction, r.hysteresis)
+        + friction_markdown(r.friction.design, list(r.friction.types), list(files.hysteresis))
         + "\n"
-        + study_markdown(r.study)
+        + study_markdown(r.reduction)
         + "\n"
-        + _control_section(r.control_study, r.controller)
+        + _control_section(r.control.study, r.control.artifact)
         + "\n"
-        + backtoback.markdown(r.firmware_check, r.controller)
+        + backtoback.markdown(r.firmware.check, r.control.artifact)
         + "\nFiles (float build for the Cortex-M4F): `firmware/` — "
-        + ", ".join(f"`{name}`" for name in sorted(r.firmware_files))
+        + ", ".join(f"`{name}`" for name in sorted(r.firmware.files))
         + ".\n\n"
-        + sil.sil_markdown(r.sil_check)
+        + sil.sil_markdown(bench.sil)
         + "\n![SIL energy](sil_energy.png)\n\n"
-        + r.bus_load.table()
+        + bench.bus_load.table()
         + "\n\n"
-        + sil.fault_markdown(r.fault_check)
+        + sil.fault_markdown(bench.faults)
         + "\n![faults](sil_faults.png)\n\n"
-        + safety_report.summary_markdown(r.safety_check, "safety_cases.md")
+        + safety_report.summary_markdown(bench.safety, "safety_cases.md")
         + "\n![cycles to the safe state](safety_cycles.png)\n\n"
         + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
         "`bench replay`): "
-        + ", ".join(f"`can/{n}`" for n in r.sil_logs)
+        + ", ".join(f"`can/{n}`" for n in bench.logs)
         + "; protocol: `firmware/bus.dbc`.\n\n"
         + r.pil["markdown"]
         + "\n"
@@ -425,52 +446,6 @@ def _report_markdown(r: _Results, final: dict) -> str:
         + "\n"
         + r.fmu["markdown"]
     )
-
-
-def _markdown(design, model, modes, released, result, summary) -> str:
-    lines = [
-        f"# smartjoint report: {design.name}",
-        "",
-        f"{design.description}",
-        "",
-        f"- design file `{design.source}` (sha256 `{summary['design']['sha256'][:16]}…`), smartjoint {__version__}",
-        f"- FE model: {model.n_dof} independent DOFs, {len(model.element_kind)} Euler–Bernoulli beam elements, "
-        f"{len(design.nodes)} rigid nodes, total mass {model.total_mass:.2f} kg",
-        f"- modal damping ξ = {design.modal_damping:.2%} for every mode",
-        f"- run `{summary['run_id']}`: {summary['started_utc']} to {summary['finished_utc']} (UTC), "
-        f"{summary['seconds']:.1f} s",
-        "",
-        "## Model updating (paper Section 3.3, Fig. 7)",
-        "",
-    ]
-    if result is not None:
-        lines += [
-            plots.updating_table(result),
-            "",
-            "![updating](updating.png)",
-            "",
-            "Normalised sensitivities ∂ln f / ∂ln p at the updated parameters:",
-            "",
-            plots.sensitivity_table(result),
-            "",
-        ]
-        if result.correlation is not None:
-            lines += ["MAC pairing of the EMA shapes:", "", plots.correlation_table(result), "", "![MAC](mac.png)", ""]
-    else:
-        lines += ["The design carries no measured frequencies; the nominal model is used.", ""]
-    lines += [
-        "## Eigenfrequencies (Eq. 7)",
-        "",
-        "![spectrum](spectrum.png)",
-        "",
-        "| mode | joints locked [Hz] |" + (" joints released, F_N = 0 [Hz] |" if released is not None else ""),
-        "|---:|---:|" + ("---:|" if released is not None else ""),
-    ]
-    for i, f in enumerate(modes.frequencies_hz):
-        extra = f" {released.frequencies_hz[i]:.3f} |" if released is not None and i < len(released) else ""
-        lines.append(f"| {i + 1} | {f:.3f} |{extra}")
-    lines += ["", "## Mode shapes", "", "![mode shapes](mode_shapes.png)", ""]
-    return "\n".join(lines)
 
 
 def _control_section(study, controller) -> str:

@@ -100,6 +100,7 @@ def ensemble_stage(design, study, friction, staging: Path, progress) -> dict:
         folder,
         progress=lambda line: progress("      " + line.strip()),
         design=dataclasses.replace(design, control=control),
+        model=study.setup.model,  # the control stage's design model: the same design but ε
     )
     table = read_results(folder)
     inputs = [name for name in table.column_names if name not in (*KEYS, *METRICS)]

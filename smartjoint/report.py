@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from smartjoint import __version__  # noqa: E402
 from smartjoint.common import figures  # noqa: E402
 from smartjoint.design.structure.correlation import ModeCorrelation  # noqa: E402
 from smartjoint.design.structure.fem import FEModel  # noqa: E402
@@ -260,3 +261,51 @@ def plot_hysteresis(result, folder: Path) -> list[Path]:
         figures.save(fig, path, dpi=100)
         paths.append(path)
     return paths
+
+
+def structure_markdown(design, model, modes, released, result, summary) -> str:
+    """The report's head: the design, its FE model, the run, model updating (Fig. 7), the
+    eigenfrequencies (Eq. 7) locked and released, and the mode shapes."""
+    lines = [
+        f"# smartjoint report: {design.name}",
+        "",
+        f"{design.description}",
+        "",
+        f"- design file `{design.source}` (sha256 `{summary['design']['sha256'][:16]}…`), smartjoint {__version__}",
+        f"- FE model: {model.n_dof} independent DOFs, {len(model.element_kind)} Euler–Bernoulli beam elements, "
+        f"{len(design.nodes)} rigid nodes, total mass {model.total_mass:.2f} kg",
+        f"- modal damping ξ = {design.modal_damping:.2%} for every mode",
+        f"- run `{summary['run_id']}`: {summary['started_utc']} to {summary['finished_utc']} (UTC), "
+        f"{summary['seconds']:.1f} s",
+        "",
+        "## Model updating (paper Section 3.3, Fig. 7)",
+        "",
+    ]
+    if result is not None:
+        lines += [
+            updating_table(result),
+            "",
+            "![updating](updating.png)",
+            "",
+            "Normalised sensitivities ∂ln f / ∂ln p at the updated parameters:",
+            "",
+            sensitivity_table(result),
+            "",
+        ]
+        if result.correlation is not None:
+            lines += ["MAC pairing of the EMA shapes:", "", correlation_table(result), "", "![MAC](mac.png)", ""]
+    else:
+        lines += ["The design carries no measured frequencies; the nominal model is used.", ""]
+    lines += [
+        "## Eigenfrequencies (Eq. 7)",
+        "",
+        "![spectrum](spectrum.png)",
+        "",
+        "| mode | joints locked [Hz] |" + (" joints released, F_N = 0 [Hz] |" if released is not None else ""),
+        "|---:|---:|" + ("---:|" if released is not None else ""),
+    ]
+    for i, f in enumerate(modes.frequencies_hz):
+        extra = f" {released.frequencies_hz[i]:.3f} |" if released is not None and i < len(released) else ""
+        lines.append(f"| {i + 1} | {f:.3f} |{extra}")
+    lines += ["", "## Mode shapes", "", "![mode shapes](mode_shapes.png)", ""]
+    return "\n".join(lines)

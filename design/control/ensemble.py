@@ -79,7 +79,7 @@ class EnsembleBase:
         return (*KEYS, *self.grid_columns, *self.input_columns, *METRICS)
 
 
-def build_base(sweep, design, input_columns, progress=print, placements=()) -> EnsembleBase:
+def build_base(sweep, design, input_columns, progress=print, placements=(), model=None) -> EnsembleBase:
     """The design model, LQG and set-up every sample shares (built once, then shared).
 
     Parameters
@@ -94,6 +94,8 @@ def build_base(sweep, design, input_columns, progress=print, placements=()) -> E
         Receives progress lines.
     placements : sequence of Design
         ``grid.placement``'s designs (prepared like ``design``), indexed by the points' value.
+    model : ModalModel, optional
+        The design model of ``design`` where the caller has built it (``study.design_model``).
 
     Returns
     -------
@@ -117,7 +119,7 @@ def build_base(sweep, design, input_columns, progress=print, placements=()) -> E
     for point in sweep.points():  # in the driver, before any task: every point checked and built
         k = int(point["placement"]) + 1 if "placement" in point else 0
         if k not in built:
-            built[k] = _candidate(sweep, candidates[k], design, input_columns, progress)
+            built[k] = _candidate(sweep, candidates[k], design, input_columns, progress, model if k == 0 else None)
         chosen, model, shared, lqg = built[k]
         point_limits(shared, point)
         setups.append(shared)
@@ -139,7 +141,7 @@ def build_base(sweep, design, input_columns, progress=print, placements=()) -> E
     )
 
 
-def _candidate(sweep, chosen, design, input_columns, progress):
+def _candidate(sweep, chosen, design, input_columns, progress, model=None):
     """One design of the sweep (the base or a placement): its design model, study set-up and LQG,
     its joints and sensors checked against the base design's."""
     for what in ("joints", "sensors"):
@@ -149,7 +151,7 @@ def _candidate(sweep, chosen, design, input_columns, progress):
                 f"{sweep.source}: grid.placement: {chosen.source} has {what} {names} — a placement must keep the "
                 f"design's {base} (the rows share their columns)"
             )
-    model = design_model(chosen, progress)
+    model = model if model is not None else design_model(chosen, progress)
     inputs = model.disturbance_input.shape[1]
     if "pulse_direction" in input_columns and inputs < 2:
         raise ModelError(

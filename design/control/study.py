@@ -36,6 +36,7 @@ from smartjoint.design.structure import modal
 from smartjoint.design.structure.description import SENSOR_QUANTITIES
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.modal import ModalModel
+from smartjoint.design.structure.solved import SolvedModel
 
 EPSILON_GRID = tuple(10.0 ** np.arange(-8.0, -1.75, 0.5))  # m/s: the SISO ε scan before refinement
 
@@ -71,7 +72,7 @@ def controlled_joints(design) -> list[str]:
     return names
 
 
-def design_model(design, progress=print) -> ModalModel:
+def design_model(design, progress=print, released: SolvedModel | None = None) -> ModalModel:
     """The reduced model of Section 4 the controllers are designed on: ``control.modes`` of the
     first ``control.considered_modes`` modes by Hankel values plus ``control.krylov`` correction
     vectors per joint (Eq. 27–29), joints frictionless (Eq. 6).
@@ -82,6 +83,9 @@ def design_model(design, progress=print) -> ModalModel:
         The (updated) design with joints, sensors and disturbances.
     progress : callable
         Receives one progress line.
+    released : SolvedModel, optional
+        The design's released FE model and modes, solved by the structure stage (at least
+        ``control.considered_modes`` of them); built and solved here when None.
 
     Returns
     -------
@@ -96,10 +100,10 @@ def design_model(design, progress=print) -> ModalModel:
     if not design.disturbances:
         raise ModelError("design has no [[disturbances]]: the study applies the tip pulse along them")
     controlled_joints(design)
-    fe = build_model(design, joints="released")
+    fe = released.fe if released is not None else build_model(design, joints="released")
     considered = min(c.considered_modes, fe.n_dof)
     progress(f"      reduced model: {c.modes} of the first {considered} modes + {c.krylov} Krylov vector(s) per joint")
-    first = modal.solve_modes(fe, considered)
+    first = released.first(considered) if released is not None else modal.solve_modes(fe, considered)
     return reduction.reduce(fe, first, min(c.modes, considered), c.krylov).model
 
 

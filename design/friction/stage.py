@@ -25,7 +25,7 @@ from smartjoint.design.friction.rig_campaign import campaign, run_campaign
 from smartjoint.design.structure import placement
 from smartjoint.design.structure.description import FRICTION_PARAMETERS, Design, JointFriction
 from smartjoint.design.structure.fem import build_model
-from smartjoint.design.structure.modal import solve_modes
+from smartjoint.design.structure.solved import SolvedModel, solved_model
 from smartjoint.design.structure.spec import load_design
 
 PLACED_DESIGN = "placed_design.toml"
@@ -60,7 +60,9 @@ class JointTypeFriction:
         }
 
 
-def place_joints(design: Design, staging: Path, progress) -> tuple[Design, str | None]:
+def place_joints(
+    design: Design, staging: Path, progress, locked: SolvedModel | None = None
+) -> tuple[Design, str | None]:
     """Type A joints by ``[placement]`` on a design without joints, written as a design file
     into the report (``placed_design.toml``, extending the design file).
 
@@ -71,6 +73,9 @@ def place_joints(design: Design, staging: Path, progress) -> tuple[Design, str |
     staging : Path
         The report folder being written.
     progress : callable
+    locked : SolvedModel, optional
+        The design's FE model with its joints locked and its modes, solved by the structure
+        stage (at least up to the highest placement mode); built and solved here when None.
 
     Returns
     -------
@@ -80,8 +85,9 @@ def place_joints(design: Design, staging: Path, progress) -> tuple[Design, str |
     if design.joints or design.placement is None:
         return design, None
     targets = [m - 1 for m in design.placement.modes]
-    fe = build_model(design, joints="locked")
-    modes = solve_modes(fe, max(targets) + 1)
+    if locked is None:
+        locked = solved_model(build_model(design, joints="locked"), max(targets) + 1)
+    fe, modes = locked.fe, locked.first(max(targets) + 1)
     chosen = placement.choose(placement.connector_energy(fe, modes, targets), design.placement.count)
     source = Path(design.source).resolve()
     text = placement.design_text(str(source), f"{design.name}-placed", chosen, targets, writer="smartjoint run")

@@ -12,13 +12,16 @@ from smartjoint.design.reduction.krylov import reduce
 from smartjoint.design.reduction.metrics import error_metrics
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.solved import SolvedModel
 
 WINDOWS = (0.05, 0.1, 0.2, 0.5)  # s: RMS windows of the friction-moment comparison
 
 
-def _full_model(design, considered: int, progress):
-    """The released truss, its full modal model (all modes of Eq. 5) and its first ``considered`` modes."""
-    fe = build_model(design, joints="released")
+def _full_model(design, considered: int, progress, released: SolvedModel | None):
+    """The released truss (``released``'s FE model where given), its full modal model (all
+    modes of Eq. 5) and its first ``considered`` modes, from that one full solution: the basis
+    and the reference the errors are measured against come from the same eigen solution."""
+    fe = released.fe if released is not None else build_model(design, joints="released")
     progress(f"      all {fe.n_dof} modes of the released truss (the full model) …")
     everything = modal.solve_modes(fe, fe.n_dof)
     full = modal.modal_model(fe, everything)
@@ -98,6 +101,7 @@ def reduction_study(
     duration: float = 0.5,
     step: float = 5e-5,
     progress=print,
+    released: SolvedModel | None = None,
 ) -> dict:
     """Full model (all modes of Eq. 5) against reduced models with 0…K Krylov vectors under the
     paper's tip pulse: the friction forces of Fig. 10 and the error metrics of Section 4.
@@ -120,6 +124,10 @@ def reduction_study(
         Simulated time and plant step [s].
     progress : callable
         Receives one line per stage.
+    released : SolvedModel, optional
+        The design's released FE model, built by the structure stage. Its every mode is solved
+        here (the full model's dense solution, of which the selection's first ``considered``
+        modes are a part).
 
     Returns
     -------
@@ -135,7 +143,7 @@ def reduction_study(
     """
     if not design.joints:
         raise ModelError("design has no [[joints]]: the reduction study needs at least one friction joint")
-    fe, full, first = _full_model(design, considered, progress)
+    fe, full, first = _full_model(design, considered, progress, released)
     simulate_model = _pulse_simulation(design, normal_forces, duration, step)
     considered = min(considered, fe.n_dof)
     keep = min(keep, considered)

@@ -350,7 +350,7 @@ def _warn_swaps(initial: ModeCorrelation | None, updated: ModeCorrelation | None
             warnings.warn(message, ModeSwapWarning, stacklevel=3)
 
 
-def updated_design(design, progress=None, warn=None):
+def updated_design(design, progress=None, warn=None, model=None):
     """The design with its ``[updating]`` parameters fitted, and the result (None without one).
 
     Updating always runs on the conventional truss (joints locked): that is what the modal
@@ -362,6 +362,8 @@ def updated_design(design, progress=None, warn=None):
         The design.
     progress, warn : callable, optional
         As for `update_model`.
+    model : FEModel, optional
+        The design's FE model with its joints locked, where the caller has built it already.
 
     Returns
     -------
@@ -372,7 +374,8 @@ def updated_design(design, progress=None, warn=None):
 
     if design.updating is None:
         return design, None
-    result = update_model(build_model(design, joints="locked"), progress=progress, warn=warn)
+    locked = model if model is not None else build_model(design, joints="locked")
+    result = update_model(locked, progress=progress, warn=warn)
     return design.with_parameters(result.parameters), result
 
 
