@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.codegen import build, build_files, can_layer, output, rendering
+from smartjoint.common import law_registry
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.control.filter import FEEDBACK_LIMIT, HoldProducts, hold_products, output_terms
 
 
 def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: str, lit, row) -> dict:
@@ -48,68 +48,6 @@ def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: s
         "friction_force_limit": row(artifact.friction_force_limit),
         "measured_normal_force_min": row(artifact.measured_normal_force_min),
         "measured_normal_force_max": row(artifact.measured_normal_force_max),
-    }
-
-
-def _clqg_context(common: dict, artifact: artifacts.ControllerArtifact, prefix: str, lit, row) -> dict:
-    """The clipped LQG's context (Eq. 33–34): the 2×2 predictor blocks per coordinate and the gains."""
-    return {
-        **common,
-        "name": f"{prefix}_clqg",
-        "NAME": f"{prefix}_clqg".upper(),
-        "coordinates": int(np.asarray(artifact.blocks).shape[0]),
-        "coordinate_models": _coordinate_models(artifact, row),
-        # The components of each coordinate a sensor reads (0 velocity, 1 displacement): the
-        # structural zeros of C are skipped at generation time (control.output_terms).
-        "output_components": [
-            [q for q in (0, 1) if used[q]] for used in output_terms(np.asarray(artifact.output, dtype=float))[:, :2]
-        ],
-        **_hold_context(artifact, row),
-        "clqg_boundary_layer": lit(artifact.clqg_boundary_layer),
-        "sensor_limit": row(artifact.sensor_limit),
-        "feedback_limit": lit(FEEDBACK_LIMIT),
-    }
-
-
-def _coordinate_models(artifact: artifacts.ControllerArtifact, row) -> list[dict]:
-    """One entry per coordinate i: its 2×2 block Φ_i by columns, γ0, γ1, row i of E, then the
-    gains on its two states: M[2i:2i+2] by columns, and C[:, 2i+c], (K − KM·C)[:, 2i+c] for
-    c = 0, 1 (control.hold_products) — the state's component outermost, so that each pair the
-    step forms lies side by side."""
-    output = np.asarray(artifact.output, dtype=float)
-    estimator, feedback = np.asarray(artifact.estimator_gain, dtype=float), _products(artifact).feedback_prior
-    return [
-        {
-            "phi": [row(np.asarray(artifact.blocks[i], dtype=float)[:, k]) for k in (0, 1)],
-            "gamma0": row(artifact.gamma0[i]),
-            "gamma1": row(artifact.gamma1[i]),
-            "joint_input": row(artifact.joint_input[i]),
-            "estimator_gain": [row(estimator[2 * i : 2 * i + 2, r]) for r in range(estimator.shape[1])],
-            "output": [row(output[:, 2 * i + c]) for c in (0, 1)],
-            "feedback_gain": [row(feedback[:, 2 * i + c]) for c in (0, 1)],
-        }
-        for i in range(len(artifact.blocks))
-    ]
-
-
-def _products(artifact: artifacts.ControllerArtifact) -> HoldProducts:
-    """The constant products of the cLQG's two phases (control.hold_products)."""
-    return hold_products(
-        artifact.output, artifact.feedback_gain, artifact.estimator_gain, artifact.gamma1, artifact.joint_input
-    )
-
-
-def _hold_context(artifact: artifacts.ControllerArtifact, row) -> dict:
-    """The small constant products of the cLQG's phases as table rows (control.hold_products)."""
-    products = _products(artifact)
-    return {
-        "output_hold": [row(c) for c in products.output_hold],
-        "feedback_hold": [row(k) for k in products.feedback_hold],
-        "feedback_estimator": [row(k) for k in products.feedback_estimator],
-        "normal_force_min_each": [row([v]) for v in np.asarray(artifact.normal_force_min, dtype=float)],
-        "normal_force_range_each": [
-            row([v]) for v in np.asarray(artifact.normal_force_max, dtype=float) - np.asarray(artifact.normal_force_min)
-        ],
     }
 
 
@@ -147,18 +85,11 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
     env = rendering.environment()
     files: dict[str, str] = {}
     files[f"{prefix}_types.h"] = env.get_template("types.h.j2").render(common)
-    siso = {
-        **common,
-        "name": f"{prefix}_siso",
-        "NAME": f"{prefix}_siso".upper(),
-        "boundary_layer": row(artifact.siso_boundary_layer),
-        "sliding_velocity_limit": row(artifact.sliding_velocity_limit),
-    }
-    files[f"{prefix}_siso.h"] = env.get_template("siso.h.j2").render(siso)
-    files[f"{prefix}_siso.c"] = env.get_template("siso.c.j2").render(siso)
-    clqg = _clqg_context(common, artifact, prefix, lit, row)
-    files[f"{prefix}_clqg.h"] = env.get_template("clqg.h.j2").render(clqg)
-    files[f"{prefix}_clqg.c"] = env.get_template("clqg.c.j2").render(clqg)
+    for law in law_registry.LAWS.values():  # each law's templates with the context its entry names
+        name = law.c_name(prefix)
+        context = {**common, "name": name, "NAME": name.upper(), **law.codegen_context(artifact, lit, row)}
+        for kind in "hc":
+            files[f"{name}.{kind}"] = env.get_template(f"{law.name}.{kind}.j2").render(context)
     example = {
         **common,
         "amplitude": lit(1e-3),

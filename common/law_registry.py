@@ -82,6 +82,9 @@ class Law:
     artifact : tuple of (str, str)
         Its section ``laws.<name>`` of the controller artefact: (key in the file, field of
         ``ControllerArtifact``) per entry, in the file's order.
+    codegen : str
+        ``module:function`` giving what its templates ``<name>.h.j2``/``<name>.c.j2`` see beyond
+        the common context, ``function(artifact, lit, row) -> dict`` (:meth:`codegen_context`).
     reference : str
         ``module:function`` of the Python reference, ``function(artifact) -> Controller``
         (``design.plant.interface``): the executable specification that the generated C
@@ -98,6 +101,7 @@ class Law:
     boundary_layer: BoundaryLayer
     grid: tuple[str, ...]
     artifact: tuple[tuple[str, str], ...]
+    codegen: str
     reference: str
 
     def python_reference(self, artifact: Any) -> Any:
@@ -112,12 +116,21 @@ class Law:
         Controller
             ``reset()``, ``step(measurements) -> normal_forces``, ``sample_time``.
         """
-        module, function = self.reference.split(":")
-        return getattr(importlib.import_module(module), function)(artifact)
+        return _resolve(self.reference)(artifact)
+
+    def codegen_context(self, artifact: Any, lit: Any, row: Any) -> dict:
+        """What the law's templates see beyond the common context (the ``codegen`` function)."""
+        return dict(_resolve(self.codegen)(artifact, lit, row))
 
     def c_name(self, prefix: str) -> str:
         """The law's C identifier stem, ``<prefix>_<name>`` (``<stem>_step``, ``<stem>.c``)."""
         return f"{prefix}_{self.name}"
+
+
+def _resolve(path: str) -> Any:
+    """The function at ``module:function``, imported on first use."""
+    module, function = path.split(":")
+    return getattr(importlib.import_module(module), function)
 
 
 LAWS: dict[str, Law] = {
@@ -134,6 +147,7 @@ LAWS: dict[str, Law] = {
             boundary_layer=BoundaryLayer("siso_boundary_layer", "m/s", per_joint=True, equation=30),
             grid=("siso_boundary_layer",),
             artifact=(("boundary_layer", "siso_boundary_layer"),),
+            codegen="smartjoint.codegen.law_contexts:siso",
             reference="smartjoint.design.control.artifact:siso_law",
         ),
         Law(
@@ -151,6 +165,7 @@ LAWS: dict[str, Law] = {
                 *((field, field) for field in ("blocks", "gamma0", "gamma1", "joint_input", "output")),
                 *((field, field) for field in ("feedback_gain", "estimator_gain", "modal_frequencies")),
             ),
+            codegen="smartjoint.codegen.law_contexts:clqg",
             reference="smartjoint.design.control.artifact:clipped_lqg",
         ),
     )

@@ -7,8 +7,6 @@ from __future__ import annotations
 import sys
 from collections import Counter
 
-import pytest
-
 from smartjoint.design.structure import fem, modal
 
 
@@ -36,7 +34,6 @@ def _count_calls(monkeypatch) -> Counter:
     return calls
 
 
-@pytest.mark.numerics
 def test_the_bundled_run_builds_each_model_once_and_solves_its_modes_once(tmp_path, monkeypatch):
     from smartjoint import pipeline
 
