@@ -40,6 +40,7 @@ import numpy as np
 from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py (the script's folder is on sys.path)
 
 from smartjoint.codegen import build, controllers, generate, output
+from smartjoint.common import law_registry
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.filter import output_terms
 from smartjoint.design.plant.interface import Measurements
@@ -190,8 +191,8 @@ def best_time(action, repeats: int) -> float:
 def c_timing(c, rows: dict[str, np.ndarray]) -> dict:
     out = {}
     ffi, lib = c.ffi, c.lib
-    for law, make in (("siso", c.siso), ("clqg", c.clipped_lqg)):
-        controller = make()
+    for law in law_registry.NAMES:
+        controller = c.law(law)
         data = rows[law]
         count = data.shape[0]
 
@@ -221,8 +222,8 @@ def c_timing(c, rows: dict[str, np.ndarray]) -> dict:
 def python_timing(a, measurements: list[Measurements], c, rows: dict[str, np.ndarray]) -> dict:
     out = {}
     l = len(a.joint_names)
-    for law, make, compiled in (("siso", artifacts.siso_law, c.siso), ("clqg", artifacts.clipped_lqg, c.clipped_lqg)):
-        reference = make(a)
+    for law in law_registry.NAMES:
+        reference = law_registry.law(law).python_reference(a)
         results: list[np.ndarray] = []
 
         def steps():
@@ -232,7 +233,7 @@ def python_timing(a, measurements: list[Measurements], c, rows: dict[str, np.nda
                 results.append(reference.step(m))
 
         seconds = best_time(steps, 3)
-        controller = compiled()
+        controller = c.law(law)
         outputs, _ = controller.run(rows[law][: len(measurements)])
         identical = np.asarray(results).tobytes() == np.ascontiguousarray(outputs[:, :l]).tobytes()
         if not identical:
@@ -376,10 +377,7 @@ def main() -> int:
     rows = {"siso": np.hstack([velocity, friction, normal]), "clqg": np.hstack([sensors, friction, normal])}
     c = controllers.compile_controllers(a, "double", PREFIX)
     timing = c_timing(c, rows)
-    statuses = {
-        law: int(np.count_nonzero(make().run(rows[law])[1]))
-        for law, make in (("siso", c.siso), ("clqg", c.clipped_lqg))
-    }
+    statuses = {law: int(np.count_nonzero(c.law(law).run(rows[law])[1])) for law in law_registry.NAMES}
     measurements = [
         Measurements(k * a.sample_time, sensors[k], velocity[k], friction[k], normal[k]) for k in range(PY_ROWS)
     ]

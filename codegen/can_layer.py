@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.codegen import can_codec, identifiers, rendering
-from smartjoint.common import package_data
+from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.network import protocol
@@ -145,11 +145,12 @@ def _inputs(db, joints: list[str], cycle_us: int) -> list[dict]:
     controller cycle, since ages count steps (design/network/protocol.py)."""
     by_name = {m.name: m for m in db.messages}
     inputs = [
-        {"kind_c": "INPUT_JOINT", "index": j, "message": f"JOINT_{tag}", "clqg_only": 0} for j, tag in enumerate(joints)
+        {"kind_c": "INPUT_JOINT", "index": j, "message": f"JOINT_{tag}", "sensors_only": 0}
+        for j, tag in enumerate(joints)
     ]
-    inputs.append({"kind_c": "INPUT_TIP", "index": 0, "message": "TIP_SENSORS", "clqg_only": 1})
+    inputs.append({"kind_c": "INPUT_TIP", "index": 0, "message": "TIP_SENSORS", "sensors_only": 1})
     inputs += [
-        {"kind_c": "INPUT_AMPLIFIER", "index": j, "message": f"AMP_STATUS_{tag}", "clqg_only": 0}
+        {"kind_c": "INPUT_AMPLIFIER", "index": j, "message": f"AMP_STATUS_{tag}", "sensors_only": 0}
         for j, tag in enumerate(joints)
     ]
     for i in inputs:
@@ -345,6 +346,8 @@ def render_can(
         "recovery_cycles": artifact.recovery_cycles,
         "full_codec": full_codec,
         "mode_safe": protocol.MODE_SAFE,
+        # Every law of the registry: the layer runs the one its RESET / init names.
+        "laws": [{"name": law.name, "mode": law.mode, "inputs": law.inputs} for law in law_registry.LAWS.values()],
         "einval": can_codec.EINVAL,
         "limits": _raw_limits(db, artifact),
         **_raw_types(db, artifact, layouts),

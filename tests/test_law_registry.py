@@ -112,7 +112,6 @@ REMAINING = {
     "bench/sil.py": 7,
     "bench/target.py": 2,
     "codegen/backtoback.py": 3,
-    "codegen/can_layer.py": 3,
     "codegen/rendering.py": 1,
     "design/control/artifact.py": 1,
     "design/control/artifact_building.py": 2,

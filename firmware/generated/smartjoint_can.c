@@ -734,7 +734,7 @@ typedef struct {
     uint8_t length;
     uint8_t kind;      /* input_kind */
     uint8_t index;     /* the joint of a JOINT or AMP_STATUS frame */
-    uint8_t clqg_only; /* only the clipped LQG needs it */
+    uint8_t sensors_only; /* only a law that reads the tip sensors needs it */
 } input_entry;
 
 static const input_entry inputs[SMARTJOINT_CAN_INPUTS] = {
@@ -984,7 +984,7 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
     }
     state->step_time = time_us;
     for (k = 0u; k < SMARTJOINT_CAN_INPUTS; ++k) {
-        const int needed = state->law == SMARTJOINT_CAN_LAW_CLQG || !inputs[k].clqg_only;
+        const int needed = state->law == SMARTJOINT_CAN_LAW_CLQG || !inputs[k].sensors_only;
         /* Age of the newest frame in controller cycles: its sender sampled it after the
          * heartbeat it echoes, and the last heartbeat (of the last step, counter `cycle`) went
          * out a cycle ago: exact whatever the
