@@ -76,7 +76,8 @@ def render(artifact: artifacts.ControllerArtifact, prefix: str = "smartjoint") -
 
 
 class CompiledLoop:
-    """The compiled closed loop of one artefact (built on first use, cached per machine).
+    """The compiled closed loop of one artefact (built on first use, cached per machine); a
+    ``design.control.interconnection.ClosedLoop``.
 
     Parameters
     ----------
@@ -111,7 +112,7 @@ class CompiledLoop:
         s : StudySetup
             The study; its sample time, limits and joints those of the artefact.
         law : str
-            The display name of a law of the registry (the study's run).
+            A law of the registry, by its name or its display name (the study's run).
 
         Returns
         -------
@@ -124,11 +125,10 @@ class CompiledLoop:
             An unknown law, a set-up the artefact does not fit, a command the plant cannot take or
             a joint solve that fails, each in one line as the Python loop says it.
         """
-        if law not in LAWS:
-            raise ModelError(f"law: {law!r} — the compiled loop runs {', '.join(LAWS)}")
+        entry = law_registry.law(law)
         self._check_fits(s)
-        r, result = self._execute(s, f"{self.prefix}_{LAWS[law]}_closed_loop")
-        return semi_active_run(s, law, r), int(result.safe_state_samples)
+        r, result = self._execute(s, f"{entry.c_name(self.prefix)}_closed_loop")
+        return semi_active_run(s, entry.display, r), int(result.safe_state_samples)
 
     def run_passive(self, s: StudySetup, name: str, normal_forces) -> Run:
         """A passive run of the study, as ``runs.run_passive``: F_N^max during the pulse, then

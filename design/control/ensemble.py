@@ -21,19 +21,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.control.artifact_building import from_design
 from smartjoint.design.control.best_passive import best_passive
-from smartjoint.design.control.laws import STATUS_OK, check_limits
+from smartjoint.design.control.interconnection import ClosedLoop, PythonLoop
+from smartjoint.design.control.laws import check_limits
 from smartjoint.design.control.lqg import LqgDesign
 from smartjoint.design.control.runs import (
     PLANT_STEPS_PER_SAMPLE,
     Run,
     StudySetup,
     run_active,
-    run_passive,
-    run_semi_active,
     setup,
 )
 from smartjoint.design.control.study import design_model, lqg_for, metrics, sensor_quantities
@@ -198,22 +196,6 @@ def point_artifact(design, model: ModalModel, lqg: LqgDesign, point: dict[str, f
     return from_design(design, model, lqg, 1.0 if width is None else width)
 
 
-class _CountingSafeState:
-    """A controller wrapper counting the samples whose status is not OK (the safe state)."""
-
-    def __init__(self, inner):
-        self.inner, self.sample_time, self.count = inner, inner.sample_time, 0
-
-    def reset(self) -> None:
-        self.inner.reset()
-        self.count = 0
-
-    def step(self, measurements) -> np.ndarray:
-        out = self.inner.step(measurements)
-        self.count += int(getattr(self.inner, "status", STATUS_OK) != STATUS_OK)
-        return out
-
-
 def perturbed_plant(model: ModalModel, inputs: dict[str, float]) -> ModalModel:
     """The design model with the sample's modal frequency scale and damping (itself when the
     sample changes neither)."""
@@ -298,7 +280,8 @@ def _run_law(
     the semi-active and passive laws through ``compiled(artifact)`` where given, else the Python
     loop with the reference laws (the same numbers). ``cache``: the sample's constant-force runs."""
     artifact = base.artifacts[index]
-    passive = compiled(artifact).run_passive if compiled is not None else run_passive
+    closed: ClosedLoop = compiled(artifact) if compiled is not None else PythonLoop(artifact)
+    passive = closed.run_passive
     if law == "passive F_min":
         return passive(s, law, s.normal_force_min), 0, math.nan
     if law == "passive F_max":
@@ -312,11 +295,7 @@ def _run_law(
     width = point.get("siso_boundary_layer")
     if width is not None and not np.all(np.asarray(artifact.siso_boundary_layer) == width):
         raise ModelError(f"grid point {index}: ε = {width!r} m/s, its artefact's {list(artifact.siso_boundary_layer)}")
-    if compiled is not None:
-        return (*compiled(artifact).run(s, law), math.nan)
-    reference = artifacts.siso_law(artifact) if law == "SISO" else artifacts.clipped_lqg(artifact)
-    controller = _CountingSafeState(reference)
-    return run_semi_active(s, law, controller), controller.count, math.nan
+    return (*closed.run(s, law), math.nan)
 
 
 def _number(value) -> float:
