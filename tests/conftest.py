@@ -238,3 +238,37 @@ def artifact_text(fields: dict) -> str:
     from smartjoint.design.control import artifact_layout
 
     return json.dumps(artifact_layout.nest(fields))
+
+
+def count_model_calls(monkeypatch):
+    """Wrap ``fem.build_model`` and ``modal.solve_modes`` wherever a module of the project holds
+    them; the counter gets (function, joints or mode count) per call."""
+    import importlib
+    import sys
+    from collections import Counter
+
+    from smartjoint.design.structure import fem, modal
+
+    # Every module of a run loaded first, so that each binding of the two functions is wrapped
+    # (a function-level import later reads the wrapped attribute of fem or modal itself).
+    for name in ("smartjoint.pipeline", "smartjoint.bench.sweep", "smartjoint.commands"):
+        importlib.import_module(name)
+    calls: Counter = Counter()
+    build, solve = fem.build_model, modal.solve_modes
+
+    def counted_build(design, *args, joints="released", **kwargs):
+        calls["build", joints] += 1
+        return build(design, *args, joints=joints, **kwargs)
+
+    def counted_solve(model, n_modes, *args, **kwargs):
+        calls["solve", n_modes == model.n_dof] += 1
+        return solve(model, n_modes, *args, **kwargs)
+
+    for name, module in list(sys.modules.items()):
+        if name.startswith("smartjoint") and module is not None:
+            for attribute, value in list(vars(module).items()):
+                if value is build:
+                    monkeypatch.setattr(module, attribute, counted_build)
+                elif value is solve:
+                    monkeypatch.setattr(module, attribute, counted_solve)
+    return calls

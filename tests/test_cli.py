@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import cli_error, run_cli
+from conftest import cli_error, count_model_calls, run_cli
 from test_rig_cli import JOINT_B
 
 from smartjoint.cli import main
@@ -110,8 +110,12 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(io, "open", guarded(io.open))
     monkeypatch.setattr(lugre, "TABLE_1", _Forbidden())
     out = tmp_path / "report"
+    calls = count_model_calls(monkeypatch)
     assert main(["run", str(design), "-o", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
+    # Every stage of the run on the structure stage's models: each FE model built once (locked,
+    # released), each one's modes solved once, the reduction study's full reference apart.
+    assert dict(calls) == {("build", "locked"): 1, ("build", "released"): 1, ("solve", False): 2, ("solve", True): 1}
     _user_friction_reaches_the_artifact(out, summary)
     for name in ("report.md", "mode_shapes.png", "spectrum.png", "summary.json"):
         assert (out / name).stat().st_size > 0

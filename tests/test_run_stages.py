@@ -4,45 +4,26 @@ in every module that holds them, however the module imported them."""
 
 from __future__ import annotations
 
-import sys
-from collections import Counter
-
-from smartjoint.design.structure import fem, modal
+from conftest import count_model_calls
 
 
-def _count_calls(monkeypatch) -> Counter:
-    """Wrap ``fem.build_model`` and ``modal.solve_modes`` wherever a module of the project holds
-    them; the counter gets (function, joints or mode count) per call."""
-    calls: Counter = Counter()
-    build, solve = fem.build_model, modal.solve_modes
-
-    def counted_build(design, *args, joints="released", **kwargs):
-        calls["build", joints] += 1
-        return build(design, *args, joints=joints, **kwargs)
-
-    def counted_solve(model, n_modes, *args, **kwargs):
-        calls["solve", n_modes == model.n_dof] += 1
-        return solve(model, n_modes, *args, **kwargs)
-
-    for name, module in list(sys.modules.items()):
-        if name.startswith("smartjoint") and module is not None:
-            for attribute, value in list(vars(module).items()):
-                if value is build:
-                    monkeypatch.setattr(module, attribute, counted_build)
-                elif value is solve:
-                    monkeypatch.setattr(module, attribute, counted_solve)
-    return calls
-
-
-def test_the_bundled_run_builds_each_model_once_and_solves_its_modes_once(tmp_path, monkeypatch):
+def test_the_bundled_truss_builds_each_model_once_and_solves_its_modes_once(tmp_path, monkeypatch):
+    """The bundled truss (with [updating] and [placement]) through every stage that used to build
+    or solve a model — structure, placement, friction, reduction, control and the ensemble; the
+    firmware, SIL, PIL and FMU stages take the control stage's study and artefact only (the
+    whole pipeline is counted on a user's design in ``test_cli``)."""
     from smartjoint import pipeline
+    from smartjoint.pipeline_ensemble import ensemble_stage
 
-    calls = _count_calls(monkeypatch)
-    summary = pipeline.run(None, tmp_path / "report", progress=lambda line: None)
-    assert summary["design"]["placed"] == "placed_design.toml"  # the path with updating and placement
-    builds = {key: n for key, n in calls.items() if key[0] == "build"}
+    calls = count_model_calls(monkeypatch)
+    quiet = lambda line: None  # noqa: E731
+    structure = pipeline._structure_stage(None, tmp_path, quiet)
+    assert structure.placed_design == "placed_design.toml"  # the path with updating and placement
+    friction = pipeline._friction_stage(structure, tmp_path, quiet)
+    pipeline._reduction_stage(structure, friction, quiet)
+    control = pipeline._control_stage(structure, friction, quiet)
+    ensemble_stage(control.design, control.study, list(friction.types), tmp_path, quiet)
     # The nominal truss (updating starts from it), the updated one, the one with its joints released.
-    assert builds == {("build", "locked"): 2, ("build", "released"): 1}, calls
-    solves = {key: n for key, n in calls.items() if key[0] == "solve"}
-    # Each model's modes once; the reduction study's full-model reference (every mode) apart.
-    assert solves == {("solve", False): 2, ("solve", True): 1}, calls
+    assert {k: n for k, n in calls.items() if k[0] == "build"} == {("build", "locked"): 2, ("build", "released"): 1}
+    # Each model's modes once; the reduction study's full-model reference (every mode, dense) apart.
+    assert {k: n for k, n in calls.items() if k[0] == "solve"} == {("solve", False): 2, ("solve", True): 1}
