@@ -22,13 +22,12 @@ import numpy as np
 
 from smartjoint.bench import firmware, pil, target
 from smartjoint.bench.loop import SilLoop
-from smartjoint.common import figures
+from smartjoint.common import figures, law_registry
 from smartjoint.common.errors import ModelError
-from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import runs as study_runs
 from smartjoint.design.control import study as closed_loop
 
-RUN_NAMES = {"siso": "SISO", "clqg": "cLQG"}  # the Study's run names of the laws
+RUN_NAMES = {law.name: law.display for law in law_registry.LAWS.values()}  # the Study's run names of the laws
 COMPARED = ("command", "status", "faults", "safe")  # what the target and the host must agree on
 CLOCK_HZ = 168e6  # the budget's stated clock: an STM32F4-class Cortex-M4F at its top speed
 
@@ -52,8 +51,8 @@ def mil_study(design, model, artifact, progress=print):
     """
     s = closed_loop.setup(design, model)
     lqg = closed_loop.lqg_for(design, model)
-    laws = {"SISO": artifacts.siso_law(artifact), "cLQG": artifacts.clipped_lqg(artifact)}
-    progress(f"      model in the loop: passive, SISO, cLQG, active LQG ({s.duration:g} s each) …")
+    laws = {law.display: law.python_reference(artifact) for law in law_registry.LAWS.values()}
+    progress(f"      model in the loop: passive, {', '.join(laws)}, active LQG ({s.duration:g} s each) …")
     runs = [
         study_runs.run_passive(s, "passive F_min", s.normal_force_min),
         study_runs.run_passive(s, "passive F_max", s.normal_force_max),
@@ -215,7 +214,7 @@ def law_on_target(
 
 
 def pil_study(
-    study, artifact, laws=("siso", "clqg"), faults=(), clock_hz: float = CLOCK_HZ, progress=print, image_folder=None
+    study, artifact, laws=law_registry.NAMES, faults=(), clock_hz: float = CLOCK_HZ, progress=print, image_folder=None
 ) -> dict:
     """The study with each law's firmware on the target; the orderings with the target's runs.
 

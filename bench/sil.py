@@ -14,10 +14,9 @@ import numpy as np
 from smartjoint.bench import busload, firmware, safety
 from smartjoint.bench.faults import check_faults, demo_faults
 from smartjoint.bench.loop import SilLoop
-from smartjoint.common import figures
+from smartjoint.common import figures, law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
-from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.network import protocol
 
@@ -164,7 +163,7 @@ def _law_figures(setup, artifact, faults, mil, spread, loop, result, log_path, b
 def sil_study(
     setup,
     artifact,
-    laws=("siso", "clqg"),
+    laws=law_registry.NAMES,
     real: str = "float",
     faults=(),
     log_folder=None,
@@ -215,7 +214,7 @@ def sil_study(
         The planned bus load and, per law, the MIL and SIL figures, bus statistics, the
         injected faults' figures (``safety.measure``), the SIL record and result.
     """
-    python = {"siso": artifacts.siso_law, "clqg": artifacts.clipped_lqg}
+    python = {law.name: law.python_reference for law in law_registry.LAWS.values()}
     db = protocol.database(artifact)
     _check_faults_against(db, artifact, faults)
     out = _study_header(db, bitrate, data_bitrate, real, amplifier)
@@ -328,7 +327,7 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     plt = figures.pyplot()
     folder = figures.folder_for(folder)
     fig, ax = plt.subplots(figsize=(7, 3.6))
-    colours = {"siso": "tab:blue", "clqg": "tab:red"}
+    colours = dict(zip(law_registry.NAMES, ("tab:blue", "tab:red", "tab:green", "tab:purple")))
     for law, f in out["laws"].items():
         r = f["result"]
         ax.semilogy(
