@@ -14,8 +14,8 @@ fields, in struct order, each a field of ``interface.Measurements``), its output
 layer (the artefact field, unit and whether it is per joint: the FMU's tunable), the sweep grid
 variables it answers to, and its Python reference built from the artefact alone.
 
-The registry is data: it imports nothing of the project, so the command line reads it without
-loading numpy, and every layer above may use it. The Python reference is named by its import
+The registry is data: of the project it imports only ``common.errors``, so the command line
+reads it without loading numpy, and every layer above may use it. The Python reference is named by its import
 path (``module:function``, as a package's entry points are) and loaded on first use.
 """
 

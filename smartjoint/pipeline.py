@@ -211,7 +211,8 @@ def _structure_stage(design_path: str | None, staging: Path, progress) -> Struct
     placed, placed_design = place_joints(design, staging, progress, locked)
     released = None
     if placed.joints:
-        # One solution of the released truss: the spectrum, the reduction basis, the design model.
+        # One solution of the released truss: the spectrum and the design model (the reduction
+        # study takes its FE model and solves every mode for its full-model reference).
         released_model = build_model(placed, joints="released")
         released = solved_model(released_model, max(REPORT_MODES, placed.control.considered_modes))
     return StructureStage(design, placed, locked, result, released, placed_design)

@@ -4,7 +4,8 @@ structure → friction → reduction → control → firmware → bench: every s
 stages before it produced instead of rebuilding it from the design, so one run builds each FE
 model once and solves its modes once (the reduction study's full-model reference, every mode of
 the released truss, is the one other eigen solution). The results are frozen: a later stage
-cannot change what an earlier one found, and the report (``pipeline``, ``report_*``) renders
+cannot reassign what an earlier one found (the figures' dicts inside are not copied: no stage
+writes into another's), and the report (``pipeline``, ``report_*``) renders
 them.
 """
 
@@ -36,8 +37,8 @@ class StructureStage:
     updating : UpdatingResult or None
         Model updating, None without ``[updating]``.
     released : SolvedModel or None
-        The truss with the joints released (Eq. 6) and its modes: the spectrum, the reduction
-        study's basis, the controllers' design model; None without joints.
+        The truss with the joints released (Eq. 6) and its modes: the spectrum and the
+        controllers' design model (the reduction study takes its FE model); None without joints.
     placed_design : str or None
         The design file ``[placement]`` wrote into the report.
     """

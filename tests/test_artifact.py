@@ -256,6 +256,7 @@ def _sections(built) -> dict:
         (lambda d: d.pop("network"), r"network: missing — required section"),
         (lambda d: d["laws"].pop("clqg"), r"laws.clqg: missing — required section"),
         (lambda d: d.update(common=[1]), r"common: \[1\] — expected a JSON object"),
+        (lambda d: d.update(laws=[]), r"laws: \[\] — expected a JSON object \(a section\)"),
     ],
 )
 def test_the_sections_are_checked_by_their_paths(setup, change, message):

@@ -119,7 +119,7 @@ REMAINING = {
     "design/control/ensemble.py": 5,
     "design/control/runs.py": 1,
     "design/control/study.py": 22,
-    "design/control/sweep_file.py": 2,
+    "design/control/sweep_file.py": 1,
     "design/structure/control_section.py": 2,
     "smartjoint/cli.py": 1,
     "smartjoint/commands_control.py": 6,

@@ -116,10 +116,12 @@ def nest(flat: dict[str, Any]) -> dict[str, Any]:
 def _section(data: dict, path: str) -> dict:
     """The object at ``path`` (``laws.siso``) of the file, or a one-line error naming the path."""
     value: Any = data
-    walked = []
+    walked: list[str] = []
     for part in path.split("."):
+        if not isinstance(value, dict):
+            raise field_error(".".join(walked), value, "expected a JSON object (a section)")
         walked.append(part)
-        if not isinstance(value, dict) or part not in value:
+        if part not in value:
             raise ModelError(f"{'.'.join(walked)}: missing — required section (docs/controller-artifact.md)")
         value = value[part]
     if not isinstance(value, dict):

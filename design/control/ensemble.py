@@ -77,7 +77,7 @@ class EnsembleBase:
         return (*KEYS, *self.grid_columns, *self.input_columns, *METRICS)
 
 
-def build_base(sweep, design, input_columns, progress=print, placements=(), model=None) -> EnsembleBase:
+def build_base(sweep, design, input_columns, progress=print, placements=(), base_model=None) -> EnsembleBase:
     """The design model, LQG and set-up every sample shares (built once, then shared).
 
     Parameters
@@ -92,7 +92,7 @@ def build_base(sweep, design, input_columns, progress=print, placements=(), mode
         Receives progress lines.
     placements : sequence of Design
         ``grid.placement``'s designs (prepared like ``design``), indexed by the points' value.
-    model : ModalModel, optional
+    base_model : ModalModel, optional
         The design model of ``design`` where the caller has built it (``study.design_model``).
 
     Returns
@@ -117,7 +117,7 @@ def build_base(sweep, design, input_columns, progress=print, placements=(), mode
     for point in sweep.points():  # in the driver, before any task: every point checked and built
         k = int(point["placement"]) + 1 if "placement" in point else 0
         if k not in built:
-            built[k] = _candidate(sweep, candidates[k], design, input_columns, progress, model if k == 0 else None)
+            built[k] = _candidate(sweep, candidates[k], design, input_columns, progress, base_model if k == 0 else None)
         chosen, model, shared, lqg = built[k]
         point_limits(shared, point)
         setups.append(shared)

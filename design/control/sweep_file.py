@@ -30,7 +30,14 @@ LAWS = ("passive F_min", "passive F_max", *law_registry.DISPLAY, "active LQG", "
 DEFAULT_LAWS = LAWS[:5]
 SAMPLERS = ("random", "latin-hypercube", "sobol")
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")
-GRID_VARIABLES = ("siso_boundary_layer", "normal_force_min", "normal_force_max", "control_weight", "placement")
+# Each law's own design variables (its registry entry's grid), then those every law shares.
+GRID_VARIABLES = (
+    *(name for law in law_registry.LAWS.values() for name in law.grid),
+    "normal_force_min",
+    "normal_force_max",
+    "control_weight",
+    "placement",
+)
 MAX_FILE_BYTES = 1024 * 1024
 MAX_SAMPLES = 10_000_000
 MAX_BATCH = 100_000

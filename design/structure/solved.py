@@ -3,8 +3,10 @@
 The stages of ``smartjoint run`` need the same eigen solution several times: the report's
 spectrum, joint placement, the reduction study's basis, the controllers' design model, the
 ensemble. Each used to build the FE model from the design and solve its modes anew; a
-:class:`SolvedModel` is built once by the structure stage and every later stage takes the modes
-it needs from it (:meth:`SolvedModel.first`), so they all see one solution.
+:class:`SolvedModel` is built once by the structure stage and handed on: placement and the
+controllers' design model take the modes they need from it (:meth:`SolvedModel.first`), the
+reduction study its FE model (it solves every mode for its full-model reference), and the
+ensemble the design model built from it.
 """
 
 from __future__ import annotations
