@@ -210,7 +210,7 @@ def fmu_study(study, design, artifact, folder: Path, progress=print) -> dict:
                 f"co-simulation {'identical to' if same else 'DIFFERS from'} MIL"
             )
         study_runs_all = [study.run("passive F_min"), study.run("passive F_max"), *runs, study.run("active LQG")]
-        figures["orderings"] = dataclasses.replace(study, optimum=None, runs=study_runs_all).orderings()
+        figures["orderings"] = dataclasses.replace(study, runs=study_runs_all).orderings()
         out["versions"][version] = figures
     return out
 

@@ -24,8 +24,10 @@ from smartjoint.bench import firmware, pil, target
 from smartjoint.bench.loop import SilLoop
 from smartjoint.common import figures, law_registry
 from smartjoint.common.errors import ModelError
+from smartjoint.design.control import orderings as paper_orderings
 from smartjoint.design.control import runs as study_runs
 from smartjoint.design.control import study as closed_loop
+from smartjoint.design.control import tuning
 
 RUN_NAMES = {law.name: law.display for law in law_registry.LAWS.values()}  # the Study's run names of the laws
 COMPARED = ("command", "status", "faults", "safe")  # what the target and the host must agree on
@@ -63,9 +65,8 @@ def mil_study(design, model, artifact, progress=print):
     for run in runs:
         run.metrics = closed_loop.metrics(run, runs[1], quantities)
     return closed_loop.Study(
-        s, lqg, np.asarray(artifact.siso_boundary_layer, float), None, float(artifact.clqg_boundary_layer), runs,
-        list(model.sensor_names), list(model.joint_names), quantities,
-    )  # fmt: skip
+        s, lqg, tuning.from_artifact(artifact), runs, list(model.sensor_names), list(model.joint_names), quantities
+    )
 
 
 def loop_run(setup, image, law: str, faults=()) -> tuple:
@@ -361,13 +362,9 @@ def pil_markdown(out: dict) -> str:
         mark = {True: "yes", False: "**no**", None: "— (no displacement sensor)"}
         lines += [
             "",
-            "Orderings of the paper (Section 6) with the target's SISO and cLQG runs:",
+            f"Orderings of the paper (Section 6) with the target's {', '.join(RUN_NAMES.values())} runs:",
             "",
-            f"- SISO ends below both passive settings: {mark[c['siso_below_both_passive']]}",
-            f"- cLQG ends below both passive settings: {mark[c['clqg_below_both_passive']]}",
-            f"- cLQG RMS tip deflection below SISO: {mark[c['clqg_tip_rms_below_siso']]}",
-            f"- active LQG below cLQG in energy: {mark[c['active_energy_below_clqg']]}, in RMS tip deflection: "
-            f"{mark[c['active_tip_rms_below_clqg']]}",
+            *(f"- {o.sentence}: {mark[verdict]}" for o, verdict in paper_orderings.judged(c)),
         ]
     matrix = out.get("fault_matrix")
     if matrix is not None:

@@ -34,6 +34,7 @@ from smartjoint.bench.amplifier import FAULTS as AMPLIFIER_FAULTS
 from smartjoint.bench.amplifier import OUTPUT_STAGE_FAULTS
 from smartjoint.bench.faults import FRAME_FAULTS, Fault
 from smartjoint.bench.loop import SilLoop
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.plant.interface import Measurements
 
@@ -386,7 +387,7 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
 
 
 def fault_matrix(
-    artifact, law: str = "clqg", real: str = "float", measurements=None, timings=TIMINGS, progress=None, image=None
+    artifact, law: str | None = None, real: str = "float", measurements=None, timings=TIMINGS, progress=None, image=None
 ) -> dict:
     """Every case of :func:`cases` on one compiled firmware: rows and the worst figures.
 
@@ -394,8 +395,8 @@ def fault_matrix(
     ----------
     artifact : ControllerArtifact
         The controller design artefact.
-    law : str
-        ``"siso"`` or ``"clqg"``.
+    law : str, optional
+        A law of the registry by name; default the fault-matrix law (``law_registry.fault_matrix_law``).
     real : str
         The firmware's scalar type.
     measurements : iterable of Measurements, optional
@@ -420,6 +421,7 @@ def fault_matrix(
     >>> out["failed"]  # doctest: +SKIP
     []
     """
+    law = law_registry.fault_matrix_law().name if law is None else law
     image = firmware_module.Firmware(artifact, law, real) if image is None else image
     todo = cases(artifact, image.db, timings=timings)
     seen = signals(measurements, artifact, max(c.cycles for c in todo))

@@ -355,7 +355,7 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     return [path]
 
 
-def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "float") -> dict:
+def fault_run(setup, artifact, law: str | None = None, faults=None, real: str = "float") -> dict:
     """One SIL run of the study with a sequence of faults.
 
     Parameters
@@ -364,8 +364,8 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
         The closed-loop study.
     artifact : ControllerArtifact
         The controller design artefact.
-    law : str
-        ``"siso"`` or ``"clqg"``.
+    law : str, optional
+        A law of the registry by name; default the fault-matrix law (``law_registry.fault_matrix_law``).
     faults : iterable of Fault, optional
         Default :func:`demo_faults`.
     real : str
@@ -377,6 +377,7 @@ def fault_run(setup, artifact, law: str = "clqg", faults=None, real: str = "floa
         Per fault the figures of ``safety.measure``, the largest energy after the pulse (bounded:
         the safe state is passive), samples in the safe state, the record, result and statistics.
     """
+    law = law_registry.fault_matrix_law().name if law is None else law
     faults = demo_faults(artifact, setup.duration) if faults is None else tuple(faults)
     _check_faults_against(protocol.database(artifact), artifact, faults)
     late = [f.label() for f in faults if not f.start < setup.duration]

@@ -214,8 +214,11 @@ def run_selftest(artifact: ControllerArtifact, steps: int = 200, seed: int = 19,
         law: per_tick * (figures[f"ticks_{law}"] - figures[f"ticks_{law}_empty"]) / figures["steps"]
         for law in INPUT_FIELDS
     }
-    # The loop whose step runs the cLQG's output phase once more, less the one with an empty call there.
-    instructions["clqg_output_phase"] = per_tick * figures["ticks_clqg_output_phase"] / figures["steps"]
+    # A phased law's loop that runs its output phase once more, less the one with an empty call there.
+    for law in law_registry.LAWS.values():
+        if law.phased:
+            phase = f"{law.name}_output_phase"
+            instructions[phase] = per_tick * figures[f"ticks_{phase}"] / figures["steps"]
     stack = {law: figures[f"stack_{law}"] for law in (*INPUT_FIELDS, "can")}
     stack["high_water"] = figures["stack_high_water"]
     command[-1] = "selftest.elf"

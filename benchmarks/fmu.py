@@ -25,9 +25,10 @@ from machine import python_machine, write_json  # benchmarks/machine.py (the scr
 from smartjoint.bench.cosimulation import cosimulate
 from smartjoint.codegen import closed_loop, fmu
 from smartjoint.design import load_design, updated_design
-from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import artifact_building
 from smartjoint.design.control import study as closed_loop_study
+from smartjoint.design.control.filter import clipped_lqg
+from smartjoint.design.control.laws import siso_law
 from smartjoint.design.control.runs import run_semi_active
 from smartjoint.design.structure import spec
 
@@ -52,8 +53,8 @@ def main() -> int:
     design, _ = updated_design(load_design(spec.REFERENCE_DESIGN.parent / "three_type_a.toml"))
     study = closed_loop_study.run_study(design, progress=lambda message: None)
     s = study.setup
-    artifact = artifact_building.from_design(design, s.model, study.lqg, study.boundary_layer)
-    references = {"SISO": artifacts.siso_law(artifact), "cLQG": artifacts.clipped_lqg(artifact)}  # the MIL laws
+    artifact = artifact_building.from_design(design, s.model, study.lqg, study.settings())
+    references = {"SISO": siso_law(artifact), "cLQG": clipped_lqg(artifact)}  # the MIL laws
     compiled = closed_loop.CompiledLoop(artifact)
     results: dict = {"benchmark": "fmu", "machine": python_machine(), "samples": s.samples, "laws": {}, "writing": {}}
     with tempfile.TemporaryDirectory(prefix="smartjoint-bench-fmu-") as scratch:

@@ -95,14 +95,9 @@ def back_to_back(
             figures["float_run"] = in_loop
         out[name] = figures
     if study is not None:
-        runs = [
-            study.run("passive F_min"),
-            study.run("passive F_max"),
-            out["SISO"].pop("float_run"),
-            out["cLQG"].pop("float_run"),
-            study.run("active LQG"),
-        ]
-        float_study = dataclasses.replace(study, optimum=None, runs=runs)
+        laws = [law.display for law in law_registry.LAWS.values()]
+        runs = [study.run(r.name) if r.name not in laws else out[r.name].pop("float_run") for r in study.runs]
+        float_study = dataclasses.replace(study, runs=runs)
         out["float_orderings"] = float_study.orderings()
     return out
 
@@ -144,7 +139,7 @@ def markdown(figures: dict, artifact: artifacts.ControllerArtifact) -> str:
     orderings = figures.get("float_orderings")
     if orderings is not None:
         # None: an ordering this design cannot judge (RMS tip deflection without a displacement sensor).
-        judged = {k: v for k, v in orderings.items() if k != "power_ratio_active_to_clqg" and v is not None}
+        judged = {k: v for k, v in orderings.items() if not k.startswith("power_ratio_") and v is not None}
         held = all(judged.values())
         unjudged = [k for k, v in orderings.items() if v is None]
         lines += [

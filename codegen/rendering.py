@@ -16,6 +16,7 @@ from smartjoint.codegen import identifiers
 from smartjoint.common import package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.control.artifact_schema import LAW_SETTINGS
 from smartjoint.design.control.filter import hold_products
 
 REALS = ("float", "double")
@@ -33,7 +34,7 @@ FLOAT_FIELDS = (
     "feedback_gain",
     "normal_force_min",
     "normal_force_max",
-    "siso_boundary_layer",
+    *LAW_SETTINGS,  # each law's settings (artefact fields)
     "safe_normal_force",
     "sliding_velocity_limit",
     "friction_force_limit",

@@ -54,6 +54,38 @@ class BoundaryLayer:
 
 
 @dataclass(frozen=True)
+class Setting:
+    """A setting of a law that the design file may give: ``[control] <law>_<key>``, and the key
+    ``laws.<law>.<key>`` of the artefact (``Law.artifact`` names its field there).
+
+    Attributes
+    ----------
+    key : str
+        Its key in the law's artefact section; the design file's key is ``<law>_<key>``.
+    unit : str
+        Its unit.
+    per_joint : bool
+        One value per controlled joint (a single number in the file is every joint's).
+    meaning : str
+        What it is, for the documentation and the errors.
+    default : float, str or None
+        The value when the design file leaves it out: a number, the name of a ``[control]``
+        field whose value it takes ("normal_force_max"), or None: the law's ``tune`` settles it
+        (the SISO ε is optimised) or the setting is required.
+    """
+
+    key: str
+    unit: str
+    per_joint: bool
+    meaning: str
+    default: float | str | None = None
+
+    def design_key(self, law: str) -> str:
+        """Its key in the design file's ``[control]`` table, ``<law>_<key>``."""
+        return f"{law}_{self.key}"
+
+
+@dataclass(frozen=True)
 class Law:
     """One normal-force law of the firmware.
 
@@ -77,11 +109,32 @@ class Law:
         The equation of its command F_N.
     boundary_layer : BoundaryLayer
         Its tunable boundary layer.
-    grid : tuple of str
-        The sweep grid variables that re-design this law (beyond the common limits).
     artifact : tuple of (str, str)
         Its section ``laws.<name>`` of the controller artefact: (key in the file, field of
         ``ControllerArtifact``) per entry, in the file's order.
+    settings : tuple of Setting
+        What the design file may set of it (``[control] <name>_<key>``); each is also a sweep
+        grid variable of that name.
+    tune : str
+        ``module:function`` settling the settings the design file leaves open for a study,
+        ``function(design, settings, setup, progress) -> (settings, record)``, or "" when each
+        setting's default does (``design.control.tuning.tuned`` calls it).
+    controller : str
+        ``module:function`` of the controller the study runs, ``function(setup, lqg, settings)
+        -> Controller``, built from the setup and the tuned settings (no artefact yet).
+    colour : str
+        Its line colour in the report's plots (a matplotlib colour).
+    beats : tuple of str
+        The laws (by name) whose RMS tip deflection the paper finds above this law's
+        (Section 6): orderings the study, the sweep and PIL check.
+    clips_active : bool
+        The law clips the active LQG's force (Eq. 34), so the active LQG is judged against it.
+    phased : bool
+        Its step is also offered as an output phase and an update phase
+        (``<prefix>_<name>_output_phase``/``_update_phase``: the command first, the rest after).
+    fault_matrix : bool
+        The law the SIL/PIL fault matrix runs on by default (its step reads the sensor frames as
+        well as the joints': every fault of the matrix reaches it).
     codegen : str
         ``module:function`` giving what its templates ``<name>.h.j2``/``<name>.c.j2`` see beyond
         the common context, ``function(artifact, lit, row) -> dict`` (:meth:`codegen_context`).
@@ -99,10 +152,17 @@ class Law:
     outputs: tuple[str, ...]
     equation: int
     boundary_layer: BoundaryLayer
-    grid: tuple[str, ...]
     artifact: tuple[tuple[str, str], ...]
+    settings: tuple[Setting, ...]
+    controller: str
+    colour: str
     codegen: str
     reference: str
+    tune: str = ""
+    beats: tuple[str, ...] = ()
+    clips_active: bool = False
+    phased: bool = False
+    fault_matrix: bool = False
 
     def python_reference(self, artifact: Any) -> Any:
         """The law's Python reference controller, built from a controller artefact alone.
@@ -117,6 +177,15 @@ class Law:
             ``reset()``, ``step(measurements) -> normal_forces``, ``sample_time``.
         """
         return _resolve(self.reference)(artifact)
+
+    def study_controller(self, setup: Any, lqg: Any, settings: dict) -> Any:
+        """The controller the study runs with the tuned ``settings`` (the ``controller`` function)."""
+        return _resolve(self.controller)(setup, lqg, settings)
+
+    def modules(self) -> set[str]:
+        """The modules of the law's own code: those its entry names (``module:function``)."""
+        paths = (self.tune, self.controller, self.codegen, self.reference)
+        return {path.split(":")[0] for path in paths if path}
 
     def codegen_context(self, artifact: Any, lit: Any, row: Any) -> dict:
         """What the law's templates see beyond the common context (the ``codegen`` function)."""
@@ -145,10 +214,13 @@ LAWS: dict[str, Law] = {
             outputs=("normal_force",),
             equation=30,
             boundary_layer=BoundaryLayer("siso_boundary_layer", "m/s", per_joint=True, equation=30),
-            grid=("siso_boundary_layer",),
             artifact=(("boundary_layer", "siso_boundary_layer"),),
+            settings=(Setting("boundary_layer", "m/s", True, "the boundary layer ε_j of Eq. 30"),),
+            tune="smartjoint.design.control.siso_tuning:tuned",
+            controller="smartjoint.design.control.siso_tuning:controller",
+            colour="tab:blue",
             codegen="smartjoint.codegen.law_contexts:siso",
-            reference="smartjoint.design.control.artifact:siso_law",
+            reference="smartjoint.design.control.laws:siso_law",
         ),
         Law(
             name="clqg",
@@ -159,14 +231,20 @@ LAWS: dict[str, Law] = {
             outputs=("normal_force", "desired_force"),
             equation=34,
             boundary_layer=BoundaryLayer("clqg_boundary_layer", "N", per_joint=False, equation=34),
-            grid=(),
             artifact=(
                 ("boundary_layer", "clqg_boundary_layer"),
                 *((field, field) for field in ("blocks", "gamma0", "gamma1", "joint_input", "output")),
                 *((field, field) for field in ("feedback_gain", "estimator_gain", "modal_frequencies")),
             ),
+            settings=(Setting("boundary_layer", "N", False, "the boundary layer ε of Eq. 34", 100.0),),
+            controller="smartjoint.design.control.filter:controller",
+            colour="tab:red",
             codegen="smartjoint.codegen.law_contexts:clqg",
-            reference="smartjoint.design.control.artifact:clipped_lqg",
+            reference="smartjoint.design.control.filter:clipped_lqg",
+            beats=("siso",),
+            clips_active=True,
+            phased=True,
+            fault_matrix=True,
         ),
     )
 }
@@ -206,6 +284,11 @@ def law(name: str, field: str = "law") -> Law:
     return found
 
 
+def fault_matrix_law() -> Law:
+    """The law the fault matrix runs on by default (``Law.fault_matrix``)."""
+    return next(entry for entry in LAWS.values() if entry.fault_matrix)
+
+
 def by_mode() -> dict[int, str]:
     """CONTROLLER_STATUS.mode's values and their names: INIT, every law's, SAFE."""
     modes = {MODE_INIT: "INIT", MODE_SAFE: "SAFE"}
@@ -216,4 +299,16 @@ def by_mode() -> dict[int, str]:
     return dict(sorted(modes.items()))
 
 
-__all__ = ["DISPLAY", "LAWS", "MODE_INIT", "MODE_SAFE", "NAMES", "BoundaryLayer", "Law", "by_mode", "law"]
+__all__ = [
+    "DISPLAY",
+    "LAWS",
+    "MODE_INIT",
+    "MODE_SAFE",
+    "NAMES",
+    "BoundaryLayer",
+    "Law",
+    "Setting",
+    "by_mode",
+    "fault_matrix_law",
+    "law",
+]

@@ -344,7 +344,9 @@ def _add_target_commands(sub, o: SimpleNamespace) -> None:
     p.add_argument("--duration", type=float, help="t_e [s] (default: the design's control.study_duration)")
     p.add_argument("--fault", action="append", help="inject a fault as `sil --fault` takes it, repeatable")
     p.add_argument(
-        "--fault-matrix", action="store_true", help="also run every case of the SIL fault matrix on the target (cLQG)"
+        "--fault-matrix",
+        action="store_true",
+        help=f"also run every case of the SIL fault matrix on the target ({law_registry.fault_matrix_law().display})",
     )
     p.add_argument("--clock", type=float, default=168.0, help="processor clock of the budget [MHz] (default: 168)")
     p.add_argument("--plots", help="folder for pil_energy.png")

@@ -45,7 +45,7 @@ def cmd_study(args) -> dict:
 
 
 def cmd_design(args) -> dict:
-    from smartjoint.design.control import artifact, artifact_building
+    from smartjoint.design.control import artifact, artifact_building, tuning
     from smartjoint.design.control import study as closed_loop
 
     design = _control_design(args, firmware_names=True)
@@ -53,13 +53,8 @@ def cmd_design(args) -> dict:
     model = closed_loop.design_model(design, report_progress)
     s = closed_loop.setup(design, model)
     lqg = closed_loop.lqg_for(design, model)
-    width = design.control.siso_boundary_layer
-    optimum = None
-    if width is None:
-        report_progress("SISO boundary layer ε: optimising E(t_e) of Eq. 32 …")
-        optimum = closed_loop.optimise_boundary_layer(s, lambda m: report_progress(m))
-        width = optimum.boundary_layer
-    result = artifact_building.from_design(design, model, lqg, width)
+    tunings = tuning.tuned_laws(design, s, report_progress)  # open settings tuned (the SISO ε optimised)
+    result = artifact_building.from_design(design, model, lqg, {name: t.settings for name, t in tunings.items()})
     from smartjoint.bench import busload
     from smartjoint.design.network import protocol
 
@@ -78,12 +73,11 @@ def cmd_design(args) -> dict:
         "joints": list(result.joint_names),
         "sensors": list(result.sensor_names),
         "sample_time": result.sample_time,
-        "siso_boundary_layer": result.siso_boundary_layer.tolist(),
-        "clqg_boundary_layer": result.clqg_boundary_layer,
+        **closed_loop.settings_figures(tunings),
         "lqg_max_pole_magnitude": float(abs(poles).max()),
         "lqg_stability_margin": float(1 - abs(poles).max()),
         "bus_load": load.load,
-        "boundary_layer_optimisation": None if optimum is None else optimum.figures(),
+        "tuning": {name: None if t.record is None else t.record.figures() for name, t in tunings.items()},
     }
     if not args.json:
         for key, value in out.items():
@@ -131,7 +125,7 @@ def cmd_codegen(args) -> dict:
 def _controller_artifact(args, design, model):
     """--artifact FILE (checked against the design), else designed now (ε optimised if absent)."""
     from smartjoint.common.errors import ModelError
-    from smartjoint.design.control import artifact, artifact_building
+    from smartjoint.design.control import artifact, artifact_building, tuning
     from smartjoint.design.control import study as closed_loop
 
     if getattr(args, "artifact", None):
@@ -142,12 +136,9 @@ def _controller_artifact(args, design, model):
                 f"but {design.source} has {design.sha256[:16]}… — run `smartjoint design` again"
             )
         return loaded
-    s = closed_loop.setup(design, model)
-    width = design.control.siso_boundary_layer
-    if width is None:
-        report_progress("SISO boundary layer ε: optimising E(t_e) of Eq. 32 …")
-        width = closed_loop.optimise_boundary_layer(s, report_progress).boundary_layer
-    return artifact_building.from_design(design, model, closed_loop.lqg_for(design, model), width)
+    tunings = tuning.tuned_laws(design, closed_loop.setup(design, model), report_progress)
+    settings = {name: t.settings for name, t in tunings.items()}
+    return artifact_building.from_design(design, model, closed_loop.lqg_for(design, model), settings)
 
 
 def _loop_inputs(args) -> tuple:
@@ -200,6 +191,7 @@ def cmd_sil(args) -> dict:
 
 def cmd_pil(args) -> dict:
     from smartjoint.bench import pil, pil_study, safety, target
+    from smartjoint.common import law_registry
     from smartjoint.common.errors import ModelError
 
     if not (args.clock > 0):
@@ -215,8 +207,9 @@ def cmd_pil(args) -> dict:
     study = pil_study.mil_study(design, model, controller, report_progress)
     out = pil_study.pil_study(study, controller, laws, faults, args.clock * 1e6, report_progress)
     if args.fault_matrix:
-        report_progress("      every case of the fault matrix on the target (cLQG) …")
-        with pil.TargetFirmware(controller, "clqg") as image:
+        law = law_registry.fault_matrix_law()
+        report_progress(f"      every case of the fault matrix on the target ({law.display}) …")
+        with pil.TargetFirmware(controller, law.name) as image:
             out["fault_matrix"] = safety.fault_matrix(controller, progress=report_progress, image=image)
     if not args.json:
         print(pil_study.pil_markdown(out))

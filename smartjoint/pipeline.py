@@ -50,7 +50,7 @@ from smartjoint.pipeline_ensemble import ensemble_stage
 from smartjoint.pipeline_fmu import fmu_stage
 from smartjoint.pipeline_target import pil_stage
 from smartjoint.pipeline_target import summary_of as pil_summary
-from smartjoint.report_control import control_markdown, plot_control_study
+from smartjoint.report_control import control_markdown, plot_control_study, tuning_plots
 from smartjoint.report_folder import ReportFolder, iso, new_run_id, utc_now
 from smartjoint.report_friction import friction_markdown
 from smartjoint.report_reduction import plot_study, study_markdown
@@ -258,7 +258,7 @@ def _control_stage(structure: StructureStage, friction: FrictionStage, progress)
     )
     model = closed_loop.design_model(controlled, lambda message: progress(message), structure.released)
     study = closed_loop.run_study(controlled, model, progress=lambda message: progress(message))
-    controller = artifact_building.from_design(controlled, study.setup.model, study.lqg, study.boundary_layer)
+    controller = artifact_building.from_design(controlled, study.setup.model, study.lqg, study.settings())
     return ControlStage(controlled, study, controller)
 
 
@@ -453,7 +453,7 @@ def _control_section(study, controller) -> str:
     return (
         control_markdown(study)
         + "\n![energy](control_energy.png)\n\n![tip](control_tip.png)\n\n"
-        + ("![ε optimisation](siso_boundary_layer.png)\n\n" if study.optimum is not None else "")
+        + "".join(f"![tuning]({name})\n\n" for name in tuning_plots(study))
         + "![normal forces](control_normal_force.png)\n\n"
         f"Controller design artefact: `controller.json` (schema {controller.schema_version}, "
         f"sha256 `{controller.artifact_sha256[:16]}…`, docs/controller-artifact.md) — the input of the "

@@ -7,7 +7,6 @@ relative to the design's own values; ``smartjoint sweep`` runs larger or other e
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import math
@@ -17,7 +16,8 @@ import numpy as np
 
 from smartjoint import sweep_report
 from smartjoint.bench.sweep import read_results, run_sweep
-from smartjoint.design.control import sweep_file
+from smartjoint.design.control import study as closed_loop
+from smartjoint.design.control import sweep_file, tuning
 from smartjoint.design.control.ensemble import KEYS, METRICS
 from smartjoint.design.control.friction_uncertainty import Z95, friction_inputs, friction_spreads
 from smartjoint.design.control.sweep_file import Distribution, Sweep, UncertainInput
@@ -93,14 +93,14 @@ def ensemble_stage(design, study, friction, staging: Path, progress) -> dict:
         f"[10/12] robustness ensemble: {SAMPLES} plants around the design (LuGre within the identification's 95 % "
         f"intervals: {shown}; modal frequencies ±1 %, damping, pulse ±10 %) × {len(LAWS)} laws, on Dask"
     )
-    control = dataclasses.replace(design.control, siso_boundary_layer=tuple(float(w) for w in study.boundary_layer))
+    tuned = tuning.with_settings(design, closed_loop.settings_figures(study.tunings))  # the study's settings
     folder = staging / "ensemble"
     out = run_sweep(
         sweep,
         folder,
         progress=lambda line: progress("      " + line.strip()),
-        design=dataclasses.replace(design, control=control),
-        model=study.setup.model,  # the control stage's design model: the same design but ε
+        design=tuned,
+        model=study.setup.model,  # the control stage's design model: the same design but its settings
     )
     table = read_results(folder)
     inputs = [name for name in table.column_names if name not in (*KEYS, *METRICS)]
@@ -127,7 +127,7 @@ def ensemble_stage(design, study, friction, staging: Path, progress) -> dict:
 
 
 def _markdown(summary: dict) -> str:
-    sentences = {name: sentence for name, sentence, *_ in sweep_report.ORDERINGS}
+    sentences = {o.key: o.sentence for o in sweep_report.ORDERINGS}
     lines = [
         "## Robustness ensemble",
         "",

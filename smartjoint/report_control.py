@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from smartjoint.common import figures
+from smartjoint.common import figures, law_registry
+from smartjoint.design.control import orderings as paper_orderings
 from smartjoint.design.control import study as closed_loop
 from smartjoint.report_reduction import save_figure
 
@@ -15,8 +16,7 @@ SHOWN = {"displacement": ("mm", 1e3, "Tip deflection"), "velocity": ("mm/s", 1e3
 COLOURS = {
     "passive F_min": "tab:gray",
     "passive F_max": "k",
-    "SISO": "tab:blue",
-    "cLQG": "tab:red",
+    **{law.display: law.colour for law in law_registry.LAWS.values()},
     "active LQG": "tab:green",
 }
 
@@ -35,7 +35,7 @@ def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
     -------
     list of Path
         control_energy.png (Figs. 12–13), control_tip.png (Fig. 14), control_normal_force.png,
-        and siso_boundary_layer.png when ε was optimised.
+        and ``<law>_<setting>.png`` for each law setting that was tuned (:func:`tuning_plots`).
     """
     plt = figures.pyplot()
     folder = Path(folder)
@@ -44,9 +44,15 @@ def plot_control_study(study: closed_loop.Study, folder) -> list[Path]:
         _plot_tip(plt, study, folder),
         _plot_normal_force(plt, study, folder),
     ]
-    if study.optimum is not None:
-        written.append(_plot_boundary_layer(plt, study.optimum, folder))
+    for name, tuning in study.tunings.items():
+        if tuning.record is not None:
+            written.append(_plot_tuning(plt, law_registry.LAWS[name], tuning.record, folder))
     return written
+
+
+def tuning_plots(study: closed_loop.Study) -> list[str]:
+    """The file names of the plots of the study's tuned settings (``<law>_<setting>.png``)."""
+    return [f"{name}_{t.record.setting}.png" for name, t in study.tunings.items() if t.record is not None]
 
 
 def _plot_energy(plt, study: closed_loop.Study, folder: Path) -> Path:
@@ -87,7 +93,7 @@ def _plot_normal_force(plt, study: closed_loop.Study, folder: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 3.5))
     window = study.runs[0].time <= min(0.5, study.setup.duration)
     for r in study.runs:
-        if r.name in ("SISO", "cLQG"):
+        if r.name in law_registry.DISPLAY:
             ax.plot(
                 r.time[window],
                 r.normal_force[window, 0],
@@ -100,27 +106,29 @@ def _plot_normal_force(plt, study: closed_loop.Study, folder: Path) -> Path:
     )
 
 
-def _plot_boundary_layer(plt, optimum, folder: Path) -> Path:
-    """siso_boundary_layer.png: E(t_e) against the SISO boundary layer ε (Eq. 30, 32)."""
-    points = sorted(optimum.evaluations)
+def _plot_tuning(plt, law, record, folder: Path) -> Path:
+    """<law>_<setting>.png: E(t_e) against the tuned setting (the SISO ε of Eq. 30, for Eq. 32)."""
+    setting = next(x for x in law.settings if x.key == record.setting)
+    points = sorted(record.evaluations)
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.semilogx([p[0] for p in points], [p[1] for p in points], ".-", color="tab:blue", label="E(t_e), Eq. 32")
     ax.semilogx(
-        [optimum.boundary_layer],
-        [optimum.energy_measure],
+        [record.value],
+        [record.energy_measure],
         "o",
         mfc="none",
         ms=10,
         color="tab:red",
-        label=f"optimum ε = {optimum.boundary_layer:.3g} m/s",
+        label=f"optimum {record.value:.3g} {setting.unit}",
     )
+    what = setting.key.replace("_", " ")
     return save_figure(
         fig,
         ax,
-        folder / "siso_boundary_layer.png",
-        "ε [m/s]",
+        folder / f"{law.name}_{setting.key}.png",
+        f"{what} [{setting.unit}]",
         "E(t_e) [J·s]",
-        "SISO boundary layer optimisation (Eq. 30, 32)",
+        f"{law.display} {what} optimisation (Eq. {law.equation}, 32)",
     )
 
 
@@ -164,9 +172,35 @@ def _runs_table(s: dict) -> list[str]:
     return lines
 
 
+def _settings_lines(study: closed_loop.Study) -> list[str]:
+    """One line per law setting: its value, and where it came from (the file, a default, tuned)."""
+    lines = []
+    for name, tuning in study.tunings.items():
+        law = law_registry.LAWS[name]
+        for setting in law.settings:
+            what = f"- {law.display} {setting.key.replace('_', ' ')} (Eq. {law.equation})"
+            value = tuning.settings[setting.key]
+            if tuning.record is not None and tuning.record.setting == setting.key:
+                lines.append(f"{what}: {tuning.record.describe()}.")
+                continue
+            shown = f"{value.tolist()}" if isinstance(value, np.ndarray) else f"{value:g}"
+            source = "from the design file" if setting.key in tuning.given else "default"
+            lines.append(f"{what}: {shown} {setting.unit} ({source}).")
+    return lines
+
+
+def _orderings_lines(c: dict) -> list[str]:
+    """The paper's orderings (``orderings``) on one study, and the active LQG's power ratio."""
+    mark = {True: "yes", False: "**no**", None: "— (no displacement sensor)"}
+    lines = [f"- {o.sentence}: {mark[verdict]}" for o, verdict in paper_orderings.judged(c)]
+    law = paper_orderings.clipping_law()
+    if law is not None and f"power_ratio_active_to_{law.name}" in c:
+        lines.append(f"- control power ratio active / {law.display} = {c[f'power_ratio_active_to_{law.name}']:.2f}")
+    return lines
+
+
 def control_markdown(study: closed_loop.Study) -> str:
     s = closed_loop.summary(study)
-    o = s["boundary_layer_optimisation"]
     lines = [
         "## Semi-active control (paper Sections 5–6, Figs. 12–14)",
         "",
@@ -177,34 +211,14 @@ def control_markdown(study: closed_loop.Study) -> str:
         "",
         f"- LQG (Eq. 33): linear closed loop max|λ| = {s['lqg_max_pole_magnitude']:.6f} "
         f"(stability margin {s['lqg_stability_margin']:.2e}).",
-        f"- cLQG boundary layer (Eq. 34): {s['clqg_boundary_layer']:g} N.",
+        *_settings_lines(study),
     ]
-    if o is not None:
-        lines.append(
-            f"- SISO boundary layer (Eq. 30) optimised for E(t_e): ε = {o['optimum']:.3g} m/s, "
-            f"E = {o['energy_measure']:.4g} J·s; at ε/10 {o['energy_measure_tenth']:.4g}, at 10ε "
-            f"{o['energy_measure_tenfold']:.4g} ({len(o['evaluations'])} simulations)."
-        )
-    else:
-        lines.append(f"- SISO boundary layer (Eq. 30) from the design file: ε = {s['siso_boundary_layer']} m/s.")
     lines += _runs_table(s)
-    c = s["orderings"]
-    mark = {True: "yes", False: "**no**", None: "— (no displacement sensor)"}
-    tip = c["active_tip_rms_below_clqg"]
-    active = (
-        f"(energy, RMS tip): {mark[c['active_energy_below_clqg'] and tip]}"
-        if tip is not None
-        else f"(energy): {mark[c['active_energy_below_clqg']]}; RMS tip {mark[None]}"
-    )
     lines += [
         "",
         "Orderings of the paper (Section 6):",
         "",
-        f"- SISO ends below both passive settings: {mark[c['siso_below_both_passive']]}",
-        f"- cLQG ends below both passive settings: {mark[c['clqg_below_both_passive']]}",
-        f"- cLQG RMS tip deflection below SISO: {mark[c['clqg_tip_rms_below_siso']]}",
-        f"- active LQG better than cLQG {active}; control power ratio "
-        f"active / cLQG = {c['power_ratio_active_to_clqg']:.2f}",
+        *_orderings_lines(s["orderings"]),
         "",
         "Control power: semi-active runs — electrical energy to charge the piezo stacks, "
         "½C·max(0, V_k² − V_k−1²) with V = (F_N − preload)/k, no charge recovered; active LQG — mechanical "

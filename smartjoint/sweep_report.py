@@ -14,30 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
+from smartjoint.design.control import orderings as paper_orderings
 from smartjoint.design.control.ensemble import KEYS
 from smartjoint.design.control.sweep_file import LAWS
 
-# The paper's claims (Section 6, ``study.Study.orderings``) and two more: name, sentence, the law,
-# the laws it must beat and the metric (smaller is better) — the law's below the others' smallest.
-ORDERINGS = (
-    ("siso_below_both_passive", "SISO ends below both passive settings (e(t_e))", "SISO",
-     ("passive F_min", "passive F_max"), "energy_end"),
-    ("clqg_below_both_passive", "cLQG ends below both passive settings (e(t_e))", "cLQG",
-     ("passive F_min", "passive F_max"), "energy_end"),
-    ("clqg_tip_rms_below_siso", "cLQG's RMS tip deflection below SISO's", "cLQG", ("SISO",), "tip_rms_total"),
-    ("clqg_energy_measure_below_siso", "cLQG's E(t_e) (Eq. 32) below SISO's", "cLQG", ("SISO",), "energy_measure"),
-    ("siso_beats_best_passive_E", "SISO's E(t_e) below the best constant F_N's", "SISO", ("best passive E",),
-     "energy_measure"),
-    ("clqg_beats_best_passive_E", "cLQG's E(t_e) below the best constant F_N's", "cLQG", ("best passive E",),
-     "energy_measure"),
-    ("siso_beats_best_passive_e", "SISO's e(t_e) below the best constant F_N's for e(t_e)", "SISO",
-     ("best passive e",), "energy_end"),
-    ("clqg_beats_best_passive_e", "cLQG's e(t_e) below the best constant F_N's for e(t_e)", "cLQG",
-     ("best passive e",), "energy_end"),
-    ("active_energy_below_clqg", "active LQG ends below cLQG (e(t_e))", "active LQG", ("cLQG",), "energy_end"),
-    ("active_tip_rms_below_clqg", "active LQG's RMS tip deflection below cLQG's", "active LQG", ("cLQG",),
-     "tip_rms_total"),
-)  # fmt: skip
+# The paper's claims (Section 6) and more, from the law registry (``design.control.orderings``):
+# the law's metric (smaller is better) below the smallest of the others'.
+ORDERINGS = paper_orderings.orderings()
 
 
 def _groups(columns: dict) -> dict:
@@ -67,11 +50,11 @@ def orderings(columns: dict) -> dict:
     """
     counts: dict = defaultdict(lambda: defaultdict(list))
     for (point, _), laws in _groups(columns).items():
-        for name, _, law, others, metric in ORDERINGS:
-            if law in laws and all(other in laws for other in others):
-                values = [float(laws[k][metric]) for k in (law, *others)]
-                if all(math.isfinite(v) for v in values):
-                    counts[point][name].append(values[0] < min(values[1:]))
+        for ordering in ORDERINGS:
+            if all(run in laws for run in (ordering.run, *ordering.others)):
+                holds = ordering.holds(laws)
+                if holds is not None:
+                    counts[point][ordering.key].append(holds)
     out: dict = {}
     for point, by_name in sorted(counts.items()):
         out[point] = {}
@@ -178,7 +161,7 @@ def markdown(columns: dict, inputs: list[str], source: str) -> str:
     lines = [f"# Sweep report: {source}", "", "## E(t_e) (Eq. 32) per law", "", *_distribution_rows(columns)]
     lines += ["", "![ECDF of E(t_e) per law](ecdf.png)", "", "## The paper's orderings over the ensemble", ""]
     lines += ["| point | ordering | probability | MC standard error | samples |", "|---:|---|---:|---:|---:|"]
-    sentences = {name: sentence for name, sentence, *_ in ORDERINGS}
+    sentences = {o.key: o.sentence for o in ORDERINGS}
     for point, by_name in orderings(columns).items():
         for name, f in by_name.items():
             lines.append(

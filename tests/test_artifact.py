@@ -11,9 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design import control, plant
-from smartjoint.design.control import artifact, artifact_building, artifact_layout
+from smartjoint.design.control import artifact, artifact_building, artifact_layout, tuning
+from smartjoint.design.control.filter import active_lqg, clipped_lqg
+from smartjoint.design.control.laws import siso_law
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.spec import load_design, parse_design
@@ -29,7 +32,12 @@ def setup():
     fe = build_model(design, joints="released")
     model = modal.modal_model(fe, modal.solve_modes(fe, 8))
     lqg = control.design_lqg(model, design.control.sample_time)
-    return design, model, lqg, artifact_building.from_design(design, model, lqg, [1e-3, 2e-3])
+    return (
+        design,
+        model,
+        lqg,
+        artifact_building.from_design(design, model, lqg, {"siso": {"boundary_layer": [1e-3, 2e-3]}}),
+    )
 
 
 def _mutated(built, change) -> str:
@@ -67,9 +75,14 @@ def test_rebuilt_controllers_match_the_originals_bit_for_bit(setup, tmp_path):
     loaded = artifact.load(artifact.save(built, tmp_path / "c.json"))
     low, high = np.full(2, design.control.normal_force_min), np.full(2, design.control.normal_force_max)
     pairs = [
-        (control.SisoLaw(lqg.sample_time, low, high, [1e-3, 2e-3]), artifact.siso_law(loaded)),
-        (control.ClippedLqg(lqg, low, high, design.control.clqg_boundary_layer), artifact.clipped_lqg(loaded)),
-        (control.ActiveLqg(lqg), artifact.active_lqg(loaded)),
+        (control.SisoLaw(lqg.sample_time, low, high, [1e-3, 2e-3]), siso_law(loaded)),
+        (
+            control.ClippedLqg(
+                lqg, low, high, tuning.tuned(law_registry.LAWS["clqg"], design).settings["boundary_layer"]
+            ),
+            clipped_lqg(loaded),
+        ),
+        (control.ActiveLqg(lqg), active_lqg(loaded)),
     ]
     rng = np.random.default_rng(7)
     steps = [
@@ -99,7 +112,7 @@ def test_design_file_changes_reach_both_hashes(setup, tmp_path):
 
     def build(data):
         path.write_text(tomli_w.dumps(data))
-        return artifact_building.from_design(load_design(path), model, lqg, 1e-3)
+        return artifact_building.from_design(load_design(path), model, lqg, {"siso": {"boundary_layer": 1e-3}})
 
     data = small_truss()
     first, again = build(data), build(data)
@@ -133,11 +146,15 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
     with pytest.raises(ModelError, match="siso_boundary_layer: missing"):
         artifact_building.from_design(design, model, lqg)
     with pytest.raises(ModelError, match="siso_boundary_layer.*one per joint"):
-        artifact_building.from_design(design, model, lqg, [1e-3, 1e-3, 1e-3])
+        artifact_building.from_design(design, model, lqg, {"siso": {"boundary_layer": [1e-3, 1e-3, 1e-3]}})
     with pytest.raises(ModelError, match="lqg.sample_time"):
-        artifact_building.from_design(design, model, control.design_lqg(model, 5e-4), 1e-3)
+        artifact_building.from_design(
+            design, model, control.design_lqg(model, 5e-4), {"siso": {"boundary_layer": 1e-3}}
+        )
     with pytest.raises(ModelError, match="lqg.output.*one per sensor"):
-        artifact_building.from_design(dataclasses.replace(design, sensors=design.sensors[:1]), model, lqg, 1e-3)
+        artifact_building.from_design(
+            dataclasses.replace(design, sensors=design.sensors[:1]), model, lqg, {"siso": {"boundary_layer": 1e-3}}
+        )
 
 
 @pytest.mark.parametrize(

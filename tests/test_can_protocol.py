@@ -181,7 +181,7 @@ def _small_artifact(velocity_limit=None):
     fe = build_model(design, joints="released")
     model = modal.modal_model(fe, modal.solve_modes(fe, 8))
     lqg = control.design_lqg(model, design.control.sample_time)
-    return artifact_building.from_design(design, model, lqg, 1e-3)
+    return artifact_building.from_design(design, model, lqg, {"siso": {"boundary_layer": 1e-3}})
 
 
 def test_tip_sensor_signals_carry_the_unit_and_range_of_their_quantity():

@@ -13,8 +13,9 @@ from conftest import small_truss
 
 from smartjoint.codegen.closed_loop import CompiledLoop
 from smartjoint.common.errors import ModelError
-from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import ensemble
+from smartjoint.design.control.filter import clipped_lqg
+from smartjoint.design.control.laws import siso_law
 from smartjoint.design.control.runs import run_passive, run_semi_active, setup
 from smartjoint.design.control.study import design_model, lqg_for
 from smartjoint.design.structure.spec import parse_design
@@ -72,7 +73,7 @@ class _Counting:
 
 
 def _both(s, artifact, compiled, law):
-    reference = _Counting(artifacts.siso_law(artifact) if law == "SISO" else artifacts.clipped_lqg(artifact))
+    reference = _Counting(siso_law(artifact) if law == "SISO" else clipped_lqg(artifact))
     python = run_semi_active(s, law, reference)
     c, safe = compiled.run(s, law)
     return python, reference.count, c, safe

@@ -18,6 +18,7 @@ from smartjoint import cli
 from smartjoint.codegen import controllers, generate
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
+from smartjoint.design.control.filter import clipped_lqg
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +44,7 @@ def _textbook(design):
 def test_the_two_phase_reference_is_the_textbook_kalman_filter(reference):
     """x̂⁻ = Φ·x̂ − Γ0·E·u⁺ − Γ1·E·u_k (0 at the first sample), x̂ = x̂⁻ + M·(y − C·x̂⁻),
     u_d = −K·x̂, computed densely: the reference's estimate and desired forces agree to rounding."""
-    law = artifact.clipped_lqg(reference)
+    law = clipped_lqg(reference)
     d = law.design
     phi, hold0, hold1 = _textbook(d)
     estimate, previous, started = np.zeros(phi.shape[0]), np.zeros(hold0.shape[1]), False

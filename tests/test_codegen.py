@@ -20,7 +20,8 @@ from smartjoint.codegen import build, build_files, controllers, generate, output
 from smartjoint.design import plant
 from smartjoint.design.control import artifact, study
 from smartjoint.design.control import laws as control
-from smartjoint.design.control.filter import output_terms
+from smartjoint.design.control.filter import clipped_lqg, output_terms
+from smartjoint.design.control.laws import siso_law
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated"
@@ -82,8 +83,8 @@ def _check_pair(reference_controller, compiled, sequence, exact):
 def test_double_build_is_bit_identical_to_the_python_reference(reference, builds):
     c = builds["double"]
     sequence = _sequence(reference)
-    assert _check_pair(artifact.siso_law(reference), c.law("siso"), sequence, exact=True) == 0.0
-    assert _check_pair(artifact.clipped_lqg(reference), c.law("clqg"), sequence, exact=True) == 0.0
+    assert _check_pair(siso_law(reference), c.law("siso"), sequence, exact=True) == 0.0
+    assert _check_pair(clipped_lqg(reference), c.law("clqg"), sequence, exact=True) == 0.0
 
 
 @pytest.mark.numerics
@@ -95,8 +96,8 @@ def test_float_build_stays_within_its_documented_bound(reference, builds):
     span = float(np.min(reference.normal_force_max - reference.normal_force_min))
     for seed in (7, 8):
         sequence = _sequence(reference, faults=False, seed=seed)
-        assert _check_pair(artifact.siso_law(reference), c.law("siso"), sequence, exact=False) <= 1e-4 * span
-        python, compiled = artifact.clipped_lqg(reference), c.law("clqg")
+        assert _check_pair(siso_law(reference), c.law("siso"), sequence, exact=False) <= 1e-4 * span
+        python, compiled = clipped_lqg(reference), c.law("clqg")
         worst_force = worst_desired = largest = 0.0
         for m in sequence:
             difference = np.abs(python.step(m) - compiled.step(m))
@@ -211,7 +212,7 @@ def test_each_input_channel_is_checked_alike_in_python_and_c(reference, builds, 
     the samples after, with the memories restarted); an unusable value puts every joint at the
     safe force. The float build: the same status and safe force where the value is clearly
     outside (twice the limit, ±1e38, ±Inf, NaN) and status 0 inside."""
-    make = artifact.siso_law if law == "siso" else artifact.clipped_lqg
+    make = siso_law if law == "siso" else clipped_lqg
     python = make(reference)
     compiled = {real: builds[real].law(law) for real in builds}
     low, high = (np.asarray(v, dtype=float) for v in _channel_range(reference, field))
@@ -302,7 +303,7 @@ def test_study_back_to_back(reference, builds, three_type_a):
             return out
 
     span = float(np.min(reference.normal_force_max - reference.normal_force_min))
-    for name, python, compiled in (("SISO", artifact.siso_law, "siso"), ("cLQG", artifact.clipped_lqg, "clqg")):
+    for name, python, compiled in (("SISO", siso_law, "siso"), ("cLQG", clipped_lqg, "clqg")):
         recorder = Recorder(python(reference))
         run = study.run_semi_active(s, name, recorder)
         for real, bound in (("double", 0.0), ("float", FLOAT_BOUND * span)):
@@ -337,8 +338,8 @@ def test_sanitizers_report_nothing_on_the_back_to_back_run(reference, tmp_path):
     sequence = _sequence(reference, count=1500)
     l = len(reference.joint_names)
     for law, python, fields, width in (
-        (0, artifact.siso_law(reference), ("sliding_velocity", "friction_force", "normal_force"), l),
-        (1, artifact.clipped_lqg(reference), ("sensors", "friction_force", "normal_force"), 2 * l),
+        (0, siso_law(reference), ("sliding_velocity", "friction_force", "normal_force"), l),
+        (1, clipped_lqg(reference), ("sensors", "friction_force", "normal_force"), 2 * l),
     ):
         rows = np.array([np.concatenate([getattr(m, f) for f in fields]) for m in sequence])
         payload = np.array([law, len(sequence)], dtype=np.int32).tobytes() + rows.astype(np.float64).tobytes()
@@ -438,9 +439,9 @@ def test_the_two_phases_are_the_step_bit_for_bit(reference, builds):
     """Output phase then update phase, in C and in Python, with NaN/±Inf and absurd inputs among
     them: the same commands, desired forces and status bits as the reference's whole step."""
     sequence = _sequence(reference, count=1500)
-    pair = _in_phases(artifact.clipped_lqg(reference), builds["double"].law("clqg"), builds["double"].lib)
+    pair = _in_phases(clipped_lqg(reference), builds["double"].law("clqg"), builds["double"].lib)
     _check_pair(*pair, sequence, exact=True)
-    stepped, split = artifact.clipped_lqg(reference), artifact.clipped_lqg(reference)
+    stepped, split = clipped_lqg(reference), clipped_lqg(reference)
     for m in sequence:
         command = split.output(m)
         split.update()
@@ -471,4 +472,4 @@ def test_zeros_of_c_are_skipped_alike_for_every_sensor_kind(reference):
         "m->output[0][0], q0)" in compiled.files["smartjoint_clqg.c"]
         and "reads no state" in compiled.files["smartjoint_clqg.c"]
     )
-    _check_pair(artifact.clipped_lqg(changed), compiled.law("clqg"), _sequence(changed, count=1500), exact=True)
+    _check_pair(clipped_lqg(changed), compiled.law("clqg"), _sequence(changed, count=1500), exact=True)

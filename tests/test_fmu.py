@@ -30,7 +30,7 @@ VERSIONS = (2, 3)
 def _study(design, duration: float):
     design = dataclasses.replace(design, control=dataclasses.replace(design.control, study_duration=duration))
     s = closed_loop.run_study(design, progress=lambda message: None)
-    return design, s, artifact_building.from_design(design, s.setup.model, s.lqg, s.boundary_layer)
+    return design, s, artifact_building.from_design(design, s.setup.model, s.lqg, s.settings())
 
 
 @pytest.fixture(scope="module")

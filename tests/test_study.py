@@ -12,7 +12,7 @@ from conftest import cli_error, run_cli, small_control_truss, small_truss
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design import parse_design
-from smartjoint.design.control import artifact, study
+from smartjoint.design.control import artifact, siso_tuning, study, tuning
 
 
 def _small(duration=0.3, **control):
@@ -86,7 +86,7 @@ def test_boundary_layer_optimum_beats_its_neighbours():
     s = study.setup(design, model)
     messages = []
     grid = (1e-5, 1e-4, 1e-3, 1e-2)
-    found = study.optimise_boundary_layer(s, messages.append, grid=grid)
+    found = siso_tuning.optimise_boundary_layer(s, messages.append, grid=grid)
     values = dict(found.evaluations)
     assert len(messages) == len(values)
     # The optimum is exactly the best point of the search (grid and bounded Brent); the checks at
@@ -154,8 +154,7 @@ def test_the_papers_orderings_hold_over_plants_drawn_around_the_bundled_truss(bu
     from smartjoint.pipeline_ensemble import stage_sweep
 
     design, _ = three_type_a
-    control = dataclasses.replace(design.control, siso_boundary_layer=tuple(bundled.boundary_layer.tolist()))
-    design = dataclasses.replace(design, control=control)
+    design = tuning.with_settings(design, study.settings_figures(bundled.tunings))
     laws = ("passive F_min", "passive F_max", "SISO", "cLQG", "active LQG")
     sweep = dataclasses.replace(stage_sweep(design, bundled), laws=laws)
     prepared = prepare(sweep, progress=lambda line: None, design=design)
@@ -176,7 +175,7 @@ def test_the_papers_orderings_hold_over_plants_drawn_around_the_bundled_truss(bu
 
 @pytest.mark.numerics
 def test_the_optimised_boundary_layer_beats_a_decade_either_side(bundled):
-    o = bundled.optimum
+    o = bundled.tunings["siso"].record
     assert o is not None
     assert o.energy_measure < o.tenth and o.energy_measure < o.tenfold
 
@@ -264,8 +263,8 @@ def test_without_a_displacement_sensor_the_deflection_orderings_say_so(small_stu
     assert orderings["clqg_tip_rms_below_siso"] is None and orderings["active_tip_rms_below_clqg"] is None
     assert isinstance(orderings["siso_below_both_passive"], bool)
     text = control_markdown(moved)
-    assert "cLQG RMS tip deflection below SISO: — (no displacement sensor)" in text
-    assert "RMS tip — (no displacement sensor)" in text
+    assert "cLQG's RMS tip deflection below SISO's: — (no displacement sensor)" in text
+    assert "active LQG's RMS tip deflection below cLQG's: — (no displacement sensor)" in text
     assert "RMS tip_y [mm/s]" in text and "RMS tip_vz [mm/s]" in text
     row = next(line for line in text.splitlines() if line.startswith("| SISO |"))
     assert row.split(" | ")[6] == "—"  # peak tip [mm]: no deflection measured

@@ -20,7 +20,7 @@ from conftest import cli_error, small_truss
 
 from smartjoint.bench.sweep import SweepError, batch_path, connect, prepare, read_results, run_sweep
 from smartjoint.common.errors import DesignError, ModelError
-from smartjoint.design.control import ensemble, sweep_sampling
+from smartjoint.design.control import ensemble, sweep_sampling, tuning
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.control.sweep_file import load_sweep
 from smartjoint.design.structure.spec import parse_design
@@ -185,7 +185,7 @@ def prepared(folder):
 def test_a_nominal_sample_is_the_study(prepared):
     """No uncertain input, the design's own limits: the rows carry the study's metrics."""
     design = parse_design(_small_design())
-    design = dataclasses.replace(design, control=dataclasses.replace(design.control, siso_boundary_layer=(3e-4,)))
+    design = tuning.with_settings(design, {"siso_boundary_layer": (3e-4,)})
     point = {"siso_boundary_layer": 3e-4}
     model, lqg = prepared.base.setup.model, prepared.base.lqg
     artifact = ensemble.point_artifact(design, model, lqg, point)

@@ -3,9 +3,8 @@
 The artefact freezes a controller design — limits, boundary layers, the discrete LQG of
 ``control.design_lqg`` and the piezo calibration — together with where it came from (design
 file, its SHA-256, package version); ``artifact_building.from_design`` builds it from a design.
-The C generator reads only this file, and
-``siso_law``/``clipped_lqg``/``active_lqg`` rebuild the Python reference controllers from it
-alone, so firmware and reference are checked against the same numbers.
+The C generator reads only this file, and each law's Python reference is rebuilt from it alone
+(``Law.python_reference``), so firmware and reference are checked against the same numbers.
 
 Schema (``schema_version`` 4, documented in ``docs/controller-artifact.md``): a JSON object of
 sections — ``common``, ``safety``, ``friction``, ``network`` and ``laws.<law>`` per law of the
@@ -42,8 +41,6 @@ from smartjoint.design.control.artifact_schema import (
     field_error,
     validated,
 )
-from smartjoint.design.control.filter import ActiveLqg, ClippedLqg
-from smartjoint.design.control.laws import SisoLaw
 from smartjoint.design.control.lqg import LqgDesign
 
 
@@ -256,7 +253,8 @@ def load(path) -> ControllerArtifact:
     Examples
     --------
     >>> controller = load("controller.json")  # doctest: +SKIP
-    >>> law = siso_law(controller)  # doctest: +SKIP
+    >>> controller.sample_time  # doctest: +SKIP
+    0.001
     """
     path = Path(path)
     try:
@@ -301,87 +299,12 @@ def lqg_design(artifact: ControllerArtifact) -> LqgDesign:
     )
 
 
-def _safe_state_options(artifact: ControllerArtifact) -> dict:
-    """What both laws take from the artefact for the safe state: the safe normal force and the
-    plausibility ranges of the friction force and the measured normal force."""
-    return {
-        "safe_normal_force": artifact.safe_normal_force,
-        "friction_force_limit": artifact.friction_force_limit,
-        "measured_normal_force_min": artifact.measured_normal_force_min,
-        "measured_normal_force_max": artifact.measured_normal_force_max,
-    }
-
-
-def siso_law(artifact: ControllerArtifact) -> SisoLaw:
-    """The local Lyapunov law of Eq. 30 with μ of Eq. 31, per joint, with the artefact's safe
-    normal force and plausibility ranges (what the generated C checks).
-
-    Parameters
-    ----------
-    artifact : ControllerArtifact
-        Its limits, ε per joint, safe force and plausibility ranges.
-
-    Returns
-    -------
-    SisoLaw
-    """
-    return SisoLaw(
-        artifact.sample_time,
-        artifact.normal_force_min,
-        artifact.normal_force_max,
-        artifact.siso_boundary_layer,
-        sliding_velocity_limit=artifact.sliding_velocity_limit,
-        **_safe_state_options(artifact),
-    )
-
-
-def clipped_lqg(artifact: ControllerArtifact) -> ClippedLqg:
-    """The clipped-optimal LQG of Eq. 33–34, with the artefact's safe normal force and
-    plausibility ranges (what the generated C checks).
-
-    Parameters
-    ----------
-    artifact : ControllerArtifact
-        Its LQG, limits, ε of Eq. 34, safe force and plausibility ranges.
-
-    Returns
-    -------
-    ClippedLqg
-    """
-    return ClippedLqg(
-        lqg_design(artifact),
-        artifact.normal_force_min,
-        artifact.normal_force_max,
-        artifact.clqg_boundary_layer,
-        sensor_limit=artifact.sensor_limit,
-        **_safe_state_options(artifact),
-    )
-
-
-def active_lqg(artifact: ControllerArtifact) -> ActiveLqg:
-    """The fully active LQG reference (u_d = −K·x̂ of Eq. 33 applied as forces).
-
-    Parameters
-    ----------
-    artifact : ControllerArtifact
-        Its LQG (`lqg_design`).
-
-    Returns
-    -------
-    ActiveLqg
-    """
-    return ActiveLqg(lqg_design(artifact))
-
-
 __all__ = [
     "ControllerArtifact",
-    "active_lqg",
-    "clipped_lqg",
     "dumps",
     "installed_version",
     "load",
     "loads",
     "lqg_design",
     "save",
-    "siso_law",
 ]

@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
+from smartjoint.design.control import tuning
 from smartjoint.design.control.artifact import ControllerArtifact, installed_version
 from smartjoint.design.control.artifact_schema import SCHEMA_VERSION, field_error
 from smartjoint.design.control.lqg import LqgDesign
@@ -60,7 +62,35 @@ def _check_match(design, model, lqg: LqgDesign, joints: tuple[str, ...], sensors
         )
 
 
-def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> ControllerArtifact:
+def law_fields(design, joints: tuple[str, ...], settings=None) -> dict:
+    """The artefact fields of every law's settings (``Law.artifact`` names each key's field).
+
+    Parameters
+    ----------
+    design : Design
+    joints : tuple of str
+        The controlled joints, in artefact order (a per-joint setting has one value each).
+    settings : dict, optional
+        Law name → setting key → value (``Study.settings()``); a law left out gets the design
+        file's values and defaults (``tuning.tuned``, nothing tuned).
+
+    Returns
+    -------
+    dict
+        Artefact field → value.
+    """
+    settings = dict(settings or {})
+    fields = {}
+    for law in law_registry.LAWS.values():
+        values = settings[law.name] if law.name in settings else tuning.tuned(law, design).settings
+        by_key = dict(law.artifact)
+        for setting in law.settings:
+            field, value = by_key[setting.key], values[setting.key]
+            fields[field] = _per_joint(field, value, joints) if setting.per_joint else float(value)
+    return fields
+
+
+def from_design(design, model, lqg: LqgDesign, settings=None) -> ControllerArtifact:
     """The artefact of ``design`` with the LQG ``lqg`` designed on the reduced modal ``model``.
 
     Controlled joints: ``design.control.joints`` in that order, else every joint of the design;
@@ -74,8 +104,8 @@ def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> Cont
         The reduced modal model the LQG was designed on.
     lqg : LqgDesign
         The discrete LQG (Eq. 33).
-    siso_boundary_layer : float or sequence of float, optional
-        ε of Eq. 30 [m/s], a number or one per joint; default ``design.control.siso_boundary_layer``.
+    settings : dict, optional
+        Each law's settings, law → key → value (:func:`law_fields`; ``Study.settings()``).
 
     Returns
     -------
@@ -86,13 +116,6 @@ def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> Cont
     joints = tuple(control.joints) if control.joints is not None else tuple(j.name for j in design.joints)
     sensors = tuple(s.name for s in design.sensors)
     _check_match(design, model, lqg, joints, sensors)
-    if siso_boundary_layer is None:
-        siso_boundary_layer = control.siso_boundary_layer
-        if siso_boundary_layer is None:
-            raise ModelError(
-                "siso_boundary_layer: missing — give ε of Eq. 30 [m/s] (optimised by "
-                "`smartjoint design`, or [control] siso_boundary_layer)"
-            )
     return ControllerArtifact(
         schema_version=SCHEMA_VERSION,
         name=design.name,
@@ -101,8 +124,7 @@ def from_design(design, model, lqg: LqgDesign, siso_boundary_layer=None) -> Cont
         sensor_names=sensors,
         normal_force_min=_per_joint("normal_force_min", control.normal_force_min, joints),
         normal_force_max=_per_joint("normal_force_max", control.normal_force_max, joints),
-        siso_boundary_layer=_per_joint("siso_boundary_layer", siso_boundary_layer, joints),
-        clqg_boundary_layer=control.clqg_boundary_layer,
+        **law_fields(design, joints, settings),
         blocks=lqg.blocks,
         gamma0=lqg.gamma0,
         gamma1=lqg.gamma1,

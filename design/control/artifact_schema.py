@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 
 # 2: the safe state and the plausibility ranges (docs/safety.md); 3: the joints' friction; 4: nested,
@@ -32,6 +33,17 @@ class FieldSpec:
     meaning: str = ""
 
 
+def _law_settings() -> dict:
+    """Artefact field → the law setting it holds (``Law.artifact`` maps a setting's key to it)."""
+    out = {}
+    for law in law_registry.LAWS.values():
+        by_key = dict(law.artifact)
+        for setting in law.settings:
+            out[by_key[setting.key]] = setting
+    return out
+
+
+LAW_SETTINGS = _law_settings()
 SCHEMA: tuple[FieldSpec, ...] = (
     FieldSpec("schema_version", "integer", meaning="format version of this file (1)"),
     FieldSpec("name", "string", meaning="design name"),
@@ -40,8 +52,16 @@ SCHEMA: tuple[FieldSpec, ...] = (
     FieldSpec("sensor_names", "names", ("ny",), meaning="sensors: order of the rows of C and of y"),
     FieldSpec("normal_force_min", "array", ("l",), "N", "F_N^min per joint, Eq. 30/34 (> 0)"),
     FieldSpec("normal_force_max", "array", ("l",), "N", "F_N^max per joint, Eq. 30/34 (>= F_N^min)"),
-    FieldSpec("siso_boundary_layer", "array", ("l",), "m/s", "ε_j of the SISO law, Eq. 30 (> 0)"),
-    FieldSpec("clqg_boundary_layer", "number", unit="N", meaning="ε of the clipped LQG, Eq. 34 (> 0)"),
+    *(  # each law's settings (common.law_registry), > 0
+        FieldSpec(
+            field,
+            "array" if setting.per_joint else "number",
+            ("l",) if setting.per_joint else (),
+            setting.unit,
+            f"{setting.meaning} (> 0)",
+        )
+        for field, setting in LAW_SETTINGS.items()
+    ),  # fmt: skip
     FieldSpec("blocks", "array", ("n", 2, 2), meaning="Φ_i: 2×2 diagonal blocks of the discrete state matrix"),
     FieldSpec("gamma0", "array", ("n", 2), meaning="γ0_i: first-order-hold input weight of u_k"),
     FieldSpec("gamma1", "array", ("n", 2), meaning="γ1_i: first-order-hold input weight of u_k+1"),
@@ -167,7 +187,8 @@ def validated(values: dict) -> dict:
             raise field_error(field, out[field], "expected a non-empty string")
     if out["design_sha256"] and not _HEX64.fullmatch(out["design_sha256"]):
         raise field_error("design_sha256", out["design_sha256"], 'expected 64 lowercase hex digits or ""')
-    for field in ("sample_time", "clqg_boundary_layer", "piezo_capacitance", "piezo_force_per_volt"):
+    scalars = [field for field, setting in LAW_SETTINGS.items() if not setting.per_joint]
+    for field in ("sample_time", *scalars, "piezo_capacitance", "piezo_force_per_volt"):
         if out[field] <= 0:
             raise field_error(field, out[field], f"must be > 0 [{FIELDS[field].unit}]")
     if out["piezo_preload"] < 0:
@@ -226,11 +247,12 @@ def _check_joints(out: dict) -> None:
                 "preload, so F_N^min is out of reach; need piezo_preload <= F_N^min"
             )
         _check_friction(out, j, joint)
-        if out["siso_boundary_layer"][j] <= 0:
-            raise ModelError(
-                f"siso_boundary_layer: {float(out['siso_boundary_layer'][j])!r} for joint {joint!r} "
-                "— ε must be > 0 [m/s] (Eq. 30)"
-            )
+        for field, setting in LAW_SETTINGS.items():
+            if setting.per_joint and out[field][j] <= 0:
+                raise ModelError(
+                    f"{field}: {float(out[field][j])!r} for joint {joint!r} — {setting.meaning} must be > 0 "
+                    f"[{setting.unit}]"
+                )
 
 
 def _check_friction(out: dict, j: int, joint: str) -> None:

@@ -20,7 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
+from smartjoint.design.control import tuning
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.control.artifact_building import from_design
 from smartjoint.design.control.best_passive import best_passive
@@ -102,15 +104,18 @@ def build_base(sweep, design, input_columns, progress=print, placements=(), base
     Raises
     ------
     ModelError
-        When SISO is run without an ε in the grid or the design's [control], or a placement's
-        joints or sensors are not the design's.
+        When a law is run without a setting it needs (the SISO ε) in the grid or the design's
+        [control], or a placement's joints or sensors are not the design's.
     """
-    width = design.control.siso_boundary_layer
-    if "SISO" in sweep.laws and width is None and "siso_boundary_layer" not in sweep.grid:
-        raise ModelError(
-            f"{sweep.source}: the SISO law needs ε — give grid.siso_boundary_layer or the design's "
-            "control.siso_boundary_layer (`smartjoint design` optimises it)"
-        )
+    for law in law_registry.LAWS.values():  # a law the sweep runs needs every setting it has no default for
+        for setting in law.settings:
+            key = setting.design_key(law.name)
+            if law.display in sweep.laws and setting.default is None and key not in sweep.grid:
+                if setting.key not in tuning.given(design, law):
+                    raise ModelError(
+                        f"{sweep.source}: the {law.display} law needs {key} — give grid.{key} or the design's "
+                        f"control.{key} (`smartjoint design` tunes it)"
+                    )
     candidates = [design, *placements]  # the base design, then grid.placement's (point value + 1)
     built: dict[int, tuple] = {}
     setups, lqgs, artifacts = [], [], []
@@ -161,15 +166,22 @@ def _candidate(sweep, chosen, design, input_columns, progress, model=None):
 
 def _point_design(design, point: dict[str, float]):
     """The design with the grid point's design variables in its [control] table."""
-    names = ("normal_force_min", "normal_force_max", "siso_boundary_layer", "control_weight")
+    names = ("normal_force_min", "normal_force_max", "control_weight")
     changed = {k: point[k] for k in names if k in point}
-    return dataclasses.replace(design, control=dataclasses.replace(design.control, **changed)) if changed else design
+    if changed:
+        design = dataclasses.replace(design, control=dataclasses.replace(design.control, **changed))
+    return tuning.with_settings(design, {k: point[k] for k in tuning.design_keys() if k in point})
 
 
 def point_lqg(design, model: ModalModel, lqg: LqgDesign, point: dict[str, float]) -> LqgDesign:
     """The LQG at a grid point: ``lqg`` (the design's), or designed anew with the point's control
     weight ρ (Eq. 33) on the same model."""
     return lqg if "control_weight" not in point else lqg_for(_point_design(design, point), model)
+
+
+def _held_open(design, values: dict, setup, progress) -> tuple[dict, None]:
+    """A law's settings with each open one held at 1 (``tuning.tuned``'s ``tune``)."""
+    return {key: 1.0 if value is None else value for key, value in values.items()}, None
 
 
 def point_artifact(design, model: ModalModel, lqg: LqgDesign, point: dict[str, float]) -> ControllerArtifact:
@@ -191,9 +203,10 @@ def point_artifact(design, model: ModalModel, lqg: LqgDesign, point: dict[str, f
     ControllerArtifact
     """
     design = _point_design(design, point)
-    width = design.control.siso_boundary_layer
-    # A sweep without the SISO law needs no ε; the artefact holds one, which nothing runs.
-    return from_design(design, model, lqg, 1.0 if width is None else width)
+    # A setting left open (the SISO ε, in a sweep without that law or with it in the grid: build_base
+    # checks) is held at 1 in the artefact, which nothing runs.
+    settings = {law.name: tuning.tuned(law, design, tune=_held_open).settings for law in law_registry.LAWS.values()}
+    return from_design(design, model, lqg, settings)
 
 
 def perturbed_plant(model: ModalModel, inputs: dict[str, float]) -> ModalModel:
@@ -292,9 +305,16 @@ def _run_law(
     if law == "active LQG":
         # the point's gains, designed on the nominal model, on the perturbed plant
         return run_active(dataclasses.replace(s, model=s.plant), base.lqgs[index]), 0, math.nan
-    width = point.get("siso_boundary_layer")
-    if width is not None and not np.all(np.asarray(artifact.siso_boundary_layer) == width):
-        raise ModelError(f"grid point {index}: ε = {width!r} m/s, its artefact's {list(artifact.siso_boundary_layer)}")
+    for key in tuning.design_keys():  # the point's settings are its artefact's
+        if key in point:
+            found = tuning.setting_of(key)
+            assert found is not None  # a key of design_keys()
+            entry, setting = found
+            held = getattr(artifact, dict(entry.artifact)[setting.key])
+            if not np.all(np.asarray(held) == point[key]):
+                raise ModelError(
+                    f"grid point {index}: {key} = {point[key]!r}, its artefact's {np.asarray(held).tolist()}"
+                )
     return (*closed.run(s, law), math.nan)
 
 

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from smartjoint.common.errors import ModelError
+from smartjoint.design.control.artifact import lqg_design
 from smartjoint.design.control.laws import (
     STATUS_ESTIMATE_RESET,
     STATUS_OK,
@@ -28,6 +29,7 @@ from smartjoint.design.control.laws import (
     magnitude_limit,
     measured_range,
     safe_force,
+    safe_state_options,
 )
 from smartjoint.design.control.lqg import LqgDesign
 from smartjoint.design.plant.interface import Measurements
@@ -287,7 +289,7 @@ class ClippedLqg(_Lqg):
     by the update phase, which restarts the filter and leaves the fault for the next output phase
     (the safe state one sample later; on the bus the CAN layer checks every signal on receipt).
     Without the safety arguments: safe force F_N^max, no ranges beyond finiteness
-    (``clipped_lqg`` of ``design/control/artifact.py`` passes the artefact's).
+    (:func:`clipped_lqg` passes the artefact's).
     """
 
     def __init__(
@@ -417,11 +419,58 @@ class ActiveLqg(_Lqg):
         return command
 
 
+def clipped_lqg(artifact) -> ClippedLqg:
+    """The clipped-optimal LQG's Python reference from a controller artefact alone (Eq. 33–34),
+    with the artefact's safe normal force and plausibility ranges (what the generated C checks).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        Its LQG, limits, ε of Eq. 34, safe force and plausibility ranges.
+
+    Returns
+    -------
+    ClippedLqg
+    """
+    return ClippedLqg(
+        lqg_design(artifact),
+        artifact.normal_force_min,
+        artifact.normal_force_max,
+        artifact.clqg_boundary_layer,
+        sensor_limit=artifact.sensor_limit,
+        **safe_state_options(artifact),
+    )
+
+
+def active_lqg(artifact) -> ActiveLqg:
+    """The fully active LQG reference of an artefact (u_d = −K·x̂ of Eq. 33 applied as forces).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        Its LQG (``artifact.lqg_design``).
+
+    Returns
+    -------
+    ActiveLqg
+    """
+    return ActiveLqg(lqg_design(artifact))
+
+
+def controller(setup, lqg: LqgDesign, settings: dict) -> ClippedLqg:
+    """The clipped LQG the closed-loop study runs: the study's limits, ε of Eq. 34 from the
+    law's ``settings`` (``tuning.Tuning.settings``), no safe-state ranges beyond finiteness."""
+    return ClippedLqg(lqg, setup.normal_force_min, setup.normal_force_max, settings["boundary_layer"])
+
+
 __all__ = [
     "FEEDBACK_LIMIT",
     "ActiveLqg",
     "ClippedLqg",
     "HoldProducts",
+    "active_lqg",
+    "clipped_lqg",
+    "controller",
     "hold_products",
     "multiply_add",
     "ordered_product",

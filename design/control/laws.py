@@ -185,8 +185,8 @@ class SisoLaw:
     unless F^min = 0; the continuous interpolation between the two outer branches is used.
     State: the previous friction force and normal force per joint (zero after reset).
 
-    Without the safety arguments: safe force F_N^max, no ranges beyond finiteness (``siso_law``
-    of ``design/control/artifact.py`` builds the law with the artefact's).
+    Without the safety arguments: safe force F_N^max, no ranges beyond finiteness
+    (:func:`siso_law` builds the law with the artefact's).
     """
 
     def __init__(
@@ -253,6 +253,41 @@ class SisoLaw:
         return self.normal_force_min + self.normal_force_range * boundary_layer(power, self.boundary_layer)
 
 
+def safe_state_options(artifact) -> dict:
+    """What every law takes from a controller artefact for the safe state: the safe normal force
+    and the plausibility ranges of the friction force and the measured normal force."""
+    return {
+        "safe_normal_force": artifact.safe_normal_force,
+        "friction_force_limit": artifact.friction_force_limit,
+        "measured_normal_force_min": artifact.measured_normal_force_min,
+        "measured_normal_force_max": artifact.measured_normal_force_max,
+    }
+
+
+def siso_law(artifact) -> SisoLaw:
+    """The SISO law's Python reference from a controller artefact alone: Eq. 30 with μ of
+    Eq. 31, per joint, with the artefact's safe normal force and plausibility ranges (what the
+    generated C checks).
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        Its limits, ε per joint, safe force and plausibility ranges.
+
+    Returns
+    -------
+    SisoLaw
+    """
+    return SisoLaw(
+        artifact.sample_time,
+        artifact.normal_force_min,
+        artifact.normal_force_max,
+        artifact.siso_boundary_layer,
+        sliding_velocity_limit=artifact.sliding_velocity_limit,
+        **safe_state_options(artifact),
+    )
+
+
 def measured_range(low, high, count: int) -> tuple[np.ndarray, np.ndarray]:
     """The plausible range of a measured normal force per joint.
 
@@ -310,4 +345,6 @@ __all__ = [
     "magnitude_limit",
     "measured_range",
     "safe_force",
+    "safe_state_options",
+    "siso_law",
 ]

@@ -19,7 +19,6 @@ import numpy as np
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.filter import ActiveLqg
-from smartjoint.design.control.laws import SisoLaw
 from smartjoint.design.control.lqg import LqgDesign, check_sample_time
 from smartjoint.design.friction import lugre
 from smartjoint.design.plant.disturbance import TriangularPulse, triangular_pulse
@@ -337,23 +336,6 @@ def run_active(s: StudySetup, design: LqgDesign) -> Run:
     )
 
 
-def siso(s: StudySetup, boundary_layer) -> SisoLaw:
-    """The SISO law of Eq. 30–31 on the study's limits and sample time.
-
-    Parameters
-    ----------
-    s : StudySetup
-    boundary_layer : float or array_like
-        ε [m/s], one for all joints or one per joint.
-
-    Returns
-    -------
-    SisoLaw
-    """
-    width = np.broadcast_to(np.asarray(boundary_layer, dtype=float), s.normal_force_min.shape)
-    return SisoLaw(s.sample_time, s.normal_force_min, s.normal_force_max, width)
-
-
 __all__ = [
     "PLANT_STEPS_PER_SAMPLE",
     "LaggingAmplifiers",
@@ -369,5 +351,4 @@ __all__ = [
     "run_semi_active",
     "semi_active_run",
     "setup",
-    "siso",
 ]

@@ -1,5 +1,6 @@
-"""The closed-loop study of paper Section 6: passive, SISO (Eq. 30–31), cLQG (Eq. 33–34) and
-active LQG joints after the tip pulse, and the ε optimisation of the SISO law for Eq. 32.
+"""The closed-loop study of paper Section 6: passive joints, every law of the registry (the
+paper's SISO law of Eq. 30–31 and clipped LQG of Eq. 33–34 among them, each with its settings
+tuned by ``tuning``) and the active LQG after the tip pulse.
 
 The design model is the design's reduced model (the paper's 24 states); each run, its protocol
 and its power are in ``runs`` (re-exported here). Everything here is deterministic: the same
@@ -8,15 +9,14 @@ inputs give bit-identical results.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design import reduction
-from smartjoint.design.control.filter import ClippedLqg
+from smartjoint.design.control import orderings as paper_orderings
 from smartjoint.design.control.lqg import LqgDesign, design_lqg
 from smartjoint.design.control.runs import (
     PLANT_STEPS_PER_SAMPLE,
@@ -30,15 +30,13 @@ from smartjoint.design.control.runs import (
     run_passive,
     run_semi_active,
     setup,
-    siso,
 )
+from smartjoint.design.control.tuning import Tuning, tuned_laws
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.description import SENSOR_QUANTITIES
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.modal import ModalModel
 from smartjoint.design.structure.solved import SolvedModel
-
-EPSILON_GRID = tuple(10.0 ** np.arange(-8.0, -1.75, 0.5))  # m/s: the SISO ε scan before refinement
 
 
 def controlled_joints(design) -> list[str]:
@@ -105,67 +103,6 @@ def design_model(design, progress=print, released: SolvedModel | None = None) ->
     progress(f"      reduced model: {c.modes} of the first {considered} modes + {c.krylov} Krylov vector(s) per joint")
     first = released.first(considered) if released is not None else modal.solve_modes(fe, considered)
     return reduction.reduce(fe, first, min(c.modes, considered), c.krylov).model
-
-
-# ------------------------------------------------------------------------------- ε optimisation
-@dataclass
-class BoundaryLayerOptimum:
-    """The SISO ε (common to all joints) that minimises Eq. 32, every evaluation, and the
-    check of the acceptance: E at ε/10 and 10ε."""
-
-    boundary_layer: float
-    energy_measure: float
-    evaluations: list[tuple[float, float]]  # (ε, E(t_e)) in evaluation order
-    tenth: float  # E(t_e) at ε/10
-    tenfold: float  # E(t_e) at 10ε
-
-    def figures(self) -> dict:
-        """The optimum, its E(t_e) and the acceptance check, JSON-ready (no evaluations)."""
-        return {
-            "optimum": self.boundary_layer,
-            "energy_measure": self.energy_measure,
-            "energy_measure_tenth": self.tenth,
-            "energy_measure_tenfold": self.tenfold,
-        }
-
-
-def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) -> BoundaryLayerOptimum:
-    """ε of Eq. 30 minimising E(t_e) of Eq. 32 (Section 5.1): a half-decade scan of log ε, then
-    bounded Brent (scipy ``minimize_scalar``) within a half decade of the best grid point. E is a
-    rough function of ε (stick/slip events shift with it), hence the scan before the local search.
-
-    Parameters
-    ----------
-    s : StudySetup
-        The study the SISO runs are made in.
-    progress : callable
-        Receives one line per evaluation.
-    grid : sequence of float
-        The ε [m/s] scanned before the local search.
-
-    Returns
-    -------
-    BoundaryLayerOptimum
-    """
-    cache: dict[float, float] = {}
-
-    def measure(log_width: float) -> float:
-        width = float(10.0**log_width)
-        if width not in cache:
-            cache[width] = run_semi_active(s, "SISO", siso(s, width)).energy_measure()
-            progress(f"      ε = {width:.3g} m/s: E(t_e) = {cache[width]:.5g} J·s")
-        return cache[width]
-
-    logs = [math.log10(g) for g in grid]
-    values = [measure(v) for v in logs]
-    best = logs[int(np.argmin(values))]
-    found = minimize_scalar(
-        measure, bounds=(best - 0.5, best + 0.5), method="bounded", options={"xatol": 0.02, "maxiter": 12}
-    )
-    log_width = float(found.x) if found.fun < min(values) else best
-    width = float(10.0**log_width)
-    best_value, tenth, tenfold = measure(log_width), measure(log_width - 1.0), measure(log_width + 1.0)
-    return BoundaryLayerOptimum(width, best_value, list(cache.items()), tenth, tenfold)
 
 
 # ------------------------------------------------------------------------------------ metrics
@@ -264,9 +201,7 @@ class Study:
 
     setup: StudySetup
     lqg: LqgDesign
-    boundary_layer: np.ndarray  # SISO ε per joint [m/s]
-    optimum: BoundaryLayerOptimum | None  # None when ε came from the design file
-    clqg_boundary_layer: float
+    tunings: dict[str, Tuning]  # each law's settings, by name, in registry order
     runs: list[Run]
     sensor_names: list[str]
     joint_names: list[str]
@@ -280,24 +215,14 @@ class Study:
         """1 − max|λ| of the linear LQG loop on the design model (> 0: stable)."""
         return float(1.0 - np.max(np.abs(self.lqg.closed_loop_poles())))
 
+    def settings(self) -> dict[str, dict]:
+        """Each law's tuned settings (law → key → value): what ``artifact_building`` takes."""
+        return {name: t.settings for name, t in self.tunings.items()}
+
     def orderings(self) -> dict:
-        """The paper's claims (Section 6) as booleans on this study; the RMS tip deflection
-        claims are None when no sensor measures a displacement (nothing to compare)."""
-        m = {r.name: r.metrics for r in self.runs}
-        passive = min(m["passive F_min"]["energy_end"], m["passive F_max"]["energy_end"])
-
-        def below(run: str, other: str) -> bool | None:
-            low, high = m[run]["tip_rms_total"], m[other]["tip_rms_total"]
-            return None if low is None or high is None else low < high
-
-        return {
-            "siso_below_both_passive": m["SISO"]["energy_end"] < passive,
-            "clqg_below_both_passive": m["cLQG"]["energy_end"] < passive,
-            "clqg_tip_rms_below_siso": below("cLQG", "SISO"),
-            "active_tip_rms_below_clqg": below("active LQG", "cLQG"),
-            "active_energy_below_clqg": m["active LQG"]["energy_end"] < m["cLQG"]["energy_end"],
-            "power_ratio_active_to_clqg": m["active LQG"]["control_power"] / m["cLQG"]["control_power"],
-        }
+        """The paper's claims (Section 6, ``orderings``) as booleans on this study; the RMS tip
+        deflection claims are None when no sensor measures a displacement (nothing to compare)."""
+        return paper_orderings.study_orderings({r.name: r.metrics for r in self.runs})
 
 
 def lqg_for(design, model: ModalModel) -> LqgDesign:
@@ -368,32 +293,19 @@ def run_study(design, model: ModalModel | None = None, progress=print) -> Study:
     >>> study.orderings()["clqg_below_both_passive"]  # doctest: +SKIP
     True
     """
-    c = design.control
     model = model if model is not None else design_model(design, progress)
     s = setup(design, model)
     lqg = lqg_for(design, model)
-    optimum = None
-    if c.siso_boundary_layer is None:
-        progress("      SISO boundary layer ε: optimising E(t_e) of Eq. 32 …")
-        optimum = optimise_boundary_layer(s, progress)
-        width = np.full(len(design.joints), optimum.boundary_layer)
-    else:
-        width = np.array(np.broadcast_to(np.asarray(c.siso_boundary_layer, dtype=float), (len(design.joints),)))
+    tunings = tuned_laws(design, s, progress)
     runs = []
-    for name, make in (
-        ("passive F_min", lambda: run_passive(s, "passive F_min", s.normal_force_min)),
-        ("passive F_max", lambda: run_passive(s, "passive F_max", s.normal_force_max)),
-        ("SISO", lambda: run_semi_active(s, "SISO", siso(s, width))),
-        (
-            "cLQG",
-            lambda: run_semi_active(
-                s, "cLQG", ClippedLqg(lqg, s.normal_force_min, s.normal_force_max, c.clqg_boundary_layer)
-            ),
-        ),
-        ("active LQG", lambda: run_active(s, lqg)),
-    ):
+    for name in ("passive F_min", "passive F_max"):
         progress(f"      {name}: {s.duration:g} s …")
-        runs.append(make())
+        runs.append(run_passive(s, name, s.normal_force_min if name == "passive F_min" else s.normal_force_max))
+    for law in law_registry.LAWS.values():
+        progress(f"      {law.display}: {s.duration:g} s …")
+        runs.append(run_semi_active(s, law.display, law.study_controller(s, lqg, tunings[law.name].settings)))
+    progress(f"      active LQG: {s.duration:g} s …")
+    runs.append(run_active(s, lqg))
     reference = runs[1]
     quantities = sensor_quantities(design, model)
     for r in runs:
@@ -401,14 +313,22 @@ def run_study(design, model: ModalModel | None = None, progress=print) -> Study:
     return Study(
         s,
         lqg,
-        width,
-        optimum,
-        float(c.clqg_boundary_layer),
+        tunings,
         runs,
         list(model.sensor_names),
         list(model.joint_names),
         quantities,
     )
+
+
+def settings_figures(tunings: dict[str, Tuning]) -> dict:
+    """Each law's settings by their ``[control]`` keys (``siso_boundary_layer``), JSON-ready."""
+    out = {}
+    for name, t in tunings.items():
+        for setting in law_registry.LAWS[name].settings:
+            value = t.settings[setting.key]
+            out[setting.design_key(name)] = value.tolist() if isinstance(value, np.ndarray) else value
+    return out
 
 
 def summary(study: Study) -> dict:
@@ -425,7 +345,6 @@ def summary(study: Study) -> dict:
         joints, the sensors and each sensor's quantity.
     """
     s = study.setup
-    optimum = study.optimum
     return {
         "sample_time": s.sample_time,
         "plant_step": s.plant_step,
@@ -433,14 +352,8 @@ def summary(study: Study) -> dict:
         "states": s.model.n_states,
         "normal_force_min": s.normal_force_min.tolist(),
         "normal_force_max": s.normal_force_max.tolist(),
-        "siso_boundary_layer": study.boundary_layer.tolist(),
-        "clqg_boundary_layer": study.clqg_boundary_layer,
-        "boundary_layer_optimisation": None
-        if optimum is None
-        else {
-            **optimum.figures(),
-            "evaluations": [[w, e] for w, e in optimum.evaluations],
-        },
+        **settings_figures(study.tunings),
+        "tuning": {name: None if t.record is None else t.record.summary() for name, t in study.tunings.items()},
         "lqg_max_pole_magnitude": 1.0 - study.stability_margin,
         "lqg_stability_margin": study.stability_margin,
         "runs": {r.name: r.metrics for r in study.runs},
@@ -452,12 +365,10 @@ def summary(study: Study) -> dict:
 
 
 __all__ = [
-    "EPSILON_GRID",
     "PLANT_STEPS_PER_SAMPLE",
     "PULSE_AMPLITUDE",
     "PULSE_DURATION",
     "SETTLING_FRACTION",
-    "BoundaryLayerOptimum",
     "Run",
     "Study",
     "StudySetup",
@@ -465,7 +376,6 @@ __all__ = [
     "design_model",
     "lqg_for",
     "metrics",
-    "optimise_boundary_layer",
     "piezo_power",
     "run_active",
     "run_passive",
@@ -473,7 +383,7 @@ __all__ = [
     "run_study",
     "sensor_metrics",
     "sensor_quantities",
+    "settings_figures",
     "setup",
-    "siso",
     "summary",
 ]

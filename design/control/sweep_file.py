@@ -30,9 +30,10 @@ LAWS = ("passive F_min", "passive F_max", *law_registry.DISPLAY, "active LQG", "
 DEFAULT_LAWS = LAWS[:5]
 SAMPLERS = ("random", "latin-hypercube", "sobol")
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")
-# Each law's own design variables (its registry entry's grid), then those every law shares.
+# Each law's settings (its registry entry's, by their [control] keys), then those every law shares.
+LAW_SETTINGS = {s.design_key(law.name): s for law in law_registry.LAWS.values() for s in law.settings}
 GRID_VARIABLES = (
-    *(name for law in law_registry.LAWS.values() for name in law.grid),
+    *LAW_SETTINGS,
     "normal_force_min",
     "normal_force_max",
     "control_weight",
@@ -329,8 +330,8 @@ def _grid(table: DesignTable, folder: Path) -> tuple[dict[str, tuple[float, ...]
             raise table.error(
                 name, value, f"expected a non-empty list of distinct numbers in [0, {MAX_NORMAL_FORCE:g}]"
             )
-        if name == "siso_boundary_layer" and min(value) <= 0.0:
-            raise table.error(name, value, "ε must be > 0 [m/s]")
+        if name in LAW_SETTINGS and min(value) <= 0.0:
+            raise table.error(name, value, f"{LAW_SETTINGS[name].meaning} must be > 0 [{LAW_SETTINGS[name].unit}]")
         if name == "control_weight" and min(value) <= 0.0:
             raise table.error(name, value, "the LQR's control weight ρ (Eq. 33, R = ρI) must be > 0")
         grid[name] = tuple(float(v) for v in value)

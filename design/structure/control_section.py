@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from smartjoint.common import law_registry
 from smartjoint.design.structure.description import Control
 from smartjoint.design.structure.sections import MAX_MODES
 from smartjoint.design.structure.table import DesignTable, per_joint
@@ -68,8 +69,7 @@ def parse_control(t: DesignTable, joints, dofs: int) -> Control:
         control_weight=t.number("control_weight", d.control_weight, positive=True),
         process_noise=t.number("process_noise", d.process_noise, positive=True),
         measurement_noise=t.number("measurement_noise", d.measurement_noise, positive=True),
-        siso_boundary_layer=per_joint(t, "siso_boundary_layer", None, count, positive=True),
-        clqg_boundary_layer=t.number("clqg_boundary_layer", d.clqg_boundary_layer, positive=True),
+        law_settings=_law_settings(t, count),
         piezo_capacitance=t.number("piezo_capacitance", d.piezo_capacitance, positive=True),
         piezo_force_per_volt=t.number("piezo_force_per_volt", d.piezo_force_per_volt, positive=True),
         piezo_preload=t.number("piezo_preload", d.piezo_preload, non_negative=True),
@@ -150,3 +150,19 @@ __all__ = [
     "MIN_SAMPLE_TIME",
     "parse_control",
 ]
+
+
+def _law_settings(t: DesignTable, count: int) -> dict:
+    """The laws' settings the table gives (``<law>_<key>``, ``common.law_registry``): law → key →
+    value, one number or one per joint where the setting is per joint; each must be > 0."""
+    found: dict = {}
+    for law in law_registry.LAWS.values():
+        for setting in law.settings:
+            key = setting.design_key(law.name)
+            t.used.add(key)  # allowed, given or not
+            if key in t.data:
+                value = (
+                    per_joint(t, key, None, count, positive=True) if setting.per_joint else t.number(key, positive=True)
+                )
+                found.setdefault(law.name, {})[setting.key] = value
+    return found

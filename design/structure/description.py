@@ -229,8 +229,8 @@ class Control:
     first ``considered`` plus ``krylov`` correction vectors per joint), LQR weights
     (xᵀQx + uᵀRu with Q = state_weight·I — xᵀx is the energy of Eq. 32 — and R =
     control_weight·I), Kalman noise intensities (process: on the disturbance inputs w, N²;
-    measurement: per sensor, m²), the boundary layers (SISO ε_j of Eq. 30 in m/s — optimised
-    by ``smartjoint design`` when absent; cLQG in N), the piezo calibration used for the
+    measurement: per sensor, m²), each law's settings (``law_settings``: the registry's
+    ``Setting``s the file gives, e.g. the laws' boundary layers), the piezo calibration used for the
     control power (F_N = force_per_volt·V + preload, capacitance per stack) and the study
     length t_e of Eq. 32."""
 
@@ -245,8 +245,8 @@ class Control:
     control_weight: float = 1e-6
     process_noise: float = 1e4
     measurement_noise: float = 1e-10
-    siso_boundary_layer: tuple[float, ...] | float | None = None
-    clqg_boundary_layer: float = 100.0
+    # Each law's settings the file gives ([control] <law>_<key>, common.law_registry): law → key → value
+    law_settings: dict[str, dict[str, tuple[float, ...] | float]] = field(default_factory=dict)
     piezo_capacitance: float = 1.8e-6
     piezo_force_per_volt: float = 8.0
     piezo_preload: float = 0.0
