@@ -77,10 +77,16 @@ def sequence(artifact: ControllerArtifact, steps: int = 200, seed: int = 19) -> 
 
 
 def inputs_header(artifact: ControllerArtifact, rows: dict[str, np.ndarray]) -> str:
-    """``selftest_inputs.h``: the sequence as C99 hexadecimal float literals (exact)."""
+    """``selftest_inputs.h``: the laws' headers and X-macro lists (``SJ_LAWS``, ``SJ_PHASED_LAWS``),
+    the CAN layer's law, and the sequence as C99 hexadecimal float literals (exact)."""
     sizes = {"sensors": len(artifact.sensor_names)}
     steps = len(next(iter(rows.values())))
-    out = ["/* Input sequence of the target self-test, written by bench/target.py. */",
+    laws = law_registry.LAWS.values()
+    out = ["/* Input sequence of the target self-test and its laws, written by bench/target.py. */",
+           *(f'#include "{law.c_name(PREFIX)}.h"' for law in laws),
+           f"#define SJ_LAWS(X) {' '.join(f'X({law.name})' for law in laws)}",
+           f"#define SJ_PHASED_LAWS(X) {' '.join(f'X({law.name})' for law in laws if law.phased)}",
+           f"#define SJ_CAN_LAW {PREFIX.upper()}_CAN_LAW_{law_registry.fault_matrix_law().name.upper()}",
            f"#define SJ_SELFTEST_STEPS {steps}"]  # fmt: skip
     for law, fields in INPUT_FIELDS.items():
         out.append(f"static const {PREFIX}_{law}_input sj_{law}_inputs[SJ_SELFTEST_STEPS] = {{")

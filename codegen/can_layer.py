@@ -285,6 +285,18 @@ def _example_context(context: dict, real: str, digest: str) -> dict:
     }
 
 
+def _laws_context() -> dict:
+    """Every law of the registry (the layer runs the one its RESET / init names) and the law the
+    example runs (the fault-matrix law: it reads every frame)."""
+    return {
+        "laws": [
+            {"name": law.name, "display": law.display, "mode": law.mode, "inputs": law.inputs}
+            for law in law_registry.LAWS.values()
+        ],
+        "example_law": law_registry.fault_matrix_law().name,
+    }
+
+
 def render_can(
     artifact: ControllerArtifact,
     prefix: str = "smartjoint",
@@ -346,8 +358,7 @@ def render_can(
         "recovery_cycles": artifact.recovery_cycles,
         "full_codec": full_codec,
         "mode_safe": protocol.MODE_SAFE,
-        # Every law of the registry: the layer runs the one its RESET / init names.
-        "laws": [{"name": law.name, "mode": law.mode, "inputs": law.inputs} for law in law_registry.LAWS.values()],
+        **_laws_context(),
         "einval": can_codec.EINVAL,
         "limits": _raw_limits(db, artifact),
         **_raw_types(db, artifact, layouts),

@@ -6,7 +6,7 @@ master and give the project's numbers there:
 
 * a **controller FMU** (:func:`controller_fmu`) wraps the firmware's own generated law
   (``<prefix>_siso.c`` or ``<prefix>_clqg.c``, float or double build) — no second implementation —
-  behind the FMI 2.0 or 3.0 co-simulation API, with the normal-force limits and the boundary layer
+  behind the FMI 2.0 or 3.0 co-simulation API, with the normal-force limits and the law's settings
   as tunable parameters and the sample time as the only communication step;
 * a **plant FMU** (:func:`plant_fmu`) wraps the project's fixed-step plant kernel
   (``design/plant/plant_kernel.c``) with the design's reduced modal model and LuGre joints as data,
@@ -65,7 +65,7 @@ def _controller_rules(sample_time: float) -> list[str]:
         f"The communication step is the sample time, {sample_time!r} s, and nothing else.",
         "The outputs at a communication point are the law's step from the inputs set at that point (direct "
         "feedthrough): set the inputs, read the outputs, then step.",
-        "The normal-force limits and the boundary layer are tunable between steps; the safe normal force is not.",
+        "The normal-force limits and the law's settings are tunable between steps; the safe normal force is not.",
     ]
 
 
@@ -144,7 +144,7 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
     banner = _fmu_banner(rendering.banner(artifact.artifact_sha256, real, "codegen, FMU"))
     laws = generate.render(artifact, real, prefix)
     sources = {key: laws[key] for key in (f"{prefix}_types.h", f"{name}.h", f"{name}.c")}
-    layers = np.atleast_1d(np.asarray(getattr(artifact, law_registry.law(law).boundary_layer.field)))
+    entry = law_registry.law(law)
 
     def row(values, kind: str) -> str:
         return ", ".join(rendering.literal(float(v), kind) for v in np.asarray(values, dtype=float).reshape(-1))
@@ -156,16 +156,22 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
         "PREFIX": prefix.upper(),
         "name": name,
         "NAME": name.upper(),
-        "law": law,
         "title": LAWS[law],
         "sample_time": rendering.literal(artifact.sample_time, "double"),
-        "boundary_layers": layers.size,
         "law_normal_force_min": row(low, real),
         "law_normal_force_range": row(high - low, real),
-        "law_boundary_layer": row(layers, real),
         "start_normal_force_min": row(low, "double"),
         "start_normal_force_max": row(high, "double"),
-        "start_boundary_layer": row(layers, "double"),
+        "settings": [
+            {
+                "key": setting.key,
+                "count": values.size,
+                "per_joint": setting.per_joint,
+                "law": row(values, real),
+                "start": row(values, "double"),
+            }
+            for setting, values in _settings(artifact, entry)
+        ],
     }
     description = (
         f"{artifact.name}: {LAWS[law]}, {real} build, from controller artefact {artifact.artifact_sha256[:12]}"
@@ -176,6 +182,12 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
              fixed_step=None, rules=_controller_rules(artifact.sample_time)),
         _controller_dependencies(variables),
     )  # fmt: skip
+
+
+def _settings(artifact, entry) -> list[tuple]:
+    """Each of the law's settings with its values in the artefact (one per joint, or one)."""
+    fields = dict(entry.artifact)
+    return [(s, np.atleast_1d(np.asarray(getattr(artifact, fields[s.key]), dtype=float))) for s in entry.settings]
 
 
 def _fmu_banner(banner: str) -> str:

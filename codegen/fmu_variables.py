@@ -186,9 +186,11 @@ def _controller_outputs(artifact, law: str) -> list[dict]:
 
 
 def _controller_parameters(artifact, law: str) -> list[dict]:
-    """The tunable normal-force limits and boundary layers, refused unless 0 <= F^min < F^max, eps > 0."""
+    """The tunable normal-force limits and the law's settings (``Law.settings``), refused unless
+    0 <= F^min < F^max and each setting > 0."""
     tuned = "tune(m);"
-    layer = law_registry.law(law).boundary_layer
+    entry = law_registry.law(law)
+    fields = dict(entry.artifact)
     rows = []
     for j, name in enumerate(artifact.joint_names):
         low, high = f"m->normal_force_min[{j}]", f"m->normal_force_max[{j}]"
@@ -201,14 +203,16 @@ def _controller_parameters(artifact, law: str) -> list[dict]:
                                artifact.normal_force_max[j], tuned, minimum=0.0,
                                condition=f"value > {low} && isfinite(value)",
                                allowed="F_N^min = %g N < F_N^max, finite", allowed_value=low))  # fmt: skip
-        if layer.per_joint:
-            rows.append(_parameter(f"JOINT_{name}.boundary_layer", f"m->boundary_layer[{j}]", layer.unit,
-                                   f"boundary layer eps of joint {name} (Eq. {layer.equation})",
-                                   getattr(artifact, layer.field)[j], tuned, **POSITIVE))  # fmt: skip
-    if not layer.per_joint:
-        rows.append(_parameter("boundary_layer", "m->boundary_layer[0]", layer.unit,
-                               f"boundary layer eps of the {law_registry.law(law).display} law (Eq. {layer.equation})",
-                               getattr(artifact, layer.field), tuned, **POSITIVE))  # fmt: skip
+        for setting in entry.settings:
+            if setting.per_joint:
+                rows.append(_parameter(f"JOINT_{name}.{setting.key}", f"m->{setting.key}[{j}]", setting.unit,
+                                       f"{setting.key.replace('_', ' ')} of joint {name}",
+                                       getattr(artifact, fields[setting.key])[j], tuned, **POSITIVE))  # fmt: skip
+    for setting in entry.settings:
+        if not setting.per_joint:
+            rows.append(_parameter(setting.key, f"m->{setting.key}[0]", setting.unit,
+                                   f"{setting.key.replace('_', ' ')} of the {entry.display} law",
+                                   getattr(artifact, fields[setting.key]), tuned, **POSITIVE))  # fmt: skip
     return rows
 
 

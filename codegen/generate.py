@@ -48,6 +48,11 @@ def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: s
         "friction_force_limit": row(artifact.friction_force_limit),
         "measured_normal_force_min": row(artifact.measured_normal_force_min),
         "measured_normal_force_max": row(artifact.measured_normal_force_max),
+        # Every law of the registry, for the example loops; the CAN example runs the fault-matrix law.
+        "laws": [
+            {"name": law.name, "display": law.display, "inputs": law.inputs} for law in law_registry.LAWS.values()
+        ],
+        "example_law": law_registry.fault_matrix_law().name,
     }
 
 

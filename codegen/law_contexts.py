@@ -71,10 +71,6 @@ def _hold_context(artifact: artifacts.ControllerArtifact, row) -> dict:
         "output_hold": [row(c) for c in products.output_hold],
         "feedback_hold": [row(k) for k in products.feedback_hold],
         "feedback_estimator": [row(k) for k in products.feedback_estimator],
-        "normal_force_min_each": [row([v]) for v in np.asarray(artifact.normal_force_min, dtype=float)],
-        "normal_force_range_each": [
-            row([v]) for v in np.asarray(artifact.normal_force_max, dtype=float) - np.asarray(artifact.normal_force_min)
-        ],
     }
 
 

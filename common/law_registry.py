@@ -10,9 +10,11 @@ to add a law").
 An entry names the law once (``name``: the C identifiers ``<prefix>_<name>_*``, the file names,
 ``--law``), shows it once (``display``: the study's run, the report's row, the sweep file's
 ``laws``), and carries its CAN mode id, the measurements its step reads (the C input struct's
-fields, in struct order, each a field of ``interface.Measurements``), its outputs, its boundary
-layer (the artefact field, unit and whether it is per joint: the FMU's tunable), the sweep grid
-variables it answers to, and its Python reference built from the artefact alone.
+fields, in struct order, each a field of ``interface.Measurements``), its outputs, its settings
+(``Setting``: the design file's ``[control] <law>_<key>``, the artefact's ``laws.<law>.<key>``,
+a sweep grid variable and an FMU tunable each), the paper's orderings it takes part in, and the
+functions of its own code by import path: its tuning, the controller the study runs, what its
+templates see and its Python reference built from the artefact alone.
 
 The registry is data: of the project it imports only ``common.errors``, so the command line
 reads it without loading numpy, and every layer above may use it. The Python reference is named by its import
@@ -29,28 +31,6 @@ from smartjoint.common.errors import ModelError
 
 # The CAN layer's modes that are no law (CONTROLLER_STATUS.mode; design.network.protocol).
 MODE_INIT, MODE_SAFE = 0, 3
-
-
-@dataclass(frozen=True)
-class BoundaryLayer:
-    """A law's boundary layer ε: where the artefact keeps it and what it is.
-
-    Attributes
-    ----------
-    field : str
-        The artefact field holding ε.
-    unit : str
-        Its unit ("m/s" for a velocity layer, "N" for a force layer).
-    per_joint : bool
-        One ε per joint (True) or one for the whole law.
-    equation : int
-        The paper's equation the layer smooths.
-    """
-
-    field: str
-    unit: str
-    per_joint: bool
-    equation: int
 
 
 @dataclass(frozen=True)
@@ -72,6 +52,8 @@ class Setting:
         The value when the design file leaves it out: a number, the name of a ``[control]``
         field whose value it takes ("normal_force_max"), or None: the law's ``tune`` settles it
         (the SISO ε is optimised) or the setting is required.
+    normal_force : bool
+        It is a normal force: within [F_N^min, F_N^max] of its joint (else only > 0).
     """
 
     key: str
@@ -79,6 +61,7 @@ class Setting:
     per_joint: bool
     meaning: str
     default: float | str | None = None
+    normal_force: bool = False
 
     def design_key(self, law: str) -> str:
         """Its key in the design file's ``[control]`` table, ``<law>_<key>``."""
@@ -107,8 +90,6 @@ class Law:
         The fields of its C output struct, in order (``normal_force`` first).
     equation : int
         The equation of its command F_N.
-    boundary_layer : BoundaryLayer
-        Its tunable boundary layer.
     artifact : tuple of (str, str)
         Its section ``laws.<name>`` of the controller artefact: (key in the file, field of
         ``ControllerArtifact``) per entry, in the file's order.
@@ -151,7 +132,6 @@ class Law:
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
     equation: int
-    boundary_layer: BoundaryLayer
     artifact: tuple[tuple[str, str], ...]
     settings: tuple[Setting, ...]
     controller: str
@@ -213,7 +193,6 @@ LAWS: dict[str, Law] = {
             inputs=("sliding_velocity", "friction_force", "normal_force"),
             outputs=("normal_force",),
             equation=30,
-            boundary_layer=BoundaryLayer("siso_boundary_layer", "m/s", per_joint=True, equation=30),
             artifact=(("boundary_layer", "siso_boundary_layer"),),
             settings=(Setting("boundary_layer", "m/s", True, "the boundary layer ε_j of Eq. 30"),),
             tune="smartjoint.design.control.siso_tuning:tuned",
@@ -230,7 +209,6 @@ LAWS: dict[str, Law] = {
             inputs=("sensors", "friction_force", "normal_force"),
             outputs=("normal_force", "desired_force"),
             equation=34,
-            boundary_layer=BoundaryLayer("clqg_boundary_layer", "N", per_joint=False, equation=34),
             artifact=(
                 ("boundary_layer", "clqg_boundary_layer"),
                 *((field, field) for field in ("blocks", "gamma0", "gamma1", "joint_input", "output")),
@@ -305,7 +283,6 @@ __all__ = [
     "MODE_INIT",
     "MODE_SAFE",
     "NAMES",
-    "BoundaryLayer",
     "Law",
     "Setting",
     "by_mode",

@@ -36,6 +36,7 @@ FILES: dict[str, tuple[str, ...]] = {
             "can.h.j2",
             "closed_loop.c.j2",
             "closed_loop.h.j2",
+            "example_laws.c.j2",
             "main.c.j2",
             "main_can.c.j2",
             *(f"{law}.{kind}.j2" for law in sorted(law_registry.NAMES) for kind in "ch"),

@@ -15,7 +15,7 @@ import pytest
 from conftest import run
 
 from smartjoint.codegen import build, build_files, generate, output
-from smartjoint.common import package_data
+from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
 
@@ -62,11 +62,12 @@ def check_self_check(elf: Path, host_output: str) -> None:
         pytest.skip(NO_QEMU)
     done = qemu(elf)
     assert done.returncode == 0 and done.stdout.rstrip().endswith("PASS"), (done.returncode, done.stdout)
-    bits = re.search(r"siso ([0-9a-f]{8}) clqg ([0-9a-f]{8})", done.stdout)
-    host = re.search(r"SISO F_N\[0\] = (\S+) N, cLQG F_N\[0\] = (\S+) N, status 0", host_output)
-    assert bits and host, (done.stdout, host_output)
-    for word, printed in zip(bits.groups(), host.groups()):
-        assert f"{struct.unpack('>f', bytes.fromhex(word))[0]:g}" == printed
+    assert "status 0\n" in host_output, host_output
+    for law in law_registry.LAWS.values():  # every law's last command, on the target and the host
+        bits = re.search(rf" {law.name} ([0-9a-f]{{8}})", done.stdout)
+        host = re.search(rf"{re.escape(law.display)} F_N\[0\] = (\S+) N,", host_output)
+        assert bits and host, (law.name, done.stdout, host_output)
+        assert f"{struct.unpack('>f', bytes.fromhex(bits.group(1)))[0]:g}" == host.group(1)
 
 
 def test_build_files_are_deterministic_bannered_and_held_to_the_tested_warnings(reference):

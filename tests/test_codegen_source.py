@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from smartjoint.codegen import generate, rendering
+from smartjoint.common import law_registry
 from smartjoint.design import load_design
 from smartjoint.design.control import artifact
 from smartjoint.design.structure import spec
@@ -79,4 +80,7 @@ def test_structure_no_dense_predictor_no_heap_no_recursion(reference):
     assert not re.search(r"^static (?!const |SMARTJOINT_TUNABLE )[^(]*;", text, flags=re.M)
     assert "#ifndef SMARTJOINT_TUNABLE\n#define SMARTJOINT_TUNABLE const\n#endif" in files["smartjoint_types.h"]
     tunable = re.findall(r"^static SMARTJOINT_TUNABLE \w+ (\w+)", text, flags=re.M)
-    assert sorted(tunable) == ["boundary_layer", "boundary_layer", "law", "normal_force_min", "normal_force_range"]
+    # Every law keeps the same tunables (the FMU's convention): its limits and one table per setting.
+    expected = [n for law in law_registry.LAWS.values() for n in ("normal_force_min", "normal_force_range")]
+    expected += [setting.key for law in law_registry.LAWS.values() for setting in law.settings]
+    assert sorted(tunable) == sorted(expected)

@@ -29,12 +29,14 @@ import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact_layout
 from smartjoint.design.control.artifact_schema import (
+    LAW_SETTINGS,
     SCHEMA,
     SCHEMA_VERSION,
     check_version,
@@ -69,8 +71,6 @@ class ControllerArtifact:
     sensor_names: tuple[str, ...]
     normal_force_min: np.ndarray
     normal_force_max: np.ndarray
-    siso_boundary_layer: np.ndarray
-    clqg_boundary_layer: float
     blocks: np.ndarray
     gamma0: np.ndarray
     gamma1: np.ndarray
@@ -101,6 +101,12 @@ class ControllerArtifact:
     design_source: str
     design_sha256: str
     package_version: str
+    # Each law's settings (common.law_registry: ``Law.settings``, field by ``Law.artifact``), last:
+    # siso_boundary_layer (ε_j, m/s), clqg_boundary_layer (ε, N), … — a law's entry adds its own.
+    __annotations__.update({field: np.ndarray if s.per_joint else float for field, s in LAW_SETTINGS.items()})
+    if TYPE_CHECKING:  # the settings' fields are the registry's, unknown to a type checker
+
+        def __getattr__(self, name: str) -> Any: ...
 
     def __post_init__(self):
         for field, value in validated(self.__dict__).items():

@@ -248,6 +248,12 @@ def _check_joints(out: dict) -> None:
             )
         _check_friction(out, j, joint)
         for field, setting in LAW_SETTINGS.items():
+            value = float(out[field][j] if setting.per_joint else out[field])
+            if setting.normal_force and not low[j] <= value <= high[j]:
+                raise ModelError(
+                    f"{field}: {value!r} N for joint {joint!r} — {setting.meaning} must lie within "
+                    f"[normal_force_min, normal_force_max] = [{float(low[j])!r}, {float(high[j])!r}] N"
+                )
             if setting.per_joint and out[field][j] <= 0:
                 raise ModelError(
                     f"{field}: {float(out[field][j])!r} for joint {joint!r} — {setting.meaning} must be > 0 "

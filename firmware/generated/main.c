@@ -9,11 +9,11 @@
 int main(void)
 {
     static smartjoint_siso_state siso_state;
-    static smartjoint_clqg_state clqg_state;
     static smartjoint_siso_input siso_in;
     static smartjoint_siso_output siso_out; /* static: zero before the first step */
+    static smartjoint_clqg_state clqg_state;
     static smartjoint_clqg_input clqg_in;
-    static smartjoint_clqg_output clqg_out;
+    static smartjoint_clqg_output clqg_out; /* static: zero before the first step */
     smartjoint_real amplitude = 0.001f;
     unsigned int status = 0u;
     int k, j, r;
@@ -28,8 +28,10 @@ int main(void)
             siso_in.sliding_velocity[j] = wave;
             siso_in.friction_force[j] = 10000.0f * wave;
             siso_in.normal_force[j] = siso_out.normal_force[j]; /* applied = last command */
-            clqg_in.friction_force[j] = siso_in.friction_force[j];
-            clqg_in.normal_force[j] = clqg_out.normal_force[j];
+        }
+        for (j = 0; j < SMARTJOINT_CLQG_JOINTS; ++j) {
+            clqg_in.friction_force[j] = 10000.0f * wave;
+            clqg_in.normal_force[j] = clqg_out.normal_force[j]; /* applied = last command */
         }
         for (r = 0; r < SMARTJOINT_CLQG_SENSORS; ++r) {
             clqg_in.sensors[r] = 10.0f * wave;

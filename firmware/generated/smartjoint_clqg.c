@@ -72,19 +72,18 @@ static const smartjoint_real output_hold[SENSORS][JOINTS] = {
     {2.7557292e-09f, -3.5210233e-09f, -1.7400179e-09f},
     {3.5210233e-09f, -2.7557292e-09f, 1.7400179e-09f},
 };
-/* The output phase one joint j at a time: row j of K M C Gamma1 E - K Gamma1 E and of K M, and
- * the joint's command range. */
+/* The output phase one joint j at a time: row j of K M C Gamma1 E - K Gamma1 E and of K M. */
 typedef struct {
     smartjoint_real feedback_hold[JOINTS];
     smartjoint_real feedback_estimator[SENSORS];
-    smartjoint_real normal_force_min;
-    smartjoint_real normal_force_range; /* F^max - F^min */
 } joint_law;
-static SMARTJOINT_TUNABLE joint_law law[JOINTS] = {
-    {{0.22235514f, -0.00592117f, 0.110633835f}, {136213.17f, -233385.89f}, 10.0f, 390.0f},
-    {{-0.00592117f, 0.22235514f, 0.110633835f}, {233385.89f, -136213.17f}, 10.0f, 390.0f},
-    {{0.07301455f, 0.07301455f, 0.26734006f}, {202961.2f, -202961.2f}, 10.0f, 390.0f},
+static const joint_law law[JOINTS] = {
+    {{0.22235514f, -0.00592117f, 0.110633835f}, {136213.17f, -233385.89f}},
+    {{-0.00592117f, 0.22235514f, 0.110633835f}, {233385.89f, -136213.17f}},
+    {{0.07301455f, 0.07301455f, 0.26734006f}, {202961.2f, -202961.2f}},
 };
+static SMARTJOINT_TUNABLE smartjoint_real normal_force_min[JOINTS] = {10.0f, 10.0f, 10.0f};
+static SMARTJOINT_TUNABLE smartjoint_real normal_force_range[JOINTS] = {390.0f, 390.0f, 390.0f}; /* F^max - F^min */
 static SMARTJOINT_TUNABLE smartjoint_real boundary_layer = 100.0f; /* eps [N] (Eq. 34) */
 /* Commanded to every joint whenever the filter cannot use its inputs (docs/safety.md). */
 static const smartjoint_real safe_normal_force[JOINTS] = {400.0f, 400.0f, 400.0f};
@@ -185,11 +184,11 @@ static int inputs_plausible(const smartjoint_clqg_input *input)
 /* Eq. 34 for one joint: F_N = F^min + (F^max - F^min) clip((u_d - u_R) sgn(u_R) / eps, 0, 1).
  * The same numbers as the product with sgn(u_R), as -(a - b) = b - a exactly; for u_R = 0 the
  * product's +-0 clips to 0. */
-static smartjoint_real clipped_command(const joint_law *g, smartjoint_real desired, smartjoint_real friction)
+static smartjoint_real clipped_command(int j, smartjoint_real desired, smartjoint_real friction)
 {
     smartjoint_real ratio = (friction > 0.0f ? desired - friction : (friction < 0.0f ? friction - desired : 0.0f)) / boundary_layer;
     ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
-    return MULTIPLY_ADD(g->normal_force_min, g->normal_force_range, ratio);
+    return MULTIPLY_ADD(normal_force_min[j], normal_force_range[j], ratio);
 }
 
 /* Output phase, right after the measurements arrive: the command from the new measurement and what
@@ -238,11 +237,11 @@ unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const sm
     force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[0], sensor0);
     force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[1], sensor1);
     output->desired_force[0] = -force0;
-    output->normal_force[0] = clipped_command(&law[0], -force0, friction0);
+    output->normal_force[0] = clipped_command(0, -force0, friction0);
     output->desired_force[1] = -force1;
-    output->normal_force[1] = clipped_command(&law[1], -force1, friction1);
+    output->normal_force[1] = clipped_command(1, -force1, friction1);
     output->desired_force[2] = -force2;
-    output->normal_force[2] = clipped_command(&law[2], -force2, friction2);
+    output->normal_force[2] = clipped_command(2, -force2, friction2);
     state->pending = 1;
     return SMARTJOINT_STATUS_OK;
 }

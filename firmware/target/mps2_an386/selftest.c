@@ -4,7 +4,7 @@
  * prints every output word in hex (the host compares them bit for bit with its own float build),
  * the SysTick ticks of each law's step loop and of the same loop around an empty step (the
  * difference is the steps' own time), and the stack depth of each law's loop by painting.
- * The cLQG's output phase is timed apart: a loop whose step runs the output phase twice before
+ * A phased law's output phase (the cLQG's) is timed apart: a loop whose step runs the output phase twice before
  * the update phase (the output phase only reads what the last update left, so its second run
  * computes and stores the same again), less the same loop with an empty call in its place.
  * The program returns 0 (semihosting exit status) when it ran to the end. */
@@ -14,18 +14,19 @@
 
 #include "board.h"
 #include "smartjoint_can.h"
-#include "smartjoint_clqg.h"
-#include "smartjoint_siso.h"
 
+/* The sequence, and the laws (SJ_LAWS: every law's name; SJ_PHASED_LAWS: those with an output
+ * phase; SJ_CAN_LAW: the CAN layer's law here) with their headers, from the law registry. */
 #include "selftest_inputs.h"
 
-static smartjoint_clqg_state clqg_state;
-static smartjoint_siso_state siso_state;
+/* Per law: its state, the outputs and status of every step, the ticks of its loops, the stack. */
+#define SJ_LAW_TABLES(law)                                                                                          \
+    static smartjoint_##law##_state law##_state;                                                                    \
+    static smartjoint_##law##_output law##_outputs[SJ_SELFTEST_STEPS];                                              \
+    static unsigned int law##_status[SJ_SELFTEST_STEPS];                                                            \
+    static uint32_t law##_ticks, law##_empty_ticks, law##_stack;
+SJ_LAWS(SJ_LAW_TABLES)
 static smartjoint_can_state can_state;
-static smartjoint_clqg_output clqg_outputs[SJ_SELFTEST_STEPS];
-static smartjoint_siso_output siso_outputs[SJ_SELFTEST_STEPS];
-static unsigned int clqg_status[SJ_SELFTEST_STEPS];
-static unsigned int siso_status[SJ_SELFTEST_STEPS];
 
 /* For each law: an empty step of the step's signature, and the timed loop of a step over the
  * sequence from the initial state (<law>_loop returns SysTick ticks). The loop around the empty
@@ -50,27 +51,26 @@ static unsigned int siso_status[SJ_SELFTEST_STEPS];
         }                                                                                                           \
         return sj_ticks() - start;                                                                                  \
     }
+SJ_LAWS(SJ_LAW_LOOP)
 
-SJ_LAW_LOOP(clqg)
-SJ_LAW_LOOP(siso)
-
-/* The cLQG step after a second call: of its output phase (which repeats the step's own exactly),
- * or of the empty step. The loops around the two differ by one output phase less one empty call. */
-__attribute__((noinline)) static unsigned int clqg_output_twice(smartjoint_clqg_state *state,
-                                                                const smartjoint_clqg_input *input,
-                                                                smartjoint_clqg_output *output)
-{
-    (void)smartjoint_clqg_output_phase(state, input, output);
-    return smartjoint_clqg_step(state, input, output);
-}
-
-__attribute__((noinline)) static unsigned int clqg_empty_then_step(smartjoint_clqg_state *state,
-                                                                   const smartjoint_clqg_input *input,
-                                                                   smartjoint_clqg_output *output)
-{
-    (void)clqg_empty(state, input, output);
-    return smartjoint_clqg_step(state, input, output);
-}
+/* A phased law's step after a second call: of its output phase (which repeats the step's own
+ * exactly), or of the empty step. The loops around the two differ by one output phase less one
+ * empty call. */
+#define SJ_OUTPUT_PHASE(law)                                                                                        \
+    static uint32_t law##_output_ticks;                                                                             \
+    __attribute__((noinline)) static unsigned int law##_output_twice(                                               \
+        smartjoint_##law##_state *state, const smartjoint_##law##_input *input, smartjoint_##law##_output *output)  \
+    {                                                                                                               \
+        (void)smartjoint_##law##_output_phase(state, input, output);                                                \
+        return smartjoint_##law##_step(state, input, output);                                                       \
+    }                                                                                                               \
+    __attribute__((noinline)) static unsigned int law##_empty_then_step(                                            \
+        smartjoint_##law##_state *state, const smartjoint_##law##_input *input, smartjoint_##law##_output *output)  \
+    {                                                                                                               \
+        (void)law##_empty(state, input, output);                                                                    \
+        return smartjoint_##law##_step(state, input, output);                                                       \
+    }
+SJ_PHASED_LAWS(SJ_OUTPUT_PHASE)
 
 static void put_words(const void *data, size_t size)
 {
@@ -98,7 +98,7 @@ int main(void)
     uint8_t frame[64] = {0u};
     uint32_t frame_id = 0u, can_frames = 0u;
     uint8_t frame_length = 0u;
-    uint32_t clqg_ticks, clqg_empty_ticks, clqg_output_ticks, siso_ticks, siso_empty_ticks, clqg_stack, siso_stack, can_stack, high_water;
+    uint32_t can_stack, high_water;
     int k;
 
     sj_ticks_start();
@@ -106,7 +106,7 @@ int main(void)
      * queues its frames), so the image links what the firmware links; its lock-step run over a
      * transport is processor-in-the-loop's, not this self-test's. */
     sj_stack_paint();
-    if (smartjoint_can_init(&can_state, SMARTJOINT_CAN_LAW_CLQG) != 0) {
+    if (smartjoint_can_init(&can_state, SJ_CAN_LAW) != 0) {
         return 2;
     }
     (void)smartjoint_can_rx(&can_state, 0u, frame, (uint8_t)sizeof frame, 0u);
@@ -115,44 +115,42 @@ int main(void)
         ++can_frames;
     }
     can_stack = sj_stack_depth(mark);
-    clqg_empty_ticks = clqg_loop(clqg_empty);
-    /* Before the plain step's loop, whose outputs are printed. */
-    clqg_output_ticks = clqg_loop(clqg_output_twice) - clqg_loop(clqg_empty_then_step);
-    sj_stack_paint();
-    clqg_ticks = clqg_loop(smartjoint_clqg_step);
-    clqg_stack = sj_stack_depth(mark);
-    siso_empty_ticks = siso_loop(siso_empty);
-    sj_stack_paint();
-    siso_ticks = siso_loop(smartjoint_siso_step);
-    siso_stack = sj_stack_depth(mark);
+    /* Each phased law's output phase before the plain step's loop, whose outputs are printed. */
+#define SJ_TIME_OUTPUT_PHASE(law) law##_output_ticks = law##_loop(law##_output_twice) - law##_loop(law##_empty_then_step);
+    SJ_PHASED_LAWS(SJ_TIME_OUTPUT_PHASE)
+#define SJ_TIME_LAW(law)                                                                                            \
+    law##_empty_ticks = law##_loop(law##_empty);                                                                    \
+    sj_stack_paint();                                                                                               \
+    law##_ticks = law##_loop(smartjoint_##law##_step);                                                              \
+    law##_stack = sj_stack_depth(mark);
+    SJ_LAWS(SJ_TIME_LAW)
 
     sj_uart_puts("SJ-SELFTEST mps2-an386\n");
     for (k = 0; k < SJ_SELFTEST_STEPS; ++k) {
-        sj_uart_puts("clqg ");
-        sj_uart_hex32(clqg_status[k]);
-        put_words(&clqg_outputs[k], sizeof clqg_outputs[k]);
-        sj_uart_puts("\nsiso ");
-        sj_uart_hex32(siso_status[k]);
-        put_words(&siso_outputs[k], sizeof siso_outputs[k]);
-        sj_uart_putc('\n');
+#define SJ_PUT_STEP(law)                                                                                            \
+    sj_uart_puts(#law " ");                                                                                         \
+    sj_uart_hex32(law##_status[k]);                                                                                 \
+    put_words(&law##_outputs[k], sizeof law##_outputs[k]);                                                          \
+    sj_uart_putc('\n');
+        SJ_LAWS(SJ_PUT_STEP)
     }
     put_figure("steps", (uint32_t)SJ_SELFTEST_STEPS);
     put_figure("can_frames", can_frames);
     put_figure("instructions_per_tick", SJ_INSTRUCTIONS_PER_TICK);
-    put_figure("ticks_clqg", clqg_ticks);
-    put_figure("ticks_clqg_empty", clqg_empty_ticks);
-    put_figure("ticks_clqg_output_phase", clqg_output_ticks);
-    put_figure("ticks_siso", siso_ticks);
-    put_figure("ticks_siso_empty", siso_empty_ticks);
-    put_figure("stack_clqg", clqg_stack);
-    put_figure("stack_siso", siso_stack);
+#define SJ_PUT_TICKS(law)                                                                                           \
+    put_figure("ticks_" #law, law##_ticks);                                                                         \
+    put_figure("ticks_" #law "_empty", law##_empty_ticks);                                                          \
+    put_figure("stack_" #law, law##_stack);
+    SJ_LAWS(SJ_PUT_TICKS)
+#define SJ_PUT_OUTPUT_PHASE(law) put_figure("ticks_" #law "_output_phase", law##_output_ticks);
+    SJ_PHASED_LAWS(SJ_PUT_OUTPUT_PHASE)
     put_figure("stack_can", can_stack);
     /* The whole program: the frames above main (reset handler, main) and the deepest of what ran
-     * below it (the CAN entry points, the two loops, the printing after the last paint). */
+     * below it (the CAN entry points, the laws' loops, the printing after the last paint). */
     high_water = sj_stack_depth(mark);
     high_water = high_water > can_stack ? high_water : can_stack;
-    high_water = high_water > clqg_stack ? high_water : clqg_stack;
-    high_water = high_water > siso_stack ? high_water : siso_stack;
+#define SJ_HIGH_WATER(law) high_water = high_water > law##_stack ? high_water : law##_stack;
+    SJ_LAWS(SJ_HIGH_WATER)
     put_figure("stack_high_water", high_water + (uint32_t)(sj_stack_top() - mark));
     put_figure("stack_size", sj_stack_size());
     sj_uart_puts("END\n");
