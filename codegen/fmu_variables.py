@@ -177,7 +177,7 @@ def _controller_outputs(artifact, law: str) -> list[dict]:
     entry = law_registry.law(law)
     rows = []
     for j, name in enumerate(artifact.joint_names):
-        what = f"commanded normal force F_N of joint {name} (Eq. {entry.equation})"
+        what = f"commanded normal force F_N of joint {name}{entry.cited()}"
         rows.append(_output(f"SETPOINT_{name}.normal_force", f"m->output.normal_force[{j}]", "N", what, "discrete"))
         if "desired_force" in entry.outputs:
             rows.append(_output(f"SETPOINT_{name}.desired_force", f"m->output.desired_force[{j}]", "N",

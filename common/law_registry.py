@@ -88,8 +88,8 @@ class Law:
         of ``interface.Measurements``.
     outputs : tuple of str
         The fields of its C output struct, in order (``normal_force`` first).
-    equation : int
-        The equation of its command F_N.
+    equation : int or None
+        The paper's equation of its command F_N (None: a law the paper writes no equation for).
     artifact : tuple of (str, str)
         Its section ``laws.<name>`` of the controller artefact: (key in the file, field of
         ``ControllerArtifact``) per entry, in the file's order.
@@ -131,7 +131,7 @@ class Law:
     mode: int
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
-    equation: int
+    equation: int | None
     artifact: tuple[tuple[str, str], ...]
     settings: tuple[Setting, ...]
     controller: str
@@ -170,6 +170,10 @@ class Law:
     def codegen_context(self, artifact: Any, lit: Any, row: Any) -> dict:
         """What the law's templates see beyond the common context (the ``codegen`` function)."""
         return dict(_resolve(self.codegen)(artifact, lit, row))
+
+    def cited(self) -> str:
+        """Its equation as the reports cite it: " (Eq. 30)", or "" without one."""
+        return "" if self.equation is None else f" (Eq. {self.equation})"
 
     def c_name(self, prefix: str) -> str:
         """The law's C identifier stem, ``<prefix>_<name>`` (``<stem>_step``, ``<stem>.c``)."""

@@ -128,7 +128,7 @@ def _plot_tuning(plt, law, record, folder: Path) -> Path:
         folder / f"{law.name}_{setting.key}.png",
         f"{what} [{setting.unit}]",
         "E(t_e) [J·s]",
-        f"{law.display} {what} optimisation (Eq. {law.equation}, 32)",
+        f"{law.display} {what} optimised for E(t_e) (Eq. 32)",
     )
 
 
@@ -178,7 +178,7 @@ def _settings_lines(study: closed_loop.Study) -> list[str]:
     for name, tuning in study.tunings.items():
         law = law_registry.LAWS[name]
         for setting in law.settings:
-            what = f"- {law.display} {setting.key.replace('_', ' ')} (Eq. {law.equation})"
+            what = f"- {law.display} {setting.key.replace('_', ' ')}{law.cited()}"
             value = tuning.settings[setting.key]
             if tuning.record is not None and tuning.record.setting == setting.key:
                 lines.append(f"{what}: {tuning.record.describe()}.")
