@@ -67,11 +67,11 @@ def test_committed_reference_firmware_is_what_the_generator_emits(reference):
 
 def test_structure_no_dense_predictor_no_heap_no_recursion(reference):
     files = generate.render(reference, "double")
-    text = files["smartjoint_clqg.c"] + files["smartjoint_siso.c"]
+    text = "".join(files[f"{law.c_name('smartjoint')}.c"] for law in law_registry.LAWS.values())
     n2 = 2 * np.asarray(reference.blocks).shape[0]
     assert f"[{n2}][{n2}]" not in text and "[STATES][STATES]" not in text
     assert not re.search(r"\b(malloc|calloc|realloc|free)\s*\(", text)
-    for name in ("smartjoint_clqg_step", "smartjoint_siso_step", "fault"):
+    for name in (*(f"{law.c_name('smartjoint')}_step" for law in law_registry.LAWS.values()), "fault"):
         body = text.split(f"{name}(", 1)[1]
         body = body[: body.find("\n}\n")]
         assert f"{name}(" not in body  # no recursion
