@@ -26,8 +26,8 @@ SCHEMA = "smartjoint-sweep/1"
 # Every law a sweep can run, in the order of the rows; the two best passive settings search the
 # constant F_N that minimises E(t_e) or e(t_e) per sample (ensemble.best_passive), so they are
 # asked for by name only.
-LAWS = ("passive F_min", "passive F_max", *law_registry.DISPLAY, "active LQG", "best passive E", "best passive e")
-DEFAULT_LAWS = LAWS[:5]
+DEFAULT_LAWS = ("passive F_min", "passive F_max", *law_registry.DISPLAY, "active LQG")  # the study's runs
+LAWS = (*DEFAULT_LAWS, "best passive E", "best passive e")
 SAMPLERS = ("random", "latin-hypercube", "sobol")
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")
 # Each law's settings (its registry entry's, by their [control] keys), then those every law shares.
