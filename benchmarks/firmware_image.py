@@ -22,6 +22,7 @@ from pathlib import Path
 from elf_tools import BASE_FLAGS, TARGET, Disassembly, callgraph_ci, run, sections, stack_usage, worst_stack
 
 from smartjoint.codegen import can_layer, generate, output
+from smartjoint.common import law_registry
 
 ROOT = Path(__file__).resolve().parents[1]
 BOARD = ROOT / "firmware" / "target" / "mps2_an386"
@@ -93,7 +94,8 @@ def _compile_and_link(a, folder: Path, callgraph: bool, prefix: str) -> list[str
     files = {**generate.render(a, "float", prefix), **can_layer.render_can(a, prefix, real="float")}
     output.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, folder)
     (folder / "image_main.c").write_text(MAIN.format(prefix=prefix, PREFIX=prefix.upper()))
-    modules = [f"{prefix}_siso", f"{prefix}_clqg", f"{prefix}_can", "sj_e2e", "image_main", "startup", "board"]
+    laws = [law.c_name(prefix) for law in law_registry.LAWS.values()]  # every law the firmware links
+    modules = [*laws, f"{prefix}_can", "sj_e2e", "image_main", "startup", "board"]
     flags = [*TARGET, "-O2", "-ffunction-sections", "-fdata-sections", "-fstack-usage", *BASE_FLAGS]
     flags += ["-fcallgraph-info=su"] if callgraph else []
     for name in modules:
@@ -178,7 +180,7 @@ def print_whole_image(whole: dict) -> None:
     """Flash, RAM, double routines and stack bounds of the whole linked firmware image."""
     mark = lambda ok: "✔" if ok else "✘"  # noqa: E731
     print(
-        "\nwhole firmware image (float -O2, --gc-sections: SISO + clipped LQG + CAN layer + E2E + runtime main "
+        "\nwhole firmware image (float -O2, --gc-sections: every law + CAN layer + E2E + runtime main "
         "with firmware/target/mps2_an386 startup and board):"
     )
     s = whole["sections"]

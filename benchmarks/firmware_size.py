@@ -4,7 +4,7 @@ The float build of the artefact (default: the committed reference configuration,
 firmware/generated/controller.json) is rendered into a temporary folder and each controller
 module is compiled for the target with ``arm-none-eabi-gcc -mcpu=cortex-m4 -mthumb
 -mfpu=fpv4-sp-d16 -mfloat-abi=hard -O2 -fstack-usage -fcallgraph-info=su`` plus the strict
-warning set of ``codegen.build.FLAGS``. Per controller (SISO, clipped LQG):
+warning set of ``codegen.build.FLAGS``. Per controller (every law of the registry):
 
 - flash: .text + .rodata + .data of the module object (``arm-none-eabi-size``), and of a
   linked image (entry = ``<name>_step``, ``--gc-sections``) that adds the library routines the
@@ -58,10 +58,11 @@ from firmware_image import measure_image, print_whole_image
 from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py
 
 from smartjoint.codegen import generate, output
+from smartjoint.common import law_registry
 from smartjoint.design.control import artifact as artifacts
 
 ROOT = Path(__file__).resolve().parents[1]
-LAWS = (("siso", "SISO"), ("clqg", "clipped LQG"))
+LAWS = tuple((law.name, law.display) for law in law_registry.LAWS.values())  # every law of the registry
 BUILDS = (("float", "-O2"), ("double", "-O2"), ("float", "-O0"))  # ours first, then the two baselines
 LIMITS = {"flash": 8 * 1024, "ram": 1024, "stack": 512}
 
