@@ -228,6 +228,21 @@ LAWS: dict[str, Law] = {
             phased=True,
             fault_matrix=True,
         ),
+        Law(
+            name="preset",
+            display="preset",
+            title="preset normal force (a fixed F_N per joint)",
+            mode=4,
+            inputs=("normal_force",),
+            outputs=("normal_force",),
+            equation=None,
+            artifact=(("force", "preset_force"),),
+            settings=(Setting("force", "N", True, "the preset normal force F_N,j", "normal_force_max", True),),
+            controller="smartjoint.design.control.preset:controller",
+            colour="tab:purple",
+            codegen="smartjoint.design.control.preset:context",
+            reference="smartjoint.design.control.preset:preset_law",
+        ),
     )
 }
 NAMES = tuple(LAWS)  # every law by name, in registry order

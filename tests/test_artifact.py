@@ -269,7 +269,7 @@ def _sections(built) -> dict:
     [
         (lambda d: d["safety"].update(extra=1), r"safety.extra: 1 — unknown key in section safety"),
         (lambda d: d["laws"]["siso"].update(blocks=[]), r"laws.siso.blocks: \[\] — unknown key in section laws.siso"),
-        (lambda d: d["laws"].update(lqr={}), r"laws.lqr: \{\} — unknown law; allowed: siso, clqg"),
+        (lambda d: d["laws"].update(lqr={}), r"laws.lqr: \{\} — unknown law; allowed: siso, clqg, preset"),
         (lambda d: d.pop("network"), r"network: missing — required section"),
         (lambda d: d["laws"].pop("clqg"), r"laws.clqg: missing — required section"),
         (lambda d: d.update(common=[1]), r"common: \[1\] — expected a JSON object"),

@@ -17,6 +17,7 @@ import pytest
 
 from smartjoint.bench import firmware
 from smartjoint.codegen import can_codec
+from smartjoint.common import law_registry
 from smartjoint.design.control import artifact
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -242,7 +243,7 @@ def test_float_image_links_no_double_routine(reference, tmp_path):
     files = firmware.sources(reference, "float")
     for name, text in files.items():
         (tmp_path / name).write_text(text)
-    sources = ["smartjoint_siso.c", "smartjoint_clqg.c", "smartjoint_can.c", "sj_e2e.c"]
+    sources = [f"{law.c_name('smartjoint')}.c" for law in law_registry.LAWS.values()] + ["smartjoint_can.c", "sj_e2e.c"]
     flags = ["-std=c99", "-O2", "-ffp-contract=off", "-ffunction-sections", "-fdata-sections", "-Wall", "-Werror"]
     entries = [f"smartjoint_can_{e}" for e in ("init", "rx", "step", "tx")]
     subprocess.run(

@@ -12,6 +12,7 @@ from conftest import cli_error, count_model_calls, run_cli
 from test_rig_cli import JOINT_B
 
 from smartjoint.cli import main
+from smartjoint.common import law_registry
 
 
 def test_help_lists_commands():
@@ -124,7 +125,7 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
     from smartjoint.design.control import artifact
 
     assert artifact.load(out / "controller.json").artifact_sha256 == summary["control"]["artifact_sha256"]
-    assert set(summary["control"]["runs"]) == {"passive F_min", "passive F_max", "SISO", "cLQG", "active LQG"}
+    assert set(summary["control"]["runs"]) == {"passive F_min", "passive F_max", *law_registry.DISPLAY, "active LQG"}
     assert (out / "control_energy.png").stat().st_size > 0 and (out / "firmware" / "smartjoint_clqg.c").exists()
     check = summary["firmware"]["back_to_back"]
     assert check["cLQG"]["double_identical_samples"] == check["cLQG"]["samples"]

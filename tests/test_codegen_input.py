@@ -16,6 +16,7 @@ from conftest import artifact_fields, artifact_text
 
 from smartjoint import cli
 from smartjoint.codegen import can_layer, generate, identifiers, output
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
 from smartjoint.design.network import protocol
@@ -168,7 +169,8 @@ def test_unusual_but_legal_names_compile_clean(reference, tmp_path):
     # Names that look like the generated ones: the fixed infixes keep them apart.
     odd = dataclasses.replace(reference, joint_names=("S", "ID", "JOINT_A1"), sensor_names=("sensors", "state"))
     placed = generate.generate(odd, tmp_path / "odd", "double", "fw", check=True)
-    assert placed.compiled["sources"] == ["fw_can.c", "fw_clqg.c", "fw_siso.c", "main.c", "sj_e2e.c"]
+    laws = [f"{law.c_name('fw')}.c" for law in law_registry.LAWS.values()]
+    assert placed.compiled["sources"] == sorted(["fw_can.c", *laws, "main.c", "sj_e2e.c"])
     assert "#define FW_CAN_JOINT_JOINT_A1_ID 0x102u" in (tmp_path / "odd" / "fw_can.h").read_text()
 
 

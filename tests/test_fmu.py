@@ -19,6 +19,7 @@ from fmpy.validation import validate_fmu
 from smartjoint.bench import fmu_check
 from smartjoint.bench.cosimulation import FmuInstance, cosimulate
 from smartjoint.codegen import build, fmu
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design import parse_design
 from smartjoint.design.control import artifact_building
@@ -54,7 +55,7 @@ def written(paper, tmp_path_factory):
     out = {}
     for version in VERSIONS:
         out[version, "truss"] = fmu.plant_fmu(s.setup, design, folder / f"truss{version}.fmu", version)
-        for law in ("siso", "clqg"):
+        for law in law_registry.NAMES:
             for real in ("double", "float"):
                 out[version, law, real] = fmu.controller_fmu(
                     a, law, folder / f"{law}{version}{real}.fmu", version, real
@@ -126,7 +127,7 @@ def _energies(path, setup, step: float, every: int) -> np.ndarray:
 def test_plant_and_controller_fmus_co_simulated_are_the_mil_study_and_the_orderings_hold(written, paper, version):
     design, s, a = paper
     runs = []
-    for name, law in (("SISO", "siso"), ("cLQG", "clqg")):
+    for name, law in ((entry.display, entry.name) for entry in law_registry.LAWS.values()):
         run, safe = cosimulate(s.setup, written[version, "truss"].path, written[version, law, "double"].path, name)
         mil = s.run(name)
         for field in ("time", "energy", "sensors", "normal_force", "joint_force", "sliding_velocity"):
@@ -299,6 +300,7 @@ def test_tuned_limits_and_boundary_layer_are_the_law_generated_with_them(written
         normal_force_max=np.array([300.0, 350.0, 390.0]),
         clqg_boundary_layer=60.0,
         safe_normal_force=np.array([300.0, 350.0, 390.0]),
+        preset_force=np.array([300.0, 350.0, 390.0]),
     )  # fmt: skip  (the safe force is the design's, not tunable: unused by these samples)
     built = fmu.controller_fmu(tuned, "clqg", tmp_path / "tuned.fmu", version)
     log = fmu_check.recorded_inputs(s.setup, a, "cLQG")[:400]

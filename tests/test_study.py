@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from conftest import cli_error, run_cli, small_control_truss, small_truss
 
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design import parse_design
 from smartjoint.design.control import artifact, siso_tuning, study, tuning
@@ -196,7 +197,7 @@ def test_design_and_study_commands(tmp_path):
     done = run_cli("study", path, "--json", "--plots", tmp_path / "plots")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
-    assert set(result["runs"]) == {"passive F_min", "passive F_max", "SISO", "cLQG", "active LQG"}
+    assert set(result["runs"]) == {"passive F_min", "passive F_max", *law_registry.DISPLAY, "active LQG"}
     assert (tmp_path / "plots" / "control_energy.png").stat().st_size > 0
     refused = tmp_path / "refused.json"
     done = run_cli("design", path, "-o", refused, "--max-load", "0.1")  # refused after the model reduction

@@ -192,7 +192,7 @@ def test_a_nominal_sample_is_the_study(prepared):
     base = dataclasses.replace(prepared.base, input_columns=(), artifacts=(artifact,))
     rows = ensemble.run_batch(base, [point], [0], np.zeros((1, 0)), prepared.compiled)
     study = closed_loop.run_study(design, base.setup.model, progress=lambda line: None)
-    assert [row["law"] for row in rows] == [run.name for run in study.runs]
+    assert [row["law"] for row in rows] == [run.name for run in study.runs if run.name in base.laws]
     for row in rows:
         m = study.run(row["law"]).metrics
         assert row["energy_measure"] == m["energy_measure"] and row["energy_end"] == m["energy_end"]
