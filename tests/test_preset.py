@@ -101,7 +101,7 @@ def test_at_the_maximum_force_it_is_the_passive_maximum_run_and_the_study_runs_i
     figures = study.summary(study.run_study(tuning.with_settings(design, {"preset_force": PRESET}), s.model,
                                             progress=lambda line: None))  # fmt: skip
     assert figures["preset_force"] == PRESET and LAW.display in figures["runs"]
-    assert figures["orderings"]["preset_below_both_passive"] in (True, False)
+    assert "preset_below_both_passive" in figures["orderings"]
 
 
 @pytest.mark.numerics
