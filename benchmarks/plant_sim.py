@@ -39,7 +39,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from smartjoint.design import plant, reduction
-from smartjoint.design.friction.lugre import joint_laws
+from smartjoint.design.friction.model import joint_parameters
 from smartjoint.design.structure import fem, modal, spec
 
 DESIGN = Path(__file__).resolve().parents[1] / "design" / "data" / "three_type_a.toml"
@@ -320,7 +320,7 @@ def main() -> None:
 
     design = spec.load_design(DESIGN)
     fe = fem.build_model(design, joints="released")
-    laws = joint_laws(design)
+    laws = joint_parameters(design)
     pulse = plant.triangular_pulse(directions=np.ones(len(design.disturbances)))
     models = {
         "full": modal.modal_model(fe, modal.solve_modes(fe, 600)),

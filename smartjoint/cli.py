@@ -26,7 +26,7 @@ from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_
 from smartjoint.commands_fmu import cmd_fmu
 from smartjoint.commands_friction import cmd_identify, cmd_rig
 from smartjoint.commands_sweep import cmd_sweep
-from smartjoint.common import law_registry
+from smartjoint.common import friction_registry, law_registry
 from smartjoint.common.errors import SmartjointError
 
 _LAWS_SHOWN = ", ".join(law.display for law in law_registry.LAWS.values())  # the laws, as a reader knows them
@@ -134,23 +134,23 @@ def _add_friction_commands(sub, o: SimpleNamespace) -> None:
     p.add_argument(
         "--type", choices=("A", "B"), default=None, help="joint type (default: the parameter file's joint_type, else A)"
     )
+    model = friction_registry.friction_model()
     p.add_argument(
         "--parameters",
         metavar="FILE",
-        help="LuGre parameter set (TOML: sigma0, sigma1, sigma2, coulomb, "
-        "stribeck, stribeck_velocity, radius for type B, optional "
-        "joint_type; docs/identification.md)",
+        help=f"friction parameter set (TOML: {', '.join(model.keys)}, radius for type B, optional "
+        f"joint_type, optional model (default {model.name}); docs/identification.md)",
     )
     lugre_flags = p.add_argument_group(
-        "LuGre parameter set as flags (all six, and --radius for type B; "
+        f"{model.display} parameter set as flags (all {len(model.parameters)}, and --radius for type B; "
         "without flags or --parameters: the paper's Table 1)"
     )
-    lugre_flags.add_argument("--sigma0", type=float, help="bristle stiffness σ0 [1/m] (type B: [1/rad])")
-    lugre_flags.add_argument("--sigma1", type=float, help="bristle damping σ1 [s/m]")
-    lugre_flags.add_argument("--sigma2", type=float, help="viscous friction σ2 [s/m]")
-    lugre_flags.add_argument("--coulomb", type=float, help="Coulomb coefficient F_c")
-    lugre_flags.add_argument("--stribeck", type=float, help="Stribeck excess F_d = F_s − F_c")
-    lugre_flags.add_argument("--stribeck-velocity", type=float, help="Stribeck velocity v_s [m/s] (type B: [rad/s])")
+    for parameter in model.parameters:
+        units = parameter.units
+        unit = f" [{units[0]}]" + (f" (type B: [{units[1]}])" if units[1] != units[0] else "") if units[0] else ""
+        lugre_flags.add_argument(
+            f"--{parameter.key.replace('_', '-')}", type=float, help=f"{parameter.meaning} {parameter.symbol}{unit}"
+        )
     lugre_flags.add_argument("--radius", type=float, help="joint radius r [m] (type B only)")
     p.add_argument("--normal-force", type=float, help="F_N [N]")
     p.add_argument("--amplitude", type=float, help="shaker force [N] (type B: moment [N·m])")

@@ -342,7 +342,7 @@ def cmd_simulate(args) -> dict:
     import numpy as np
 
     from smartjoint.design import build_model, plant, reduction
-    from smartjoint.design.friction.lugre import joint_laws
+    from smartjoint.design.friction.model import joint_parameters
     from smartjoint.design.structure import modal
 
     design, _ = load_updated(args)
@@ -366,7 +366,7 @@ def cmd_simulate(args) -> dict:
     )
     result = plant.simulate(
         model,
-        joint_laws(design),
+        joint_parameters(design),
         plant.ConstantNormalForce(forces, args.sample_time),
         plant.triangular_pulse(directions=np.ones(len(design.disturbances))),
         args.duration,

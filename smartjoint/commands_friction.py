@@ -8,16 +8,18 @@ from __future__ import annotations
 from pathlib import Path
 
 from smartjoint.commands import report_progress, write_atomic, write_plots
+from smartjoint.common import friction_registry
 from smartjoint.common.errors import SmartjointError
 
-_LUGRE_FLAGS = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity", "radius")
+_MODEL = friction_registry.friction_model()  # the rig's flags are the default model's parameters
+_FLAGS = (*_MODEL.keys, "radius")
 
 
 def _rig_parameters(args):
     """The rig's parameter set: --parameters FILE, or all the LuGre flags, or (neither) Table 1."""
     from smartjoint.design.friction import rig
 
-    flags = {n: getattr(args, n) for n in _LUGRE_FLAGS if getattr(args, n) is not None}
+    flags = {n: getattr(args, n) for n in _FLAGS if getattr(args, n) is not None}
     if args.parameters is not None:
         if flags:
             raise SmartjointError(
@@ -29,11 +31,11 @@ def _rig_parameters(args):
     if not flags:
         return rig.parameter_set(joint_type)
     values = {n: v for n, v in flags.items()}
-    for name in _LUGRE_FLAGS:
+    for name in _FLAGS:
         if name not in values and (name != "radius" or joint_type == "B"):
+            every = ", ".join(f"--{key.replace('_', '-')}" for key in _MODEL.keys)
             raise SmartjointError(
-                f"--{name.replace('_', '-')} missing — give all of --sigma0, --sigma1, "
-                "--sigma2, --coulomb, --stribeck, --stribeck-velocity"
+                f"--{name.replace('_', '-')} missing — give all of {every}"
                 f"{', --radius' if joint_type == 'B' else ''} (or --parameters FILE, or none of "
                 f"them for {rig.TABLE_1_SOURCE})"
             )

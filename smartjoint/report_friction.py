@@ -4,7 +4,7 @@ came from, and each joint type's identification (paper Section 3.2, Eq. 3, Fig. 
 from __future__ import annotations
 
 from smartjoint import report as plots
-from smartjoint.design.structure.description import FRICTION_PARAMETERS
+from smartjoint.common import friction_registry
 
 
 def friction_markdown(design, results, hysteresis: list[str]) -> str:
@@ -24,24 +24,32 @@ def friction_markdown(design, results, hysteresis: list[str]) -> str:
     -------
     str
     """
-    lines = [
-        "## Friction joints (Section 3.2, Eq. 1–3)",
-        "",
-        "LuGre parameters per unit normal force used by every later stage (reduction, control design, study, SIL):",
-        "",
-        "| joint | type | σ0 | σ1 | σ2 | F_c | F_d | v_s | r [m] | source |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
-    ]
-    for joint in design.joints:
-        f = design.joint_friction(joint)
-        values = " | ".join(f"{v:.4g}" for v in f.values().values())
-        radius = f"{f.radius:.4g}" if f.radius is not None else "—"
-        lines.append(f"| {joint.name} | {joint.type} | {values} | {radius} | {_source(f)} |")
+    lines = ["## Friction joints (Section 3.2, Eq. 1–3)", ""]
+    frictions = [design.joint_friction(joint) for joint in design.joints]
+    for name in dict.fromkeys(f.model for f in frictions):
+        model = friction_registry.friction_model(name)
+        lines += [
+            f"{model.display} parameters per unit normal force used by every later stage (reduction, control "
+            "design, study, SIL):",
+            "",
+            f"| joint | type | {' | '.join(p.symbol for p in model.parameters)} | r [m] | source |",
+            "|---|---|" + "---:|" * len(model.parameters) + "---:|---|",
+        ]
+        for joint, f in zip(design.joints, frictions):
+            if f.model == name:
+                lines.append(_joint_row(joint, f))
     lines.append("")
     for result in results:
         lines += _identification_lines(result)
     lines += [f"![{name}]({name})" for name in hysteresis]
     return "\n".join(lines) + "\n"
+
+
+def _joint_row(joint, f) -> str:
+    """A joint's row of the parameter table: its values, its radius, their source."""
+    values = " | ".join(f"{v:.4g}" for v in f.values().values())
+    radius = f"{f.radius:.4g}" if f.radius is not None else "—"
+    return f"| {joint.name} | {joint.type} | {values} | {radius} | {_source(f)} |"
 
 
 def _source(friction) -> str:
@@ -70,8 +78,9 @@ def _identification_lines(result) -> list[str]:
     lines = [heading, "", plots.identification_table(identification), ""]
     if result.stated is not None:
         lines += [f"| parameter | {reference} | identified | difference [%] |", "|---|---:|---:|---:|"]
-        for name in FRICTION_PARAMETERS:
-            stated, found = getattr(result.stated, name), getattr(identification.parameters, name)
+        stated_values, found_values = result.stated.values(), identification.parameters.values()
+        for name in friction_registry.friction_model(result.stated.model).keys:
+            stated, found = stated_values[name], found_values[name]
             difference = f"{100 * (found / stated - 1):+.1f}" if stated else "—"
             lines.append(f"| {name} | {stated:.4g} | {found:.4g} | {difference} |")
         lines.append("")

@@ -12,13 +12,14 @@ from conftest import TABLE_1_A, TABLE_1_B, small_truss
 from smartjoint.common.errors import DesignError
 from smartjoint.design import load_design, parse_design
 from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction.model import joint_parameters
 from smartjoint.design.friction.records import write_record
 
 OTHER_A = {"sigma0": 2.0e5, "sigma1": 0.01, "sigma2": 0.0, "coulomb": 0.3, "stribeck": 0.0, "stribeck_velocity": 0.05}
 
 
 def _laws(data: dict) -> list[lugre.LuGreParameters]:
-    return lugre.joint_laws(parse_design(data))
+    return joint_parameters(parse_design(data))
 
 
 def test_each_joint_gets_its_types_parameters_or_its_own():
@@ -34,8 +35,10 @@ def test_a_joint_without_parameters_is_named_and_nothing_falls_back_to_table_1()
     data = small_truss()
     del data["friction"]["B"]
     design = parse_design(data)  # the structure needs no friction
-    with pytest.raises(DesignError, match=r"joints\[1\]\.friction: missing — joint 'JB' \(type B\) has no LuGre"):
-        lugre.joint_laws(design)
+    with pytest.raises(
+        DesignError, match=r"joints\[1\]\.friction: missing — joint 'JB' \(type B\) has no friction parameters"
+    ):
+        joint_parameters(design)
 
 
 @pytest.mark.parametrize(
@@ -75,7 +78,7 @@ def test_parameter_files_are_read_relative_to_the_file_that_names_them(tmp_path)
     user = {"base": "../base/design.toml", "name": "user", "joints": joints}
     (tmp_path / "user" / "design.toml").write_text(tomli_w.dumps(user))
     design = load_design(tmp_path / "user" / "design.toml")
-    laws = lugre.joint_laws(design)
+    laws = joint_parameters(design)
     assert laws == [lugre.LuGreParameters(**OTHER_A), lugre.LuGreParameters(**TABLE_1_B)]
     assert design.friction["B"].source == str(tmp_path / "base" / "joints" / "b.toml")
     assert len(design.friction["B"].sha256) == 64

@@ -9,8 +9,8 @@ from types import SimpleNamespace
 
 import pytest
 
+from smartjoint.common import friction_registry
 from smartjoint.design.control.friction_uncertainty import (
-    FRICTION,
     MAX_LOG_SIGMA,
     Z95,
     friction_inputs,
@@ -21,7 +21,10 @@ from smartjoint.design.control.friction_uncertainty import (
 def _type(**intervals):
     parameters = {name: {"value": 1.0, "ci95": interval} for name, interval in intervals.items()}
     parameters["radius"] = {"value": 0.02, "ci95": None}
-    return SimpleNamespace(identification=SimpleNamespace(as_dict=lambda: {"parameters": parameters}))
+    fitted = SimpleNamespace(model=friction_registry.DEFAULT)
+    return SimpleNamespace(
+        identification=SimpleNamespace(as_dict=lambda: {"parameters": parameters}, parameters=fitted)
+    )
 
 
 def test_the_spread_is_the_log_sigma_of_the_widest_interval():
@@ -37,7 +40,7 @@ def test_the_spread_is_the_log_sigma_of_the_widest_interval():
 
 def test_each_factor_is_lognormal_within_its_interval_or_five_percent_uniform():
     inputs = {u.name: u.distribution for u in friction_inputs({"sigma0": 0.1})}
-    assert list(inputs) == [f"friction.{p}" for p in FRICTION]
+    assert list(inputs) == [f"friction.{p}" for p in friction_registry.LUGRE.keys]
     d = inputs["friction.sigma0"]
     assert (d.kind, d.median, d.sigma) == ("lognormal", 1.0, 0.1)
     assert d.low == pytest.approx(math.exp(-Z95 * 0.1)) and d.high == pytest.approx(math.exp(Z95 * 0.1))

@@ -11,12 +11,11 @@ import numpy as np
 
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
-from smartjoint.design.control import tuning
+from smartjoint.design.control import artifact_schema, tuning
 from smartjoint.design.control.artifact import ControllerArtifact, installed_version
 from smartjoint.design.control.artifact_schema import SCHEMA_VERSION, field_error
 from smartjoint.design.control.lqg import LqgDesign
-from smartjoint.design.friction.lugre import joint_laws
-from smartjoint.design.structure.description import FRICTION_PARAMETERS
+from smartjoint.design.friction.model import joint_parameters
 
 
 def _per_joint(field: str, value, joints: tuple[str, ...]) -> np.ndarray:
@@ -160,7 +159,14 @@ def friction_fields(design, joints: tuple[str, ...]) -> dict:
         ``joint_types``, ``friction_parameters`` (l × 6), ``friction_radius`` and ``friction_sources``.
     """
     by_name = {j.name: j for j in design.joints}
-    laws = dict(zip([j.name for j in design.joints], joint_laws(design)))
+    laws = dict(zip([j.name for j in design.joints], joint_parameters(design)))
+    held = artifact_schema.FRICTION_MODEL
+    for name in joints:
+        if laws[name].model != held.name:
+            raise ModelError(
+                f"joints.{name}.friction: model {laws[name].model!r} — the controller artefact (schema "
+                f"{SCHEMA_VERSION}) records {held.display} parameters only (friction.parameters)"
+            )
     sources = []
     for name in joints:
         friction = design.joint_friction(by_name[name])
@@ -168,9 +174,9 @@ def friction_fields(design, joints: tuple[str, ...]) -> dict:
         sources.append(Path(friction.source).name if in_file else friction.source)  # never a folder
     return {
         "joint_types": tuple(by_name[name].type for name in joints),
-        "friction_parameters": np.array(
-            [[getattr(laws[name], p) for p in FRICTION_PARAMETERS] for name in joints], dtype=float
-        ).reshape(len(joints), len(FRICTION_PARAMETERS)),
+        "friction_parameters": np.array([list(laws[name].values().values()) for name in joints], dtype=float).reshape(
+            len(joints), len(artifact_schema.FRICTION_MODEL.parameters)
+        ),
         "friction_radius": np.array([laws[name].radius or 0.0 for name in joints], dtype=float),
         "friction_sources": tuple(sources),
     }

@@ -11,12 +11,14 @@ from typing import Any
 
 import numpy as np
 
-from smartjoint.common import law_registry
+from smartjoint.common import friction_registry, law_registry
 from smartjoint.common.errors import ModelError
 
 # 2: the safe state and the plausibility ranges (docs/safety.md); 3: the joints' friction; 4: nested,
 # one section per component (artifact_layout).
 SCHEMA_VERSION = 4
+# The model whose parameters the artefact's friction section holds (its columns, in order).
+FRICTION_MODEL = friction_registry.LUGRE
 # Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo
 # stacks block at ~100 kN; 1 MN is a typing error (an exponent too many), not a design.
 NORMAL_FORCE_LIMIT = 1e6  # N
@@ -78,9 +80,10 @@ SCHEMA: tuple[FieldSpec, ...] = (
     FieldSpec(
         "friction_parameters",
         "array",
-        ("l", 6),
+        ("l", len(FRICTION_MODEL.parameters)),
         "Table 1 units",
-        "per joint the LuGre σ0, σ1, σ2, F_c, F_d, v_s per unit F_N (Eq. 1–2) the design was made with (information)",
+        f"per joint the {FRICTION_MODEL.display} {', '.join(p.symbol for p in FRICTION_MODEL.parameters)} per unit F_N "
+        f"({FRICTION_MODEL.cited()}) the design was made with (information)",
     ),
     FieldSpec("friction_radius", "array", ("l",), "m", "per joint r of a type B joint, 0 for type A (information)"),
     FieldSpec("friction_sources", "strings", ("l",), meaning="per joint where its friction parameters came from"),
@@ -262,15 +265,16 @@ def _check_joints(out: dict) -> None:
 
 
 def _check_friction(out: dict, j: int, joint: str) -> None:
-    """A joint's type, its LuGre parameters (σ0, F_c, v_s > 0, the others >= 0) and its radius."""
+    """A joint's type, its friction parameters (each > 0, or >= 0 where the model allows zero) and its radius."""
     joint_type, values, radius = out["joint_types"][j], out["friction_parameters"][j], out["friction_radius"][j]
     if joint_type not in ("A", "B"):
         raise field_error(f"joint_types[{j}]", joint_type, f"joint {joint!r}: allowed: A, B")
-    positive = np.array([True, False, False, True, False, True])
+    positive = np.array([not p.may_be_zero for p in FRICTION_MODEL.parameters])
     if np.any(values < 0) or np.any(values[positive] <= 0):
-        raise field_error(
-            f"friction_parameters[{j}]", values, f"joint {joint!r}: σ0, F_c, v_s must be > 0 and σ1, σ2, F_d >= 0"
-        )
+        symbols = [p.symbol for p in FRICTION_MODEL.parameters]
+        strict = ", ".join(s for s, must in zip(symbols, positive) if must)
+        zero = ", ".join(s for s, must in zip(symbols, positive) if not must)
+        raise field_error(f"friction_parameters[{j}]", values, f"joint {joint!r}: {strict} must be > 0 and {zero} >= 0")
     if (joint_type == "B") != (radius > 0) or radius < 0:
         raise field_error(f"friction_radius[{j}]", float(radius), f"joint {joint!r}: > 0 [m] for type B, 0 for type A")
 

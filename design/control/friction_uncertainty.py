@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import math
 
+from smartjoint.common import friction_registry
 from smartjoint.design.control.sweep_file import Distribution, UncertainInput
 
 FRICTION_SPREAD = 0.05  # ± of the uniform factor of a parameter the identification gives no interval for
-FRICTION = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")  # drawn per joint
 Z95 = 1.959963984540054  # the 97.5 % point of the normal distribution: a 95 % interval is exp(θ ± Z95·σ_θ)
 # A weakly identifiable parameter's interval spans decades (σ1, σ2 in the paper): drawn at most
 # within a factor 2 at 95 % — the identification does not bound it, and factors of 10^±3 leave
@@ -35,20 +35,21 @@ def friction_spreads(friction) -> dict[str, float]:
     """
     spreads: dict[str, float] = {}
     for result in friction:
+        keys = friction_registry.friction_model(result.identification.parameters.model).keys
         for name, entry in result.identification.as_dict()["parameters"].items():
             interval = entry.get("ci95")
-            if name in FRICTION and interval and 0.0 < interval[0] < interval[1] < math.inf:
+            if name in keys and interval and 0.0 < interval[0] < interval[1] < math.inf:
                 sigma = (math.log(interval[1]) - math.log(interval[0])) / (2.0 * Z95)
                 spreads[name] = min(max(spreads.get(name, 0.0), sigma), MAX_LOG_SIGMA)
     return spreads
 
 
-def friction_inputs(spreads: dict[str, float]) -> tuple[UncertainInput, ...]:
-    """Each parameter's factor: lognormal of median 1 and σ_θ truncated to the 95 % interval where
-    the identification gives one (however wide: a weakly identifiable parameter is that
-    uncertain), else uniform ±FRICTION_SPREAD."""
+def friction_inputs(spreads: dict[str, float], model: str = friction_registry.DEFAULT) -> tuple[UncertainInput, ...]:
+    """Each parameter's factor (of the friction model ``model``, drawn per joint): lognormal of
+    median 1 and σ_θ truncated to the 95 % interval where the identification gives one (however
+    wide: a weakly identifiable parameter is that uncertain), else uniform ±FRICTION_SPREAD."""
     inputs = []
-    for name in FRICTION:
+    for name in friction_registry.friction_model(model).keys:
         sigma = spreads.get(name)
         if sigma is None or not sigma > 0.0:
             low, high = 1.0 - FRICTION_SPREAD, 1.0 + FRICTION_SPREAD
@@ -61,4 +62,4 @@ def friction_inputs(spreads: dict[str, float]) -> tuple[UncertainInput, ...]:
     return tuple(inputs)
 
 
-__all__ = ["FRICTION", "FRICTION_SPREAD", "MAX_LOG_SIGMA", "Z95", "friction_inputs", "friction_spreads"]
+__all__ = ["FRICTION_SPREAD", "MAX_LOG_SIGMA", "Z95", "friction_inputs", "friction_spreads"]

@@ -20,7 +20,7 @@ import numpy as np
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.filter import ActiveLqg
 from smartjoint.design.control.lqg import LqgDesign, check_sample_time
-from smartjoint.design.friction import lugre
+from smartjoint.design.friction.model import joint_parameters
 from smartjoint.design.plant.disturbance import TriangularPulse, triangular_pulse
 from smartjoint.design.plant.interface import ConstantNormalForce, Controller, HoldDuringExcitation
 from smartjoint.design.plant.loop import SimulationResult, simulate
@@ -128,7 +128,7 @@ def setup(design, model: ModalModel, plant: ModalModel | None = None) -> StudySe
     return StudySetup(
         model,
         plant if plant is not None else model,
-        lugre.joint_laws(design),
+        joint_parameters(design),
         float(c.sample_time),
         low,
         high,

@@ -16,9 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from smartjoint.common import law_registry
+from smartjoint.common import friction_registry, law_registry
 from smartjoint.common.errors import MISSING, DesignError
-from smartjoint.design.structure.description import FRICTION_PARAMETERS
 from smartjoint.design.structure.files import read_file, read_toml
 from smartjoint.design.structure.table import DesignTable
 
@@ -229,8 +228,9 @@ def _inputs(table: DesignTable) -> tuple[tuple[UncertainInput, ...], bool]:
                         )
                     identified = True
                     continue
-                if parameter not in FRICTION_PARAMETERS:
-                    allowed = "unknown LuGre parameter; allowed: " + ", ".join(FRICTION_PARAMETERS)
+                keys = [key for model in friction_registry.MODELS.values() for key in model.keys]
+                if parameter not in keys:
+                    allowed = "unknown friction parameter; allowed: " + ", ".join(keys)
                     raise friction.error(parameter, friction.data[parameter], allowed)
                 distribution = distribution_of(friction.table(parameter), FACTOR)
                 found.append(UncertainInput(f"friction.{parameter}", distribution))

@@ -48,7 +48,7 @@ import numpy as np
 import scipy.optimize
 
 from smartjoint.common.errors import SmartjointError
-from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction import lugre
 from smartjoint.design.friction.fitting import StepResult, filtered_velocity, nrmse, rms, step_result
 from smartjoint.design.friction.output_error import P3, output_error_blocker, refine
 from smartjoint.design.friction.record_screening import check_records, joint_radius, slides
@@ -208,10 +208,10 @@ def _initial_guess(
 
 
 def _check_plausible(values: dict[str, float], joint_type: str, stage: str) -> None:
-    """``RecordError`` when a start or result leaves the plausible range (``rig.PARAMETER_BOUNDS``):
+    """``RecordError`` when a start or result leaves the plausible range (``lugre.PLAUSIBLE``):
     the records then do not determine the parameters (e.g. a velocity of 1e-300 m/s)."""
     for name, value in values.items():
-        lower, upper, _ = rig.PARAMETER_BOUNDS[name][0 if joint_type == "A" else 1]
+        lower, upper, _ = lugre.PLAUSIBLE[name][0 if joint_type == "A" else 1]
         if not (math.isfinite(value) and lower < value <= upper):
             raise RecordError(
                 f"identify: the records give {name} = {value:.6g} as {stage} — plausible: > {lower:g} "

@@ -32,15 +32,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
-from smartjoint.common.errors import MISSING, DesignError
+from smartjoint.common.friction_registry import LUGRE
+from smartjoint.design.friction.record_quantities import bound
 
 
 @dataclass(frozen=True)
 class LuGreParameters:
-    """LuGre parameters per unit normal force (paper Table 1 units)."""
+    """LuGre parameters per unit normal force (paper Table 1 units): the parameter set of the
+    registry's ``lugre`` model (``common/friction_registry.py``), its fields its keys."""
+
+    model: ClassVar[str] = LUGRE.name
 
     sigma0: float  # bristle stiffness σ0 [1/m] (type B: [1/rad])
     sigma1: float  # bristle damping σ1 [s/m]
@@ -51,12 +56,12 @@ class LuGreParameters:
     radius: float | None = None  # r [m] of a type B joint: moment = r·F_R
 
     def __post_init__(self):
-        for name in ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity"):
-            value = getattr(self, name)
+        for parameter in LUGRE.parameters:
+            value = getattr(self, parameter.key)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"LuGre parameter {name}: {value!r} — must be a finite number >= 0")
-        if self.sigma0 <= 0.0 or self.coulomb <= 0.0 or self.stribeck_velocity <= 0.0:
-            raise ValueError("LuGre parameters sigma0, coulomb and stribeck_velocity must be > 0")
+                raise ValueError(f"LuGre parameter {parameter.key}: {value!r} — must be a finite number >= 0")
+            if value <= 0.0 and not parameter.may_be_zero:
+                raise ValueError(f"LuGre parameter {parameter.key}: {value!r} — must be > 0")
         if self.radius is not None and not (math.isfinite(self.radius) and self.radius > 0.0):
             raise ValueError(f"LuGre parameter radius: {self.radius!r} — must be > 0 for a type B joint")
 
@@ -69,6 +74,13 @@ class LuGreParameters:
     def moment_arm(self) -> float:
         """Factor from F_N·μ to the generalised force u_R: r for type B, 1 for type A."""
         return self.radius if self.radius is not None else 1.0
+
+    def values(self) -> dict[str, float]:
+        """The parameters by key, in the registry's order (the radius apart)."""
+        return {key: getattr(self, key) for key in LUGRE.keys}
+
+
+Parameters = LuGreParameters  # the model's parameter set (``design.friction.model.FrictionLaw``)
 
 
 # Paper Table 1 (identified on the isolated joints).
@@ -83,37 +95,25 @@ CANUDAS_1995 = LuGreParameters(
 )
 
 
-def joint_laws(design) -> list[LuGreParameters]:
-    """LuGre parameters per joint of a design, as its design file gives them.
+# The rig's plausible ranges per unit normal force (type A, type B): (lower, upper, lower
+# allowed). Table 1 sits well inside; outside, the record bounds would be left or the rig's
+# 20 kHz sampling could not follow the bristles.
+PLAUSIBLE = {
+    "sigma0": ((0.0, 1e10, False), (0.0, 1e10, False)),
+    "sigma1": ((0.0, 1e4, True), (0.0, 1e4, True)),
+    "sigma2": ((0.0, 1e4, True), (0.0, 1e4, True)),
+    "coulomb": ((0.0, 10.0, False), (0.0, 10.0, False)),
+    "stribeck": ((0.0, 10.0, True), (0.0, 10.0, True)),
+    "stribeck_velocity": ((0.0, bound("sliding_velocity", "A"), False), (0.0, bound("sliding_velocity", "B"), False)),
+}
 
-    Parameters
-    ----------
-    design : Design
-        The design whose ``joints`` are read in order; each joint's own ``friction`` or its
-        type's ``[friction.X]`` table.
 
-    Returns
-    -------
-    list of LuGreParameters
+def breakaway_coefficient(p: LuGreParameters) -> float:
+    """F_s = F_c + F_d: the static friction coefficient, the break-away level per unit r·F_N.
 
-    Raises
-    ------
-    DesignError
-        For a joint without parameters: nothing falls back to the paper's Table 1.
+    Reads F_c and F_d of ``p``.
     """
-    laws = []
-    for index, joint in enumerate(design.joints):
-        friction = design.joint_friction(joint)
-        if friction is None:
-            raise DesignError(
-                f"joints[{index}].friction",
-                MISSING,
-                f"joint {joint.name!r} (type {joint.type}) has no LuGre parameters — give [friction.{joint.type}] "
-                "(inline or file = …) or the joint's own friction",
-                design.source,
-            )
-        laws.append(LuGreParameters(**friction.values(), radius=friction.radius))
-    return laws
+    return p.coulomb + p.stribeck
 
 
 def stribeck_level(p: LuGreParameters, velocity):
@@ -237,13 +237,15 @@ def step(p: LuGreParameters, deflection, velocity, dt: float):
 __all__ = [
     "CANUDAS_1995",
     "LuGreParameters",
+    "PLAUSIBLE",
+    "Parameters",
     "TABLE_1",
     "TYPE_A",
     "TYPE_B",
+    "breakaway_coefficient",
     "friction_coefficient",
     "friction_force",
     "g",
-    "joint_laws",
     "rhs",
     "rhs_jacobian",
     "steady_state_coefficient",

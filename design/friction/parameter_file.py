@@ -15,13 +15,8 @@ import importlib.metadata
 import math
 from pathlib import Path
 
+from smartjoint.common import friction_registry
 from smartjoint.design.friction.identify import Identification
-
-PARAMETERS = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")
-UNITS = {
-    "A": ("1/m", "s/m", "s/m", "", "", "m/s"),
-    "B": ("1/rad", "s/rad", "s/rad", "", "", "rad/s"),
-}
 
 
 def provenance(identification: Identification, record_hashes: dict[str, str], output_error: bool) -> str:
@@ -80,19 +75,23 @@ def result_text(identification: Identification, record_hashes: dict[str, str], o
     Returns
     -------
     str
-        TOML: ``joint_type``, the six parameters, ``radius`` (type B) and ``[identification]``.
+        TOML: ``joint_type``, the model's parameters, ``radius`` (type B) and ``[identification]``.
     """
     hashes = record_hashes
     summary = identification.as_dict()
     p = identification.parameters
-    units = UNITS[identification.joint_type]
+    model = friction_registry.friction_model(p.model)
     lines = [
-        f"# LuGre parameters of a type {identification.joint_type} joint identified by smartjoint {_version()}",
+        f"# {model.display} parameters of a type {identification.joint_type} joint identified by smartjoint "
+        f"{_version()}",
         "# from rig records (paper Eq. 3 and the output-error step; docs/identification.md).",
         f'joint_type = "{identification.joint_type}"',
     ]
-    for name, unit in zip(PARAMETERS, units):
-        lines.append(f"{name} = {_number(getattr(p, name))}" + (f"  # [{unit}]" if unit else ""))
+    if model.name != friction_registry.DEFAULT:  # a file without ``model`` is the default model's
+        lines.append(f'model = "{model.name}"')
+    for parameter, value in zip(model.parameters, p.values().values()):
+        unit = parameter.unit(identification.joint_type)
+        lines.append(f"{parameter.key} = {_number(value)}" + (f"  # [{unit}]" if unit else ""))
     if p.radius is not None:
         lines.append(f"radius = {_number(p.radius)}  # [m]")
     lines += [
@@ -132,4 +131,4 @@ def _escaped(text: str) -> str:
     return text.replace("\\", "\\\\").replace('"', '\\"')
 
 
-__all__ = ["PARAMETERS", "UNITS", "file_hashes", "provenance", "result_text"]
+__all__ = ["file_hashes", "provenance", "result_text"]

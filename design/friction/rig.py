@@ -16,9 +16,12 @@ The test sets are designed in ``rig_campaign`` from a prior the experimenter bel
 rig description; the parameters simulated enter only here, through ``simulate``. A record's
 ``regime`` is the one it shows (``record_screening.classify``: whether the element slides).
 
-The rig simulates any LuGre parameter set (``parameter_set``: from numbers, a TOML file or
-the paper's Table 1 when the caller asks for nothing else); every record it writes carries the
-joint type, the radius of a type B joint and the name of the parameter set.
+The rig simulates any parameter set of a friction model of the registry
+(``common/friction_registry.py``; LuGre by default): ``parameter_set`` checks it against the
+model's parameters and the plausible ranges of its law (``PLAUSIBLE``), from numbers, a TOML file
+or the paper's Table 1 when the caller asks for nothing else; the record is integrated by the
+model's ``rig`` entry. Every record it writes carries the joint type, the radius of a type B
+joint and the name of the parameter set.
 """
 
 from __future__ import annotations
@@ -30,12 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
+from smartjoint.common import friction_registry
 from smartjoint.common.errors import SmartjointError
-from smartjoint.design.friction import lugre
+from smartjoint.design.friction.model import FrictionParameters, law_of
 from smartjoint.design.friction.record_quantities import MIN_RADIUS, bound
 from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.friction.records import Record, friction_from_excitation
-from smartjoint.design.friction.rig_integration import SUBSTEPS, integrate
+from smartjoint.design.friction.rig_integration import SUBSTEPS
 
 
 class RigError(SmartjointError, ValueError):
@@ -43,50 +47,34 @@ class RigError(SmartjointError, ValueError):
 
 
 MAX_SAMPLES = 500_000  # per record: 25 s at 20 kHz, a CSV of about 35 MB (records.MAX_BYTES is 64 MiB)
-# Plausible LuGre parameters per unit normal force (Table 1 units; type A, type B): (lower, upper,
-# lower allowed). Table 1 sits well inside; outside, the record bounds would be left or the
-# rig's 20 kHz sampling could not follow the bristles.
-PARAMETER_BOUNDS = {
-    "sigma0": ((0.0, 1e10, False), (0.0, 1e10, False)),  # [1/m] / [1/rad]
-    "sigma1": ((0.0, 1e4, True), (0.0, 1e4, True)),  # [s/m] / [s/rad]
-    "sigma2": ((0.0, 1e4, True), (0.0, 1e4, True)),
-    "coulomb": ((0.0, 10.0, False), (0.0, 10.0, False)),  # dimensionless
-    "stribeck": ((0.0, 10.0, True), (0.0, 10.0, True)),
-    "stribeck_velocity": ((0.0, bound("sliding_velocity", "A"), False), (0.0, bound("sliding_velocity", "B"), False)),
-}
-PARAMETER_UNITS = {
-    "sigma0": ("1/m", "1/rad"),
-    "sigma1": ("s/m", "s/rad"),
-    "sigma2": ("s/m", "s/rad"),
-    "coulomb": ("", ""),
-    "stribeck": ("", ""),
-    "stribeck_velocity": ("m/s", "rad/s"),
-}
-LUGRE_NAMES = tuple(PARAMETER_BOUNDS)
 TABLE_1_SOURCE = "paper Table 1"
 
 
 @dataclass(frozen=True)
 class ParameterSet:
-    """LuGre parameters for the rig and where they came from (``source``, shown in the output)."""
+    """A friction model's parameters for the rig and where they came from (``source``, shown in
+    the output)."""
 
     joint_type: str
-    parameters: lugre.LuGreParameters
+    parameters: FrictionParameters
     source: str
 
     def as_dict(self) -> dict:
-        values = {n: getattr(self.parameters, n) for n in LUGRE_NAMES}
+        values = self.parameters.values()
         if self.parameters.radius is not None:
             values["radius"] = self.parameters.radius
         return {"source": self.source, "joint_type": self.joint_type, "values": values}
 
     def describe(self) -> str:
         values = ", ".join(f"{n} = {v:g}" for n, v in self.as_dict()["values"].items())
-        return f"LuGre parameters ({self.source}, type {self.joint_type}): {values}"
+        display = friction_registry.friction_model(self.parameters.model).display
+        return f"{display} parameters ({self.source}, type {self.joint_type}): {values}"
 
 
-def parameter_set(joint_type: str, values: dict | None = None, source: str = "command line") -> ParameterSet:
-    """Check a LuGre parameter set for the rig: all six parameters, plus ``radius`` [m] for type B.
+def parameter_set(
+    joint_type: str, values: dict | None = None, source: str = "command line", model: str = friction_registry.DEFAULT
+) -> ParameterSet:
+    """Check a parameter set of ``model`` for the rig: all its parameters, plus ``radius`` [m] for type B.
 
     Parameters
     ----------
@@ -96,16 +84,22 @@ def parameter_set(joint_type: str, values: dict | None = None, source: str = "co
         The parameters by name; None gives the paper's Table 1 — only then.
     source : str
         The origin named in the errors (``joint.toml``, ``command line``).
+    model : str
+        The friction model of the registry.
 
     Returns
     -------
     ParameterSet
     """
+    entry = friction_registry.friction_model(model, f"{source}: model")
+    law = law_of(entry.name)
     if joint_type not in ("A", "B"):
         raise RigError(f"{source}: joint_type: {joint_type!r} — allowed: 'A', 'B'")
     if values is None:
-        return ParameterSet(joint_type, lugre.TABLE_1[joint_type], TABLE_1_SOURCE)
-    allowed = LUGRE_NAMES + (("radius",) if joint_type == "B" else ())
+        if joint_type not in law.TABLE_1:
+            raise RigError(f"{source}: the paper gives no {entry.display} parameters — give them")
+        return ParameterSet(joint_type, law.TABLE_1[joint_type], TABLE_1_SOURCE)
+    allowed = entry.keys + (("radius",) if joint_type == "B" else ())
     for key in values:
         if key == "radius" and joint_type == "A":
             raise RigError(f"{source}: radius: a type A joint has no radius — allowed only for type B")
@@ -123,8 +117,8 @@ def parameter_set(joint_type: str, values: dict | None = None, source: str = "co
         if key == "radius":
             lower, upper, inclusive, unit = MIN_RADIUS, bound("radius", "B"), True, "m"
         else:
-            lower, upper, inclusive = PARAMETER_BOUNDS[key][0 if joint_type == "A" else 1]
-            unit = PARAMETER_UNITS[key][0 if joint_type == "A" else 1]
+            lower, upper, inclusive = law.PLAUSIBLE[key][0 if joint_type == "A" else 1]
+            unit = entry.parameter(key).unit(joint_type)
         if not ((value >= lower if inclusive else value > lower) and value <= upper):
             relation = ">=" if inclusive else ">"
             raise RigError(
@@ -132,12 +126,13 @@ def parameter_set(joint_type: str, values: dict | None = None, source: str = "co
                 f"{' ' + unit if unit else ''}"
             )
         checked[key] = float(value)
-    return ParameterSet(joint_type, lugre.LuGreParameters(**checked), source)
+    return ParameterSet(joint_type, law.Parameters(**checked), source)
 
 
 def load_parameter_set(path: str | Path, joint_type: str | None = None) -> ParameterSet:
-    """A parameter set from a TOML file: the six LuGre keys, ``radius`` for type B and an
-    optional ``joint_type`` (must agree with ``joint_type`` when both are given).
+    """A parameter set from a TOML file: the model's keys (``model``, default LuGre's six),
+    ``radius`` for type B and an optional ``joint_type`` (must agree with ``joint_type`` when
+    both are given).
 
     Parameters
     ----------
@@ -173,7 +168,10 @@ def load_parameter_set(path: str | Path, joint_type: str | None = None) -> Param
         raise RigError(f"{source}: joint_type: {declared!r} — allowed: 'A', 'B'")
     if declared is not None and joint_type is not None and declared != joint_type:
         raise RigError(f"{source}: joint_type: {declared!r}, but --type {joint_type} was given — make them agree")
-    return parameter_set(declared or joint_type or "A", values, source)
+    model = values.pop("model", friction_registry.DEFAULT)
+    if model not in friction_registry.MODELS:
+        raise RigError(f"{source}: model: {model!r} — allowed: {', '.join(friction_registry.MODELS)}")
+    return parameter_set(declared or joint_type or "A", values, source, model)
 
 
 @dataclass(frozen=True)
@@ -193,12 +191,12 @@ class RigTest:
         return f"rig_{self.joint_type}_FN{self.normal_force:g}_A{self.amplitude:g}_f{self.frequency:g}"
 
 
-def breakaway(parameters: lugre.LuGreParameters, normal_force: float) -> float:
-    """Static friction level r·F_N·(F_c + F_d): the excitation amplitude between the regimes.
+def breakaway(parameters: FrictionParameters, normal_force: float) -> float:
+    """Static friction level r·F_N·F_s (LuGre: F_s = F_c + F_d): the excitation amplitude between the regimes.
 
     Parameters
     ----------
-    parameters : LuGreParameters
+    parameters : FrictionParameters
         The joint.
     normal_force : float
         F_N [N].
@@ -208,17 +206,17 @@ def breakaway(parameters: lugre.LuGreParameters, normal_force: float) -> float:
     float
         [N] (type B: [N·m]).
     """
-    return parameters.moment_arm * normal_force * (parameters.coulomb + parameters.stribeck)
+    return parameters.moment_arm * normal_force * law_of(parameters.model).breakaway_coefficient(parameters)
 
 
-def check_test(test: RigTest, parameters: lugre.LuGreParameters) -> None:
+def check_test(test: RigTest, parameters: FrictionParameters) -> None:
     """``RigError`` unless the test can be run and its record written (finite, positive, bounded).
 
     Parameters
     ----------
     test : RigTest
         The test.
-    parameters : LuGreParameters
+    parameters : FrictionParameters
         The joint it runs on.
     """
     if test.joint_type not in ("A", "B"):
@@ -257,15 +255,15 @@ def check_test(test: RigTest, parameters: lugre.LuGreParameters) -> None:
         raise RigError(f"radius: {parameters.radius!r} — a type A joint has no radius")
 
 
-def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None, source: str | None = None) -> Record:
+def simulate(test: RigTest, parameters: FrictionParameters | None = None, source: str | None = None) -> Record:
     """Run the rig and return the (noisy) record; the friction column is F_exc − m·a.
 
     Parameters
     ----------
     test : RigTest
         The test.
-    parameters : LuGreParameters, optional
-        None: the paper's Table 1 for the test's joint type.
+    parameters : FrictionParameters, optional
+        None: the paper's Table 1 (LuGre) for the test's joint type.
     source : str, optional
         The parameter set's name in the record's metadata (default: Table 1 or "given").
 
@@ -275,7 +273,8 @@ def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None, sou
     """
     if test.joint_type not in ("A", "B"):
         raise RigError(f"joint_type: {test.joint_type!r} — allowed: 'A', 'B'")
-    p = parameters or lugre.TABLE_1[test.joint_type]
+    p = parameters or law_of(friction_registry.DEFAULT).TABLE_1[test.joint_type]
+    entry = friction_registry.friction_model(p.model)
     if source is None:
         source = TABLE_1_SOURCE if parameters is None else "given"
     check_test(test, p)
@@ -284,9 +283,10 @@ def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None, sou
     duration = test.cycles / test.frequency
     time = np.arange(0.0, duration, 1.0 / test.sample_rate)
     fine = np.linspace(0.0, time[-1], (time.size - 1) * SUBSTEPS + 1)
+    integrate = entry.rig_integration()
     velocity, deflection = integrate(p, gain, test.inertia, test.amplitude * np.sin(omega * fine), time, SUBSTEPS)
     force = test.amplitude * np.sin(omega * time)
-    true_friction = gain * lugre.friction_coefficient(p, velocity, deflection)
+    true_friction = gain * law_of(p.model).friction_coefficient(p, velocity, deflection)
     rng = np.random.default_rng(test.seed)
     if test.noise > 0:
         velocity = velocity + test.noise * np.sqrt(np.mean(velocity**2)) * rng.standard_normal(time.size)
@@ -314,10 +314,7 @@ def simulate(test: RigTest, parameters: lugre.LuGreParameters | None = None, sou
 
 
 __all__ = [
-    "LUGRE_NAMES",
     "MAX_SAMPLES",
-    "PARAMETER_BOUNDS",
-    "PARAMETER_UNITS",
     "ParameterSet",
     "RigError",
     "RigTest",

@@ -16,14 +16,15 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction import rig
 from smartjoint.design.friction.identify import Identification, identify
+from smartjoint.design.friction.model import joint_parameters
 from smartjoint.design.friction.parameter_file import file_hashes, provenance, result_text
 from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.friction.records import Record, read_record
 from smartjoint.design.friction.rig_campaign import campaign, run_campaign
 from smartjoint.design.structure import placement
-from smartjoint.design.structure.description import FRICTION_PARAMETERS, Design, JointFriction
+from smartjoint.design.structure.description import Design, JointFriction
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.solved import SolvedModel, solved_model
 from smartjoint.design.structure.spec import load_design
@@ -138,7 +139,7 @@ def friction_stage(design: Design, staging: Path, progress) -> tuple[Design, lis
         if joint_type in named:
             results[joint_type] = _identify_records(design, joint_type, named[joint_type], staging, progress)
             design = design.with_friction(results[joint_type].used)
-    lugre.joint_laws(design)  # every other joint has parameters in the design file: one line if not
+    joint_parameters(design)  # every other joint has parameters in the design file: one line if not
     for joint_type in types:
         if joint_type not in results:
             results[joint_type] = _rig_check(design, joint_type, progress)
@@ -157,10 +158,11 @@ def _identify_records(design: Design, joint_type: str, named, staging: Path, pro
     p = identification.parameters
     used = JointFriction(
         joint_type,
-        **{n: getattr(p, n) for n in FRICTION_PARAMETERS},
+        tuple(p.values().items()),
         radius=p.radius,
         source=f"identified by this run from {len(paths)} rig records",
         sha256=provenance(identification, hashes, True),
+        model=p.model,
     )
     stated = design.friction.get(joint_type)
     return JointTypeFriction(joint_type, identification, used, stated, [str(x) for x in paths], False, name)
@@ -172,8 +174,8 @@ def _rig_check(design: Design, joint_type: str, progress) -> JointTypeFriction:
     same parameters as its prior (a check of the identification, not an experiment)."""
     joint = next(j for j in design.joints if j.type == joint_type)
     stated = design.joint_friction(joint)
-    assert stated is not None  # lugre.joint_laws checked every joint
-    truth = lugre.joint_laws(dataclasses.replace(design, joints=(joint,)))[0]
+    assert stated is not None  # joint_parameters checked every joint
+    truth = joint_parameters(dataclasses.replace(design, joints=(joint,)))[0]
     progress(
         f"      type {joint_type}: no records named — the rig simulated with the design's parameters "
         f"({os.path.basename(stated.source)}; prior = the simulated parameters), {RIG_NOISE:.0%} noise, "

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.common.errors import ModelError
+from smartjoint.design.friction.model import plant_laws
 from smartjoint.design.plant.discretisation import discretise, step_works, work_coefficients
 from smartjoint.design.plant.interface import Measurements
 from smartjoint.design.plant.joints import JointLaws
@@ -93,7 +94,7 @@ class PlantTables:
         self.Vy = np.ascontiguousarray(model.velocity_output, dtype=float)
         self.Dy = np.ascontiguousarray(model.displacement_output / model.omega, dtype=float)
         self.two_xi_w = 2.0 * model.damping * model.omega
-        self.law = JointLaws(joints)
+        self.law = plant_laws(joints)
         levels = MAX_HALVINGS + 1
         self.phi, self.g0, self.g1 = (
             np.zeros((levels, 4, self.n)),

@@ -1,4 +1,5 @@
-"""The LuGre friction laws of the plant's joints (Eq. 1–2), vectorised over the joints."""
+"""The LuGre friction laws of the plant's joints (Eq. 1–2), vectorised over the joints: the
+``plant`` of the registry's ``lugre`` model (``common/friction_registry.py``)."""
 
 from __future__ import annotations
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.friction import lugre
+from smartjoint.design.friction.model import FrictionParameters
 from smartjoint.design.plant import disturbance as disturbances
 from smartjoint.design.plant import schemes
 from smartjoint.design.plant.fixed_step import MAX_DISTURBANCES
@@ -197,7 +197,7 @@ def result(r, model: ModalModel, step: float, record_every: int) -> SimulationRe
 
 def simulate(
     model: ModalModel,
-    joints: list[lugre.LuGreParameters],
+    joints: list[FrictionParameters],
     controller: Controller,
     disturbance: Callable[[float], np.ndarray] | None = None,
     duration: float = 1.0,
@@ -217,8 +217,8 @@ def simulate(
     ----------
     model : ModalModel
         The modal model of Eq. 12 (full or reduced).
-    joints : list of LuGreParameters
-        One LuGre law per joint (Eq. 1–2); empty for the frictionless ``linear`` scheme.
+    joints : list of FrictionParameters
+        One parameter set per joint (LuGre: Eq. 1–2); empty for the frictionless ``linear`` scheme.
     controller : Controller
         Called every ``controller.sample_time`` (a whole multiple of ``step``); one with
         ``holds_constant = True`` is asked once, and the whole run is one kernel call.

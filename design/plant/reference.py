@@ -9,14 +9,13 @@ from collections.abc import Callable
 import numpy as np
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.friction import lugre
-from smartjoint.design.plant.joints import JointLaws
+from smartjoint.design.friction.model import FrictionParameters, plant_laws
 from smartjoint.design.structure.modal import ModalModel
 
 
 def reference_system(
     model: ModalModel,
-    joints: list[lugre.LuGreParameters],
+    joints: list[FrictionParameters],
     normal_forces,
     disturbance: Callable[[float], np.ndarray] | None,
 ):
@@ -27,7 +26,7 @@ def reference_system(
     ----------
     model : ModalModel
         The modal model.
-    joints : list of LuGreParameters
+    joints : list of FrictionParameters
         One LuGre law per joint (Eq. 1–2).
     normal_forces : array_like
         F_N per joint, constant over the run.
@@ -40,7 +39,7 @@ def reference_system(
         (rhs(t, z), jac(t, z), number of structural states, friction(Z) -> u_R).
     """
     l = model.joint_input.shape[1]
-    law = JointLaws(joints)
+    law = plant_laws(joints)
     fn = np.asarray(normal_forces, dtype=float)
     A, B, H, Cv, _ = model.state_space()
     ns = A.shape[0]
@@ -86,7 +85,7 @@ def reference_system(
 
 def reference_simulation(
     model: ModalModel,
-    joints: list[lugre.LuGreParameters],
+    joints: list[FrictionParameters],
     normal_forces,
     disturbance: Callable[[float], np.ndarray] | None,
     duration: float,

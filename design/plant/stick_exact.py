@@ -35,8 +35,8 @@ import math
 import numpy as np
 
 from smartjoint.common.errors import ModelError
+from smartjoint.design.friction.model import plant_laws
 from smartjoint.design.plant.discretisation import first_order_hold
-from smartjoint.design.plant.joints import JointLaws
 from smartjoint.design.plant.kernel import LAW_FIELDS, NativeStructs, PlantRun, Recorder, State, choose_kernel
 
 KAPPA = 0.05  # ρ·h below which a joint counts as stuck for a step h
@@ -363,7 +363,7 @@ def kernel(run: PlantRun):
     """``Scheme.kernel`` (``kernel.py``): ``sj_stick_run`` of plant_kernel.c (backend "c"), its
     numpy mirror ("python") or the C where it builds ("auto"); ``counts`` the steps taken per length."""
     assert run.stick_step is not None  # the scheme runs only with a stick step (see check)
-    plant = StickPlant(run.model, JointLaws(run.joints), run.step, float(run.stick_step))
+    plant = StickPlant(run.model, plant_laws(run.joints), run.step, float(run.stick_step))
     return choose_kernel(run, "stick-exact simulation", plant, _StickC, _StickPython, _C_FAILURE)
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
-from smartjoint.design.friction.lugre import joint_laws
+from smartjoint.design.friction.model import joint_parameters
 from smartjoint.design.reduction.krylov import reduce
 from smartjoint.design.reduction.metrics import error_metrics
 from smartjoint.design.structure import modal
@@ -60,7 +60,7 @@ def _compared_run(count: int, reduced, result, reference, errors: dict, metrics:
 def _pulse_simulation(design, normal_forces: np.ndarray, duration: float, step: float):
     """``plant.simulate`` of a model under the study's run: the design's joint laws, the normal
     forces held constant, the paper's tip pulse (200 N along every input), no energy books."""
-    laws = joint_laws(design)
+    laws = joint_parameters(design)
     controller = plant.ConstantNormalForce(normal_forces, 1e-3)
     pulse = plant.triangular_pulse(directions=np.ones(len(design.disturbances)))  # 200 N along every input
 

@@ -10,12 +10,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from smartjoint.common import friction_registry
 from smartjoint.common.errors import DesignError
 
 DOF_NAMES = ("ux", "uy", "uz", "rx", "ry", "rz")
 JOINT_TYPES = ("A", "B")
 SENSOR_QUANTITIES = ("displacement", "velocity")
-FRICTION_PARAMETERS = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")
 
 
 @dataclass(frozen=True)
@@ -111,28 +111,25 @@ class Support:
 
 @dataclass(frozen=True)
 class JointFriction:
-    """LuGre parameters of a joint per unit normal force (paper Eq. 1–2, the columns of Table 1)
-    and where they came from.
+    """A joint's friction parameters per unit normal force and where they came from.
 
-    σ0 [1/m], σ1 and σ2 [s/m], F_c and F_d (friction coefficients), v_s [m/s] — per radian for a
-    type B joint, which also has its contact radius r [m]. ``source`` names the design file and
-    key or the parameter file; ``sha256`` is that file's hash (empty when given inline).
+    ``model`` names the friction model of ``common/friction_registry.py`` (LuGre, Eq. 1–2: the
+    columns of Table 1); ``parameters`` holds its parameters as (key, value) pairs in the
+    model's order — per radian for a type B joint, which also has its contact radius r [m].
+    ``source`` names the design file and key or the parameter file; ``sha256`` is that file's
+    hash (empty when given inline).
     """
 
     joint_type: str  # "A" | "B"
-    sigma0: float
-    sigma1: float
-    sigma2: float
-    coulomb: float
-    stribeck: float
-    stribeck_velocity: float
+    parameters: tuple[tuple[str, float], ...]
     radius: float | None
     source: str
     sha256: str = ""
+    model: str = friction_registry.DEFAULT
 
     def values(self) -> dict[str, float]:
-        """The six LuGre parameters by name (``FRICTION_PARAMETERS``), without the radius."""
-        return {name: getattr(self, name) for name in FRICTION_PARAMETERS}
+        """The model's parameters by key, without the radius."""
+        return dict(self.parameters)
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,7 @@
-"""The friction of a design's joints (docs/design-file.md): the LuGre parameters of each joint
-(paper Eq. 1–2, the columns of Table 1) and the rig records that ``smartjoint run`` identifies.
+"""The friction of a design's joints (docs/design-file.md): the friction parameters of each
+joint — of the model its table names (``model``, default ``lugre``: paper Eq. 1–2, the columns of
+Table 1; the models and their parameters are ``common/friction_registry.py``'s) — and the rig
+records that ``smartjoint run`` identifies.
 
 ::
 
@@ -19,7 +21,7 @@
 
 A joint may carry its own (``friction = "file.toml"`` or an inline table in its ``[[joints]]``
 entry). Nothing falls back to the paper's Table 1: a joint without parameters is reported by the
-first stage that needs them (``friction.lugre.joint_laws``). Only sign and finiteness are
+first stage that needs them (``friction.model.joint_parameters``). Only sign and finiteness are
 checked here; the rig's plausible ranges are the friction stage's.
 """
 
@@ -30,8 +32,9 @@ import hashlib
 import tomllib
 from pathlib import Path
 
+from smartjoint.common import friction_registry
 from smartjoint.common.errors import DesignError
-from smartjoint.design.structure.description import FRICTION_PARAMETERS, JOINT_TYPES, JointFriction
+from smartjoint.design.structure.description import JOINT_TYPES, JointFriction
 from smartjoint.design.structure.files import read_file
 from smartjoint.design.structure.table import DesignTable
 
@@ -39,8 +42,6 @@ MAX_PARAMETER_FILE_BYTES = 1 << 20  # a parameter or identification file: a few 
 MAX_RECORDS = 200  # rig records named by one design
 # Identification metadata a parameter file may carry beside the values (`smartjoint identify -o`).
 METADATA_TABLES = ("identification",)
-# Parameters that may be zero (no bristle damping, no viscous friction, no Stribeck excess).
-MAY_BE_ZERO = ("sigma1", "sigma2", "stribeck")
 
 
 def parse_friction(root: DesignTable, written_in: str) -> tuple[dict[str, JointFriction], tuple[str, ...]]:
@@ -122,17 +123,19 @@ def joint_own_friction(t: DesignTable, joint_type: str, written_in: str) -> Join
 
 
 def _values(t: DesignTable, joint_type: str, source: str, sha256: str) -> JointFriction:
-    """The six parameters (and the radius of type B) from ``t``, each finite and of its sign."""
-    values = {}
-    for name in FRICTION_PARAMETERS:
-        zero_allowed = name in MAY_BE_ZERO
-        values[name] = t.number(name, non_negative=zero_allowed, positive=not zero_allowed)
+    """The model's parameters (and the radius of type B) from ``t``, each finite and of its sign."""
+    name = t.string("model", friction_registry.DEFAULT, tuple(friction_registry.MODELS))
+    model = friction_registry.MODELS[name]
+    values = []
+    for parameter in model.parameters:
+        zero = parameter.may_be_zero
+        values.append((parameter.key, t.number(parameter.key, non_negative=zero, positive=not zero)))
     radius = None
     if joint_type == "B":
         radius = t.number("radius", positive=True)
     elif "radius" in t.data:
         raise t.error("radius", t.data["radius"], "a type A joint has no radius — allowed only for type B")
-    return JointFriction(joint_type, **values, radius=radius, source=source, sha256=sha256)
+    return JointFriction(joint_type, tuple(values), radius=radius, source=source, sha256=sha256, model=name)
 
 
 def _parameter_file(path: Path, joint_type: str, key: str, source: str) -> JointFriction:
