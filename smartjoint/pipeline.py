@@ -46,15 +46,23 @@ from smartjoint.design.friction.stage import friction_entries, friction_stage, p
 from smartjoint.design.network import protocol
 from smartjoint.design.reduction import reduction_study, study_summary
 from smartjoint.design.structure.solved import solved_model
-from smartjoint.pipeline_ensemble import ensemble_stage
-from smartjoint.pipeline_fmu import fmu_stage
-from smartjoint.pipeline_target import pil_stage
-from smartjoint.pipeline_target import summary_of as pil_summary
+from smartjoint.pipeline_ensemble import ensemble_markdown, ensemble_stage
+from smartjoint.pipeline_fmu import fmu_markdown, fmu_stage
+from smartjoint.pipeline_target import pil_markdown, pil_stage
 from smartjoint.report_control import control_markdown, plot_control_study, tuning_plots
 from smartjoint.report_folder import ReportFolder, iso, new_run_id, utc_now
 from smartjoint.report_friction import friction_markdown
 from smartjoint.report_reduction import plot_study, study_markdown
-from smartjoint.stages import BenchStage, ControlStage, FirmwareStage, FrictionStage, StructureStage
+from smartjoint.stages import (
+    BenchStage,
+    ControlStage,
+    EnsembleStage,
+    FirmwareStage,
+    FmuStage,
+    FrictionStage,
+    PilStage,
+    StructureStage,
+)
 
 NO_JOINTS = (
     "the design has no [[joints]] and no [placement]: friction, reduction, control, firmware and SIL need "
@@ -135,9 +143,9 @@ class _Run:
     control: ControlStage | None = None
     firmware: FirmwareStage | None = None
     bench: BenchStage | None = None
-    pil: dict | None = None  # stage 9 (pipeline_target.pil_stage)
-    ensemble: dict | None = None  # stage 10 (pipeline_ensemble.ensemble_stage)
-    fmu: dict | None = None  # stage 11 (pipeline_fmu.fmu_stage)
+    pil: PilStage | None = None
+    ensemble: EnsembleStage | None = None
+    fmu: FmuStage | None = None
 
 
 @dataclass(frozen=True)
@@ -394,9 +402,9 @@ def _joint_stages_summary(r: _Run, files: _ReportFiles) -> dict:
                 "plot": "safety_cycles.png",
             },
         },
-        "pil": pil_summary(r.pil),
-        "ensemble": pil_summary(r.ensemble),
-        "fmu": pil_summary(r.fmu),
+        "pil": r.pil.summary,
+        "ensemble": r.ensemble.summary,
+        "fmu": r.fmu.summary,
     }
 
 
@@ -441,11 +449,11 @@ def _report_markdown(r: _Run, files: _ReportFiles, final: dict) -> str:
         "`bench replay`): "
         + ", ".join(f"`can/{n}`" for n in bench.logs)
         + "; protocol: `firmware/bus.dbc`.\n\n"
-        + r.pil["markdown"]
+        + pil_markdown(r.pil)
         + "\n"
-        + r.ensemble["markdown"]
+        + ensemble_markdown(r.ensemble)
         + "\n"
-        + r.fmu["markdown"]
+        + fmu_markdown(r.fmu)
     )
 
 

@@ -21,6 +21,7 @@ from smartjoint.design.control import sweep_file, tuning
 from smartjoint.design.control.ensemble import KEYS, METRICS
 from smartjoint.design.control.friction_uncertainty import Z95, friction_inputs, friction_spreads
 from smartjoint.design.control.sweep_file import Distribution, Sweep, UncertainInput
+from smartjoint.stages import EnsembleStage
 
 SAMPLES = 16
 SEED = 2026
@@ -65,7 +66,7 @@ def stage_sweep(design, study, spreads: dict[str, float] | None = None) -> Sweep
     )
 
 
-def ensemble_stage(design, study, friction, staging: Path, progress) -> dict:
+def ensemble_stage(design, study, friction, staging: Path, progress) -> EnsembleStage:
     """Run the stage's sweep into ``staging/ensemble`` and report it.
 
     Parameters
@@ -82,9 +83,9 @@ def ensemble_stage(design, study, friction, staging: Path, progress) -> dict:
 
     Returns
     -------
-    dict
-        The summary entry (counts, time, the orderings' probabilities, the three inputs that
-        drive each law's E(t_e), the best passive forces) and ``markdown``, the report section.
+    EnsembleStage
+        Its summary entry (counts, time, the orderings' probabilities, the three inputs that
+        drive each law's E(t_e), the best passive forces); ``ensemble_markdown`` renders it.
     """
     spreads = friction_spreads(friction)
     sweep = stage_sweep(design, study, spreads)
@@ -123,10 +124,12 @@ def ensemble_stage(design, study, friction, staging: Path, progress) -> dict:
         "report": "ensemble/report.md",
         "plot": "ensemble/ecdf.png",
     }
-    return {**summary, "markdown": _markdown(summary)}
+    return EnsembleStage(summary)
 
 
-def _markdown(summary: dict) -> str:
+def ensemble_markdown(stage: EnsembleStage) -> str:
+    """The report's section of the stage."""
+    summary = stage.summary
     sentences = {o.key: o.sentence for o in sweep_report.ORDERINGS}
     lines = [
         "## Robustness ensemble",
@@ -156,4 +159,4 @@ def _markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["LAWS", "SAMPLES", "ensemble_stage", "stage_sweep"]
+__all__ = ["LAWS", "SAMPLES", "ensemble_markdown", "ensemble_stage", "stage_sweep"]

@@ -14,9 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.bench import fmu_check
+from smartjoint.stages import FmuStage
 
 
-def fmu_stage(design, control_study, controller, staging: Path, progress) -> dict:
+def fmu_stage(design, control_study, controller, staging: Path, progress) -> FmuStage:
     """Write and check the FMUs of the run's design.
 
     Parameters
@@ -33,8 +34,8 @@ def fmu_stage(design, control_study, controller, staging: Path, progress) -> dic
 
     Returns
     -------
-    dict
-        The summary entry and ``markdown``, the report section.
+    FmuStage
+        Its summary entry; ``fmu_markdown`` renders it.
     """
     progress("[11/12] FMU export: the controllers and the plant as FMI 2 and 3 co-simulation units (FMPy)")
     folder = staging / "fmu"
@@ -54,7 +55,7 @@ def fmu_stage(design, control_study, controller, staging: Path, progress) -> dic
         "plot": "fmu/cosimulation.png",
         "trajectories": "fmu/cosimulation.csv",
     }
-    return {**summary, "markdown": _markdown(summary)}
+    return FmuStage(summary)
 
 
 def _write_trajectories(runs: dict, folder: Path) -> None:
@@ -86,7 +87,9 @@ def _write_trajectories(runs: dict, folder: Path) -> None:
     plt.close(figure)
 
 
-def _markdown(summary: dict) -> str:
+def fmu_markdown(stage: FmuStage) -> str:
+    """The report's section of the stage."""
+    summary = stage.summary
     lines = [
         "## FMU export (FMI co-simulation)",
         "",
@@ -122,4 +125,4 @@ def _markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["fmu_stage"]
+__all__ = ["fmu_markdown", "fmu_stage"]

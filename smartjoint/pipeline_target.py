@@ -7,9 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from smartjoint.bench import pil_study, target
+from smartjoint.stages import PilStage
 
 
-def pil_stage(control_study, controller, staging: Path, progress) -> dict:
+def pil_stage(control_study, controller, staging: Path, progress) -> PilStage:
     """The study's SISO and cLQG runs on the target beside the host float build.
 
     Parameters
@@ -24,14 +25,14 @@ def pil_stage(control_study, controller, staging: Path, progress) -> dict:
 
     Returns
     -------
-    dict
-        ``skipped`` (None, or why) and, when run, the summary of ``pil_study`` and its
-        Markdown section (``markdown``) and plot.
+    PilStage
+        Why it was skipped, or ``pil_study``'s figures and the summary entry (with the image and
+        the plot).
     """
     reason = target.missing_tools()
     if reason:
         progress(f"[9/12] processor in the loop: skipped — {reason}")
-        return {"skipped": reason, "markdown": _skipped_markdown(reason)}
+        return PilStage(reason, {}, {"skipped": reason})
     progress(f"[9/12] processor in the loop: the firmware on {target.BOARD} (QEMU) in lock-step with the plant")
     out = pil_study.pil_study(control_study, controller, progress=progress, image_folder=staging)
     pil_study.plot_pil(out, staging / "pil_energy.png")
@@ -41,20 +42,15 @@ def pil_stage(control_study, controller, staging: Path, progress) -> dict:
             + ("bit for bit as the host float build" if pil_study.identical(figures["difference"]) else "DIFFERS")
             + f", step {figures['measured']['step']['instructions_mean']:.0f} instructions"
         )
-    markdown = pil_study.pil_markdown(out) + "\n![PIL energy](pil_energy.png)\n"
-    return {
-        "skipped": None,
-        **pil_study.summary(out),
-        "image": "pil.elf",
-        "plot": "pil_energy.png",
-        "markdown": markdown,
-    }
+    summary = {"skipped": None, **pil_study.summary(out), "image": "pil.elf", "plot": "pil_energy.png"}
+    return PilStage(None, out, summary)
 
 
-def _skipped_markdown(reason: str) -> str:
-    return f"## Processor in the loop\n\nNot run: {reason}.\n"
+def pil_markdown(stage: PilStage) -> str:
+    """The report's section of the stage: the figures and the plot, or why it did not run."""
+    if stage.skipped:
+        return f"## Processor in the loop\n\nNot run: {stage.skipped}.\n"
+    return pil_study.pil_markdown(stage.result) + f"\n![PIL energy]({stage.summary['plot']})\n"
 
 
-def summary_of(stage: dict) -> dict:
-    """The stage's entry of ``summary.json`` (its Markdown left out)."""
-    return {k: v for k, v in stage.items() if k != "markdown"}
+__all__ = ["pil_markdown", "pil_stage"]

@@ -88,4 +88,48 @@ class BenchStage:
     safety: dict
 
 
-__all__ = ["BenchStage", "ControlStage", "FirmwareStage", "FrictionStage", "StructureStage"]
+@dataclass(frozen=True)
+class PilStage:
+    """Stage 9: the study's laws on the target (``bench.pil_study``), or why it did not run.
+
+    Attributes
+    ----------
+    skipped : str or None
+        The missing tools; None when it ran.
+    result : dict
+        ``pil_study``'s figures (empty when skipped): the report's section is rendered from it.
+    summary : dict
+        The stage's entry of ``summary.json``.
+    """
+
+    skipped: str | None
+    result: dict
+    summary: dict
+
+
+@dataclass(frozen=True)
+class EnsembleStage:
+    """Stage 10: the robustness ensemble around the design; ``summary`` its figures (the
+    orderings' probabilities, the drivers, the best passive forces, its files)."""
+
+    summary: dict
+
+
+@dataclass(frozen=True)
+class FmuStage:
+    """Stage 11: the FMUs, replayed and co-simulated against the study; ``summary`` its figures
+    per FMI version and law."""
+
+    summary: dict
+
+
+__all__ = [
+    "BenchStage",
+    "ControlStage",
+    "EnsembleStage",
+    "FirmwareStage",
+    "FmuStage",
+    "FrictionStage",
+    "PilStage",
+    "StructureStage",
+]

@@ -18,7 +18,7 @@ from smartjoint.bench import firmware, pil, pil_study, safety, target
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
 from smartjoint.design.network import protocol
-from smartjoint.pipeline_target import pil_stage
+from smartjoint.pipeline_target import pil_markdown, pil_stage
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = artifact.load(ROOT / "firmware" / "generated" / "controller.json")
@@ -115,7 +115,8 @@ def test_without_the_tools_the_stage_is_skipped_with_the_reason(monkeypatch, tmp
     monkeypatch.setattr(target, "missing_tools", lambda: reason)
     lines = []
     stage = pil_stage(None, REFERENCE, tmp_path, lines.append)
-    assert stage["skipped"] == reason and reason in stage["markdown"] and reason in lines[0]
+    assert stage.skipped == reason and reason in pil_markdown(stage) and reason in lines[0]
+    assert stage.summary == {"skipped": reason}
     assert list(tmp_path.iterdir()) == []
 
 
