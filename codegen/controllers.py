@@ -123,7 +123,7 @@ class CompiledLaw:
 
     def reset(self) -> None:
         """Back to the initial state (the ``<prefix>_<law>_init`` of the C)."""
-        self._init(self._state)
+        self._init(self._state, self.c.ffi.NULL)
         self.status = 0
 
     def step(self, measurements: Measurements) -> np.ndarray:

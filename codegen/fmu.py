@@ -158,8 +158,6 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
         "NAME": name.upper(),
         "title": LAWS[law],
         "sample_time": rendering.literal(artifact.sample_time, "double"),
-        "law_normal_force_min": row(low, real),
-        "law_normal_force_range": row(high - low, real),
         "start_normal_force_min": row(low, "double"),
         "start_normal_force_max": row(high, "double"),
         "settings": [
@@ -167,7 +165,6 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
                 "key": setting.key,
                 "count": values.size,
                 "per_joint": setting.per_joint,
-                "law": row(values, real),
                 "start": row(values, "double"),
             }
             for setting, values in _settings(artifact, entry)
@@ -177,7 +174,7 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
         f"{artifact.name}: {LAWS[law]}, {real} build, from controller artefact {artifact.artifact_sha256[:12]}"
     )
     return _write(
-        path, identifier, fmi, variables, "fmu/fmu_controller.c.j2", context, sources, [],
+        path, identifier, fmi, variables, "fmu/fmu_controller.c.j2", context, sources, [f"{name}.c"],
         dict(description=description, stop_time=1.0, step_size=artifact.sample_time, variable_step="false",
              fixed_step=None, rules=_controller_rules(artifact.sample_time)),
         _controller_dependencies(variables),

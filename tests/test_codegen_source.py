@@ -75,12 +75,23 @@ def test_structure_no_dense_predictor_no_heap_no_recursion(reference):
         body = text.split(f"{name}(", 1)[1]
         body = body[: body.find("\n}\n")]
         assert f"{name}(" not in body  # no recursion
-    # No mutable globals: static data is const, or SMARTJOINT_TUNABLE, which is const but where the
-    # controller FMU includes the law (codegen/fmu.py) to tune its limits and boundary layer.
-    assert not re.search(r"^static (?!const |SMARTJOINT_TUNABLE )[^(]*;", text, flags=re.M)
-    assert "#ifndef SMARTJOINT_TUNABLE\n#define SMARTJOINT_TUNABLE const\n#endif" in files["smartjoint_types.h"]
-    tunable = re.findall(r"^static SMARTJOINT_TUNABLE \w+ (\w+)", text, flags=re.M)
-    # Every law keeps the same tunables (the FMU's convention): its limits and one table per setting.
-    expected = [n for law in law_registry.LAWS.values() for n in ("normal_force_min", "normal_force_range")]
-    expected += [setting.key for law in law_registry.LAWS.values() for setting in law.settings]
-    assert sorted(tunable) == sorted(expected)
+    # No mutable globals: static data is const; the one object each law exports is its const
+    # default parameters.
+    assert not re.search(r"^static (?!const )[^(]*;", text, flags=re.M)
+    assert "TUNABLE" not in text + files["smartjoint_types.h"]
+    exported = re.findall(r"^(?!static\b)\w[\w ]*? (\w+)\s*=", text, flags=re.M)
+    assert exported == [f"{law.c_name('smartjoint')}_default_params" for law in law_registry.LAWS.values()]
+    assert all(
+        f"const {law.c_name('smartjoint')}_params {law.c_name('smartjoint')}_default_params = {{" in text
+        for law in law_registry.LAWS.values()
+    )
+    # Every law's tunables are one struct handed to _init (the FMU's convention): its limits and
+    # one field per setting, in the entry's order.
+    for law in law_registry.LAWS.values():
+        name = law.c_name("smartjoint")
+        header = files[f"{name}.h"]
+        body = re.search(r"typedef struct \{([^}]*)\} " + name + "_params;", header)
+        assert body is not None, law.name
+        fields = re.findall(r"_real (\w+)[\[;]", body.group(1))
+        assert fields == ["normal_force_min", "normal_force_range", *(setting.key for setting in law.settings)]
+        assert f"void {name}_init({name}_state *state, const {name}_params *params);" in header

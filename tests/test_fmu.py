@@ -225,6 +225,21 @@ def test_the_sources_compile_from_the_unpacked_fmu_alone_with_the_strict_warning
         assert _same_numbers(key, rebuilt, written[key].path, s, a), key
 
 
+def test_a_controller_fmu_links_the_law_and_each_instance_holds_its_own_parameters(written):
+    """The model file does not include the law's source: the law is one of the sources the FMU
+    compiles, and the tunables live in one <prefix>_<law>_params per instance, handed to _init."""
+    for law in law_registry.NAMES:
+        with zipfile.ZipFile(written[3, law, "double"].path) as archive:
+            model = archive.read("sources/fmu_model.c").decode()
+            listed = archive.read("sources/buildDescription.xml").decode()
+        name = law_registry.law(law).c_name("smartjoint")
+        assert f'#include "{name}.c"' not in model and f'#include "{name}.h"' in model
+        assert f'<SourceFile name="{name}.c"/>' in listed, listed
+        assert f"    {name}_params params;" in model
+        assert f"{name}_init(&m->state, &m->params);" in model
+        assert "TUNABLE" not in model
+
+
 def _refused(instance: FmuInstance, call, *words: str) -> None:
     """``call()`` answers the FMI error status and logs one message with ``words``."""
     before = len(instance.messages)

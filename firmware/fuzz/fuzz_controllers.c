@@ -114,7 +114,7 @@ static void fuzz_siso_step(smartjoint_siso_state *state, int restart, fuzz_reade
     smartjoint_siso_output output;
     unsigned int status, j, expected = 0u, normal = 0u;
     if (restart) {
-        smartjoint_siso_init(state);
+        smartjoint_siso_init(state, NULL);
     }
     for (j = 0u; j < FUZZ_JOINTS; ++j) {
         input.sliding_velocity[j] = take_real(reader);
@@ -138,7 +138,7 @@ static void fuzz_clqg_step(smartjoint_clqg_state *state, int restart, fuzz_reade
     smartjoint_clqg_output output;
     unsigned int status, j, r, used = 0u, normal = 0u, expected;
     if (restart) {
-        smartjoint_clqg_init(state);
+        smartjoint_clqg_init(state, NULL);
         *carried = 0u;
     }
     for (r = 0u; r < FUZZ_SENSORS; ++r) {

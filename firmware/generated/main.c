@@ -21,9 +21,9 @@ int main(void)
     unsigned int status = 0u;
     int k, j, r;
 
-    smartjoint_siso_init(&siso_state);
-    smartjoint_clqg_init(&clqg_state);
-    smartjoint_preset_init(&preset_state);
+    smartjoint_siso_init(&siso_state, NULL);
+    smartjoint_clqg_init(&clqg_state, NULL);
+    smartjoint_preset_init(&preset_state, NULL);
     for (k = 0; k < 1000; ++k) {
         /* A vibration with alternating sign, decaying by 0.5 % per sample. */
         const smartjoint_real wave = (k % 40 < 20) ? amplitude : -amplitude;

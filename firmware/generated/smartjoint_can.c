@@ -876,53 +876,22 @@ int smartjoint_can_init(smartjoint_can_state *state, smartjoint_can_law law)
     if (state == NULL) {
         return -1;
     }
-    smartjoint_siso_init(&state->siso);
-    smartjoint_clqg_init(&state->clqg);
-    smartjoint_preset_init(&state->preset);
+    /* Every counter, age, flag, measurement and error count starts at zero (0.0 is all bits
+     * zero in IEEE 754); what does not is set below. */
+    memset(state, 0, sizeof *state);
+    smartjoint_siso_init(&state->siso, NULL);
+    smartjoint_clqg_init(&state->clqg, NULL);
+    smartjoint_preset_init(&state->preset, NULL);
     /* An unknown law is refused, not guessed: the layer then holds the safe state for good. */
     state->law = (law == SMARTJOINT_CAN_LAW_SISO || law == SMARTJOINT_CAN_LAW_CLQG || law == SMARTJOINT_CAN_LAW_PRESET) ? law : SMARTJOINT_CAN_LAW_NONE;
     state->safe = 1; /* power-up: the safe force until every input the law needs is fresh and plausible */
-    state->clear_steps = 0u;
-    state->started = 0u;
     for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-        state->sliding_velocity[k] = 0;
-        state->friction_force[k] = 0;
-        state->normal_force[k] = 0u;
-        state->tracking_frames[k] = 0u;
         state->command[k] = safe_normal_force[k];
         state->setpoint[k] = setpoint_voltage(safe_normal_force[k]);
         state->earlier_setpoint[k] = state->setpoint[k];
     }
-    for (k = 0u; k < SMARTJOINT_CAN_SENSORS; ++k) {
-        state->sensors[k] = 0;
-    }
-    for (k = 0u; k < SMARTJOINT_CAN_INPUTS; ++k) {
-        state->last_time[k] = 0u;
-        state->age[k] = 0u;
-        state->echo[k] = 0u;
-        state->silent_steps[k] = 0u;
-        state->timed_out[k] = 0u;
-        state->seen[k] = 0u;
-        state->healthy[k] = 0u;
-        state->implausible[k] = 0u;
-        state->receivers[k].last_counter = 0u;
-        state->receivers[k].valid = 0u;
-    }
-    state->cycle = 0u;
-    state->heartbeats = 0u;
-    state->steps = 0u;
-    state->step_time = 0u;
-    state->step_status = 0u;
     state->faults = state->law == SMARTJOINT_CAN_LAW_NONE ? SMARTJOINT_CAN_FAULT_LAW : 0u;
-    state->missing = 0u;
     state->tx_next = SMARTJOINT_CAN_JOINTS + 1u; /* nothing to send before the first step */
-    state->rx_frames = 0u;
-    state->crc_errors = 0u;
-    state->counter_errors = 0u;
-    state->length_errors = 0u;
-    state->unknown_ids = 0u;
-    state->timeouts = 0u;
-    state->implausible_frames = 0u;
     return state->law == SMARTJOINT_CAN_LAW_NONE ? -1 : 0;
 }
 
@@ -1036,9 +1005,9 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
         state->started = 1u;
         unsigned int controller_status;
         if (state->safe) {
-            smartjoint_siso_init(&state->siso); /* fresh memories after the safe state */
-            smartjoint_clqg_init(&state->clqg);
-            smartjoint_preset_init(&state->preset);
+            smartjoint_siso_init(&state->siso, state->siso.params); /* fresh memories after the safe state */
+            smartjoint_clqg_init(&state->clqg, state->clqg.params);
+            smartjoint_preset_init(&state->preset, state->preset.params);
             state->safe = 0;
         }
         if (state->law == SMARTJOINT_CAN_LAW_CLQG) {

@@ -2,6 +2,7 @@
  * Scalar type: float. Do not edit: regenerate with `smartjoint codegen`. */
 #include <math.h>
 #include <stddef.h>
+#include <string.h>
 
 #include "smartjoint_clqg.h"
 
@@ -82,9 +83,11 @@ static const joint_law law[JOINTS] = {
     {{-0.00592117f, 0.22235514f, 0.110633835f}, {233385.89f, -136213.17f}},
     {{0.07301455f, 0.07301455f, 0.26734006f}, {202961.2f, -202961.2f}},
 };
-static SMARTJOINT_TUNABLE smartjoint_real normal_force_min[JOINTS] = {10.0f, 10.0f, 10.0f};
-static SMARTJOINT_TUNABLE smartjoint_real normal_force_range[JOINTS] = {390.0f, 390.0f, 390.0f}; /* F^max - F^min */
-static SMARTJOINT_TUNABLE smartjoint_real boundary_layer = 100.0f; /* eps [N] (Eq. 34) */
+const smartjoint_clqg_params smartjoint_clqg_default_params = {
+    {10.0f, 10.0f, 10.0f},
+    {390.0f, 390.0f, 390.0f}, /* F^max - F^min */
+    100.0f, /* eps [N] (Eq. 34) */
+};
 /* Commanded to every joint whenever the filter cannot use its inputs (docs/safety.md). */
 static const smartjoint_real safe_normal_force[JOINTS] = {400.0f, 400.0f, 400.0f};
 /* Plausible inputs (from the design): |y_r| and |u_R,j| up to these, the measured F_N,j within
@@ -97,32 +100,29 @@ static const smartjoint_real measured_normal_force_max[JOINTS] = {440.0f, 440.0f
  * force, and small enough that r plus the measurement's terms stays finite in single precision. */
 static const smartjoint_real feedback_limit = 1e+30f;
 
-void smartjoint_clqg_init(smartjoint_clqg_state *state)
+/* The filter restarted: every estimate, flag and fault zero (0.0 is all bits zero in IEEE 754);
+ * the tunables stay. */
+static void restart(smartjoint_clqg_state *state)
 {
-    int k;
+    const smartjoint_clqg_params *params = state->params;
+    memset(state, 0, sizeof *state);
+    state->params = params;
+}
+
+void smartjoint_clqg_init(smartjoint_clqg_state *state, const smartjoint_clqg_params *params)
+{
     if (state == NULL) {
         return;
     }
-    for (k = 0; k < COORDINATES; ++k) {
-        state->velocity[k] = 0.0f;
-        state->displacement[k] = 0.0f;
-    }
-    for (k = 0; k < SENSORS; ++k) {
-        state->predicted[k] = 0.0f;
-    }
-    for (k = 0; k < JOINTS; ++k) {
-        state->feedback[k] = 0.0f;
-    }
-    state->started = 0;
-    state->pending = 0;
-    state->fault = SMARTJOINT_STATUS_OK;
+    state->params = params != NULL ? params : &smartjoint_clqg_default_params;
+    restart(state);
 }
 
 /* Safe state: filter restarted, every joint at the safe force, no desired force. */
 static unsigned int fault(smartjoint_clqg_state *state, smartjoint_clqg_output *output, unsigned int status)
 {
     int j;
-    smartjoint_clqg_init(state);
+    restart(state);
     for (j = 0; j < JOINTS; ++j) {
         output->normal_force[j] = safe_normal_force[j];
         output->desired_force[j] = 0.0f;
@@ -184,11 +184,11 @@ static int inputs_plausible(const smartjoint_clqg_input *input)
 /* Eq. 34 for one joint: F_N = F^min + (F^max - F^min) clip((u_d - u_R) sgn(u_R) / eps, 0, 1).
  * The same numbers as the product with sgn(u_R), as -(a - b) = b - a exactly; for u_R = 0 the
  * product's +-0 clips to 0. */
-static smartjoint_real clipped_command(int j, smartjoint_real desired, smartjoint_real friction)
+static smartjoint_real clipped_command(const smartjoint_clqg_params *params, int j, smartjoint_real desired, smartjoint_real friction)
 {
-    smartjoint_real ratio = (friction > 0.0f ? desired - friction : (friction < 0.0f ? friction - desired : 0.0f)) / boundary_layer;
+    smartjoint_real ratio = (friction > 0.0f ? desired - friction : (friction < 0.0f ? friction - desired : 0.0f)) / params->boundary_layer;
     ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
-    return MULTIPLY_ADD(normal_force_min[j], normal_force_range[j], ratio);
+    return MULTIPLY_ADD(params->normal_force_min[j], params->normal_force_range[j], ratio);
 }
 
 /* Output phase, right after the measurements arrive: the command from the new measurement and what
@@ -204,12 +204,14 @@ unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const sm
     smartjoint_real friction0, friction1, friction2;
     smartjoint_real sensor0, sensor1;
     smartjoint_real force0, force1, force2;
+    const smartjoint_clqg_params *params;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
     }
     if (state->fault != SMARTJOINT_STATUS_OK || !inputs_plausible(input)) {
         return fault(state, output, state->fault | check_inputs(input));
     }
+    params = state->params;
     friction0 = input->friction_force[0];
     friction1 = input->friction_force[1];
     friction2 = input->friction_force[2];
@@ -236,12 +238,12 @@ unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const sm
     force1 = MULTIPLY_ADD(force1, law[1].feedback_estimator[1], sensor1);
     force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[0], sensor0);
     force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[1], sensor1);
+    output->normal_force[0] = clipped_command(params, 0, -force0, friction0);
+    output->normal_force[1] = clipped_command(params, 1, -force1, friction1);
+    output->normal_force[2] = clipped_command(params, 2, -force2, friction2);
     output->desired_force[0] = -force0;
-    output->normal_force[0] = clipped_command(0, -force0, friction0);
     output->desired_force[1] = -force1;
-    output->normal_force[1] = clipped_command(1, -force1, friction1);
     output->desired_force[2] = -force2;
-    output->normal_force[2] = clipped_command(2, -force2, friction2);
     state->pending = 1;
     return SMARTJOINT_STATUS_OK;
 }
@@ -270,7 +272,7 @@ void smartjoint_clqg_update_phase(smartjoint_clqg_state *state, const smartjoint
     }
     status = check_normal_forces(input);
     if (status != SMARTJOINT_STATUS_OK) {
-        smartjoint_clqg_init(state);
+        restart(state);
         state->fault = status;
         return;
     }
@@ -348,7 +350,7 @@ void smartjoint_clqg_update_phase(smartjoint_clqg_state *state, const smartjoint
     state->pending = 0;
     /* Written as "within", false for NaN: an estimate whose feedback leaves the bound has diverged. */
     if (!(MAGNITUDE(feedback0) <= feedback_limit && MAGNITUDE(feedback1) <= feedback_limit && MAGNITUDE(feedback2) <= feedback_limit)) {
-        smartjoint_clqg_init(state);
+        restart(state);
         state->fault = SMARTJOINT_STATUS_ESTIMATE_RESET;
     }
 }

@@ -41,7 +41,18 @@ typedef struct {
     smartjoint_real desired_force[SMARTJOINT_CLQG_JOINTS];  /* u_d,j = -(K x_hat)_j [N] (Eq. 33) */
 } smartjoint_clqg_output;
 
+/* The tunables: the normal-force limits and the boundary layer. smartjoint_clqg_default_params holds
+ * the design's; a tool that tunes the law (the FMU, a calibration) hands its own to _init. */
 typedef struct {
+    smartjoint_real normal_force_min[SMARTJOINT_CLQG_JOINTS];   /* F_N,j^min [N] */
+    smartjoint_real normal_force_range[SMARTJOINT_CLQG_JOINTS]; /* F_N,j^max - F_N,j^min [N] */
+    smartjoint_real boundary_layer;                        /* eps [N] (Eq. 34) */
+} smartjoint_clqg_params;
+
+extern const smartjoint_clqg_params smartjoint_clqg_default_params;
+
+typedef struct {
+    const smartjoint_clqg_params *params;                     /* read by every output phase, kept by _init */
     /* q = Phi x_hat - Gamma0 E u+ by component (x_hat = [eta_dot_1, w_1 eta_1, ...]): */
     smartjoint_real velocity[SMARTJOINT_CLQG_COORDINATES];     /* eta_dot_i */
     smartjoint_real displacement[SMARTJOINT_CLQG_COORDINATES]; /* w_i eta_i */
@@ -52,7 +63,8 @@ typedef struct {
     unsigned int fault;                                  /* found by an update, for the next output phase */
 } smartjoint_clqg_state;
 
-void smartjoint_clqg_init(smartjoint_clqg_state *state);
+/* A fresh filter, commanding with params (NULL: smartjoint_clqg_default_params), which must outlive the state. */
+void smartjoint_clqg_init(smartjoint_clqg_state *state, const smartjoint_clqg_params *params);
 /* Output phase: the command from the new measurements (status bits). */
 unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output);
 /* Update phase: after the command is sent, before the next output phase; the same input and

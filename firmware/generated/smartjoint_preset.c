@@ -5,18 +5,21 @@
 
 #include "smartjoint_preset.h"
 
-static SMARTJOINT_TUNABLE smartjoint_real normal_force_min[SMARTJOINT_PRESET_JOINTS] = {10.0f, 10.0f, 10.0f};
-static SMARTJOINT_TUNABLE smartjoint_real normal_force_range[SMARTJOINT_PRESET_JOINTS] = {390.0f, 390.0f, 390.0f}; /* F^max - F^min */
-static SMARTJOINT_TUNABLE smartjoint_real force[SMARTJOINT_PRESET_JOINTS] = {400.0f, 400.0f, 400.0f}; /* the preset F_N,j [N] */
+const smartjoint_preset_params smartjoint_preset_default_params = {
+    {10.0f, 10.0f, 10.0f},
+    {390.0f, 390.0f, 390.0f}, /* F^max - F^min */
+    {400.0f, 400.0f, 400.0f}, /* the preset F_N,j [N] */
+};
 /* Commanded to every joint whenever an input cannot be used (docs/safety.md). */
 static const smartjoint_real safe_normal_force[SMARTJOINT_PRESET_JOINTS] = {400.0f, 400.0f, 400.0f};
 /* Plausible measured normal forces (from the design), limits included. */
 static const smartjoint_real measured_normal_force_min[SMARTJOINT_PRESET_JOINTS] = {-40.0f, -40.0f, -40.0f}; /* [N] */
 static const smartjoint_real measured_normal_force_max[SMARTJOINT_PRESET_JOINTS] = {440.0f, 440.0f, 440.0f}; /* [N] */
 
-void smartjoint_preset_init(smartjoint_preset_state *state)
+void smartjoint_preset_init(smartjoint_preset_state *state, const smartjoint_preset_params *params)
 {
     if (state != NULL) {
+        state->params = params != NULL ? params : &smartjoint_preset_default_params;
         state->status = SMARTJOINT_STATUS_OK;
     }
 }
@@ -33,20 +36,26 @@ static unsigned int check_input(smartjoint_real value, smartjoint_real low, smar
 
 unsigned int smartjoint_preset_step(smartjoint_preset_state *state, const smartjoint_preset_input *input, smartjoint_preset_output *output)
 {
+    const smartjoint_preset_params *params;
     unsigned int status = SMARTJOINT_STATUS_OK;
     int j;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
     }
+    params = state->params;
     for (j = 0; j < SMARTJOINT_PRESET_JOINTS; ++j) {
+        /* clip(F_N^preset, F_N^min, F_N^max): a tuned preset outside the limits (FMU) is held at them. */
+        const smartjoint_real low = params->normal_force_min[j];
+        const smartjoint_real high = low + params->normal_force_range[j];
+        const smartjoint_real preset = params->force[j];
         status |= check_input(input->normal_force[j], measured_normal_force_min[j], measured_normal_force_max[j]);
+        output->normal_force[j] = preset > low ? (preset < high ? preset : high) : low;
     }
-    for (j = 0; j < SMARTJOINT_PRESET_JOINTS; ++j) {
-        /* clip(F_N^preset, F_N^min, F_N^max): a tuned preset outside the limits (FMU) is held at them;
-         * one unusable input puts every joint at the safe force: the joints act on one truss. */
-        const smartjoint_real high = normal_force_min[j] + normal_force_range[j];
-        const smartjoint_real held = force[j] > normal_force_min[j] ? (force[j] < high ? force[j] : high) : normal_force_min[j];
-        output->normal_force[j] = status == SMARTJOINT_STATUS_OK ? held : safe_normal_force[j];
+    if (status != SMARTJOINT_STATUS_OK) {
+        /* One unusable input puts every joint at the safe force: the joints act on one truss. */
+        for (j = 0; j < SMARTJOINT_PRESET_JOINTS; ++j) {
+            output->normal_force[j] = safe_normal_force[j];
+        }
     }
     state->status = status;
     return status;

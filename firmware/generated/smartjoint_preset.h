@@ -27,11 +27,23 @@ typedef struct {
     smartjoint_real normal_force[SMARTJOINT_PRESET_JOINTS]; /* command F_N,j [N], in [F_N^min, F_N^max] */
 } smartjoint_preset_output;
 
+/* The tunables: the normal-force limits and the preset forces. smartjoint_preset_default_params holds the
+ * design's; a tool that tunes the law (the FMU, a calibration) hands its own to _init. */
 typedef struct {
-    unsigned int status; /* the last step's status bits (0 after init) */
+    smartjoint_real normal_force_min[SMARTJOINT_PRESET_JOINTS];   /* F_N,j^min [N] */
+    smartjoint_real normal_force_range[SMARTJOINT_PRESET_JOINTS]; /* F_N,j^max - F_N,j^min [N] */
+    smartjoint_real force[SMARTJOINT_PRESET_JOINTS];              /* the preset F_N,j [N] */
+} smartjoint_preset_params;
+
+extern const smartjoint_preset_params smartjoint_preset_default_params;
+
+typedef struct {
+    const smartjoint_preset_params *params; /* read by every step, kept by _init */
+    unsigned int status;             /* the last step's status bits (0 after init) */
 } smartjoint_preset_state;
 
-void smartjoint_preset_init(smartjoint_preset_state *state);
+/* A fresh state, stepping with params (NULL: smartjoint_preset_default_params), which must outlive the state. */
+void smartjoint_preset_init(smartjoint_preset_state *state, const smartjoint_preset_params *params);
 unsigned int smartjoint_preset_step(smartjoint_preset_state *state, const smartjoint_preset_input *input, smartjoint_preset_output *output);
 
 #ifdef __cplusplus

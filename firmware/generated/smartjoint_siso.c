@@ -5,9 +5,11 @@
 
 #include "smartjoint_siso.h"
 
-static SMARTJOINT_TUNABLE smartjoint_real normal_force_min[SMARTJOINT_SISO_JOINTS] = {10.0f, 10.0f, 10.0f};
-static SMARTJOINT_TUNABLE smartjoint_real normal_force_range[SMARTJOINT_SISO_JOINTS] = {390.0f, 390.0f, 390.0f}; /* F^max - F^min */
-static SMARTJOINT_TUNABLE smartjoint_real boundary_layer[SMARTJOINT_SISO_JOINTS] = {3.1622776e-06f, 3.1622776e-06f, 3.1622776e-06f}; /* eps_j [m/s] */
+const smartjoint_siso_params smartjoint_siso_default_params = {
+    {10.0f, 10.0f, 10.0f},
+    {390.0f, 390.0f, 390.0f}, /* F^max - F^min */
+    {3.1622776e-06f, 3.1622776e-06f, 3.1622776e-06f}, /* eps_j [m/s] */
+};
 /* Commanded to every joint whenever an input cannot be used (docs/safety.md). */
 static const smartjoint_real safe_normal_force[SMARTJOINT_SISO_JOINTS] = {400.0f, 400.0f, 400.0f};
 /* Plausible inputs (from the design): |v| and |u_R| up to these, the measured F_N within
@@ -17,12 +19,13 @@ static const smartjoint_real friction_force_limit[SMARTJOINT_SISO_JOINTS] = {660
 static const smartjoint_real measured_normal_force_min[SMARTJOINT_SISO_JOINTS] = {-40.0f, -40.0f, -40.0f}; /* [N] */
 static const smartjoint_real measured_normal_force_max[SMARTJOINT_SISO_JOINTS] = {440.0f, 440.0f, 440.0f}; /* [N] */
 
-void smartjoint_siso_init(smartjoint_siso_state *state)
+void smartjoint_siso_init(smartjoint_siso_state *state, const smartjoint_siso_params *params)
 {
     int j;
     if (state == NULL) {
         return;
     }
+    state->params = params != NULL ? params : &smartjoint_siso_default_params;
     for (j = 0; j < SMARTJOINT_SISO_JOINTS; ++j) {
         state->previous_friction[j] = 0.0f;
         state->previous_normal_force[j] = 0.0f;
@@ -42,11 +45,13 @@ static unsigned int check_input(smartjoint_real value, smartjoint_real low, smar
 
 unsigned int smartjoint_siso_step(smartjoint_siso_state *state, const smartjoint_siso_input *input, smartjoint_siso_output *output)
 {
+    const smartjoint_siso_params *params;
     unsigned int status = SMARTJOINT_STATUS_OK;
     int j;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
     }
+    params = state->params;
     for (j = 0; j < SMARTJOINT_SISO_JOINTS; ++j) {
         const smartjoint_real velocity = input->sliding_velocity[j];
         const smartjoint_real friction = input->friction_force[j];
@@ -68,10 +73,10 @@ unsigned int smartjoint_siso_step(smartjoint_siso_state *state, const smartjoint
         if (state->previous_normal_force[j] > 0.0f) {
             mu = state->previous_friction[j] / state->previous_normal_force[j]; /* Eq. 31 */
         }
-        ratio = (mu * velocity) / boundary_layer[j];
+        ratio = (mu * velocity) / params->boundary_layer[j];
         /* Boundary layer of Eq. 30: clip(mu v / eps, 0, 1); NaN (inf * 0) counts as 0. */
         ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
-        output->normal_force[j] = normal_force_min[j] + normal_force_range[j] * ratio;
+        output->normal_force[j] = params->normal_force_min[j] + params->normal_force_range[j] * ratio;
         state->previous_friction[j] = friction;
         state->previous_normal_force[j] = applied;
     }

@@ -29,12 +29,24 @@ typedef struct {
     smartjoint_real normal_force[SMARTJOINT_SISO_JOINTS];     /* command F_N,j [N], in [F_N^min, F_N^max] */
 } smartjoint_siso_output;
 
+/* The tunables: the normal-force limits and the boundary layers. smartjoint_siso_default_params holds
+ * the design's; a tool that tunes the law (the FMU, a calibration) hands its own to _init. */
 typedef struct {
+    smartjoint_real normal_force_min[SMARTJOINT_SISO_JOINTS];   /* F_N,j^min [N] */
+    smartjoint_real normal_force_range[SMARTJOINT_SISO_JOINTS]; /* F_N,j^max - F_N,j^min [N] */
+    smartjoint_real boundary_layer[SMARTJOINT_SISO_JOINTS];     /* eps_j [m/s] (Eq. 30) */
+} smartjoint_siso_params;
+
+extern const smartjoint_siso_params smartjoint_siso_default_params;
+
+typedef struct {
+    const smartjoint_siso_params *params;                            /* read by every step, kept by _init */
     smartjoint_real previous_friction[SMARTJOINT_SISO_JOINTS];     /* u_R,j of the previous sample [N] */
     smartjoint_real previous_normal_force[SMARTJOINT_SISO_JOINTS]; /* F_N,j of the previous sample [N] */
 } smartjoint_siso_state;
 
-void smartjoint_siso_init(smartjoint_siso_state *state);
+/* Fresh memories, stepping with params (NULL: smartjoint_siso_default_params), which must outlive the state. */
+void smartjoint_siso_init(smartjoint_siso_state *state, const smartjoint_siso_params *params);
 unsigned int smartjoint_siso_step(smartjoint_siso_state *state, const smartjoint_siso_input *input, smartjoint_siso_output *output);
 
 #ifdef __cplusplus

@@ -21,13 +21,6 @@ typedef float smartjoint_real;
 #define SMARTJOINT_STATUS_INPUT_IMPLAUSIBLE 8u  /* a finite input outside its plausible range (artefact) */
 /* 0x10u is the CAN layer's SAFE_STATE. */
 
-/* Where the normal-force limits and the boundary layer live: constants (flash) in the firmware;
- * an FMU build (codegen.fmu, docs/fmu.md) defines SMARTJOINT_TUNABLE empty so that a tool can
- * tune them between steps. */
-#ifndef SMARTJOINT_TUNABLE
-#define SMARTJOINT_TUNABLE const
-#endif
-
 #ifdef __cplusplus
 }
 #endif

@@ -65,9 +65,9 @@ int main(void)
     int passed = 1;
     int k, j, r;
 
-    smartjoint_siso_init(&siso_state);
-    smartjoint_clqg_init(&clqg_state);
-    smartjoint_preset_init(&preset_state);
+    smartjoint_siso_init(&siso_state, NULL);
+    smartjoint_clqg_init(&clqg_state, NULL);
+    smartjoint_preset_init(&preset_state, NULL);
     for (k = 0; k < SAMPLES; ++k) {
         /* The example's vibration: alternating sign, decaying by 0.5 % per sample. */
         const smartjoint_real wave = (k % 40 < 20) ? amplitude : -amplitude;

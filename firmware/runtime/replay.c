@@ -23,12 +23,12 @@ struct law {
 
 static void siso_init(void *state)
 {
-    smartjoint_siso_init(state);
+    smartjoint_siso_init(state, NULL);
 }
 
 static void clqg_init(void *state)
 {
-    smartjoint_clqg_init(state);
+    smartjoint_clqg_init(state, NULL);
 }
 
 static unsigned int siso_step(void *state, const void *input, void *output)

@@ -44,7 +44,7 @@ static smartjoint_can_state can_state;
     {                                                                                                               \
         uint32_t start;                                                                                             \
         int k;                                                                                                      \
-        smartjoint_##law##_init(&law##_state);                                                                      \
+        smartjoint_##law##_init(&law##_state, NULL);                                                                      \
         start = sj_ticks();                                                                                         \
         for (k = 0; k < SJ_SELFTEST_STEPS; ++k) {                                                                   \
             law##_status[k] = step(&law##_state, &sj_##law##_inputs[k], &law##_outputs[k]);                         \
