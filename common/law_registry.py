@@ -116,6 +116,9 @@ class Law:
     fault_matrix : bool
         The law the SIL/PIL fault matrix runs on by default (its step reads the sensor frames as
         well as the joints': every fault of the matrix reaches it).
+    constant : bool
+        The law is itself a constant normal force (a fall-back, not a controller): the paper's
+        claims against the passive settings and the best constant F_N are not made for it.
     codegen : str
         ``module:function`` giving what its templates ``<name>.h.j2``/``<name>.c.j2`` see beyond
         the common context, ``function(artifact, lit, row) -> dict`` (:meth:`codegen_context`).
@@ -143,6 +146,7 @@ class Law:
     clips_active: bool = False
     phased: bool = False
     fault_matrix: bool = False
+    constant: bool = False
 
     def python_reference(self, artifact: Any) -> Any:
         """The law's Python reference controller, built from a controller artefact alone.
@@ -242,6 +246,7 @@ LAWS: dict[str, Law] = {
             colour="tab:purple",
             codegen="smartjoint.design.control.preset:context",
             reference="smartjoint.design.control.preset:preset_law",
+            constant=True,
         ),
     )
 }

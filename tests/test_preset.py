@@ -101,7 +101,10 @@ def test_at_the_maximum_force_it_is_the_passive_maximum_run_and_the_study_runs_i
     figures = study.summary(study.run_study(tuning.with_settings(design, {"preset_force": PRESET}), s.model,
                                             progress=lambda line: None))  # fmt: skip
     assert figures["preset_force"] == PRESET and LAW.display in figures["runs"]
-    assert "preset_below_both_passive" in figures["orderings"]
+    # A constant force is judged beside the passive settings, not against them (Law.constant):
+    # the paper's orderings of the other laws stay, and none is claimed for the preset.
+    assert "siso_below_both_passive" in figures["orderings"]
+    assert not [key for key in figures["orderings"] if key.startswith(f"{LAW.name}_")]
 
 
 @pytest.mark.numerics

@@ -1,5 +1,6 @@
 """The paper's orderings (Section 6) of the study's runs, derived from the law registry: each law
-against both passive settings and the best constant normal force, each law against the laws
+that is not itself a constant force (``Law.constant``) against both passive settings and the
+best constant normal force, each law against the laws
 the paper finds it beats (``Law.beats``), and the active LQG against the law that clips it
 (``Law.clips_active``). The study, the sweep report and PIL judge the same list.
 """
@@ -59,6 +60,7 @@ def orderings() -> tuple[Ordering, ...]:
         Ordering(f"{law.name}_below_both_passive", f"{law.display} ends below both passive settings (e(t_e))",
                  law.display, PASSIVE, "energy_end")
         for law in laws
+        if not law.constant
     ]  # fmt: skip
     for law in laws:
         for beaten in map(law_registry.law, law.beats):
@@ -73,7 +75,7 @@ def orderings() -> tuple[Ordering, ...]:
                          (beaten.display,), "energy_measure", study=False)
             )  # fmt: skip
     for kind, metric, what in (("E", "energy_measure", "E(t_e)"), ("e", "energy_end", "e(t_e)")):
-        for law in laws:
+        for law in (law for law in laws if not law.constant):
             suffix = "" if kind == "E" else " for e(t_e)"
             out.append(
                 Ordering(f"{law.name}_beats_best_passive_{kind}",
