@@ -10,7 +10,7 @@ from conftest import run_cli
 
 from smartjoint.design.friction import lugre, rig, rig_integration
 from smartjoint.design.friction.fitting import nrmse
-from smartjoint.design.friction.identify import model_friction
+from smartjoint.design.friction.identify import model_friction, simulate_friction
 from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.friction.rig_campaign import standard_campaign
 
@@ -55,6 +55,35 @@ def test_rig_kernel_matches_the_python_reference(joint_type):
         rig_integration.integrate(p, 400.0, 1.0, np.zeros(5), time, rig_integration.SUBSTEPS)
     with pytest.raises(ValueError, match="gain: .* one per substep node"):
         rig_integration.integrate(p, np.ones(5), 1.0, np.zeros(fine.size), time, rig_integration.SUBSTEPS)
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("joint_type", ["A", "B"])
+def test_equation_error_kernel_matches_the_python_reference(joint_type):
+    """sj_equation_error_friction mirrors the Python loop of Eq. 3's model force: both regimes,
+    a varying F_N, uneven samples, a velocity through zero."""
+    p = lugre.TABLE_1[joint_type]
+    for factor in (0.5, 1.3):
+        record = rig.simulate(
+            rig.RigTest(
+                joint_type,
+                400.0,
+                factor * rig.breakaway(p, 400.0),
+                10.0,
+                2.0,
+                1.0 if joint_type == "A" else 2e-3,
+                noise=0.01,
+                seed=3,
+            )
+        )
+        time = record.time * (1.0 + 0.01 * np.sin(np.arange(record.time.size)))
+        time = np.maximum.accumulate(time) + 1e-9 * np.arange(time.size)
+        normal_force = record.normal_force * (1.0 + 0.1 * np.sin(40.0 * record.time))
+        args = (p, time, record.sliding_velocity, normal_force, record.friction_force[0])
+        python = simulate_friction(*args, backend="python")
+        native = simulate_friction(*args, backend="c")
+        assert np.max(np.abs(native - python)) <= 1e-12 * np.max(np.abs(python))
+        assert np.ptp(python) > 0.5 * np.ptp(record.friction_force)  # a real force history, not zeros
 
 
 # One micro-slip test of the rig: F_N = 400 N, a 150 N excitation at 10 Hz, one cycle.

@@ -53,18 +53,22 @@ from smartjoint.design.friction.fitting import StepResult, filtered_velocity, nr
 from smartjoint.design.friction.output_error import P3, output_error_blocker, refine
 from smartjoint.design.friction.record_screening import check_records, joint_radius, slides
 from smartjoint.design.friction.records import Record, RecordError
+from smartjoint.design.friction.rig_integration import kernel
 
 P1 = ("sigma0", "sigma1")
 P2 = ("coulomb", "stribeck", "stribeck_velocity", "sigma2")
 ROUNDS = 2
+_C_FAILURE: list[str] = []  # why the C kernel is unavailable on this machine (reported once)
 
 
-def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, initial_force: float = 0.0):
+def simulate_friction(
+    p: lugre.LuGreParameters, time, velocity, normal_force, initial_force: float = 0.0, backend: str = "auto"
+):
     """û_R at the sample times for a measured velocity (midpoint exact-exponential step, Eq. 1–2).
 
-    The same step as ``lugre.step`` and ``lugre.friction_coefficient``, written out on Python
-    floats: the fit calls this for every sample thousands of times, and numpy's per-call
-    overhead on scalars would cost about 10×.
+    The same step as ``lugre.step`` and ``lugre.friction_coefficient``, run in C
+    (``sj_equation_error_friction`` of ``rig_kernel.c``: the fit calls it for every sample
+    thousands of times) with the Python loop on floats as its reference.
 
     Parameters
     ----------
@@ -74,12 +78,48 @@ def simulate_friction(p: lugre.LuGreParameters, time, velocity, normal_force, in
         The measured series (SI).
     initial_force : float
         The friction force at the first sample, for a consistent start deflection.
+    backend : str
+        'c', 'python' (the reference loop) or 'auto' (C, else Python with a warning).
 
     Returns
     -------
     ndarray
         û_R per sample.
     """
+    from smartjoint.common import native
+
+    module = native.choose(backend, "equation-error friction", kernel, lambda: None, _C_FAILURE, stacklevel=2)
+    if module is None:
+        return _simulate_friction_python(p, time, velocity, normal_force, initial_force)
+    ffi, lib = module.ffi, module.lib
+    time = np.ascontiguousarray(time, dtype=float)
+    velocity = np.ascontiguousarray(velocity, dtype=float)
+    gain = np.ascontiguousarray(p.moment_arm * np.asarray(normal_force, dtype=float))
+    if not (velocity.shape == gain.shape == time.shape):
+        raise ValueError(f"time, velocity, normal_force: shapes {time.shape}, {velocity.shape}, {gain.shape} differ")
+    joint = {name: getattr(p, name) for name, _ in ffi.typeof("sj_rig").fields if name != "inertia"}
+    out = np.empty(time.size)
+    if time.size:
+        bound = p.max_deflection
+        phi = min(max(initial_force / (float(gain[0]) * p.sigma0), -bound), bound)  # consistent start
+
+        def pointer(array):
+            return ffi.cast("double *", ffi.from_buffer(array))
+
+        lib.sj_equation_error_friction(
+            ffi.new("sj_rig *", dict(joint, inertia=0.0)),
+            pointer(time),
+            time.size,
+            pointer(velocity),
+            pointer(gain),
+            phi,
+            pointer(out),
+        )
+    return out
+
+
+def _simulate_friction_python(p, time, velocity, normal_force, initial_force):
+    """Reference loop of ``simulate_friction`` on Python floats (``sj_equation_error_friction`` mirrors it)."""
     s0, s1, s2 = p.sigma0, p.sigma1, p.sigma2
     fc, fd, vs = p.coulomb, p.stribeck, p.stribeck_velocity
     arm = p.moment_arm

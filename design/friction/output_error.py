@@ -5,6 +5,7 @@ sample), fitted segment by segment from one sliding-velocity peak to the next.""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -27,6 +28,18 @@ from smartjoint.design.friction.fitting import (
 from smartjoint.design.friction.records import Record, RecordError
 
 P3 = ("sigma0", "sigma1", "sigma2", "coulomb", "stribeck", "stribeck_velocity")  # output error: all six
+START_FRACTIONS = (0.1, 0.3, 1.0)  # F_d / F_c of the screened starts
+START_SPEEDS = (0.03, 0.1, 0.3)  # v_s / the median sliding speed at the segment starts
+# The search box's lower ends [SI, per unit normal force]: a parameter that ends there is one the
+# records do not see (its interval is unbounded); the upper ends are lugre.PLAUSIBLE's.
+SEARCH_FLOOR = {
+    "sigma0": 1.0,
+    "sigma1": 1e-9,
+    "sigma2": 1e-9,
+    "coulomb": 1e-4,
+    "stribeck": 1e-7,
+    "stribeck_velocity": 1e-8,
+}
 
 
 @dataclass
@@ -193,17 +206,36 @@ def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple
         # sends the optimiser back instead of stopping it.
         return np.nan_to_num(np.concatenate(parts), nan=1e3, posinf=1e3, neginf=-1e3)
 
-    theta0 = np.log([getattr(start, n) for n in P3])
+    # The Eq. 3 result is a poor start when its records are heavy (m·a swamps the friction
+    # column: F_d and v_s collapse to 0, and the velocities barely tell that valley from the
+    # truth, cost +18 %): screen it with a grid over F_d and v_s scaled from the records'
+    # sliding speed, and polish the cheapest within the plausible box, not around the start.
+    speed = float(np.median(np.concatenate([np.abs(s.start_velocity) for s in shootings])))
+    lower, upper = _search_box("A" if start.radius is None else "B")
+    candidates = [start] + [
+        dataclasses.replace(
+            start,
+            stribeck=fraction * start.coulomb,
+            stribeck_velocity=factor * speed,
+            sigma1=max(start.sigma1, 1e-4 * math.sqrt(start.sigma0)),
+            sigma2=max(start.sigma2, 1e-3 * start.coulomb),
+        )
+        for fraction in START_FRACTIONS
+        for factor in START_SPEEDS
+    ]
+    thetas = [np.clip(np.log([getattr(c, n) for n in P3]), lower + 1e-9, upper - 1e-9) for c in candidates]
+    costs = [float(np.sum(residual(theta) ** 2)) for theta in thetas]
     solution = scipy.optimize.least_squares(
         residual,
-        theta0,
-        bounds=(theta0 - math.log(1e3), theta0 + math.log(1e3)),
+        thetas[int(np.argmin(costs))],
+        bounds=(lower, upper),
         x_scale=1.0,
         diff_step=1e-6,
         xtol=1e-10,
         ftol=1e-12,
         max_nfev=100,
     )
+    solution.nfev += len(thetas)
     p = parameters(solution.x)
     errors = {s.record.name: nrmse(s.measured, shoot(p, s)) for s in shootings}
     lengths = np.concatenate([np.diff(np.append(s.starts, s.record.time.size - 1)) for s in shootings])
@@ -213,6 +245,14 @@ def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple
             f"{sum(s.starts.size for s in shootings)} segments): cost {solution.cost:.4g}"
         )
     return step_result(P3, solution, errors, solution.nfev, np.repeat(np.arange(lengths.size), lengths)), p
+
+
+def _search_box(joint_type: str) -> tuple[np.ndarray, np.ndarray]:
+    """Log bounds of the output-error search: ``SEARCH_FLOOR`` … ``lugre.PLAUSIBLE``'s upper ends."""
+    column = 0 if joint_type == "A" else 1
+    lower = np.log([SEARCH_FLOOR[n] for n in P3])
+    upper = np.log([lugre.PLAUSIBLE[n][column][1] for n in P3])
+    return lower, upper
 
 
 def output_error_blocker(stick: list[Record], enabled: bool) -> str | None:

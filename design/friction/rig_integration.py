@@ -24,6 +24,8 @@ typedef struct {
 long sj_rig_integrate(const sj_rig *p, const double *time, long samples, int substeps, const double *force,
                       const double *gain, double velocity0, double deflection0, double *velocity,
                       double *deflection);
+void sj_equation_error_friction(const sj_rig *p, const double *time, long samples, const double *velocity,
+                                const double *gain, double deflection0, double *friction);
 """
 
 

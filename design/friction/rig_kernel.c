@@ -1,7 +1,13 @@
-/* Isolated-joint rig kernel of smartjoint.design.friction.rig_integration (compiled on first use through cffi).
+/* Identification kernels of smartjoint.design.friction (compiled on first use through cffi).
  *
- * The same algorithm as rig_integration._integrate_python, statement for statement, so that the two agree
- * to round-off (tests/test_identify.py): the rig model of paper Section 3.2
+ * sj_rig_integrate: the rig integrator of rig_integration.py;
+ * sj_equation_error_friction: the model force of paper Eq. 3 of identify.py.
+ *
+ * Each does what its Python reference does, statement for statement, so that the two agree
+ * to round-off (tests/test_identify.py).
+ *
+ * The rig integrator:
+ * the rig model of paper Section 3.2
  *
  *     m v' = F_exc - gain mu(v, phi),   phi' = f(v, phi)        (Eq. 1-2, gain = r F_N)
  *
@@ -80,4 +86,35 @@ long sj_rig_integrate(const sj_rig *p, const double *time, long samples, int sub
         deflection[k] = phi;
     }
     return unconverged;
+}
+
+/* The model friction force u_R(t_k) of Eq. 3 for a measured velocity (identify._simulate_friction_python):
+ * Eq. 1 by the exact-exponential step at the midpoint velocity, Eq. 2 at each sample; `gain` is r F_N per
+ * sample, `deflection0` the start deflection.  Writes `samples` forces to `friction`. */
+void sj_equation_error_friction(const sj_rig *p, const double *time, long samples, const double *velocity,
+                                const double *gain, double deflection0, double *friction)
+{
+    const double s0 = p->sigma0, s1 = p->sigma1, s2 = p->sigma2;
+    const double fc = p->coulomb, fd = p->stribeck, vs = p->stribeck_velocity;
+    double phi = deflection0;
+    double previous_v = velocity[0];
+    for (long k = 0; k < samples; ++k) {
+        double v = velocity[k];
+        if (k) {
+            double dt = time[k] - time[k - 1];
+            double mid = 0.5 * (v + previous_v);
+            double ratio = mid / vs;
+            double level = fc + fd * exp(-(ratio * ratio));
+            double rate = s0 * fabs(mid) / level;
+            if (rate > 0.0) {
+                double target = copysign(level / s0, mid);
+                phi = phi + (target - phi) * -expm1(-rate * dt);
+            }
+        }
+        double ratio = v / vs;
+        double level = fc + fd * exp(-(ratio * ratio));
+        double phidot = v - s0 * fabs(v) / level * phi;
+        friction[k] = gain[k] * (s0 * phi + s1 * phidot + s2 * v);
+        previous_v = v;
+    }
 }
