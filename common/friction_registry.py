@@ -156,6 +156,9 @@ LUGRE = FrictionModel(
         "smartjoint.design.friction.identify",
         "smartjoint.design.friction.output_error",
         "smartjoint.design.friction.rig_campaign",
+        "smartjoint.design.friction.equation_error",
+        "smartjoint.design.friction.sequential_campaign",
+        "smartjoint.design.friction.identifiability",
     ),
 )
 

@@ -29,8 +29,8 @@ import scipy.optimize
 from scipy.signal import butter, sosfiltfilt
 
 from smartjoint.design.friction import lugre
+from smartjoint.design.friction.equation_error import simulate_friction
 from smartjoint.design.friction.fitting import nrmse
-from smartjoint.design.friction.identify import simulate_friction
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "emps" / "DATA_EMPS.mat"
 CUTOFF_HZ = 100.0  # the benchmark's parameters (M ≈ 95 kg, Fv ≈ 204, Fc ≈ 20.3) come out from 50 Hz up

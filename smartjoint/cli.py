@@ -24,7 +24,7 @@ from smartjoint.commands import (
 )
 from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_pil, cmd_sil, cmd_study
 from smartjoint.commands_fmu import cmd_fmu
-from smartjoint.commands_friction import cmd_identify, cmd_rig
+from smartjoint.commands_friction import cmd_campaign, cmd_identify, cmd_rig
 from smartjoint.commands_sweep import cmd_sweep
 from smartjoint.common import friction_registry, law_registry
 from smartjoint.common.errors import SmartjointError
@@ -124,8 +124,30 @@ def _add_model_commands(sub, o: SimpleNamespace) -> None:
     p.set_defaults(func=cmd_export_model)
 
 
+def _add_campaign_command(sub, o: SimpleNamespace) -> None:
+    """campaign: the sequential rig campaign over a folder (docs/identification.md)."""
+    p = sub.add_parser(
+        "campaign",
+        parents=[o.json_summary],
+        help="the sequential rig campaign in a folder: plan a round, identify what was measured, plan the next",
+    )
+    p.add_argument("folder", help="campaign folder: the records round<k>_<test>.csv and the plans round<k>_plan.md")
+    p.add_argument("--prior", metavar="FILE", required=True, help="the parameters believed before the first record "
+                   "(format of rig --parameters; docs/identification.md)")  # fmt: skip
+    p.add_argument("--type", choices=("A", "B"), default=None, help="joint type (default: the prior's joint_type)")
+    p.add_argument("--simulate", metavar="FILE", help="fill in missing records with the simulated rig of these "
+                   "parameters (format of rig --parameters) instead of waiting for a person to measure "
+                   "them")  # fmt: skip
+    p.add_argument("--noise", type=float, default=0.01, help="with --simulate: relative noise (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="with --simulate: noise seed (default: %(default)s)")
+    p.add_argument("--cycles", type=float, default=8.0, help="excitation cycles per record (default: %(default)s)")
+    p.add_argument("-o", "--output", metavar="JOINT.toml", help="when the campaign is done: the result file "
+                   "(as identify -o; parameters not identified are listed without a value)")  # fmt: skip
+    p.set_defaults(func=cmd_campaign)
+
+
 def _add_friction_commands(sub, o: SimpleNamespace) -> None:
-    """rig, identify."""
+    """rig, campaign, identify."""
     p = sub.add_parser(
         "rig",
         parents=[o.json_summary],
@@ -172,6 +194,8 @@ def _add_friction_commands(sub, o: SimpleNamespace) -> None:
     )
     p.add_argument("-o", "--output", required=True, help="record file (CSV), or folder with --campaign")
     p.set_defaults(func=cmd_rig)
+
+    _add_campaign_command(sub, o)
 
     p = sub.add_parser(
         "identify",

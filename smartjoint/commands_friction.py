@@ -192,3 +192,66 @@ def cmd_identify(args) -> dict:
         if args.output:
             print(f"\nresult written to {args.output} (a design names it in [friction.{result.joint_type}] file = …)")
     return out
+
+
+def cmd_campaign(args) -> dict:
+    """``smartjoint campaign``: the sequential campaign over a folder of records (``campaign_folder``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``campaign`` options (folder, ``--prior``, ``--type``, ``--simulate``, ``-o``).
+
+    Returns
+    -------
+    dict
+        ``"state"`` ('waiting' for records, or 'done'), the plan file and the records still to
+        measure, or the rounds, the stop reason and the identification.
+    """
+    from smartjoint.design.friction import lugre, parameter_file, rig
+    from smartjoint.design.friction.campaign_folder import run_folder
+    from smartjoint.report import identification_table
+
+    if not 0.0 <= args.noise <= 1.0:
+        raise SmartjointError(f"--noise: {args.noise!r} — allowed: 0 … 1 (relative to each signal's RMS)")
+    if not (args.cycles > 0.0 and args.cycles <= 1000.0):
+        raise SmartjointError(f"--cycles: {args.cycles!r} — allowed: > 0 and <= 1000")
+    prior = rig.load_parameter_set(args.prior, args.type)
+    if not isinstance(prior.parameters, lugre.LuGreParameters):
+        raise SmartjointError(f"--prior {args.prior}: model {prior.parameters.model!r} — the sequential campaign "
+                              "designs its records from the LuGre parameters; allowed: a LuGre prior")  # fmt: skip
+    simulate = None if args.simulate is None else rig.load_parameter_set(args.simulate, prior.joint_type)
+    folder = Path(args.folder)
+    if not args.json:
+        print(f"prior: {prior.describe()}")
+        if simulate is not None:
+            print(f"simulated rig: {simulate.describe()}, noise {args.noise:g}, seed {args.seed}")
+    done = run_folder(
+        folder, prior.joint_type, prior.parameters, simulate, args.noise, args.seed, args.cycles,
+        None if args.json else print,
+    )  # fmt: skip
+    if done.result is None:
+        assert done.pending is not None and done.plan_file is not None
+        if not args.json:
+            print(f"round {done.pending.number}: measure up to {len(done.missing)} record(s) as planned in "
+                  f"{done.plan_file} (first: {done.missing[0]}), then run this command again")  # fmt: skip
+        return {"state": "waiting", "round": done.pending.number, "plan": str(done.plan_file),
+                "missing": list(done.missing)}  # fmt: skip
+    result = done.result
+    out: dict = {"state": "done", **result.as_dict(), "simulated_records": [str(p) for p in done.simulated]}
+    identification = result.identification
+    if not args.json:
+        print(f"campaign {'converged' if result.converged else 'stopped'}: {result.stop}")
+    if identification is None:
+        raise SmartjointError(f"campaign {folder}: {result.stop}")
+    out["identification"] = identification.as_dict()
+    if args.output:
+        paths = sorted(folder / f"{name}.csv" for name in identification.records)
+        text = parameter_file.result_text(identification, parameter_file.file_hashes(paths))
+        write_atomic(Path(args.output), text)
+        out["written"] = str(args.output)
+    if not args.json:
+        print(identification_table(identification))
+        if args.output:
+            print(f"\nresult written to {args.output}")
+    return out

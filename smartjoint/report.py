@@ -222,9 +222,13 @@ def identification_table(result) -> str:
     data = result.as_dict()
     lines = ["| parameter | value | 95 % interval | step |", "|---|---:|---|---|"]
     for name, entry in data["parameters"].items():
+        if name in data["not_identified"]:  # no point value for what the records do not determine
+            lines.append(f"| {name} | not identified | — | {entry['step']} |")
+            continue
         interval = "given" if entry["ci95"] is None else _interval(*entry["ci95"])
-        weak = " (weakly identifiable)" if name in data["weakly_identifiable"] else ""
-        lines.append(f"| {name} | {entry['value']:.4g} | {interval}{weak} | {entry['step']} |")
+        lines.append(f"| {name} | {entry['value']:.4g} | {interval} | {entry['step']} |")
+    if data["not_identified"]:
+        lines += ["", "Not identified:", ""] + [f"- {reason}" for reason in data["not_identified"].values()]
     velocity = data.get("velocity_nrmse", {})
     lines += ["", "| record | friction NRMSE (Eq. 3) | velocity NRMSE (output error) |", "|---|---:|---:|"]
     lines += [
@@ -236,7 +240,7 @@ def identification_table(result) -> str:
 
 def plot_hysteresis(result, folder: Path) -> list[Path]:
     """Measured vs model friction over displacement (micro-slip) or velocity (stick-slip)."""
-    from smartjoint.design.friction.identify import model_friction
+    from smartjoint.design.friction.equation_error import model_friction
 
     paths = []
     stick_names = set(result.stick.nrmse)  # record names of step 2

@@ -9,8 +9,8 @@ import pytest
 from conftest import run_cli
 
 from smartjoint.design.friction import lugre, rig, rig_integration
+from smartjoint.design.friction.equation_error import model_friction, simulate_friction
 from smartjoint.design.friction.fitting import nrmse
-from smartjoint.design.friction.identify import model_friction, simulate_friction
 from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.friction.rig_campaign import standard_campaign
 

@@ -14,8 +14,9 @@ share (signal filters, NRMSE, the statistics of a step). The function
 identify``): exported here it would hide the module of the same name.
 """
 
+from smartjoint.design.friction.equation_error import model_friction, simulate_friction
 from smartjoint.design.friction.fitting import StepResult, nrmse
-from smartjoint.design.friction.identify import Identification, model_friction, simulate_friction
+from smartjoint.design.friction.identify import Identification
 from smartjoint.design.friction.lugre import TABLE_1, LuGreParameters
 from smartjoint.design.friction.model import FrictionLaw, joint_parameters, plant_laws
 from smartjoint.design.friction.record_screening import classify

@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.stats
 from scipy.signal import butter, sosfiltfilt
 
 from smartjoint.design.friction.records import Record
@@ -88,6 +89,20 @@ def filtered_velocity(record: Record, cutoff_hz: float | None = None) -> np.ndar
     if cutoff_hz is None:
         cutoff_hz = VELOCITY_CUTOFF * dominant
     return low_pass(record.sliding_velocity, record.sample_time, cutoff_hz, 1.0 / dominant)
+
+
+def smoothed_friction(record: Record) -> np.ndarray:
+    """The friction column low-passed at ``VELOCITY_CUTOFF``× the excitation frequency (starts, screening).
+
+    A heavy element's friction column is F_exc − m·a: at 3 % velocity noise its m·a noise
+    lies far above the friction itself (type A, 300 kg: start F_c 4.8, F_d 16 for a true 0.8
+    and 0.3), while a stick-slip cycle's shape lives well below 25× the excitation frequency.
+    """
+    signal = record.excitation_force if record.excitation_force is not None else record.friction_force
+    frequency = dominant_frequency(signal, record.sample_time)
+    if not frequency > 0.0:
+        return record.friction_force
+    return low_pass(record.friction_force, record.sample_time, VELOCITY_CUTOFF * frequency, 1.0 / frequency)
 
 
 def rms(x) -> float:
@@ -191,6 +206,9 @@ def step_result(names, solution, errors: dict[str, float], evaluations: int, clu
         np.add.at(gradients, clusters, J * r[:, None])
         covariance = inverse @ (gradients.T @ gradients) @ inverse * count / max(count - len(names), 1)
     sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    # With few clusters the sandwich's own spread matters: Student's t on count − parameters
+    # degrees of freedom instead of the normal quantile (1.96).
+    quantile = 1.96 if clusters is None else float(scipy.stats.t.ppf(0.975, max(count - len(names), 1)))
     sigma[np.any(np.abs(vt[~seen]) > 1e-6, axis=0) | (solution.active_mask != 0)] = np.inf
     with np.errstate(invalid="ignore"):
         correlation = np.nan_to_num(covariance / np.outer(np.maximum(sigma, 1e-300), np.maximum(sigma, 1e-300)))
@@ -198,8 +216,8 @@ def step_result(names, solution, errors: dict[str, float], evaluations: int, clu
     return StepResult(
         tuple(names),
         np.exp(solution.x),
-        np.exp(np.clip(solution.x - 1.96 * sigma, -700, 700)),
-        np.exp(np.clip(solution.x + 1.96 * sigma, -700, 700)),
+        np.exp(np.clip(solution.x - quantile * sigma, -700, 700)),
+        np.exp(np.clip(solution.x + quantile * sigma, -700, 700)),
         correlation,
         errors,
         float(solution.cost),
@@ -208,6 +226,7 @@ def step_result(names, solution, errors: dict[str, float], evaluations: int, clu
 
 
 __all__ = [
+    "smoothed_friction",
     "EXCITATION_CUTOFF",
     "StepResult",
     "VELOCITY_CUTOFF",

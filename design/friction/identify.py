@@ -49,99 +49,23 @@ import scipy.optimize
 
 from smartjoint.common.errors import SmartjointError
 from smartjoint.design.friction import lugre
-from smartjoint.design.friction.fitting import StepResult, filtered_velocity, nrmse, rms, step_result
+from smartjoint.design.friction.equation_error import model_friction
+from smartjoint.design.friction.fitting import (
+    StepResult,
+    filtered_velocity,
+    nrmse,
+    rms,
+    smoothed_friction,
+    step_result,
+)
+from smartjoint.design.friction.identifiability import not_identified
 from smartjoint.design.friction.output_error import P3, output_error_blocker, refine
 from smartjoint.design.friction.record_screening import check_records, joint_radius, slides
 from smartjoint.design.friction.records import Record, RecordError
-from smartjoint.design.friction.rig_integration import kernel
 
 P1 = ("sigma0", "sigma1")
 P2 = ("coulomb", "stribeck", "stribeck_velocity", "sigma2")
 ROUNDS = 2
-_C_FAILURE: list[str] = []  # why the C kernel is unavailable on this machine (reported once)
-
-
-def simulate_friction(
-    p: lugre.LuGreParameters, time, velocity, normal_force, initial_force: float = 0.0, backend: str = "auto"
-):
-    """û_R at the sample times for a measured velocity (midpoint exact-exponential step, Eq. 1–2).
-
-    The same step as ``lugre.step`` and ``lugre.friction_coefficient``, run in C
-    (``sj_equation_error_friction`` of ``rig_kernel.c``: the fit calls it for every sample
-    thousands of times) with the Python loop on floats as its reference.
-
-    Parameters
-    ----------
-    p : LuGreParameters
-        The parameters.
-    time, velocity, normal_force : ndarray
-        The measured series (SI).
-    initial_force : float
-        The friction force at the first sample, for a consistent start deflection.
-    backend : str
-        'c', 'python' (the reference loop) or 'auto' (C, else Python with a warning).
-
-    Returns
-    -------
-    ndarray
-        û_R per sample.
-    """
-    from smartjoint.common import native
-
-    module = native.choose(backend, "equation-error friction", kernel, lambda: None, _C_FAILURE, stacklevel=2)
-    if module is None:
-        return _simulate_friction_python(p, time, velocity, normal_force, initial_force)
-    ffi, lib = module.ffi, module.lib
-    time = np.ascontiguousarray(time, dtype=float)
-    velocity = np.ascontiguousarray(velocity, dtype=float)
-    gain = np.ascontiguousarray(p.moment_arm * np.asarray(normal_force, dtype=float))
-    if not (velocity.shape == gain.shape == time.shape):
-        raise ValueError(f"time, velocity, normal_force: shapes {time.shape}, {velocity.shape}, {gain.shape} differ")
-    joint = {name: getattr(p, name) for name, _ in ffi.typeof("sj_rig").fields if name != "inertia"}
-    out = np.empty(time.size)
-    if time.size:
-        bound = p.max_deflection
-        phi = min(max(initial_force / (float(gain[0]) * p.sigma0), -bound), bound)  # consistent start
-
-        def pointer(array):
-            return ffi.cast("double *", ffi.from_buffer(array))
-
-        lib.sj_equation_error_friction(
-            ffi.new("sj_rig *", dict(joint, inertia=0.0)),
-            pointer(time),
-            time.size,
-            pointer(velocity),
-            pointer(gain),
-            phi,
-            pointer(out),
-        )
-    return out
-
-
-def _simulate_friction_python(p, time, velocity, normal_force, initial_force):
-    """Reference loop of ``simulate_friction`` on Python floats (``sj_equation_error_friction`` mirrors it)."""
-    s0, s1, s2 = p.sigma0, p.sigma1, p.sigma2
-    fc, fd, vs = p.coulomb, p.stribeck, p.stribeck_velocity
-    arm = p.moment_arm
-    out = np.empty(len(time))
-    bound = p.max_deflection
-    phi = min(max(initial_force / (arm * normal_force[0] * s0), -bound), bound)  # consistent start
-    previous_v = float(velocity[0])
-    for k in range(len(time)):
-        v = float(velocity[k])
-        if k:
-            dt = float(time[k] - time[k - 1])
-            mid = 0.5 * (v + previous_v)
-            level = fc + fd * math.exp(-((mid / vs) ** 2))
-            rate = s0 * abs(mid) / level
-            if rate > 0.0:
-                target = math.copysign(level / s0, mid)
-                phi = phi + (target - phi) * -math.expm1(-rate * dt)
-        level = fc + fd * math.exp(-((v / vs) ** 2))
-        phidot = v - s0 * abs(v) / level * phi
-        out[k] = arm * float(normal_force[k]) * (s0 * phi + s1 * phidot + s2 * v)
-        previous_v = v
-    return out
 
 
 @dataclass
@@ -172,10 +96,36 @@ class Identification:
         """Weakly identifiable by the two Eq. 3 steps alone (the paper's method)."""
         return list(dict.fromkeys(self.micro.weak + self.stick.weak))
 
+    @property
+    def not_identified(self) -> dict[str, str]:
+        """The parameters the records do not determine, each with why (``identifiability``)."""
+        return not_identified(self)
+
+    def parameter_entries(self) -> dict[str, dict]:
+        """Per parameter its value, 95 % interval and the step that set it (the last one wins)."""
+        results = [("p1", self.micro), ("p2", self.stick)]
+        if self.refined is not None:
+            results.append(("output error", self.refined))
+        out: dict[str, dict] = {}
+        for step, result in results:
+            for k, name in enumerate(result.names):
+                out[name] = {
+                    "value": float(result.values[k]),
+                    "ci95": [float(result.lower[k]), float(result.upper[k])],
+                    "step": step,
+                }
+        if self.parameters.radius is not None:
+            out["radius"] = {"value": self.parameters.radius, "ci95": None, "step": "given"}
+        return out
+
     def as_dict(self) -> dict:
+        missing = self.not_identified
         out: dict = {
             "joint_type": self.joint_type,
-            "parameters": {},
+            "parameters": {
+                name: entry | {"identified": name not in missing} for name, entry in self.parameter_entries().items()
+            },
+            "not_identified": missing,
             "nrmse": {**self.micro.nrmse, **self.stick.nrmse},
             "weakly_identifiable": self.weakly_identifiable,
             "correlation": {},
@@ -186,15 +136,7 @@ class Identification:
             results.append(("output error", self.refined))
             out["velocity_nrmse"] = dict(self.refined.nrmse)
         for step, result in results:
-            for k, name in enumerate(result.names):
-                out["parameters"][name] = {
-                    "value": float(result.values[k]),
-                    "ci95": [float(result.lower[k]), float(result.upper[k])],
-                    "step": step,
-                }
             out["correlation"][step] = {"names": list(result.names), "matrix": result.correlation.tolist()}
-        if self.parameters.radius is not None:
-            out["parameters"]["radius"] = {"value": self.parameters.radius, "ci95": None, "step": "given"}
         return out
 
 
@@ -202,7 +144,7 @@ def _initial_guess(
     micro: list[Record], stick: list[Record], radius: float | None, velocities, joint_type: str
 ) -> dict[str, float]:
     arm = radius if radius is not None else 1.0
-    mu = np.concatenate([r.friction_force / (arm * r.normal_force) for r in stick])
+    mu = np.concatenate([smoothed_friction(r) / (arm * r.normal_force) for r in stick])
     v = np.concatenate([velocities[r.name] for r in stick])
     sliding = np.abs(v) > 0.3 * np.abs(v).max()
     coulomb = float(np.median(np.abs(mu[sliding])))
@@ -212,7 +154,8 @@ def _initial_guess(
             "is zero while sliding — step 2 needs a Coulomb level F_c > 0"
         )
     peak = float(np.percentile(np.abs(mu), 99.5))
-    stribeck = max(peak - coulomb, 0.05 * coulomb)
+    # Only a start: kept within F_s ≤ 4·F_c, far beyond any contact's Stribeck peak.
+    stribeck = min(max(peak - coulomb, 0.05 * coulomb), 3.0 * coulomb)
     # Presliding: μ grows like σ0·x with x = ∫v dt; the slope of μ over x gives σ0.
     slopes = []
     for r in micro:
@@ -257,26 +200,6 @@ def _check_plausible(values: dict[str, float], joint_type: str, stage: str) -> N
                 f"identify: the records give {name} = {value:.6g} as {stage} — plausible: > {lower:g} "
                 f"and <= {upper:g}; the records do not determine the LuGre parameters"
             )
-
-
-def model_friction(p: lugre.LuGreParameters, record: Record, velocity) -> np.ndarray:
-    """û_R of Eq. 3 for a record, from the (possibly filtered) measured ``velocity``.
-
-    Parameters
-    ----------
-    p : LuGreParameters
-        The parameters.
-    record : Record
-        The record (time, normal force, first friction force).
-    velocity : ndarray
-        The velocity fed to the model.
-
-    Returns
-    -------
-    ndarray
-        û_R per sample.
-    """
-    return simulate_friction(p, record.time, velocity, record.normal_force, record.friction_force[0])
 
 
 def _fit(
@@ -339,6 +262,7 @@ def identify(
     progress=None,
     cutoff_hz: float | None = None,
     output_error: bool = True,
+    previous: lugre.LuGreParameters | None = None,
 ) -> Identification:
     """Two-step identification of Eq. 3 from micro-slip and stick-slip records, then the
     output-error step (`output_error.refine`) when every stick-slip record has its excitation force and
@@ -360,6 +284,9 @@ def identify(
         Low-pass the measured velocity at this cutoff before Eq. 3 (default: the raw velocity).
     output_error : bool
         Run the output-error step where the records allow it.
+    previous : LuGreParameters, optional
+        An earlier estimate of the same joint (the round before, in a sequential campaign): one
+        more start of the output-error step, which then converges in a few iterations.
 
     Returns
     -------
@@ -386,7 +313,7 @@ def identify(
     check_records(micro + stick)
     try:
         with np.errstate(all="ignore"):
-            return _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error)
+            return _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error, previous)
     except SmartjointError:
         raise
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as error:
@@ -398,7 +325,7 @@ def identify(
         ) from None
 
 
-def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error) -> Identification:
+def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error, previous) -> Identification:
     # The raw velocity unless a cutoff is given: a low-pass also cuts the bristle resonance
     # that the measured force contains, which biases the fit more than the noise does.
     velocities = {r.name: (filtered_velocity(r, cutoff_hz) if cutoff_hz else r.sliding_velocity) for r in micro + stick}
@@ -451,7 +378,7 @@ def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_erro
     refined = None
     blocker = output_error_blocker(stick, output_error)
     if blocker is None:
-        refined, parameters = refine(stick, parameters, progress)
+        refined, parameters = refine(stick, parameters, progress, previous)
         steps.append(
             f"output error (rig model driven by the excitation force): σ0, σ1, σ2, F_c, F_d, v_s on "
             f"{len(stick)} stick-slip records"
@@ -477,4 +404,4 @@ def _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_erro
     )
 
 
-__all__ = ["Identification", "identify", "model_friction", "simulate_friction"]
+__all__ = ["Identification", "identify"]

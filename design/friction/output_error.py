@@ -167,7 +167,9 @@ def shoot(p: lugre.LuGreParameters, shooting: Shooting) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple[StepResult, lugre.LuGreParameters]:
+def refine(
+    stick: list[Record], start: lugre.LuGreParameters, progress, previous: lugre.LuGreParameters | None = None
+) -> tuple[StepResult, lugre.LuGreParameters]:
     """Output-error step: all six parameters from the stick-slip velocities, started at ``start``.
 
     The rig model m·v̇ = F_exc − r·F_N·μ(v, φ) (Eq. 1–2) is driven by the measured excitation
@@ -186,6 +188,8 @@ def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple
         The stick-slip records (each with excitation force and inertia).
     start : LuGreParameters
         The result of the Eq. 3 steps.
+    previous : LuGreParameters, optional
+        An earlier estimate, screened with the other starts.
     progress : callable or None
         Receives one line when the step is done.
 
@@ -206,24 +210,8 @@ def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple
         # sends the optimiser back instead of stopping it.
         return np.nan_to_num(np.concatenate(parts), nan=1e3, posinf=1e3, neginf=-1e3)
 
-    # The Eq. 3 result is a poor start when its records are heavy (m·a swamps the friction
-    # column: F_d and v_s collapse to 0, and the velocities barely tell that valley from the
-    # truth, cost +18 %): screen it with a grid over F_d and v_s scaled from the records'
-    # sliding speed, and polish the cheapest within the plausible box, not around the start.
-    speed = float(np.median(np.concatenate([np.abs(s.start_velocity) for s in shootings])))
     lower, upper = _search_box("A" if start.radius is None else "B")
-    candidates = [start] + [
-        dataclasses.replace(
-            start,
-            stribeck=fraction * start.coulomb,
-            stribeck_velocity=factor * speed,
-            sigma1=max(start.sigma1, 1e-4 * math.sqrt(start.sigma0)),
-            sigma2=max(start.sigma2, 1e-3 * start.coulomb),
-        )
-        for fraction in START_FRACTIONS
-        for factor in START_SPEEDS
-    ]
-    thetas = [np.clip(np.log([getattr(c, n) for n in P3]), lower + 1e-9, upper - 1e-9) for c in candidates]
+    thetas = _starts(start, shootings, previous, lower, upper)
     costs = [float(np.sum(residual(theta) ** 2)) for theta in thetas]
     solution = scipy.optimize.least_squares(
         residual,
@@ -231,8 +219,10 @@ def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple
         bounds=(lower, upper),
         x_scale=1.0,
         diff_step=1e-6,
-        xtol=1e-10,
-        ftol=1e-12,
+        # Log parameters to 1e-8 and the cost to 1e-9 relative: far below any interval (≥ 0.1 %),
+        # and a third of the evaluations of 1e-10 / 1e-12, which mostly polished noise.
+        xtol=1e-8,
+        ftol=1e-9,
         max_nfev=100,
     )
     solution.nfev += len(thetas)
@@ -245,6 +235,30 @@ def refine(stick: list[Record], start: lugre.LuGreParameters, progress) -> tuple
             f"{sum(s.starts.size for s in shootings)} segments): cost {solution.cost:.4g}"
         )
     return step_result(P3, solution, errors, solution.nfev, np.repeat(np.arange(lengths.size), lengths)), p
+
+
+def _starts(start, shootings, previous, lower, upper) -> list[np.ndarray]:
+    """The output-error step's candidate starts (log parameters inside the search box)."""
+    # The Eq. 3 result is a poor start when its records are heavy (m·a swamps the friction
+    # column: F_d and v_s collapse to 0, and the velocities barely tell that valley from the
+    # truth, cost +18 %): screen it with a grid over F_d and v_s scaled from the records'
+    # sliding speed, and polish the cheapest within the plausible box, not around the start.
+    speed = float(np.median(np.concatenate([np.abs(s.start_velocity) for s in shootings])))
+    candidates = [start] + [
+        dataclasses.replace(
+            start,
+            stribeck=fraction * start.coulomb,
+            stribeck_velocity=factor * speed,
+            sigma1=max(start.sigma1, 1e-4 * math.sqrt(start.sigma0)),
+            sigma2=max(start.sigma2, 1e-3 * start.coulomb),
+        )
+        for fraction in START_FRACTIONS
+        for factor in START_SPEEDS
+    ]
+    if previous is not None:
+        candidates.append(dataclasses.replace(previous, radius=start.radius))
+    thetas = [np.clip(np.log([getattr(c, n) for n in P3]), lower + 1e-9, upper - 1e-9) for c in candidates]
+    return thetas
 
 
 def _search_box(joint_type: str) -> tuple[np.ndarray, np.ndarray]:

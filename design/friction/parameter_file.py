@@ -2,10 +2,12 @@
 columns) as ``smartjoint identify -o joint.toml`` writes them and a design file reads them
 (``[friction.X] file = …``, docs/design-file.md).
 
-The values stand at the top level, in the format ``smartjoint rig --parameters`` reads; the
-``[identification]`` table beside them says how they were found: the records used with their
-SHA-256, a provenance hash over those records and the settings, the 95 % intervals, the NRMSE
-and the parameters that were weakly identifiable. A reader that needs the values only skips it.
+The identified values stand at the top level, in the format ``smartjoint rig --parameters``
+reads; the ``[identification]`` table beside them says how they were found: the records used
+with their SHA-256, a provenance hash over those records and the settings, the 95 % intervals
+and the NRMSE. A parameter the records do not determine (``identifiability``) has no value at
+the top level: ``[identification.not_identified]`` names it with the reason, and a design that
+reads the file refuses the joint unless its own table states that value.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import math
 from pathlib import Path
 
 from smartjoint.common import friction_registry
+from smartjoint.design.friction.identifiability import not_identified
 from smartjoint.design.friction.identify import Identification
 
 
@@ -89,7 +92,10 @@ def result_text(identification: Identification, record_hashes: dict[str, str], o
     ]
     if model.name != friction_registry.DEFAULT:  # a file without ``model`` is the default model's
         lines.append(f'model = "{model.name}"')
+    missing = not_identified(identification)
     for parameter, value in zip(model.parameters, p.values().values()):
+        if parameter.key in missing:
+            continue  # no point value for what the records do not determine
         unit = parameter.unit(identification.joint_type)
         lines.append(f"{parameter.key} = {_number(value)}" + (f"  # [{unit}]" if unit else ""))
     if p.radius is not None:
@@ -99,7 +105,6 @@ def result_text(identification: Identification, record_hashes: dict[str, str], o
         "[identification]",
         f'provenance = "{provenance(identification, hashes, output_error)}"',
         f"output_error = {'true' if identification.refined is not None else 'false'}",
-        "weakly_identifiable = [" + ", ".join(f'"{n}"' for n in identification.weakly_identifiable) + "]",
         "records = [",
         *(f'  {{ file = "{_escaped(name)}", sha256 = "{digest}" }},' for name, digest in hashes.items()),
         "]",
@@ -107,8 +112,11 @@ def result_text(identification: Identification, record_hashes: dict[str, str], o
         "[identification.ci95]  # 95 % confidence intervals of the step that set each value",
     ]
     for name, entry in summary["parameters"].items():
-        if entry["ci95"] is not None:
+        if entry["ci95"] is not None and name not in missing:
             lines.append(f"{name} = [{_number(entry['ci95'][0])}, {_number(entry['ci95'][1])}]")
+    if missing:
+        lines += ["", "[identification.not_identified]  # no value: the records do not determine these (why)"]
+        lines += [f'{name} = "{_escaped(reason)}"' for name, reason in missing.items()]
     lines += ["", "[identification.nrmse]  # normalised RMS error of the friction force per record"]
     lines += [f'"{_escaped(name)}" = {_number(value)}' for name, value in summary["nrmse"].items()]
     return "\n".join(lines) + "\n"

@@ -90,8 +90,11 @@ def joint_friction(t: DesignTable, joint_type: str, written_in: str) -> JointFri
     """
     if "file" in t.data:
         name = t.string("file")
+        # Beside a file, the table may state what the file's records did not identify.
+        keys = friction_registry.MODELS[friction_registry.DEFAULT].keys
+        stated = {key: t.number(key, non_negative=True) for key in keys if key in t.data}
         t.finish()
-        return _parameter_file(Path(name), joint_type, t.key("file"), t.source)
+        return _parameter_file(Path(name), joint_type, t.key("file"), t.source, stated, t.path)
     friction = _values(t, joint_type, f"{Path(written_in).name} [{t.path}]", "")
     t.finish()
     return friction
@@ -138,8 +141,12 @@ def _values(t: DesignTable, joint_type: str, source: str, sha256: str) -> JointF
     return JointFriction(joint_type, tuple(values), radius=radius, source=source, sha256=sha256, model=name)
 
 
-def _parameter_file(path: Path, joint_type: str, key: str, source: str) -> JointFriction:
-    """A parameter file (``smartjoint rig --parameters`` or ``identify -o``) for ``joint_type``."""
+def _parameter_file(
+    path: Path, joint_type: str, key: str, source: str, stated: dict | None = None, table_path: str = ""
+) -> JointFriction:
+    """A parameter file (``smartjoint rig --parameters`` or ``identify -o``) for ``joint_type``;
+    ``stated`` (the design table's own values) fills in the parameters the file lists as not
+    identified, and only those."""
     raw = read_file(path, key, str(path), source, MAX_PARAMETER_FILE_BYTES)
     try:
         data = tomllib.loads(raw.decode("utf-8"))
@@ -148,8 +155,18 @@ def _parameter_file(path: Path, joint_type: str, key: str, source: str) -> Joint
     declared = data.pop("joint_type", joint_type)
     if declared != joint_type:
         raise DesignError(key, str(path), f"holds type {declared!r} parameters, for type {joint_type} joints", source)
+    missing = data.get("identification", {}).get("not_identified", {})
     for name in METADATA_TABLES:
         data.pop(name, None)
+    for parameter, value in (stated or {}).items():
+        if parameter not in missing:
+            allowed = f"{path} identified it — beside file = … state only what the file lists as not identified"
+            raise DesignError(f"{table_path}.{parameter}", value, allowed, source)
+        data[parameter] = value
+    for parameter, reason in missing.items():
+        if parameter not in data:
+            fix = f"state {parameter} = … in [{table_path}] beside file = …, or measure that record"
+            raise DesignError(key, str(path), f"{parameter} not identified by its records ({reason}); {fix}", source)
     table = DesignTable(data, "", str(path))
     friction = _values(table, joint_type, str(path), hashlib.sha256(raw).hexdigest())
     table.finish()

@@ -1,0 +1,126 @@
+"""The sequential campaign in a folder: the records a person (or the simulated rig) measured,
+the next round's test plan, and the identification once the campaign is done.
+
+Every run replays the campaign from the prior over the records in the folder
+(``sequential_campaign.run_sequential``; its plans are a deterministic function of the prior
+and the records): where a planned record ``round<k>_<test>.csv`` is missing, the round's plan
+is written as ``round<k>_plan.md`` and the run stops — the person measures those records and
+runs the command again. With ``simulate`` the rig fills in every missing record instead (and
+writes it, exactly as a person would save it), so the loop runs to its end in one call.
+Nothing but the plans and simulated records is written; an existing file is never replaced
+except a plan this module wrote.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from smartjoint.common.errors import SmartjointError
+from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction.records import Record, read_record, write_record
+from smartjoint.design.friction.sequential_campaign import (
+    NotMeasured,
+    Plan,
+    SequentialResult,
+    plan_text,
+    run_sequential,
+)
+
+PLAN_MARK = "# Rig test plan, round"  # the first line of every plan file this module writes
+
+
+@dataclass(frozen=True)
+class FolderCampaign:
+    """One run over a campaign folder: the campaign so far, or the plan still to measure."""
+
+    result: SequentialResult | None  # None while a round waits for records
+    pending: Plan | None  # the round whose records are missing
+    plan_file: Path | None  # where its plan was written
+    missing: tuple[str, ...]  # the record files still to measure (the first one at least)
+    simulated: tuple[Path, ...]  # records the simulated rig wrote in this run
+
+
+def run_folder(
+    folder: Path,
+    joint_type: str,
+    prior: lugre.LuGreParameters,
+    simulate: rig.ParameterSet | None = None,
+    noise: float = 0.0,
+    seed: int = 0,
+    cycles: float = 8.0,
+    progress=None,
+) -> FolderCampaign:
+    """Replay the campaign over ``folder``'s records; plan the next round or finish.
+
+    Parameters
+    ----------
+    folder : Path
+        The campaign folder (created when missing).
+    joint_type : str
+        'A' or 'B'.
+    prior : LuGreParameters
+        The experimenter's belief before the first record.
+    simulate : rig.ParameterSet, optional
+        Fill in missing records with the simulated rig of these parameters.
+    noise, seed, cycles
+        Of the simulated records.
+    progress : callable, optional
+        One line per round.
+
+    Returns
+    -------
+    FolderCampaign
+    """
+    if folder.exists() and not folder.is_dir():
+        raise SmartjointError(f"campaign folder {folder}: exists and is not a folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    simulated: list[Path] = []
+
+    def measure(test: rig.RigTest, name: str) -> Record:
+        path = folder / f"{name}.csv"
+        if path.is_file():
+            return read_record(path, prior.radius if joint_type == "B" else None)
+        if path.exists():
+            raise SmartjointError(f"{path}: exists and is not a record file")
+        if simulate is None:
+            raise NotMeasured(name)
+        record = dataclasses.replace(rig.simulate(test, simulate.parameters, simulate.source), name=name)
+        write_record(record, path)
+        simulated.append(path)
+        # What a replay reads: the plans that follow must come out the same from the files alone.
+        return read_record(path, prior.radius if joint_type == "B" else None)
+
+    try:
+        result = run_sequential(joint_type, prior, measure, noise=noise, seed=seed, cycles=cycles, progress=progress)
+    except NotMeasured as waiting:
+        plan = waiting.plan
+        assert plan is not None  # run_round names the round
+        measured = {p.stem for p in folder.glob("round*.csv")}
+        names = [f"round{plan.number}_{t.name}" for t in plan.tests]
+        plan_file = folder / f"round{plan.number}_plan.md"
+        _write_plan(plan_file, plan_text(plan, joint_type, measured))
+        missing = tuple(f"{n}.csv" for n in names if n not in measured)
+        return FolderCampaign(None, plan, plan_file, missing, tuple(simulated))
+    return FolderCampaign(result, None, None, (), tuple(simulated))
+
+
+def _write_plan(path: Path, text: str) -> None:
+    """Write a plan, replacing only a plan file this module wrote."""
+    if path.exists():
+        if not path.is_file() or not path.read_text(encoding="utf-8", errors="replace").startswith(PLAN_MARK):
+            raise SmartjointError(f"{path}: exists and is not a plan this command wrote — move it away")
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as stream:
+            stream.write(text)
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+__all__ = ["PLAN_MARK", "FolderCampaign", "run_folder"]
