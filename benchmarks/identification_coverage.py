@@ -28,7 +28,7 @@ from machine import python_machine, write_json  # benchmarks/machine.py (the scr
 
 from smartjoint.design.friction import lugre, rig
 from smartjoint.design.friction.identifiability import not_identified
-from smartjoint.design.friction.sequential_campaign import MAX_RECORDS, MAX_ROUNDS, run_sequential
+from smartjoint.design.friction.sequential_campaign import MAX_RECORDS, MAX_ROUNDS, plan_round, run_sequential
 
 TRUTHS = {
     "A": lugre.LuGreParameters(
@@ -118,6 +118,44 @@ def summary(cases: list[dict]) -> list[str]:
     return lines
 
 
+def _key(case: dict) -> tuple:
+    return (case["type"], tuple(case["prior"][n] for n in SCALED), case["noise"], case["seed"])
+
+
+def _earlier(path: str) -> dict:
+    """The distinct cases a stopped run wrote to ``path`` (``--resume``)."""
+    import json
+
+    if not Path(path).is_file():
+        return {}
+    return {_key(c): c for c in json.loads(Path(path).read_text())["cases"] if not c.get("copy_of_sigma0")}
+
+
+def _expand(cases: list[dict], priors: list) -> list[dict]:
+    """Every prior's case: one that differs from a run case only in σ0's factor is that case
+    (``copy_of_sigma0``), as its records are the same."""
+    run = {_key(c): c for c in cases if not c.get("copy_of_sigma0")}
+    out = list(run.values())
+    for t, f, n, s in sorted({(k[0], f, k[2], k[3]) for k in run for f in priors}):
+        source = run.get((t, _canonical(f), n, s))
+        if (t, f, n, s) not in run and source is not None:
+            out.append(source | {"prior": dict(zip(SCALED, f)), "copy_of_sigma0": True})
+    return out
+
+
+def _canonical(factors: tuple) -> tuple:
+    """The prior whose run stands for ``factors``: σ0 ×2 for both of σ0's factors."""
+    return factors if factors == PRIORS[0] else (2.0,) + tuple(factors[1:])
+
+
+def _check_sigma0_enters_no_plan(types) -> None:
+    """The reason the σ0 pairs may share a run: round 1's plan is the same for σ0 ×2 and ×0.5."""
+    for joint_type in types:
+        truth = TRUTHS[joint_type]
+        plans = [plan_round(joint_type, dataclasses.replace(truth, sigma0=f * truth.sigma0), []) for f in (2.0, 0.5)]
+        assert plans[0].tests == plans[1].tests, "σ0's prior changes the plan: run every prior"
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--types", nargs="+", default=["A", "B"], choices=["A", "B"])
@@ -127,22 +165,31 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=MAX_ROUNDS, help=f"at most {MAX_ROUNDS}; 1: the ladder alone")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--json", default=str(Path(__file__).with_name("identification_coverage.json")))
+    parser.add_argument("--resume", action="store_true", help="keep the cases an earlier run left in --json")
     parser.add_argument("--table", metavar="JSON", help="print the table of a (partial) earlier run's JSON and stop")
     args = parser.parse_args()
     if args.table:
         import json
 
-        print("\n".join(summary(json.loads(Path(args.table).read_text())["cases"])))
+        print("\n".join(summary(_expand(json.loads(Path(args.table).read_text())["cases"], PRIORS))))
         return 0
-    # Seeds outermost: a run stopped early has whole seeds done.
-    grid = [(t, f, n, s) for s, t, f, n in itertools.product(args.seeds, args.types, PRIORS[: args.priors], args.noise)]
+    # Seeds outermost: a run stopped early has whole seeds done. σ0's prior enters neither the
+    # plans (amplitudes from F_c + F_d, inertias from v_s) nor the fit (no prior in identify):
+    # priors that differ only in σ0 give the same records and result — run once, counted for each.
+    priors = PRIORS[: args.priors]
+    _check_sigma0_enters_no_plan(args.types)
+    distinct = list(dict.fromkeys(_canonical(f) for f in priors))
+    grid = [(t, f, n, s) for s, t, f, n in itertools.product(args.seeds, args.types, distinct, args.noise)]
+    done = _earlier(args.json) if args.resume else {}
     print(
-        f"{len(grid)} campaigns (budget {MAX_ROUNDS} rounds, {MAX_RECORDS} records) on {args.jobs} processes",
+        f"{len(grid)} distinct campaigns for {len(priors)} priors ({len(done)} done earlier; budget {MAX_ROUNDS} "
+        f"rounds, {MAX_RECORDS} records) on {args.jobs} processes",
         flush=True,
     )
-    cases = []
+    cases = list(done.values())
     with ProcessPoolExecutor(args.jobs) as pool:
-        futures = [pool.submit(run_case, t, f, n, s, args.rounds) for t, f, n, s in grid]
+        todo = [key for key in grid if key not in done]
+        futures = [pool.submit(run_case, t, f, n, s, args.rounds) for t, f, n, s in todo]
         for k, future in enumerate(futures):
             cases.append(future.result())
             c = cases[-1]
@@ -151,9 +198,10 @@ def main() -> int:
                 for n, p in c["parameters"].items()
                 if p["reported"]
             )
-            print(f"[{k + 1}/{len(grid)}] {c['type']} {c['prior']} {100 * c['noise']:g} % seed {c['seed']}: "
+            print(f"[{k + 1}/{len(todo)}] {c['type']} {c['prior']} {100 * c['noise']:g} % seed {c['seed']}: "
                   f"{c['rounds']} rounds, {c['records']} records — {verdict}", flush=True)  # fmt: skip
             write_json(args.json, {"benchmark": "identification_coverage", "complete": False, "cases": cases})
+    cases = _expand(cases, priors)
     lines = summary(cases)
     print("\n".join(lines))
     write_json(args.json, {"benchmark": "identification_coverage", "complete": True, "machine": python_machine(),

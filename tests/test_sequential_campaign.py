@@ -144,3 +144,36 @@ def test_the_campaign_command_refuses_bad_input_in_one_line(tmp_path):
     (tmp_path / "c" / "round1_plan.md").write_text("my notes")
     assert "not a plan this command wrote" in cli_error("campaign", tmp_path / "c", "--prior", prior)
     assert (tmp_path / "c" / "round1_plan.md").read_text() == "my notes"
+
+
+def test_the_run_takes_a_not_identified_parameter_only_from_the_design(tmp_path):
+    """Records that cannot determine σ1 and σ2 (a short ladder: no resolved bristle resonance, no
+    fast sliding): the friction stage of ``run`` uses the design's own σ1, σ2 and says so in the
+    source; a design that states no type A parameters is refused in one line naming σ1, why and
+    the fix — the identification's point value is never used."""
+    from conftest import TABLE_1_A
+
+    from smartjoint.design.friction.records import write_record
+    from smartjoint.design.friction.rig_campaign import campaign, run_campaign
+    from smartjoint.design.friction.stage import friction_stage
+
+    truth = lugre.LuGreParameters(**{**TABLE_1_A, "sigma1": 0.05})
+    measured = run_campaign(campaign("A", truth, noise=0.01, cycles=8), truth, lambda test: rig.simulate(test, truth))
+    paths = []
+    for k, record in enumerate(measured.micro + measured.stick):
+        paths.append(str(tmp_path / f"r{k}.csv"))
+        write_record(record, paths[-1])
+    data = small_truss()
+    data["friction"]["records"] = paths
+    design, results = friction_stage(parse_design(data), tmp_path, lambda line: None)
+    (a,) = [r for r in results if r.joint_type == "A"]
+    missing = a.identification.not_identified
+    assert {"sigma1", "sigma2"} <= set(missing) and not set(missing) & set(TARGETED)
+    used = a.used.values()
+    for name in missing:
+        assert used[name] == TABLE_1_A[name]  # the design's value, not the estimate
+        assert name in a.used.source
+    assert used["sigma0"] == a.identification.parameters.sigma0
+    del data["friction"]["A"]
+    with pytest.raises(DesignError, match=r"sigma1 not identified by the records \(σ1 .*state it in \[friction\.A\]"):
+        friction_stage(parse_design(data), tmp_path, lambda line: None)

@@ -54,7 +54,7 @@ def not_identified(identification) -> dict[str, str]:
 
 
 def _interval(width: float) -> str:
-    return "unbounded" if not np.isfinite(width) else f"±{100 * width:.0f} %"
+    return "unbounded" if not width <= 100.0 else f"±{100 * width:.0f} %"  # beyond ×100: the records do not bound it
 
 
 def _reason(name: str, width: float, identification) -> str:

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.optimize
@@ -84,6 +85,7 @@ class Identification:
     filtered: dict[str, np.ndarray] = field(default_factory=dict)
     refined: StepResult | None = None
     steps: list[str] = field(default_factory=list)
+    bootstrap: Any = None  # bootstrap.Bootstrap of the output-error step (bootstrap imports this module's callers)
 
     @property
     def weakly_identifiable(self) -> list[str]:
@@ -114,6 +116,11 @@ class Identification:
                     "ci95": [float(result.lower[k]), float(result.upper[k])],
                     "step": step,
                 }
+        if self.bootstrap is not None:  # the reported interval: curvature ∪ bootstrap
+            for name in self.bootstrap.names:
+                lower, upper = out[name]["ci95"]
+                out[name]["ci95_curvature"] = [lower, upper]
+                out[name]["ci95"] = [min(lower, self.bootstrap.lower[name]), max(upper, self.bootstrap.upper[name])]
         if self.parameters.radius is not None:
             out["radius"] = {"value": self.parameters.radius, "ci95": None, "step": "given"}
         return out
@@ -130,6 +137,7 @@ class Identification:
             "weakly_identifiable": self.weakly_identifiable,
             "correlation": {},
             "steps": list(self.steps),
+            "bootstrap": None if self.bootstrap is None else self.bootstrap.as_dict(),
         }
         results = [("p1", self.micro), ("p2", self.stick)]
         if self.refined is not None:

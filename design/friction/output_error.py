@@ -16,10 +16,9 @@ from scipy.signal import find_peaks, savgol_filter
 from smartjoint.common.errors import ModelError
 from smartjoint.design.friction import lugre, rig_integration
 from smartjoint.design.friction.fitting import (
-    EXCITATION_CUTOFF,
     VELOCITY_CUTOFF,
     StepResult,
-    dominant_frequency,
+    excitation_drive,
     low_pass,
     nrmse,
     rms,
@@ -96,9 +95,8 @@ def prepare_shooting(record: Record, arm: float) -> Shooting:
     RecordError
         When the velocity has no sliding peak.
     """
-    frequency = dominant_frequency(record.excitation_force, record.sample_time)
+    force, frequency = excitation_drive(record)
     period = 1.0 / frequency
-    force = low_pass(record.excitation_force, record.sample_time, EXCITATION_CUTOFF * frequency, period)
     smoothed = low_pass(record.sliding_velocity, record.sample_time, VELOCITY_CUTOFF * frequency, period)
     half_period = 0.5 * period / record.sample_time
     peaks, _ = find_peaks(
@@ -168,7 +166,11 @@ def shoot(p: lugre.LuGreParameters, shooting: Shooting) -> np.ndarray:
 
 
 def refine(
-    stick: list[Record], start: lugre.LuGreParameters, progress, previous: lugre.LuGreParameters | None = None
+    stick: list[Record],
+    start: lugre.LuGreParameters,
+    progress,
+    previous: lugre.LuGreParameters | None = None,
+    screen: bool = True,
 ) -> tuple[StepResult, lugre.LuGreParameters]:
     """Output-error step: all six parameters from the stick-slip velocities, started at ``start``.
 
@@ -192,6 +194,9 @@ def refine(
         An earlier estimate, screened with the other starts.
     progress : callable or None
         Receives one line when the step is done.
+    screen : bool
+        Screen the grid of starts (`_starts`); False polishes from ``start`` alone (the
+        bootstrap's replicates, which start at the estimate they were simulated with).
 
     Returns
     -------
@@ -211,7 +216,10 @@ def refine(
         return np.nan_to_num(np.concatenate(parts), nan=1e3, posinf=1e3, neginf=-1e3)
 
     lower, upper = _search_box("A" if start.radius is None else "B")
-    thetas = _starts(start, shootings, previous, lower, upper)
+    if screen:
+        thetas = _starts(start, shootings, previous, lower, upper)
+    else:
+        thetas = [np.clip(np.log([getattr(start, n) for n in P3]), lower + 1e-9, upper - 1e-9)]
     costs = [float(np.sum(residual(theta) ** 2)) for theta in thetas]
     solution = scipy.optimize.least_squares(
         residual,

@@ -35,10 +35,12 @@ import numpy as np
 
 from smartjoint.common import friction_registry
 from smartjoint.common.errors import SmartjointError
+from smartjoint.design.friction import rig_imperfections as imperfect
 from smartjoint.design.friction.model import FrictionParameters, law_of
 from smartjoint.design.friction.record_quantities import MIN_RADIUS, bound
 from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.friction.records import Record, friction_from_excitation
+from smartjoint.design.friction.rig_imperfections import IDEAL, RigImperfections
 from smartjoint.design.friction.rig_integration import SUBSTEPS
 
 
@@ -185,6 +187,7 @@ class RigTest:
     sample_rate: float = 20_000.0  # [Hz]: well above the bristle resonance sqrt(σ0·F_N·r²/m)
     noise: float = 0.0  # relative to the RMS of each measured signal
     seed: int = 0
+    imperfections: RigImperfections = IDEAL  # harmonics, F_N drift, sensor resolution and floor
 
     @property
     def name(self) -> str:
@@ -249,6 +252,10 @@ def check_test(test: RigTest, parameters: FrictionParameters) -> None:
         raise RigError(
             f"cycles: {test.cycles!r} at {test.frequency:g} Hz gives {samples:.3g} samples — need at least 3"
         )
+    try:
+        test.imperfections.check()
+    except SmartjointError as error:
+        raise RigError(str(error)) from None
     if test.joint_type == "B" and parameters.radius is None:
         raise RigError("radius: missing — a type B joint needs its radius in the parameter set")
     if test.joint_type == "A" and parameters.radius is not None:
@@ -278,26 +285,35 @@ def simulate(test: RigTest, parameters: FrictionParameters | None = None, source
     if source is None:
         source = TABLE_1_SOURCE if parameters is None else "given"
     check_test(test, p)
-    gain = p.moment_arm * test.normal_force
+    real = test.imperfections
     omega = 2.0 * np.pi * test.frequency
     duration = test.cycles / test.frequency
     time = np.arange(0.0, duration, 1.0 / test.sample_rate)
     fine = np.linspace(0.0, time[-1], (time.size - 1) * SUBSTEPS + 1)
     integrate = entry.rig_integration()
-    velocity, deflection = integrate(p, gain, test.inertia, test.amplitude * np.sin(omega * fine), time, SUBSTEPS)
-    force = test.amplitude * np.sin(omega * time)
-    true_friction = gain * law_of(p.model).friction_coefficient(p, velocity, deflection)
+    gain = p.moment_arm * (
+        test.normal_force if real.ideal else imperfect.normal_force(real, test.normal_force, fine, duration)
+    )
+    drive = imperfect.excitation(real, test.amplitude, omega, fine)
+    velocity, deflection = integrate(p, gain, test.inertia, drive, time, SUBSTEPS)
+    force = imperfect.excitation(real, test.amplitude, omega, time)
+    preload = imperfect.normal_force(real, test.normal_force, time, duration)
+    true_friction = p.moment_arm * preload * law_of(p.model).friction_coefficient(p, velocity, deflection)
     rng = np.random.default_rng(test.seed)
     if test.noise > 0:
         velocity = velocity + test.noise * np.sqrt(np.mean(velocity**2)) * rng.standard_normal(time.size)
         force = force + test.noise * np.sqrt(np.mean(force**2)) * rng.standard_normal(time.size)
+    if not real.ideal:  # the sensors' floor and resolution; F_N as its load cell records it
+        velocity, force, preload = (
+            imperfect.measured(x, k, real, rng) for k, x in enumerate((velocity, force, preload))
+        )
     friction = friction_from_excitation(time, velocity, force, test.inertia)
     record = Record(
         test.name,
         time,
         velocity,
         friction,
-        np.full(time.size, test.normal_force),
+        preload,
         test.joint_type,
         test.inertia,
         force,
@@ -305,6 +321,7 @@ def simulate(test: RigTest, parameters: FrictionParameters | None = None, source
             "noise": f"{test.noise:g}",
             "parameter_set": source,
             "true_friction_rms": f"{np.sqrt(np.mean(true_friction**2)):.6g}",
+            **({} if real.ideal else {"imperfections": repr(real)}),
         },
         radius=p.radius if test.joint_type == "B" else None,
     )

@@ -14,12 +14,14 @@ Eq. 3 and output error) and the next round is designed from the **estimate**, no
   that is where the Stribeck curve shows.
 
 It stops when every parameter of ``TARGETED`` has a 95 % interval within ±``TARGET_HALF_WIDTH``
-of its value, or when ``MAX_ROUNDS`` rounds or ``MAX_RECORDS`` records are spent; what is still
-wide then is reported as not identified (``identifiability``), never as a value.
+of its value, or when ``MAX_ROUNDS`` rounds or ``MAX_RECORDS`` records are spent; the final
+estimate's intervals are then widened by its parametric bootstrap (``bootstrap``), and what is
+wider than ±50 % is reported as not identified (``identifiability``), never as a value.
 
 The loop is the same with a real rig: ``plan_round`` designs the next round from the records
 measured so far, and ``plan_text`` writes it as a test plan a person follows
-(``smartjoint rig --plan``); with the simulated rig ``run_sequential`` measures each plan.
+(``smartjoint campaign``, ``campaign_folder``); with the simulated rig ``run_sequential``
+measures each plan.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from dataclasses import dataclass
 
 from smartjoint.common.errors import SmartjointError
 from smartjoint.design.friction import lugre
+from smartjoint.design.friction.bootstrap import REPLICATES, with_bootstrap
 from smartjoint.design.friction.identify import Identification, identify
 from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.friction.records import Record
@@ -416,6 +419,7 @@ def run_sequential(
     cycles: float = 8.0,
     max_rounds: int = MAX_ROUNDS,
     progress=None,
+    replicates: int = REPLICATES,
 ) -> SequentialResult:
     """Round after round: plan, measure, identify, until ``plan_round`` says done.
 
@@ -435,6 +439,8 @@ def run_sequential(
         At most ``MAX_ROUNDS``; 1 runs the ladder alone.
     progress : callable, optional
         Receives a line per round.
+    replicates : int
+        Of the final identification's parametric bootstrap (``bootstrap``; 0: curvature intervals).
 
     Returns
     -------
@@ -456,11 +462,16 @@ def run_sequential(
     last = rounds[-1]
     if last.identification is None:
         return SequentialResult(tuple(rounds), False, f"not identified: {last.failure}")
+    # The verdict on the honest intervals: the final estimate's bootstrap widens them by its bias.
+    identification = with_bootstrap(last.identification, replicates, seed, progress)
+    last = rounds[-1] = dataclasses.replace(
+        last, identification=identification, half_widths=half_widths(identification)
+    )
     wide = [name for name, width in last.half_widths.items() if not width <= TARGET_HALF_WIDTH]
     if not wide:
         return SequentialResult(tuple(rounds), True, f"every targeted interval within ±{TARGET_HALF_WIDTH:.0%}")
-    spent = f"{len(rounds)} rounds, {_measured(rounds)} records"
-    return SequentialResult(tuple(rounds), False, f"budget spent ({spent}); still wide: {', '.join(wide)}")
+    spent = f"{len(rounds)} rounds, {_measured(rounds)} records of at most {MAX_ROUNDS}, {MAX_RECORDS}"
+    return SequentialResult(tuple(rounds), False, f"stopped after {spent}; still wide: {', '.join(wide)}")
 
 
 __all__ = [

@@ -16,7 +16,9 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from smartjoint.common.errors import DesignError
 from smartjoint.design.friction import rig
+from smartjoint.design.friction.identifiability import not_identified
 from smartjoint.design.friction.identify import Identification, identify
 from smartjoint.design.friction.model import joint_parameters
 from smartjoint.design.friction.parameter_file import file_hashes, provenance, result_text
@@ -156,16 +158,41 @@ def _identify_records(design: Design, joint_type: str, named, staging: Path, pro
     name = f"friction_{joint_type}.toml"
     (staging / name).write_text(result_text(identification, hashes), encoding="utf-8")
     p = identification.parameters
+    stated = design.friction.get(joint_type)
+    values, taken = _fill_not_identified(joint_type, p.values(), not_identified(identification), stated)
+    source = f"identified by this run from {len(paths)} rig records"
+    if taken and stated is not None:
+        source += f"; {', '.join(taken)} not identified by them: the design's value ({stated.source})"
     used = JointFriction(
         joint_type,
-        tuple(p.values().items()),
+        tuple(values.items()),
         radius=p.radius,
-        source=f"identified by this run from {len(paths)} rig records",
+        source=source,
         sha256=provenance(identification, hashes, True),
         model=p.model,
     )
-    stated = design.friction.get(joint_type)
+    if taken:
+        progress(f"      type {joint_type}: {', '.join(taken)} not identified by the records — the design's value used")
     return JointTypeFriction(joint_type, identification, used, stated, [str(x) for x in paths], False, name)
+
+
+def _fill_not_identified(
+    joint_type: str, values: dict[str, float], missing: dict[str, str], stated: JointFriction | None
+) -> tuple[dict[str, float], list[str]]:
+    """The identified values with each parameter the records do not determine taken from the
+    design's own parameters of the type; without them, a one-line refusal naming the parameter,
+    why the records miss it and what fixes it (no estimate the records cannot back is used)."""
+    values = dict(values)
+    for parameter, reason in missing.items():
+        if stated is None:
+            raise DesignError(
+                "friction.records",
+                f"type {joint_type}",
+                f"{parameter} not identified by the records ({reason}); state it in [friction.{joint_type}] "
+                "or add the record that covers that regime",
+            )
+        values[parameter] = stated.values()[parameter]
+    return values, list(missing)
 
 
 def _rig_check(design: Design, joint_type: str, progress) -> JointTypeFriction:
