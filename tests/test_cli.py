@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -172,7 +173,14 @@ def _user_friction_reaches_the_artifact(out: Path, summary: dict) -> None:
     assert loaded.friction_radius.tolist() == [0.0, 0.015]
     assert loaded.friction_sources[0] == "small.toml [friction.A]"
     records = len(list((out.parent / "rig").iterdir()))
-    assert loaded.friction_sources[1] == f"identified by this run from {records} rig records"
+    source = loaded.friction_sources[1]
+    assert source.startswith(f"identified by this run from {records} rig records")
+    # What the records do not determine comes from the design's own type B table, never the estimate.
+    prior = tomllib.loads((out.parent / "joint_b_prior.toml").read_text())
+    for name in ("sigma1", "sigma2"):
+        if name in source:
+            assert "not identified by them: the design's value" in source
+            assert identified[name] == prior[name], name
     joints = summary["friction"]["joints"]
     assert joints["JB"]["file"] == "friction_B.toml" and (out / "friction_B.toml").exists()
     assert [joints["JB"][n] for n in names] == loaded.friction_parameters[1].tolist()

@@ -71,12 +71,16 @@ def white_noise_level(signal: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(second - np.median(second))) / math.sqrt(6.0))
 
 
-def replicate(record: Record, parameters: lugre.LuGreParameters, rng: np.random.Generator) -> Record:
-    """``record`` simulated again with ``parameters``: the same excitation and normal force
-    (low-passed), the record's own start velocity, and its measured noise levels added."""
+def replicate(
+    record: Record, parameters: lugre.LuGreParameters, rng: np.random.Generator, drive: np.ndarray | None = None
+) -> Record:
+    """``record`` simulated again with ``parameters``: the same excitation (``drive``, the
+    record's `excitation_drive` when None) and normal force, the record's own start velocity,
+    and its measured noise levels added."""
     time, step, excitation = record.time, rig_integration.SUBSTEPS, record.excitation_force
     assert excitation is not None and record.inertia  # a stick-slip record of the output-error step
-    drive, _ = excitation_drive(record)
+    if drive is None:
+        drive, _ = excitation_drive(record)
     substep = np.diff(time)[:, None] / step * np.arange(step)[None, :]
     nodes = np.append((time[:-1, None] + substep).ravel(), time[-1])
     gain = parameters.moment_arm * np.interp(nodes, time, record.normal_force)
@@ -119,9 +123,10 @@ def bootstrap(identification, replicates: int = REPLICATES, seed: int = 0, progr
     estimate = identification.parameters
     stick = [identification.records[name] for name in identification.refined.nrmse]
     rng = np.random.default_rng(seed)
+    drives = [excitation_drive(record)[0] for record in stick]  # the same applied force in every replicate
     rows = []
     for _ in range(replicates):
-        copies = [replicate(record, estimate, rng) for record in stick]
+        copies = [replicate(record, estimate, rng, drive) for record, drive in zip(stick, drives)]
         _, refined = refine(copies, estimate, None, screen=False)
         rows.append([math.log(getattr(refined, n)) for n in P3])
     logs = np.array(rows)

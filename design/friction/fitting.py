@@ -94,11 +94,15 @@ def excitation_drive(record: Record) -> tuple[np.ndarray, float]:
 
 
 def _line(signal: np.ndarray, time: np.ndarray, frequency: float) -> tuple[float, float]:
-    """The least-squares sine at ``frequency`` in ``signal``: its amplitude and the residual."""
-    omega = 2.0 * np.pi * frequency
-    basis = np.column_stack([np.sin(omega * time), np.cos(omega * time), np.ones_like(time)])
+    """The least-squares periodic signal of ``frequency`` (its harmonics to ``MAX_HARMONIC``) in
+    ``signal``: the fundamental's amplitude and the residual (the harmonics fitted together, or
+    they bias the frequency)."""
+    phase = 2.0 * np.pi * frequency * time
+    orders = np.arange(1, MAX_HARMONIC + 1)
+    basis = np.column_stack([np.sin(np.outer(phase, orders)), np.cos(np.outer(phase, orders)), np.ones_like(time)])
     coefficients, residual = np.linalg.lstsq(basis, signal, rcond=None)[:2]
-    return float(np.hypot(coefficients[0], coefficients[1])), float(residual[0]) if residual.size else 0.0
+    amplitude = float(np.hypot(coefficients[0], coefficients[MAX_HARMONIC]))
+    return amplitude, float(residual[0]) if residual.size else 0.0
 
 
 def low_pass(signal, sample_time: float, cutoff_hz: float, period: float) -> np.ndarray:

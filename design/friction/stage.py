@@ -162,7 +162,7 @@ def _identify_records(design: Design, joint_type: str, named, staging: Path, pro
     values, taken = _fill_not_identified(joint_type, p.values(), not_identified(identification), stated)
     source = f"identified by this run from {len(paths)} rig records"
     if taken and stated is not None:
-        source += f"; {', '.join(taken)} not identified by them: the design's value ({stated.source})"
+        source += f"; {', '.join(taken)} not identified by them: the design's value ({Path(stated.source).name})"
     used = JointFriction(
         joint_type,
         tuple(values.items()),
