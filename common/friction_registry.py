@@ -158,6 +158,7 @@ LUGRE = FrictionModel(
         "smartjoint.design.friction.rig_campaign",
         "smartjoint.design.friction.equation_error",
         "smartjoint.design.friction.sequential_campaign",
+        "smartjoint.design.friction.round_design",
         "smartjoint.design.friction.identifiability",
     ),
 )

@@ -60,9 +60,9 @@ def test_no_module_but_a_models_own_spells_its_parameters():
             if lines:
                 found[str(path.relative_to(ROOT))] = lines
     assert found == {}, f"a friction parameter spelled outside its model's modules: {found}"
-    # the registry, and LuGre's reference, plant, rig and six identification modules (Eq. 3's force, its
-    # steps, output error, the ladder, the sequential campaign, identifiability)
-    assert len(owners) == 10
+    # the registry, and LuGre's reference, plant, rig and seven identification modules (Eq. 3's force,
+    # its steps, output error, the ladder, the sequential campaign, its rounds' design, identifiability)
+    assert len(owners) == 11
 
 
 def test_the_tables_of_lugre_are_the_registry():

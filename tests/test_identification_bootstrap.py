@@ -40,10 +40,14 @@ def test_a_replicate_of_a_clean_record_at_its_own_parameters_is_the_record():
     assert copy.name == record.name and copy.inertia == record.inertia
 
 
-@pytest.mark.numerics
-def test_the_reported_interval_is_the_union_of_curvature_and_bootstrap():
+@pytest.fixture(scope="module")
+def identification():
     measured = run_campaign(campaign("A", TRUTH, noise=0.01, cycles=8), TRUTH, lambda test: rig.simulate(test, TRUTH))
-    identification = identify(measured.micro, measured.stick)
+    return identify(measured.micro, measured.stick)
+
+
+@pytest.mark.numerics
+def test_the_reported_interval_is_the_union_of_curvature_and_bootstrap(identification):
     plain = identification.parameter_entries()
     boot = with_bootstrap(identification, replicates=3, seed=1)
     entries = boot.parameter_entries()
@@ -59,3 +63,21 @@ def test_the_reported_interval_is_the_union_of_curvature_and_bootstrap():
     for velocity, force in boot.bootstrap.noise.values():
         assert 0.008 < velocity < 0.013 and 0.008 < force < 0.013
     assert dataclasses.replace(identification, bootstrap=None).parameter_entries() == plain
+
+
+def test_a_parameter_wider_than_the_required_accuracy_is_not_identified(identification):
+    """``accuracy`` (a campaign's target) holds a parameter to a narrower width than ±50 %: just
+    below its half width it is not identified, naming the width and the requirement; just above
+    it is reported; the rest stays as it was."""
+    entries = identification.parameter_entries()
+    value, (lower, upper) = entries["coulomb"]["value"], entries["coulomb"]["ci95"]
+    width = max(upper / value - 1.0, 1.0 - lower / value)
+    before = identification.not_identified
+    assert "coulomb" not in before
+    strict = dataclasses.replace(identification, accuracy={"coulomb": 0.9 * width})
+    missing = strict.not_identified
+    assert set(missing) == set(before) | {"coulomb"}
+    assert f"±{100 * width:.3g} %, wider than the required ±{100 * 0.9 * width:.3g} %" in missing["coulomb"]
+    assert strict.as_dict()["accuracy"] == {"coulomb": 0.9 * width}
+    assert not strict.as_dict()["parameters"]["coulomb"]["identified"]
+    assert dataclasses.replace(identification, accuracy={"coulomb": 1.1 * width}).not_identified == before

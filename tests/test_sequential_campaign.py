@@ -7,16 +7,18 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 import tomli_w
 from conftest import cli_error, run_cli, small_truss
 
 from smartjoint.common.errors import DesignError
-from smartjoint.design.friction import lugre, rig
+from smartjoint.design.friction import lugre, rig, rig_campaign
 from smartjoint.design.friction.identifiability import half_width
 from smartjoint.design.friction.sequential_campaign import (
     MAX_RECORDS,
     MAX_ROUNDS,
+    TARGET_HALF_WIDTH,
     TARGETED,
     plan_round,
     run_sequential,
@@ -44,28 +46,34 @@ def _toml(path, joint_type, p: lugre.LuGreParameters):
 def test_the_issues_failing_case_identifies_from_a_mixed_wrong_prior():
     """Type A, prior F_c ×2 and v_s ×0.5, 3 % noise, seed 1 (the run that ended with exit 2 and
     σ0 −11 … −21 % outside its interval): the campaign redesigns its records from its estimates;
-    what it reports lies within 3 % and inside its own 95 % interval, and the rest is named
-    not identified with a reason, within the budget."""
+    every targeted parameter it reports lies within 3 % of the truth and inside its own 95 %
+    interval, and one it does not is named not identified to ±3 % with its width and the reason —
+    within the budget."""
     prior = dataclasses.replace(TRUTH_A, coulomb=2 * TRUTH_A.coulomb, stribeck_velocity=0.5 * TRUTH_A.stribeck_velocity)
     result = run_sequential("A", prior, lambda test, name: rig.simulate(test, TRUTH_A), noise=0.03, seed=1)
     assert 1 < len(result.rounds) <= MAX_ROUNDS and result.records <= MAX_RECORDS
-    assert result.rounds[1].plan.basis == "the estimate of round 1"  # redesigned, not the prior's ladder again
+    assert result.rounds[1].plan.basis.startswith("the estimate of round 1")  # redesigned, not the prior's ladder
     identification = result.identification
-    assert identification is not None
+    assert identification is not None and identification.accuracy == dict.fromkeys(TARGETED, TARGET_HALF_WIDTH)
     missing = identification.not_identified
     entries = identification.parameter_entries()
     for name in TARGETED:
-        assert name not in missing, missing.get(name)
         value, (lower, upper) = entries[name]["value"], entries[name]["ci95"]
         true = getattr(TRUTH_A, name)
-        assert abs(value / true - 1.0) < 0.03, (name, value / true - 1.0)
-        assert lower <= true <= upper, (name, lower / true, upper / true)
+        assert lower <= true <= upper, (name, lower / true, upper / true)  # honest, reported or not
+        if name in missing:
+            assert "wider than the required ±3 %" in missing[name] and not result.converged, missing[name]
+            assert half_width(value, lower, upper) > TARGET_HALF_WIDTH
+            assert "not identified to ±3 %: " in result.stop
+        else:
+            assert abs(value / true - 1.0) < TARGET_HALF_WIDTH, (name, value / true - 1.0)
+    assert {"sigma0", "coulomb"}.isdisjoint(missing)  # the micro-slip and sliding levels are pinned
     # The widths shrink as rounds add the records the estimate asked for.
     first, last = result.rounds[0].half_widths, result.rounds[-1].half_widths
     assert all(last[n] < first[n] for n in TARGETED)
     for name, reason in missing.items():
-        assert reason.startswith({"sigma1": "σ1", "sigma2": "σ2"}.get(name, "?")), reason
-        assert half_width(entries[name]["value"], *entries[name]["ci95"]) > 0.5
+        assert reason.startswith({"sigma0": "σ0", "coulomb": "F_c", "stribeck": "F_d", "stribeck_velocity": "v_s",
+                                  "sigma1": "σ1", "sigma2": "σ2"}[name]), reason  # fmt: skip
 
 
 def test_a_prior_whose_break_away_is_far_too_low_moves_the_ladder_up():
@@ -177,3 +185,53 @@ def test_the_run_takes_a_not_identified_parameter_only_from_the_design(tmp_path)
     del data["friction"]["A"]
     with pytest.raises(DesignError, match=r"sigma1 not identified by the records \(σ1 .*state it in \[friction\.A\]"):
         friction_stage(parse_design(data), tmp_path, lambda line: None)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_heavy_record_sliding_slowly_is_read_as_stick_slip(seed):
+    """At 300 kg and 3 % noise the friction column F_exc − m·a carries m·a noise up to μ ≈ 8 where
+    μ ≤ 1.1: a record sliding at 4·v_s must still count as stick-slip (the records nearest the
+    Stribeck drop are the heavy ones), and a presliding record at the lightest inertia as micro-slip."""
+    from smartjoint.design.friction.record_screening import classify
+
+    heavy = rig.RigTest("A", 400.0, 573.0, 10.0, 8.0, 300.0, 20_000.0, 0.03, seed)
+    record = rig.simulate(heavy, TRUTH_A)
+    assert classify(dataclasses.replace(record, metadata={})) == "stick-slip"
+    assert float(np.max(np.abs(record.sliding_velocity))) < 8 * TRUTH_A.stribeck_velocity
+    breakaway = 400.0 * (TRUTH_A.coulomb + TRUTH_A.stribeck)
+    presliding = rig.RigTest("A", 400.0, 0.15 * breakaway, 10.0, 8.0, 1.0, 20_000.0, 0.03, seed)
+    assert classify(dataclasses.replace(rig.simulate(presliding, TRUTH_A), metadata={})) == "micro-slip"
+
+
+@pytest.mark.numerics
+def test_the_next_round_s_inertias_correct_how_fast_the_records_slid():
+    """Type B, a round designed from the prior F_c ×2, F_d ×0.5, v_s ×2 (as when the first estimate
+    does not bound v_s): the prior misjudges how fast the ladder's records slide; scaled by the
+    records' measured over predicted momentum, the stick-slip records slide within ×/÷ 2.5 of the
+    speeds they were designed for, where uncorrected they slide more than twice too fast."""
+    import re
+
+    from smartjoint.design.friction.round_design import for_design, momentum_ratio, refinement_tests
+    from smartjoint.design.friction.sequential_campaign import identify_round, run_round
+
+    prior = dataclasses.replace(TRUTH_B, coulomb=2 * TRUTH_B.coulomb, stribeck=0.5 * TRUTH_B.stribeck,
+                                stribeck_velocity=2 * TRUTH_B.stribeck_velocity)  # fmt: skip
+    first = plan_round("B", prior, [], noise=0.03, seed=0)
+    rounds = [identify_round(first, run_round(first, lambda test, name: rig.simulate(test, TRUTH_B)), [])]
+    ratio = momentum_ratio(for_design(prior), rounds)
+    assert ratio > 2.0
+    limits = rig_campaign.DEFAULT_RIGS["B"].inertia
+
+    def speeds(momentum: float) -> list[float]:
+        wide = ["coulomb", "stribeck", "stribeck_velocity"]
+        tests, purpose = refinement_tests("B", prior, wide, rig_campaign.DEFAULT_RIGS["B"], 0.03, 1, 8.0, momentum)
+        out = []
+        for test, why in zip(tests, purpose):
+            if limits[0] < test.inertia < limits[1]:  # not clipped by the rig's range
+                designed = float(re.search(r"sliding at about ([0-9.]+)·v_s", why).group(1)) * prior.stribeck_velocity
+                out.append(float(np.max(np.abs(rig.simulate(test, TRUTH_B).sliding_velocity))) / designed)
+        return out
+
+    corrected = speeds(ratio)
+    assert len(corrected) >= 2 and all(0.4 < s < 2.5 for s in corrected), corrected
+    assert max(speeds(1.0)) > 2.0

@@ -22,11 +22,13 @@ from pathlib import Path
 from smartjoint.common.errors import SmartjointError
 from smartjoint.design.friction import lugre, rig
 from smartjoint.design.friction.records import Record, read_record, write_record
+from smartjoint.design.friction.rig import breakaway
+from smartjoint.design.friction.rig_campaign import STICK_SPAN
+from smartjoint.design.friction.round_design import design_summary, record_name
 from smartjoint.design.friction.sequential_campaign import (
     NotMeasured,
     Plan,
     SequentialResult,
-    plan_text,
     run_sequential,
 )
 
@@ -123,4 +125,64 @@ def _write_plan(path: Path, text: str) -> None:
         raise
 
 
-__all__ = ["PLAN_MARK", "FolderCampaign", "run_folder"]
+def plan_text(plan: Plan, joint_type: str, measured: set[str]) -> str:
+    """A round's test plan as Markdown a person follows at the rig.
+
+    Parameters
+    ----------
+    plan : Plan
+        The round.
+    joint_type : str
+        'A' or 'B' (the units of amplitude and inertia).
+    measured : set of str
+        The record names already there (marked done).
+
+    Returns
+    -------
+    str
+    """
+    force, inertia = ("N", "kg") if joint_type == "A" else ("N·m", "kg·m²")
+    lines = [
+        f"# Rig test plan, round {plan.number} (type {joint_type} joint)",
+        "",
+        f"Designed from {plan.basis}: {design_summary(plan.designed_from)}.",
+        "",
+        "Excitation A·sin(2πft) for the stated cycles at the stated sample rate; record time, sliding velocity, "
+        "normal force (measured), excitation force, and the friction force if the rig gives it; the moving "
+        "inertia in the record's `# inertia = …` line (docs/identification.md, Records). Save each record as "
+        "the file named in its row, in this folder, then run the same command again.",
+        "",
+    ]
+    if plan.ladder:
+        lines += [
+            "Run the rows **in order**. After each, note whether the element slid (gross motion, not only "
+            f"presliding); skip every later row whose rung exceeds {STICK_SPAN:g}× the rung of the first row that "
+            "slid (the command reads the records by the same rule and asks for no more).",
+            "",
+        ]
+    lines += [
+        f"| # | file | F_N [N] | amplitude [{force}] | f [Hz] | cycles | inertia [{inertia}] | sample rate [Hz] "
+        "| for | status |",
+        "|---:|---|---:|---:|---:|---:|---:|---:|---|---|",
+    ]
+
+    def purpose(k: int) -> str:
+        if not plan.ladder:
+            return plan.purpose[k]
+        rung = plan.tests[k].amplitude / breakaway(plan.designed_from, plan.tests[k].normal_force)
+        return f"ladder rung {rung:.3g}× the break-away above"
+
+    order = sorted(range(len(plan.tests)), key=lambda k: plan.tests[k].amplitude / breakaway(plan.designed_from,
+                   plan.tests[k].normal_force)) if plan.ladder else range(len(plan.tests))  # fmt: skip
+    for row, k in enumerate(order, 1):
+        test = plan.tests[k]
+        name = record_name(plan, test)
+        lines.append(
+            f"| {row} | `{name}.csv` | {test.normal_force:g} | {test.amplitude:.6g} | {test.frequency:g} | "
+            f"{test.cycles:g} | {test.inertia:.4g} | {test.sample_rate:g} | {purpose(k)} | "
+            f"{'measured' if name in measured else 'to measure'} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["PLAN_MARK", "FolderCampaign", "plan_text", "run_folder"]

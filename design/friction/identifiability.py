@@ -1,7 +1,9 @@
 """Which LuGre parameters the records do not determine, and why (the regime that is missing).
 
 A parameter is **not identified** when its 95 % interval is wider than ±``fitting.WEAK_RELATIVE_WIDTH``
-of its value, unbounded, or held at the search box's edge: the records then do not pin it, and
+of its value, unbounded, or held at the search box's edge — or wider than the accuracy the
+identification was asked for (``Identification.accuracy``, a campaign's target): the records then
+do not pin it to what was required, and
 no point value of it is presented as a result (``smartjoint identify`` prints the reason,
 ``-o joint.toml`` lists it under ``[identification.not_identified]`` without a value, and a
 design refuses it unless the design file states the value itself).
@@ -49,21 +51,29 @@ def not_identified(identification) -> dict[str, str]:
     wide = {
         name: half_width(entry["value"], *entry["ci95"]) for name, entry in entries.items() if entry["ci95"] is not None
     }
-    wide = {name: w for name, w in wide.items() if not w <= WEAK_RELATIVE_WIDTH}
-    return {name: _reason(name, width, identification) for name, width in wide.items()}
+    limits = {name: min(WEAK_RELATIVE_WIDTH, identification.accuracy.get(name, WEAK_RELATIVE_WIDTH)) for name in wide}
+    wide = {name: w for name, w in wide.items() if not w <= limits[name]}
+    return {name: _reason(name, width, limits[name], identification) for name, width in wide.items()}
 
 
-def _interval(width: float) -> str:
-    return "unbounded" if not width <= 100.0 else f"±{100 * width:.0f} %"  # beyond ×100: the records do not bound it
+SLOWEST_NEEDED = 3.0  # stick-slip records all sliding faster than this many v_s barely show the drop
+UNBOUNDED = 100.0  # a relative half width beyond ×100: the records do not bound the parameter
 
 
-def _reason(name: str, width: float, identification) -> str:
+def _interval(width: float, limit: float) -> str:
+    if not width <= UNBOUNDED:
+        return "unbounded"
+    text = f"±{100 * width:.3g} %"
+    return text if limit >= WEAK_RELATIVE_WIDTH else f"{text}, wider than the required ±{100 * limit:.3g} %"
+
+
+def _reason(name: str, width: float, limit: float, identification) -> str:
     p = identification.parameters
     arm = p.moment_arm
     unit = "m/s" if identification.joint_type == "A" else "rad/s"
     micro = [r for r in identification.records.values() if r.name in identification.micro.nrmse]
     stick = [r for r in identification.records.values() if r.name in identification.stick.nrmse]
-    interval = _interval(width)
+    interval = _interval(width, limit)
     if name == "sigma0":
         levels = [
             float(np.max(np.abs(r.friction_force)) / (arm * np.median(r.normal_force) * (p.coulomb + p.stribeck)))
@@ -79,10 +89,17 @@ def _reason(name: str, width: float, identification) -> str:
         vs = p.stribeck_velocity
         span = f"{min(speeds):.3g}–{max(speeds):.3g} {unit}" if speeds else "no stick-slip record"
         ratio = f" ({min(speeds) / vs:.3g}–{max(speeds) / vs:.3g}× the estimated v_s)" if speeds and vs > 0 else ""
+        slow = bool(speeds) and vs > 0 and min(speeds) > SLOWEST_NEEDED * vs
+        fix = (
+            f"none slides below {SLOWEST_NEEDED:g}·v_s: a heavier moving inertia (beyond the rig's range, or a "
+            "lower F_N) makes one slide near v_s, where the Stribeck drop shows"
+            if slow
+            else "records at about 1.3× the break-away whose inertia makes them slide at 1–16·v_s show the "
+            "Stribeck drop (smartjoint rig --plan designs them)"
+        )
         return (
-            f"{_symbol(name)} (Stribeck curve), 95 % interval {interval}: the stick-slip records slide at up to "
-            f"{span}{ratio} — records at about 1.3× the break-away whose inertia makes them slide at 1–16·v_s "
-            "show the Stribeck drop (smartjoint rig --plan designs them)"
+            f"{_symbol(name)} (Stribeck curve), 95 % interval {interval}: the stick-slip records slide at "
+            f"{span}{ratio} — {fix}"
         )
     if name == "sigma1":
         return (
@@ -102,4 +119,4 @@ def _symbol(name: str) -> str:
     return {"coulomb": "F_c", "stribeck": "F_d", "stribeck_velocity": "v_s"}[name]
 
 
-__all__ = ["half_width", "not_identified"]
+__all__ = ["UNBOUNDED", "half_width", "not_identified"]

@@ -86,6 +86,9 @@ class Identification:
     refined: StepResult | None = None
     steps: list[str] = field(default_factory=list)
     bootstrap: Any = None  # bootstrap.Bootstrap of the output-error step (bootstrap imports this module's callers)
+    # The relative 95 % half width a parameter must reach to be reported (a campaign's target,
+    # ``sequential_campaign``); the rest is held to ``fitting.WEAK_RELATIVE_WIDTH`` alone.
+    accuracy: dict[str, float] = field(default_factory=dict)
 
     @property
     def weakly_identifiable(self) -> list[str]:
@@ -138,6 +141,7 @@ class Identification:
             "correlation": {},
             "steps": list(self.steps),
             "bootstrap": None if self.bootstrap is None else self.bootstrap.as_dict(),
+            "accuracy": dict(self.accuracy),
         }
         results = [("p1", self.micro), ("p2", self.stick)]
         if self.refined is not None:

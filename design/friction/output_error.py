@@ -251,15 +251,21 @@ def _starts(start, shootings, previous, lower, upper) -> list[np.ndarray]:
     # column: F_d and v_s collapse to 0, and the velocities barely tell that valley from the
     # truth, cost +18 %): screen it with a grid over F_d and v_s scaled from the records'
     # sliding speed, and polish the cheapest within the plausible box, not around the start.
+    # The Eq. 3 result can also collapse the other way (F_c → 0, F_d the whole sliding level,
+    # v_s far beyond the records: no Stribeck drop, type A from a prior F_c ×2, v_s ×2 at 3 %
+    # noise), so the grid is laid out from its sliding level F_c + F_d as well as from its F_c.
     speed = float(np.median(np.concatenate([np.abs(s.start_velocity) for s in shootings])))
+    levels = dict.fromkeys((start.coulomb, start.coulomb + start.stribeck))
     candidates = [start] + [
         dataclasses.replace(
             start,
-            stribeck=fraction * start.coulomb,
+            coulomb=level,
+            stribeck=fraction * level,
             stribeck_velocity=factor * speed,
             sigma1=max(start.sigma1, 1e-4 * math.sqrt(start.sigma0)),
-            sigma2=max(start.sigma2, 1e-3 * start.coulomb),
+            sigma2=max(start.sigma2, 1e-3 * level),
         )
+        for level in levels
         for fraction in START_FRACTIONS
         for factor in START_SPEEDS
     ]

@@ -7,21 +7,20 @@ Eq. 3 and output error) and the next round is designed from the **estimate**, no
 
 - when no rung slid (the prior's break-away far too low) or every rung slid (far too high), the
   ladder again from the prior with F_c and F_d scaled by ``LADDER_SHIFT`` up or down;
-- otherwise the records the estimate says are missing (``refinement_tests``): micro-slip at
-  ``MICRO_LEVELS`` of the estimated break-away while σ0 is wide, and stick-slip at
-  ``STICK_LEVEL`` of it with moving inertias that make it slide at ``STICK_SPEEDS``·v_s (the
-  estimate's v_s; a wider spread while v_s itself is not pinned) while F_c, F_d or v_s is wide —
-  that is where the Stribeck curve shows.
+- otherwise the records the estimate says are missing (``round_design``): micro-slip while σ0
+  is wide, stick-slip sliding at a few v_s while F_c, F_d or v_s is — with inertias corrected
+  by how much faster than predicted the records so far slid, and v_s taken from the last round
+  whose records bound it.
 
-It stops when every parameter of ``TARGETED`` has a 95 % interval within ±``TARGET_HALF_WIDTH``
-of its value, or when ``MAX_ROUNDS`` rounds or ``MAX_RECORDS`` records are spent; the final
-estimate's intervals are then widened by its parametric bootstrap (``bootstrap``), and what is
-wider than ±50 % is reported as not identified (``identifiability``), never as a value.
+A round whose curvature intervals are all within ±``TARGET_HALF_WIDTH`` of their values is
+judged by its parametric bootstrap (``bootstrap``: the intervals widened by the estimate's
+bias); the campaign stops when the bootstrap agrees, or when ``MAX_ROUNDS`` rounds or
+``MAX_RECORDS`` records are spent. What is then wider than the target is reported as not
+identified (``Identification.accuracy``, ``identifiability``), never as a value.
 
 The loop is the same with a real rig: ``plan_round`` designs the next round from the records
-measured so far, and ``plan_text`` writes it as a test plan a person follows
-(``smartjoint campaign``, ``campaign_folder``); with the simulated rig ``run_sequential``
-measures each plan.
+measured so far, and ``campaign_folder.plan_text`` writes it as a test plan a person follows
+(``smartjoint campaign``); with the simulated rig ``run_sequential`` measures each plan.
 """
 
 from __future__ import annotations
@@ -37,27 +36,27 @@ from smartjoint.design.friction.bootstrap import REPLICATES, with_bootstrap
 from smartjoint.design.friction.identify import Identification, identify
 from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.friction.records import Record
-from smartjoint.design.friction.rig import RigError, RigTest, breakaway
+from smartjoint.design.friction.rig import RigError, RigTest
 from smartjoint.design.friction.rig_campaign import (
     DEFAULT_RIGS,
-    STICK_SPAN,
     CampaignRecords,
     RigDescription,
     campaign,
     run_campaign,
-    stick_slip_peak_velocity,
+)
+from smartjoint.design.friction.round_design import (
+    design_basis,
+    for_design,
+    momentum_ratio,
+    record_name,
+    refinement_tests,
 )
 
 TARGETED = ("sigma0", "coulomb", "stribeck", "stribeck_velocity")  # σ0, F_c, F_d, v_s
-TARGET_HALF_WIDTH = 0.05  # stop when every targeted 95 % interval is within ±5 % of its value
+TARGET_HALF_WIDTH = 0.03  # stop when every targeted 95 % interval is within ±3 % of its value
 MAX_ROUNDS = 4  # the budget: rounds …
 MAX_RECORDS = 20  # … and records measured
 LADDER_SHIFT = 3.0  # the ladder's break-away scale when no rung slid (×3) or every rung slid (÷3)
-MICRO_LEVELS = ((400.0, 0.15), (200.0, 0.3))  # (F_N [N], amplitude / estimated break-away)
-STICK_LEVEL = 1.3  # stick-slip amplitude / estimated break-away
-STICK_SPEEDS = (2.0, 6.0)  # peak sliding velocity / v_s of the stick-slip records
-WIDE_SPEEDS = (1.0, 4.0, 16.0)  # … while v_s is not pinned
-STICK_SETTINGS = ((400.0, 10.0), (200.0, 20.0), (400.0, 20.0))  # (F_N [N], frequency [Hz]) in turn
 
 
 @dataclass(frozen=True)
@@ -141,72 +140,6 @@ def half_widths(identification: Identification) -> dict[str, float]:
     return out
 
 
-def _inertia(amplitude: float, level: float, coulomb_level: float, frequency: float, speed: float, rig) -> float:
-    momentum = stick_slip_peak_velocity(amplitude, level, coulomb_level, 2.0 * math.pi * frequency)
-    return min(max(momentum / speed, rig.inertia[0]), rig.inertia[1])
-
-
-def refinement_tests(
-    joint_type: str,
-    estimate: lugre.LuGreParameters,
-    wide: list[str],
-    rig: RigDescription,
-    noise: float,
-    seed: int,
-    cycles: float,
-) -> tuple[list[RigTest], list[str]]:
-    """The records an estimate says are missing: micro-slip while σ0 is wide, stick-slip around
-    the Stribeck range while F_c, F_d or v_s is (module docstring).
-
-    Parameters
-    ----------
-    joint_type : str
-        'A' or 'B'.
-    estimate : LuGreParameters
-        The current estimate (its F_d raised to at least 0.1·F_c for the design: a collapsed
-        F_d would size the inertia from nothing).
-    wide : list of str
-        The targeted parameters whose intervals are still wide.
-    rig : RigDescription
-    noise, seed, cycles
-        As in ``rig_campaign.campaign``; test k gets seed + k.
-
-    Returns
-    -------
-    tuple
-        (the tests, what each is for)
-    """
-    design = dataclasses.replace(estimate, stribeck=max(estimate.stribeck, 0.1 * estimate.coulomb))
-    fraction = design.coulomb / (design.coulomb + design.stribeck)
-    tests: list[RigTest] = []
-    purpose: list[str] = []
-
-    def add(normal_force, amplitude, frequency, inertia, why):
-        if normal_force not in rig.normal_forces or amplitude > rig.excitation_limit:
-            return
-        tests.append(
-            RigTest(joint_type, normal_force, amplitude, frequency, cycles, inertia, rig.sample_rate, noise,
-                    seed + len(tests))
-        )  # fmt: skip
-        purpose.append(why)
-
-    if "sigma0" in wide:
-        for normal_force, level in MICRO_LEVELS:
-            add(normal_force, level * breakaway(design, normal_force), 10.0, rig.inertia[0],
-                f"micro-slip at {level:g}× the estimated break-away (σ0)")  # fmt: skip
-    if any(name in wide for name in ("coulomb", "stribeck", "stribeck_velocity")):
-        speeds = STICK_SPEEDS if "stribeck_velocity" not in wide else WIDE_SPEEDS
-        for k, factor in enumerate(speeds):
-            normal_force, frequency = STICK_SETTINGS[k % len(STICK_SETTINGS)]
-            level = breakaway(design, normal_force)
-            amplitude = STICK_LEVEL * level
-            inertia = _inertia(amplitude, level, fraction * level, frequency, factor * design.stribeck_velocity, rig)
-            add(normal_force, amplitude, frequency, inertia,
-                f"stick-slip at {STICK_LEVEL:g}× the estimated break-away, sliding at about {factor:g}·v_s "
-                "(F_c, F_d, v_s)")  # fmt: skip
-    return tests, purpose
-
-
 def plan_round(
     joint_type: str,
     prior: lugre.LuGreParameters,
@@ -215,6 +148,8 @@ def plan_round(
     noise: float = 0.0,
     seed: int = 0,
     cycles: float = 8.0,
+    target: float = TARGET_HALF_WIDTH,
+    max_records: int = MAX_RECORDS,
 ) -> Plan | None:
     """The next round's plan from the rounds so far; None when the campaign is done (converged,
     out of budget, or nothing left that a record could fix).
@@ -232,6 +167,10 @@ def plan_round(
     noise, seed, cycles
         Of the simulated records (a real rig ignores them); round k's tests get seeds from
         seed + 100·(k − 1) + 1.
+    target : float
+        The relative 95 % half width every ``TARGETED`` parameter must reach.
+    max_records : int
+        The budget of records measured (at most ``MAX_RECORDS``).
 
     Returns
     -------
@@ -239,7 +178,7 @@ def plan_round(
     """
     rig = rig or DEFAULT_RIGS[joint_type]
     number = len(rounds) + 1
-    if number > MAX_ROUNDS or _measured(rounds) >= MAX_RECORDS:
+    if number > MAX_ROUNDS or _measured(rounds) >= max_records:
         return None
     round_seed = seed + 100 * (number - 1)
     if not rounds:
@@ -258,77 +197,22 @@ def plan_round(
             return None  # the shifted ladder is beyond the rig (shaker limit)
         basis = f"the prior with F_c and F_d ×{scale:.3g} ({last.failure})"
         return Plan(number, tuple(tests), shifted, basis, True, tuple("ladder rung" for _ in tests))
-    wide = [name for name, width in last.half_widths.items() if not width <= TARGET_HALF_WIDTH]
+    wide = _wide(last.half_widths, target)
     if not wide:
         return None
-    estimate = last.identification.parameters
-    tests, purpose = refinement_tests(joint_type, estimate, wide, rig, noise, round_seed + 1, cycles)
-    room = MAX_RECORDS - _measured(rounds)
+    estimate, basis = design_basis(prior, rounds)
+    momentum = momentum_ratio(for_design(estimate), rounds)
+    tests, purpose = refinement_tests(joint_type, estimate, wide, rig, noise, round_seed + 1, cycles, momentum)
+    room = max_records - _measured(rounds)
     if not tests or room <= 0:
         return None
-    return Plan(number, tuple(tests[:room]), estimate, f"the estimate of round {number - 1}", False,
-                tuple(purpose[:room]))  # fmt: skip
+    if abs(math.log(momentum)) > math.log(1.25):
+        basis += f", inertias ×{momentum:.3g} (the records so far slid {momentum:.3g}× as fast as it predicts)"
+    return Plan(number, tuple(tests[:room]), estimate, basis, False, tuple(purpose[:room]))
 
 
-def plan_text(plan: Plan, joint_type: str, measured: set[str]) -> str:
-    """A round's test plan as Markdown a person follows at the rig.
-
-    Parameters
-    ----------
-    plan : Plan
-        The round.
-    joint_type : str
-        'A' or 'B' (the units of amplitude and inertia).
-    measured : set of str
-        The record names already there (marked done).
-
-    Returns
-    -------
-    str
-    """
-    force, inertia = ("N", "kg") if joint_type == "A" else ("N·m", "kg·m²")
-    lines = [
-        f"# Rig test plan, round {plan.number} (type {joint_type} joint)",
-        "",
-        f"Designed from {plan.basis}: F_c {plan.designed_from.coulomb:.4g}, F_d {plan.designed_from.stribeck:.4g}, "
-        f"v_s {plan.designed_from.stribeck_velocity:.4g}, σ0 {plan.designed_from.sigma0:.4g}.",
-        "",
-        "Excitation A·sin(2πft) for the stated cycles at the stated sample rate; record time, sliding velocity, "
-        "normal force (measured), excitation force, and the friction force if the rig gives it; the moving "
-        "inertia in the record's `# inertia = …` line (docs/identification.md, Records). Save each record as "
-        "the file named in its row, in this folder, then run the same command again.",
-        "",
-    ]
-    if plan.ladder:
-        lines += [
-            "Run the rows **in order**. After each, note whether the element slid (gross motion, not only "
-            f"presliding); skip every later row whose rung exceeds {STICK_SPAN:g}× the rung of the first row that "
-            "slid (the command reads the records by the same rule and asks for no more).",
-            "",
-        ]
-    lines += [
-        f"| # | file | F_N [N] | amplitude [{force}] | f [Hz] | cycles | inertia [{inertia}] | sample rate [Hz] "
-        "| for | status |",
-        "|---:|---|---:|---:|---:|---:|---:|---:|---|---|",
-    ]
-
-    def purpose(k: int) -> str:
-        if not plan.ladder:
-            return plan.purpose[k]
-        rung = plan.tests[k].amplitude / breakaway(plan.designed_from, plan.tests[k].normal_force)
-        return f"ladder rung {rung:.3g}× the break-away above"
-
-    order = sorted(range(len(plan.tests)), key=lambda k: plan.tests[k].amplitude / breakaway(plan.designed_from,
-                   plan.tests[k].normal_force)) if plan.ladder else range(len(plan.tests))  # fmt: skip
-    for row, k in enumerate(order, 1):
-        test = plan.tests[k]
-        name = record_name(plan, test)
-        lines.append(
-            f"| {row} | `{name}.csv` | {test.normal_force:g} | {test.amplitude:.6g} | {test.frequency:g} | "
-            f"{test.cycles:g} | {test.inertia:.4g} | {test.sample_rate:g} | {purpose(k)} | "
-            f"{'measured' if name in measured else 'to measure'} |"
-        )
-    return "\n".join(lines) + "\n"
+def _wide(widths: dict[str, float], target: float) -> list[str]:
+    return [name for name, width in widths.items() if not width <= target]
 
 
 def _measured(rounds: list[Round]) -> int:
@@ -355,11 +239,6 @@ class NotMeasured(SmartjointError):
         super().__init__(f"{where}record {name} not measured yet")
         self.plan = plan
         self.name = name
-
-
-def record_name(plan: Plan, test: RigTest) -> str:
-    """The file stem of a planned test's record: ``round<k>_<test name>`` (rounds never clash)."""
-    return f"round{plan.number}_{test.name}"
 
 
 def run_round(plan: Plan, measure: Callable[[RigTest, str], Record]) -> CampaignRecords:
@@ -395,12 +274,19 @@ def run_round(plan: Plan, measure: Callable[[RigTest, str], Record]) -> Campaign
 
 
 def identify_round(plan: Plan, measured: CampaignRecords, rounds: list[Round], progress=None) -> Round:
-    """Identify the records of every round so far (with this one's) and judge the widths."""
+    """Identify the records of every round so far (with this one's) and judge the widths.
+
+    The output-error step also starts from what a refinement round was designed from
+    (``round_design.design_basis``: never an estimate whose v_s its records did not bound — a
+    collapsed estimate as a start keeps the fit in its collapse); a ladder round from the last
+    estimate.
+    """
     micro = [r for previous in rounds for r in previous.micro] + measured.micro
     stick = [r for previous in rounds for r in previous.stick] + measured.stick
     identification, failure, widths = None, None, {}
     try:
         previous = next((r.identification.parameters for r in reversed(rounds) if r.identification), None)
+        previous = previous if plan.ladder else plan.designed_from
         identification = identify(micro, stick, progress=progress, previous=previous)
         widths = half_widths(identification)
     except SmartjointError as error:
@@ -420,6 +306,8 @@ def run_sequential(
     max_rounds: int = MAX_ROUNDS,
     progress=None,
     replicates: int = REPLICATES,
+    target: float = TARGET_HALF_WIDTH,
+    max_records: int = MAX_RECORDS,
 ) -> SequentialResult:
     """Round after round: plan, measure, identify, until ``plan_round`` says done.
 
@@ -440,38 +328,68 @@ def run_sequential(
     progress : callable, optional
         Receives a line per round.
     replicates : int
-        Of the final identification's parametric bootstrap (``bootstrap``; 0: curvature intervals).
+        Of the parametric bootstrap (``bootstrap``; 0: curvature intervals) that judges a round
+        whose curvature intervals are within target, and the final identification.
+    target : float
+        The relative 95 % half width of every ``TARGETED`` parameter: the campaign stops there,
+        and what is wider at the end is reported as not identified (``Identification.accuracy``).
+    max_records : int
+        The budget of records (at most ``MAX_RECORDS``).
 
     Returns
     -------
     SequentialResult
     """
     rounds: list[Round] = []
+    verdict = False  # whether the last round's intervals are the bootstrap's
     while len(rounds) < max_rounds:
-        plan = plan_round(joint_type, prior, rounds, rig, noise, seed, cycles)
+        plan = plan_round(joint_type, prior, rounds, rig, noise, seed, cycles, target, max_records)
         if plan is None:
             break
         done = identify_round(plan, run_round(plan, measure), rounds)
+        verdict = done.identification is not None and not _wide(done.half_widths, target)
+        if verdict:
+            # The curvature says done; the bootstrap, which widens the intervals by the estimate's
+            # bias, has the last word — and the campaign goes on where it widens them beyond target.
+            done = _bootstrapped(done, replicates, seed, progress)
         rounds.append(done)
         if progress:
-            widths = ", ".join(f"{name} ±{100 * w:.3g} %" for name, w in done.half_widths.items())
-            progress(
-                f"round {plan.number} (from {plan.basis}): {len(done.micro)} micro-slip, {len(done.stick)} "
-                f"stick-slip records" + (f"; {done.failure}" if done.failure else f"; 95 % half widths {widths}")
-            )
+            progress(_round_line(done))
     last = rounds[-1]
     if last.identification is None:
         return SequentialResult(tuple(rounds), False, f"not identified: {last.failure}")
-    # The verdict on the honest intervals: the final estimate's bootstrap widens them by its bias.
-    identification = with_bootstrap(last.identification, replicates, seed, progress)
+    if not verdict:
+        last = _bootstrapped(last, replicates, seed, progress)
+    # What is wider than the target is reported as not identified (``identifiability``).
+    accuracy = {name: target for name in TARGETED}
     last = rounds[-1] = dataclasses.replace(
-        last, identification=identification, half_widths=half_widths(identification)
+        last, identification=dataclasses.replace(last.identification, accuracy=accuracy)
     )
-    wide = [name for name, width in last.half_widths.items() if not width <= TARGET_HALF_WIDTH]
+    wide = _wide(last.half_widths, target)
     if not wide:
-        return SequentialResult(tuple(rounds), True, f"every targeted interval within ±{TARGET_HALF_WIDTH:.0%}")
-    spent = f"{len(rounds)} rounds, {_measured(rounds)} records of at most {MAX_ROUNDS}, {MAX_RECORDS}"
-    return SequentialResult(tuple(rounds), False, f"stopped after {spent}; still wide: {', '.join(wide)}")
+        return SequentialResult(tuple(rounds), True, f"every targeted interval within ±{100 * target:.3g} %")
+    spent = f"{len(rounds)} rounds, {_measured(rounds)} records (budget {MAX_ROUNDS} rounds, {max_records} records)"
+    widths = ", ".join(f"{_SYMBOLS[name]} ±{100 * last.half_widths[name]:.3g} %" for name in wide)
+    return SequentialResult(
+        tuple(rounds), False, f"stopped after {spent}; not identified to ±{100 * target:.3g} %: {widths}"
+    )
+
+
+_SYMBOLS = {"sigma0": "σ0", "coulomb": "F_c", "stribeck": "F_d", "stribeck_velocity": "v_s"}
+
+
+def _bootstrapped(done: Round, replicates: int, seed: int, progress) -> Round:
+    identification = with_bootstrap(done.identification, replicates, seed, progress)
+    return dataclasses.replace(done, identification=identification, half_widths=half_widths(identification))
+
+
+def _round_line(done: Round) -> str:
+    widths = ", ".join(f"{_SYMBOLS[name]} ±{100 * w:.3g} %" for name, w in done.half_widths.items())
+    bootstrap = " (bootstrap)" if done.identification is not None and done.identification.bootstrap else ""
+    return (
+        f"round {done.plan.number} (from {done.plan.basis}): {len(done.micro)} micro-slip, {len(done.stick)} "
+        f"stick-slip records" + (f"; {done.failure}" if done.failure else f"; 95 % half widths{bootstrap} {widths}")
+    )
 
 
 __all__ = [
@@ -485,10 +403,7 @@ __all__ = [
     "half_widths",
     "NotMeasured",
     "identify_round",
-    "plan_text",
-    "record_name",
     "plan_round",
-    "refinement_tests",
     "run_round",
     "run_sequential",
 ]
