@@ -110,3 +110,18 @@ def test_more_krylov_vectors_than_the_space_allows_is_named(small):
         reduction.ModelError, match=rf"Krylov vectors: {n} per joint × 2 joints \+ 10 kept modes .* > {n} DOFs"
     ):
         reduction.reduce(fe, modes, 10, n)
+
+
+def test_a_dense_solution_that_cannot_fit_is_refused_before_it_allocates(small, monkeypatch):
+    """Every mode of a model is a dense N × N solution (the reduction study's full-model reference):
+    where that needs more memory than is available, one line names the modes, the DOFs, the
+    memory and what to ask for instead — never numpy's ArrayMemoryError from inside LAPACK."""
+    fe, _ = small
+    needed = modal.DENSE_ARRAYS * 8 * fe.n_dof**2
+    monkeypatch.setattr(modal, "available_memory", lambda: needed - 1)
+    with pytest.raises(modal.ModelError, match=rf"n_modes: {fe.n_dof} of {fe.n_dof} DOFs needs a dense eigen solution"):
+        modal.solve_modes(fe, fe.n_dof)
+    monkeypatch.setattr(modal, "available_memory", lambda: needed)
+    assert len(modal.solve_modes(fe, fe.n_dof)) == fe.n_dof
+    monkeypatch.setattr(modal, "available_memory", lambda: None)  # unknown: no refusal
+    assert len(modal.solve_modes(fe, 3)) == 3

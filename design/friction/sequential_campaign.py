@@ -362,9 +362,9 @@ def run_sequential(
         last = _bootstrapped(last, replicates, seed, progress)
     # What is wider than the target is reported as not identified (``identifiability``).
     accuracy = {name: target for name in TARGETED}
-    last = rounds[-1] = dataclasses.replace(
-        last, identification=dataclasses.replace(last.identification, accuracy=accuracy)
-    )
+    final = last.identification
+    assert final is not None  # a round's bootstrap keeps its identification
+    last = rounds[-1] = dataclasses.replace(last, identification=dataclasses.replace(final, accuracy=accuracy))
     wide = _wide(last.half_widths, target)
     if not wide:
         return SequentialResult(tuple(rounds), True, f"every targeted interval within ±{100 * target:.3g} %")

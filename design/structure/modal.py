@@ -7,6 +7,7 @@ Lanczos (ARPACK) around a slightly negative shift, which also works for nearly s
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,6 +29,38 @@ SHIFT = -1.0  # (rad/s)²: below every elastic mode, keeps K − σM regular
 # 300 bays, a hinged chain) ≤ 0.1 eps; the first mode of a clamped 1000-bay mast 11 eps,
 # 300 bays 1300 eps, 10 bays 7e8 eps. The cut-off, eps, sits in the decade between.
 ZERO_ENERGY_RELATIVE = float(np.finfo(float).eps)
+# Dense N × N arrays of a dense solution: K, M, Φ and LAPACK's divide-and-conquer workspace
+# (about 2N² for dsygvd) — 8 bytes each.
+DENSE_ARRAYS = 5
+
+
+def available_memory() -> int | None:
+    """Bytes this process may still allocate: MemAvailable of /proc/meminfo (Linux), else the
+    physical memory; None where neither is known."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def _check_dense_fits(n_dof: int, n_modes: int) -> None:
+    """One line before a dense solution that cannot fit (a 1000-bay mast's every mode: 384 129
+    DOFs, 5.9 TB), never numpy's ArrayMemoryError from inside LAPACK's wrapper."""
+    needed = DENSE_ARRAYS * 8 * n_dof**2
+    free = available_memory()
+    if free is not None and needed > free:
+        raise ModelError(
+            f"n_modes: {n_modes} of {n_dof} DOFs needs a dense eigen solution of about {needed / 1e9:.3g} GB, "
+            f"more than the {free / 1e9:.3g} GB available — ask for at most {n_dof - 2} modes (solved sparse) "
+            "or a smaller model"
+        )
 
 
 @dataclass
@@ -66,6 +99,7 @@ def eigensolve(stiffness: sp.spmatrix, mass: sp.spmatrix, n_modes: int) -> tuple
         raise ModelError(f"n_modes: {n_modes} — must be between 1 and the number of DOFs ({n_dof})")
     try:
         if n_dof <= DENSE_LIMIT or n_modes >= n_dof - 1:
+            _check_dense_fits(n_dof, n_modes)
             if n_modes == n_dof:  # the whole spectrum: divide and conquer is several times faster
                 values, vectors = scipy.linalg.eigh(stiffness.toarray(), mass.toarray(), driver="gvd")
             else:
@@ -349,6 +383,7 @@ __all__ = [
     "channel_units",
     "count_zero_energy_modes",
     "DENSE_LIMIT",
+    "available_memory",
     "eigensolve",
     "gross_energy",
     "modal_model",
