@@ -114,13 +114,22 @@ def test_more_krylov_vectors_than_the_space_allows_is_named(small):
 
 def test_a_dense_solution_that_cannot_fit_is_refused_before_it_allocates(small, monkeypatch):
     """Every mode of a model is a dense N × N solution (the reduction study's full-model reference):
-    where that needs more memory than is available, one line names the modes, the DOFs, the
-    memory and what to ask for instead — never numpy's ArrayMemoryError from inside LAPACK."""
+    where that needs more memory than is available, one line names what asked, the DOFs, the
+    memory and what to do instead — never numpy's ArrayMemoryError from inside LAPACK."""
+    from types import SimpleNamespace
+
+    from conftest import small_truss
+
     fe, _ = small
-    needed = modal.DENSE_ARRAYS * 8 * fe.n_dof**2
+    design = parse_design(small_truss())
+    needed = modal.dense_memory(fe.n_dof)
     monkeypatch.setattr(modal, "available_memory", lambda: needed - 1)
-    with pytest.raises(modal.ModelError, match=rf"n_modes: {fe.n_dof} of {fe.n_dof} DOFs needs a dense eigen solution"):
+    refused = rf"n_modes: {fe.n_dof}: a dense eigen solution of {fe.n_dof} DOFs needs .* GB available — ask for at most"
+    with pytest.raises(modal.ModelError, match=refused):
         modal.solve_modes(fe, fe.n_dof)
+    with pytest.raises(modal.ModelError, match="reduction study: its reference, the full model, is every mode"):
+        forces = np.full(len(design.joints), 400.0)
+        reduction.reduction_study(design, forces, progress=lambda line: None, released=SimpleNamespace(fe=fe))
     monkeypatch.setattr(modal, "available_memory", lambda: needed)
     assert len(modal.solve_modes(fe, fe.n_dof)) == fe.n_dof
     monkeypatch.setattr(modal, "available_memory", lambda: None)  # unknown: no refusal

@@ -22,6 +22,11 @@ def _full_model(design, considered: int, progress, released: SolvedModel | None)
     modes of Eq. 5) and its first ``considered`` modes, from that one full solution: the basis
     and the reference the errors are measured against come from the same eigen solution."""
     fe = released.fe if released is not None else build_model(design, joints="released")
+    modal.check_dense_fits(
+        fe.n_dof,
+        "reduction study: its reference, the full model, is every mode of the released truss",
+        "the study runs on smaller models (it has no sparse full-model reference yet)",
+    )
     progress(f"      all {fe.n_dof} modes of the released truss (the full model) …")
     everything = modal.solve_modes(fe, fe.n_dof)
     full = modal.modal_model(fe, everything)

@@ -50,16 +50,29 @@ def available_memory() -> int | None:
         return None
 
 
-def _check_dense_fits(n_dof: int, n_modes: int) -> None:
+def dense_memory(n_dof: int) -> int:
+    """Bytes of a dense eigen solution of an N-DOF model (``DENSE_ARRAYS`` N × N doubles)."""
+    return DENSE_ARRAYS * 8 * n_dof**2
+
+
+def check_dense_fits(n_dof: int, what: str, instead: str) -> None:
     """One line before a dense solution that cannot fit (a 1000-bay mast's every mode: 384 129
-    DOFs, 5.9 TB), never numpy's ArrayMemoryError from inside LAPACK's wrapper."""
-    needed = DENSE_ARRAYS * 8 * n_dof**2
-    free = available_memory()
+    DOFs, 5.9 TB), never numpy's ArrayMemoryError from inside LAPACK's wrapper.
+
+    Parameters
+    ----------
+    n_dof : int
+        N.
+    what : str
+        What asks for it, leading the message.
+    instead : str
+        What to do instead, ending it.
+    """
+    needed, free = dense_memory(n_dof), available_memory()
     if free is not None and needed > free:
         raise ModelError(
-            f"n_modes: {n_modes} of {n_dof} DOFs needs a dense eigen solution of about {needed / 1e9:.3g} GB, "
-            f"more than the {free / 1e9:.3g} GB available — ask for at most {n_dof - 2} modes (solved sparse) "
-            "or a smaller model"
+            f"{what}: a dense eigen solution of {n_dof} DOFs needs about {needed / 1e9:.3g} GB, more than the "
+            f"{free / 1e9:.3g} GB available — {instead}"
         )
 
 
@@ -99,7 +112,7 @@ def eigensolve(stiffness: sp.spmatrix, mass: sp.spmatrix, n_modes: int) -> tuple
         raise ModelError(f"n_modes: {n_modes} — must be between 1 and the number of DOFs ({n_dof})")
     try:
         if n_dof <= DENSE_LIMIT or n_modes >= n_dof - 1:
-            _check_dense_fits(n_dof, n_modes)
+            check_dense_fits(n_dof, f"n_modes: {n_modes}", f"ask for at most {n_dof - 2} modes (solved sparse)")
             if n_modes == n_dof:  # the whole spectrum: divide and conquer is several times faster
                 values, vectors = scipy.linalg.eigh(stiffness.toarray(), mass.toarray(), driver="gvd")
             else:
@@ -384,6 +397,8 @@ __all__ = [
     "count_zero_energy_modes",
     "DENSE_LIMIT",
     "available_memory",
+    "check_dense_fits",
+    "dense_memory",
     "eigensolve",
     "gross_energy",
     "modal_model",
