@@ -211,7 +211,9 @@ def point_artifact(design, model: ModalModel, lqg: LqgDesign, point: dict[str, f
 
 def perturbed_plant(model: ModalModel, inputs: dict[str, float]) -> ModalModel:
     """The design model with the sample's modal frequency scale and damping (itself when the
-    sample changes neither)."""
+    sample changes neither). The damping is the structure's: quasi-static Krylov corrections
+    (critically damped, `reduction.quasi_static_corrections`) keep theirs, as they stand for
+    residual flexibility, not a mode whose damping could be measured."""
     scale = inputs.get("modal_frequency_scale")
     damping = inputs.get("modal_damping")
     if scale is None and damping is None:
@@ -219,7 +221,7 @@ def perturbed_plant(model: ModalModel, inputs: dict[str, float]) -> ModalModel:
     return dataclasses.replace(
         model,
         omega=model.omega * (1.0 if scale is None else scale),
-        damping=model.damping if damping is None else np.full_like(model.damping, damping),
+        damping=model.damping if damping is None else np.where(model.damping >= 1.0, model.damping, damping),
     )
 
 

@@ -69,8 +69,10 @@ class LqgDesign:
 
 
 def check_sample_time(model: ModalModel, sample_time: float) -> None:
-    """Rule: every retained mode below the Nyquist frequency, f_max·Δt < 1/2 — above it the
-    discrete model aliases the mode and the estimator cannot tell it from a slower one.
+    """Rule: every retained oscillating mode below the Nyquist frequency, f_max·Δt < 1/2 — above
+    it the discrete model aliases the mode and the estimator cannot tell it from a slower one.
+    Coordinates damped at or above critical (ξ ≥ 1: the quasi-static Krylov corrections) have
+    real poles, nothing that oscillates or aliases, and are exempt.
 
     Parameters
     ----------
@@ -86,7 +88,10 @@ def check_sample_time(model: ModalModel, sample_time: float) -> None:
     """
     if not (math.isfinite(sample_time) and sample_time > 0):
         raise ModelError(f"sample_time: {sample_time!r} — must be a finite number > 0 [s]")
-    highest = float(model.omega.max()) / (2 * math.pi)
+    oscillating = model.omega[model.damping < 1.0]
+    if oscillating.size == 0:
+        return
+    highest = float(oscillating.max()) / (2 * math.pi)
     if highest * sample_time >= 0.5:
         raise ModelError(
             f"sample_time: {sample_time:g} s is too coarse for the highest retained mode "

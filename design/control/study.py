@@ -73,7 +73,8 @@ def controlled_joints(design) -> list[str]:
 def design_model(design, progress=print, released: SolvedModel | None = None) -> ModalModel:
     """The reduced model of Section 4 the controllers are designed on: ``control.modes`` of the
     first ``control.considered_modes`` modes by Hankel values plus ``control.krylov`` correction
-    vectors per joint (Eq. 27–29), joints frictionless (Eq. 6).
+    vectors per joint (Eq. 27–29), made quasi-static above the controller's band
+    (`reduction.quasi_static_corrections`), joints frictionless (Eq. 6).
 
     Parameters
     ----------
@@ -102,7 +103,9 @@ def design_model(design, progress=print, released: SolvedModel | None = None) ->
     considered = min(c.considered_modes, fe.n_dof)
     progress(f"      reduced model: {c.modes} of the first {considered} modes + {c.krylov} Krylov vector(s) per joint")
     first = released.first(considered) if released is not None else modal.solve_modes(fe, considered)
-    return reduction.reduce(fe, first, min(c.modes, considered), c.krylov).model
+    # The corrections quasi-static above the band the controller samples (no pseudo-mode in it).
+    quasi_static = reduction.correction_frequency(c.sample_time)
+    return reduction.reduce(fe, first, min(c.modes, considered), c.krylov, correction_frequency=quasi_static).model
 
 
 # ------------------------------------------------------------------------------------ metrics

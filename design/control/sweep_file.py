@@ -63,7 +63,11 @@ FACTOR = Support(0.0, math.inf, "a factor on the nominal value")
 # The scalar uncertain inputs of one sample and their supports (friction factors: FACTOR).
 SCALAR_INPUTS = {
     "modal_frequency_scale": Support(0.0, math.inf, "a factor on every modal frequency ω_i of the simulated plant"),
-    "modal_damping": Support(0.0, 0.99, "the modal damping ratio ξ of every coordinate of the simulated plant"),
+    "modal_damping": Support(
+        0.0,
+        0.99,
+        "the modal damping ratio ξ of every mode of the simulated plant (not of the quasi-static corrections)",
+    ),
     "pulse_amplitude": Support(0.0, math.inf, "the peak of the triangular tip pulse [N]"),
     "pulse_direction": Support(
         -360.0, 360.0, "the pulse's angle in the plane of the first two disturbance inputs [deg]; 45: the study's"

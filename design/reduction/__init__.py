@@ -9,7 +9,15 @@ Every function here raises `ModelError` (exported too) for a request the model c
 """
 
 from smartjoint.common.errors import ModelError
-from smartjoint.design.reduction.krylov import Reduction, krylov_vectors, reduce
+from smartjoint.design.reduction.krylov import (
+    NYQUIST_MULTIPLE,
+    QUASI_STATIC_DAMPING,
+    Reduction,
+    correction_frequency,
+    krylov_vectors,
+    quasi_static_corrections,
+    reduce,
+)
 from smartjoint.design.reduction.metrics import (
     band_norms,
     error_metrics,
@@ -32,15 +40,19 @@ __all__ = [
     "ChannelReference",
     "ModelError",
     "PATHS",
+    "NYQUIST_MULTIPLE",
+    "QUASI_STATIC_DAMPING",
     "Reduction",
     "WINDOWS",
     "band_norms",
     "channel_references",
+    "correction_frequency",
     "error_metrics",
     "frequency_grid",
     "frequency_response",
     "hankel_values",
     "krylov_vectors",
+    "quasi_static_corrections",
     "modal_gramians",
     "modal_compliance",
     "reduce",

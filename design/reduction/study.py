@@ -8,8 +8,8 @@ import numpy as np
 from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
 from smartjoint.design.friction.model import joint_parameters
-from smartjoint.design.reduction.krylov import reduce
-from smartjoint.design.reduction.metrics import error_metrics
+from smartjoint.design.reduction.krylov import correction_frequency, reduce
+from smartjoint.design.reduction.metrics import band_norms, error_metrics
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.solved import SolvedModel
@@ -76,19 +76,23 @@ def _pulse_simulation(design, normal_forces: np.ndarray, duration: float, step: 
 
 
 def _krylov_runs(
-    fe, full, first, keep: int, krylov, krylov_joints, simulate_model, reference, active, duration, progress
+    fe, full, first, keep: int, krylov, krylov_joints, simulate_model, reference, active, duration, progress, nyquist
 ) -> list[dict]:
-    """One reduced model per Krylov count (``keep`` modes of ``first`` plus the vectors), each
-    run and compared with the full model's ``reference`` run."""
+    """One reduced model per Krylov count (``keep`` modes of ``first`` plus the vectors, quasi-static
+    above 4× the controller's Nyquist frequency ``nyquist``), each run and compared with the full
+    model's ``reference`` run, in the considered band and across the band to ``nyquist``."""
     band = float(first.omega[-1])
     runs = []
     for count in krylov:
-        reduced = reduce(fe, first, keep, count, krylov_joints=krylov_joints)
+        quasi_static = correction_frequency(np.pi / nyquist)
+        reduced = reduce(fe, first, keep, count, krylov_joints=krylov_joints, correction_frequency=quasi_static)
         result = simulate_model(reduced.model)
         errors = _friction_rms_errors(result.friction_force[:, active], reference, active, duration)
-        runs.append(
-            _compared_run(count, reduced, result, reference, errors, error_metrics(fe, full, reduced.model, band))
-        )
+        metrics = error_metrics(fe, full, reduced.model, band)
+        if full.joint_input.shape[1]:
+            metrics["uv_nyquist"] = band_norms(full, reduced.model, nyquist, "uv")
+        metrics["nyquist_hz"] = nyquist / (2.0 * np.pi)
+        runs.append(_compared_run(count, reduced, result, reference, errors, metrics))
         progress(
             f"      {keep} modes + {count} Krylov vector(s): friction RMS error "
             + ", ".join(f"{100 * e:.1f} % (0–{w} s)" for w, e in errors.items())
@@ -155,8 +159,9 @@ def reduction_study(
     progress(f"      full model: {full.n_states} states, {duration:g} s at {step:g} s")
     reference = simulate_model(full)
     active = int(np.argmax(normal_forces))
+    nyquist = np.pi / design.control.sample_time
     runs = _krylov_runs(
-        fe, full, first, keep, krylov, krylov_joints, simulate_model, reference, active, duration, progress
+        fe, full, first, keep, krylov, krylov_joints, simulate_model, reference, active, duration, progress, nyquist
     )
     return {
         "fe": fe,
@@ -169,6 +174,7 @@ def reduction_study(
         "keep": keep,
         "duration": duration,
         "step": step,
+        "correction_frequency_hz": correction_frequency(design.control.sample_time) / (2.0 * np.pi),
         "joint_names": [j.name for j in design.joints],
         "normal_forces": normal_forces.tolist(),
     }
@@ -198,6 +204,7 @@ def study_summary(study: dict) -> dict:
         "considered_modes": study["considered"],
         "kept_modes": study["keep"],
         "duration_s": study["duration"],
+        "correction_frequency_hz": study["correction_frequency_hz"],
         "step_s": study["step"],
         "hankel_uv": hankel["uv"].tolist(),
         "hankel_references": [
