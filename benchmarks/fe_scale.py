@@ -7,6 +7,12 @@ subset of 100) of the same K, M: the ratio says what the sparse shift-invert pat
 87 bays and more the dense matrices alone would not fit comfortably (36 000² doubles ≈ 10 GB).
 
     python benchmarks/fe_scale.py [--bays 10 87 300 1000] [--json benchmarks/fe_scale.json]
+    python benchmarks/fe_scale.py --run 1000 [--folder /tmp/smartjoint-fe-scale]
+
+``--run BAYS`` times ``smartjoint run`` on the BAYS-bay mast with the three joints its
+``[placement]`` chooses, stage by stage (wall-clock and peak resident memory of the run's whole
+process tree, from each ``[k/12]`` line to the next), into ``benchmarks/fe_scale_run.json``
+(issue 31's target for 1000 bays: 10 minutes and 8 GB on the 2-core machine).
 
 Targets: 87 bays in ≤ 10 s (issue 2); 1000 bays (first mode 0.6 mHz, accepted by the relative
 zero-energy cut-off) in ≤ 2 minutes (issue 15). Assembly includes the zero-energy check
@@ -23,6 +29,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import time
@@ -81,8 +88,96 @@ def measure(bays: int, dense: bool) -> dict:
     return result
 
 
+def _tree_rss(root: int) -> int:
+    """Resident bytes of ``root`` and every process below it (compilers, QEMU, Dask workers), from /proc."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+                parents[int(entry.name)] = int(fields[1])
+            except (OSError, IndexError, ValueError):
+                continue
+    tree, frontier = {root}, [root]
+    while frontier:
+        children = [pid for pid, parent in parents.items() if parent in frontier and pid not in tree]
+        tree.update(children)
+        frontier = children
+    total = 0
+    for pid in tree:
+        try:
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1]) * 1024
+        except OSError:
+            continue
+    return total
+
+
+def run_stages(bays: int, folder: Path, environment: dict) -> dict:
+    """``smartjoint run`` on the ``bays``-bay mast with 3 joints placed by its ``[placement]``: the
+    wall-clock and the peak resident memory of the run's process tree per stage (sampled every
+    0.2 s), from the time its ``[k/12]`` line appears to the next one."""
+    import threading
+
+    import tomli_w
+
+    from smartjoint.common import package_data
+
+    data = mast(bays)
+    data["name"] = f"mast-{bays}bay"
+    bundled = package_data.folder("smartjoint.design", "data")
+    for entry in data.get("friction", {}).values():  # the reference truss's joint tables, by full path
+        entry["file"] = str((bundled / entry["file"]).resolve())
+    folder.mkdir(parents=True, exist_ok=True)
+    design = folder / f"mast_{bays}.toml"
+    design.write_text(tomli_w.dumps(data))
+    command = [shutil.which("smartjoint") or "smartjoint", "run", str(design), "-o", str(folder / "report")]
+    start = time.perf_counter()
+    child = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=environment)
+    stages: list[dict] = []
+    peak = [0]
+    finished = threading.Event()
+
+    def sample() -> None:
+        while not finished.wait(0.2):
+            peak[0] = max(peak[0], _tree_rss(child.pid))
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
+    last = ""
+    assert child.stderr is not None
+    for line in child.stderr:
+        last = line.rstrip() or last
+        if line.startswith("["):
+            now = time.perf_counter() - start
+            if stages:
+                stages[-1].update(seconds=now - stages[-1]["start_s"], peak_rss_mb=peak[0] / 2**20)
+            peak[0] = _tree_rss(child.pid)
+            stages.append({"stage": line.split("]")[0] + "]", "line": line.strip()[:140], "start_s": now})
+            print(f"  {now:7.1f} s  {line.strip()[:120]}", flush=True)
+    code = child.wait()
+    finished.set()
+    sampler.join()
+    total = time.perf_counter() - start
+    if stages:
+        stages[-1].update(seconds=total - stages[-1]["start_s"], peak_rss_mb=peak[0] / 2**20)
+    return {
+        "bays": bays,
+        "exit": code,
+        "last_line": last,
+        "seconds": total,
+        "peak_rss_mb": max((s.get("peak_rss_mb", 0.0) for s in stages), default=0.0),
+        "stages": stages,
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--run", type=int, metavar="BAYS", help="time `smartjoint run` on the BAYS-bay mast, stage by stage"
+    )
+    parser.add_argument("--folder", default="/tmp/smartjoint-fe-scale", help="where --run writes its design and report")
     parser.add_argument("--bays", type=int, nargs="+", default=[10, 87, 300, 1000])
     parser.add_argument("--json", default=str(Path(__file__).with_name("fe_scale.json")))
     parser.add_argument("--child", type=int, help=argparse.SUPPRESS)
@@ -95,6 +190,17 @@ def main() -> int:
     environment = dict(os.environ)
     for variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
         environment.setdefault(variable, "1")
+    if args.run:
+        from machine import python_machine, write_json
+
+        result = run_stages(args.run, Path(args.folder), environment)
+        result["machine"] = python_machine(blas_threads=environment["OPENBLAS_NUM_THREADS"])
+        write_json(str(Path(__file__).with_name("fe_scale_run.json")), {"benchmark": "fe_scale --run", **result})
+        print(
+            f"{args.run} bays: smartjoint run exit {result['exit']} in {result['seconds']:.0f} s, peak RSS "
+            f"{result['peak_rss_mb']:.0f} MB (targets: 600 s, 8192 MB); last line: {result['last_line']}"
+        )
+        return 0 if result["exit"] == 0 else 1
     for bays in args.bays:
         command = [sys.executable, __file__, "--child", str(bays)] + (["--dense"] if bays <= 10 else [])
         done = subprocess.run(command, capture_output=True, text=True, env=environment)

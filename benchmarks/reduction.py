@@ -33,7 +33,7 @@ from machine import python_machine, write_json  # benchmarks/machine.py (the scr
 
 from smartjoint.design import build_model, load_design, updated_design
 from smartjoint.design.control import study as control_study
-from smartjoint.design.reduction import balanced, metrics, reduce, study
+from smartjoint.design.reduction import comparison, metrics, reduce, study
 from smartjoint.design.structure import modal
 
 DATA = Path(__file__).resolve().parents[1] / "design" / "data"
@@ -51,29 +51,8 @@ def load(name: str):
     return design
 
 
-def _norms(full, response, grid, path) -> dict:
-    """H∞ and H2 of full − reduced (``response`` on ``grid``), absolute and relative."""
-    exact = metrics.frequency_response(full, grid, path)
-    error = exact - response
-
-    def h2(x):
-        return float(np.sqrt(np.trapezoid(np.sum(np.abs(x) ** 2, axis=(1, 2)), grid) / np.pi))
-
-    hinf = float(np.linalg.svd(error, compute_uv=False).max())
-    return {"hinf": hinf, "h2": h2(error), "hinf_relative": hinf / float(np.linalg.svd(exact, compute_uv=False).max())}
-
-
-def _sub(model, indices):
-    """The modes ``indices`` of a full modal model."""
-    return modal.ModalModel(
-        model.omega[indices], model.damping[indices], model.joint_input[indices], model.disturbance_input[indices],
-        model.displacement_output[:, indices], model.velocity_output[:, indices],
-        [model.labels[i] for i in indices], model.joint_names, model.sensor_names, model.disturbance_names,
-    )  # fmt: skip
-
-
 def frequency_figures(design, cut: float, plots: Path | None) -> dict:
-    """The side-by-side norms of one design."""
+    """The side-by-side norms of one design (`comparison.compare_with_balanced_truncation`)."""
     start = time.perf_counter()
     fe = build_model(design, joints="released")
     modes = modal.solve_modes(fe, fe.n_dof)
@@ -85,51 +64,35 @@ def frequency_figures(design, cut: float, plots: Path | None) -> dict:
     )
     paper = reduce(fe, first, min(c.modes, c.considered_modes), c.krylov).model
     nyquist = np.pi / c.sample_time
-    given = np.flatnonzero(full.omega < cut * nyquist)
-    bt_start = time.perf_counter()
-    bt = balanced.balanced_truncation(_sub(full, given), ours.n_states)
-    bt_seconds = time.perf_counter() - bt_start
-    band = float(first.omega[-1])
-    exact = metrics.static_compliance(fe)
-    # BT's u_R → v is −C_v(sI − A)⁻¹B_u (its input is −u_R): the compliance, d/ds at 0, is C_v A⁻²B_u.
-    joints = exact.shape[0]
-    bt_static = bt.C[:joints] @ np.linalg.solve(bt.A, np.linalg.solve(bt.A, bt.B[:, :joints]))
+    result = comparison.compare_with_balanced_truncation(
+        full, {"ours": ours, "paper": paper}, metrics.static_compliance(fe), float(first.omega[-1]), nyquist, cut,
+        max_modes=fe.n_dof,
+    )  # fmt: skip
     out = {
         "design": design.name,
         "dofs": fe.n_dof,
         "full_states": full.n_states,
         "order": ours.n_states,
-        "band_hz": band / (2 * np.pi),
-        "nyquist_hz": nyquist / (2 * np.pi),
-        "bt_modes_given": int(given.size),
-        "bt_seconds": bt_seconds,
+        "band_hz": result.band_hz,
+        "nyquist_hz": result.nyquist_hz,
+        "bt_modes_given": result.balanced_modes,
+        "comparison_seconds": result.seconds,
         "corrections_hz": {
             "paper": (paper.omega[c.modes :] / (2 * np.pi)).tolist(),
             "ours": (ours.omega[c.modes :] / (2 * np.pi)).tolist(),
         },
-        "static_compliance_error": {
-            "ours": float(np.linalg.norm(metrics.modal_compliance(ours) - exact) / np.linalg.norm(exact)),
-            "paper": float(np.linalg.norm(metrics.modal_compliance(paper) - exact) / np.linalg.norm(exact)),
-            # BT's u_R → v at low frequency is jω·(static compliance): −C_v A⁻¹ B_u with the input −u_R
-            "bt": float(np.linalg.norm(bt_static - exact) / np.linalg.norm(exact)),
-        },
+        "static_compliance_error": result.static_compliance_error,
     }
-    for label, upper in (("band", band), ("nyquist", nyquist)):
-        grid = metrics.frequency_grid([full, ours, paper], upper, 3000)
-        for path in ("uv", "wy"):
-            out[f"{path}_{label}"] = {
-                "ours": _norms(full, metrics.frequency_response(ours, grid, path), grid, path),
-                "paper": _norms(full, metrics.frequency_response(paper, grid, path), grid, path),
-                "bt": _norms(full, bt.frequency_response(grid, path), grid, path),
-                "cut_alone": _norms(full, metrics.frequency_response(_sub(full, given), grid, path), grid, path),
-            }
-        if label == "nyquist" and plots is not None:
-            _bode(full, ours, paper, bt, grid, design.name, plots / f"reduction_bode_{design.name}.png")
+    for label in ("band", "nyquist"):
+        for path in comparison.PATHS:
+            out[f"{path}_{label}"] = result.norms[label][path]
+    if plots is not None:
+        _bode(result, paper, design.name, plots / f"reduction_bode_{design.name}.png")
     out["seconds"] = time.perf_counter() - start
     return out
 
 
-def _bode(full, ours, paper, bt, grid, name, path) -> None:
+def _bode(result, paper, name, path) -> None:
     """|G_uv| (largest singular value) of full, ours, the paper's corrections and BT to Nyquist."""
     import matplotlib
 
@@ -137,17 +100,17 @@ def _bode(full, ours, paper, bt, grid, name, path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    f = grid / (2 * np.pi)
-    for label, response, style in (
-        ("full", metrics.frequency_response(full, grid, "uv"), "k-"),
-        ("Eq. 26 corrections (paper)", metrics.frequency_response(paper, grid, "uv"), "C3--"),
-        ("quasi-static corrections (ours)", metrics.frequency_response(ours, grid, "uv"), "C0-"),
-        ("balanced truncation", bt.frequency_response(grid, "uv"), "C2:"),
+    f = result.grid / (2 * np.pi)
+    for key, label, style in (
+        ("full", "full", "k-"),
+        ("paper", "Eq. 26 corrections (paper)", "C3--"),
+        ("ours", "quasi-static corrections (ours)", "C0-"),
+        ("bt", "balanced truncation", "C2:"),
     ):
-        ax.semilogy(f, np.linalg.svd(response, compute_uv=False)[:, 0], style, lw=1, label=label)
+        ax.semilogy(f, result.gains[key], style, lw=1, label=label)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("σ_max of u_R → v [m/(N·s)]")
-    ax.set_title(f"{name}: u_R → v to the Nyquist frequency, {ours.n_states} states")
+    ax.set_title(f"{name}: u_R → v to the Nyquist frequency, {result.order} states")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -318,6 +318,11 @@ def cmd_reduce(args) -> dict:
         joints = [names.index(n) for n in args.krylov_joints.split(",")]
     elif forces is not None:
         joints = [int(np.argmax(forces))]
+    model = None
+    if design.joints and design.sensors and design.disturbances:
+        from smartjoint.design.control.study import design_model
+
+        model = design_model(design, report_progress)  # compared with balanced truncation to Nyquist
     study = reduction_study(
         design,
         forces if forces is not None else np.zeros(0),
@@ -328,6 +333,7 @@ def cmd_reduce(args) -> dict:
         args.duration,
         args.step,
         report_progress,
+        design_model=model,
     )
     out = study_summary(study)
     write_plots(args, out, lambda folder: plot_study(study, folder))

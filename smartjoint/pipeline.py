@@ -45,6 +45,7 @@ from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction.stage import friction_entries, friction_stage, place_joints
 from smartjoint.design.network import protocol
 from smartjoint.design.reduction import reduction_study, study_summary
+from smartjoint.design.reduction.study import DENSE_REFERENCE_DOFS, REFERENCE_MODES_PER_CONSIDERED
 from smartjoint.design.structure.solved import solved_model
 from smartjoint.pipeline_ensemble import ensemble_markdown, ensemble_stage
 from smartjoint.pipeline_fmu import fmu_markdown, fmu_stage
@@ -222,7 +223,10 @@ def _structure_stage(design_path: str | None, staging: Path, progress) -> Struct
         # One solution of the released truss: the spectrum and the design model (the reduction
         # study takes its FE model and solves every mode for its full-model reference).
         released_model = build_model(placed, joints="released")
-        released = solved_model(released_model, max(REPORT_MODES, placed.control.considered_modes))
+        count = max(REPORT_MODES, placed.control.considered_modes)
+        if released_model.n_dof > DENSE_REFERENCE_DOFS:  # the reduction study's sparse reference too
+            count = REFERENCE_MODES_PER_CONSIDERED * count
+        released = solved_model(released_model, count)
     return StructureStage(design, placed, locked, result, released, placed_design)
 
 
@@ -247,12 +251,17 @@ def _reduction_stage(structure: StructureStage, friction: FrictionStage, progres
     forces = np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
     if not forces.any():
         forces[0] = 400.0
+    # The controllers' design model, compared with balanced truncation to the Nyquist frequency.
+    model = None
+    if design.sensors and design.disturbances:
+        model = closed_loop.design_model(design, progress, structure.released)
     return reduction_study(
         design,
         forces,
         krylov_joints=[int(np.argmax(forces))],
         progress=lambda message: progress(message),
         released=structure.released,
+        design_model=model,
     )
 
 

@@ -122,6 +122,15 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
     for name in ("report.md", "mode_shapes.png", "spectrum.png", "summary.json"):
         assert (out / name).stat().st_size > 0
     assert summary["modes_released_hz"][0] < summary["modes_hz"][0]
+    # The controllers' design model against balanced truncation at its order, in the report:
+    # its static joint compliance is exact (quasi-static corrections keep their stiffness).
+    compared = summary["reduction"]["design_model_comparison"]
+    assert not compared["skipped"] and compared["order"] == summary["control"]["states"], compared
+    static = compared["static_compliance_error"]
+    assert static["design model"] < 1e-6 < static["bt"], static
+    assert (out / "reduction_bode.png").stat().st_size > 0 and "against balanced truncation" in (
+        out / "report.md"
+    ).read_text()
     # Control study, controller artefact and generated firmware join the report.
     from smartjoint.design.control import artifact
 

@@ -134,3 +134,33 @@ def test_a_dense_solution_that_cannot_fit_is_refused_before_it_allocates(small, 
     assert len(modal.solve_modes(fe, fe.n_dof)) == fe.n_dof
     monkeypatch.setattr(modal, "available_memory", lambda: None)  # unknown: no refusal
     assert len(modal.solve_modes(fe, 3)) == 3
+
+
+def test_the_sparse_full_model_reference_is_exact_statically_and_in_its_band(small, monkeypatch):
+    """Above ``DENSE_REFERENCE_DOFS`` the reduction study's reference is the lowest modes plus the
+    static residual of every input (issue 31): its static joint compliance is exact, and its
+    u_R → v and w → y responses equal the dense every-mode model's in its band to a small
+    fraction of the peak, better than the modes without the residual."""
+    from conftest import small_truss
+
+    from smartjoint.design.reduction import study
+
+    fe, modes = small
+    design = parse_design(small_truss())
+    dense = modal.modal_model(fe, modes)
+    correction = reduction.correction_frequency(design.control.sample_time)
+    monkeypatch.setattr(study, "DENSE_REFERENCE_DOFS", 0)
+    _, sparse, first, band = study._full_model(design, 20, lambda line: None, None, correction)
+    assert first.omega.size == 20 and np.isclose(band, modes.omega[39], rtol=1e-9)
+    n_inputs = fe.E.shape[1] + fe.F.shape[1]
+    assert sparse.omega.size == 40 + n_inputs
+    exact = reduction.static_compliance(fe)
+    assert np.linalg.norm(reduction.modal_compliance(sparse) - exact) < 1e-9 * np.linalg.norm(exact)
+    modes_only = modal.modal_model(fe, modal.Modes(modes.omega[:40], modes.shapes[:, :40], modes.damping[:40]))
+    for path in ("uv", "wy"):
+        with_residual = reduction.band_norms(dense, sparse, 0.5 * band, path)
+        without = reduction.band_norms(dense, modes_only, 0.5 * band, path)
+        assert with_residual["hinf_relative"] < 0.02, (path, with_residual)
+        assert with_residual["h2_error"] < 0.6 * without["h2_error"], (path, with_residual, without)
+        if path == "uv":  # the joint path: the residual is what the dropped modes leave at the joint
+            assert with_residual["hinf_error"] < 0.2 * without["hinf_error"], (path, with_residual, without)

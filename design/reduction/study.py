@@ -8,32 +8,82 @@ import numpy as np
 from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
 from smartjoint.design.friction.model import joint_parameters
-from smartjoint.design.reduction.krylov import correction_frequency, reduce
-from smartjoint.design.reduction.metrics import band_norms, error_metrics
+from smartjoint.design.reduction.comparison import compare_with_balanced_truncation
+from smartjoint.design.reduction.krylov import correction_frequency, krylov_vectors, quasi_static_corrections, reduce
+from smartjoint.design.reduction.metrics import band_norms, error_metrics, static_compliance
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.modal import ModalModel
 from smartjoint.design.structure.solved import SolvedModel
 
 WINDOWS = (0.05, 0.1, 0.2, 0.5)  # s: RMS windows of the friction-moment comparison
 
 
-def _full_model(design, considered: int, progress, released: SolvedModel | None):
-    """The released truss (``released``'s FE model where given), its full modal model (all
-    modes of Eq. 5) and its first ``considered`` modes, from that one full solution: the basis
-    and the reference the errors are measured against come from the same eigen solution."""
+DENSE_REFERENCE_DOFS = 10_000  # above: the sparse reference (a dense eigh of 10 000 DOFs: 2.4 GB, ~1 min)
+REFERENCE_MODES_PER_CONSIDERED = 2  # the sparse reference: this many × the considered modes
+
+
+def _full_model(design, considered: int, progress, released: SolvedModel | None, correction: float):
+    """The released truss (``released``'s FE model where given), its full-model reference and
+    its first ``considered`` modes, from one eigen solution: the basis and the reference the
+    errors are measured against come from the same modes.
+
+    Up to ``DENSE_REFERENCE_DOFS`` the reference is every mode of Eq. 5 (a dense solution).
+    Above, it is the lowest ``REFERENCE_MODES_PER_CONSIDERED`` × ``considered`` modes (sparse
+    shift-invert) plus the static residual of every joint and disturbance input, K⁻¹[E F]
+    M-orthogonalised against them and made quasi-static at ``correction`` [rad/s]: exact static
+    compliance and the dynamics of every mode up to the highest one solved, which bounds the band
+    the errors are measured in (the returned band [rad/s]; inf for the dense reference).
+    """
     fe = released.fe if released is not None else build_model(design, joints="released")
-    modal.check_dense_fits(
-        fe.n_dof,
-        "reduction study: its reference, the full model, is every mode of the released truss",
-        "the study runs on smaller models (it has no sparse full-model reference yet)",
+    if fe.n_dof <= DENSE_REFERENCE_DOFS:
+        modal.check_dense_fits(
+            fe.n_dof,
+            "reduction study: its reference, the full model, is every mode of the released truss",
+            f"models above {DENSE_REFERENCE_DOFS} DOFs get the sparse reference",
+        )
+        progress(f"      all {fe.n_dof} modes of the released truss (the full model) …")
+        everything = modal.solve_modes(fe, fe.n_dof)
+        full = modal.modal_model(fe, everything)
+        first = modal.Modes(
+            everything.omega[:considered], everything.shapes[:, :considered], everything.damping[:considered]
+        )
+        return fe, full, first, np.inf
+    count = min(REFERENCE_MODES_PER_CONSIDERED * considered, fe.n_dof - fe.E.shape[1] - fe.F.shape[1])
+    if released is not None and len(released.modes) >= count:
+        modes = released.first(count)
+    else:
+        progress(f"      the lowest {count} modes of the released truss ({fe.n_dof} DOFs, sparse) …")
+        modes = modal.solve_modes(fe, count)
+    model = modal.modal_model(fe, modes)
+    assert model.basis is not None  # modal_model keeps the shapes
+    progress(
+        f"      full-model reference: {count} modes (to {modes.omega[-1] / (2 * np.pi):.4g} Hz) + the static residual "
+        f"of {fe.E.shape[1]} joint and {fe.F.shape[1]} disturbance inputs, quasi-static at "
+        f"{correction / (2 * np.pi):.0f} Hz (above {DENSE_REFERENCE_DOFS} DOFs every mode is not solved)"
     )
-    progress(f"      all {fe.n_dof} modes of the released truss (the full model) …")
-    everything = modal.solve_modes(fe, fe.n_dof)
-    full = modal.modal_model(fe, everything)
-    first = modal.Modes(
-        everything.omega[:considered], everything.shapes[:, :considered], everything.damping[:considered]
+    loads = np.column_stack([fe.E, fe.F])
+    psi, omega_hat, _ = krylov_vectors(fe.stiffness, fe.mass, loads, model.basis, 1)
+    basis = np.column_stack([model.basis, psi])
+    residual = ModalModel(
+        np.concatenate([model.omega, omega_hat]),
+        np.concatenate([model.damping, np.full(omega_hat.size, fe.design.modal_damping)]),
+        basis.T @ fe.E,
+        basis.T @ fe.F,
+        fe.V @ basis,
+        fe.W @ basis,
+        model.labels + [f"krylov residual {m + 1}" for m in range(omega_hat.size)],
+        model.joint_names,
+        model.sensor_names,
+        model.disturbance_names,
+        basis,
+        model.joint_units,
+        model.sensor_units,
+        model.disturbance_units,
     )
-    return fe, full, first
+    full = quasi_static_corrections(residual, correction)
+    first = modal.Modes(modes.omega[:considered], modes.shapes[:, :considered], modes.damping[:considered])
+    return fe, full, first, float(modes.omega[-1])
 
 
 def _friction_rms_errors(reduced_u: np.ndarray, reference, active: int, duration: float) -> dict:
@@ -76,15 +126,16 @@ def _pulse_simulation(design, normal_forces: np.ndarray, duration: float, step: 
 
 
 def _krylov_runs(
-    fe, full, first, keep: int, krylov, krylov_joints, simulate_model, reference, active, duration, progress, nyquist
+    fe, full, first, keep: int, krylov, krylov_joints, simulate_model, reference, active, duration, progress, bands
 ) -> list[dict]:
     """One reduced model per Krylov count (``keep`` modes of ``first`` plus the vectors, quasi-static
-    above 4× the controller's Nyquist frequency ``nyquist``), each run and compared with the full
-    model's ``reference`` run, in the considered band and across the band to ``nyquist``."""
+    at ``bands[0]``, 4× the controller's Nyquist frequency), each run and compared with the full
+    model's ``reference`` run, in the considered band and across the band to ``bands[1]`` (the
+    Nyquist frequency, or the sparse reference's highest mode below it) [rad/s]."""
     band = float(first.omega[-1])
     runs = []
     for count in krylov:
-        quasi_static = correction_frequency(np.pi / nyquist)
+        quasi_static, nyquist = bands
         reduced = reduce(fe, first, keep, count, krylov_joints=krylov_joints, correction_frequency=quasi_static)
         result = simulate_model(reduced.model)
         errors = _friction_rms_errors(result.friction_force[:, active], reference, active, duration)
@@ -100,6 +151,25 @@ def _krylov_runs(
     return runs
 
 
+def _design_model_comparison(design, fe, full, first, design_model, nyquist, progress):
+    """The design model against balanced truncation of ``full`` at its order (BT given the modes
+    below 4× Nyquist), in the band of the first ``control.considered_modes`` and to Nyquist."""
+    considered = min(design.control.considered_modes, first.omega.size)
+    progress(f"      design model ({design_model.n_states} states) against balanced truncation of the full model …")
+    compared = compare_with_balanced_truncation(
+        full, {"design model": design_model}, static_compliance(fe), float(first.omega[considered - 1]), nyquist
+    )
+    if compared.skipped:
+        progress(f"      {compared.skipped}")
+    else:
+        progress(
+            f"      u_R → v H∞ error to {compared.nyquist_hz:.0f} Hz: "
+            f"{compared.ratio('nyquist', 'uv', 'design model'):.2f}× balanced truncation's, in band "
+            f"{compared.ratio('band', 'uv', 'design model'):.2f}× ({compared.seconds:.0f} s)"
+        )
+    return compared
+
+
 def reduction_study(
     design,
     normal_forces: np.ndarray,
@@ -111,9 +181,10 @@ def reduction_study(
     step: float = 5e-5,
     progress=print,
     released: SolvedModel | None = None,
+    design_model: ModalModel | None = None,
 ) -> dict:
-    """Full model (all modes of Eq. 5) against reduced models with 0…K Krylov vectors under the
-    paper's tip pulse: the friction forces of Fig. 10 and the error metrics of Section 4.
+    """Full model (all modes of Eq. 5, or `_full_model`'s sparse reference) against reduced models
+    with 0…K Krylov vectors under the paper's tip pulse: Fig. 10 and the metrics of Section 4.
 
     Parameters
     ----------
@@ -125,18 +196,16 @@ def reduction_study(
         The first modes the selection chooses from (capped at the DOFs).
     keep : int
         Modes kept by Hankel values (capped at ``considered``).
-    krylov : tuple of int
-        Krylov vectors per joint, one reduced model each.
-    krylov_joints : list of int, optional
-        The joints (0-based) that get vectors (default: all).
+    krylov, krylov_joints : tuple of int, list of int or None
+        Krylov vectors per joint (one reduced model each) and the joints (0-based) that get them.
     duration, step : float
         Simulated time and plant step [s].
     progress : callable
         Receives one line per stage.
     released : SolvedModel, optional
-        The design's released FE model, built by the structure stage. Its every mode is solved
-        here (the full model's dense solution, of which the selection's first ``considered``
-        modes are a part).
+        The design's released FE model and modes, from the structure stage.
+    design_model : ModalModel, optional
+        The controllers' design model, compared with balanced truncation (``comparison``).
 
     Returns
     -------
@@ -145,25 +214,27 @@ def reduction_study(
         (result, reduction, ``friction_rms_error`` per window of ``WINDOWS``, metrics, energy
         ratio), with the sizes and settings; `study_summary` is its JSON-able part.
 
-    Raises
-    ------
-    ModelError
-        For a design without joints.
+    Raises ModelError for a design without joints.
     """
     if not design.joints:
         raise ModelError("design has no [[joints]]: the reduction study needs at least one friction joint")
-    fe, full, first = _full_model(design, considered, progress, released)
+    correction = correction_frequency(design.control.sample_time)
+    fe, full, first, reference_band = _full_model(design, considered, progress, released, correction)
     simulate_model = _pulse_simulation(design, normal_forces, duration, step)
-    considered = min(considered, fe.n_dof)
-    keep = min(keep, considered)
+    considered, keep = min(considered, fe.n_dof), min(keep, considered, fe.n_dof)
     progress(f"      full model: {full.n_states} states, {duration:g} s at {step:g} s")
-    reference = simulate_model(full)
-    active = int(np.argmax(normal_forces))
-    nyquist = np.pi / design.control.sample_time
+    reference, active = simulate_model(full), int(np.argmax(normal_forces))
+    # Errors across the band to the Nyquist frequency, or to the reference's highest mode below it.
+    upper = min(np.pi / design.control.sample_time, reference_band)
     runs = _krylov_runs(
-        fe, full, first, keep, krylov, krylov_joints, simulate_model, reference, active, duration, progress, nyquist
-    )
+        fe, full, first, keep, krylov, krylov_joints, simulate_model, reference, active, duration, progress,
+        (correction, upper),
+    )  # fmt: skip
     return {
+        "comparison": None
+        if design_model is None
+        else _design_model_comparison(design, fe, full, first, design_model, upper, progress),
+        "reference_band_hz": reference_band / (2.0 * np.pi),
         "fe": fe,
         "full": full,
         "first": first,
@@ -174,7 +245,7 @@ def reduction_study(
         "keep": keep,
         "duration": duration,
         "step": step,
-        "correction_frequency_hz": correction_frequency(design.control.sample_time) / (2.0 * np.pi),
+        "correction_frequency_hz": correction / (2.0 * np.pi),
         "joint_names": [j.name for j in design.joints],
         "normal_forces": normal_forces.tolist(),
     }
@@ -201,6 +272,8 @@ def study_summary(study: dict) -> dict:
         "normal_forces": study["normal_forces"],
         "active_joint": study["joint_names"][study["active"]],
         "full_states": study["full"].n_states,
+        # None: every mode (dense); else the sparse reference's highest mode [Hz], its band's end
+        "reference_band_hz": None if not np.isfinite(study["reference_band_hz"]) else study["reference_band_hz"],
         "considered_modes": study["considered"],
         "kept_modes": study["keep"],
         "duration_s": study["duration"],
@@ -211,6 +284,7 @@ def study_summary(study: dict) -> dict:
             {"kind": c.kind, "name": c.name, "value": c.value, "unit": c.unit, "mode": c.mode}
             for c in study["runs"][0]["reduction"].references
         ],
+        "design_model_comparison": None if study.get("comparison") is None else study["comparison"].summary(),
         "runs": [
             {
                 "krylov_per_joint": r["krylov_per_joint"],
