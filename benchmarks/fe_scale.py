@@ -46,6 +46,8 @@ def mast(bays: int) -> dict:
 
     data = tomllib.loads(REFERENCE_DESIGN.read_text())
     data["truss"]["bays"] = bays
+    data["name"] = f"mast-{bays}bay"
+    data["description"] = f"the reference mast stretched to {bays} bays of {data['truss']['bay_length']:g} m"
     data.pop("updating", None)
     for point_mass in data["point_masses"]:
         if point_mass["node"].startswith("N"):
@@ -125,7 +127,6 @@ def run_stages(bays: int, folder: Path, environment: dict) -> dict:
     from smartjoint.common import package_data
 
     data = mast(bays)
-    data["name"] = f"mast-{bays}bay"
     bundled = package_data.folder("smartjoint.design", "data")
     for entry in data.get("friction", {}).values():  # the reference truss's joint tables, by full path
         entry["file"] = str((bundled / entry["file"]).resolve())
@@ -147,7 +148,10 @@ def run_stages(bays: int, folder: Path, environment: dict) -> dict:
     sampler.start()
     last = ""
     assert child.stderr is not None
+    log = (folder / "run.log").open("w")  # the run's whole progress, for the note
     for line in child.stderr:
+        log.write(line)
+        log.flush()
         last = line.rstrip() or last
         if line.startswith("["):
             now = time.perf_counter() - start
@@ -157,6 +161,7 @@ def run_stages(bays: int, folder: Path, environment: dict) -> dict:
             stages.append({"stage": line.split("]")[0] + "]", "line": line.strip()[:140], "start_s": now})
             print(f"  {now:7.1f} s  {line.strip()[:120]}", flush=True)
     code = child.wait()
+    log.close()
     finished.set()
     sampler.join()
     total = time.perf_counter() - start

@@ -124,7 +124,9 @@ def friction_figures(design) -> dict:
     if not forces.any():
         forces[0] = 400.0
     active = int(np.argmax(forces))
-    fe, full, first = study._full_model(design, 100, lambda line: None, None)
+    fe, full, first, _, _ = study._full_model(
+        design, 100, lambda line: None, None, study.correction_frequency(design.control.sample_time)
+    )
     simulate = study._pulse_simulation(design, forces, 0.5, 5e-5)
     reference = simulate(full)
     out = {}

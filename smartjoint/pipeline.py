@@ -216,7 +216,9 @@ def _structure_stage(design_path: str | None, staging: Path, progress) -> Struct
         progress("[3/12] model updating: skipped (no [updating] section)")
     # One solution of the locked truss: the report's spectrum and the placement's target modes.
     targets = design.placement.modes if design.placement is not None and not design.joints else ()
-    locked = solved_model(model, max((REPORT_MODES, *targets)))
+    count = max((REPORT_MODES, *targets))
+    progress(f"      the lowest {min(count, model.n_dof)} modes of the locked truss ({model.n_dof} DOFs) …")
+    locked = solved_model(model, count)
     placed, placed_design = place_joints(design, staging, progress, locked)
     released = None
     if placed.joints:
@@ -226,6 +228,10 @@ def _structure_stage(design_path: str | None, staging: Path, progress) -> Struct
         count = max(REPORT_MODES, placed.control.considered_modes)
         if released_model.n_dof > DENSE_REFERENCE_DOFS:  # the reduction study's sparse reference too
             count = REFERENCE_MODES_PER_CONSIDERED * count
+        progress(
+            f"      the lowest {min(count, released_model.n_dof)} modes of the released truss "
+            f"({released_model.n_dof} DOFs) …"
+        )
         released = solved_model(released_model, count)
     return StructureStage(design, placed, locked, result, released, placed_design)
 

@@ -16,6 +16,7 @@ from smartjoint.design.control.artifact import ControllerArtifact, installed_ver
 from smartjoint.design.control.artifact_schema import SCHEMA_VERSION, field_error
 from smartjoint.design.control.lqg import LqgDesign
 from smartjoint.design.friction.model import joint_parameters
+from smartjoint.design.structure.sections import MAX_DISPLACEMENT
 
 
 def _per_joint(field: str, value, joints: tuple[str, ...]) -> np.ndarray:
@@ -182,7 +183,9 @@ def friction_fields(design, joints: tuple[str, ...]) -> dict:
     }
 
 
-DISPLACEMENT_FRACTION = 0.05  # default displacement plausibility: 5 % of the truss's largest extent
+# Default displacement plausibility: 5 % of the truss's largest extent, at most MAX_DISPLACEMENT
+# (what the TIP_SENSORS frame carries: on a 1000-bay mast 5 % would be 50 m).
+DISPLACEMENT_FRACTION = 0.05
 
 
 def safety_fields(design, joints: tuple[str, ...]) -> dict:
@@ -214,7 +217,7 @@ def safety_fields(design, joints: tuple[str, ...]) -> dict:
     if displacement is None:
         positions = np.array([n.position for n in design.nodes.values()], dtype=float).reshape(-1, 3)
         extent = float(np.max(np.ptp(positions, axis=0))) if len(positions) else 0.0
-        displacement = DISPLACEMENT_FRACTION * extent if extent > 0 else 1.0
+        displacement = min(DISPLACEMENT_FRACTION * extent, MAX_DISPLACEMENT) if extent > 0 else 1.0
     quantities = tuple(s.quantity for s in design.sensors)
     return dict(
         sensor_quantities=quantities,

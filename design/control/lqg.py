@@ -165,10 +165,22 @@ def design_lqg(
     c[:, 1::2] = model.displacement_output / model.omega
     _check_pbh(a, b, "stabilisable", "no friction joint moves mode", model)
     _check_pbh(a.T, c.T, "detectable", "no sensor sees mode", model)
-    q, r = state_weight * np.eye(2 * n), control_weight * np.eye(l)
+    weights = (state_weight, control_weight, process_noise, measurement_noise)
+    k, s, p = _riccati(a, b, c, g, weights)
+    m = p @ c.T @ np.linalg.inv(c @ p @ c.T + measurement_noise * np.eye(ny))
+    return LqgDesign(sample_time, phi, g0, g1, np.array(e, dtype=float), c, k, m, s, p)
+
+
+def _riccati(a, b, c, g, weights: tuple[float, float, float, float]):
+    """The LQR gain K, its Riccati solution S and the filter's P (python-control ``dlqr``,
+    ``dlqe``) for ``weights`` = (q, r, process noise, measurement noise); a failure in one line."""
+    state_weight, control_weight, process_noise, measurement_noise = weights
     try:
-        k, s, _ = ct.dlqr(a, b, q, r)
-        _, p, _ = ct.dlqe(a, g, c, process_noise * np.eye(g.shape[1]), measurement_noise * np.eye(ny))
+        k, s, _ = ct.dlqr(a, b, state_weight * np.eye(a.shape[0]), control_weight * np.eye(b.shape[1]))
+        # G·Q_N·Gᵀ formed and symmetrised here: python-control checks symmetry to an absolute eps,
+        # which the rounding of a large product (a long, soft truss) exceeds.
+        noise = process_noise * (g @ g.T)
+        _, p, _ = ct.dlqe(a, np.eye(a.shape[0]), c, 0.5 * (noise + noise.T), measurement_noise * np.eye(c.shape[0]))
     except Exception as failure:  # python-control / slycot raise several types
         raise ModelError(
             f"Riccati solver failed ({type(failure).__name__}: {failure}) for state_weight "
@@ -178,8 +190,7 @@ def design_lqg(
     k, s, p = np.asarray(k), np.asarray(s), np.asarray(p)
     if not (np.all(np.isfinite(k)) and np.all(np.isfinite(p))):
         raise ModelError("Riccati solver returned non-finite gains; check the weights")
-    m = p @ c.T @ np.linalg.inv(c @ p @ c.T + measurement_noise * np.eye(ny))
-    return LqgDesign(sample_time, phi, g0, g1, np.array(e, dtype=float), c, k, m, s, p)
+    return k, s, p
 
 
 def _check_weights(**weights: float) -> None:

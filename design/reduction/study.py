@@ -3,6 +3,8 @@ with 0…K Krylov vectors under the tip pulse, by friction force and by the erro
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from smartjoint.common.errors import ModelError
@@ -12,7 +14,7 @@ from smartjoint.design.reduction.comparison import compare_with_balanced_truncat
 from smartjoint.design.reduction.krylov import correction_frequency, krylov_vectors, quasi_static_corrections, reduce
 from smartjoint.design.reduction.metrics import band_norms, error_metrics, static_compliance
 from smartjoint.design.structure import modal
-from smartjoint.design.structure.fem import build_model
+from smartjoint.design.structure.fem import FEModel, build_model
 from smartjoint.design.structure.modal import ModalModel
 from smartjoint.design.structure.solved import SolvedModel
 
@@ -21,49 +23,30 @@ WINDOWS = (0.05, 0.1, 0.2, 0.5)  # s: RMS windows of the friction-moment compari
 
 DENSE_REFERENCE_DOFS = 10_000  # above: the sparse reference (a dense eigh of 10 000 DOFs: 2.4 GB, ~1 min)
 REFERENCE_MODES_PER_CONSIDERED = 2  # the sparse reference: this many × the considered modes
+# A window's friction error is judged only where the sparse reference moves by less than this
+# (relative RMS) when its modes are halved; above, the reference is not converged there.
+REFERENCE_CONVERGED = 0.1
 
 
-def _full_model(design, considered: int, progress, released: SolvedModel | None, correction: float):
-    """The released truss (``released``'s FE model where given), its full-model reference and
-    its first ``considered`` modes, from one eigen solution: the basis and the reference the
-    errors are measured against come from the same modes.
+class FullModel(NamedTuple):
+    """The reduction study's reference: the released truss ``fe``, its full model ``model``, its
+    first ``considered`` modes ``first`` and the band [rad/s] the errors are measured in (inf for
+    every mode); ``halved`` is the sparse reference rebuilt from half its modes (None when dense),
+    whose distance from ``model`` says how far the reference itself is converged."""
 
-    Up to ``DENSE_REFERENCE_DOFS`` the reference is every mode of Eq. 5 (a dense solution).
-    Above, it is the lowest ``REFERENCE_MODES_PER_CONSIDERED`` × ``considered`` modes (sparse
-    shift-invert) plus the static residual of every joint and disturbance input, K⁻¹[E F]
-    M-orthogonalised against them and made quasi-static at ``correction`` [rad/s]: exact static
-    compliance and the dynamics of every mode up to the highest one solved, which bounds the band
-    the errors are measured in (the returned band [rad/s]; inf for the dense reference).
-    """
-    fe = released.fe if released is not None else build_model(design, joints="released")
-    if fe.n_dof <= DENSE_REFERENCE_DOFS:
-        modal.check_dense_fits(
-            fe.n_dof,
-            "reduction study: its reference, the full model, is every mode of the released truss",
-            f"models above {DENSE_REFERENCE_DOFS} DOFs get the sparse reference",
-        )
-        progress(f"      all {fe.n_dof} modes of the released truss (the full model) …")
-        everything = modal.solve_modes(fe, fe.n_dof)
-        full = modal.modal_model(fe, everything)
-        first = modal.Modes(
-            everything.omega[:considered], everything.shapes[:, :considered], everything.damping[:considered]
-        )
-        return fe, full, first, np.inf
-    count = min(REFERENCE_MODES_PER_CONSIDERED * considered, fe.n_dof - fe.E.shape[1] - fe.F.shape[1])
-    if released is not None and len(released.modes) >= count:
-        modes = released.first(count)
-    else:
-        progress(f"      the lowest {count} modes of the released truss ({fe.n_dof} DOFs, sparse) …")
-        modes = modal.solve_modes(fe, count)
+    fe: FEModel
+    model: ModalModel
+    first: modal.Modes
+    band: float
+    halved: ModalModel | None
+
+
+def _with_static_residual(fe, modes: modal.Modes, correction: float) -> ModalModel:
+    """``modes`` plus the static residual of every joint and disturbance input, K⁻¹[E F]
+    M-orthogonalised against them and quasi-static at ``correction`` [rad/s]: exact static compliance."""
     model = modal.modal_model(fe, modes)
     assert model.basis is not None  # modal_model keeps the shapes
-    progress(
-        f"      full-model reference: {count} modes (to {modes.omega[-1] / (2 * np.pi):.4g} Hz) + the static residual "
-        f"of {fe.E.shape[1]} joint and {fe.F.shape[1]} disturbance inputs, quasi-static at "
-        f"{correction / (2 * np.pi):.0f} Hz (above {DENSE_REFERENCE_DOFS} DOFs every mode is not solved)"
-    )
-    loads = np.column_stack([fe.E, fe.F])
-    psi, omega_hat, _ = krylov_vectors(fe.stiffness, fe.mass, loads, model.basis, 1)
+    psi, omega_hat, _ = krylov_vectors(fe.stiffness, fe.mass, np.column_stack([fe.E, fe.F]), model.basis, 1)
     basis = np.column_stack([model.basis, psi])
     residual = ModalModel(
         np.concatenate([model.omega, omega_hat]),
@@ -81,9 +64,57 @@ def _full_model(design, considered: int, progress, released: SolvedModel | None,
         model.sensor_units,
         model.disturbance_units,
     )
-    full = quasi_static_corrections(residual, correction)
+    return quasi_static_corrections(residual, correction)
+
+
+def _full_model(design, considered: int, progress, released: SolvedModel | None, correction: float) -> FullModel:
+    """The released truss (``released``'s FE model where given), its full-model reference and
+    its first ``considered`` modes, from one eigen solution: the basis and the reference the
+    errors are measured against come from the same modes.
+
+    Up to ``DENSE_REFERENCE_DOFS`` the reference is every mode of Eq. 5 (a dense solution).
+    Above, it is the lowest ``REFERENCE_MODES_PER_CONSIDERED`` × ``considered`` modes (sparse
+    shift-invert) plus the static residual of every joint and disturbance input
+    (`_with_static_residual`): exact static compliance and the dynamics of every mode up to the
+    highest one solved, which bounds the band the errors are measured in. The same with half the
+    modes is returned too: a reference that moves when its modes are halved cannot judge a
+    reduced model (a pulse that has not reached the joint yet on a long truss, for example).
+    """
+    fe = released.fe if released is not None else build_model(design, joints="released")
+    if fe.n_dof <= DENSE_REFERENCE_DOFS:
+        modal.check_dense_fits(
+            fe.n_dof,
+            "reduction study: its reference, the full model, is every mode of the released truss",
+            f"models above {DENSE_REFERENCE_DOFS} DOFs get the sparse reference",
+        )
+        progress(f"      all {fe.n_dof} modes of the released truss (the full model) …")
+        everything = modal.solve_modes(fe, fe.n_dof)
+        full = modal.modal_model(fe, everything)
+        first = modal.Modes(
+            everything.omega[:considered], everything.shapes[:, :considered], everything.damping[:considered]
+        )
+        return FullModel(fe, full, first, np.inf, None)
+    count = min(REFERENCE_MODES_PER_CONSIDERED * considered, fe.n_dof - fe.E.shape[1] - fe.F.shape[1])
+    if released is not None and len(released.modes) >= count:
+        modes = released.first(count)
+    else:
+        progress(f"      the lowest {count} modes of the released truss ({fe.n_dof} DOFs, sparse) …")
+        modes = modal.solve_modes(fe, count)
+    progress(
+        f"      full-model reference: {count} modes (to {modes.omega[-1] / (2 * np.pi):.4g} Hz) + the static residual "
+        f"of {fe.E.shape[1]} joint and {fe.F.shape[1]} disturbance inputs, quasi-static at "
+        f"{correction / (2 * np.pi):.0f} Hz (above {DENSE_REFERENCE_DOFS} DOFs every mode is not solved)"
+    )
+    half = count // 2
+    halved = modal.Modes(modes.omega[:half], modes.shapes[:, :half], modes.damping[:half])
     first = modal.Modes(modes.omega[:considered], modes.shapes[:, :considered], modes.damping[:considered])
-    return fe, full, first, float(modes.omega[-1])
+    return FullModel(
+        fe,
+        _with_static_residual(fe, modes, correction),
+        first,
+        float(modes.omega[-1]),
+        _with_static_residual(fe, halved, correction),
+    )
 
 
 def _friction_rms_errors(reduced_u: np.ndarray, reference, active: int, duration: float) -> dict:
@@ -97,6 +128,41 @@ def _friction_rms_errors(reduced_u: np.ndarray, reference, active: int, duration
         for w in WINDOWS
         if w <= duration
     }
+
+
+def window_text(errors: dict, convergence: dict | None) -> str:
+    """Friction RMS errors per window as text, "not measured" where the reference moves by more
+    than ``REFERENCE_CONVERGED`` when its modes are halved (``convergence``, None: every mode)."""
+    if convergence is not None and all(convergence[w] > REFERENCE_CONVERGED for w in errors):
+        return "not measured (the reference is not converged in any window)"
+    return ", ".join(
+        f"{100 * e:.1f} % (0–{w} s)"
+        if convergence is None or convergence[w] <= REFERENCE_CONVERGED
+        else f"not measured (0–{w} s)"
+        for w, e in errors.items()
+    )
+
+
+def _convergence(halved: ModalModel | None, simulate_model, reference, active: int, duration: float, progress):
+    """How far the sparse reference's friction force at the active joint moves per window when
+    it is rebuilt from half its modes (``halved``): the resolution of every error measured against
+    it. None for the dense reference (``halved`` None), which is exact."""
+    if halved is None:
+        return None
+    moved = simulate_model(halved)
+    convergence = _friction_rms_errors(moved.friction_force[:, active], reference, active, duration)
+    unresolved = [w for w, e in convergence.items() if e > REFERENCE_CONVERGED]
+    progress(
+        "      the reference with half its modes moves by "
+        + ", ".join(f"{100 * e:.1f} % (0–{w} s)" for w, e in convergence.items())
+        + (
+            f": not converged in {', '.join(f'0–{w} s' for w in unresolved)} (above "
+            f"{100 * REFERENCE_CONVERGED:.0f} %), the friction errors there are not measured"
+            if unresolved
+            else ""
+        )
+    )
+    return convergence
 
 
 def _compared_run(count: int, reduced, result, reference, errors: dict, metrics: dict) -> dict:
@@ -126,12 +192,25 @@ def _pulse_simulation(design, normal_forces: np.ndarray, duration: float, step: 
 
 
 def _krylov_runs(
-    fe, full, first, keep: int, krylov, krylov_joints, simulate_model, reference, active, duration, progress, bands
+    fe,
+    full,
+    first,
+    keep: int,
+    krylov,
+    krylov_joints,
+    simulate_model,
+    reference,
+    active,
+    duration,
+    progress,
+    bands,
+    convergence,
 ) -> list[dict]:
     """One reduced model per Krylov count (``keep`` modes of ``first`` plus the vectors, quasi-static
     at ``bands[0]``, 4× the controller's Nyquist frequency), each run and compared with the full
     model's ``reference`` run, in the considered band and across the band to ``bands[1]`` (the
-    Nyquist frequency, or the sparse reference's highest mode below it) [rad/s]."""
+    Nyquist frequency, or the sparse reference's highest mode below it) [rad/s]; ``convergence``
+    is the reference's own change per window when its modes are halved (None: every mode)."""
     band = float(first.omega[-1])
     runs = []
     for count in krylov:
@@ -145,15 +224,17 @@ def _krylov_runs(
         metrics["nyquist_hz"] = nyquist / (2.0 * np.pi)
         runs.append(_compared_run(count, reduced, result, reference, errors, metrics))
         progress(
-            f"      {keep} modes + {count} Krylov vector(s): friction RMS error "
-            + ", ".join(f"{100 * e:.1f} % (0–{w} s)" for w, e in errors.items())
+            f"      {keep} modes + {count} Krylov vector(s): friction RMS error " + window_text(errors, convergence)
         )
     return runs
 
 
 def _design_model_comparison(design, fe, full, first, design_model, nyquist, progress):
     """The design model against balanced truncation of ``full`` at its order (BT given the modes
-    below 4× Nyquist), in the band of the first ``control.considered_modes`` and to Nyquist."""
+    below 4× Nyquist), in the band of the first ``control.considered_modes`` and to Nyquist; None
+    without a design model."""
+    if design_model is None:
+        return None
     considered = min(design.control.considered_modes, first.omega.size)
     progress(f"      design model ({design_model.n_states} states) against balanced truncation of the full model …")
     compared = compare_with_balanced_truncation(
@@ -219,22 +300,22 @@ def reduction_study(
     if not design.joints:
         raise ModelError("design has no [[joints]]: the reduction study needs at least one friction joint")
     correction = correction_frequency(design.control.sample_time)
-    fe, full, first, reference_band = _full_model(design, considered, progress, released, correction)
+    fe, full, first, reference_band, halved = _full_model(design, considered, progress, released, correction)
     simulate_model = _pulse_simulation(design, normal_forces, duration, step)
     considered, keep = min(considered, fe.n_dof), min(keep, considered, fe.n_dof)
     progress(f"      full model: {full.n_states} states, {duration:g} s at {step:g} s")
     reference, active = simulate_model(full), int(np.argmax(normal_forces))
+    convergence = _convergence(halved, simulate_model, reference, active, duration, progress)
     # Errors across the band to the Nyquist frequency, or to the reference's highest mode below it.
     upper = min(np.pi / design.control.sample_time, reference_band)
     runs = _krylov_runs(
         fe, full, first, keep, krylov, krylov_joints, simulate_model, reference, active, duration, progress,
-        (correction, upper),
+        (correction, upper), convergence,
     )  # fmt: skip
     return {
-        "comparison": None
-        if design_model is None
-        else _design_model_comparison(design, fe, full, first, design_model, upper, progress),
+        "comparison": _design_model_comparison(design, fe, full, first, design_model, upper, progress),
         "reference_band_hz": reference_band / (2.0 * np.pi),
+        "reference_convergence": convergence,
         "fe": fe,
         "full": full,
         "first": first,
@@ -274,6 +355,9 @@ def study_summary(study: dict) -> dict:
         "full_states": study["full"].n_states,
         # None: every mode (dense); else the sparse reference's highest mode [Hz], its band's end
         "reference_band_hz": None if not np.isfinite(study["reference_band_hz"]) else study["reference_band_hz"],
+        # None when dense; else the reference's own change when its modes are halved, per window
+        "reference_convergence": study.get("reference_convergence"),
+        "reference_converged_below": REFERENCE_CONVERGED,
         "considered_modes": study["considered"],
         "kept_modes": study["keep"],
         "duration_s": study["duration"],
@@ -300,4 +384,4 @@ def study_summary(study: dict) -> dict:
     }
 
 
-__all__ = ["WINDOWS", "reduction_study", "study_summary"]
+__all__ = ["WINDOWS", "reduction_study", "study_summary", "window_text"]
