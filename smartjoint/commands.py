@@ -291,6 +291,23 @@ def parse_normal_forces(text: str, design):
     return values
 
 
+def _released_for_reduction(design, considered: int):
+    """Above the study's dense limit, one sparse solution of the released truss serves the design
+    model and the study's reference (2 × the considered modes); None below it or without joints."""
+    if not design.joints:
+        return None
+    from smartjoint.design import build_model
+    from smartjoint.design.reduction.study import DENSE_REFERENCE_DOFS, REFERENCE_MODES_PER_CONSIDERED
+    from smartjoint.design.structure.solved import solved_model
+
+    fe = build_model(design, joints="released")
+    if fe.n_dof <= DENSE_REFERENCE_DOFS:
+        return None
+    count = min(REFERENCE_MODES_PER_CONSIDERED * max(considered, design.control.considered_modes), fe.n_dof - 2)
+    report_progress(f"      the lowest {count} modes of the released truss ({fe.n_dof} DOFs, sparse) …")
+    return solved_model(fe, count)
+
+
 def cmd_reduce(args) -> dict:
     import numpy as np
 
@@ -318,11 +335,12 @@ def cmd_reduce(args) -> dict:
         joints = [names.index(n) for n in args.krylov_joints.split(",")]
     elif forces is not None:
         joints = [int(np.argmax(forces))]
+    released = _released_for_reduction(design, args.considered)
     model = None
     if design.joints and design.sensors and design.disturbances:
         from smartjoint.design.control.study import design_model
 
-        model = design_model(design, report_progress)  # compared with balanced truncation to Nyquist
+        model = design_model(design, report_progress, released)  # compared with balanced truncation to Nyquist
     study = reduction_study(
         design,
         forces if forces is not None else np.zeros(0),
@@ -333,6 +351,7 @@ def cmd_reduce(args) -> dict:
         args.duration,
         args.step,
         report_progress,
+        released=released,
         design_model=model,
     )
     out = study_summary(study)
@@ -428,7 +447,9 @@ def cmd_place(args) -> dict:
     except ValueError:
         raise ModelError(f"--modes: {args.modes!r} — expected comma-separated mode numbers, e.g. 1,2") from None
     fe = build_model(design, joints="locked")
-    modes = solve_modes(fe, max(targets) + 1 if targets and targets[0] >= 0 else 1)
+    count = max(targets) + 1 if targets and targets[0] >= 0 else 1
+    report_progress(f"      the lowest {min(count, fe.n_dof)} modes of the locked truss ({fe.n_dof} DOFs) …")
+    modes = solve_modes(fe, count)
     candidates = placement.connector_energy(fe, modes, targets)
     chosen = placement.choose(candidates, args.count)
     ranking = placement.rank(candidates)[: args.top]

@@ -204,3 +204,37 @@ def test_a_sparse_reference_that_moves_when_halved_judges_no_window(small, monke
     assert study.window_text(run["friction_rms_error"], convergence).startswith("not measured (the reference")
     # The dense reference is exact: every window judged.
     assert "not measured" not in study.window_text(run["friction_rms_error"], None)
+
+
+def test_smartjoint_reduce_above_the_dense_limit_solves_the_released_truss_once(tmp_path, monkeypatch, capsys):
+    """``smartjoint reduce`` on a model above the dense limit (issue 31): one sparse solution of
+    the released truss serves the controllers' design model and the study's reference (2 ×
+    considered modes), announced by a progress line; the JSON carries the reference's convergence."""
+    import json
+
+    import tomli_w
+    from conftest import small_truss
+
+    from smartjoint.cli import main
+    from smartjoint.design.reduction import study
+    from smartjoint.design.structure import solved
+
+    path = tmp_path / "small.toml"
+    path.write_text(tomli_w.dumps(small_truss()))
+    monkeypatch.setattr(study, "DENSE_REFERENCE_DOFS", 0)
+    calls: list[int] = []
+    original = solved.solve_modes
+
+    def counted(fe, count, *rest):
+        calls.append(count)
+        return original(fe, count, *rest)
+
+    monkeypatch.setattr(solved, "solve_modes", counted)
+    monkeypatch.setattr(study.modal, "solve_modes", lambda *a, **k: pytest.fail("the study solved modes again"))
+    code = main(["reduce", str(path), "--json", "--considered", "12", "--modes", "6", "--duration", "0.05"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    summary = json.loads(out)
+    assert len(calls) == 1 and calls[0] >= 2 * 12
+    assert f"the lowest {calls[0]} modes of the released truss" in err
+    assert summary["reference_band_hz"] is not None and set(summary["reference_convergence"]) == {"0.05"}

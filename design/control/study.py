@@ -102,6 +102,8 @@ def design_model(design, progress=print, released: SolvedModel | None = None) ->
     fe = released.fe if released is not None else build_model(design, joints="released")
     considered = min(c.considered_modes, fe.n_dof)
     progress(f"      reduced model: {c.modes} of the first {considered} modes + {c.krylov} Krylov vector(s) per joint")
+    if released is None:
+        progress(f"      the lowest {considered} modes of the released truss ({fe.n_dof} DOFs) …")
     first = released.first(considered) if released is not None else modal.solve_modes(fe, considered)
     # The corrections quasi-static above the band the controller samples (no pseudo-mode in it).
     quasi_static = reduction.correction_frequency(c.sample_time)
