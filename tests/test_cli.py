@@ -238,3 +238,18 @@ def test_a_sensor_name_the_firmware_cannot_carry_is_refused_before_any_work(tmp_
     line = cli_error(command[0], design, *command[1:], cwd=tmp_path, timeout=60)
     assert f"sensors[0].name: {name!r}" in line, line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.toml"]
+
+
+def test_update_without_an_updating_section_is_refused_before_the_fe_model(tmp_path, monkeypatch, capsys):
+    """``smartjoint update`` on a design without [updating]: one line naming the file, and no FE
+    model built first (17 s on the 1000-bay mast, issue 31)."""
+    import tomli_w
+    from conftest import count_model_calls, small_truss
+
+    design = tmp_path / "small.toml"
+    design.write_text(tomli_w.dumps(small_truss()))
+    calls = count_model_calls(monkeypatch)
+    assert main(["update", str(design)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "has no [updating] section" in err[0] and str(design) in err[0], err
+    assert not calls, calls
