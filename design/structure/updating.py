@@ -12,7 +12,8 @@ mode's MAC from the EMA where given (a clearly identified mode counts more), els
 for in log scale, θ_k = ln(p_k/p_k⁰), bounded to [1/max_factor, max_factor]·p_k⁰, with
 scipy.optimize.least_squares (trust-region reflective). Paired by number, the objective is
 only piecewise smooth (modes cross), so a Sobol screening of the parameter box picks the
-starting points; the best polished fit wins.
+starting points; the best polished fit wins. Above ``RITZ_SCREENING_DOFS`` the screening runs
+on a Rayleigh–Ritz model (`RitzScreen`, exact in K's linearity in p), the polish on the full one.
 
 Where the design carries EMA mode shapes (``updating.measured_dofs``, docs/design-file.md) the
 FE mode of each measured mode is not its number but its pair by MAC
