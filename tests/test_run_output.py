@@ -28,6 +28,16 @@ from smartjoint import pipeline, report_folder
 from smartjoint.cli import main
 
 
+@pytest.fixture(autouse=True)
+def interruptible():
+    """Ctrl-C's usual handler in this process, and so SIG_DFL in the children it starts: a suite
+    started as a background job (``pytest &`` without job control) inherits SIGINT ignored,
+    which would make every interrupt here a no-op."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 def _snapshot(root: Path) -> dict:
     """Every entry below ``root`` with its bytes (files), target (links) and modification time."""
     out = {}
