@@ -295,6 +295,8 @@ def test_the_report_gives_each_sensor_its_unit(small_study, monkeypatch, tmp_pat
         assert cells["RMS tip_vz [mm/s]"] == f"{1e3 * r.metrics['velocity_rms'][0]:.2f}"
         assert cells["peak tip [mm]"] == f"{1e3 * max(r.metrics['tip_peak']):.1f}"
         assert cells["peak tip velocity [mm/s]"] == f"{1e3 * max(r.metrics['velocity_peak']):.1f}"
+    measures = [r.energy_measure() for r in result.runs]  # the span of E(t_e) over the runs
+    assert f"E(t_e) spans {100 * (max(measures) / min(measures) - 1):.3g} % between the runs" in text
     labels = {}
 
     def keep_labels(fig, path, dpi):
