@@ -167,6 +167,29 @@ def quasi_static_corrections(model: ModalModel, frequency: float) -> ModalModel:
     )
 
 
+def with_corrections(fe_model, model: ModalModel, psi: np.ndarray, omega_hat: np.ndarray, label: str) -> ModalModel:
+    """``model`` (with its shapes) and the correction vectors ``psi`` at ω̂ = ``omega_hat`` as further
+    coordinates with the modal damping (Eq. 27–29), labelled ``label 1`` … on the FE model's E, F, V, W."""
+    assert model.basis is not None  # modal_model always keeps the shapes
+    basis = np.column_stack([model.basis, psi])
+    return ModalModel(
+        np.concatenate([model.omega, omega_hat]),
+        np.concatenate([model.damping, np.full(omega_hat.size, fe_model.design.modal_damping)]),
+        basis.T @ fe_model.E,
+        basis.T @ fe_model.F,
+        fe_model.V @ basis,
+        fe_model.W @ basis,
+        model.labels + [f"{label} {m + 1}" for m in range(omega_hat.size)],
+        model.joint_names,
+        model.sensor_names,
+        model.disturbance_names,
+        basis,
+        model.joint_units,
+        model.sensor_units,
+        model.disturbance_units,
+    )
+
+
 @dataclass
 class Reduction:
     """A reduced model and how it was obtained."""
@@ -229,25 +252,7 @@ def reduce(
         psi, omega_hat, labels = krylov_vectors(
             stiffness, fe_model.mass, fe_model.E, reduced.basis, krylov_per_joint, krylov_joints
         )
-        basis = np.column_stack([reduced.basis, psi])
-        xi = np.concatenate([reduced.damping, np.full(omega_hat.size, fe_model.design.modal_damping)])
-        omega = np.concatenate([reduced.omega, omega_hat])
-        reduced = ModalModel(
-            omega,
-            xi,
-            basis.T @ fe_model.E,
-            basis.T @ fe_model.F,
-            fe_model.V @ basis,
-            fe_model.W @ basis,
-            reduced.labels + [f"krylov {m + 1}" for m in range(omega_hat.size)],
-            reduced.joint_names,
-            reduced.sensor_names,
-            reduced.disturbance_names,
-            basis,
-            reduced.joint_units,
-            reduced.sensor_units,
-            reduced.disturbance_units,
-        )
+        reduced = with_corrections(fe_model, reduced, psi, omega_hat, "krylov")
         if correction_frequency is not None:
             reduced = quasi_static_corrections(reduced, correction_frequency)
     return Reduction(
@@ -263,4 +268,5 @@ __all__ = [
     "krylov_vectors",
     "quasi_static_corrections",
     "reduce",
+    "with_corrections",
 ]

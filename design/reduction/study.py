@@ -11,7 +11,13 @@ from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
 from smartjoint.design.friction.model import joint_parameters
 from smartjoint.design.reduction.comparison import compare_with_balanced_truncation
-from smartjoint.design.reduction.krylov import correction_frequency, krylov_vectors, quasi_static_corrections, reduce
+from smartjoint.design.reduction.krylov import (
+    correction_frequency,
+    krylov_vectors,
+    quasi_static_corrections,
+    reduce,
+    with_corrections,
+)
 from smartjoint.design.reduction.metrics import band_norms, error_metrics, static_compliance
 from smartjoint.design.structure import modal
 from smartjoint.design.structure.fem import FEModel, build_model
@@ -47,23 +53,7 @@ def _with_static_residual(fe, modes: modal.Modes, correction: float) -> ModalMod
     model = modal.modal_model(fe, modes)
     assert model.basis is not None  # modal_model keeps the shapes
     psi, omega_hat, _ = krylov_vectors(fe.stiffness, fe.mass, np.column_stack([fe.E, fe.F]), model.basis, 1)
-    basis = np.column_stack([model.basis, psi])
-    residual = ModalModel(
-        np.concatenate([model.omega, omega_hat]),
-        np.concatenate([model.damping, np.full(omega_hat.size, fe.design.modal_damping)]),
-        basis.T @ fe.E,
-        basis.T @ fe.F,
-        fe.V @ basis,
-        fe.W @ basis,
-        model.labels + [f"krylov residual {m + 1}" for m in range(omega_hat.size)],
-        model.joint_names,
-        model.sensor_names,
-        model.disturbance_names,
-        basis,
-        model.joint_units,
-        model.sensor_units,
-        model.disturbance_units,
-    )
+    residual = with_corrections(fe, model, psi, omega_hat, "krylov residual")
     return quasi_static_corrections(residual, correction)
 
 
