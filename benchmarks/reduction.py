@@ -34,6 +34,7 @@ from machine import python_machine, write_json  # benchmarks/machine.py (the scr
 from smartjoint.design import build_model, load_design, updated_design
 from smartjoint.design.control import study as control_study
 from smartjoint.design.reduction import comparison, metrics, reduce, study
+from smartjoint.design.reduction.krylov import quasi_static_corrections
 from smartjoint.design.structure import modal
 
 DATA = Path(__file__).resolve().parents[1] / "design" / "data"
@@ -137,6 +138,38 @@ def friction_figures(design) -> dict:
     return out
 
 
+SENSITIVITY_MULTIPLES = (1.0, 2.0, 4.0, 8.0, 16.0)  # ω_q / Nyquist
+SENSITIVITY_DAMPING = (0.5, 0.7, 1.0, 2.0)  # ξ of the quasi-static coordinates
+
+
+def sensitivity_figures(design) -> list[dict]:
+    """Fig. 10's friction RMS error (60 modes + 2 Krylov vectors, active joint) with the corrections
+    quasi-static at each of ``SENSITIVITY_MULTIPLES`` × Nyquist and each ξ of
+    ``SENSITIVITY_DAMPING``: how much of a 0–50 ms figure is the choice of ω_q and ξ."""
+    forces = np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
+    if not forces.any():
+        forces[0] = 400.0
+    active = int(np.argmax(forces))
+    nyquist = np.pi / design.control.sample_time
+    fe, full, first, _, _ = study._full_model(design, 100, lambda line: None, None, 4.0 * nyquist)
+    simulate = study._pulse_simulation(design, forces, 0.5, 5e-5)
+    reference = simulate(full)
+    paper = reduce(fe, first, 60, 2, krylov_joints=[active]).model
+    rows = []
+    for multiple in SENSITIVITY_MULTIPLES:
+        for damping in SENSITIVITY_DAMPING:
+            model = quasi_static_corrections(paper, multiple * nyquist, damping)
+            result = simulate(model)
+            errors = study._friction_rms_errors(result.friction_force[:, active], reference, active, 0.5)
+            rows.append({"nyquist_multiple": multiple, "damping": damping, "friction_rms_error": errors})
+            print(
+                f"  ω_q {multiple:g}× Nyquist, ξ {damping:g}: 0–50 ms {100 * errors['0.05']:.2f} %, "
+                f"0–0.5 s {100 * errors['0.5']:.2f} %",
+                flush=True,
+            )
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--designs", nargs="+", default=["bundled", "fig10_three_joints", "three_type_a"])
@@ -144,8 +177,18 @@ def main() -> int:
     parser.add_argument("--json", default=str(Path(__file__).with_name("reduction.json")))
     parser.add_argument("--plots", default=str(Path(__file__).parent))
     parser.add_argument("--no-friction", action="store_true", help="skip the Fig. 10 simulations")
+    parser.add_argument(
+        "--sensitivity", action="store_true", help="Fig. 10 only, for several ω_q and ξ of the quasi-static corrections"
+    )
     args = parser.parse_args()
     results = []
+    if args.sensitivity:
+        for name in args.designs:
+            print(f"{name}: Fig. 10 friction RMS error against ω_q and ξ of the quasi-static corrections", flush=True)
+            results.append({"name": name, "sensitivity": sensitivity_figures(load(name))})
+        path = Path(args.json).with_name("reduction_sensitivity.json")
+        write_json(str(path), {"benchmark": "reduction sensitivity", "machine": python_machine(), "results": results})
+        return 0
     for name in args.designs:
         design = load(name)
         figures = frequency_figures(design, args.cut, Path(args.plots))

@@ -129,7 +129,7 @@ def correction_frequency(sample_time: float) -> float:
     return NYQUIST_MULTIPLE * np.pi / sample_time
 
 
-def quasi_static_corrections(model: ModalModel, frequency: float) -> ModalModel:
+def quasi_static_corrections(model: ModalModel, frequency: float, damping: float = QUASI_STATIC_DAMPING) -> ModalModel:
     """The Krylov corrections of a reduced model made quasi-static above ``frequency``.
 
     Each correction coordinate m with ω̂_m < ``frequency`` keeps its stiffness and gets the mass
@@ -145,6 +145,8 @@ def quasi_static_corrections(model: ModalModel, frequency: float) -> ModalModel:
         A reduced model whose correction coordinates are labelled ``krylov …``.
     frequency : float
         ω_q [rad/s], e.g. a few times the controller's Nyquist frequency.
+    damping : float
+        ξ of the moved coordinates (default critical: real poles, nothing rings above Nyquist).
 
     Returns
     -------
@@ -158,7 +160,7 @@ def quasi_static_corrections(model: ModalModel, frequency: float) -> ModalModel:
     return replace(
         model,
         omega=np.where(correction, frequency, model.omega),
-        damping=np.where(correction, QUASI_STATIC_DAMPING, model.damping),
+        damping=np.where(correction, damping, model.damping),
         joint_input=model.joint_input * scale[:, None],
         disturbance_input=model.disturbance_input * scale[:, None],
         displacement_output=model.displacement_output * scale,
