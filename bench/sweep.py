@@ -91,6 +91,8 @@ def prepare(sweep: Sweep, progress=print, design=None, model=None) -> Prepared:
     if sweep.friction_from_identification:
         design, sweep = _identified_friction(sweep, design, progress)
     design = _with_duration(design, sweep)
+    if sweep.spread_from_design:
+        sweep = _design_spread(sweep, design, progress)
     # grid.placement: the other designs, loaded (and updated) alike; the friction factors apply to each.
     placements = [_with_duration(_loaded(path, sweep, progress), sweep) for path in sweep.placements]
     joints = [j.name for j in design.joints]
@@ -98,6 +100,19 @@ def prepare(sweep: Sweep, progress=print, design=None, model=None) -> Prepared:
     progress(f"design model, reduction and gains of {design.name!r} (built once, shared with the workers) …")
     base = ensemble.build_base(sweep, design, columns, progress, placements, model)
     return Prepared(sweep, base, sweep.points(), values, design.sha256, _compiled_loops(base, progress))
+
+
+def _design_spread(sweep: Sweep, design, progress) -> Sweep:
+    """``[uncertain] from = "design"``: the design's physical spread (its ``[uncertainty]`` and the
+    defaults, ``physical_spread``) with the file's own entries replacing those of the same name."""
+    from smartjoint.design.control.physical_spread import describe, physical_spread
+    from smartjoint.design.control.runs import PULSE_AMPLITUDE
+
+    own = {u.name for u in sweep.inputs}
+    entries = [e for e in physical_spread(design, PULSE_AMPLITUDE) if e.input.name not in own]
+    for line in describe(entries):
+        progress(f"  spread: {line}")
+    return dataclasses.replace(sweep, inputs=(*(e.input for e in entries), *sweep.inputs))
 
 
 def _loaded(path, sweep: Sweep, progress):

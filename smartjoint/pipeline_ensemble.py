@@ -1,15 +1,16 @@
 """Stage 10 of ``smartjoint run``: a small robustness ensemble of the study (issue 20) — the
-study's laws, passive and semi-active, and the best constant normal forces on plants drawn
-around the design: each joint's LuGre parameters, the modal frequencies and damping and the
-pulse. It runs the sweep machinery (``bench.sweep``: Dask, the compiled closed loop, Parquet)
-on the run's own design and writes the sweep and its report into ``ensemble/``. Every spread is
-relative to the design's own values; ``smartjoint sweep`` runs larger or other ensembles."""
+study's laws, passive and semi-active, and the best constant normal forces on plants drawn from
+the physical spread of the structure (the design's ``[uncertainty]`` and its defaults,
+``physical_spread``: each joint's friction, the modal frequencies and damping, the pulse, the
+amplifier lag, the sensor noise), the identification's intervals on top. It runs the sweep
+machinery (``bench.sweep``: Dask, the compiled closed loop, Parquet) on the run's own design and
+writes the sweep and its report into ``ensemble/``; ``smartjoint sweep`` runs larger or other
+ensembles."""
 
 from __future__ import annotations
 
 import hashlib
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -19,36 +20,28 @@ from smartjoint.bench.sweep import read_results, run_sweep
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.control import sweep_file, tuning
 from smartjoint.design.control.ensemble import KEYS, METRICS
-from smartjoint.design.control.friction_uncertainty import Z95, friction_inputs, friction_spreads
-from smartjoint.design.control.sweep_file import Distribution, Sweep, UncertainInput
+from smartjoint.design.control.friction_uncertainty import friction_spreads
+from smartjoint.design.control.physical_spread import describe, physical_spread, with_identification
+from smartjoint.design.control.sweep_file import Sweep
 from smartjoint.stages import EnsembleStage
 
 SAMPLES = 16
 SEED = 2026
 LAWS = tuple(law for law in sweep_file.LAWS if law != "active LQG")  # every law but the active reference
-FREQUENCY_SPREAD, PULSE_SPREAD, DAMPING_SIGMA = 0.01, 0.10, 0.3
+
+
+def stage_spread(design, study, spreads: dict[str, float] | None = None) -> list:
+    """The stage's spread of ``design`` around ``study``: the design's physical spread (its
+    ``[uncertainty]`` and the defaults, ``physical_spread``; the pulse around the study's) with the
+    identification's intervals ``spreads`` (``friction_spreads``) on top."""
+    entries = physical_spread(design, float(study.setup.pulse_amplitude))
+    return with_identification(entries, spreads or {})
 
 
 def stage_sweep(design, study, spreads: dict[str, float] | None = None) -> Sweep:
     """The stage's sweep of ``design`` (the run's controlled design) around ``study`` (its
-    model-in-the-loop study): the friction factors of ``spreads`` (``friction_spreads``; ±5 %
-    uniform for a parameter without), uniform factors on the modal frequencies and the pulse,
-    lognormal damping around the design model's median, Latin hypercube."""
-    damping = float(np.median(study.setup.model.damping))
-    pulse = float(study.setup.pulse_amplitude)
-
-    def uniform(spread: float, centre: float = 1.0) -> Distribution:
-        return Distribution("uniform", centre * (1.0 - spread), centre * (1.0 + spread))
-
-    inputs = (
-        UncertainInput("modal_frequency_scale", uniform(FREQUENCY_SPREAD)),
-        UncertainInput(
-            "modal_damping",
-            Distribution("lognormal", 0.0, min(0.99, 5.0 * damping), median=damping, sigma=DAMPING_SIGMA),
-        ),
-        UncertainInput("pulse_amplitude", uniform(PULSE_SPREAD, pulse)),
-        *friction_inputs(spreads or {}),
-    )
+    model-in-the-loop study): the inputs of `stage_spread`, Latin hypercube."""
+    inputs = tuple(entry.input for entry in stage_spread(design, study, spreads))
     settings = {"design": design.sha256, "laws": LAWS, "samples": SAMPLES, "seed": SEED, "inputs": repr(inputs)}
     return Sweep(
         source="smartjoint run (stage 10)",
@@ -88,11 +81,13 @@ def ensemble_stage(design, study, friction, staging: Path, progress) -> Ensemble
         drive each law's E(t_e), the best passive forces); ``ensemble_markdown`` renders it.
     """
     spreads = friction_spreads(friction)
+    spread = stage_spread(design, study, spreads)
     sweep = stage_sweep(design, study, spreads)
-    shown = ", ".join(f"{name} ×/÷{math.exp(Z95 * sigma):.4g}" for name, sigma in spreads.items()) or "±5 %"
+    given = sum(entry.source == "design file" for entry in spread)
     progress(
-        f"[10/12] robustness ensemble: {SAMPLES} plants around the design (LuGre within the identification's 95 % "
-        f"intervals: {shown}; modal frequencies ±1 %, damping, pulse ±10 %) × {len(LAWS)} laws, on Dask"
+        f"[10/12] robustness ensemble: {SAMPLES} plants drawn from the physical spread ({given} of {len(spread)} "
+        f"inputs from the design's [uncertainty], the rest its defaults; the identification's intervals on top) "
+        f"× {len(LAWS)} laws, on Dask"
     )
     tuned = tuning.with_settings(design, closed_loop.settings_figures(study.tunings))  # the study's settings
     folder = staging / "ensemble"
@@ -114,6 +109,7 @@ def ensemble_stage(design, study, friction, staging: Path, progress) -> Ensemble
     summary = {
         "samples": SAMPLES,
         "friction_log_sigma": spreads,
+        "spread": describe(spread),
         "laws": list(LAWS),
         "seconds": out["seconds"],
         "workers": out["workers"],
@@ -134,13 +130,15 @@ def ensemble_markdown(stage: EnsembleStage) -> str:
     lines = [
         "## Robustness ensemble",
         "",
-        f"{summary['samples']} plants drawn around the design (Latin hypercube: each joint's LuGre parameters "
-        "lognormal within the identification's 95 % intervals, the widest over the joint types (σ of the "
-        "logarithm: "
-        + (", ".join(f"{n} {v:.3g}" for n, v in summary["friction_log_sigma"].items()) or "none; ±5 %")
-        + "), modal frequencies ±1 %, modal damping lognormal around the model's, the pulse ±10 %); the "
-        "controllers stay those designed on the nominal model. The best passive settings search the constant "
-        "F_N that minimises E(t_e) or e(t_e) on each plant. Whole report: [ensemble/report.md](ensemble/report.md).",
+        f"{summary['samples']} plants drawn from the physical spread of the structure (Latin hypercube), the "
+        "identification's 95 % intervals on top of each friction factor; the controllers stay those designed on "
+        "the nominal model. The best passive settings search the constant F_N that minimises E(t_e) or e(t_e) on "
+        "each plant. The probabilities below are for this spread (the design's `[uncertainty]`, or the default "
+        "named; docs/design-file.md gives the sources). Whole report: [ensemble/report.md](ensemble/report.md).",
+        "",
+        "| drawn input | distribution — source |",
+        "|---|---|",
+        *(f"| `{line.split(': ', 1)[0]}` | {line.split(': ', 1)[1]} |" for line in summary.get("spread", [])),
         "",
         "| ordering | probability | MC standard error |",
         "|---|---:|---:|",
@@ -159,4 +157,4 @@ def ensemble_markdown(stage: EnsembleStage) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["LAWS", "SAMPLES", "ensemble_markdown", "ensemble_stage", "stage_sweep"]
+__all__ = ["LAWS", "SAMPLES", "ensemble_markdown", "ensemble_stage", "stage_spread", "stage_sweep"]

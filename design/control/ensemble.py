@@ -266,9 +266,11 @@ def sample_setup(
     s = base.setups[index]
     laws = []
     for joint, law in zip(base.joint_names, s.laws):
-        factors = {
-            name.rpartition(".")[2]: value for name, value in inputs.items() if name.startswith(f"friction.{joint}.")
-        }
+        factors: dict[str, float] = {}  # the physical factor times the identification's, per parameter
+        for name, value in inputs.items():
+            if name.startswith((f"friction.{joint}.", f"identification.{joint}.")):
+                parameter = name.rpartition(".")[2]
+                factors[parameter] = factors.get(parameter, 1.0) * value
         laws.append(dataclasses.replace(law, **{p: getattr(law, p) * f for p, f in factors.items()}))
     low, high = point_limits(s, point)
     out = dataclasses.replace(

@@ -17,9 +17,18 @@ from pathlib import Path
 from typing import Any
 
 from smartjoint.common import friction_registry, law_registry
-from smartjoint.common.errors import MISSING, DesignError
+from smartjoint.common.errors import DesignError
 from smartjoint.design.structure.files import read_file, read_toml
 from smartjoint.design.structure.table import DesignTable
+from smartjoint.design.structure.uncertainty import (
+    DISTRIBUTIONS,
+    FACTOR,
+    SCALAR_INPUTS,
+    Distribution,
+    Support,
+    UncertainInput,
+    distribution_of,
+)
 
 SCHEMA = "smartjoint-sweep/1"
 # Every law a sweep can run, in the order of the rows; the two best passive settings search the
@@ -28,7 +37,6 @@ SCHEMA = "smartjoint-sweep/1"
 DEFAULT_LAWS = ("passive F_min", "passive F_max", *law_registry.DISPLAY, "active LQG")  # the study's runs
 LAWS = (*DEFAULT_LAWS, "best passive E", "best passive e")
 SAMPLERS = ("random", "latin-hypercube", "sobol")
-DISTRIBUTIONS = ("uniform", "normal", "lognormal")
 # Each law's settings (its registry entry's, by their [control] keys), then those every law shares.
 LAW_SETTINGS = {s.design_key(law.name): s for law in law_registry.LAWS.values() for s in law.settings}
 GRID_VARIABLES = (
@@ -44,68 +52,6 @@ MAX_BATCH = 100_000
 MAX_GRID_POINTS = 100_000
 MAX_SEED = 2**63 - 1
 MAX_NORMAL_FORCE = 1e5  # [N], as [control] (design.structure.control_section)
-
-
-@dataclass(frozen=True)
-class Support:
-    """Where an uncertain input may lie: (low, high), ``low`` excluded, ``high`` included."""
-
-    low: float
-    high: float
-    meaning: str
-
-    def text(self) -> str:
-        high = "∞)" if math.isinf(self.high) else f"{self.high:g}]"
-        return f"({self.low:g}, {high}: {self.meaning}"
-
-
-FACTOR = Support(0.0, math.inf, "a factor on the nominal value")
-# The scalar uncertain inputs of one sample and their supports (friction factors: FACTOR).
-SCALAR_INPUTS = {
-    "modal_frequency_scale": Support(0.0, math.inf, "a factor on every modal frequency ω_i of the simulated plant"),
-    "modal_damping": Support(
-        0.0,
-        0.99,
-        "the modal damping ratio ξ of every mode of the simulated plant (not of the quasi-static corrections)",
-    ),
-    "pulse_amplitude": Support(0.0, math.inf, "the peak of the triangular tip pulse [N]"),
-    "pulse_direction": Support(
-        -360.0, 360.0, "the pulse's angle in the plane of the first two disturbance inputs [deg]; 45: the study's"
-    ),
-    "sensor_noise": Support(
-        0.0, math.inf, "the standard deviation of white noise on every tip sensor at each sample [m or m/s]"
-    ),
-    "amplifier_lag": Support(0.0, math.inf, "the time constant of the piezo amplifiers' first-order lag [s]"),
-    "sample_jitter": Support(
-        0.0, math.inf, "the standard deviation of the controller's sampling instant, on the plant step's grid [s]"
-    ),
-}
-
-
-@dataclass(frozen=True)
-class Distribution:
-    """One uncertain input's distribution, truncated to [low, high] (``normal`` always, the
-    others where given): ``uniform`` on [low, high]; ``normal`` of ``mean`` and ``std``;
-    ``lognormal`` of ``median`` and ``sigma`` (the standard deviation of its logarithm)."""
-
-    kind: str
-    low: float
-    high: float
-    mean: float = math.nan  # normal
-    std: float = math.nan  # normal
-    median: float = math.nan  # lognormal
-    sigma: float = math.nan  # lognormal
-
-
-@dataclass(frozen=True)
-class UncertainInput:
-    """An uncertain input: ``name`` is ``modal_frequency_scale``, ``modal_damping``,
-    ``pulse_amplitude``, ``pulse_direction``, ``sensor_noise``, ``amplifier_lag``,
-    ``sample_jitter`` or ``friction.<parameter>`` (a factor on that LuGre parameter, drawn for
-    every joint independently)."""
-
-    name: str
-    distribution: Distribution
 
 
 @dataclass(frozen=True)
@@ -126,6 +72,7 @@ class Sweep:
     batch: int
     study_duration: float | None
     friction_from_identification: bool = False  # [uncertain.friction] from = "identification"
+    spread_from_design: bool = False  # [uncertain] from = "design": the design's physical spread beneath the file's
     placements: tuple[Path, ...] = ()  # grid.placement's design files; the grid holds their indices
 
     def points(self) -> list[dict[str, float]]:
@@ -177,7 +124,9 @@ def parse_sweep(data: dict[str, Any], folder: Path, source: str = "<memory>", sh
     sampler = root.string("sampler", "random", SAMPLERS)
     if sampler == "sobol" and samples & (samples - 1):
         raise root.error("samples", samples, "the sobol sampler takes a power of two (its balance needs 2^m points)")
-    inputs, identified = _inputs(root.table("uncertain", {})) if "uncertain" in root.data else ((), False)
+    inputs, identified, from_design = (
+        _inputs(root.table("uncertain", {})) if "uncertain" in root.data else ((), False, False)
+    )
     grid, placements = _grid(root.table("grid", {}), folder) if "grid" in root.data else ({}, ())
     duration = root.get("study_duration", None)
     if duration is not None:
@@ -196,6 +145,7 @@ def parse_sweep(data: dict[str, Any], folder: Path, source: str = "<memory>", sh
         batch=root.integer("batch", 8, maximum=MAX_BATCH),
         study_duration=duration,
         friction_from_identification=identified,
+        spread_from_design=from_design,
         placements=placements,
     )
     if len(sweep.points()) > MAX_GRID_POINTS:
@@ -216,12 +166,19 @@ def _laws(root: DesignTable) -> tuple[str, ...]:
     return tuple(law for law in LAWS if law in value)  # the study's order, whatever the file's
 
 
-def _inputs(table: DesignTable) -> tuple[tuple[UncertainInput, ...], bool]:
-    """The [uncertain] table: scalar inputs and the [uncertain.friction] factors, and whether the
-    factors not given come from the identification (``from = "identification"``)."""
+def _inputs(table: DesignTable) -> tuple[tuple[UncertainInput, ...], bool, bool]:
+    """The [uncertain] table: scalar inputs and the [uncertain.friction] factors, whether the
+    factors not given come from the identification (``[uncertain.friction] from =
+    "identification"``) and whether the design's physical spread lies beneath them (``from =
+    "design"``: its ``[uncertainty]`` and the defaults, ``design.control.physical_spread``)."""
     found = []
     identified = False
+    from_design = table.string("from", "") == "design" if "from" in table.data else False
+    if "from" in table.data and not from_design:
+        raise table.error("from", table.data["from"], "only 'design' (the design's [uncertainty] and its defaults)")
     for name in table.data:
+        if name == "from":
+            continue
         if name == "friction":
             friction = table.table("friction")
             for parameter in friction.data:
@@ -245,55 +202,7 @@ def _inputs(table: DesignTable) -> tuple[tuple[UncertainInput, ...], bool]:
             allowed = "unknown uncertain input; allowed: " + ", ".join([*SCALAR_INPUTS, "friction"])
             raise table.error(name, table.data[name], allowed)
     table.finish()
-    return tuple(found), identified
-
-
-def distribution_of(t: DesignTable, support: Support) -> Distribution:
-    """One distribution table (``distribution = …`` and its parameters), its truncation inside
-    the input's support.
-
-    Parameters
-    ----------
-    t : DesignTable
-        The table, e.g. ``uncertain.friction.sigma0``.
-    support : Support
-        Where the input may lie.
-
-    Returns
-    -------
-    Distribution
-
-    Raises
-    ------
-    DesignError
-        For an unknown kind or key, a parameter out of range, or a range outside the support.
-    """
-    kind = t.string("distribution", choices=DISTRIBUTIONS)
-    if kind == "uniform":
-        d = Distribution(kind, t.number("low"), t.number("high"))
-    elif kind == "normal":
-        d = Distribution(
-            kind, t.number("low"), t.number("high"), mean=t.number("mean"), std=t.number("std", positive=True)
-        )
-    else:
-        if "high" not in t.data and not math.isinf(support.high):
-            raise t.error("high", MISSING, f"required: the lognormal must end inside the support {support.text()}")
-        d = Distribution(
-            kind,
-            t.number("low", 0.0),
-            t.number("high") if "high" in t.data else math.inf,
-            median=t.number("median", positive=True),
-            sigma=t.number("sigma", positive=True),
-        )
-    # The lowest value of an open support is allowed where the density vanishes (lognormal at 0).
-    if d.low < support.low or (d.low == support.low and kind != "lognormal"):
-        raise t.error("low", d.low, f"outside the support {support.text()}")
-    if d.high > support.high:
-        raise t.error("high", d.high, f"outside the support {support.text()}")
-    if not d.low < d.high:
-        raise t.error("high", d.high, f"must be > low ({d.low:g})")
-    t.finish()
-    return d
+    return tuple(found), identified, from_design
 
 
 def _placements(table: DesignTable, folder: Path) -> tuple[Path, ...]:

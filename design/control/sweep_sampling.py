@@ -15,10 +15,45 @@ from scipy.stats import qmc
 
 from smartjoint.design.control.sweep_file import Distribution, Sweep
 
+PER_JOINT = ("friction.", "identification.")  # factors drawn for every joint: <prefix><joint>.<parameter>
+
+
+def column_distributions(inputs, joint_names) -> list[tuple[str, Distribution]]:
+    """Each sampled column and its distribution: the scalar inputs as named, each factor of
+    ``friction.<parameter>`` and ``identification.<parameter>`` once per joint
+    (``friction.A1.sigma0``), where a joint's own ``friction.<joint>.<parameter>`` replaces the
+    common one; in the inputs' order.
+
+    Parameters
+    ----------
+    inputs : sequence of UncertainInput
+    joint_names : sequence of str
+        The design's joints, in design order.
+
+    Returns
+    -------
+    list of (str, Distribution)
+    """
+    own = {u.name: u.distribution for u in inputs if u.name.startswith("friction.") and u.name.count(".") == 2}
+    common = {u.name for u in inputs if u.name.count(".") == 1}
+    columns: list[tuple[str, Distribution]] = []
+    for uncertain in inputs:
+        prefix = next((p for p in PER_JOINT if uncertain.name.startswith(p)), None)
+        if prefix is None:
+            columns.append((uncertain.name, uncertain.distribution))
+        elif uncertain.name in common:
+            parameter = uncertain.name.removeprefix(prefix)
+            for joint in joint_names:
+                column = f"{prefix}{joint}.{parameter}"
+                replaced = own.get(column) if prefix == "friction." else None
+                columns.append((column, replaced or uncertain.distribution))
+        elif f"friction.{uncertain.name.rpartition('.')[2]}" not in common:  # a joint's own, no common one
+            columns.append((uncertain.name, uncertain.distribution))
+    return columns
+
 
 def input_columns(sweep: Sweep, joint_names) -> list[str]:
-    """The names of the sampled columns: the scalar inputs as named, each friction factor once
-    per joint (``friction.A1.sigma0``), in the sweep file's order.
+    """The names of the sampled columns (:func:`column_distributions`).
 
     Parameters
     ----------
@@ -30,14 +65,7 @@ def input_columns(sweep: Sweep, joint_names) -> list[str]:
     -------
     list of str
     """
-    columns: list[str] = []
-    for uncertain in sweep.inputs:
-        if uncertain.name.startswith("friction."):
-            parameter = uncertain.name.removeprefix("friction.")
-            columns.extend(f"friction.{joint}.{parameter}" for joint in joint_names)
-        else:
-            columns.append(uncertain.name)
-    return columns
+    return [column for column, _ in column_distributions(sweep.inputs, joint_names)]
 
 
 def unit_samples(sampler: str, samples: int, dimensions: int, seed: int) -> np.ndarray:
@@ -108,15 +136,12 @@ def sample_inputs(sweep: Sweep, joint_names) -> tuple[list[str], np.ndarray]:
     tuple
         (the column names of :func:`input_columns`, an array of one row per sample).
     """
-    columns = input_columns(sweep, joint_names)
+    columns = column_distributions(sweep.inputs, joint_names)
     unit = unit_samples(sweep.sampler, sweep.samples, len(columns), sweep.seed)
     values = np.empty_like(unit)
-    column = 0
-    for uncertain in sweep.inputs:
-        width = len(joint_names) if uncertain.name.startswith("friction.") else 1
-        values[:, column : column + width] = inverse(uncertain.distribution, unit[:, column : column + width])
-        column += width
-    return columns, values
+    for k, (_, distribution) in enumerate(columns):
+        values[:, k] = inverse(distribution, unit[:, k])
+    return [column for column, _ in columns], values
 
 
-__all__ = ["input_columns", "inverse", "sample_inputs", "unit_samples"]
+__all__ = ["column_distributions", "input_columns", "inverse", "sample_inputs", "unit_samples"]

@@ -12,6 +12,7 @@ from typing import Any
 
 from smartjoint.common import friction_registry
 from smartjoint.common.errors import DesignError
+from smartjoint.design.structure.uncertainty import Uncertainty
 
 DOF_NAMES = ("ux", "uy", "uz", "rx", "ry", "rz")
 JOINT_TYPES = ("A", "B")
@@ -311,6 +312,7 @@ class Design:
     friction: dict[str, JointFriction] = field(default_factory=dict)  # by joint type ([friction.A])
     friction_records: tuple[str, ...] = ()  # rig records `run` identifies ([friction] records)
     placement: Placement | None = None  # joints `run` places on a design without [[joints]]
+    uncertainty: Uncertainty = field(default_factory=Uncertainty)  # [uncertainty]: the physical spread
 
     def joint_friction(self, joint: Joint) -> JointFriction | None:
         """The joint's LuGre parameters: its own, else its type's; None when the design has none."""

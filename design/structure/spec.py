@@ -44,6 +44,7 @@ from smartjoint.design.structure.sections import (
     parse_updating,
 )
 from smartjoint.design.structure.table import DesignTable, direction, dof_list, reference, unique
+from smartjoint.design.structure.uncertainty import Uncertainty, parse_uncertainty
 
 SCHEMA = "smartjoint-design/1"
 DIAGONAL_PATTERNS = ("alternating", "parallel")
@@ -146,6 +147,11 @@ def parse_design(data: dict[str, Any], source: str = "<memory>", origins: dict[s
 
     control = parse_control(root.table("control", {}), joints, dofs)
     safety = parse_safety(root.table("safety", {}), control, joints)
+    uncertainty = (
+        parse_uncertainty(root.table("uncertainty"), [j.name for j in joints])
+        if "uncertainty" in root.data
+        else Uncertainty()
+    )
 
     root.finish()
     return Design(
@@ -171,6 +177,7 @@ def parse_design(data: dict[str, Any], source: str = "<memory>", origins: dict[s
         friction=friction,
         friction_records=friction_records,
         placement=placement,
+        uncertainty=uncertainty,
     )
 
 
