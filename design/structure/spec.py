@@ -44,7 +44,7 @@ from smartjoint.design.structure.sections import (
     parse_updating,
 )
 from smartjoint.design.structure.table import DesignTable, direction, dof_list, reference, unique
-from smartjoint.design.structure.uncertainty import Uncertainty, parse_uncertainty
+from smartjoint.design.structure.uncertainty import parse_uncertainty
 
 SCHEMA = "smartjoint-design/1"
 DIAGONAL_PATTERNS = ("alternating", "parallel")
@@ -147,11 +147,7 @@ def parse_design(data: dict[str, Any], source: str = "<memory>", origins: dict[s
 
     control = parse_control(root.table("control", {}), joints, dofs)
     safety = parse_safety(root.table("safety", {}), control, joints)
-    uncertainty = (
-        parse_uncertainty(root.table("uncertainty"), [j.name for j in joints])
-        if "uncertainty" in root.data
-        else Uncertainty()
-    )
+    uncertainty = parse_uncertainty(root, [j.name for j in joints])
 
     root.finish()
     return Design(

@@ -12,13 +12,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any
 
 from smartjoint.common import friction_registry
 from smartjoint.common.errors import MISSING
-
-if TYPE_CHECKING:  # the tables are read through their methods: no import cycle with description
-    from smartjoint.design.structure.table import DesignTable
 
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")
 
@@ -85,14 +82,15 @@ class UncertainInput:
     distribution: Distribution
 
 
-def distribution_of(t: DesignTable, support: Support) -> Distribution:
+def distribution_of(t: Any, support: Support) -> Distribution:
     """One distribution table (``distribution = …`` and its parameters), its truncation inside
     the input's support.
 
     Parameters
     ----------
     t : DesignTable
-        The table, e.g. ``uncertain.friction.sigma0``.
+        The table (read through its methods: no import of ``table``, which imports
+        ``description``), e.g. ``uncertain.friction.sigma0``.
     support : Support
         Where the input may lie.
 
@@ -148,13 +146,13 @@ def friction_parameters() -> list[str]:
     return [key for model in friction_registry.MODELS.values() for key in model.keys]
 
 
-def parse_uncertainty(table: DesignTable, joint_names) -> Uncertainty:
+def parse_uncertainty(root: Any, joint_names) -> Uncertainty:
     """The ``[uncertainty]`` table of a design file.
 
     Parameters
     ----------
-    table : DesignTable
-        ``[uncertainty]``.
+    root : DesignTable
+        The design file's root table, whose ``[uncertainty]`` is read (absent: the defaults).
     joint_names : sequence of str
         The design's joints (a per-joint friction entry must name one; empty: a design whose
         joints ``[placement]`` places, checked when the ensemble is drawn).
@@ -168,6 +166,9 @@ def parse_uncertainty(table: DesignTable, joint_names) -> Uncertainty:
     DesignError
         An unknown input, parameter or joint, or a distribution outside its input's support.
     """
+    if "uncertainty" not in root.data:
+        return Uncertainty()
+    table = root.table("uncertainty")
     found: list[UncertainInput] = []
     defaults = table.boolean("defaults", True)
     keys = friction_parameters()
