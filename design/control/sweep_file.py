@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from smartjoint.common import friction_registry, law_registry
+from smartjoint.common import law_registry
 from smartjoint.common.errors import DesignError
 from smartjoint.design.structure.files import read_file, read_toml
 from smartjoint.design.structure.table import DesignTable
@@ -28,6 +28,7 @@ from smartjoint.design.structure.uncertainty import (
     Support,
     UncertainInput,
     distribution_of,
+    friction_parameters,
 )
 
 SCHEMA = "smartjoint-sweep/1"
@@ -189,7 +190,7 @@ def _inputs(table: DesignTable) -> tuple[tuple[UncertainInput, ...], bool, bool]
                         )
                     identified = True
                     continue
-                keys = [key for model in friction_registry.MODELS.values() for key in model.keys]
+                keys = friction_parameters()
                 if parameter not in keys:
                     allowed = "unknown friction parameter; allowed: " + ", ".join(keys)
                     raise friction.error(parameter, friction.data[parameter], allowed)
