@@ -93,7 +93,7 @@ class Disassembly:
         self.symbols: dict[str, tuple[int, int]] = {}
         for line in run(["arm-none-eabi-nm", "-S", str(elf)]).splitlines():
             parts = line.split()
-            if len(parts) == 4 and parts[2] in "Tt":
+            if len(parts) == 4 and parts[2] in "TtWw":  # W: libgcc's weak aliases (__aeabi_dmul of __muldf3)
                 self.symbols[parts[3]] = (int(parts[0], 16) & ~1, int(parts[1], 16))
         self.instructions: list[tuple[int, str, str]] = []
         for line in run(["arm-none-eabi-objdump", "-d", "--no-show-raw-insn", str(elf)]).splitlines():

@@ -241,11 +241,14 @@ def main() -> int:
     verdict = _print_targets(results, ours, baselines)
     with tempfile.TemporaryDirectory(prefix="firmware_image-") as temporary:
         whole = measure_image(a, Path(temporary) / "image", callgraph)
+        every = measure_image(a, Path(temporary) / "every", callgraph, without=())
     print_whole_image(whole)
+    print_whole_image(every)
     write_json(
         args.json,
         {
             "whole_image": whole,
+            "every_law_image": every,
             **artifact_header("firmware_size", facts, args.artifact, a),
             "target_flags": TARGET + BASE_FLAGS,
             "limits_bytes": LIMITS,

@@ -27,6 +27,7 @@ from firmware_image import measure_image  # benchmarks/ (the script's folder is 
 from machine import artifact_header, cpu_model, write_json
 
 from smartjoint.bench import firmware, pil, pil_study, target
+from smartjoint.common import law_registry
 from smartjoint.design import load_design, updated_design
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
@@ -90,8 +91,8 @@ def main() -> int:
     a = artifacts.load(args.artifact)
     study = _study(a, args.duration)
     with tempfile.TemporaryDirectory() as scratch:
-        static = measure_image(a, Path(scratch) / "image", callgraph=True)
-    laws = {law: _law(study, a, law) for law in ("siso", "clqg")}
+        static = measure_image(a, Path(scratch) / "image", callgraph=True, without=())  # as the target builds it
+    laws = {law.name: _law(study, a, law.name) for law in law_registry.LAWS.values() if not law.constant}
     high_water = max(f["measured"]["stack_high_water"] for f in laws.values())
     results = {
         **artifact_header(

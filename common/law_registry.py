@@ -248,6 +248,30 @@ LAWS: dict[str, Law] = {
             reference="smartjoint.design.control.preset:preset_law",
             constant=True,
         ),
+        Law(
+            name="slipratio",
+            display="slip ratio",
+            title="slip-ratio law (F_N integrates each joint's slip, issue 32)",
+            mode=5,
+            inputs=("sliding_velocity", "normal_force"),
+            outputs=("normal_force",),
+            equation=None,
+            artifact=(
+                ("velocity", "slipratio_velocity"),
+                ("rise", "slipratio_rise"),
+                ("decay", "slipratio_decay"),
+            ),
+            settings=(
+                Setting("velocity", "m/s", True, "the sliding speed v*_j above which a joint counts as slipping"),
+                Setting("rise", "1/s", False, "the relative rate r_rise at which F_N grows while a joint slips"),
+                Setting("decay", "1/s", False, "the relative rate r_decay at which F_N relaxes while a joint sticks"),
+            ),
+            tune="smartjoint.design.control.slip_ratio:tuned",
+            controller="smartjoint.design.control.slip_ratio:controller",
+            colour="tab:green",
+            codegen="smartjoint.design.control.slip_ratio:context",
+            reference="smartjoint.design.control.slip_ratio:slip_ratio_law",
+        ),
     )
 }
 NAMES = tuple(LAWS)  # every law by name, in registry order

@@ -109,9 +109,12 @@ def _plot_normal_force(plt, study: closed_loop.Study, folder: Path) -> Path:
 def _plot_tuning(plt, law, record, folder: Path) -> Path:
     """<law>_<setting>.png: E(t_e) against the tuned setting (the SISO ε of Eq. 30, for Eq. 32)."""
     setting = next(x for x in law.settings if x.key == record.setting)
+    # Each evaluation is (the setting, …, E(t_e)): a curve for one setting, points where the
+    # tuning moved others as well (the slip-ratio law's rates).
     points = sorted(record.evaluations)
+    style = ".-" if len(points[0]) == 2 else "."
     fig, ax = plt.subplots(figsize=(7, 3.5))
-    ax.semilogx([p[0] for p in points], [p[1] for p in points], ".-", color="tab:blue", label="E(t_e), Eq. 32")
+    ax.semilogx([p[0] for p in points], [p[-1] for p in points], style, color="tab:blue", label="E(t_e), Eq. 32")
     ax.semilogx(
         [record.value],
         [record.energy_measure],

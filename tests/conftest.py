@@ -133,8 +133,14 @@ def small_truss() -> dict:
     }
 
 
+# The slip-ratio law's settings of the small truss (given: its tuning runs an ensemble).
+SLIP_RATIO_LAW = {"velocity": 1e-3, "rise": 85.0, "decay": 15.0}
+SLIP_RATIO_SETTINGS = {f"slipratio_{key}": value for key, value in SLIP_RATIO_LAW.items()}
+
+
 def small_control_truss(duration: float, **control) -> dict:
-    """The small truss with a quick control section: 4 of 12 modes, F_N 5–100 N, a short study."""
+    """The small truss with a quick control section: 4 of 12 modes, F_N 5–100 N, a short study,
+    the slip-ratio law's settings given."""
     data = small_truss()
     data["control"] = {
         "considered_modes": 12,
@@ -142,6 +148,7 @@ def small_control_truss(duration: float, **control) -> dict:
         "normal_force_min": 5.0,
         "normal_force_max": 100.0,
         "study_duration": duration,
+        **SLIP_RATIO_SETTINGS,
         **control,
     }
     return data

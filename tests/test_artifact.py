@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SLIP_RATIO_LAW, SLIP_RATIO_SETTINGS
 
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
@@ -36,7 +37,9 @@ def setup():
         design,
         model,
         lqg,
-        artifact_building.from_design(design, model, lqg, {"siso": {"boundary_layer": [1e-3, 2e-3]}}),
+        artifact_building.from_design(
+            design, model, lqg, {"siso": {"boundary_layer": [1e-3, 2e-3]}, "slipratio": SLIP_RATIO_LAW}
+        ),
     )
 
 
@@ -112,7 +115,9 @@ def test_design_file_changes_reach_both_hashes(setup, tmp_path):
 
     def build(data):
         path.write_text(tomli_w.dumps(data))
-        return artifact_building.from_design(load_design(path), model, lqg, {"siso": {"boundary_layer": 1e-3}})
+        return artifact_building.from_design(
+            load_design(path), model, lqg, {"siso": {"boundary_layer": 1e-3}, "slipratio": SLIP_RATIO_LAW}
+        )
 
     data = small_truss()
     first, again = build(data), build(data)
@@ -133,6 +138,7 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
         "normal_force_min": [10.0, 20.0],
         "normal_force_max": 300.0,
         "siso_boundary_layer": 4e-3,
+        **SLIP_RATIO_SETTINGS,
     }
     swapped = parse_design(data)
     with pytest.raises(ModelError, match="model: joints.*'JB', 'JA'"):
@@ -146,24 +152,33 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
     with pytest.raises(ModelError, match="siso_boundary_layer: missing"):
         artifact_building.from_design(design, model, lqg)
     with pytest.raises(ModelError, match="siso_boundary_layer.*one per joint"):
-        artifact_building.from_design(design, model, lqg, {"siso": {"boundary_layer": [1e-3, 1e-3, 1e-3]}})
+        artifact_building.from_design(
+            design, model, lqg, {"siso": {"boundary_layer": [1e-3, 1e-3, 1e-3]}, "slipratio": SLIP_RATIO_LAW}
+        )
     with pytest.raises(ModelError, match="lqg.sample_time"):
         artifact_building.from_design(
-            design, model, control.design_lqg(model, 5e-4), {"siso": {"boundary_layer": 1e-3}}
+            design,
+            model,
+            control.design_lqg(model, 5e-4),
+            {"siso": {"boundary_layer": 1e-3}, "slipratio": SLIP_RATIO_LAW},
         )
     with pytest.raises(ModelError, match="lqg.output.*one per sensor"):
         artifact_building.from_design(
-            dataclasses.replace(design, sensors=design.sensors[:1]), model, lqg, {"siso": {"boundary_layer": 1e-3}}
+            dataclasses.replace(design, sensors=design.sensors[:1]),
+            model,
+            lqg,
+            {"siso": {"boundary_layer": 1e-3}, "slipratio": SLIP_RATIO_LAW},
         )
 
 
 @pytest.mark.parametrize(
     "change, message",
     [
-        (lambda d: d.update(schema_version=5), r"schema_version: 5 — unknown; this version reads schema_version 4"),
+        (lambda d: d.update(schema_version=6), r"schema_version: 6 — unknown; this version reads schema_version 5"),
         (
             lambda d: d.update(schema_version=3),
-            r"schema_version: 3 — .* flat, without the sections of version 4: re-run `smartjoint design`",
+            r"schema_version: 3 — .* flat, without the sections of version 4: re-run `smartjoint design` to write "
+            r"version 5",
         ),
         (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
         (
@@ -211,7 +226,7 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
         (lambda d: d.update(siso_boundary_layer=[1e-3, -1.0]), r"siso_boundary_layer: -1.0 for joint 'JB'"),
         (lambda d: d.update(gamma0=[[1.0, 2.0], [3.0]]), r"gamma0: .* rectangular"),
         (lambda d: d["blocks"][0][0].__setitem__(0, True), r"blocks: True — expected a \(nested\) list of numbers"),
-        (lambda d: d.update(extra=1), r"extra: 1 — unknown section in schema_version 4"),
+        (lambda d: d.update(extra=1), r"extra: 1 — unknown section in schema_version 5"),
         (lambda d: d.update(design_sha256="abc"), r"design_sha256: 'abc'"),
     ],
 )
@@ -269,7 +284,7 @@ def _sections(built) -> dict:
     [
         (lambda d: d["safety"].update(extra=1), r"safety.extra: 1 — unknown key in section safety"),
         (lambda d: d["laws"]["siso"].update(blocks=[]), r"laws.siso.blocks: \[\] — unknown key in section laws.siso"),
-        (lambda d: d["laws"].update(lqr={}), r"laws.lqr: \{\} — unknown law; allowed: siso, clqg, preset"),
+        (lambda d: d["laws"].update(lqr={}), r"laws.lqr: \{\} — unknown law; allowed: siso, clqg, preset, slipratio"),
         (lambda d: d.pop("network"), r"network: missing — required section"),
         (lambda d: d["laws"].pop("clqg"), r"laws.clqg: missing — required section"),
         (lambda d: d.update(common=[1]), r"common: \[1\] — expected a JSON object"),

@@ -282,3 +282,27 @@ def test_mf4_without_asammdf_is_a_clear_message(tmp_path):
             bus.shutdown()
     else:
         pytest.skip("asammdf installed: MF4 logs work")
+
+
+@pytest.mark.parametrize("real", ["float", "double"])
+def test_a_build_without_a_law_leaves_it_out_and_refuses_it(tmp_path, real):
+    """``-D<PREFIX>_CAN_WITHOUT_<LAW>``: the build compiles clean without that law's module, and
+    init refuses the law left out (-1, the safe state for good) while it accepts the others."""
+    from smartjoint.codegen import build, can_layer, generate, output
+    from smartjoint.common import law_registry
+
+    a = artifact.load(Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json")
+    files = {**generate.render(a, real), **can_layer.render_can(a, real=real)}
+    output.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, tmp_path)
+    left_out, kept = "slipratio", [law for law in law_registry.NAMES if law != "slipratio"]
+    main = ["#include <stdio.h>", '#include "smartjoint_can.h"', "static smartjoint_can_state state;",
+            "int main(void)", "{"]  # fmt: skip
+    for law in (left_out, *kept):
+        main.append(f'    printf("%d\\n", smartjoint_can_init(&state, SMARTJOINT_CAN_LAW_{law.upper()}));')
+    (tmp_path / "without.c").write_text("\n".join([*main, "    return 0;", "}", ""]))
+    sources = ["without.c", "smartjoint_can.c", "sj_e2e.c", *(f"smartjoint_{law}.c" for law in kept)]
+    flags = ["-std=c99", *build.WARNINGS, f"-DSMARTJOINT_CAN_WITHOUT_{left_out.upper()}"]
+    done = run("gcc", *flags, "-I.", *sources, "-lm", "-o", "without", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    answers = run(str(tmp_path / "without"), cwd=tmp_path).stdout.split()
+    assert answers == ["-1"] + ["0"] * len(kept)

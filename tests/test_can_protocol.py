@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SLIP_RATIO_LAW
 
 from smartjoint.bench import busload, e2e
 from smartjoint.common.errors import ModelError
@@ -181,7 +182,9 @@ def _small_artifact(velocity_limit=None):
     fe = build_model(design, joints="released")
     model = modal.modal_model(fe, modal.solve_modes(fe, 8))
     lqg = control.design_lqg(model, design.control.sample_time)
-    return artifact_building.from_design(design, model, lqg, {"siso": {"boundary_layer": 1e-3}})
+    return artifact_building.from_design(
+        design, model, lqg, {"siso": {"boundary_layer": 1e-3}, "slipratio": SLIP_RATIO_LAW}
+    )
 
 
 def test_tip_sensor_signals_carry_the_unit_and_range_of_their_quantity():

@@ -154,7 +154,7 @@ def test_the_safe_state_is_the_python_loops_too(study):
 
 def test_what_the_compiled_loop_cannot_run_is_one_line(study):
     s, artifact, compiled = study
-    with pytest.raises(ModelError, match=r"^law: 'active LQG' — allowed: siso, clqg, preset$"):
+    with pytest.raises(ModelError, match=r"^law: 'active LQG' — allowed: siso, clqg, preset, slipratio$"):
         compiled.run(s, "active LQG")
     other = dataclasses.replace(s, normal_force_max=s.normal_force_max + 1.0)
     with pytest.raises(ModelError, match=r"^normal_force_max: the study's \[401.0, 401.0\] are not the artefact's$"):

@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))  # the measurement machinery of benchmarks/firmware_size.py
 
 from elf_tools import supports_callgraph_info  # noqa: E402
-from firmware_image import LIMITS, measure_image  # noqa: E402
+from firmware_image import LIMITS, PRODUCT_WITHOUT, measure_image  # noqa: E402
 
 REFERENCE = artifact.load(ROOT / "firmware" / "generated" / "controller.json")
 REASON = target.missing_tools()
@@ -29,18 +29,28 @@ pytestmark = pytest.mark.skipif(REASON is not None, reason=f"{REASON} (CI instal
 
 @pytest.fixture(scope="module")
 def whole(tmp_path_factory):
+    """The product image (every law but ``PRODUCT_WITHOUT``)."""
     folder = tmp_path_factory.mktemp("image")
     return measure_image(REFERENCE, folder / "image", callgraph=supports_callgraph_info(folder))
 
 
-def test_the_whole_image_fits_8_kib_of_flash_and_512_b_of_ram_without_a_double_routine(whole):
-    assert LIMITS == {"flash": 8 * 1024, "ram": 512}
+@pytest.fixture(scope="module")
+def every(tmp_path_factory):
+    """The image with every law, as the PIL target builds it."""
+    folder = tmp_path_factory.mktemp("every")
+    return measure_image(REFERENCE, folder / "image", callgraph=supports_callgraph_info(folder), without=())
+
+
+def test_the_whole_image_fits_8_kib_of_flash_and_512_b_of_ram_without_a_double_routine(whole, every):
+    assert LIMITS == {"flash": 8 * 1024, "ram": 512} and whole["laws_left_out"] == list(PRODUCT_WITHOUT)
     assert whole["flash"] <= LIMITS["flash"] and whole["ram"] <= LIMITS["ram"], (whole["flash"], whole["ram"])
-    assert whole["double_routines"] == []
+    assert whole["double_routines"] == [] and every["double_routines"] == []
+    # leaving a law out of the build leaves its code out (and only that: every law still links)
+    assert every["flash"] > whole["flash"] and every["modules_code"].keys() > whole["modules_code"].keys()
 
 
-def test_the_painted_stack_on_the_target_is_within_16_bytes_below_the_static_bound(whole):
-    bound = whole["stack_max"]
+def test_the_painted_stack_on_the_target_is_within_16_bytes_below_the_static_bound(every):
+    bound, whole = every["stack_max"], every
     with pil.TargetFirmware(REFERENCE, "clqg") as image:
         loop = SilLoop(image, 0.0, channel="smartjoint-image-limits")
         try:

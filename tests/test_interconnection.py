@@ -77,7 +77,7 @@ def test_the_can_loop_gives_the_record_of_the_model_in_the_loop(study):
 def test_an_unknown_law_or_a_missing_fmu_is_one_line(study, tmp_path):
     s, artifact = study
     for loop in (PythonLoop(artifact), CompiledLoop(artifact), CanLoop(artifact)):
-        with pytest.raises(ModelError, match=r"^law: 'lqr' — allowed: siso, clqg, preset$"):
+        with pytest.raises(ModelError, match=r"^law: 'lqr' — allowed: siso, clqg, preset, slipratio$"):
             loop.run(s, "lqr")
     with pytest.raises(ModelError, match=r"^law: 'clqg' — this FMU loop has controller FMUs of siso$"):
         FmuLoop(tmp_path / "p.fmu", {"siso": tmp_path / "siso.fmu"}).run(s, "cLQG")

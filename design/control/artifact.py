@@ -6,7 +6,7 @@ file, its SHA-256, package version); ``artifact_building.from_design`` builds it
 The C generator reads only this file, and each law's Python reference is rebuilt from it alone
 (``Law.python_reference``), so firmware and reference are checked against the same numbers.
 
-Schema (``schema_version`` 4, documented in ``docs/controller-artifact.md``): a JSON object of
+Schema (``schema_version`` 5, documented in ``docs/controller-artifact.md``): a JSON object of
 sections — ``common``, ``safety``, ``friction``, ``network`` and ``laws.<law>`` per law of the
 registry (``artifact_layout``) — whose keys are the fields of :data:`SCHEMA` (``artifact_schema``),
 SI units; in Python every field is one attribute of :class:`ControllerArtifact`. Sizes: l controlled joints

@@ -1,4 +1,4 @@
-"""The nested layout of the controller design artefact (``schema_version`` 4): one section per
+"""The nested layout of the controller design artefact (``schema_version`` 5): one section per
 component, as acados and other generators nest one block per solver part.
 
 ```

@@ -1,4 +1,4 @@
-"""The schema of the controller design artefact (``schema_version`` 4,
+"""The schema of the controller design artefact (``schema_version`` 5,
 ``docs/controller-artifact.md``) and its validation: every field's kind, shape (symbols n, 2n,
 l, n_y), unit and limits, checked with one-line errors that name the field and the value."""
 
@@ -16,7 +16,7 @@ from smartjoint.common.errors import ModelError
 
 # 2: the safe state and the plausibility ranges (docs/safety.md); 3: the joints' friction; 4: nested,
 # one section per component (artifact_layout).
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 # The model whose parameters the artefact's friction section holds (its columns, in order).
 FRICTION_MODEL = friction_registry.LUGRE
 # Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo
@@ -325,6 +325,7 @@ _OLDER = {
     1: "without the safe state and the plausibility ranges",
     2: "without the joints' friction",
     3: "flat, without the sections of version 4",
+    4: "with three sections under laws, not one per law of the registry",
 }
 
 

@@ -290,6 +290,40 @@ def sample_setup(
     return out
 
 
+def drawn_setups(design, s: StudySetup, samples: int, seed: int) -> list[StudySetup]:
+    """``samples`` plants drawn from the design's physical spread (its ``[uncertainty]`` and the
+    defaults, ``physical_spread``; Latin hypercube of ``seed``) around the study ``s``: what a law
+    tuned on an ensemble is tuned on, without a sweep's grid, laws or output.
+
+    Parameters
+    ----------
+    design : Design
+        Its joints and ``uncertainty``.
+    s : StudySetup
+        The nominal study (its ``model`` the design model).
+    samples, seed : int
+
+    Returns
+    -------
+    list of StudySetup
+        One per sample, as a sweep's sample of the same inputs and seed.
+    """
+    from smartjoint.design.control.physical_spread import physical_spread  # the spread's defaults
+    from smartjoint.design.control.sweep_sampling import column_distributions, inverse, unit_samples
+
+    joints = tuple(joint.name for joint in design.joints)
+    inputs = [entry.input for entry in physical_spread(design, float(s.pulse_amplitude))]
+    columns = column_distributions(inputs, joints)
+    unit = unit_samples("latin-hypercube", samples, len(columns), seed)
+    values = np.column_stack([inverse(d, unit[:, k]) for k, (_, d) in enumerate(columns)])
+    base = EnsembleBase(
+        setup=s, setups=(s,), lqg=None, lqgs=(), artifacts=(), laws=(), seed=int(seed),  # type: ignore[arg-type]
+        joint_names=joints, quantities=(), grid_columns=(), input_columns=tuple(c for c, _ in columns),
+    )  # fmt: skip
+    names = [column for column, _ in columns]
+    return [sample_setup(base, {}, dict(zip(names, map(float, row))), k) for k, row in enumerate(values)]
+
+
 def _run_law(
     base: EnsembleBase, s: StudySetup, law: str, index: int, point: dict, compiled, cache: dict
 ) -> tuple[Run, int, float]:
