@@ -187,7 +187,12 @@ def _settings_lines(study: closed_loop.Study) -> list[str]:
                 lines.append(f"{what}: {tuning.record.describe()}.")
                 continue
             shown = f"{value.tolist()}" if isinstance(value, np.ndarray) else f"{value:g}"
-            source = "from the design file" if setting.key in tuning.given else "default"
+            if setting.key in tuning.given:
+                source = "from the design file"
+            elif tuning.record is not None:  # set by the law's tuning with the record's setting
+                source = "set by the tuning above"
+            else:
+                source = "default"
             lines.append(f"{what}: {shown} {setting.unit} ({source}).")
     return lines
 
