@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.control.filter import FEEDBACK_LIMIT, HoldProducts, hold_products, output_terms
+from smartjoint.design.control.filter import FEEDBACK_LIMIT, HoldProducts, step_products
+from smartjoint.design.control.realisation import Realisation, realise
 
 
 def siso(artifact: artifacts.ControllerArtifact, lit, row) -> dict:
@@ -20,57 +21,118 @@ def siso(artifact: artifacts.ControllerArtifact, lit, row) -> dict:
 
 
 def clqg(artifact: artifacts.ControllerArtifact, lit, row) -> dict:
-    """The clipped LQG's context (Eq. 33–34): the 2×2 predictor blocks per coordinate and the gains."""
+    """The clipped LQG's context (Eq. 33–34) in its realisation (``control.realisation``): the
+    joint and sensor channels, the coordinate groups with a table row per coordinate, and the
+    small constant products of the two phases with their nonzero entries."""
+    realisation = _realisation(artifact)
+    products = _products(realisation)
+    joint_labels = _labels(realisation.joints, artifact.joint_names)
+    sensor_labels = _labels(realisation.sensors, artifact.sensor_names)
     return {
-        "coordinates": int(np.asarray(artifact.blocks).shape[0]),
-        "coordinate_models": _coordinate_models(artifact, row),
-        # The components of each coordinate a sensor reads (0 velocity, 1 displacement): the
-        # structural zeros of C are skipped at generation time (control.output_terms).
-        "output_components": [
-            [q for q in (0, 1) if used[q]] for used in output_terms(np.asarray(artifact.output, dtype=float))[:, :2]
-        ],
-        **_hold_context(artifact, row),
+        "coordinates": int(realisation.blocks.shape[0]),
+        "joint_channels": realisation.joints.terms(),
+        "joint_forces": realisation.joints.back_terms(),
+        "sensor_channels": realisation.sensors.terms(),
+        "adapted": realisation.adapted,
+        "groups": [_group(realisation, products, g, lit, row, joint_labels, sensor_labels) for g in realisation.groups],
+        "output_hold": [row(c) for c in products.output_hold],
+        "feedback_hold": [row(k) for k in products.feedback_hold],
+        "feedback_estimator": [row(k) for k in products.feedback_estimator],
+        # The entries the phases sum: a product's exact zeros (other parity) are skipped.
+        "output_hold_terms": [np.flatnonzero(c).tolist() for c in products.output_hold],
+        "feedback_hold_terms": [np.flatnonzero(k).tolist() for k in products.feedback_hold],
+        "feedback_estimator_terms": [np.flatnonzero(k).tolist() for k in products.feedback_estimator],
         "clqg_boundary_layer": lit(artifact.clqg_boundary_layer),
         "sensor_limit": row(artifact.sensor_limit),
         "feedback_limit": lit(FEEDBACK_LIMIT),
     }
 
 
-def _coordinate_models(artifact: artifacts.ControllerArtifact, row) -> list[dict]:
-    """One entry per coordinate i: its 2×2 block Φ_i by columns, γ0, γ1, row i of E, then the
-    gains on its two states: M[2i:2i+2] by columns, and C[:, 2i+c], (K − KM·C)[:, 2i+c] for
-    c = 0, 1 (control.hold_products) — the state's component outermost, so that each pair the
-    step forms lies side by side."""
-    output = np.asarray(artifact.output, dtype=float)
-    estimator, feedback = np.asarray(artifact.estimator_gain, dtype=float), _products(artifact).feedback_prior
+def _title(realisation: Realisation, group) -> str:
+    """The group's comment: which coordinates, and their parity when the mirror gives one."""
+    if len(realisation.groups) == 1:
+        return "The model one coordinate i at a time"
+    where = f"Coordinates {group.start} to {group.stop - 1} of the realisation"
+    parity = {"even": "even under the mirror (paired joints act alike)", "odd": "odd under the mirror"}
+    return f"{where}, {parity[group.name]}" if group.name in parity else where
+
+
+def _labels(channels, names) -> list[str]:
+    """A channel's name for the comments: "A1 + A2", "A1 - A2", or the joint's (sensor's) own."""
     return [
-        {
-            "phi": [row(np.asarray(artifact.blocks[i], dtype=float)[:, k]) for k in (0, 1)],
-            "gamma0": row(artifact.gamma0[i]),
-            "gamma1": row(artifact.gamma1[i]),
-            "joint_input": row(artifact.joint_input[i]),
-            "estimator_gain": [row(estimator[2 * i : 2 * i + 2, r]) for r in range(estimator.shape[1])],
-            "output": [row(output[:, 2 * i + c]) for c in (0, 1)],
-            "feedback_gain": [row(feedback[:, 2 * i + c]) for c in (0, 1)],
-        }
-        for i in range(len(artifact.blocks))
+        names[a] if b < 0 else f"{names[a]} {'+' if sign > 0 else '-'} {names[b]}" for a, b, sign in channels.terms()
     ]
 
 
-def _products(artifact: artifacts.ControllerArtifact) -> HoldProducts:
-    """The constant products of the cLQG's two phases (control.hold_products)."""
-    return hold_products(
-        artifact.output, artifact.feedback_gain, artifact.estimator_gain, artifact.gamma1, artifact.joint_input
+def _realisation(artifact: artifacts.ControllerArtifact) -> Realisation:
+    return realise(
+        artifact.blocks,
+        artifact.gamma0,
+        artifact.gamma1,
+        artifact.joint_input,
+        artifact.output,
+        artifact.estimator_gain,
+        artifact.feedback_gain,
     )
 
 
-def _hold_context(artifact: artifacts.ControllerArtifact, row) -> dict:
-    """The small constant products of the cLQG's phases as table rows (control.hold_products)."""
-    products = _products(artifact)
+def _products(realisation: Realisation) -> HoldProducts:
+    """The constant products of the cLQG's two phases in the realisation, gains negated
+    (control.step_products)."""
+    return step_products(realisation)
+
+
+def _group(realisation: Realisation, products: HoldProducts, group, lit, row, joint_labels, sensor_labels) -> dict:
+    """One coordinate group: its channels and one initialiser per coordinate, the fields in the
+    order of the template's struct — Φ_i by columns, γ0, γ1, E'_i over the group's joints, M'
+    rows 2i and 2i + 1 by sensor, C' over the (sensor, component) terms, and (K' − K'M'C') on
+    each of the two states over the group's feedback joints (the state's component outermost)."""
+    r = realisation
+    output_terms = [(sensor, c) for sensor, components in group.outputs for c in components]
+    rotation = realisation.rotation
+    span = range(group.start, group.stop)
+    rotation = realisation.rotation
+    unit_gamma1 = all(r.gamma1[i, 0] == 1.0 for i in span)
+    # Terms of C' that are 1 in every coordinate of the group (control.realisation.real_jordan): added, not stored.
+    unit_outputs = [all(r.output[s, 2 * i + c] == 1.0 for i in span) for s, c in output_terms]
+    stored_outputs = [t for t, unit in zip(output_terms, unit_outputs) if not unit]
+    rows = []
+    for i in span:
+        if rotation:  # Φ_i' = [[α, −β], [β, α]]
+            fields = [lit(r.blocks[i][0, 0]), lit(r.blocks[i][1, 0])]
+        else:
+            fields = ["{" + ", ".join("{" + row(r.blocks[i][:, k]) + "}" for k in (0, 1)) + "}"]
+        fields.append("{" + row(r.gamma0[i]) + "}")
+        fields.append(lit(r.gamma1[i, 1]) if unit_gamma1 else "{" + row(r.gamma1[i]) + "}")
+        if group.joints:
+            fields.append("{" + row(r.joint_input[i, list(group.joints)]) + "}")
+        if group.sensors:
+            pairs = (r.estimator_gain[2 * i : 2 * i + 2, s] for s in group.sensors)
+            fields.append("{" + ", ".join("{" + row(p) + "}" for p in pairs) + "}")
+        if stored_outputs:
+            fields.append("{" + row([r.output[s, 2 * i + c] for s, c in stored_outputs]) + "}")
+        if group.feedback_joints:
+            gains = products.feedback_prior[list(group.feedback_joints)]
+            fields.append("{" + ", ".join("{" + row(gains[:, 2 * i + c]) + "}" for c in (0, 1)) + "}")
+        rows.append("{" + ", ".join(fields) + "}")
+    stored = iter(range(len(stored_outputs)))
     return {
-        "output_hold": [row(c) for c in products.output_hold],
-        "feedback_hold": [row(k) for k in products.feedback_hold],
-        "feedback_estimator": [row(k) for k in products.feedback_estimator],
+        "name": group.name,
+        "start": group.start,
+        "stop": group.stop,
+        "joints": list(group.joints),
+        "feedback_joints": list(group.feedback_joints),
+        "sensors": list(group.sensors),
+        "output_terms": [(s, c, None if unit else next(stored)) for (s, c), unit in zip(output_terms, unit_outputs)],
+        "stored_outputs": len(stored_outputs),
+        "rotation": rotation,
+        "unit_gamma1": unit_gamma1,
+        "rows": rows,
+        "title": _title(realisation, group),
+        "joint_labels": ", ".join(joint_labels[j] for j in group.joints),
+        "feedback_labels": ", ".join(joint_labels[j] for j in group.feedback_joints),
+        "sensor_labels": ", ".join(sensor_labels[s] for s in group.sensors),
+        "output_labels": [(s, c, sensor_labels[s]) for (s, c), unit in zip(output_terms, unit_outputs) if not unit],
     }
 
 

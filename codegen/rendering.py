@@ -18,6 +18,7 @@ from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.artifact_schema import LAW_SETTINGS
 from smartjoint.design.control.filter import hold_products
+from smartjoint.design.control.realisation import realise
 
 REALS = ("float", "double")
 FLOAT_MAX = float(np.finfo(np.float32).max)
@@ -175,9 +176,16 @@ def check_products_fit_float(artifact: artifacts.ControllerArtifact) -> None:
     ModelError
         One line naming the product, the entry and its value.
     """
-    products = hold_products(
-        artifact.output, artifact.feedback_gain, artifact.estimator_gain, artifact.gamma1, artifact.joint_input
+    r = realise(
+        artifact.blocks,
+        artifact.gamma0,
+        artifact.gamma1,
+        artifact.joint_input,
+        artifact.output,
+        artifact.estimator_gain,
+        artifact.feedback_gain,
     )
+    products = hold_products(r.output, r.feedback_gain, r.estimator_gain, r.gamma1, r.joint_input)
     for name, values in products._asdict().items():
         with np.errstate(over="ignore", under="ignore", invalid="ignore"):
             rounded = np.asarray(values, dtype=float).astype(np.float32)

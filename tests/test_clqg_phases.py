@@ -19,6 +19,7 @@ from smartjoint.codegen import controllers, generate
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
 from smartjoint.design.control.filter import clipped_lqg
+from smartjoint.design.control.realisation import SYMMETRY_TOLERANCE
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,31 +34,51 @@ def _sequence(a, count=400, seed=3):
     return plausible_measurements(a, count, seed, sensor=1e-4, slip=1e-3, friction=20)
 
 
-def _textbook(design):
-    """Φ, Γ0·E, Γ1·E of the whole state from the per-coordinate blocks."""
-    e = np.asarray(design.joint_input)
-    hold = [(np.asarray(g)[:, :, None] * e[:, None, :]).reshape(-1, e.shape[1]) for g in (design.gamma0, design.gamma1)]
-    return block_diag(*design.blocks), hold[0], hold[1]
+def _textbook(law):
+    """Φ, Γ0·E, Γ1·E, C, M, K of the realised filter (control.realisation: the design's up to
+    its cancelled entries) in the design's channels and the realisation's coordinates and basis."""
+    r = law.realisation
+    e = r.joint_input @ r.joints.matrix()
+    hold = [(np.asarray(g)[:, :, None] * e[:, None, :]).reshape(-1, e.shape[1]) for g in (r.gamma0, r.gamma1)]
+    ts = r.sensors.matrix()
+    output, estimator = np.linalg.solve(ts, r.output), r.estimator_gain @ ts
+    feedback = r.joints.matrix().T @ r.feedback_gain
+    return block_diag(*r.blocks), hold[0], hold[1], output, estimator, feedback
+
+
+def _close(realised, designed, scale):
+    return np.abs(realised - designed).max() <= 2 * SYMMETRY_TOLERANCE * scale
 
 
 @pytest.mark.numerics
 def test_the_two_phase_reference_is_the_textbook_kalman_filter(reference):
     """x̂⁻ = Φ·x̂ − Γ0·E·u⁺ − Γ1·E·u_k (0 at the first sample), x̂ = x̂⁻ + M·(y − C·x̂⁻),
-    u_d = −K·x̂, computed densely: the reference's estimate and desired forces agree to rounding."""
+    u_d = −K·x̂, computed densely with the realised matrices: the reference's estimate (mapped
+    back to the design's basis) and desired forces agree to rounding; and the realised matrices,
+    mapped back by the change of basis T, are the design's to the cancellation tolerance."""
     law = clipped_lqg(reference)
-    d = law.design
-    phi, hold0, hold1 = _textbook(d)
+    phi, hold0, hold1, output, estimator, feedback = _textbook(law)
+    d, r = law.design, law.realisation
+    states, t = r.state_order(), r.transformation()
+    inverse = np.linalg.inv(t)
+    assert _close(output @ inverse, d.output[:, states], np.abs(d.output).max())
+    assert _close(t @ estimator, d.estimator_gain[states], np.abs(d.estimator_gain).max())
+    assert _close(feedback @ inverse, d.feedback_gain[:, states], np.abs(d.feedback_gain).max())
+    assert _close(t @ phi @ inverse, d.state_matrix[np.ix_(states, states)], 1.0)
+    designed_hold = d.input_matrices()[1][states]
+    assert _close(t @ hold1, designed_hold, np.abs(designed_hold).max())
     estimate, previous, started = np.zeros(phi.shape[0]), np.zeros(hold0.shape[1]), False
     worst = 0.0
     for m in _sequence(reference):
         law.step(m)
         assert law.status == 0, m.time
         prior = phi @ estimate - hold0 @ previous - hold1 @ m.friction_force if started else np.zeros(phi.shape[0])
-        estimate = prior + d.estimator_gain @ (m.sensors - d.output @ prior)
-        desired = -d.feedback_gain @ estimate
-        scale = np.abs(d.feedback_gain) @ np.abs(estimate)
+        estimate = prior + estimator @ (m.sensors - output @ prior)
+        desired = -feedback @ estimate
+        scale = np.abs(feedback) @ np.abs(estimate)
         worst = max(worst, float(np.max(np.abs(law.desired_force - desired) / scale)))
-        np.testing.assert_allclose(law.estimate, estimate, rtol=1e-9, atol=1e-12 * np.abs(estimate).max())
+        designed = r.to_design(estimate)
+        np.testing.assert_allclose(law.estimate, designed, rtol=1e-9, atol=1e-12 * np.abs(designed).max())
         previous, started = law.previous_force.copy(), True
     assert worst < 1e-10, worst
 

@@ -32,6 +32,7 @@ from smartjoint.design.control.laws import (
     safe_state_options,
 )
 from smartjoint.design.control.lqg import LqgDesign
+from smartjoint.design.control.realisation import realise
 from smartjoint.design.plant.interface import Measurements
 
 
@@ -60,62 +61,82 @@ class _Lqg:
     def __init__(self, design: LqgDesign):
         self.design = design
         self.sample_time = design.sample_time
-        self.products = hold_products(
-            design.output, design.feedback_gain, design.estimator_gain, design.gamma1, design.joint_input
+        self.realisation = r = realise(
+            design.blocks,
+            design.gamma0,
+            design.gamma1,
+            design.joint_input,
+            design.output,
+            design.estimator_gain,
+            design.feedback_gain,
         )
-        self.output_used = output_terms(design.output)
+        self.products = step_products(r)
+        self.output_used = r.output_terms()
+        self.estimator_used = r.estimator_terms()
+        self.feedback_used = r.feedback_terms()
+        self.input_used = r.joint_input != 0.0
+        for g in r.groups:  # a group's joints are terms even where an entry is 0 (fixed loops)
+            self.input_used[g.start : g.stop, list(g.joints)] = True
+        self.hold_used = {name: np.asarray(v) != 0.0 for name, v in self.products._asdict().items()}
         self.reset()
 
     def reset(self) -> None:
         d = self.design
-        self.estimate = np.zeros(d.output.shape[1])
-        self.propagated = np.zeros(d.output.shape[1])  # q = Φ·x̂ − Γ0·E·u⁺
-        self.predicted = np.zeros(d.output.shape[0])  # C·q
-        self.feedback = np.zeros(d.feedback_gain.shape[0])  # (K − KM·C)·q
+        self.estimate = np.zeros(d.output.shape[1])  # x̂ in the design's state order and basis
+        self.propagated = np.zeros(d.output.shape[1])  # q = Φ·x̂ − Γ0·E·u⁺, the realisation's order
+        self.predicted = np.zeros(d.output.shape[0])  # C'·q, adapted sensor channels
+        self.feedback = np.zeros(d.feedback_gain.shape[0])  # −(K' − K'M'·C')·q, adapted joint channels
         self.previous_force = np.zeros(d.joint_input.shape[1])
         self.force = np.zeros(d.joint_input.shape[1])  # u_k of the pending update
         self.sensors = np.zeros(d.output.shape[0])  # y_k of the pending update
-        self.innovation = np.zeros(d.output.shape[0])
+        self.innovation = np.zeros(d.output.shape[0])  # adapted sensor channels
         self.started = False
         self.pending = False
 
     def _output(self, sensors: np.ndarray, force: np.ndarray) -> np.ndarray:
-        """The output phase: u_d from the new measurement and the precomputed r = (K − KM·C)·q
-        (zero before the first sample, which has no prior and no hold term)."""
-        p = self.products
+        """The output phase: u_d from the new measurement and the precomputed r = (K' − K'M'·C')·q
+        (zero before the first sample, which has no prior and no hold term), in the adapted
+        channels (``realisation``), turned back into the joints' forces by sums."""
+        p, used, r = self.products, self.hold_used, self.realisation
         sensors, force = np.array(sensors, dtype=float), np.array(force, dtype=float)
         feedback = self.feedback
         if self.started:
-            feedback = multiply_add(feedback, p.feedback_hold, force)
-        feedback = multiply_add(feedback, p.feedback_estimator, sensors)
+            feedback = multiply_add(feedback, p.feedback_hold, r.joints.forward(force), used["feedback_hold"])
+        feedback = multiply_add(feedback, p.feedback_estimator, r.sensors.forward(sensors), used["feedback_estimator"])
         self.sensors, self.force, self.pending = sensors, force, True
-        return -feedback
+        return r.joints.back(feedback)  # the gains are negated (step_products): this is −Tᵀ·(K'·x̂)
 
     def _update(self) -> None:
-        """The update phase (after the command is sent): ν, x̂_k, then q, C·q and (K − KM·C)·q
+        """The update phase (after the command is sent): ν, x̂_k, then q, C'·q and (K' − K'M'·C')·q
         for the next sample with u⁺ = ``previous_force``. Nothing without a pending output phase."""
         if not self.pending:
             return
-        d = self.design
-        n = d.blocks.shape[0]
+        r = self.realisation
+        n = r.blocks.shape[0]
+        sensors = r.sensors.forward(self.sensors)
         if self.started:
-            force, q = self.force, self.propagated.reshape(n, 2)
-            self.innovation = self.sensors - multiply_add(self.predicted, -self.products.output_hold, force)
+            force, q = r.joints.forward(self.force), self.propagated.reshape(n, 2)
+            self.innovation = sensors - multiply_add(
+                self.predicted, -self.products.output_hold, force, self.hold_used["output_hold"]
+            )
         else:  # the first sample has no prior: q = 0, no hold term, ν = y
             force, q = np.zeros(self.force.size), np.zeros((n, 2))
-            self.innovation = self.sensors.copy()
-        end = ordered_product(d.joint_input, force)
-        prior = np.stack([q[:, 0] - d.gamma1[:, 0] * end, q[:, 1] - d.gamma1[:, 1] * end], axis=1).reshape(2 * n)
-        self.estimate = multiply_add(prior, d.estimator_gain, self.innovation)
-        x = self.estimate.reshape(n, 2)
-        start = ordered_product(d.joint_input, self.previous_force)
-        b = d.blocks
+            self.innovation = sensors
+        end = ordered_product(r.joint_input, force, self.input_used)
+        prior = np.stack([q[:, 0] - r.gamma1[:, 0] * end, q[:, 1] - r.gamma1[:, 1] * end], axis=1).reshape(2 * n)
+        estimate = multiply_add(prior, r.estimator_gain, self.innovation, self.estimator_used)
+        self.estimate = r.to_design(estimate)
+        x = estimate.reshape(n, 2)
+        start = ordered_product(r.joint_input, r.joints.forward(self.previous_force), self.input_used)
+        b = r.blocks
         out = np.empty((n, 2))
-        out[:, 0] = (b[:, 0, 0] * x[:, 0] + b[:, 0, 1] * x[:, 1]) - d.gamma0[:, 0] * start
-        out[:, 1] = (b[:, 1, 0] * x[:, 0] + b[:, 1, 1] * x[:, 1]) - d.gamma0[:, 1] * start
+        out[:, 0] = (b[:, 0, 0] * x[:, 0] + b[:, 0, 1] * x[:, 1]) - r.gamma0[:, 0] * start
+        out[:, 1] = (b[:, 1, 0] * x[:, 0] + b[:, 1, 1] * x[:, 1]) - r.gamma0[:, 1] * start
         self.propagated = out.reshape(2 * n)
-        self.predicted = multiply_add(np.zeros(d.output.shape[0]), d.output, self.propagated, self.output_used)
-        self.feedback = multiply_add(np.zeros(d.feedback_gain.shape[0]), self.products.feedback_prior, self.propagated)
+        self.predicted = multiply_add(np.zeros(r.output.shape[0]), r.output, self.propagated, self.output_used)
+        self.feedback = multiply_add(
+            np.zeros(r.feedback_gain.shape[0]), self.products.feedback_prior, self.propagated, self.feedback_used
+        )
         self.started, self.pending = True, False
 
 
@@ -155,6 +176,16 @@ def hold_products(output, feedback_gain, estimator_gain, gamma1, joint_input) ->
         feedback_estimator,
         feedback_gain - _ordered_matrix_product(feedback_estimator, output),
     )
+
+
+def step_products(realisation) -> HoldProducts:
+    """The products the two phases use (:func:`hold_products` of the realisation's matrices) with
+    the gains negated — −(KM·CΓ1E − KΓ1E), −KM and −(K − KM·C) — so that the output phase's sums
+    are u_d itself: x + (−a)·b = −(−x + a·b) exactly in IEEE arithmetic, so the forces are the
+    same numbers, one negation per joint fewer."""
+    r = realisation
+    p = hold_products(r.output, r.feedback_gain, r.estimator_gain, r.gamma1, r.joint_input)
+    return HoldProducts(p.output_hold, -p.feedback_hold, -p.feedback_estimator, -p.feedback_prior)
 
 
 def _ordered_matrix_product(left: np.ndarray, right: np.ndarray) -> np.ndarray:
@@ -472,6 +503,7 @@ __all__ = [
     "clipped_lqg",
     "controller",
     "hold_products",
+    "step_products",
     "multiply_add",
     "ordered_product",
     "output_terms",

@@ -16,72 +16,68 @@
 #define MULTIPLY_SUBTRACT(x, a, b) fmaf(-(a), (b), (x))
 #define MAGNITUDE(x) fabsf(x)
 
-/* The model one coordinate i at a time, with the gains that act on its two states: the exact
- * discretisation x+ = Phi_i x - g0_i (e_i.u_k) - g1_i (e_i.u_k+1) at the sample time, rows 2i and
- * 2i+1 of M (current form) and columns 2i and 2i+1 of C and of K - K M C (Eq. 33: K x_hat with
- * the measurement update's K M C x_prior taken out, control.hold_products). */
+/* The filter runs in channels of the joints and of the sensors adapted to the design's mirror
+ * symmetry (control.realisation): a pair's sum and difference, u~_a = u_a + u_b and
+ * u~_b = u_a - u_b, an unpaired channel as it is. A coordinate even under the mirror reads only
+ * sums, an odd one only differences, so each group of coordinates below has a table of its own
+ * shape; the forces come back to the joints as u_a = g_a + g_b, u_b = g_a - g_b. */
+/* Coordinates 0 to 2 of the realisation, odd under the mirror: the exact
+ * discretisation x+ = Phi_i x - g0_i (e_i.u_k) - g1_i (e_i.u_k+1) at the sample time, the
+ * gains on its two states: rows 2i and 2i+1 of M (current form), columns 2i and 2i+1 of C and of
+ * K - K M C (Eq. 33: K x_hat with the measurement update's K M C x_prior taken out,
+ * control.hold_products), over the channels it reads. */
 typedef struct {
-    smartjoint_real phi[2][2];                  /* by columns: phi[k][c] = Phi_i[c][k] */
+    smartjoint_real alpha, beta;     /* Phi_i = [[alpha, -beta], [beta, alpha]] (real-Jordan basis) */
     smartjoint_real gamma0[2];
-    smartjoint_real gamma1[2];
-    smartjoint_real joint_input[JOINTS];        /* e_i: row i of E */
-    smartjoint_real estimator_gain[SENSORS][2]; /* M, by columns */
-    smartjoint_real output[2][SENSORS];         /* C */
-    smartjoint_real feedback_gain[2][JOINTS];   /* K - K M C */
-} coordinate_model;
-static const coordinate_model model[COORDINATES] = {
-    {{{0.9999947f, 0.0018269717f}, {-0.0018269717f, 0.99999833f}}, {0.00049999834f, 6.08991e-07f}, {0.00049999927f, 3.0449567e-07f}, {0.013385896f, -0.013385896f, -1.1750552e-12f},
-        {{754.2693f, 2.6096344f}, {754.2693f, 2.6096344f}}, {{0.0f, 0.0f}, {0.073473476f, 0.073473476f}},
-        {{-546.43414f, 546.43414f, 4.3778655e-08f}, {6704.421f, -6704.421f, -2.2261242e-05f}}},
-    {{{0.99996454f, 0.0066557224f}, {-0.0066557224f, 0.9999778f}}, {0.00049999f, 2.2185843e-06f}, {0.00049999595f, 1.1092965e-06f}, {0.010994903f, 0.010994903f, 0.029236147f},
-        {{-796.5796f, -10.042156f}, {796.5796f, 10.042156f}}, {{0.0f, 0.0f}, {-0.02092028f, 0.02092028f}},
-        {{-233.56396f, -233.56396f, -614.1899f}, {7615.9097f, 7615.9097f, 8158.6934f}}},
-    {{{0.9935786f, 0.111165866f}, {-0.111165866f, 0.99380094f}}, {0.0004983755f, 3.7087022e-05f}, {0.00049944595f, 1.8555542e-05f}, {0.050948355f, 0.050948355f, 0.036421407f},
-        {{195.57892f, 36.48142f}, {-195.57892f, -36.48142f}}, {{0.0f, 0.0f}, {0.0003126039f, -0.0003126039f}},
-        {{-560.37646f, -560.37646f, -78.53272f}, {0.21784219f, 0.21784239f, -49.96097f}}},
-    {{{0.9926272f, 0.11922905f}, {-0.11922905f, 0.9928656f}}, {0.0004981361f, 3.978211e-05f}, {0.0004993652f, 1.990587e-05f}, {0.03320363f, -0.03320363f, 3.8624952e-15f},
-        {{-648.1347f, -133.18579f}, {-648.1347f, -133.18579f}}, {{0.0f, 0.0f}, {-0.0009862148f, -0.0009862148f}},
-        {{-691.4978f, 691.4978f, 2.8991607e-08f}, {-171.00966f, 171.00966f, 2.812476e-07f}}},
-    {{{0.99064046f, 0.13451819f}, {-0.13451819f, 0.99090946f}}, {0.0004976364f, 4.4895445e-05f}, {0.0004991968f, 2.246894e-05f}, {0.018716885f, 0.018716885f, 0.07130933f},
-        {{564.7978f, 133.27081f}, {-564.7978f, -133.27081f}}, {{0.0f, 0.0f}, {0.0007525981f, -0.0007525981f}},
-        {{-11.913705f, -11.913705f, -752.5798f}, {-286.83603f, -286.83603f, -219.71774f}}},
-    {{{0.97995865f, 0.19722433f}, {-0.19722433f, 0.9803531f}}, {0.0004949509f, 6.5918175e-05f}, {0.0004982934f, 3.3025837e-05f}, {-0.06004578f, -0.06004578f, -0.07415168f},
-        {{189.95251f, 68.8703f}, {-189.95251f, -68.87031f}}, {{0.0f, 0.0f}, {0.0001784373f, -0.0001784373f}},
-        {{453.199f, 453.199f, 389.32074f}, {98.43867f, 98.43867f, 150.62363f}}},
-    {{{0.9609691f, 0.27468884f}, {-0.27468884f, 0.96151847f}}, {0.0004901744f, 9.204582e-05f}, {0.00049668807f, 4.6205136e-05f}, {0.019318573f, 0.019318573f, -0.034829162f},
-        {{33.02761f, 18.80554f}, {-33.02761f, -18.80554f}}, {{0.0f, 0.0f}, {2.4098543e-05f, -2.4098543e-05f}},
-        {{-335.2167f, -335.2167f, 581.00006f}, {-22.199825f, -22.199825f, -56.30452f}}},
-    {{{0.93421614f, 0.35475636f}, {-0.35475636f, 0.9349256f}}, {0.00048343226f, 0.00011931377f}, {0.00049442064f, 6.0057653e-05f}, {-0.019669058f, -0.019669058f, -0.04350446f},
-        {{5.8617864f, 4.9025097f}, {-5.861786f, -4.90251f}}, {{0.0f, 0.0f}, {3.7739203e-06f, -3.7739203e-06f}},
-        {{342.67822f, 342.67822f, 620.7858f}, {10.005156f, 10.005156f, 44.14332f}}},
-    {{{0.87644255f, 0.4795908f}, {-0.4795908f, 0.87740177f}}, {0.0004688081f, 0.00016261874f}, {0.0004894882f, 8.235145e-05f}, {-0.04902565f, -0.04902565f, -0.049195945f},
-        {{-4.147668f, -6.4278593f}, {4.147668f, 6.4278593f}}, {{0.0f, 0.0f}, {-2.894243e-06f, 2.894243e-06f}},
-        {{529.77563f, 529.77563f, 313.22128f}, {-24.530571f, -24.530571f, -2.6344736f}}},
-    {{{0.6453327f, 0.76212096f}, {-0.76212096f, 0.64685696f}}, {0.00040927483f, 0.00026783667f}, {0.0004691445f, 0.0001391954f}, {0.2305183f, 0.2305183f, 0.5120973f},
-        {{-43.919296f, -78.50704f}, {43.919296f, 78.50704f}}, {{0.0f, 0.0f}, {-2.2278515e-05f, 2.2278515e-05f}},
-        {{-353.7666f, -353.7666f, -613.1213f}, {-84.38077f, -84.38077f, -11.083521f}}},
-    {{{0.6210892f, 0.7819722f}, {-0.7819722f, 0.6226531f}}, {0.00040292385f, 0.0002759398f}, {0.00046694654f, 0.00014382302f}, {-0.342165f, 0.342165f, 2.2346553e-09f},
-        {{-207.21538f, -268.3981f}, {-207.21538f, -268.3981f}}, {{0.0f, 0.0f}, {-7.0933806e-05f, -7.0933806e-05f}},
-        {{674.3962f, -674.3962f, -2.6500497e-06f}, {-179.23738f, 179.23738f, 2.8944624e-08f}}},
-    {{{-0.09411621f, 0.99398506f}, {-0.99398506f, -0.09212824f}}, {0.00020294367f, 0.00041503893f}, {0.00039432765f, 0.0002412052f}, {-0.46372765f, -0.46372765f, 0.64317596f},
-        {{3.4563155f, -2.9665098f}, {-3.4563158f, 2.9665098f}}, {{0.0f, 0.0f}, {-2.6860562e-06f, 2.6860562e-06f}},
-        {{289.52908f, 289.52908f, -346.87936f}, {-306.8721f, -306.8721f, 333.63553f}}},
+    smartjoint_real gamma1;          /* g1_i[1]; g1_i[0] = 1 (e_i carries the scale) */
+    smartjoint_real joint_input[1];    /* e_i over A1 - A2 */
+    smartjoint_real estimator_gain[1][2]; /* M, by columns over tip_y + tip_z */
+    smartjoint_real feedback_gain[2][1]; /* K - K M C to A1 - A2 */
+} odd_model;
+static const odd_model odd_models[3] = {
+    {0.9999965f, 0.0018269708f, {0.9999988f, 0.0012179824f}, 0.0006089916f, {9.83508e-07f}, {{110.83801f, 0.38347784f}}, {{3718.579f}, {-45628.49f}}},
+    {0.9927464f, 0.11922899f, {0.99757856f, 0.079662144f}, 0.03986074f, {-3.2705664e-08f}, {{1.2786635f, 0.2626996f}}, {{-350581.53f}, {-86349.42f}}},
+    {0.6218712f, 0.7819718f, {0.86321574f, 0.59076285f}, 0.30791247f, {2.2673573e-08f}, {{0.029435242f, 0.038076997f}}, {{4.7536985e+06f}, {-1.2681668e+06f}}},
+};
+/* Coordinates 3 to 11 of the realisation, even under the mirror (paired joints act alike): the exact
+ * discretisation x+ = Phi_i x - g0_i (e_i.u_k) - g1_i (e_i.u_k+1) at the sample time, the
+ * gains on its two states: rows 2i and 2i+1 of M (current form), columns 2i and 2i+1 of C and of
+ * K - K M C (Eq. 33: K x_hat with the measurement update's K M C x_prior taken out,
+ * control.hold_products), over the channels it reads. */
+typedef struct {
+    smartjoint_real alpha, beta;     /* Phi_i = [[alpha, -beta], [beta, alpha]] (real-Jordan basis) */
+    smartjoint_real gamma0[2];
+    smartjoint_real gamma1;          /* g1_i[1]; g1_i[0] = 1 (e_i carries the scale) */
+    smartjoint_real joint_input[2];    /* e_i over A1 + A2, A3 */
+    smartjoint_real estimator_gain[1][2]; /* M, by columns over tip_y - tip_z */
+    smartjoint_real feedback_gain[2][2]; /* K - K M C to A1 + A2, A3 */
+} even_model;
+static const even_model even_models[9] = {
+    {0.9999712f, 0.006655719f, {0.9999904f, 0.004437193f}, 0.002218605f, {-2.300152e-07f, -6.1162507e-07f}, {{33.329773f, 0.42016947f}}, {{-5582.235f, -14679.285f}, {182027.75f, 195009.52f}}},
+    {0.9936898f, 0.111165814f, {0.99789387f, 0.07425353f}, 0.037150852f, {1.5909604e-08f, 1.1373286e-08f}, {{0.12230033f, 0.022808466f}}, {{896304.0f, 125610.54f}, {-1244.7362f, 79785.38f}}},
+    {0.9907749f, 0.13451813f, {0.9969192f, 0.08993127f}, 0.045008134f, {1.40643035e-08f, 5.3583495e-08f}, {{0.8503325f, 0.20059873f}}, {{7915.047f, 499987.56f}, {190555.97f, 145472.84f}}},
+    {0.9801559f, 0.19722423f, {0.9933586f, 0.13227905f}, 0.06627347f, {-1.067855e-08f, -1.3187145e-08f}, {{0.067813836f, 0.024578063f}}, {{-1.2699104e+06f, -1.090917e+06f}, {-274565.53f, -420972.28f}}},
+    {0.96124375f, 0.27468872f, {0.98697925f, 0.18530183f}, 0.09301776f, {4.62509e-10f, -8.338505e-10f}, {{0.0015927418f, 0.0009063722f}}, {{6.9551205e+06f, -1.2054665e+07f}, {453650.03f, 1.1802689e+06f}}},
+    {0.9345709f, 0.35475618f, {0.9778978f, 0.24129096f}, 0.12145595f, {-7.3410104e-11f, -1.623701e-10f}, {{4.4280852e-05f, 3.7003363e-05f}}, {{-4.5400804e+07f, -8.224677e+07f}, {-1.2801645e+06f, -5.766223e+06f}}},
+    {0.87692213f, 0.47959056f, {0.95792276f, 0.33216596f}, 0.16821153f, {1.3893249e-10f, 1.3941508e-10f}, {{2.4045936e-05f, 3.720757e-05f}}, {{9.152227e+07f, 5.4111064e+07f}, {-4.329344e+06f, -509234.2f}}},
+    {0.64609486f, 0.76212054f, {0.8726975f, 0.57073486f}, 0.29661235f, {-4.820114e-09f, -1.0707902e-08f}, {{0.0019604124f, 0.0034980408f}}, {{-7.939632e+06f, -1.3760364e+07f}, {-1.8858304e+06f, -234988.72f}}},
+    {-0.09312222f, 0.9939846f, {0.51539475f, 1.051879f}, 0.61131305f, {9.829493e-10f, -1.3633203e-09f}, {{-1.855179e-05f, 1.5936423e-05f}}, {{5.3894804e+07f, -6.4570356e+07f}, {-5.7177068e+07f, 6.216966e+07f}}},
 };
 /* Constant products of the two phases (control.hold_products, Gamma1 E: rows gamma1[i][c] E[i]):
- * the output phase needs K M C Gamma1 E - K Gamma1 E and K M, the update phase C Gamma1 E. */
+ * the output phase needs K M C Gamma1 E - K Gamma1 E and K M, the update phase C Gamma1 E; their zeros between channels of different parity are not summed. */
 static const smartjoint_real output_hold[SENSORS][JOINTS] = {
-    {2.7557292e-09f, -3.5210233e-09f, -1.7400179e-09f},
-    {3.5210233e-09f, -2.7557292e-09f, 1.7400179e-09f},
+    {0.0f, 6.2767525e-09f, 0.0f},
+    {-7.6529405e-10f, 0.0f, -3.4800358e-09f},
 };
-/* The output phase one joint j at a time: row j of K M C Gamma1 E - K Gamma1 E and of K M. */
+/* The output phase one joint channel at a time: its row of K M C Gamma1 E - K Gamma1 E and of K M. */
 typedef struct {
     smartjoint_real feedback_hold[JOINTS];
     smartjoint_real feedback_estimator[SENSORS];
 } joint_law;
 static const joint_law law[JOINTS] = {
-    {{0.22235514f, -0.00592117f, 0.110633835f}, {136213.17f, -233385.89f}},
-    {{-0.00592117f, 0.22235514f, 0.110633835f}, {233385.89f, -136213.17f}},
-    {{0.07301455f, 0.07301455f, 0.26734006f}, {202961.2f, -202961.2f}},
+    {{-0.108216986f, -0.0f, -0.110633835f}, {-0.0f, -184799.53f}},
+    {{0.0f, -0.114138156f, 0.0f}, {48586.36f, -0.0f}},
+    {{-0.07301455f, -0.0f, -0.26734006f}, {-0.0f, -202961.2f}},
 };
 const smartjoint_clqg_params smartjoint_clqg_default_params = {
     {10.0f, 10.0f, 10.0f},
@@ -181,6 +177,15 @@ static int inputs_plausible(const smartjoint_clqg_input *input)
            MAGNITUDE(input->friction_force[2]) <= friction_force_limit[2];
 }
 
+/* Whether the measured normal forces can be used (no bit of check_normal_forces), tested first and
+ * written as "within" as in inputs_plausible: min <= F_N <= max, false for NaN. */
+static int normal_forces_plausible(const smartjoint_clqg_input *input)
+{
+    return input->normal_force[0] >= measured_normal_force_min[0] && input->normal_force[0] <= measured_normal_force_max[0] &&
+           input->normal_force[1] >= measured_normal_force_min[1] && input->normal_force[1] <= measured_normal_force_max[1] &&
+           input->normal_force[2] >= measured_normal_force_min[2] && input->normal_force[2] <= measured_normal_force_max[2];
+}
+
 /* Eq. 34 for one joint: F_N = F^min + (F^max - F^min) clip((u_d - u_R) sgn(u_R) / eps, 0, 1).
  * The same numbers as the product with sgn(u_R), as -(a - b) = b - a exactly; for u_R = 0 the
  * product's +-0 clips to 0. */
@@ -193,8 +198,9 @@ static smartjoint_real clipped_command(const smartjoint_clqg_params *params, int
 
 /* Output phase, right after the measurements arrive: the command from the new measurement and what
  * the previous update phase left in the state, r = (K - K M C) q (control.hold_products):
- *   u_d = -((r + (K M C Gamma1 E - K Gamma1 E) u) + (K M) y),
- * each sum a chain of multiply-adds in the order of the Python reference (control.multiply_add).
+ *   u_d = -((r + (K M C Gamma1 E - K Gamma1 E) u) + (K M) y),  (summed with the negated gains)
+ * each sum a chain of multiply-adds in the order of the Python reference (control.multiply_add),
+ * in the joint and sensor channels, the forces then back in the joints.
  * The first sample has no prior (r = 0) and no hold term. Only what the command needs is tested
  * here: the sensors and friction forces; the update phase tests the rest (the measured normal
  * forces, the new estimate) and leaves what it found for this phase of the next sample, so |r|
@@ -202,8 +208,10 @@ static smartjoint_real clipped_command(const smartjoint_clqg_params *params, int
 unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, smartjoint_clqg_output *output)
 {
     smartjoint_real friction0, friction1, friction2;
-    smartjoint_real sensor0, sensor1;
-    smartjoint_real force0, force1, force2;
+    smartjoint_real friction_channel0, friction_channel1, friction_channel2;
+    smartjoint_real sensor_channel0, sensor_channel1;
+    smartjoint_real force_channel0, force_channel1, force_channel2;
+    smartjoint_real desired0, desired1, desired2;
     const smartjoint_clqg_params *params;
     if (state == NULL || input == NULL || output == NULL) {
         return SMARTJOINT_STATUS_NULL_POINTER;
@@ -215,35 +223,35 @@ unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const sm
     friction0 = input->friction_force[0];
     friction1 = input->friction_force[1];
     friction2 = input->friction_force[2];
-    sensor0 = input->sensors[0];
-    sensor1 = input->sensors[1];
-    /* u_d = -force_j, joint by joint, each force a chain of multiply-adds in the reference's order. */
-    force0 = state->feedback[0];
-    force1 = state->feedback[1];
-    force2 = state->feedback[2];
+    friction_channel0 = friction0 + friction1;
+    friction_channel1 = friction0 - friction1;
+    friction_channel2 = friction2;
+    sensor_channel0 = input->sensors[0] + input->sensors[1];
+    sensor_channel1 = input->sensors[0] - input->sensors[1];
+    /* u_d, channel by channel, each a chain of multiply-adds in the reference's order; the gains
+     * are stored negated (control.step_products), so the sums are u_d itself, not -u_d. */
+    force_channel0 = state->feedback[0];
+    force_channel1 = state->feedback[1];
+    force_channel2 = state->feedback[2];
     if (state->started) {
-        force0 = MULTIPLY_ADD(force0, law[0].feedback_hold[0], friction0);
-        force0 = MULTIPLY_ADD(force0, law[0].feedback_hold[1], friction1);
-        force0 = MULTIPLY_ADD(force0, law[0].feedback_hold[2], friction2);
-        force1 = MULTIPLY_ADD(force1, law[1].feedback_hold[0], friction0);
-        force1 = MULTIPLY_ADD(force1, law[1].feedback_hold[1], friction1);
-        force1 = MULTIPLY_ADD(force1, law[1].feedback_hold[2], friction2);
-        force2 = MULTIPLY_ADD(force2, law[2].feedback_hold[0], friction0);
-        force2 = MULTIPLY_ADD(force2, law[2].feedback_hold[1], friction1);
-        force2 = MULTIPLY_ADD(force2, law[2].feedback_hold[2], friction2);
+        force_channel0 = MULTIPLY_ADD(force_channel0, law[0].feedback_hold[0], friction_channel0);
+        force_channel0 = MULTIPLY_ADD(force_channel0, law[0].feedback_hold[2], friction_channel2);
+        force_channel1 = MULTIPLY_ADD(force_channel1, law[1].feedback_hold[1], friction_channel1);
+        force_channel2 = MULTIPLY_ADD(force_channel2, law[2].feedback_hold[0], friction_channel0);
+        force_channel2 = MULTIPLY_ADD(force_channel2, law[2].feedback_hold[2], friction_channel2);
     }
-    force0 = MULTIPLY_ADD(force0, law[0].feedback_estimator[0], sensor0);
-    force0 = MULTIPLY_ADD(force0, law[0].feedback_estimator[1], sensor1);
-    force1 = MULTIPLY_ADD(force1, law[1].feedback_estimator[0], sensor0);
-    force1 = MULTIPLY_ADD(force1, law[1].feedback_estimator[1], sensor1);
-    force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[0], sensor0);
-    force2 = MULTIPLY_ADD(force2, law[2].feedback_estimator[1], sensor1);
-    output->normal_force[0] = clipped_command(params, 0, -force0, friction0);
-    output->normal_force[1] = clipped_command(params, 1, -force1, friction1);
-    output->normal_force[2] = clipped_command(params, 2, -force2, friction2);
-    output->desired_force[0] = -force0;
-    output->desired_force[1] = -force1;
-    output->desired_force[2] = -force2;
+    force_channel0 = MULTIPLY_ADD(force_channel0, law[0].feedback_estimator[1], sensor_channel1);
+    force_channel1 = MULTIPLY_ADD(force_channel1, law[1].feedback_estimator[0], sensor_channel0);
+    force_channel2 = MULTIPLY_ADD(force_channel2, law[2].feedback_estimator[1], sensor_channel1);
+    desired0 = force_channel0 + force_channel1;
+    desired1 = force_channel0 - force_channel1;
+    desired2 = force_channel2;
+    output->normal_force[0] = clipped_command(params, 0, desired0, friction0);
+    output->normal_force[1] = clipped_command(params, 1, desired1, friction1);
+    output->normal_force[2] = clipped_command(params, 2, desired2, friction2);
+    output->desired_force[0] = desired0;
+    output->desired_force[1] = desired1;
+    output->desired_force[2] = desired2;
     state->pending = 1;
     return SMARTJOINT_STATUS_OK;
 }
@@ -253,93 +261,109 @@ unsigned int smartjoint_clqg_output_phase(smartjoint_clqg_state *state, const sm
  * the measurement update x_hat = (q - Gamma1 E u) + M nu and the time
  * update to the next sample, q = Phi x_hat - Gamma0 E u+ (a first-order hold on the friction forces
  * from just after this sample), block by block (never a dense STATES x STATES product), fused with
- * the products C q and (K - K M C) q of the next output phase. C's structural zeros are skipped: a
- * sensor sums only the components it reads (velocity q0, displacement q1), as in
- * control.output_terms. Nothing happens without a successful output phase before it. A fault found
+ * the products C q and (K - K M C) q of the next output phase, in the channels. C's structural zeros are
+ * skipped: a sensor sums only the components it reads (velocity q0, displacement q1), as in
+ * control.output_terms; so are the channels a group of coordinates does not read. Nothing happens without a successful output phase before it. A fault found
  * here (an implausible normal force, an estimate beyond feedback_limit) restarts the filter and is
  * the status of the next output phase, which then commands the safe state. */
 void smartjoint_clqg_update_phase(smartjoint_clqg_state *state, const smartjoint_clqg_input *input, const smartjoint_clqg_output *output)
 {
+    smartjoint_real after0, after1, after2;
     smartjoint_real friction0, friction1, friction2;
     smartjoint_real previous0, previous1, previous2;
     smartjoint_real feedback0, feedback1, feedback2;
     smartjoint_real innovation0, innovation1;
     smartjoint_real predicted0, predicted1;
-    unsigned int status;
     int i;
     if (state == NULL || input == NULL || output == NULL || !state->pending) {
         return;
     }
-    status = check_normal_forces(input);
-    if (status != SMARTJOINT_STATUS_OK) {
+    if (!normal_forces_plausible(input)) {
+        const unsigned int status = check_normal_forces(input);
         restart(state);
         state->fault = status;
         return;
     }
     /* u_R = F_N mu with mu continuous: the friction just after this sample scales with the new
      * normal force; it starts the next time update's first-order hold. */
-    previous0 = input->normal_force[0] > 0.0f ? (input->friction_force[0] * output->normal_force[0]) / input->normal_force[0] : input->friction_force[0];
-    previous1 = input->normal_force[1] > 0.0f ? (input->friction_force[1] * output->normal_force[1]) / input->normal_force[1] : input->friction_force[1];
-    previous2 = input->normal_force[2] > 0.0f ? (input->friction_force[2] * output->normal_force[2]) / input->normal_force[2] : input->friction_force[2];
+    after0 = input->normal_force[0] > 0.0f ? (input->friction_force[0] * output->normal_force[0]) / input->normal_force[0] : input->friction_force[0];
+    after1 = input->normal_force[1] > 0.0f ? (input->friction_force[1] * output->normal_force[1]) / input->normal_force[1] : input->friction_force[1];
+    after2 = input->normal_force[2] > 0.0f ? (input->friction_force[2] * output->normal_force[2]) / input->normal_force[2] : input->friction_force[2];
+    previous0 = after0 + after1;
+    previous1 = after0 - after1;
+    previous2 = after2;
     if (state->started) {
-        friction0 = input->friction_force[0];
-        friction1 = input->friction_force[1];
+        friction0 = input->friction_force[0] + input->friction_force[1];
+        friction1 = input->friction_force[0] - input->friction_force[1];
         friction2 = input->friction_force[2];
         innovation0 = state->predicted[0];
-        innovation0 = MULTIPLY_SUBTRACT(innovation0, output_hold[0][0], friction0);
         innovation0 = MULTIPLY_SUBTRACT(innovation0, output_hold[0][1], friction1);
-        innovation0 = MULTIPLY_SUBTRACT(innovation0, output_hold[0][2], friction2);
-        innovation0 = input->sensors[0] - innovation0;
+        innovation0 = (input->sensors[0] + input->sensors[1]) - innovation0;
         innovation1 = state->predicted[1];
         innovation1 = MULTIPLY_SUBTRACT(innovation1, output_hold[1][0], friction0);
-        innovation1 = MULTIPLY_SUBTRACT(innovation1, output_hold[1][1], friction1);
         innovation1 = MULTIPLY_SUBTRACT(innovation1, output_hold[1][2], friction2);
-        innovation1 = input->sensors[1] - innovation1;
+        innovation1 = (input->sensors[0] - input->sensors[1]) - innovation1;
     } else { /* the first sample has no prior: q = 0, no hold, nu = y */
         for (i = 0; i < COORDINATES; ++i) {
-            state->velocity[i] = 0.0f;
-            state->displacement[i] = 0.0f;
+            state->q0[i] = 0.0f;
+            state->q1[i] = 0.0f;
         }
         friction0 = 0.0f;
         friction1 = 0.0f;
         friction2 = 0.0f;
-        innovation0 = input->sensors[0];
-        innovation1 = input->sensors[1];
+        innovation0 = input->sensors[0] + input->sensors[1];
+        innovation1 = input->sensors[0] - input->sensors[1];
     }
     predicted0 = 0.0f;
     predicted1 = 0.0f;
     feedback0 = 0.0f;
     feedback1 = 0.0f;
     feedback2 = 0.0f;
-    for (i = 0; i < COORDINATES; ++i) {
-        const coordinate_model *m = &model[i];
-        smartjoint_real end = m->joint_input[0] * friction0, start = m->joint_input[0] * previous0, x0, x1, q0, q1;
-        end = MULTIPLY_ADD(end, m->joint_input[1], friction1);
-        end = MULTIPLY_ADD(end, m->joint_input[2], friction2);
-        start = MULTIPLY_ADD(start, m->joint_input[1], previous1);
-        start = MULTIPLY_ADD(start, m->joint_input[2], previous2);
-        x0 = MULTIPLY_SUBTRACT(state->velocity[i], m->gamma1[0], end);
-        x1 = MULTIPLY_SUBTRACT(state->displacement[i], m->gamma1[1], end);
-        x0 = MULTIPLY_ADD(x0, m->estimator_gain[0][0], innovation0);
-        x0 = MULTIPLY_ADD(x0, m->estimator_gain[1][0], innovation1);
-        x1 = MULTIPLY_ADD(x1, m->estimator_gain[0][1], innovation0);
-        x1 = MULTIPLY_ADD(x1, m->estimator_gain[1][1], innovation1);
-        q0 = m->phi[0][0] * x0;
-        q0 = MULTIPLY_ADD(q0, m->phi[1][0], x1);
-        q0 = MULTIPLY_SUBTRACT(q0, m->gamma0[0], start);
-        q1 = m->phi[0][1] * x0;
-        q1 = MULTIPLY_ADD(q1, m->phi[1][1], x1);
-        q1 = MULTIPLY_SUBTRACT(q1, m->gamma0[1], start);
-        state->velocity[i] = q0;
-        state->displacement[i] = q1;
-        predicted0 = MULTIPLY_ADD(predicted0, m->output[1][0], q1);
-        predicted1 = MULTIPLY_ADD(predicted1, m->output[1][1], q1);
-        feedback0 = MULTIPLY_ADD(feedback0, m->feedback_gain[0][0], q0);
-        feedback0 = MULTIPLY_ADD(feedback0, m->feedback_gain[1][0], q1);
-        feedback1 = MULTIPLY_ADD(feedback1, m->feedback_gain[0][1], q0);
-        feedback1 = MULTIPLY_ADD(feedback1, m->feedback_gain[1][1], q1);
-        feedback2 = MULTIPLY_ADD(feedback2, m->feedback_gain[0][2], q0);
-        feedback2 = MULTIPLY_ADD(feedback2, m->feedback_gain[1][2], q1);
+    {
+        const odd_model *m = odd_models;
+        for (i = 0; i < 3; ++i, ++m) {
+            smartjoint_real end = m->joint_input[0] * friction1, start = m->joint_input[0] * previous1, x0, x1, q0, q1;
+            x0 = state->q0[i] - end;
+            x1 = MULTIPLY_SUBTRACT(state->q1[i], m->gamma1, end);
+            x0 = MULTIPLY_ADD(x0, m->estimator_gain[0][0], innovation0);
+            x1 = MULTIPLY_ADD(x1, m->estimator_gain[0][1], innovation0);
+            q0 = m->alpha * x0;
+            q0 = MULTIPLY_SUBTRACT(q0, m->beta, x1);
+            q0 = MULTIPLY_SUBTRACT(q0, m->gamma0[0], start);
+            q1 = m->beta * x0;
+            q1 = MULTIPLY_ADD(q1, m->alpha, x1);
+            q1 = MULTIPLY_SUBTRACT(q1, m->gamma0[1], start);
+            state->q0[i] = q0;
+            state->q1[i] = q1;
+            predicted0 = predicted0 + q1;
+            feedback1 = MULTIPLY_ADD(feedback1, m->feedback_gain[0][0], q0);
+            feedback1 = MULTIPLY_ADD(feedback1, m->feedback_gain[1][0], q1);
+        }
+    }
+    {
+        const even_model *m = even_models;
+        for (i = 3; i < 12; ++i, ++m) {
+            smartjoint_real end = m->joint_input[0] * friction0, start = m->joint_input[0] * previous0, x0, x1, q0, q1;
+            end = MULTIPLY_ADD(end, m->joint_input[1], friction2);
+            start = MULTIPLY_ADD(start, m->joint_input[1], previous2);
+            x0 = state->q0[i] - end;
+            x1 = MULTIPLY_SUBTRACT(state->q1[i], m->gamma1, end);
+            x0 = MULTIPLY_ADD(x0, m->estimator_gain[0][0], innovation1);
+            x1 = MULTIPLY_ADD(x1, m->estimator_gain[0][1], innovation1);
+            q0 = m->alpha * x0;
+            q0 = MULTIPLY_SUBTRACT(q0, m->beta, x1);
+            q0 = MULTIPLY_SUBTRACT(q0, m->gamma0[0], start);
+            q1 = m->beta * x0;
+            q1 = MULTIPLY_ADD(q1, m->alpha, x1);
+            q1 = MULTIPLY_SUBTRACT(q1, m->gamma0[1], start);
+            state->q0[i] = q0;
+            state->q1[i] = q1;
+            predicted1 = predicted1 + q1;
+            feedback0 = MULTIPLY_ADD(feedback0, m->feedback_gain[0][0], q0);
+            feedback0 = MULTIPLY_ADD(feedback0, m->feedback_gain[1][0], q1);
+            feedback2 = MULTIPLY_ADD(feedback2, m->feedback_gain[0][1], q0);
+            feedback2 = MULTIPLY_ADD(feedback2, m->feedback_gain[1][1], q1);
+        }
     }
     state->predicted[0] = predicted0;
     state->predicted[1] = predicted1;

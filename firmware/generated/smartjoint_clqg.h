@@ -53,11 +53,13 @@ extern const smartjoint_clqg_params smartjoint_clqg_default_params;
 
 typedef struct {
     const smartjoint_clqg_params *params;                     /* read by every output phase, kept by _init */
-    /* q = Phi x_hat - Gamma0 E u+ by component (x_hat = [eta_dot_1, w_1 eta_1, ...]): */
-    smartjoint_real velocity[SMARTJOINT_CLQG_COORDINATES];     /* eta_dot_i */
-    smartjoint_real displacement[SMARTJOINT_CLQG_COORDINATES]; /* w_i eta_i */
-    smartjoint_real predicted[SMARTJOINT_CLQG_SENSORS];     /* C q */
-    smartjoint_real feedback[SMARTJOINT_CLQG_JOINTS];       /* (K - K M C) q */
+    /* q = Phi x_hat - Gamma0 E u+ by component, in the coordinates and basis of the realisation
+     * (control.realisation: the modal x_hat = [eta_dot_1, w_1 eta_1, ...] or, per coordinate,
+     * its real-Jordan components z_i = T_i^-1 x_i): */
+    smartjoint_real q0[SMARTJOINT_CLQG_COORDINATES];
+    smartjoint_real q1[SMARTJOINT_CLQG_COORDINATES];
+    smartjoint_real predicted[SMARTJOINT_CLQG_SENSORS];     /* C q, by sensor channel */
+    smartjoint_real feedback[SMARTJOINT_CLQG_JOINTS];       /* -(K - K M C) q, by joint channel */
     int started;                                         /* 0 until the first update */
     int pending;                                         /* 1 from an output phase to its update */
     unsigned int fault;                                  /* found by an update, for the next output phase */

@@ -1,0 +1,81 @@
+"""The clipped LQG's realisation (control.realisation): the bundled design's mirror symmetry
+found and used, an asymmetric design realised as it is (channels untouched), the real-Jordan
+basis the same filter, and the generated C bit-identical to the reference either way."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smartjoint.codegen import controllers
+from smartjoint.design.control import artifact
+from smartjoint.design.control.filter import clipped_lqg
+from smartjoint.design.control.realisation import Channels, realise
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return artifact.load(ROOT / "firmware" / "generated" / "controller.json")
+
+
+def _realise(a):
+    return realise(a.blocks, a.gamma0, a.gamma1, a.joint_input, a.output, a.estimator_gain, a.feedback_gain)
+
+
+def _update_terms(r) -> int:
+    """Multiply-adds of the update loops: E'·u twice, γ, M', Φ', C' (ones count), K' − K'M'C'."""
+    total = 0
+    for g in r.groups:
+        per = 2 * len(g.joints) + 4 + 2 * len(g.sensors) + 4 + sum(len(c) for _, c in g.outputs)
+        total += (g.stop - g.start) * (per + 2 * len(g.feedback_joints))
+    return total
+
+
+def test_the_bundled_design_is_realised_in_mirror_channels(reference):
+    """Joints A1/A2 and the two tip sensors pair; the coordinates split into an odd group (the
+    joints' difference, the sensors' sum) and an even one; the update needs far fewer terms."""
+    r = _realise(reference)
+    assert r.joints == Channels((0, 0, 2), (1, 1, -1), (1, -1, 1))
+    assert r.sensors == Channels((0, 0), (1, 1), (1, -1))
+    assert [(g.name, g.stop - g.start, g.joints, g.sensors) for g in r.groups] == [
+        ("odd", 3, (1,), (0,)),
+        ("even", 9, (0, 2), (1,)),
+    ]
+    assert r.rotation
+    n, joints, sensors = len(reference.blocks), len(reference.joint_names), len(reference.sensor_names)
+    dense = n * (4 * joints + 8 + 3 * sensors)  # the design's own: E twice, γ, Φ, M, one C term a sensor, K
+    assert _update_terms(r) <= 0.7 * dense, (_update_terms(r), dense)
+
+
+def test_channels_transform_back_exactly():
+    """Tᵀ·D⁻¹·T = I: the forces summed back from the channels are the joints' forces."""
+    c = Channels((0, 0, 2), (1, 1, -1), (1, -1, 1))
+    t = c.matrix()
+    np.testing.assert_array_equal(t.T @ np.diag(1 / c.weights()) @ t, np.eye(3))
+    g = np.array([0.5, -0.25, 2.0])
+    np.testing.assert_array_equal(c.back(g), t.T @ g)
+    np.testing.assert_array_equal(c.forward(np.array([1.0, 3.0, 5.0])), [4.0, -2.0, 5.0])
+
+
+@pytest.mark.numerics
+def test_an_asymmetric_design_keeps_its_channels_and_its_c_is_the_reference(reference):
+    """E of joint A2 and C of the second sensor moved by 0.1 %: no pair, one group of every channel
+    (only the real-Jordan basis), and the double build of it equals the reference bit for bit."""
+    from test_codegen import _check_pair, _sequence
+
+    e = np.asarray(reference.joint_input, dtype=float).copy()
+    e[:, 1] *= 1.001
+    c = np.asarray(reference.output, dtype=float).copy()
+    c[1] *= 1.001
+    changed = dataclasses.replace(reference, joint_input=e.tolist(), output=c.tolist())
+    r = _realise(changed)
+    assert r.joints.identity and r.sensors.identity and len(r.groups) == 1
+    assert r.rotation and np.all(r.gamma1[:, 0] == 1.0)
+    compiled = controllers.compile_controllers(changed, "double")
+    assert "alpha" in compiled.files["smartjoint_clqg.c"]
+    _check_pair(clipped_lqg(changed), compiled.law("clqg"), _sequence(changed, count=800), exact=True)
