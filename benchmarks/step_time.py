@@ -42,7 +42,7 @@ from machine import artifact_header, cpu_model, write_json  # benchmarks/machine
 from smartjoint.codegen import build, controllers, generate, output
 from smartjoint.common import law_registry
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.control.filter import output_terms
+from smartjoint.design.control.ordered_sums import output_terms
 from smartjoint.design.plant.interface import Measurements
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.control.filter import FEEDBACK_LIMIT, HoldProducts, step_products
+from smartjoint.design.control.filter import FEEDBACK_LIMIT
+from smartjoint.design.control.hold_products import HoldProducts, step_products
 from smartjoint.design.control.realisation import Realisation, realise
 
 

@@ -17,7 +17,7 @@ from smartjoint.common import package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.artifact_schema import LAW_SETTINGS
-from smartjoint.design.control.filter import hold_products
+from smartjoint.design.control.hold_products import hold_products
 from smartjoint.design.control.realisation import realise
 
 REALS = ("float", "double")

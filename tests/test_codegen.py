@@ -21,8 +21,9 @@ from smartjoint.common import law_registry
 from smartjoint.design import plant
 from smartjoint.design.control import artifact, study
 from smartjoint.design.control import laws as control
-from smartjoint.design.control.filter import clipped_lqg, output_terms
+from smartjoint.design.control.filter import clipped_lqg
 from smartjoint.design.control.laws import siso_law
+from smartjoint.design.control.ordered_sums import output_terms
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated"

@@ -9,7 +9,7 @@ controllers and their design; ``artifact``, ``artifact_building``, ``runs`` and 
 imported as modules (they import these, so this package does not import them).
 """
 
-from smartjoint.design.control.filter import ActiveLqg, ClippedLqg, ordered_product
+from smartjoint.design.control.filter import ActiveLqg, ClippedLqg
 from smartjoint.design.control.laws import (
     STATUS_ESTIMATE_RESET,
     STATUS_INPUT_IMPLAUSIBLE,
@@ -20,6 +20,7 @@ from smartjoint.design.control.laws import (
     input_status,
 )
 from smartjoint.design.control.lqg import LqgDesign, check_sample_time, design_lqg
+from smartjoint.design.control.ordered_sums import ordered_product
 
 __all__ = [
     "STATUS_ESTIMATE_RESET",

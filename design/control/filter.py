@@ -13,12 +13,12 @@ The gains come from ``lqg.design_lqg``.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import lqg_design
+from smartjoint.design.control.hold_products import step_products
 from smartjoint.design.control.laws import (
     STATUS_ESTIMATE_RESET,
     STATUS_OK,
@@ -32,6 +32,7 @@ from smartjoint.design.control.laws import (
     safe_state_options,
 )
 from smartjoint.design.control.lqg import LqgDesign
+from smartjoint.design.control.ordered_sums import multiply_add, ordered_product
 from smartjoint.design.control.realisation import realise
 from smartjoint.design.plant.interface import Measurements
 
@@ -143,159 +144,6 @@ class _Lqg:
 # |(K − KM·C)·q| beyond this [N] is a diverged estimate: far beyond any force a joint can take,
 # and small enough that r plus the output phase's measurement terms stays finite in single precision.
 FEEDBACK_LIMIT = 1e30
-
-
-class HoldProducts(NamedTuple):
-    """The constant products of the two-phase filter, with Γ1·E the 2n × l matrix of rows
-    γ1[i, c]·E[i, :]: C·Γ1·E (n_y × l, the update phase's innovation), KM·CΓ1E − K·Γ1·E (l × l)
-    and K·M (l × n_y), the output phase's, and K − KM·C (l × 2n), the update phase's gain on q."""
-
-    output_hold: np.ndarray
-    feedback_hold: np.ndarray
-    feedback_estimator: np.ndarray
-    feedback_prior: np.ndarray
-
-
-def hold_products(output, feedback_gain, estimator_gain, gamma1, joint_input) -> HoldProducts:
-    """The constant products of the two-phase filter (:class:`HoldProducts`). Computed once in a
-    fixed order; the generated C holds these very numbers, so both sum them the same way.
-
-    Returns
-    -------
-    HoldProducts
-        (output_hold, feedback_hold, feedback_estimator, feedback_prior).
-    """
-    gamma1, joint_input = np.asarray(gamma1, dtype=float), np.asarray(joint_input, dtype=float)
-    hold = (gamma1[:, :, None] * joint_input[:, None, :]).reshape(-1, joint_input.shape[1])
-    output, feedback_gain = np.asarray(output, dtype=float), np.asarray(feedback_gain, dtype=float)
-    feedback_estimator = _ordered_matrix_product(feedback_gain, np.asarray(estimator_gain, dtype=float))
-    output_hold = _ordered_matrix_product(output, hold)
-    return HoldProducts(
-        output_hold,
-        _ordered_matrix_product(feedback_estimator, output_hold) - _ordered_matrix_product(feedback_gain, hold),
-        feedback_estimator,
-        feedback_gain - _ordered_matrix_product(feedback_estimator, output),
-    )
-
-
-def step_products(realisation) -> HoldProducts:
-    """The products the two phases use (:func:`hold_products` of the realisation's matrices) with
-    the gains negated — −(KM·CΓ1E − KΓ1E), −KM and −(K − KM·C) — so that the output phase's sums
-    are u_d itself: x + (−a)·b = −(−x + a·b) exactly in IEEE arithmetic, so the forces are the
-    same numbers, one negation per joint fewer."""
-    r = realisation
-    p = hold_products(r.output, r.feedback_gain, r.estimator_gain, r.gamma1, r.joint_input)
-    return HoldProducts(p.output_hold, -p.feedback_hold, -p.feedback_estimator, -p.feedback_prior)
-
-
-def _ordered_matrix_product(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """left @ right column by column with :func:`ordered_product`: these numbers become literals
-    of the generated C, which must not depend on the BLAS kernels of the machine that generates it."""
-    return np.column_stack([ordered_product(left, right[:, j]) for j in range(right.shape[1])])
-
-
-def output_terms(output: np.ndarray) -> np.ndarray:
-    """The terms of C·x the generated C computes: column 2i + q of sensor row r unless that
-    sensor reads component q (velocity q = 0, displacement q = 1) of no coordinate, i.e. unless
-    C[r, q::2] is all exact zeros (a displacement sensor reads no velocity). A zero inside a
-    partly used component stays a term, so the loops keep their fixed stride.
-
-    Parameters
-    ----------
-    output : ndarray, shape (n_y, 2n)
-
-    Returns
-    -------
-    ndarray of bool, shape (n_y, 2n)
-    """
-    used = np.zeros(output.shape, dtype=bool)
-    for component in (0, 1):
-        used[:, component::2] = np.any(output[:, component::2] != 0.0, axis=1)[:, None]
-    return used
-
-
-def ordered_product(matrix: np.ndarray, vector: np.ndarray, terms: np.ndarray | None = None) -> np.ndarray:
-    """matrix @ vector summed strictly left to right over the columns, starting with the first
-    product — the order of the generated C, so the double build reproduces this reference bit
-    for bit (BLAS sums in blocks and with FMA, which differs in the last bits).
-
-    Parameters
-    ----------
-    matrix : ndarray, shape (m, n)
-    vector : ndarray, shape (n,)
-    terms : ndarray of bool, shape (m, n), optional
-        Only these products are summed (structural zeros skipped at generation time, which
-        changes x·0 = NaN for x = ±Inf/NaN); a row without a term is 0.
-
-    Returns
-    -------
-    ndarray, shape (m,)
-
-    Examples
-    --------
-    >>> ordered_product(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([1.0, 1.0]))
-    array([3., 7.])
-    """
-    if terms is not None:
-        return np.array([_row_sum(row, vector, used) for row, used in zip(matrix, terms)])
-    total = matrix[:, 0] * vector[0]
-    for k in range(1, matrix.shape[1]):
-        total = total + matrix[:, k] * vector[k]
-    return total
-
-
-def multiply_add(
-    start: np.ndarray, matrix: np.ndarray, vector: np.ndarray, terms: np.ndarray | None = None
-) -> np.ndarray:
-    """start + matrix @ vector as a chain of multiply-adds, x ← x + a·b column by column from
-    ``start``: the generated C's ``MULTIPLY_ADD`` in its double build (two roundings each, so the
-    two agree bit for bit; its float build fuses each into one rounding, ``fmaf``).
-
-    Parameters
-    ----------
-    start : ndarray, shape (m,)
-    matrix : ndarray, shape (m, n)
-    vector : ndarray, shape (n,)
-    terms : ndarray of bool, shape (m, n), optional
-        Only these products are added (structural zeros skipped, as in :func:`ordered_product`).
-
-    Returns
-    -------
-    ndarray, shape (m,)
-
-    Examples
-    --------
-    >>> multiply_add(np.array([1.0, 0.0]), np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([1.0, 1.0]))
-    array([4., 7.])
-    """
-    if matrix.shape[1] > matrix.shape[0]:  # a few long rows: one scalar chain each (the same IEEE doubles)
-        used = np.ones(matrix.shape, dtype=bool) if terms is None else terms
-        return np.array([_chain(float(x), row, vector, keep) for x, row, keep in zip(start, matrix, used)])
-    total = np.array(start, dtype=float)
-    for k in range(matrix.shape[1]):
-        if terms is None:
-            total = total + matrix[:, k] * vector[k]
-        else:
-            total = np.where(terms[:, k], total + matrix[:, k] * vector[k], total)
-    return total
-
-
-def _chain(x: float, row: np.ndarray, vector: np.ndarray, used: np.ndarray) -> float:
-    """x + row·vector over the used terms, left to right, in Python floats (IEEE doubles)."""
-    for a, b, keep in zip(row.tolist(), vector.tolist(), used.tolist()):
-        if keep:
-            x = x + a * b
-    return x
-
-
-def _row_sum(row: np.ndarray, vector: np.ndarray, used: np.ndarray) -> float:
-    columns = np.flatnonzero(used)
-    if columns.size == 0:
-        return 0.0
-    total = row[columns[0]] * vector[columns[0]]
-    for k in columns[1:]:
-        total = total + row[k] * vector[k]
-    return total
 
 
 class ClippedLqg(_Lqg):
@@ -498,13 +346,7 @@ __all__ = [
     "FEEDBACK_LIMIT",
     "ActiveLqg",
     "ClippedLqg",
-    "HoldProducts",
     "active_lqg",
     "clipped_lqg",
     "controller",
-    "hold_products",
-    "step_products",
-    "multiply_add",
-    "ordered_product",
-    "output_terms",
 ]

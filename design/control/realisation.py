@@ -277,26 +277,11 @@ def real_jordan(realisation: Realisation) -> Realisation:
     Φ_i = [[a, b], [c, d]], α = (a + d)/2, β = √(−((a − d)²/4 + b·c)).
     """
     r = realisation
-    a, b, c, d = r.blocks[:, 0, 0], r.blocks[:, 0, 1], r.blocks[:, 1, 0], r.blocks[:, 1, 1]
-    alpha = (a + d) / 2.0
-    discriminant = ((a - d) / 2.0) ** 2 + b * c
-    if np.any(discriminant >= 0.0) or np.any(c == 0.0):
+    basis = _jordan_basis(r)
+    if basis is None:
         return r
-    beta = np.sqrt(-discriminant)
+    alpha, beta, t00, t01, t11 = basis
     n = r.blocks.shape[0]
-    # Scale 1 first; then t11 such that the group's first displacement term of C' is 1.
-    t00, t01, t11 = beta / c, (a - alpha) / c, np.ones(n)
-    output = r.output.copy()
-    for g in r.groups:
-        terms = [(s, q) for s, components in g.outputs for q in components if q == 1]
-        if not terms:
-            continue
-        sensor = terms[0][0]
-        rows = range(g.start, g.stop)
-        value = np.array([output[sensor, 2 * i] * t01[i] + output[sensor, 2 * i + 1] for i in rows])
-        if np.all(value != 0.0) and np.all(np.isfinite(1.0 / value)):
-            t11[g.start : g.stop] = 1.0 / value
-    t00, t01 = t00 * t11, t01 * t11
     blocks = np.empty_like(r.blocks)
     blocks[:, 0, 0], blocks[:, 0, 1], blocks[:, 1, 0], blocks[:, 1, 1] = alpha, -beta, beta, alpha
 
@@ -320,13 +305,7 @@ def real_jordan(realisation: Realisation) -> Realisation:
         terms = [(s, q) for s, components in g.outputs for q in components if q == 1]
         if terms and np.all(t11[g.start : g.stop] != 1.0):
             output[terms[0][0], 2 * g.start + 1 : 2 * g.stop : 2] = 1.0
-    joint_input = r.joint_input.copy()
-    scale = gamma1[:, 0]
-    usable = (scale != 0.0) & np.isfinite(1.0 / np.where(scale != 0.0, scale, 1.0))
-    joint_input[usable] = joint_input[usable] * scale[usable, None]
-    gamma0[usable] = gamma0[usable] / scale[usable, None]
-    gamma1[usable] = gamma1[usable] / scale[usable, None]
-    gamma1[usable, 0] = 1.0
+    joint_input, gamma0, gamma1 = _unit_hold(r.joint_input, gamma0, gamma1)
     groups = tuple(
         Group(
             g.name,
@@ -356,6 +335,42 @@ def real_jordan(realisation: Realisation) -> Realisation:
         True,
         basis,
     )
+
+
+def _jordan_basis(r: Realisation):
+    """(α, β, t00, t01, t11) per coordinate (``real_jordan``), or None when a block has real
+    eigenvalues; t11 makes the group's first displacement term of C' one where it can."""
+    a, b, c, d = r.blocks[:, 0, 0], r.blocks[:, 0, 1], r.blocks[:, 1, 0], r.blocks[:, 1, 1]
+    alpha = (a + d) / 2.0
+    discriminant = ((a - d) / 2.0) ** 2 + b * c
+    if np.any(discriminant >= 0.0) or np.any(c == 0.0):
+        return None
+    beta = np.sqrt(-discriminant)
+    t00, t01, t11 = beta / c, (a - alpha) / c, np.ones(r.blocks.shape[0])
+    for g in r.groups:
+        terms = [(s, q) for s, components in g.outputs for q in components if q == 1]
+        if not terms:
+            continue
+        sensor = terms[0][0]
+        value = np.array(
+            [r.output[sensor, 2 * i] * t01[i] + r.output[sensor, 2 * i + 1] for i in range(g.start, g.stop)]
+        )
+        if np.all(value != 0.0) and np.all(np.isfinite(1.0 / value)):
+            t11[g.start : g.stop] = 1.0 / value
+    return alpha, beta, t00 * t11, t01 * t11, t11
+
+
+def _unit_hold(joint_input: np.ndarray, gamma0: np.ndarray, gamma1: np.ndarray):
+    """γ ⊗ eᵢᵀ with the shared scalar moved into eᵢ so that γ1[0] is exactly 1 (where it is a
+    usable nonzero number)."""
+    joint_input = joint_input.copy()
+    scale = gamma1[:, 0]
+    usable = (scale != 0.0) & np.isfinite(1.0 / np.where(scale != 0.0, scale, 1.0))
+    joint_input[usable] = joint_input[usable] * scale[usable, None]
+    gamma0[usable] = gamma0[usable] / scale[usable, None]
+    gamma1[usable] = gamma1[usable] / scale[usable, None]
+    gamma1[usable, 0] = 1.0
+    return joint_input, gamma0, gamma1
 
 
 def _as_designed(blocks, gamma0, gamma1, e, c, m, k) -> Realisation:
@@ -432,4 +447,12 @@ def _group_names(kinds: list, joints: Channels) -> list[str]:
     return parity if sorted(parity) == ["even", "odd"] else [f"group{g}" for g in range(len(kinds))]
 
 
-__all__ = ["MAX_GROUPS", "SYMMETRY_TOLERANCE", "Channels", "Group", "Realisation", "real_jordan", "realise"]
+__all__ = [
+    "MAX_GROUPS",
+    "SYMMETRY_TOLERANCE",
+    "Channels",
+    "Group",
+    "Realisation",
+    "real_jordan",
+    "realise",
+]
