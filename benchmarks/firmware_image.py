@@ -50,16 +50,6 @@ MAIN = """/* Minimal runtime of the whole-image benchmark (benchmarks/firmware_i
 static {prefix}_can_state state;
 static uint8_t frame[64];
 
-static uint32_t get_u32(void)
-{{
-    uint32_t value = 0u;
-    unsigned int k;
-    for (k = 0u; k < 4u; ++k) {{
-        value |= (uint32_t)sj_uart_getc() << (8u * k);
-    }}
-    return value;
-}}
-
 int main(void)
 {{
     uint32_t now = 0u;
@@ -68,14 +58,12 @@ int main(void)
     (void){prefix}_can_init(&state, {PREFIX}_CAN_LAW_CLQG);
     for (;;) {{
         unsigned int k;
-        id = get_u32();
+        id = sj_uart_get_u32();
         length = (uint8_t)sj_uart_getc();
         if (length == 0u) {{
             (void){prefix}_can_step(&state, now);
             while ({prefix}_can_tx(&state, &id, frame, &length) != 0) {{
-                for (k = 0u; k < 4u; ++k) {{
-                    sj_uart_putc((char)(id >> (8u * k)));
-                }}
+                sj_uart_put_u32(id);
                 sj_uart_putc((char)length);
                 for (k = 0u; k < length; ++k) {{
                     sj_uart_putc((char)frame[k]);

@@ -151,11 +151,7 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
 
     low, high = np.asarray(artifact.normal_force_min, dtype=float), np.asarray(artifact.normal_force_max, dtype=float)
     context = {
-        "banner": banner,
-        "prefix": prefix,
-        "PREFIX": prefix.upper(),
-        "name": name,
-        "NAME": name.upper(),
+        **rendering.naming(banner, prefix, name),
         "title": LAWS[law],
         "sample_time": rendering.literal(artifact.sample_time, "double"),
         "start_normal_force_min": row(low, "double"),

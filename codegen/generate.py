@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from smartjoint.codegen import build, build_files, can_layer, output, rendering
+from smartjoint.codegen import build, build_files, can_layer, joint_nodes, output, rendering
 from smartjoint.common import law_registry
 from smartjoint.design.control import artifact as artifacts
 
@@ -156,6 +156,7 @@ def generate(
     files = render(artifact, real, prefix)
     if can:
         files.update(can_layer.render_can(artifact, prefix, real=real, **can_options))
+        files.update(joint_nodes.render_nodes(artifact, prefix, real))
     compiled = {}
 
     def compile_all(staging: Path) -> None:

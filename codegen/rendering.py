@@ -104,6 +104,12 @@ def banner(digest: str, real: str | None = None, part: str = "codegen") -> str:
     )
 
 
+def naming(banner: str, prefix: str, name: str) -> dict:
+    """What every template of a file set names itself by: the banner, the prefix and the file's
+    stem, each also in upper case for the macros."""
+    return {"banner": banner, "prefix": prefix, "PREFIX": prefix.upper(), "name": name, "NAME": name.upper()}
+
+
 def literal(value: float, real: str) -> str:
     """A C constant of type ``real`` that parses back to the value rounded to that type.
 

@@ -119,6 +119,9 @@ class Law:
     constant : bool
         The law is itself a constant normal force (a fall-back, not a controller): the paper's
         claims against the passive settings and the best constant F_N are not made for it.
+    node : bool
+        The law the joint nodes run on their own joint in local mode (``design.network.joint_node``:
+        the paper's first concept, Section 5.1); it reads only its own joint's measurements.
     codegen : str
         ``module:function`` giving what its templates ``<name>.h.j2``/``<name>.c.j2`` see beyond
         the common context, ``function(artifact, lit, row) -> dict`` (:meth:`codegen_context`).
@@ -147,6 +150,7 @@ class Law:
     phased: bool = False
     fault_matrix: bool = False
     constant: bool = False
+    node: bool = False
 
     def python_reference(self, artifact: Any) -> Any:
         """The law's Python reference controller, built from a controller artefact alone.
@@ -208,6 +212,7 @@ LAWS: dict[str, Law] = {
             colour="tab:blue",
             codegen="smartjoint.codegen.law_contexts:siso",
             reference="smartjoint.design.control.laws:siso_law",
+            node=True,
         ),
         Law(
             name="clqg",
@@ -315,6 +320,11 @@ def fault_matrix_law() -> Law:
     return next(entry for entry in LAWS.values() if entry.fault_matrix)
 
 
+def node_law() -> Law:
+    """The law the joint nodes run locally (``Law.node``)."""
+    return next(entry for entry in LAWS.values() if entry.node)
+
+
 def by_mode() -> dict[int, str]:
     """CONTROLLER_STATUS.mode's values and their names: INIT, every law's, SAFE."""
     modes = {MODE_INIT: "INIT", MODE_SAFE: "SAFE"}
@@ -334,6 +344,7 @@ __all__ = [
     "Law",
     "Setting",
     "by_mode",
+    "node_law",
     "fault_matrix_law",
     "law",
 ]

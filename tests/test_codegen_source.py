@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from smartjoint.codegen import generate, rendering
+from smartjoint.codegen import generate, joint_nodes, rendering
 from smartjoint.common import law_registry
 from smartjoint.design import load_design
 from smartjoint.design.control import artifact
@@ -58,7 +58,11 @@ def test_committed_reference_firmware_is_what_the_generator_emits(reference):
     )
     from smartjoint.codegen import can_layer
 
-    files = {**generate.render(reference, "float"), **can_layer.render_can(reference)}
+    files = {
+        **generate.render(reference, "float"),
+        **can_layer.render_can(reference),
+        **joint_nodes.render_nodes(reference),
+    }
     committed = {p.name for p in REFERENCE.iterdir()} - {"controller.json"}
     assert committed == set(files)
     for name, text in files.items():

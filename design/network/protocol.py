@@ -434,6 +434,15 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
     return db
 
 
+# The builders the local mode's supervision bus shares (design.network.joint_node).
+cycle_ms = _cycle_ms
+controller_status_message = _controller_status_message
+e2e_signals = _e2e
+scaled = _scaled
+identifier = _identifier
+fd_specifics = _fd_specifics
+
+
 def dbc_text(db: can.Database) -> str:
     """The DBC text of a database (what ``smartjoint codegen`` writes as ``bus.dbc``).
 

@@ -15,6 +15,8 @@ int sj_uart_getc(void); /* the next received byte, waiting for it */
 void sj_uart_puts(const char *text);
 void sj_uart_hex32(uint32_t value); /* eight lower-case hex digits */
 void sj_uart_dec(uint32_t value);
+uint32_t sj_uart_get_u32(void);      /* four received bytes, little-endian */
+void sj_uart_put_u32(uint32_t value); /* four bytes, little-endian */
 
 /* SysTick on the processor clock (the board's 25 MHz SYSCLK), counting down from 2^24 - 1. With
  * QEMU's `-icount shift=0` one instruction is 1 ns of virtual time, so one tick is

@@ -85,6 +85,24 @@ void sj_uart_dec(uint32_t value)
     }
 }
 
+uint32_t sj_uart_get_u32(void)
+{
+    uint32_t value = 0u;
+    unsigned int k;
+    for (k = 0u; k < 4u; ++k) {
+        value |= (uint32_t)sj_uart_getc() << (8u * k);
+    }
+    return value;
+}
+
+void sj_uart_put_u32(uint32_t value)
+{
+    unsigned int k;
+    for (k = 0u; k < 4u; ++k) {
+        sj_uart_putc((char)(value >> (8u * k)));
+    }
+}
+
 void sj_ticks_start(void)
 {
     SYST_CSR = 0u;

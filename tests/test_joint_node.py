@@ -1,0 +1,173 @@
+"""The joint node of local mode (issue 33): the generated node firmware is its Python reference
+bit for bit (double build: commands, fault bits, status frames), runs the central SISO law's
+numbers for its joint, follows the policy of docs/safety.md on heartbeat loss, SAFE and bad
+inputs, and the supervision bus of 12 joints stays within 15 % of CAN FD 1/5 Mbit/s."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from smartjoint.bench import busload, e2e, node_target, target
+from smartjoint.bench.joint_node import CompiledNode, JointNode, compiled_nodes
+from smartjoint.common import law_registry
+from smartjoint.design.control import artifact
+from smartjoint.design.control.laws import siso_law
+from smartjoint.design.network import joint_node, protocol
+from smartjoint.design.plant import Measurements
+
+ROOT = Path(__file__).resolve().parents[1]
+LAW = joint_node.NODE_LAW.mode
+SAFE = law_registry.MODE_SAFE
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return artifact.load(ROOT / "firmware" / "generated" / "controller.json")
+
+
+@pytest.fixture(scope="module")
+def module(reference):
+    return compiled_nodes(reference, "double")
+
+
+def _heartbeat(mode: int, counter: int) -> bytes:
+    payload = bytearray(joint_node.HEARTBEAT_LENGTH)
+    payload[2] = mode
+    return bytes(e2e.protect(joint_node.HEARTBEAT_ID, payload, counter))
+
+
+def _script(count: int, seed: int, faults: bool):
+    """(frames, measurement) per sample: a heartbeat every 10 samples (law mode, a few SAFE, a
+    silence, a bad CRC, a repeat), joint measurements around the boundary layer, with NaN and
+    out-of-range inputs when ``faults``."""
+    rng = np.random.default_rng(seed)
+    counter, script = 0, []
+    for k in range(count):
+        frames = []
+        if k % 10 == 0 and not 400 <= k < 700:  # 300 samples of silence: the heartbeat is lost
+            mode = SAFE if 1000 <= k < 1100 else LAW
+            counter = (counter + 1) % 16
+            frame = bytearray(_heartbeat(mode, counter))
+            if faults and k in (1500, 1510):
+                frame[3] ^= 0x40  # a corrupted heartbeat
+            frames.append((joint_node.HEARTBEAT_ID, bytes(frame)))
+            if k == 1600:
+                frames.append((joint_node.HEARTBEAT_ID, bytes(frame)))  # a repeat
+        velocity, friction, applied = rng.normal(0, 1e-5), rng.normal(0, 20), rng.uniform(10, 400)
+        if faults and rng.random() < 0.01:
+            velocity = float(rng.choice([np.nan, np.inf, 5.0]))
+        if faults and rng.random() < 0.01:
+            applied = float(rng.choice([np.nan, -100.0, 1e4]))
+        script.append((frames, (velocity, friction, applied)))
+    return script
+
+
+def _run(node, script):
+    out = []
+    for frames, measured in script:
+        for frame in frames:
+            node.receive(*frame)
+        command = node.step(*measured)
+        out.append((command, node.faults, node.status, node.transmit()))
+    return out
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("joint", [0, 2])
+def test_the_node_firmware_is_its_reference_bit_for_bit(reference, module, joint):
+    """Double build against bench.joint_node over 2 000 samples with heartbeat loss, SAFE, bad
+    heartbeats and bad inputs: every command, fault byte, status byte and frame equal."""
+    script = _script(2000, seed=joint + 5, faults=True)
+    python = _run(JointNode(joint_node.node_config(reference, joint)), script)
+    compiled = _run(CompiledNode(module, reference, joint), script)
+    for k, (p, c) in enumerate(zip(python, compiled)):
+        assert np.float64(p[0]).tobytes() == np.float64(c[0]).tobytes(), (k, p, c)
+        assert p[1:] == c[1:], (k, p, c)
+    faults = {f for _, f, _, _ in python}
+    assert {1, 2, 4, 8} <= {bit for f in faults for bit in (1, 2, 4, 8) if f & bit}, faults
+
+
+@pytest.mark.numerics
+def test_local_nodes_run_the_central_siso_law_numbers(reference, module):
+    """Fault-free, every node in the law's mode: each joint's command is the central SISO law's
+    for that joint, bit for bit (MIL: the same law, the same numbers)."""
+    central = siso_law(reference)
+    nodes = [CompiledNode(module, reference, j) for j in range(len(reference.joint_names))]
+    for node in nodes:
+        node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, 1))
+    rng = np.random.default_rng(11)
+    l = len(nodes)
+    for k in range(3000):
+        m = Measurements(k * 1e-3, np.zeros(2), rng.normal(0, 1e-5, l), rng.normal(0, 20, l), rng.uniform(10, 400, l))
+        expected = central.step(m)
+        if k % 10 == 0:
+            for node in nodes:
+                node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, (k // 10 + 2) % 16))
+        local = [n.step(m.sliding_velocity[j], m.friction_force[j], m.normal_force[j]) for j, n in enumerate(nodes)]
+        assert np.asarray(local).tobytes() == np.asarray(expected).tobytes(), k
+    assert central.status == 0
+
+
+def test_the_policy_on_heartbeat_loss_safe_and_bad_inputs(reference, module):
+    """Before a heartbeat: safe. With the law's mode: the law. Heartbeat lost: the law goes on,
+    with the heartbeat_lost bit. SAFE: the safe force. A bad input: safe at once and for
+    recovery_cycles usable samples after it."""
+    config = joint_node.node_config(reference, 1)
+    node = CompiledNode(module, reference, 1)
+    safe = config.safe_normal_force
+    assert node.step(1e-4, 30.0, 200.0) == safe and node.faults & 8  # no heartbeat yet
+    node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, 1))
+    node.step(1e-4, 30.0, 200.0)
+    assert node.step(1e-4, 30.0, 200.0) == config.normal_force_max  # μ·v/ε = 4.7: F^max
+    for _ in range(config.timeout_samples + 5):
+        command = node.step(1e-4, 30.0, 200.0)
+    assert command == config.normal_force_max and node.faults == 2  # lost, and the law runs on
+    assert node.receive(joint_node.HEARTBEAT_ID, _heartbeat(SAFE, 2))
+    assert node.step(1e-4, 30.0, 200.0) == safe and node.faults == 8
+    node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, 3))
+    assert node.step(np.nan, 30.0, 200.0) == safe and node.faults & 1
+    held = [node.step(1e-4, 30.0, 200.0) for _ in range(config.recovery_cycles + 1)]
+    assert held[:-1] == [safe] * config.recovery_cycles and held[-1] == config.normal_force_max
+    assert not node.receive(joint_node.HEARTBEAT_ID, _heartbeat(SAFE, 3))  # a repeated counter
+
+
+def test_the_status_frame_decodes_with_the_supervision_dbc(reference, module):
+    """The node's NODE_STATUS frame is what the local mode's DBC says (cantools decodes it)."""
+    db = protocol.load_dbc(protocol.dbc_text(joint_node.supervision_database(reference)))
+    node = CompiledNode(module, reference, 2)
+    node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, 7))
+    node.step(0.0, 10.0, 123.44)
+    frame_id, data = node.transmit()
+    decoded = db.decode_message(frame_id, data)
+    assert db.get_message_by_frame_id(frame_id).name == "NODE_STATUS_A3"
+    assert decoded["sync"] == 7 and decoded["applied"] == pytest.approx(123.44, abs=0.01)
+    assert decoded["command"] == pytest.approx(joint_node.node_config(reference, 2).normal_force_min, abs=0.01)
+    assert e2e.check(frame_id, data, None).ok
+
+
+@pytest.mark.parametrize("joints, limit", [(3, 0.03), (12, 0.15)])
+def test_local_mode_loads_the_bus_lightly(joints, limit):
+    """Supervision every 10 samples at 1 kHz on CAN FD 1/5 Mbit/s: 12 joints within 15 %."""
+    design = SimpleNamespace(joint_names=[f"J{k}" for k in range(joints)], sample_time=1e-3, artifact_sha256="0" * 64)
+    db = protocol.load_dbc(protocol.dbc_text(joint_node.supervision_database(design)))
+    assert len(db.messages) == joints + 1
+    assert busload.bus_load(db, 1_000_000, 5_000_000).load <= limit
+
+
+@pytest.mark.skipif(target.missing_tools() is not None, reason=f"{target.missing_tools()} (CI installs them)")
+def test_a_node_image_fits_its_target_and_computes_what_the_host_computes(reference):
+    """Joint A1's node image on QEMU mps2-an386: ≤ 4 KiB flash, ≤ 256 B RAM, ≤ 200 instructions
+    a step (issue 33), and its commands equal the host float build's bit for bit."""
+    measured = node_target.measure(reference, 0, steps=300)
+    limits = node_target.LIMITS
+    assert measured["flash"] <= limits["flash"] and measured["ram"] <= limits["ram"], measured
+    assert measured["instructions_per_step"] <= limits["instructions"], measured["instructions_per_step"]
+    host = CompiledNode(compiled_nodes(reference, "float"), reference, 0)
+    host.receive(joint_node.HEARTBEAT_ID, node_target.heartbeat())
+    commands = np.array([host.step(*map(float, row)) for row in measured["inputs"]], dtype=np.float32)
+    assert commands.tobytes() == measured["commands"].tobytes()
+    assert len(set(commands.tolist())) > 100  # commands between the limits, not only the clip's ends
