@@ -86,6 +86,40 @@ class FrameWatch:
         return None
 
 
+def amplifier_options(artifact, amplifier: dict | None = None, local: bool = False) -> list[dict]:
+    """Each joint's ``AmplifierModel`` arguments: the artefact's piezo calibration, limits and
+    timeouts, and the bench's ``amplifier`` options (``time_constant``, ``slew_rate``,
+    ``temperature``, ``voltage_max``); ``local``: driven by its joint node (local mode).
+
+    Raises
+    ------
+    ModelError
+        An option the model does not have.
+    """
+    options = dict(amplifier or {})
+    unknown = sorted(set(options) - {"time_constant", "slew_rate", "temperature", "voltage_max"})
+    if unknown:
+        raise ModelError(
+            f"amplifier option {unknown[0]!r} — allowed: time_constant, slew_rate, temperature, voltage_max"
+        )
+    a = artifact
+    return [
+        dict(
+            force_per_volt=a.piezo_force_per_volt,
+            preload=a.piezo_preload,
+            capacitance=a.piezo_capacitance,
+            safe_normal_force=float(a.safe_normal_force[j]),
+            normal_force_min=float(a.normal_force_min[j]),
+            normal_force_max=float(a.normal_force_max[j]),
+            timeout_cycles=a.timeout_cycles,
+            recovery_cycles=a.recovery_cycles,
+            local=local,
+            **options,
+        )
+        for j in range(len(a.joint_names))
+    ]
+
+
 @dataclass
 class AmplifierModel:
     force_per_volt: float  # k [N/V]
@@ -103,6 +137,7 @@ class AmplifierModel:
     setpoint_tolerance: float = 0.5  # [V] around the plausible setpoint range
     fault: str | None = None
     setpoints_received: int = 0
+    local: bool = False  # driven by its joint node over a local link (``drive``), no frame watchdog
     voltage: float = field(init=False)
     setpoint: float = field(init=False)
 
@@ -147,6 +182,18 @@ class AmplifierModel:
             self.setpoint = voltage
             self.setpoints_received += 1
 
+    def drive(self, normal_force: float) -> None:
+        """Local mode: the joint node's command over its local link. No frame and no frame
+        watchdog (the node has its own); an implausible command trips the amplifier as an
+        implausible setpoint frame would."""
+        voltage = (normal_force - self.preload) / self.force_per_volt
+        low = self.volts(self.normal_force_min) - self.setpoint_tolerance
+        high = self.volts(self.normal_force_max) + self.setpoint_tolerance
+        self.implausible = not low <= voltage <= high  # NaN too
+        if not self.implausible:
+            self.setpoint = min(max(voltage, 0.0), self.voltage_max)
+            self.setpoints_received += 1
+
     def receive_heartbeat(self, frame_id: int, data: bytes, length: int, decode) -> None:
         """A CONTROLLER_STATUS frame; ``decode(data)`` gives its mode."""
         if self.listening and self.heartbeat_watch.receive(frame_id, data, length):
@@ -155,11 +202,12 @@ class AmplifierModel:
     def _watchdog(self) -> None:
         self.waiting += not self.started  # power-up cycles without a valid command
         reasons = []
-        for name, watch in (("setpoint", self.setpoint_watch), ("heartbeat", self.heartbeat_watch)):
+        watches = () if self.local else (("setpoint", self.setpoint_watch), ("heartbeat", self.heartbeat_watch))
+        for name, watch in watches:
             reason = watch.tick()
             if reason:
                 reasons.append(f"{name} {reason}")
-        if not reasons:
+        if not reasons and not self.local:
             # The controller stamps a setpoint and its heartbeat with the same cycle counter:
             # one kept back behind the other beyond the latency bound is late.
             lag = (self.setpoint_watch.counter - self.heartbeat_watch.counter + 8) % e2e.COUNTER_MODULO - 8

@@ -13,6 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from smartjoint.bench import cosimulation, firmware, pil
+from smartjoint.bench.local_loop import LocalLoop, LocalRecord
 from smartjoint.bench.loop import SilLoop, SilRecord
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
@@ -52,6 +53,40 @@ class CanLoop:
             loop.close()
         self.record = loop.record
         return run, int(sum(bool(flag) for flag in loop.record.safe))
+
+    def run_passive(self, s: StudySetup, name: str, normal_forces) -> Run:
+        return run_passive(s, name, normal_forces)
+
+
+class LocalNodesLoop:
+    """Local mode (``bench.local_loop``): the node law on one generated joint node per joint,
+    each driving its own amplifier model, a supervisor's heartbeat on the bus; the study's plant
+    around them. Only the law the nodes run (``law_registry.node_law``) closes this loop.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The nodes' design.
+    real : str
+        The nodes' scalar type ("float", the target's, or "double").
+    """
+
+    def __init__(self, artifact, real: str = "float"):
+        self.artifact, self.real = artifact, real
+        self.record: LocalRecord | None = None
+
+    def run(self, s: StudySetup, law: str) -> tuple[Run, int]:
+        entry, node = law_registry.law(law), law_registry.node_law()
+        if entry.name != node.name:
+            raise ModelError(f"law: {entry.name!r} — the joint nodes run {node.name!r} only (local mode)")
+        loop = LocalLoop(self.artifact, self.real, channel=f"smartjoint-local-{id(self)}")
+        try:
+            run = run_semi_active(s, entry.display, loop)
+        finally:
+            loop.close()
+        self.record = loop.record
+        safe = [any(f & 0b1101 for f in faults) for faults in loop.record.faults]  # input, recovering, safe
+        return run, int(sum(safe))
 
     def run_passive(self, s: StudySetup, name: str, normal_forces) -> Run:
         return run_passive(s, name, normal_forces)

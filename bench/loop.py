@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from smartjoint.bench import busload, e2e
-from smartjoint.bench.amplifier import AmplifierModel
+from smartjoint.bench.amplifier import AmplifierModel, amplifier_options
 from smartjoint.bench.faults import Fault, check_faults
 from smartjoint.common.errors import ModelError
 from smartjoint.design.plant.interface import Measurements
@@ -129,26 +129,7 @@ class SilLoop:
         check_faults(faults, names, [j for j in a.joint_names], signals)
         self.faults = list(faults)
         self.interface, self.channel, self.log_path = interface, channel, log_path
-        options = dict(amplifier or {})
-        unknown = sorted(set(options) - {"time_constant", "slew_rate", "temperature", "voltage_max"})
-        if unknown:
-            raise ModelError(
-                f"amplifier option {unknown[0]!r} — allowed: time_constant, slew_rate, temperature, voltage_max"
-            )
-        self.amplifier_options = [
-            dict(
-                force_per_volt=a.piezo_force_per_volt,
-                preload=a.piezo_preload,
-                capacitance=a.piezo_capacitance,
-                safe_normal_force=float(a.safe_normal_force[j]),
-                normal_force_min=float(a.normal_force_min[j]),
-                normal_force_max=float(a.normal_force_max[j]),
-                timeout_cycles=a.timeout_cycles,
-                recovery_cycles=a.recovery_cycles,
-                **options,
-            )
-            for j in range(len(self.joints))
-        ]
+        self.amplifier_options = amplifier_options(a, amplifier)
         self.frames = {m.name: m for m in self.db.messages}
         self.buses: list = []
         self.writer: Any = None  # a python-can writer while a log is kept

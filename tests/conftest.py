@@ -207,6 +207,20 @@ def quiet_joint_frame(message, counter: int) -> bytearray:
     return e2e.protect(message.frame_id, bytearray(message.encode(signals)), counter)
 
 
+def small_study():
+    """The small truss's study over 0.2 s and its artefact (ε = 3e-4 m/s): (setup, artefact)."""
+    from smartjoint.design.control import ensemble
+    from smartjoint.design.control.runs import setup
+    from smartjoint.design.control.study import design_model, lqg_for
+    from smartjoint.design.structure.spec import parse_design
+
+    d = small_truss()
+    d["control"] = {"modes": 4, "considered_modes": 10, "study_duration": 0.2, "siso_boundary_layer": 3e-4}
+    design = parse_design(d)
+    model = design_model(design, lambda line: None)
+    return setup(design, model), ensemble.point_artifact(design, model, lqg_for(design, model), {})
+
+
 def plausible_measurements(a, count: int, seed: int, sensor: float, slip: float, friction: float) -> list:
     """``count`` samples of measurements well inside every range of artefact ``a``: sensors, sliding
     velocities and friction forces normal with these standard deviations, F_N uniform in 10…400 N."""

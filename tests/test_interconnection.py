@@ -7,28 +7,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import small_truss
+from conftest import small_study
 
 from smartjoint.bench.interconnection import CanLoop, FmuLoop
 from smartjoint.bench.sil import perturbed
 from smartjoint.codegen.closed_loop import CompiledLoop
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
-from smartjoint.design.control import ensemble
 from smartjoint.design.control.interconnection import ClosedLoop, PythonLoop
-from smartjoint.design.control.runs import run_semi_active, setup
-from smartjoint.design.control.study import design_model, lqg_for
-from smartjoint.design.structure.spec import parse_design
+from smartjoint.design.control.runs import run_semi_active
 
 
 @pytest.fixture(scope="module")
 def study():
     """The small truss's study over 0.2 s and its artefact (ε = 3e-4 m/s)."""
-    d = small_truss()
-    d["control"] = {"modes": 4, "considered_modes": 10, "study_duration": 0.2, "siso_boundary_layer": 3e-4}
-    design = parse_design(d)
-    model = design_model(design, lambda line: None)
-    return setup(design, model), ensemble.point_artifact(design, model, lqg_for(design, model), {})
+    return small_study()
 
 
 def test_every_interconnection_is_a_closed_loop(study, tmp_path):

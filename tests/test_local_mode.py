@@ -1,0 +1,89 @@
+"""Local mode on the SIL bench (issue 33): one generated joint node per joint, each driving its
+own amplifier model, a supervisor's heartbeat on a python-can bus (``bench.local_loop``). The
+local run gives the model in the loop's SISO numbers within a band measured here, the central
+SIL run's within both bands; with the heartbeat lost the nodes go on as before; with SAFE every
+joint holds its safe force; only the node law closes the loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import small_study
+
+from smartjoint.bench.interconnection import CanLoop, LocalNodesLoop
+from smartjoint.bench.local_loop import LocalLoop
+from smartjoint.bench.sil import perturbed
+from smartjoint.common import law_registry
+from smartjoint.common.errors import ModelError
+from smartjoint.design.control.interconnection import PythonLoop
+from smartjoint.design.control.runs import run_passive, run_semi_active
+
+LAW = law_registry.node_law()
+
+
+@pytest.fixture(scope="module")
+def study():
+    """The small truss's study over 0.2 s and its artefact (ε = 3e-4 m/s)."""
+    return small_study()
+
+
+def _deviation(run, reference) -> float:
+    return abs(run.energy_measure() / reference.energy_measure() - 1.0)
+
+
+@pytest.mark.numerics
+def test_the_local_run_is_the_siso_study_within_its_band_and_the_central_runs(study):
+    """Band of a loop: twice its double build's deviation from MIL (the amplifier's force ↔
+    voltage round trip; the frames' quantisation centrally) plus ten times MIL's spread under
+    6e-8 perturbations of its commands (float rounding)."""
+    s, artifact = study
+    mil, _ = PythonLoop(artifact).run(s, LAW.name)
+    spread = max(
+        _deviation(run_semi_active(s, LAW.display, perturbed(LAW.python_reference(artifact), 6e-8, k)), mil)
+        for k in range(3)
+    )
+    runs = {}
+    for where, loop in (("local", LocalNodesLoop), ("central", CanLoop)):
+        for real in ("float", "double"):
+            run, safe = loop(artifact, real).run(s, LAW.name)
+            assert safe == 0, (where, real)
+            np.testing.assert_array_equal(run.time, mil.time)
+            runs[where, real] = run
+    bands = {w: 2.0 * _deviation(runs[w, "double"], mil) + 10.0 * spread for w in ("local", "central")}
+    assert _deviation(runs["local", "float"], mil) <= bands["local"], bands
+    assert _deviation(runs["local", "float"], runs["central", "float"]) <= bands["local"] + bands["central"], bands
+
+
+def _local_run(s, artifact, **options):
+    loop = LocalLoop(artifact, "double", channel=f"smartjoint-local-test-{len(options)}", **options)
+    try:
+        return run_semi_active(s, LAW.display, loop), loop
+    finally:
+        loop.close()
+
+
+def test_a_lost_heartbeat_leaves_the_nodes_running_their_law(study):
+    """The supervisor silent after 20 ms: every node flags heartbeat_lost and commands what it
+    commanded with the heartbeat (the same run bit for bit)."""
+    s, artifact = study
+    normal, _ = _local_run(s, artifact)
+    lost, loop = _local_run(s, artifact, heartbeat_until=0.02)
+    assert lost.energy.tobytes() == normal.energy.tobytes()
+    faults = np.array(loop.record.faults)
+    assert np.all(faults[-10:] == 2) and not np.any(faults[:20] & 2)
+
+
+def test_safe_from_the_supervisor_holds_every_joint_at_its_safe_force(study):
+    """Heartbeat mode SAFE: the run of the passive safe force (the amplifier's round trip aside)."""
+    s, artifact = study
+    safe_run, loop = _local_run(s, artifact, mode=law_registry.MODE_SAFE)
+    passive = run_passive(s, "safe", artifact.safe_normal_force)
+    assert _deviation(safe_run, passive) < 1e-9
+    assert np.all(np.array(loop.record.faults) & 8)
+
+
+def test_only_the_node_law_closes_the_local_loop(study):
+    s, artifact = study
+    other = next(law for law in law_registry.LAWS.values() if law.name != LAW.name)
+    with pytest.raises(ModelError, match=r"^law: .* — the joint nodes run"):
+        LocalNodesLoop(artifact).run(s, other.name)
