@@ -1,7 +1,7 @@
 """Software-in-the-loop bench: the compiled firmware on a python-can bus with the plant,
 sensor nodes and amplifier models around it.
 
-Owns the E2E protection and its C twin loaded (``e2e``), the bus load (``busload``), the
+Owns the E2E protection and its C twin loaded (``e2e``), the
 amplifier nodes (``amplifier``), the compiled firmware image (``firmware``), the faults the bench
 injects (``faults``), the per-sample CAN loop behind the controller interface (``loop``), the
 safe-state fault matrix (``safety``) and its table and figure (``safety_report``), the paper's
@@ -14,7 +14,6 @@ and runs the generated C); only the command line builds on it.
 """
 
 from smartjoint.bench.amplifier import AmplifierModel
-from smartjoint.bench.busload import BusLoad, bus_load
 from smartjoint.bench.faults import Fault, check_faults, parse_fault
 from smartjoint.bench.firmware import Firmware
 from smartjoint.bench.logs import LogContent
@@ -24,13 +23,11 @@ from smartjoint.bench.sil import fault_run, sil_study
 
 __all__ = [
     "AmplifierModel",
-    "BusLoad",
     "Fault",
     "Firmware",
     "LogContent",
     "SilLoop",
     "SilRecord",
-    "bus_load",
     "check_faults",
     "fault_matrix",
     "fault_run",

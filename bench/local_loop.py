@@ -24,11 +24,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from smartjoint.bench import busload, e2e
+from smartjoint.bench import e2e
 from smartjoint.bench.amplifier import AmplifierModel, amplifier_options
 from smartjoint.bench.joint_node import CompiledNode, compiled_nodes
 from smartjoint.bench.loop import open_bus
-from smartjoint.design.network import joint_node, protocol
+from smartjoint.design.network import busload, joint_node, protocol
 from smartjoint.design.plant.interface import Measurements
 
 

@@ -27,10 +27,11 @@ from typing import Any
 
 import numpy as np
 
-from smartjoint.bench import busload, e2e
+from smartjoint.bench import e2e
 from smartjoint.bench.amplifier import AmplifierModel, amplifier_options
 from smartjoint.bench.faults import Fault, check_faults
 from smartjoint.common.errors import ModelError
+from smartjoint.design.network import busload
 from smartjoint.design.plant.interface import Measurements
 
 

@@ -11,14 +11,14 @@ from typing import Any
 
 import numpy as np
 
-from smartjoint.bench import busload, firmware, safety
+from smartjoint.bench import firmware, safety
 from smartjoint.bench.faults import check_faults, demo_faults
 from smartjoint.bench.loop import SilLoop
 from smartjoint.common import figures, law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
 from smartjoint.design.control import study as closed_loop
-from smartjoint.design.network import protocol
+from smartjoint.design.network import busload, protocol
 
 
 def perturbed(controller, relative: float, seed: int):

@@ -24,10 +24,10 @@ from types import SimpleNamespace
 import numpy as np
 from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py (the script's folder is on sys.path)
 
-from smartjoint.bench import busload, node_target
+from smartjoint.bench import node_target
 from smartjoint.bench.joint_node import CompiledNode, compiled_nodes
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.network import joint_node, protocol
+from smartjoint.design.network import busload, joint_node, protocol
 
 ROOT = Path(__file__).resolve().parents[1]
 RATES = (1_000_000, 5_000_000)

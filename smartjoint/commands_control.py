@@ -55,8 +55,7 @@ def cmd_design(args) -> dict:
     lqg = closed_loop.lqg_for(design, model)
     tunings = tuning.tuned_laws(design, s, report_progress)  # open settings tuned (the SISO ε optimised)
     result = artifact_building.from_design(design, model, lqg, {name: t.settings for name, t in tunings.items()})
-    from smartjoint.bench import busload
-    from smartjoint.design.network import protocol
+    from smartjoint.design.network import busload, protocol
 
     load = busload.check(protocol.database(result), args.bitrate, args.data_bitrate or None, args.max_load)
     report_progress(
@@ -243,7 +242,7 @@ def cmd_bench(args) -> dict:
     if args.bench_command == "dbc":
         loaded = artifact.load(Path(args.artifact))
         db = protocol.database(loaded)
-        from smartjoint.bench import busload
+        from smartjoint.design.network import busload
 
         load = busload.check(db, args.bitrate, args.data_bitrate, args.max_load)
         write_atomic(Path(args.output), protocol.dbc_text(db))

@@ -36,14 +36,14 @@ import numpy as np
 
 from smartjoint import __version__
 from smartjoint import report as plots
-from smartjoint.bench import busload, safety, safety_report, sil
+from smartjoint.bench import safety, safety_report, sil
 from smartjoint.bench.faults import demo_faults
 from smartjoint.codegen import backtoback, can_layer, generate, identifiers, output
 from smartjoint.design import build_model, load_design, updated_design
 from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction.stage import friction_entries, friction_stage, place_joints
-from smartjoint.design.network import protocol
+from smartjoint.design.network import busload, plan, protocol
 from smartjoint.design.reduction import reduction_study, study_summary
 from smartjoint.design.reduction.study import DENSE_REFERENCE_DOFS, REFERENCE_MODES_PER_CONSIDERED
 from smartjoint.design.structure.solved import solved_model
@@ -315,7 +315,12 @@ def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
         f"      {safety_check['cases']} fault cases: worst {safety_check['worst_joints']} cycles to the safe force "
         f"at every joint, {len(safety_check['failed'])} failing"
     )
-    return BenchStage(sil_check, logs, bus_load, fault_check, safety_check)
+    network = plan.plan(controller, control.design.network)
+    progress(
+        f"      network plan ([network]): {len(network.buses)} bus(es), worst-case load "
+        + ", ".join(f"{p.bus.name} {p.load.load:.1%}" for p in network.buses)
+    )
+    return BenchStage(sil_check, logs, bus_load, fault_check, safety_check, network)
 
 
 def _write_report_files(r: _Run, staging: Path) -> _ReportFiles:
@@ -455,6 +460,10 @@ def _report_markdown(r: _Run, files: _ReportFiles, final: dict) -> str:
         + sil.sil_markdown(bench.sil)
         + "\n![SIL energy](sil_energy.png)\n\n"
         + bench.bus_load.table()
+        + "\n\nNetwork plan of the design's `[network]` (`design.network.plan`: SISO law "
+        + f"{r.control.design.network.siso}; setpoints packed where that lowers the load; busy = one sample's "
+        + "frames back to back, the worst-case latency of the last):\n\n"
+        + bench.network.table()
         + "\n\n"
         + sil.fault_markdown(bench.faults)
         + "\n![faults](sil_faults.png)\n\n"

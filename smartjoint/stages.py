@@ -13,10 +13,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from smartjoint.bench.busload import BusLoad
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.control.study import Study
 from smartjoint.design.friction.stage import JointTypeFriction
+from smartjoint.design.network.busload import BusLoad
+from smartjoint.design.network.plan import NetworkPlan
 from smartjoint.design.structure.description import Design
 from smartjoint.design.structure.solved import SolvedModel
 from smartjoint.design.structure.updating import UpdatingResult
@@ -86,6 +87,7 @@ class BenchStage:
     bus_load: BusLoad
     faults: dict
     safety: dict
+    network: NetworkPlan  # the design's [network]: frames over its buses, each load proven
 
 
 @dataclass(frozen=True)

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from conftest import SLIP_RATIO_LAW
 
-from smartjoint.bench import busload, e2e
+from smartjoint.bench import e2e
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
-from smartjoint.design.network import protocol
+from smartjoint.design.network import busload, protocol
 
 REFERENCE = Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json"
 # AUTOSAR "Specification of CRC Routines", CRC8 SAE J1850 check table.

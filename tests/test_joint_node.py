@@ -11,12 +11,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from smartjoint.bench import busload, e2e, node_target, target
+from smartjoint.bench import e2e, node_target, target
 from smartjoint.bench.joint_node import CompiledNode, JointNode, compiled_nodes
 from smartjoint.common import law_registry
 from smartjoint.design.control import artifact
 from smartjoint.design.control.laws import siso_law
-from smartjoint.design.network import joint_node, protocol
+from smartjoint.design.network import busload, joint_node, protocol
 from smartjoint.design.plant import Measurements
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -97,7 +97,7 @@ def force_code(value: float) -> int:
 def supervision_database(artifact, supervision_cycles: int = SUPERVISION_CYCLES) -> can.Database:
     """The bus of local mode: the supervisor's heartbeat and one ``NODE_STATUS_<j>`` per joint,
     each every ``supervision_cycles`` samples (module docstring); cantools database for the DBC
-    and the bus load (``bench.busload``).
+    and the bus load (``design.network.busload``).
 
     Raises
     ------

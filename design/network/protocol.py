@@ -441,6 +441,7 @@ e2e_signals = _e2e
 scaled = _scaled
 identifier = _identifier
 fd_specifics = _fd_specifics
+fd_length = _fd_length
 
 
 def dbc_text(db: can.Database) -> str:

@@ -252,6 +252,30 @@ class Control:
 
 
 @dataclass(frozen=True)
+class Bus:
+    """One CAN FD bus of ``[network]``: its name, nominal and data bit rates [bit/s] and the
+    worst-case load it may carry (a fraction)."""
+
+    name: str
+    bitrate: int = 1_000_000
+    data_bitrate: int = 5_000_000
+    limit: float = 0.70
+
+
+@dataclass(frozen=True)
+class Network:
+    """The controller's network (``[network]``, optional; docs/design-file.md): the CAN FD buses
+    in the order the plan fills them (``design.network.plan``), where the SISO law runs
+    (``siso``: "central", the default — the bundled bench measures the central chain — or
+    "local" on the joint nodes, docs/safety.md) and the samples per heartbeat and node status
+    frame of local mode (``supervision_cycles``)."""
+
+    buses: tuple[Bus, ...] = (Bus("can0"),)
+    siso: str = "central"
+    supervision_cycles: int = 10
+
+
+@dataclass(frozen=True)
 class Safety:
     """The safe state and the plausibility ranges of the firmware (``[safety]``, all optional;
     docs/safety.md says why each default is what it is).
@@ -313,6 +337,7 @@ class Design:
     friction_records: tuple[str, ...] = ()  # rig records `run` identifies ([friction] records)
     placement: Placement | None = None  # joints `run` places on a design without [[joints]]
     uncertainty: Uncertainty = field(default_factory=Uncertainty)  # [uncertainty]: the physical spread
+    network: Network = field(default_factory=Network)  # [network]: buses, local or central SISO
 
     def joint_friction(self, joint: Joint) -> JointFriction | None:
         """The joint's LuGre parameters: its own, else its type's; None when the design has none."""

@@ -1,0 +1,48 @@
+"""The [network] table of the design file (docs/design-file.md): the CAN FD buses the network
+plan fills, where the SISO law runs and the supervision period of local mode."""
+
+from __future__ import annotations
+
+from smartjoint.design.structure.description import Bus, Network
+from smartjoint.design.structure.table import DesignTable
+
+SISO_MODES = ("central", "local")
+MIN_BITRATE, MAX_BITRATE = 10_000, 20_000_000  # [bit/s]: what python-can and CAN FD controllers set
+MAX_BUSES = 16
+MAX_SUPERVISION_CYCLES = 1000  # a status frame at least every 1000 samples
+
+
+def parse_network(t: DesignTable) -> Network:
+    """The [network] table: ``siso``, ``supervision_cycles`` and ``[[network.buses]]`` (each with
+    ``name``, ``bitrate``, ``data_bitrate`` >= ``bitrate`` and ``limit`` in (0, 1]).
+
+    Parameters
+    ----------
+    t : DesignTable
+        The [network] table (empty for the defaults).
+
+    Returns
+    -------
+    Network
+    """
+    d = Network()
+    siso = t.string("siso", d.siso, choices=SISO_MODES)
+    cycles = t.integer("supervision_cycles", d.supervision_cycles, minimum=1, maximum=MAX_SUPERVISION_CYCLES)
+    tables = t.tables("buses")
+    if len(tables) > MAX_BUSES:
+        raise t.error("buses", f"{len(tables)} buses", f"at most {MAX_BUSES}")
+    buses: list[Bus] = []
+    for bus in tables:
+        name = bus.string("name")
+        bitrate = bus.integer("bitrate", Bus.bitrate, minimum=MIN_BITRATE, maximum=MAX_BITRATE)
+        data = bus.integer("data_bitrate", Bus.data_bitrate, minimum=bitrate, maximum=MAX_BITRATE)
+        limit = bus.number("limit", Bus.limit, positive=True, maximum=1.0)
+        bus.finish()
+        if any(b.name == name for b in buses):
+            raise bus.error("name", name, "a name no other bus has")
+        buses.append(Bus(name, bitrate, data, limit))
+    t.finish()
+    return Network(tuple(buses) or d.buses, siso, cycles)
+
+
+__all__ = ["SISO_MODES", "parse_network"]

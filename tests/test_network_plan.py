@@ -1,0 +1,124 @@
+"""The network plan (design.network.plan, issue 33): frames of a controller over one or more CAN
+FD buses, every bus within its load limit and its sample, one DBC per bus that cantools reads,
+packed setpoints where they lower the load, and a one-line refusal naming the bus and the load."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from conftest import small_truss
+
+from smartjoint.bench import e2e
+from smartjoint.common.errors import DesignError, ModelError
+from smartjoint.design.control import artifact
+from smartjoint.design.network import busload, protocol
+from smartjoint.design.network.plan import plan
+from smartjoint.design.structure.description import Bus, Network
+from smartjoint.design.structure.spec import parse_design
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return artifact.load(ROOT / "firmware" / "generated" / "controller.json")
+
+
+def _joints(reference, count: int):
+    """The bundled artefact's bus description with ``count`` joints (what the plan reads)."""
+    return SimpleNamespace(
+        joint_names=[f"J{k + 1}" for k in range(count)],
+        sensor_names=list(reference.sensor_names),
+        sensor_quantities=list(reference.sensor_quantities),
+        sample_time=reference.sample_time,
+        artifact_sha256=reference.artifact_sha256,
+    )
+
+
+def _buses(count: int) -> Network:
+    return Network(tuple(Bus(f"can{k}") for k in range(count)))
+
+
+def _check(result, design) -> None:
+    """Every joint on one bus, its frames there only; the heartbeat on every bus, the tip sensors
+    on the first; each bus within its limit and its sample; each DBC reads back as its bus."""
+    placed = [j for p in result.buses for j in p.joints]
+    assert placed == list(design.joint_names)
+    for k, p in enumerate(result.buses):
+        back = protocol.load_dbc(p.dbc)
+        names = {m.name for m in back.messages}
+        assert "CONTROLLER_STATUS" in names and ("TIP_SENSORS" in names) == (k == 0)
+        assert {f"JOINT_{j}" for j in p.joints} | {f"AMP_STATUS_{j}" for j in p.joints} <= names
+        assert not any(n.startswith(("JOINT_", "AMP_STATUS_")) and n.split("_")[-1] not in p.joints for n in names)
+        load = busload.bus_load(back, p.bus.bitrate, p.bus.data_bitrate).load
+        assert load == pytest.approx(p.load.load) and load <= p.bus.limit
+        assert p.busy <= design.sample_time
+
+
+def test_the_bundled_design_fits_one_bus_with_packed_setpoints(reference):
+    """Packing the three setpoints into one frame lowers the load below one frame each."""
+    single = busload.bus_load(protocol.database(reference), 1_000_000, 5_000_000).load
+    result = plan(reference)
+    _check(result, reference)
+    (only,) = result.buses
+    assert only.packed and only.load.load < single
+    setpoints = [m for m in protocol.load_dbc(only.dbc).messages if m.name.startswith("SETPOINTS_")]
+    (frame,) = setpoints
+    values = {s.name: 0.0 for s in frame.signals}
+    values.update({"voltage_a1": 12.5, "voltage_a2": 0.0, "voltage_a3": 149.9})
+    data = e2e.protect(frame.frame_id, bytearray(frame.encode(values)), 3)
+    decoded = frame.decode(bytes(data))
+    assert decoded["voltage_a1"] == pytest.approx(12.5, abs=1e-7) and decoded["voltage_a3"] == pytest.approx(149.9)
+
+
+def test_twelve_joints_need_three_buses_and_each_stays_within_70_percent(reference):
+    design = _joints(reference, 12)
+    with pytest.raises(ModelError, match=r"^network: bus can0 would carry 1\d\d\.\d% with joints J\d+ … J12 as well"):
+        plan(design, _buses(1))
+    result = plan(design, _buses(3))
+    _check(result, design)
+    assert [len(p.joints) for p in result.buses] == [4, 4, 4]
+    assert max(p.load.load for p in result.buses) <= 0.70
+    assert "| can2 |" in result.table()
+
+
+def test_local_mode_adds_the_node_status_frames(reference):
+    """The central frames stay (the cLQG still runs centrally) and each joint's NODE_STATUS joins."""
+    central = plan(reference)
+    local = plan(reference, Network(siso="local"))
+    names = {m.name for m in local.buses[0].database.messages}
+    assert {f"NODE_STATUS_{j}" for j in ("A1", "A2", "A3")} <= names
+    assert local.buses[0].load.load > central.buses[0].load.load
+
+
+@pytest.mark.parametrize(
+    "network, words",
+    [
+        ({"siso": "both"}, r"network\.siso: 'both' — allowed: 'central', 'local'"),
+        ({"buses": [{"name": "a"}, {"name": "a"}]}, r"network\.buses\[1\]\.name: 'a' — a name no other bus has"),
+        ({"buses": [{"name": "a", "limit": 1.5}]}, r"network\.buses\[0\]\.limit: 1\.5 — must be <= 1\.0"),
+        (
+            {"buses": [{"name": "a", "bitrate": 1_000_000, "data_bitrate": 500_000}]},
+            r"network\.buses\[0\]\.data_bitrate",
+        ),
+        ({"supervision_cycles": 0}, r"network\.supervision_cycles: 0"),
+        ({"speed": 1}, r"speed"),
+    ],
+)
+def test_a_bad_network_table_is_one_line(network, words):
+    """The design file's [network] is read with the field, the value and what is allowed."""
+    d = small_truss()
+    d["network"] = network
+    with pytest.raises(DesignError, match=words) as caught:
+        parse_design(d)
+    assert "\n" not in str(caught.value)
+
+
+def test_the_network_table_reaches_the_design():
+    d = small_truss()
+    d["network"] = {"siso": "local", "supervision_cycles": 5, "buses": [{"name": "x", "data_bitrate": 8_000_000}]}
+    network = parse_design(d).network
+    assert network == Network((Bus("x", 1_000_000, 8_000_000, 0.70),), "local", 5)
+    assert parse_design(small_truss()).network == Network()
