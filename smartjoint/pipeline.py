@@ -43,7 +43,7 @@ from smartjoint.design import build_model, load_design, updated_design
 from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction.stage import friction_entries, friction_stage, place_joints
-from smartjoint.design.network import busload, plan, protocol
+from smartjoint.design.network import busload, joint_node, plan, protocol
 from smartjoint.design.reduction import reduction_study, study_summary
 from smartjoint.design.reduction.study import DENSE_REFERENCE_DOFS, REFERENCE_MODES_PER_CONSIDERED
 from smartjoint.design.structure.solved import solved_model
@@ -460,8 +460,9 @@ def _report_markdown(r: _Run, files: _ReportFiles, final: dict) -> str:
         + sil.sil_markdown(bench.sil)
         + "\n![SIL energy](sil_energy.png)\n\n"
         + bench.bus_load.table()
-        + "\n\nNetwork plan of the design's `[network]` (`design.network.plan`: SISO law "
-        + f"{r.control.design.network.siso}; setpoints packed where that lowers the load; busy = one sample's "
+        + "\n\nNetwork plan of the design's `[network]` (`design.network.plan`: "
+        + f"{joint_node.NODE_LAW.display} law {r.control.design.network.siso}; "
+        + "setpoints packed where that lowers the load; busy = one sample's "
         + "frames back to back, the worst-case latency of the last):\n\n"
         + bench.network.table()
         + "\n\n"

@@ -225,7 +225,8 @@ def _first_index(result: NetworkPlan, artifact) -> int:
 
 
 def _refusal(bus: Bus, trial: BusPlan, what: str, spec: Network) -> ModelError:
-    remedy = "add a bus or raise its data bit rate" + (" or run the SISO law locally" if spec.siso == "central" else "")
+    local = f" or run the {joint_node.NODE_LAW.display} law locally" if spec.siso == "central" else ""
+    remedy = "add a bus or raise its data bit rate" + local
     return ModelError(
         f"network: bus {bus.name} would carry {trial.load.load:.1%} with {what} (limit {bus.limit:.0%}, "
         f"{bus.bitrate / 1e6:g}/{bus.data_bitrate / 1e6:g} Mbit/s) — {remedy}"

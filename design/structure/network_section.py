@@ -3,10 +3,11 @@ plan fills, where the SISO law runs and the supervision period of local mode."""
 
 from __future__ import annotations
 
+from smartjoint.common import law_registry
 from smartjoint.design.structure.description import Bus, Network
 from smartjoint.design.structure.table import DesignTable
 
-SISO_MODES = ("central", "local")
+PLACES = ("central", "local")  # where the node law runs
 MIN_BITRATE, MAX_BITRATE = 10_000, 20_000_000  # [bit/s]: what python-can and CAN FD controllers set
 MAX_BUSES = 16
 MAX_SUPERVISION_CYCLES = 1000  # a status frame at least every 1000 samples
@@ -26,7 +27,8 @@ def parse_network(t: DesignTable) -> Network:
     Network
     """
     d = Network()
-    siso = t.string("siso", d.siso, choices=SISO_MODES)
+    # The key is the node law's name (``[network] siso``): where that law runs.
+    siso = t.string(law_registry.node_law().name, d.siso, choices=PLACES)
     cycles = t.integer("supervision_cycles", d.supervision_cycles, minimum=1, maximum=MAX_SUPERVISION_CYCLES)
     tables = t.tables("buses")
     if len(tables) > MAX_BUSES:
@@ -45,4 +47,4 @@ def parse_network(t: DesignTable) -> Network:
     return Network(tuple(buses) or d.buses, siso, cycles)
 
 
-__all__ = ["SISO_MODES", "parse_network"]
+__all__ = ["PLACES", "parse_network"]
