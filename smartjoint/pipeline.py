@@ -191,6 +191,7 @@ def _structure_stage(design_path: str | None, staging: Path, progress) -> Struct
         members=protocol.E2E_SIGNALS,
         fields=identifiers.DESIGN_FIELDS,
     )
+    plan.check_design(design)  # and the frames on the buses of [network] (one line when they do not fit)
     progress(
         f"[1/12] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
         f"{len(design.members)} members, {len(design.joints)} joints"

@@ -122,3 +122,17 @@ def test_the_network_table_reaches_the_design():
     network = parse_design(d).network
     assert network == Network((Bus("x", 1_000_000, 8_000_000, 0.70),), "local", 5)
     assert parse_design(small_truss()).network == Network()
+
+
+def test_a_design_whose_frames_do_not_fit_is_refused_before_any_work():
+    """[placement] count = 12 on one bus: the one-line refusal from the design alone, no FE model."""
+    from smartjoint.design.network.plan import check_design
+
+    d = small_truss()
+    joints = d.pop("joints", None)
+    assert joints
+    d["placement"] = {"modes": [1, 2], "count": 12}
+    with pytest.raises(ModelError, match=r"^network: bus can0 would carry .* with joints P\d+ … P12 as well"):
+        check_design(parse_design(d))
+    d["network"] = {"buses": [{"name": f"can{k}"} for k in range(3)]}
+    assert len(check_design(parse_design(d)).buses) == 3

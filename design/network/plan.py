@@ -214,6 +214,33 @@ def plan(artifact, spec: Network | None = None) -> NetworkPlan:
     return result
 
 
+def check_design(design) -> NetworkPlan | None:
+    """The plan of a design before any work (``smartjoint run`` stage 1): its controlled joints
+    (``[control] joints``, else every joint, else ``[placement] count`` placeholders), its sensors
+    and sample time are all the frames need; None for a design with neither joints nor placement.
+
+    Raises
+    ------
+    ModelError
+        The one-line refusal of :func:`plan`.
+    """
+    from types import SimpleNamespace
+
+    names = list(design.control.joints) if design.control.joints is not None else [j.name for j in design.joints]
+    if not names and design.placement is not None:
+        names = [f"P{k + 1}" for k in range(design.placement.count)]
+    if not names or not design.sensors:
+        return None
+    frames = SimpleNamespace(
+        joint_names=names,
+        sensor_names=[s.name for s in design.sensors],
+        sensor_quantities=[s.quantity for s in design.sensors],
+        sample_time=design.control.sample_time,
+        artifact_sha256="0" * 64,
+    )
+    return plan(frames, design.network)
+
+
 def _fits(p: BusPlan, artifact) -> bool:
     return p.load.load <= p.bus.limit and p.busy <= artifact.sample_time
 
@@ -233,4 +260,4 @@ def _refusal(bus: Bus, trial: BusPlan, what: str, spec: Network) -> ModelError:
     )
 
 
-__all__ = ["BusPlan", "NetworkPlan", "PACK_MAX", "plan"]
+__all__ = ["BusPlan", "NetworkPlan", "PACK_MAX", "check_design", "plan"]
