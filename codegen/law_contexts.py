@@ -10,7 +10,7 @@ import numpy as np
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.filter import FEEDBACK_LIMIT
 from smartjoint.design.control.hold_products import HoldProducts, step_products
-from smartjoint.design.control.realisation import Realisation, realise
+from smartjoint.design.control.realisation import Realisation, of_artifact
 
 
 def siso(artifact: artifacts.ControllerArtifact, lit, row) -> dict:
@@ -25,7 +25,7 @@ def clqg(artifact: artifacts.ControllerArtifact, lit, row) -> dict:
     """The clipped LQG's context (Eq. 33–34) in its realisation (``control.realisation``): the
     joint and sensor channels, the coordinate groups with a table row per coordinate, and the
     small constant products of the two phases with their nonzero entries."""
-    realisation = _realisation(artifact)
+    realisation = of_artifact(artifact)
     products = _products(realisation)
     joint_labels = _labels(realisation.joints, artifact.joint_names)
     sensor_labels = _labels(realisation.sensors, artifact.sensor_names)
@@ -63,18 +63,6 @@ def _labels(channels, names) -> list[str]:
     return [
         names[a] if b < 0 else f"{names[a]} {'+' if sign > 0 else '-'} {names[b]}" for a, b, sign in channels.terms()
     ]
-
-
-def _realisation(artifact: artifacts.ControllerArtifact) -> Realisation:
-    return realise(
-        artifact.blocks,
-        artifact.gamma0,
-        artifact.gamma1,
-        artifact.joint_input,
-        artifact.output,
-        artifact.estimator_gain,
-        artifact.feedback_gain,
-    )
 
 
 def _products(realisation: Realisation) -> HoldProducts:

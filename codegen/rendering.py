@@ -18,7 +18,7 @@ from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.artifact_schema import LAW_SETTINGS
 from smartjoint.design.control.hold_products import hold_products
-from smartjoint.design.control.realisation import realise
+from smartjoint.design.control.realisation import of_artifact
 
 REALS = ("float", "double")
 FLOAT_MAX = float(np.finfo(np.float32).max)
@@ -182,15 +182,7 @@ def check_products_fit_float(artifact: artifacts.ControllerArtifact) -> None:
     ModelError
         One line naming the product, the entry and its value.
     """
-    r = realise(
-        artifact.blocks,
-        artifact.gamma0,
-        artifact.gamma1,
-        artifact.joint_input,
-        artifact.output,
-        artifact.estimator_gain,
-        artifact.feedback_gain,
-    )
+    r = of_artifact(artifact)
     products = hold_products(r.output, r.feedback_gain, r.estimator_gain, r.gamma1, r.joint_input)
     for name, values in products._asdict().items():
         with np.errstate(over="ignore", under="ignore", invalid="ignore"):

@@ -13,7 +13,7 @@ import pytest
 from smartjoint.codegen import controllers
 from smartjoint.design.control import artifact
 from smartjoint.design.control.filter import clipped_lqg
-from smartjoint.design.control.realisation import Channels, realise
+from smartjoint.design.control.realisation import Channels, of_artifact
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -24,7 +24,7 @@ def reference():
 
 
 def _realise(a):
-    return realise(a.blocks, a.gamma0, a.gamma1, a.joint_input, a.output, a.estimator_gain, a.feedback_gain)
+    return of_artifact(a)
 
 
 def _update_terms(r) -> int:

@@ -264,6 +264,12 @@ def realise(blocks, gamma0, gamma1, joint_input, output, estimator_gain, feedbac
     )
 
 
+def of_artifact(artifact) -> Realisation:
+    """The realisation of a controller artefact's filter (:func:`realise` of its matrices)."""
+    a = artifact
+    return realise(a.blocks, a.gamma0, a.gamma1, a.joint_input, a.output, a.estimator_gain, a.feedback_gain)
+
+
 def real_jordan(realisation: Realisation) -> Realisation:
     """Each coordinate in the basis z_i = T_i⁻¹·x_i in which its block is a rotation and scaling,
     Φ_i' = [[α, −β], [β, α]] (α ± iβ its eigenvalues), with T_i upper triangular so that a
@@ -453,6 +459,7 @@ __all__ = [
     "Channels",
     "Group",
     "Realisation",
+    "of_artifact",
     "real_jordan",
     "realise",
 ]
