@@ -84,6 +84,17 @@ def test_twelve_joints_need_three_buses_and_each_stays_within_70_percent(referen
     assert "| can2 |" in result.table()
 
 
+def test_the_buses_share_the_load_rather_than_filling_in_order(reference):
+    """Four buses for twelve joints: three each (the fill in order would leave the last with
+    none), every bus within the load of the three-bus plan's fullest."""
+    design = _joints(reference, 12)
+    three = plan(design, _buses(3))
+    four = plan(design, _buses(4))
+    _check(four, design)
+    assert [len(p.joints) for p in four.buses] == [3, 3, 3, 3]
+    assert max(p.load.load for p in four.buses) < max(p.load.load for p in three.buses)
+
+
 def test_local_mode_adds_the_node_status_frames(reference):
     """The central frames stay (the cLQG still runs centrally) and each joint's NODE_STATUS joins."""
     central = plan(reference)

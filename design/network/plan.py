@@ -16,8 +16,10 @@ The controller sits on every bus; each joint's node and amplifier on one. A bus 
   cLQG still runs centrally.
 
 Joints go to the buses in their order, each bus taking as many as keep its load within its limit
-(worst-case bit stuffing, ``busload``). A plan that cannot place every joint is refused with one
-line naming the bus and the load it would reach. Latency: every frame of the controller's sample
+(worst-case bit stuffing, ``busload``) and within a common ceiling: the lowest ceiling under which
+every joint is placed (bisection to 0.1 %), so the buses share the load instead of the first ones
+filling to their limits and the last one idling. A plan that cannot place every joint is refused
+with one line naming the bus and the load it would reach. Latency: every frame of the controller's sample
 has that sample as its cycle, so the worst case for the last of them is the whole sample's
 frames back to back, ``busy`` = Σ frame times; the plan states it and refuses a bus whose
 ``busy`` exceeds the sample (a load above 100 % of the sample's frames).
@@ -187,25 +189,54 @@ def plan(artifact, spec: Network | None = None) -> NetworkPlan:
     """
     spec = Network() if spec is None else spec
     full = protocol.database(artifact)
+    memo: dict[tuple[int, int, int], BusPlan] = {}  # (bus, first joint, end) → its plan
+    result = _fill(full, artifact, spec, 1.0, memo)
+    if result is None:
+        return _fill(full, artifact, spec, 1.0, memo, refuse=True)  # raises the one-line refusal
+    # The lowest common ceiling that still places every joint: placing is monotone in it.
+    low, high = 0.0, max(p.load.load for p in result.buses)
+    while high - low > 1e-3:
+        middle = 0.5 * (low + high)
+        trial = _fill(full, artifact, spec, middle, memo)
+        if trial is None:
+            low = middle
+        else:
+            result, high = trial, middle
+    return result
+
+
+def _fill(
+    full, artifact, spec: Network, ceiling: float, memo: dict, refuse: bool = False
+) -> NetworkPlan | None:
+    """Joints to buses in order, each bus within min(its limit, ``ceiling``); None when some joint
+    is left over (``refuse``: raise the one-line refusal instead)."""
     count = len(artifact.joint_names)
     result = NetworkPlan(sample_time=float(artifact.sample_time))
+
+    def bus_plan(index: int, start: int, end: int) -> BusPlan:
+        if (index, start, end) not in memo:
+            bus = spec.buses[index]
+            memo[index, start, end] = _bus_plan(full, artifact, bus, list(range(start, end)), index == 0, spec)
+        return memo[index, start, end]
+
     start = 0
     for index, bus in enumerate(spec.buses):
-        first = index == 0
-        taken = _bus_plan(full, artifact, bus, [], first, spec)
+        taken = bus_plan(index, start, start)
         if not _fits(taken, artifact):
             raise _refusal(bus, taken, "its heartbeat and tip frames alone", spec)
         stop = start
         while stop < count:
-            trial = _bus_plan(full, artifact, bus, list(range(start, stop + 1)), first, spec)
-            if not _fits(trial, artifact):
-                if stop == start and index == len(spec.buses) - 1:
+            trial = bus_plan(index, start, stop + 1)
+            if not _fits(trial, artifact, ceiling):
+                if refuse and stop == start and index == len(spec.buses) - 1:
                     raise _refusal(bus, trial, f"joint {artifact.joint_names[stop]}", spec)
                 break
             taken, stop = trial, stop + 1
         result.buses.append(taken)
         start = stop
     if start < count:
+        if not refuse:
+            return None
         last = spec.buses[-1]
         trial = _bus_plan(full, artifact, last, [*range(_first_index(result, artifact), count)], False, spec)
         rest = list(artifact.joint_names[start:])
@@ -241,8 +272,8 @@ def check_design(design) -> NetworkPlan | None:
     return plan(frames, design.network)
 
 
-def _fits(p: BusPlan, artifact) -> bool:
-    return p.load.load <= p.bus.limit and p.busy <= artifact.sample_time
+def _fits(p: BusPlan, artifact, ceiling: float = 1.0) -> bool:
+    return p.load.load <= min(p.bus.limit, ceiling) and p.busy <= artifact.sample_time
 
 
 def _first_index(result: NetworkPlan, artifact) -> int:
