@@ -273,7 +273,10 @@ def _add_dynamics_commands(sub, o: SimpleNamespace) -> None:
 
 def _add_control_commands(sub, o: SimpleNamespace) -> None:
     """design, codegen, sil, pil."""
-    rates = _bus_rates("CAN (arbitration) bitrate (default: %(default)s)", "CAN FD data bitrate, 0: classical CAN")
+    one_bus = "; with any of --bitrate, --data-bitrate, --max-load: one bus instead of the design's [network]"
+    rates = _bus_rates(
+        "CAN (arbitration) bitrate (default: 1000000)" + one_bus, "CAN FD data bitrate, 0: classical CAN (default: 5000000)"
+    )
     p = sub.add_parser(
         "design",
         parents=[o.design, rates, o.no_update, o.json_summary],
@@ -281,8 +284,9 @@ def _add_control_commands(sub, o: SimpleNamespace) -> None:
     )
     p.add_argument("-o", "--output", default="controller.json", help="artefact file (default: %(default)s)")
     p.add_argument("--duration", type=float, help="t_e of Eq. 32 for the ε optimisation [s] (default: design file)")
-    p.add_argument("--max-load", type=float, default=0.7, help="refuse a bus load above this (default: %(default)s)")
-    p.set_defaults(func=cmd_design)
+    p.add_argument("--max-load", type=float, help="refuse a bus load above this (default: 0.7)")
+    # Without the bus options the frames are planned over the design's [network] (plan.plan).
+    p.set_defaults(func=cmd_design, bitrate=None, data_bitrate=None)
 
     p = sub.add_parser(
         "codegen",

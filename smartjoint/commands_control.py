@@ -55,13 +55,7 @@ def cmd_design(args) -> dict:
     lqg = closed_loop.lqg_for(design, model)
     tunings = tuning.tuned_laws(design, s, report_progress)  # open settings tuned (the SISO ε optimised)
     result = artifact_building.from_design(design, model, lqg, {name: t.settings for name, t in tunings.items()})
-    from smartjoint.design.network import busload, protocol
-
-    load = busload.check(protocol.database(result), args.bitrate, args.data_bitrate or None, args.max_load)
-    report_progress(
-        f"CAN bus load {100 * load.load:.1f} % at {args.bitrate / 1e6:g}"
-        f"{'' if not args.data_bitrate else f'/{args.data_bitrate / 1e6:g}'} Mbit/s (limit {100 * args.max_load:.0f} %)"
-    )
+    loads = _bus_loads(args, design, result)
     artifact.save(result, Path(args.output))
     poles = lqg.closed_loop_poles()
     out = {
@@ -75,13 +69,38 @@ def cmd_design(args) -> dict:
         **closed_loop.settings_figures(tunings),
         "lqg_max_pole_magnitude": float(abs(poles).max()),
         "lqg_stability_margin": float(1 - abs(poles).max()),
-        "bus_load": load.load,
+        "bus_load": max(loads.values()),
+        "bus_loads": loads,
         "tuning": {name: None if t.record is None else t.record.figures() for name, t in tunings.items()},
     }
     if not args.json:
         for key, value in out.items():
             print(f"{key}: {value}")
     return out
+
+
+def _bus_loads(args, design, result) -> dict[str, float]:
+    """The worst-case load of each bus: the design's [network] plan (``plan.plan``), or one bus of
+    the command line's --bitrate, --data-bitrate and --max-load when any of them is given."""
+    from smartjoint.design.network import busload, plan, protocol
+
+    if args.bitrate is None and args.data_bitrate is None and args.max_load is None:
+        result_plan = plan.plan(result, design.network)
+        for p in result_plan.buses:
+            report_progress(
+                f"CAN bus {p.bus.name}: {', '.join(p.joints) or 'no joints'}, load {100 * p.load.load:.1f} % at "
+                f"{p.bus.bitrate / 1e6:g}/{p.bus.data_bitrate / 1e6:g} Mbit/s (limit {100 * p.bus.limit:.0f} %)"
+            )
+        return {p.bus.name: p.load.load for p in result_plan.buses}
+    bitrate = 1_000_000 if args.bitrate is None else args.bitrate
+    data_bitrate = 5_000_000 if args.data_bitrate is None else args.data_bitrate
+    limit = 0.7 if args.max_load is None else args.max_load
+    load = busload.check(protocol.database(result), bitrate, data_bitrate or None, limit)
+    report_progress(
+        f"CAN bus load {100 * load.load:.1f} % at {bitrate / 1e6:g}"
+        f"{'' if not data_bitrate else f'/{data_bitrate / 1e6:g}'} Mbit/s (limit {100 * limit:.0f} %)"
+    )
+    return {"can0": load.load}
 
 
 def cmd_codegen(args) -> dict:

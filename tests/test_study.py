@@ -219,7 +219,7 @@ def test_design_and_study_commands(tmp_path):
     refused = tmp_path / "refused.json"
     done = run_cli("design", path, "-o", refused, "--max-load", "0.1")  # refused after the model reduction
     assert done.returncode == 2 and "exceeds the limit 10 %" in done.stderr and not refused.exists()
-    assert summary["bus_load"] < 0.7
+    assert summary["bus_load"] < 0.7 and list(summary["bus_loads"]) == ["can0"]  # the [network] plan: one bus
     data["control"]["normal_force_min"] = 500.0
     path.write_text(tomli_w.dumps(data))
     assert "normal_force_min" in cli_error("design", path, "-o", tmp_path / "x.json")
