@@ -43,7 +43,7 @@ from smartjoint.design import build_model, load_design, updated_design
 from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction.stage import friction_entries, friction_stage, place_joints
-from smartjoint.design.network import busload, joint_node, plan, protocol
+from smartjoint.design.network import joint_node, plan, protocol
 from smartjoint.design.reduction import reduction_study, study_summary
 from smartjoint.design.reduction.study import DENSE_REFERENCE_DOFS, REFERENCE_MODES_PER_CONSIDERED
 from smartjoint.design.structure.solved import solved_model
@@ -306,7 +306,6 @@ def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
     for law in sil_check["laws"].values():
         if law.get("log") is not None:
             law["log"] = Path(law["log"]).relative_to(staging).as_posix()
-    bus_load = busload.check(protocol.database(controller), sil_check["bitrate"], sil_check["data_bitrate"])
     demo = demo_faults(controller, control_study.setup.duration)
     progress("      injected faults in the study: " + ", ".join(f.label() for f in demo))
     fault_check = sil.fault_run(control_study.setup, controller, faults=demo)
@@ -321,7 +320,7 @@ def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
         f"      network plan ([network]): {len(network.buses)} bus(es), worst-case load "
         + ", ".join(f"{p.bus.name} {p.load.load:.1%}" for p in network.buses)
     )
-    return BenchStage(sil_check, logs, bus_load, fault_check, safety_check, network)
+    return BenchStage(sil_check, logs, fault_check, safety_check, network)
 
 
 def _write_report_files(r: _Run, staging: Path) -> _ReportFiles:
@@ -460,7 +459,7 @@ def _report_markdown(r: _Run, files: _ReportFiles, final: dict) -> str:
         + ".\n\n"
         + sil.sil_markdown(bench.sil)
         + "\n![SIL energy](sil_energy.png)\n\n"
-        + bench.bus_load.table()
+        + "\n\n".join(f"Bus `{p.bus.name}`:\n\n{p.load.table()}" for p in bench.network.buses)
         + "\n\nNetwork plan of the design's `[network]` (`design.network.plan`: "
         + f"{joint_node.NODE_LAW.display} law {r.control.design.network.siso}; "
         + "setpoints packed where that lowers the load; busy = one sample's "

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.control.study import Study
 from smartjoint.design.friction.stage import JointTypeFriction
-from smartjoint.design.network.busload import BusLoad
 from smartjoint.design.network.plan import NetworkPlan
 from smartjoint.design.structure.description import Design
 from smartjoint.design.structure.solved import SolvedModel
@@ -79,12 +78,11 @@ class FirmwareStage:
 
 @dataclass(frozen=True)
 class BenchStage:
-    """Stage 8: the study through the CAN loop, its bus logs and load, the demo faults and the
-    safe-state fault matrix."""
+    """Stage 8: the study through the CAN loop, its bus logs, the demo faults, the safe-state fault
+    matrix and the network plan (each bus's frames and load)."""
 
     sil: dict
     logs: tuple[str, ...]
-    bus_load: BusLoad
     faults: dict
     safety: dict
     network: NetworkPlan  # the design's [network]: frames over its buses, each load proven
