@@ -275,7 +275,8 @@ def _add_control_commands(sub, o: SimpleNamespace) -> None:
     """design, codegen, sil, pil."""
     one_bus = "; with any of --bitrate, --data-bitrate, --max-load: one bus instead of the design's [network]"
     rates = _bus_rates(
-        "CAN (arbitration) bitrate (default: 1000000)" + one_bus, "CAN FD data bitrate, 0: classical CAN (default: 5000000)"
+        "CAN (arbitration) bitrate (default: 1000000)" + one_bus,
+        "CAN FD data bitrate, 0: classical CAN (default: 5000000)",
     )
     p = sub.add_parser(
         "design",
