@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.filter import FEEDBACK_LIMIT
 from smartjoint.design.control.hold_products import HoldProducts, step_products
@@ -21,12 +22,26 @@ def siso(artifact: artifacts.ControllerArtifact, lit, row) -> dict:
     }
 
 
+# Up to this many joints the cLQG's sums over joints are written out term by term (the fastest
+# step, and the code of a few joints); beyond it they are loops over index tables of the same
+# terms in the same order, so the code stays the same size per joint and the numbers are the
+# same bit for bit (benchmarks/joint_scaling.py).
+UNROLLED_JOINTS = 4
+
+
 def clqg(artifact: artifacts.ControllerArtifact, lit, row) -> dict:
     """The clipped LQG's context (Eq. 33–34) in its realisation (``control.realisation``): the
     joint and sensor channels, the coordinate groups with a table row per coordinate, and the
-    small constant products of the two phases with their nonzero entries."""
+    small constant products of the two phases with their nonzero entries; for more than
+    ``UNROLLED_JOINTS`` joints also the index tables of the loops (``looped``)."""
     realisation = of_artifact(artifact)
     products = _products(realisation)
+    count = len(artifact.joint_names)
+    if max(count, len(artifact.sensor_names)) > 255:
+        raise ModelError(
+            f"joints: {count}, sensors: {len(artifact.sensor_names)} — the generated cLQG indexes them "
+            "with one byte: at most 255 each"
+        )
     joint_labels = _labels(realisation.joints, artifact.joint_names)
     sensor_labels = _labels(realisation.sensors, artifact.sensor_names)
     return {
@@ -43,9 +58,43 @@ def clqg(artifact: artifacts.ControllerArtifact, lit, row) -> dict:
         "output_hold_terms": [np.flatnonzero(c).tolist() for c in products.output_hold],
         "feedback_hold_terms": [np.flatnonzero(k).tolist() for k in products.feedback_hold],
         "feedback_estimator_terms": [np.flatnonzero(k).tolist() for k in products.feedback_estimator],
+        "looped": count > UNROLLED_JOINTS,
+        "channel_table": {
+            "joint_channel": _channel_rows(realisation.joints.terms()),
+            "joint_force": _channel_rows(realisation.joints.back_terms()),
+            "sensor_channel": _channel_rows(realisation.sensors.terms()),
+        },
+        "term_tables": {
+            "feedback_hold": _term_table(products.feedback_hold, row),
+            "feedback_estimator": _term_table(products.feedback_estimator, row),
+            "output_hold": _term_table(products.output_hold, row),
+        },
         "clqg_boundary_layer": lit(artifact.clqg_boundary_layer),
         "sensor_limit": row(artifact.sensor_limit),
         "feedback_limit": lit(FEEDBACK_LIMIT),
+    }
+
+
+def _channel_rows(terms) -> str:
+    """A channel table's initialisers: {first, second, sign}, sign 0 for a value alone."""
+    return ", ".join(f"{{{a}, {a if b < 0 else b}, {0 if b < 0 else int(sign)}}}" for a, b, sign in terms)
+
+
+def _term_table(matrix, row) -> dict:
+    """The nonzero entries of each row of ``matrix`` as the loops read them: row r's are
+    ``gain[k]`` with ``index[k]``, k = ``first[r]`` … ``first[r + 1] − 1``, in column order (the
+    written-out form's). ``gain`` and ``index`` are never empty: C99 has no zero-length array, so
+    an empty table holds one unread 0."""
+    matrix = np.asarray(matrix, dtype=float)
+    rows = [np.flatnonzero(r).tolist() for r in matrix]
+    first = np.concatenate([[0], np.cumsum([len(r) for r in rows])]).astype(int).tolist()
+    index = [k for r in rows for k in r]
+    gain = [matrix[r, k] for r, columns in enumerate(rows) for k in columns]
+    return {
+        "first": ", ".join(map(str, first)),
+        "index": ", ".join(map(str, index or [0])),
+        "gain": row(gain or [0.0]),
+        "count": max(len(index), 1),
     }
 
 
@@ -111,6 +160,7 @@ def _group(realisation: Realisation, products: HoldProducts, group, lit, row, jo
         "stop": group.stop,
         "joints": list(group.joints),
         "feedback_joints": list(group.feedback_joints),
+        "feedback_identity": list(group.feedback_joints) == list(range(len(group.feedback_joints))),
         "sensors": list(group.sensors),
         "output_terms": [(s, c, None if unit else next(stored)) for (s, c), unit in zip(output_terms, unit_outputs)],
         "stored_outputs": len(stored_outputs),

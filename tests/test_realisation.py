@@ -79,3 +79,25 @@ def test_an_asymmetric_design_keeps_its_channels_and_its_c_is_the_reference(refe
     compiled = controllers.compile_controllers(changed, "double")
     assert "alpha" in compiled.files["smartjoint_clqg.c"]
     _check_pair(clipped_lqg(changed), compiled.law("clqg"), _sequence(changed, count=800), exact=True)
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("source", ["bundled", "mast_12"])
+def test_the_looped_step_is_the_reference_bit_for_bit(reference, source, monkeypatch):
+    """Beyond law_contexts.UNROLLED_JOINTS the sums over joints are loops over index tables of the
+    same terms in the same order: the double build equals the Python reference bit for bit — on
+    the bundled design forced into loops, and on the 12-joint mast of benchmarks/joint_scaling —
+    and the loops' code does not grow with the joints the way the written-out sums do."""
+    from test_codegen import _check_pair, _sequence
+
+    from smartjoint.codegen import law_contexts
+
+    a = reference if source == "bundled" else artifact.load(ROOT / "benchmarks" / "joint_scaling" / "joints_12.json")
+    monkeypatch.setattr(law_contexts, "UNROLLED_JOINTS", 1000)
+    unrolled = controllers.compile_controllers(a, "double").files["smartjoint_clqg.c"]
+    monkeypatch.setattr(law_contexts, "UNROLLED_JOINTS", 0)
+    compiled = controllers.compile_controllers(a, "double")
+    looped = compiled.files["smartjoint_clqg.c"]
+    assert "channel_value(&joint_channel[j], input->friction_force)" in looped
+    assert looped.count("MULTIPLY_ADD") < unrolled.count("MULTIPLY_ADD") or len(a.joint_names) <= 4
+    _check_pair(clipped_lqg(a), compiled.law("clqg"), _sequence(a, count=800), exact=True)
