@@ -4,7 +4,8 @@ the command-line spelling (``kind:target:start:end[:detail]``, :func:`parse_faul
 Frame faults act on one frame name on its way over the bus (the firmware's own frames included),
 ``implausible`` puts a value beyond the design's range into a signal with a valid E2E
 protection, ``amplifier`` makes one joint's amplifier report (or suffer) a fault, ``bus_off``
-takes the whole bus off. The loop that injects them is ``bench/loop.py``; the report's
+takes a bus off: the one its target names (``bus_off:can1:…``, a bus of the network plan), or
+every bus without a target. The loop that injects them is ``bench/loop.py``; the report's
 demonstration sequence, built from the design's own frames and joints, is :func:`demo_faults`.
 """
 
@@ -29,8 +30,8 @@ class Fault:
 
     ``target``: a frame name for frame faults and ``implausible`` (any frame the bus carries,
     the firmware's own ``SETPOINT_<j>`` and ``CONTROLLER_STATUS`` included — those are faulted on
-    their way to the amplifiers), a joint name for ``amplifier`` (with ``amplifier_fault``),
-    nothing for ``bus_off``. ``delay`` [s] only for ``delay``; ``signal`` and ``value`` only for
+    their way to the amplifiers), a joint name for ``amplifier`` (with ``amplifier_fault``), a
+    bus name or nothing (every bus) for ``bus_off``. ``delay`` [s] only for ``delay``; ``signal`` and ``value`` only for
     ``implausible`` (the sender puts that value into the signal, with a valid E2E protection)."""
 
     kind: str
@@ -61,7 +62,7 @@ class Fault:
         return f"{self.kind} {self.target or 'bus'}{detail}"
 
 
-def check_faults(faults, frame_names, joint_names, signals=None) -> None:
+def check_faults(faults, frame_names, joint_names, signals=None, bus_names=None) -> None:
     """Refuse a fault that does not mean something on this bus.
 
     Every field of every fault must mean something: a known kind, an existing target, a detail
@@ -77,6 +78,8 @@ def check_faults(faults, frame_names, joint_names, signals=None) -> None:
         The artefact's joints (targets of ``amplifier`` faults).
     signals : dict of str to list of str, optional
         Per frame its signals an ``implausible`` fault may set.
+    bus_names : list of str, optional
+        The buses of the network plan (targets of ``bus_off``); None: one bus, no target.
 
     Raises
     ------
@@ -97,8 +100,11 @@ def check_faults(faults, frame_names, joint_names, signals=None) -> None:
                     f"{what}: target {f.target!r} / {f.amplifier_fault!r} — a joint "
                     f"({', '.join(joint_names)}) and one of {', '.join(AMPLIFIER_FAULTS)}"
                 )
-        elif f.target:
-            raise ModelError(f"{what}: target {f.target!r} — bus_off takes the whole bus off: give no target")
+        elif f.target and f.target not in (bus_names or ()):
+            allowed = f"a bus of the plan ({', '.join(bus_names)}), or give no target: every bus" if bus_names else ""
+            raise ModelError(
+                f"{what}: target {f.target!r} — {allowed or 'bus_off takes the whole bus off: give no target'}"
+            )
         if f.amplifier_fault and f.kind != "amplifier":
             raise ModelError(f"{what}: amplifier_fault {f.amplifier_fault!r} — only for kind amplifier")
         if f.delay is not None and f.kind != "delay":
@@ -125,7 +131,8 @@ def parse_fault(text: str) -> Fault:
     text : str
         ``kind:target:start:end[:detail]``; ``end``: seconds or ``inf`` (never ends); detail: the
         delay [s] (``delay``, default 5 ms), the amplifier fault (``amplifier``), the value
-        (``implausible``, target ``FRAME.signal``); ``bus_off`` has no target and no detail.
+        (``implausible``, target ``FRAME.signal``); ``bus_off`` has no detail, and as target a
+        bus of the network plan or none (every bus).
 
     Returns
     -------
@@ -145,7 +152,7 @@ def parse_fault(text: str) -> Fault:
     parts = text.split(":")
     example = (
         "e.g. drop:JOINT_A1:1.0:1.2, delay:JOINT_A1:1.0:1.2:0.002, amplifier:A1:1.0:inf:over_temperature, "
-        "implausible:JOINT_A1.sliding_velocity:1.0:1.2:2.1, bus_off::1.0:1.05"
+        "implausible:JOINT_A1.sliding_velocity:1.0:1.2:2.1, bus_off::1.0:1.05, bus_off:can1:1.0:1.05"
     )
     if len(parts) not in (4, 5):
         raise ModelError(f"--fault {text!r}: expected kind:target:start:end[:detail], {example}")

@@ -13,7 +13,7 @@ from smartjoint.codegen import build, can_codec, can_layer, generate
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
-from smartjoint.design.network import protocol
+from smartjoint.design.network import plan, protocol
 
 LAWS = {law.name: law.mode for law in law_registry.LAWS.values()}  # the CAN layer's law ids
 
@@ -32,9 +32,14 @@ def _driver_header(prefix: str) -> str:
 size_t {n}_state_size(void);
 int {n}_init_opaque(uint8_t *state, int law);
 unsigned int {n}_rx_opaque(uint8_t *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us);
+unsigned int {n}_rx_bus_opaque(uint8_t *state, uint8_t bus, uint32_t id, const uint8_t *data, uint8_t length,
+                                uint32_t time_us);
+int {n}_bus_off_opaque(uint8_t *state, uint8_t bus, int off);
 unsigned int {n}_step_opaque(uint8_t *state, uint32_t time_us);
 int {n}_tx_opaque(uint8_t *state, uint32_t *id, uint8_t *data, uint8_t *length);
+int {n}_tx_bus_opaque(uint8_t *state, uint8_t *bus, uint32_t *id, uint8_t *data, uint8_t *length);
 int {n}_safe(const uint8_t *state);
+int {n}_bus_safe(const uint8_t *state, int bus);
 unsigned int {n}_faults(const uint8_t *state);
 double {n}_command(const uint8_t *state, int joint);
 uint32_t {n}_counter(const uint8_t *state, int which);
@@ -57,13 +62,27 @@ unsigned int {n}_rx_opaque(uint8_t *state, uint32_t id, const uint8_t *data, uin
 {{
     return {n}_rx(({n}_state *)(void *)state, id, data, length, time_us);
 }}
+unsigned int {n}_rx_bus_opaque(uint8_t *state, uint8_t bus, uint32_t id, const uint8_t *data, uint8_t length,
+                                uint32_t time_us)
+{{
+    return {n}_rx_bus(({n}_state *)(void *)state, bus, id, data, length, time_us);
+}}
+int {n}_bus_off_opaque(uint8_t *state, uint8_t bus, int off)
+{{
+    return {n}_bus_off(({n}_state *)(void *)state, bus, off != 0);
+}}
 unsigned int {n}_step_opaque(uint8_t *state, uint32_t time_us)
 {{ return {n}_step(({n}_state *)(void *)state, time_us); }}
 int {n}_tx_opaque(uint8_t *state, uint32_t *id, uint8_t *data, uint8_t *length)
 {{
     return {n}_tx(({n}_state *)(void *)state, id, data, length);
 }}
+int {n}_tx_bus_opaque(uint8_t *state, uint8_t *bus, uint32_t *id, uint8_t *data, uint8_t *length)
+{{
+    return {n}_tx_bus(({n}_state *)(void *)state, bus, id, data, length);
+}}
 int {n}_safe(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->safe; }}
+int {n}_bus_safe(const uint8_t *state, int bus) {{ return ((const {n}_state *)(const void *)state)->bus_safe[bus]; }}
 unsigned int {n}_faults(const uint8_t *state) {{ return ((const {n}_state *)(const void *)state)->faults; }}
 double {n}_command(const uint8_t *state, int joint)
 {{ return (double)((const {n}_state *)(const void *)state)->command[joint]; }}
@@ -121,7 +140,8 @@ class Firmware:
         The controllers' scalar type and the prefix of every C identifier and file name, as
         ``codegen.generate.render`` takes them.
     **can_options
-        Passed to ``codegen.can_layer.render_can`` (``amplifier``).
+        Passed to ``codegen.can_layer.render_can`` (``amplifier``; ``network``: the plan of the
+        buses, default the artefact's one-bus plan).
     """
 
     def __init__(
@@ -150,7 +170,9 @@ class Firmware:
                 f"_{prefix}_can_driver.c",
             ),
         )
-        self.db = protocol.load_dbc(files["bus.dbc"])
+        self.network = can_options.get("network") or plan.one_bus(artifact, protocol.load_dbc(files["bus.dbc"]))
+        self.databases = [protocol.load_dbc(p.dbc) for p in self.network.buses]  # one per bus, as the DBCs say
+        self.db = can_layer.network_database(self.network)  # every frame once: lookups by name or id
         self.ffi, self.lib, self.prefix, self.artifact, self.law = module.ffi, module.lib, prefix, artifact, law
         self.folder, self.files = folder, files
         self._name = f"{prefix}_can"
@@ -158,6 +180,7 @@ class Firmware:
         self._id = self.ffi.new("uint32_t *")
         self._data = self.ffi.new("uint8_t[64]")
         self._length = self.ffi.new("uint8_t *")
+        self._bus = self.ffi.new("uint8_t *")
         self.reset()
 
     def _call(self, suffix, *args):
@@ -168,8 +191,9 @@ class Firmware:
         if self._call("init_opaque", self._state, LAWS[self.law]) != 0:
             raise ModelError(f"firmware: the CAN layer refused law {self.law!r}")
 
-    def rx(self, frame_id: int, data: bytes, time_us: int) -> int:
-        """One received frame into the CAN layer (``<prefix>_can_rx``).
+    def rx(self, frame_id: int, data: bytes, time_us: int, bus: int | None = None) -> int:
+        """One received frame into the CAN layer (``<prefix>_can_rx``, or ``<prefix>_can_rx_bus``
+        with the bus it came from).
 
         Parameters
         ----------
@@ -179,12 +203,26 @@ class Firmware:
             Its payload.
         time_us : int
             The receive time [µs] (wraps at 2^32; diagnostics only).
+        bus : int, optional
+            The index of the bus in the plan; None: the bus its identifier belongs to.
 
         Returns
         -------
         int
             The RX result bits of the generated header.
         """
+        if bus is not None:
+            return int(
+                self._call(
+                    "rx_bus_opaque",
+                    self._state,
+                    bus & 0xFF,
+                    frame_id & 0xFFFFFFFF,
+                    bytes(data),
+                    len(data) & 0xFF,
+                    time_us & 0xFFFFFFFF,
+                )
+            )
         return int(
             self._call(
                 "rx_opaque", self._state, frame_id & 0xFFFFFFFF, bytes(data), len(data) & 0xFF, time_us & 0xFFFFFFFF
@@ -201,6 +239,24 @@ class Firmware:
         while self._call("tx_opaque", self._state, self._id, self._data, self._length):
             frames.append((int(self._id[0]), bytes(self.ffi.buffer(self._data, self._length[0]))))
         return frames
+
+    def tx_bus(self) -> list[tuple[int, int, bytes]]:
+        """Every frame the last step queued, as (bus, identifier, payload), until
+        ``<prefix>_can_tx_bus`` returns 0."""
+        frames = []
+        while self._call("tx_bus_opaque", self._state, self._bus, self._id, self._data, self._length):
+            frames.append((int(self._bus[0]), int(self._id[0]), bytes(self.ffi.buffer(self._data, self._length[0]))))
+        return frames
+
+    def bus_off(self, bus: int, off: bool = True) -> None:
+        """Report bus ``bus`` off (or back) to the CAN layer (``<prefix>_can_bus_off``)."""
+        if self._call("bus_off_opaque", self._state, bus & 0xFF, int(off)) != 0:
+            raise ModelError(f"bus: {bus!r} — the plan has buses 0 … {len(self.network.buses) - 1}")
+
+    @property
+    def bus_safe(self) -> list[bool]:
+        """Per bus of the plan whether its joints hold the safe force."""
+        return [bool(self._call("bus_safe", self._state, b)) for b in range(len(self.network.buses))]
 
     @property
     def safe(self) -> bool:

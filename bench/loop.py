@@ -16,7 +16,10 @@ Per sample t_k (the plant simulation calls ``SilLoop.step`` as its controller):
    writers: .blf, .asc, .mf4 …).
 
 The default bus is python-can's in-process ``virtual`` interface; any other python-can interface
-name (and channel) runs the same code against real hardware.
+name (and channel) runs the same code against real hardware. A firmware built for several buses
+(``design.network.plan``) gets one python-can bus per bus of its plan, channel
+``<channel>.<bus name>`` (one bus: ``<channel>`` itself): each joint's node and amplifier on the
+bus of its joint, the tip sensors on the first, the heartbeat on every bus.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ from smartjoint.bench.faults import Fault, check_faults
 from smartjoint.common.errors import ModelError
 from smartjoint.design.network import busload
 from smartjoint.design.plant.interface import Measurements
+
+HEARTBEAT = "CONTROLLER_STATUS"  # the controller's heartbeat: on every bus
 
 
 def open_bus(interface: str, channel: str, **kwargs):
@@ -82,6 +87,7 @@ class SilRecord:
     amplifier_force: list = field(default_factory=list)
     amplifier_safe: list = field(default_factory=list)
     applied: list = field(default_factory=list)
+    bus_safe: list = field(default_factory=list)  # per bus of the plan: its joints hold the safe force
 
 
 class SilLoop:
@@ -127,11 +133,17 @@ class SilLoop:
         self.excitation_force = np.asarray(a.normal_force_max if excitation_force is None else excitation_force, float)
         names = {m.name for m in self.db.messages}
         signals = {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in self.db.messages}
-        check_faults(faults, names, [j for j in a.joint_names], signals)
+        self.bus_names = [p.bus.name for p in firmware.network.buses]
+        check_faults(faults, names, [j for j in a.joint_names], signals, self.bus_names)
         self.faults = list(faults)
         self.interface, self.channel, self.log_path = interface, channel, log_path
         self.amplifier_options = amplifier_options(a, amplifier)
         self.frames = {m.name: m for m in self.db.messages}
+        # the bus of every joint, and of every frame but the heartbeat (which is on every bus)
+        self.joint_bus = [next(b for b, p in enumerate(firmware.network.buses) if j in p.joints) for j in a.joint_names]
+        self.frame_bus = {
+            m.name: b for b, p in enumerate(firmware.network.buses) for m in p.database.messages if m.name != HEARTBEAT
+        }
         self.buses: list = []
         self.writer: Any = None  # a python-can writer while a log is kept
 
@@ -139,13 +151,15 @@ class SilLoop:
     def reset(self) -> None:
         """Open the buses, reset the firmware and the amplifiers: a run starts."""
         self.close()
+        channels = [self.channel] if len(self.bus_names) == 1 else [f"{self.channel}.{n}" for n in self.bus_names]
         try:
-            for _ in range(3):
-                self.buses.append(open_bus(self.interface, self.channel, preserve_timestamps=True))
+            for channel in channels:  # per bus: the nodes' side, the firmware's side, the logger
+                for _ in range(3):
+                    self.buses.append(open_bus(self.interface, channel, preserve_timestamps=True))
         except BaseException:
             self.close()
             raise
-        self.node_bus, self.firmware_bus, self.log_bus = self.buses
+        self.node_buses, self.firmware_buses, self.log_buses = self.buses[0::3], self.buses[1::3], self.buses[2::3]
         self.writer = None
         if self.log_path is not None:
             import can
@@ -154,13 +168,14 @@ class SilLoop:
         self.fw.reset()
         self.amplifiers = [AmplifierModel(**options) for options in self.amplifier_options]
         self.counters: defaultdict[str, int] = defaultdict(int)
-        self.delayed: list[tuple] = []  # (due time, bus, message)
+        self.delayed: list[tuple] = []  # (due time, bus handle, message, bus index)
         self.frozen_counters: dict = {}  # corrupt_counter: the counter each fault froze
-        self.node_echo = 0  # heartbeat counter the sensor nodes last saw
+        self.node_echo = [0] * len(self.bus_names)  # per bus: heartbeat counter its sensor nodes last saw
         self.k = 0
         self.record = SilRecord()
         self.stats: defaultdict[str, int] = defaultdict(int)
         self.frame_counts: defaultdict[str, int] = defaultdict(int)
+        self.bus_frame_counts: list[defaultdict[str, int]] = [defaultdict(int) for _ in self.bus_names]
         self.amplifier_e2e_errors = 0
 
     def close(self) -> None:
@@ -218,15 +233,20 @@ class SilLoop:
         data = bytearray(m.encode(values, strict=False, scaling=True))
         return self._frame(m.frame_id, bytes(e2e.protect(m.frame_id, data, message.data[1] & 0x0F)), t)
 
-    def _bus_off(self, t: float) -> bool:
-        return any(f.kind == "bus_off" and f.active(t) for f in self.faults)
+    def _bus_off(self, t: float, index: int) -> bool:
+        """Bus ``index`` is off at ``t``: a ``bus_off`` fault on it, or on every bus (no target)."""
+        return any(f.kind == "bus_off" and f.target in ("", self.bus_names[index]) and f.active(t) for f in self.faults)
 
-    def _transmit(self, bus, message, t: float) -> None:
-        """Put ``message`` on the bus from ``bus``'s side, through the fault injector."""
+    def _count(self, name: str, index: int) -> None:
+        self.frame_counts[name] += 1
+        self.bus_frame_counts[index][name] += 1
+
+    def _transmit(self, bus, message, t: float, index: int = 0) -> None:
+        """Put ``message`` on bus ``index`` from ``bus``'s side, through the fault injector."""
         import can
 
         name = self.db.get_message_by_frame_id(message.arbitration_id).name
-        if self._bus_off(t):
+        if self._bus_off(t, index):
             self.stats["frames_lost_bus_off"] += 1
             return
         copies = 1
@@ -237,7 +257,7 @@ class SilLoop:
             if f.kind in ("drop", "silent"):
                 return
             if f.kind == "delay":
-                self.delayed.append((t + f.lateness, bus, message))
+                self.delayed.append((t + f.lateness, bus, message, index))
                 return
             if f.kind == "duplicate":
                 copies = 2
@@ -262,19 +282,20 @@ class SilLoop:
                 message = self._implausible(message, f, t)
         for _ in range(copies):
             bus.send(message)
-            self.frame_counts[name] += 1
+            self._count(name, index)
 
-    def _release_delayed(self, t: float, sender) -> None:
-        """Late frames of ``sender``'s side go out at the first sample after their delay."""
-        due = [(bus, m) for when, bus, m in self.delayed if bus is sender and when <= t + 1e-12]
-        self.delayed = [(w, bus, m) for w, bus, m in self.delayed if not (bus is sender and w <= t + 1e-12)]
-        for bus, message in due:
-            if self._bus_off(t):
+    def _release_delayed(self, t: float, senders) -> None:
+        """Late frames of the ``senders``' side go out at the first sample after their delay."""
+        mine = lambda bus, when: any(bus is s for s in senders) and when <= t + 1e-12  # noqa: E731
+        due = [(bus, m, k) for when, bus, m, k in self.delayed if mine(bus, when)]
+        self.delayed = [d for d in self.delayed if not mine(d[1], d[0])]
+        for bus, message, index in due:
+            if self._bus_off(t, index):
                 self.stats["frames_lost_bus_off"] += 1
                 continue
             message.timestamp = t
             bus.send(message)
-            self.frame_counts[self.db.get_message_by_frame_id(message.arbitration_id).name] += 1
+            self._count(self.db.get_message_by_frame_id(message.arbitration_id).name, index)
 
     def _drain(self, bus) -> list:
         out: list = []
@@ -301,7 +322,7 @@ class SilLoop:
         t = float(measurements.time)
         time_us = int(round(t * 1e6)) & 0xFFFFFFFF
         # 1. The sensor nodes and the amplifiers send.
-        self._release_delayed(t, self.node_bus)  # due since the last sample: before this sample's frames
+        self._release_delayed(t, self.node_buses)  # due since the last sample: before this sample's frames
         self._send_sensor_frames(measurements, t)
         self._send_amplifier_status(t)
 
@@ -320,10 +341,12 @@ class SilLoop:
         return np.maximum(applied, 0.0)
 
     def _send_sensor_frames(self, measurements: Measurements, t: float) -> None:
-        echo = self.node_echo  # the sensor nodes sample on the controller's heartbeat and say which
+        # the sensor nodes sample on the controller's heartbeat on their bus and say which
         for j, joint in enumerate(self.joints):
+            b = self.joint_bus[j]
+            echo = self.node_echo[b]
             self._transmit(
-                self.node_bus,
+                self.node_buses[b],
                 self._message(
                     f"JOINT_{joint}",
                     {
@@ -335,13 +358,18 @@ class SilLoop:
                     t,
                 ),
                 t,
+                b,
             )
+        b = self.frame_bus["TIP_SENSORS"]
         self._transmit(
-            self.node_bus,
+            self.node_buses[b],
             self._message(
-                "TIP_SENSORS", {"sync": echo, **dict(zip(self.sensor_signals, map(float, measurements.sensors)))}, t
+                "TIP_SENSORS",
+                {"sync": self.node_echo[b], **dict(zip(self.sensor_signals, map(float, measurements.sensors)))},
+                t,
             ),
             t,
+            b,
         )
 
     def _send_amplifier_status(self, t: float) -> None:
@@ -357,43 +385,56 @@ class SilLoop:
             self.amplifiers[j].fault = fault
             status = self.amplifiers[j].status()
             if status is not None:
-                self._transmit(self.node_bus, self._message(f"AMP_STATUS_{joint}", status, t), t)
+                b = self.joint_bus[j]
+                self._transmit(self.node_buses[b], self._message(f"AMP_STATUS_{joint}", status, t), t, b)
 
     def _firmware_sample(self, t: float, time_us: int):
-        for message in self._drain(self.firmware_bus):
-            self.fw.rx(message.arbitration_id, bytes(message.data), time_us)
+        for b, bus in enumerate(self.firmware_buses):
+            for message in self._drain(bus):
+                self.fw.rx(message.arbitration_id, bytes(message.data), time_us, b)
         status = self.fw.step(time_us)
-        self._release_delayed(t, self.firmware_bus)
-        for frame_id, data in self.fw.tx():
-            self._transmit(self.firmware_bus, self._frame(frame_id, data, t), t)
+        self._release_delayed(t, self.firmware_buses)
+        for b, frame_id, data in self.fw.tx_bus():
+            self._transmit(self.firmware_buses[b], self._frame(frame_id, data, t), t, b)
         return status
 
+    def _setpoint(self, j: int, message, signal: str) -> None:
+        """Amplifier ``j`` takes ``signal`` of a setpoint frame (``SETPOINT_<j>``, ``SETPOINTS_<J>``)."""
+        m = self.frames[self.db.get_message_by_frame_id(message.arbitration_id).name]
+        before = self.amplifiers[j].setpoint_watch.failed
+        self.amplifiers[j].receive_setpoint(
+            message.arbitration_id,
+            bytes(message.data),
+            m.length,
+            lambda d, m=m: m.decode(d, decode_choices=False)[signal],
+        )
+        self.amplifier_e2e_errors += int(self.amplifiers[j].setpoint_watch.failed and not before)
+
     def _deliver_to_amplifiers(self) -> None:
-        heartbeat = self.frames["CONTROLLER_STATUS"]
+        heartbeat = self.frames[HEARTBEAT]
         mode = lambda data: heartbeat.decode(data, decode_choices=False)["mode"]  # noqa: E731
-        for message in self._drain(self.node_bus):
-            name = self.db.get_message_by_frame_id(message.arbitration_id).name
-            data = bytes(message.data)
-            if name == "CONTROLLER_STATUS":
-                for amplifier in self.amplifiers:
-                    amplifier.receive_heartbeat(message.arbitration_id, data, heartbeat.length, mode)
-                if len(data) == heartbeat.length and e2e.check(message.arbitration_id, data, None).crc_ok:
-                    self.node_echo = data[1] & 0x0F
-            elif name.startswith("SETPOINT_"):
-                j = self.joints.index(name[len("SETPOINT_") :])
-                m = self.frames[name]
-                before = self.amplifiers[j].setpoint_watch.failed
-                self.amplifiers[j].receive_setpoint(
-                    message.arbitration_id, data, m.length, lambda d, m=m: m.decode(d, decode_choices=False)["voltage"]
-                )
-                self.amplifier_e2e_errors += int(self.amplifiers[j].setpoint_watch.failed and not before)
+        for b, bus in enumerate(self.node_buses):
+            for message in self._drain(bus):
+                name = self.db.get_message_by_frame_id(message.arbitration_id).name
+                data = bytes(message.data)
+                if name == HEARTBEAT:
+                    for j, amplifier in enumerate(self.amplifiers):
+                        if self.joint_bus[j] == b:
+                            amplifier.receive_heartbeat(message.arbitration_id, data, heartbeat.length, mode)
+                    if len(data) == heartbeat.length and e2e.check(message.arbitration_id, data, None).crc_ok:
+                        self.node_echo[b] = data[1] & 0x0F
+                elif name.startswith("SETPOINTS_"):
+                    for s in self.frames[name].signals:
+                        if s.name.startswith("voltage_"):
+                            self._setpoint(self.joints.index(s.name[len("voltage_") :].upper()), message, s.name)
+                elif name.startswith("SETPOINT_"):
+                    self._setpoint(self.joints.index(name[len("SETPOINT_") :]), message, "voltage")
 
     def _drain_log(self) -> None:
-        if self.writer is not None:
-            for message in self._drain(self.log_bus):
-                self.writer.on_message_received(message)
-        else:
-            self._drain(self.log_bus)
+        for bus in self.log_buses:
+            for message in self._drain(bus):
+                if self.writer is not None:
+                    self.writer.on_message_received(message)
 
     def _record_sample(self, t: float, status, amplifier_force: np.ndarray, applied: np.ndarray) -> None:
         r = self.record
@@ -405,6 +446,7 @@ class SilLoop:
         r.amplifier_force.append(amplifier_force)
         r.amplifier_safe.append([a.own_safe for a in self.amplifiers])
         r.applied.append(applied)
+        r.bus_safe.append(self.fw.bus_safe)
 
     def statistics(self, duration: float, bitrate: int, data_bitrate: int | None) -> dict:
         """Frames per name, measured bus load over the run, E2E errors, timeouts.
@@ -424,15 +466,23 @@ class SilLoop:
             Frame counts, the bus load, the firmware's counters, E2E errors at the firmware and the
             amplifiers, samples in the safe state and what the fault injector did.
         """
-        busy = sum(
-            count * busload.frame_time(self.frames[name].length, self.frames[name].is_fd, bitrate, data_bitrate)
-            for name, count in self.frame_counts.items()
-        )
+        loads = [
+            sum(
+                count * busload.frame_time(self.frames[name].length, self.frames[name].is_fd, bitrate, data_bitrate)
+                for name, count in counts.items()
+            )
+            / duration
+            for counts in self.bus_frame_counts
+        ]
         counters = self.fw.counters
         return {
             "frames": dict(sorted(self.frame_counts.items())),
             "frames_total": int(sum(self.frame_counts.values())),
-            "bus_load": busy / duration,
+            "bus_load": max(loads),  # the busiest bus
+            "buses": [
+                {"name": n, "frames_total": int(sum(c.values())), "bus_load": load}
+                for n, c, load in zip(self.bus_names, self.bus_frame_counts, loads)
+            ],
             "bitrate": bitrate,
             "data_bitrate": data_bitrate,
             "firmware": counters,

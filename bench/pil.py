@@ -27,10 +27,11 @@ from typing import Any
 import numpy as np
 
 from smartjoint.bench import firmware, target
+from smartjoint.codegen import can_layer
 from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
-from smartjoint.design.network import protocol
+from smartjoint.design.network import plan, protocol
 
 ID_TIME, ID_TICK, ID_RESET, ID_QUERY, ID_EXIT = 0x1FFFFF00, 0x1FFFFF01, 0x1FFFFF02, 0x1FFFFF03, 0x1FFFFF04
 ID_READY, ID_SAMPLE, ID_COUNTERS, ID_MEASURED, ID_COMMAND = 0x1FFFFF10, 0x1FFFFF11, 0x1FFFFF12, 0x1FFFFF13, 0x1FFFFF20
@@ -110,7 +111,9 @@ class TargetFirmware:
         if law not in firmware.LAWS:
             raise ModelError(f"law: {law!r} — allowed: {', '.join(firmware.LAWS)}")
         self.artifact, self.law, self.timeout = artifact, law, float(timeout)
-        self.db = protocol.database(artifact)
+        # the target is built for one bus (design.network.plan.one_bus)
+        self.network = plan.one_bus(artifact, protocol.database(artifact))
+        self.db = can_layer.network_database(self.network)
         self._scratch = tempfile.TemporaryDirectory(prefix="smartjoint-pil-")
         self.elf = build_image(artifact, Path(self._scratch.name))
         self.process: subprocess.Popen | None = None
@@ -236,8 +239,9 @@ class TargetFirmware:
             raise ModelError(f"target {target.BOARD}: {sample[9]} frames sent, {len(self._frames)} received")
         return frames
 
-    def rx(self, frame_id: int, data: bytes, time_us: int) -> int:
-        """One frame to the target's ``<prefix>_can_rx`` (after a TIME frame when the time changed)."""
+    def rx(self, frame_id: int, data: bytes, time_us: int, bus: int | None = None) -> int:
+        """One frame to the target's ``<prefix>_can_rx`` (after a TIME frame when the time changed);
+        ``bus`` is 0 or None: the target has one bus."""
         if time_us != self._time_us:
             self._send(ID_TIME, int(time_us & 0xFFFFFFFF).to_bytes(4, "little"))
             self._time_us = time_us
@@ -254,6 +258,15 @@ class TargetFirmware:
         """The frames of the last step, as (identifier, payload)."""
         frames, self._frames = self._frames, []
         return frames
+
+    def tx_bus(self) -> list[tuple[int, int, bytes]]:
+        """The frames of the last step, as (bus, identifier, payload): all on the one bus."""
+        return [(0, frame_id, data) for frame_id, data in self.tx()]
+
+    @property
+    def bus_safe(self) -> list[bool]:
+        """The one bus's joints hold the safe force."""
+        return [self._safe]
 
     @property
     def safe(self) -> bool:

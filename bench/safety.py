@@ -55,6 +55,17 @@ class Case:
     tolerated: bool = False  # a delay within the latency bound: no safe state expected
 
 
+def setpoint_signal(db, tag: str) -> tuple[str, str]:
+    """The (frame, signal) carrying joint ``tag``'s setpoint: ``SETPOINT_<tag>.voltage``, or its
+    ``voltage_<tag>`` in a ``SETPOINTS`` frame of several joints (design.network.plan)."""
+    names = {m.name for m in db.messages}
+    if f"SETPOINT_{tag}" in names:
+        return f"SETPOINT_{tag}", "voltage"
+    signal = f"voltage_{tag.lower()}"
+    frame = next(m.name for m in db.messages if m.name.startswith("SETPOINTS_") and signal in m.signal_tree)
+    return frame, signal
+
+
 def implausible_values(artifact, db) -> dict:
     """Per (frame, signal): a value the sender could carry that lies beyond the design's range.
 
@@ -81,7 +92,7 @@ def implausible_values(artifact, db) -> dict:
         safe_volts = (float(artifact.safe_normal_force[j]) - artifact.piezo_preload) / artifact.piezo_force_per_volt
         values[(f"AMP_STATUS_{tag}", "monitor_voltage")] = safe_volts + 10.0 * artifact.tracking_tolerance
         high_volts = (float(artifact.normal_force_max[j]) - artifact.piezo_preload) / artifact.piezo_force_per_volt
-        values[(f"SETPOINT_{tag}", "voltage")] = high_volts + 10.0
+        values[setpoint_signal(db, tag)] = high_volts + 10.0
     for r, sensor in enumerate(artifact.sensor_names):
         values[("TIP_SENSORS", sensor.lower())] = -1.5 * float(artifact.sensor_limit[r])
     values[("CONTROLLER_STATUS", "mode")] = 9.0  # the amplifiers read it: only 1, 2 (the laws) and 3 (safe) exist
@@ -93,7 +104,7 @@ def implausible_values(artifact, db) -> dict:
     return values
 
 
-def _pairs(artifact, joints: list[str], dt: float, late: float) -> list[tuple[Fault, Fault]]:
+def _pairs(artifact, db, joints: list[str], dt: float, late: float) -> list[tuple[Fault, Fault]]:
     """Faults two at once: an input and an output frame, the bus with an amplifier, a late and an
     implausible input, an output stage with the heartbeat, and bus-off with a silent amplifier
     from power-up on."""
@@ -101,7 +112,7 @@ def _pairs(artifact, joints: list[str], dt: float, late: float) -> list[tuple[Fa
     return [
         (
             Fault("drop", START * dt, END * dt, f"JOINT_{tag}"),
-            Fault("corrupt_crc", START * dt, END * dt, f"SETPOINT_{other}"),
+            Fault("corrupt_crc", START * dt, END * dt, setpoint_signal(db, other)[0]),
         ),
         (
             Fault("bus_off", START * dt, END * dt),
@@ -175,7 +186,7 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     for frame in frames:  # late, but within the bound: used, never a timeout
         fault = Fault("delay", START * dt, END * dt, frame, delay=bound)
         out.append(Case(fault.label(), "within the latency bound", (fault,), LENGTH, tolerated=True))
-    for pair in _pairs(artifact, joints, dt, late):
+    for pair in _pairs(artifact, db, joints, dt, late):
         length = LENGTH if math.isfinite(pair[0].end) else END + 10
         timing = "two at once" if math.isfinite(pair[0].end) else "two at once, from t = 0, never ending"
         out.append(Case(" + ".join(f.label() for f in pair), timing, pair, length))

@@ -14,11 +14,12 @@ import numpy as np
 from smartjoint.bench import firmware, safety
 from smartjoint.bench.faults import check_faults, demo_faults
 from smartjoint.bench.loop import SilLoop
+from smartjoint.codegen import can_layer
 from smartjoint.common import figures, law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
 from smartjoint.design.control import study as closed_loop
-from smartjoint.design.network import busload, protocol
+from smartjoint.design.network import busload, plan, protocol
 
 
 def perturbed(controller, relative: float, seed: int):
@@ -99,32 +100,37 @@ def run_loop(setup, loop: SilLoop):
         loop.close()
 
 
-def _check_faults_against(db, artifact, faults) -> None:
-    """Refuse faults that mean nothing on the artefact's bus: its frames, joints and signals."""
+def _check_faults_against(network, artifact, faults) -> None:
+    """Refuse faults that mean nothing on the artefact's buses (``network``, a plan): their
+    frames, joints, signals and names."""
+    db = can_layer.network_database(network)
     check_faults(
         faults,
         {m.name for m in db.messages},
         list(artifact.joint_names),
         {m.name: [s.name for s in m.signals if s.name not in ("crc", "counter")] for m in db.messages},
+        [p.bus.name for p in network.buses],
     )
 
 
-def _study_header(db, bitrate: int, data_bitrate: int | None, real: str, amplifier: dict | None) -> dict[str, Any]:
-    """The study's figures before any run: the bus's bitrates and planned load, the scalar type."""
-    planned = busload.check(db, bitrate, data_bitrate)
+def _study_header(network, bitrate: int, data_bitrate: int | None, real: str, amplifier: dict | None) -> dict[str, Any]:
+    """The study's figures before any run: the buses' bitrates and planned load (the busiest bus
+    of the plan ``network``), the scalar type."""
+    planned = max(busload.check(p.database, bitrate, data_bitrate).load for p in network.buses)
     return {
         "bitrate": bitrate,
         "data_bitrate": data_bitrate,
-        "planned_bus_load": planned.load,
+        "planned_bus_load": planned,
+        "buses": [p.bus.name for p in network.buses],
         "real": real,
         "amplifier": dict(amplifier or {}),
         "laws": {},
     }
 
 
-def _sil_run(setup, artifact, law, real, faults, log_folder, amplifier, interface, channel):
+def _sil_run(setup, artifact, law, real, faults, log_folder, amplifier, interface, channel, network=None):
     """One law's compiled firmware through the CAN loop: the loop, the plant's result, the log path."""
-    image = firmware.Firmware(artifact, law, real)
+    image = firmware.Firmware(artifact, law, real, network=network)
     log_path = None if log_folder is None else Path(log_folder) / f"sil_{law}.blf"
     if log_path is not None:
         log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -174,6 +180,7 @@ def sil_study(
     interface: str = "virtual",
     channel: str = "smartjoint-sil",
     progress=print,
+    network=None,
 ) -> dict:
     """The paper's study through the CAN loop, per law against the model-in-the-loop run.
 
@@ -204,9 +211,12 @@ def sil_study(
     spread_runs : int
         Perturbed MIL runs of the spread.
     interface, channel : str
-        The python-can bus.
+        The python-can bus (a plan of several buses: channel ``<channel>.<bus name>`` each).
     progress : callable
         ``progress(message)`` hears what runs.
+    network : Network, optional
+        The buses (a design's ``[network]``): the firmware is built for their plan and the bench
+        runs one python-can bus per bus; default one bus, one SETPOINT frame per joint.
 
     Returns
     -------
@@ -215,9 +225,9 @@ def sil_study(
         injected faults' figures (``safety.measure``), the SIL record and result.
     """
     python = {law.name: law.python_reference for law in law_registry.LAWS.values()}
-    db = protocol.database(artifact)
-    _check_faults_against(db, artifact, faults)
-    out = _study_header(db, bitrate, data_bitrate, real, amplifier)
+    planned = plan.one_bus(artifact, protocol.database(artifact)) if network is None else plan.plan(artifact, network)
+    _check_faults_against(planned, artifact, faults)
+    out = _study_header(planned, bitrate, data_bitrate, real, amplifier)
     for law in laws:
         progress(f"      {law}: model in the loop (Python reference) …")
         mil, spread = _mil_runs(setup, law, lambda law=law: python[law](artifact), spread_runs)
@@ -225,7 +235,9 @@ def sil_study(
             f"      {law}: software in the loop ({real} firmware, CAN {bitrate / 1e6:g}"
             f"{'' if data_bitrate is None else f'/{data_bitrate / 1e6:g}'} Mbit/s) …"
         )
-        loop, result, log_path = _sil_run(setup, artifact, law, real, faults, log_folder, amplifier, interface, channel)
+        loop, result, log_path = _sil_run(
+            setup, artifact, law, real, faults, log_folder, amplifier, interface, channel, planned
+        )
         out.setdefault("mil_runs", {})[law] = mil
         out["laws"][law] = _law_figures(
             setup, artifact, faults, mil, spread, loop, result, log_path, bitrate, data_bitrate
@@ -355,7 +367,7 @@ def plot_sil(out: dict, folder, mil_runs: dict | None = None) -> list:
     return [path]
 
 
-def fault_run(setup, artifact, law: str | None = None, faults=None, real: str = "float") -> dict:
+def fault_run(setup, artifact, law: str | None = None, faults=None, real: str = "float", network=None) -> dict:
     """One SIL run of the study with a sequence of faults.
 
     Parameters
@@ -370,6 +382,8 @@ def fault_run(setup, artifact, law: str | None = None, faults=None, real: str = 
         Default :func:`demo_faults`.
     real : str
         The firmware's scalar type.
+    network : Network, optional
+        The buses (default one bus, one SETPOINT frame per joint); a ``bus_off`` fault may name one.
 
     Returns
     -------
@@ -379,11 +393,12 @@ def fault_run(setup, artifact, law: str | None = None, faults=None, real: str = 
     """
     law = law_registry.fault_matrix_law().name if law is None else law
     faults = demo_faults(artifact, setup.duration) if faults is None else tuple(faults)
-    _check_faults_against(protocol.database(artifact), artifact, faults)
+    planned = plan.one_bus(artifact, protocol.database(artifact)) if network is None else plan.plan(artifact, network)
+    _check_faults_against(planned, artifact, faults)
     late = [f.label() for f in faults if not f.start < setup.duration]
     if late:  # it would never act, and its cycles could not be counted
         raise ModelError(f"faults {', '.join(late)}: start at or after the study's end t_e = {setup.duration:g} s")
-    loop = SilLoop(firmware.Firmware(artifact, law, real), closed_loop.PULSE_DURATION, faults=faults)
+    loop = SilLoop(firmware.Firmware(artifact, law, real, network=planned), closed_loop.PULSE_DURATION, faults=faults)
     result = run_loop(setup, loop)
     rows = [
         {

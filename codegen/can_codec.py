@@ -27,7 +27,11 @@ def layout_name(message: str, joints: list[str]) -> str:
     --------
     >>> layout_name("AMP_STATUS_A2", ["A1", "A2"]), layout_name("TIP_SENSORS", ["A1"])
     ('amp_status', 'tip_sensors')
+
+    A ``SETPOINTS_<J>`` frame (several joints' setpoints) is a layout of its own.
     """
+    if message.startswith("SETPOINTS_"):
+        return message.lower()
     for tag in joints:
         if message.endswith(f"_{tag.upper()}"):
             return message[: -len(tag) - 1].lower()

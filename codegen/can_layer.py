@@ -7,13 +7,15 @@ transmit, the heartbeat the amplifiers watch."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from smartjoint.codegen import can_codec, identifiers, rendering
 from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
-from smartjoint.design.network import protocol
+from smartjoint.design.network import plan, protocol
 
 RUNTIME = package_data.folder("smartjoint.firmware", "runtime")
 
@@ -140,17 +142,24 @@ def _messages(db, joints: list[str], real: str, full_codec: bool) -> tuple[list[
     return messages, layouts
 
 
-def _inputs(db, joints: list[str], cycle_us: int) -> list[dict]:
-    """The frames the controller receives, in the order the C ages them; each must come once per
+def _inputs(db, joints: list[str], cycle_us: int, joint_bus: list[int]) -> list[dict]:
+    """The frames the controller receives, in the order the C ages them, each with its bus
+    (``joint_bus``: each joint's; the tip sensors on the first); each must come once per
     controller cycle, since ages count steps (design/network/protocol.py)."""
     by_name = {m.name: m for m in db.messages}
     inputs = [
-        {"kind_c": "INPUT_JOINT", "index": j, "message": f"JOINT_{tag}", "sensors_only": 0}
+        {"kind_c": "INPUT_JOINT", "index": j, "message": f"JOINT_{tag}", "sensors_only": 0, "bus": joint_bus[j]}
         for j, tag in enumerate(joints)
     ]
-    inputs.append({"kind_c": "INPUT_TIP", "index": 0, "message": "TIP_SENSORS", "sensors_only": 1})
+    inputs.append({"kind_c": "INPUT_TIP", "index": 0, "message": "TIP_SENSORS", "sensors_only": 1, "bus": 0})
     inputs += [
-        {"kind_c": "INPUT_AMPLIFIER", "index": j, "message": f"AMP_STATUS_{tag}", "sensors_only": 0}
+        {
+            "kind_c": "INPUT_AMPLIFIER",
+            "index": j,
+            "message": f"AMP_STATUS_{tag}",
+            "sensors_only": 0,
+            "bus": joint_bus[j],
+        }
         for j, tag in enumerate(joints)
     ]
     for i in inputs:
@@ -221,8 +230,10 @@ def _limit_literals(artifact: ControllerArtifact, amplifier: protocol.Amplifier,
     }
 
 
-def _raw_types(db, artifact: ControllerArtifact, layouts: list[dict]) -> dict:
-    """The raw C types the layer's state and limits take from the frames it reads and sends."""
+def _raw_types(artifact: ControllerArtifact, layouts: list[dict], setpoint: tuple[str, str]) -> dict:
+    """The raw C types the layer's state and limits take from the frames it reads and sends;
+    ``setpoint`` the (layout, signal) of the first setpoint voltage, whose codec the layer's
+    setpoints go through (every setpoint signal has the SETPOINT frame's scaling)."""
     kinds = {layout["name"]: {s["name"]: s["ctype"] for s in layout["signals"]} for layout in layouts}
     sensor_ctypes = {kinds["tip_sensors"][s.lower()] for s in artifact.sensor_names}
     if len(sensor_ctypes) != 1:
@@ -231,9 +242,92 @@ def _raw_types(db, artifact: ControllerArtifact, layouts: list[dict]) -> dict:
         "joint_ctypes": kinds["joint"],
         "amp_ctypes": kinds["amp_status"],
         "sensor_ctype": sensor_ctypes.pop(),
-        "setpoint_ctype": kinds["setpoint"]["voltage"],
-        "setpoint_length": db.get_message_by_name(f"SETPOINT_{artifact.joint_names[0].upper()}").length,
+        "setpoint_ctype": kinds[setpoint[0]][setpoint[1]],
     }
+
+
+def _outputs(network: plan.NetworkPlan, joints: list[str], prefix: str) -> dict:
+    """What the layer sends each sample, per bus in the plan's order: its setpoint frames (one
+    ``SETPOINT_<j>`` each, or ``SETPOINTS_<J>`` with several voltages), then its heartbeat; the
+    bus of every joint; the codec functions' stem of the first setpoint signal."""
+    outputs: list[dict] = []
+    joint_bus = [0] * len(joints)
+    for b, bus in enumerate(network.buses):
+        for tag in bus.joints:
+            joint_bus[joints.index(tag.upper())] = b
+        for m in sorted(bus.database.messages, key=lambda m: m.frame_id):
+            if m.name.startswith("SETPOINTS_"):
+                voltages = [
+                    {"signal": s.name, "joint": joints.index(s.name[len("voltage_") :].upper())}
+                    for s in sorted(m.signals, key=lambda s: s.start)
+                    if s.name.startswith("voltage_")
+                ]
+                outputs.append(
+                    {
+                        "message": m.name,
+                        "bus": b,
+                        "kind_c": f"OUTPUT_{m.name}",
+                        "joint": voltages[0]["joint"],
+                        "packed": True,
+                        "layout": can_codec.layout_name(m.name, joints),
+                        "voltages": voltages,
+                    }
+                )
+            elif m.name.startswith("SETPOINT_"):
+                joint = joints.index(m.name[len("SETPOINT_") :])
+                outputs.append(
+                    {"message": m.name, "bus": b, "kind_c": "OUTPUT_SETPOINT", "joint": joint, "packed": False}
+                )
+        outputs.append(
+            {"message": "CONTROLLER_STATUS", "bus": b, "kind_c": "OUTPUT_HEARTBEAT", "joint": 0, "packed": False}
+        )
+    first = outputs[0]
+    setpoint = (first["layout"], first["voltages"][0]["signal"]) if first["packed"] else ("setpoint", "voltage")
+    single = any(o["kind_c"] == "OUTPUT_SETPOINT" for o in outputs)
+    kinds = [o["kind_c"] for o in outputs if o["packed"]] + ["OUTPUT_SETPOINT"] * single + ["OUTPUT_HEARTBEAT"]
+    return {
+        "outputs": outputs,
+        "output_kinds": kinds,
+        "single_setpoints": single,
+        "joint_bus": joint_bus,
+        "setpoint": setpoint,
+        "setpoint_codec": f"{prefix}_can_{setpoint[0]}_{setpoint[1]}",
+        "buses": [
+            {"index": b, "name": p.bus.name, "joints_text": ", ".join(p.joints) or "no joint"}
+            for b, p in enumerate(network.buses)
+        ],
+    }
+
+
+def network_database(network: plan.NetworkPlan):
+    """Every frame of a plan in one cantools database (the heartbeat, on every bus, once): the
+    frames the layer's codec and dispatch are generated from."""
+    from cantools.database import can
+
+    seen: dict[str, can.Message] = {}
+    nodes: dict[str, can.Node] = {}
+    for p in network.buses:
+        for m in p.database.messages:
+            seen.setdefault(m.name, m)
+        for n in p.database.nodes:
+            nodes.setdefault(n.name, n)
+    db = can.Database(
+        sorted(seen.values(), key=lambda m: m.frame_id),
+        list(nodes.values()),
+        version=network.buses[0].database.version,
+        dbc_specifics=protocol.fd_specifics(),
+    )
+    db.refresh()
+    return db
+
+
+def dbc_files(network: plan.NetworkPlan) -> dict[str, str]:
+    """The DBC of every bus of a plan, checked to read back: ``bus.dbc`` for one bus, else
+    ``bus_<name>.dbc`` per bus (characters other than letters, digits, ``_``, ``-`` and ``.`` of
+    the bus's name as ``_``)."""
+    if len(network.buses) == 1:
+        return {"bus.dbc": _checked_dbc(network.buses[0].database)}
+    return {f"bus_{re.sub(r'[^A-Za-z0-9_.-]', '_', p.bus.name)}.dbc": _checked_dbc(p.database) for p in network.buses}
 
 
 def _arithmetic(real: str) -> dict[str, str]:
@@ -303,6 +397,7 @@ def render_can(
     amplifier: protocol.Amplifier | None = None,
     full_codec: bool = False,
     real: str = "float",
+    network: plan.NetworkPlan | None = None,
 ) -> dict[str, str]:
     """Render the CAN message layer of the controller.
 
@@ -320,26 +415,27 @@ def render_can(
     real : str
         The scalar type of the controllers the layer drives (``<prefix>_real``): the codec's
         encode/decode compute in it, so the float build uses no double arithmetic.
+    network : NetworkPlan, optional
+        The buses and their frames (``design.network.plan.plan``: its setpoints packed into
+        ``SETPOINTS_<J>`` frames where that lowers the load); default every frame of
+        ``protocol.database`` on one bus, one ``SETPOINT_<j>`` per joint (``plan.one_bus``).
 
     Returns
     -------
     dict of str to str
-        File name → text: ``<prefix>_can.h/.c``, the E2E runtime ``sj_e2e.h/.c``, ``bus.dbc``
-        and an example ``main.c`` with the CAN loop.
-
-    Examples
-    --------
-    >>> files = render_can(artifact, full_codec=True)  # doctest: +SKIP
-    >>> protocol.load_dbc(files["bus.dbc"]).messages  # doctest: +SKIP
+        File name → text: ``<prefix>_can.h/.c``, the E2E runtime ``sj_e2e.h/.c``, the DBC of
+        every bus (``dbc_files``) and an example ``main.c`` with the CAN loop.
     """
     rendering.check(artifact, real, prefix)
     amplifier = amplifier or protocol.Amplifier(
         force_per_volt=artifact.piezo_force_per_volt, preload=artifact.piezo_preload
     )
     check_can(artifact, amplifier)
-    db = protocol.database(artifact, amplifier)
+    network = network or plan.one_bus(artifact, protocol.database(artifact, amplifier))
+    db = network_database(network)
     joints = [j.upper() for j in artifact.joint_names]
     messages, layouts = _messages(db, joints, real, full_codec)
+    sending = _outputs(network, joints, prefix)
     cycle_us = int(round(artifact.sample_time * 1e6))
     digest = artifact.artifact_sha256
     context = {
@@ -352,7 +448,8 @@ def render_can(
         "sensors": [s.upper() for s in artifact.sensor_names],
         "messages": messages,
         "layouts": layouts,
-        "inputs": _inputs(db, joints, cycle_us),
+        "inputs": _inputs(db, joints, cycle_us, sending["joint_bus"]),
+        **sending,
         "cycle_us": cycle_us,
         "timeout_cycles": artifact.timeout_cycles,
         "recovery_cycles": artifact.recovery_cycles,
@@ -361,17 +458,13 @@ def render_can(
         **_laws_context(),
         "einval": can_codec.EINVAL,
         "limits": _raw_limits(db, artifact),
-        **_raw_types(db, artifact, layouts),
+        **_raw_types(artifact, layouts, sending["setpoint"]),
         **_limit_literals(artifact, amplifier, real),
         **_arithmetic(real),
     }
     env = rendering.environment()
-    files = {
-        f"{prefix}_can.h": env.get_template("can.h.j2").render(context),
-        f"{prefix}_can.c": env.get_template("can.c.j2").render(context),
-    }
-    files.update(_runtime_sources())
-    files["bus.dbc"] = _checked_dbc(db)
+    files = {f"{prefix}_can.{kind}": env.get_template(f"can.{kind}.j2").render(context) for kind in "hc"}
+    files.update({**_runtime_sources(), **dbc_files(network)})
     example = _example_context(context, real, digest)
     files["main.c"] = env.get_template("main_can.c.j2").render(example)
     return files

@@ -165,6 +165,17 @@ def _bus_plan(full, artifact, bus: Bus, joints: list[int], first: bool, spec) ->
     return BusPlan(bus, [names[j] for j in joints], db, load, per_sample, packed)
 
 
+def one_bus(artifact, database: can.Database) -> NetworkPlan:
+    """Every frame of ``database`` (``protocol.database``: one ``SETPOINT_<j>`` per joint) on one
+    bus at CAN FD 1/5 Mbit/s: the plan of a controller built without a ``[network]``."""
+    bus = Network().buses[0]
+    load = busload.bus_load(database, bus.bitrate, bus.data_bitrate)
+    busy = sum(f.frame_time for f in load.frames)
+    return NetworkPlan(
+        [BusPlan(bus, list(artifact.joint_names), database, load, busy, False)], float(artifact.sample_time)
+    )
+
+
 def plan(artifact, spec: Network | None = None) -> NetworkPlan:
     """Assign an artefact's frames to the buses of ``spec`` (module docstring).
 
@@ -192,7 +203,8 @@ def plan(artifact, spec: Network | None = None) -> NetworkPlan:
     memo: dict[tuple[int, int, int], BusPlan] = {}  # (bus, first joint, end) → its plan
     result = _fill(full, artifact, spec, 1.0, memo)
     if result is None:
-        return _fill(full, artifact, spec, 1.0, memo, refuse=True)  # raises the one-line refusal
+        _fill(full, artifact, spec, 1.0, memo, refuse=True)  # raises the one-line refusal
+        raise AssertionError("the refusing fill places every joint only when the fill did")
     # The lowest common ceiling that still places every joint: placing is monotone in it.
     low, high = 0.0, max(p.load.load for p in result.buses)
     while high - low > 1e-3:
@@ -205,9 +217,7 @@ def plan(artifact, spec: Network | None = None) -> NetworkPlan:
     return result
 
 
-def _fill(
-    full, artifact, spec: Network, ceiling: float, memo: dict, refuse: bool = False
-) -> NetworkPlan | None:
+def _fill(full, artifact, spec: Network, ceiling: float, memo: dict, refuse: bool = False) -> NetworkPlan | None:
     """Joints to buses in order, each bus within min(its limit, ``ceiling``); None when some joint
     is left over (``refuse``: raise the one-line refusal instead)."""
     count = len(artifact.joint_names)
@@ -291,4 +301,4 @@ def _refusal(bus: Bus, trial: BusPlan, what: str, spec: Network) -> ModelError:
     )
 
 
-__all__ = ["BusPlan", "NetworkPlan", "PACK_MAX", "check_design", "plan"]
+__all__ = ["BusPlan", "NetworkPlan", "PACK_MAX", "check_design", "one_bus", "plan"]

@@ -70,6 +70,7 @@ CONTROLLER_FAULTS = (
     "e2e",
     "controller",
     "law",
+    "bus_off",
 )
 E2E_SIGNALS = ("crc", "counter", "sync")  # E2E bytes and the heartbeat echo; no sensor signal may take these names
 SYNC_COMMENT = (

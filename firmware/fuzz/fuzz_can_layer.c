@@ -13,10 +13,11 @@
  *   within [F^min, F^max];
  * - the newest accepted amplifier status frame of any joint with a fault bit or its own safe
  *   state means the safe state, whatever the layer remembers itself;
- * - smartjoint_can_tx sends the setpoints of all joints in order, then the heartbeat, then
- *   nothing; each frame has its length, a valid CRC, and every frame of a step the step's alive
- *   counter (step n sends n + 1, mod 16); the setpoint decodes (bit-wise reference, bus.dbc) to the
- *   command over the amplifier gain, within the amplifier's range; the heartbeat's mode is 3 in
+ * - smartjoint_can_tx sends the setpoint frames in order (one SETPOINT_<j> per joint, or
+ *   SETPOINTS_<J> frames of several), then the heartbeat, then nothing; each frame has its length,
+ *   a valid CRC, and every frame of a step the step's alive counter (step n sends n + 1, mod 16);
+ *   each joint's setpoint decodes (bit-wise reference, bus.dbc) to the command over the amplifier
+ *   gain, within the amplifier's range; the heartbeat's mode is 3 in
  *   the safe state, else the law, and it carries the step status and the fault bits.
  * Every frame sits in a buffer of exactly its size; ASan and UBSan abort on any bad access or
  * undefined behaviour. */
@@ -32,15 +33,13 @@
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 #define MAX_EVENTS 2048
-#define TX_LENGTH                                                                                         \
-    (SMARTJOINT_CAN_SETPOINT_A1_LENGTH > SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH ? SMARTJOINT_CAN_SETPOINT_A1_LENGTH \
-                                                                                  : SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH)
+#define TX_LENGTH 64u /* the longest CAN FD frame */
 
 /* The frames the controller receives, then two it sends itself (which it must ignore). */
 static const uint32_t frame_ids[] = {
     SMARTJOINT_CAN_JOINT_A1_ID,      SMARTJOINT_CAN_JOINT_A2_ID,      SMARTJOINT_CAN_JOINT_A3_ID,
     SMARTJOINT_CAN_TIP_SENSORS_ID,   SMARTJOINT_CAN_AMP_STATUS_A1_ID, SMARTJOINT_CAN_AMP_STATUS_A2_ID,
-    SMARTJOINT_CAN_AMP_STATUS_A3_ID, SMARTJOINT_CAN_SETPOINT_A1_ID,   SMARTJOINT_CAN_CONTROLLER_STATUS_ID,
+    SMARTJOINT_CAN_AMP_STATUS_A3_ID, FUZZ_FIRST_SETPOINT_ID,          SMARTJOINT_CAN_CONTROLLER_STATUS_ID,
 };
 #define FRAME_IDS (sizeof frame_ids / sizeof frame_ids[0])
 #define INPUT_IDS 7u
@@ -155,7 +154,7 @@ static double healthy_value(const bench *b, unsigned int slot, const fuzz_messag
         return within_limit(reader, fuzz_sensor_limit[(k - 3u) % FUZZ_SENSORS], 0);
     }
     if (strcmp(name, "monitor_voltage") == 0) { /* the last setpoint, within half the tolerance */
-        const fuzz_signal *voltage = fuzz_find_signal(fuzz_find_message(fuzz_setpoint_ids[j]), "voltage");
+        const fuzz_signal *voltage = fuzz_find_signal(fuzz_find_message(fuzz_setpoint_ids[j]), fuzz_setpoint_signals[j]);
         return fuzz_reference_decode(b->can.setpoint[j], voltage) + within_limit(reader, 0.5 * fuzz_tracking_tolerance, 0);
     }
     if (strcmp(name, "current") == 0) {
@@ -202,8 +201,8 @@ static void bus_cycle(bench *b, fuzz_reader *reader)
 static void check_setpoint(const bench *b, unsigned int joint, const uint8_t *frame)
 {
     const fuzz_message *message = fuzz_find_message(fuzz_setpoint_ids[joint]);
-    const fuzz_signal *voltage = fuzz_find_signal(message, "voltage");
-    const double sent = field_value(message, "voltage", frame);
+    const fuzz_signal *voltage = fuzz_find_signal(message, fuzz_setpoint_signals[joint]);
+    const double sent = field_value(message, fuzz_setpoint_signals[joint], frame);
     const double command = (double)b->can.command[joint];
     double expected = (command - fuzz_preload) / fuzz_force_per_volt;
     expected = expected < voltage->minimum ? voltage->minimum : (expected > voltage->maximum ? voltage->maximum : expected);
@@ -270,9 +269,10 @@ static void step_and_send(bench *b, fuzz_reader *reader)
     b->time += (control & 1u) ? fuzz_take_u32(reader) : (uint32_t)SMARTJOINT_CAN_CYCLE_US * (control >> 6);
     status = smartjoint_can_step(&b->can, b->time);
     check_commands(b, status);
-    expected_frames = FUZZ_JOINTS + 1u; /* the setpoints and the heartbeat, every step */
+    expected_frames = FUZZ_SETPOINT_FRAMES + 1u; /* the setpoints and the heartbeat, every step */
     while (smartjoint_can_tx(&b->can, &id, frame, &length)) {
-        const uint32_t expected_id = sent < FUZZ_JOINTS ? fuzz_setpoint_ids[sent] : SMARTJOINT_CAN_CONTROLLER_STATUS_ID;
+        const uint32_t expected_id =
+            sent < FUZZ_SETPOINT_FRAMES ? fuzz_setpoint_frames[sent] : SMARTJOINT_CAN_CONTROLLER_STATUS_ID;
         const fuzz_message *message = fuzz_find_message(expected_id);
         if (sent >= expected_frames || id != expected_id || length != message->length) {
             fuzz_fail("can_layer", "tx frame %u of step %u: id 0x%x length %u (expected id 0x%x length %u, %u frames)",
@@ -282,8 +282,13 @@ static void step_and_send(bench *b, fuzz_reader *reader)
             fuzz_fail("can_layer", "tx frame 0x%x: CRC 0x%02x or counter %u wrong (expected counter %u)", id, frame[0],
                       frame[1] & 0x0Fu, (b->steps + 1u) % 16u);
         }
-        if (sent < FUZZ_JOINTS) {
-            check_setpoint(b, sent, frame);
+        if (sent < FUZZ_SETPOINT_FRAMES) {
+            unsigned int j;
+            for (j = 0u; j < FUZZ_JOINTS; ++j) {
+                if (fuzz_setpoint_ids[j] == id) {
+                    check_setpoint(b, j, frame);
+                }
+            }
         } else {
             check_status_frame(b, status, frame);
         }

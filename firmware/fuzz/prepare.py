@@ -52,6 +52,11 @@ def _layout(db, artifact) -> tuple[str, str]:
     return "\n".join(_header_lines(messages, artifact)), "\n".join(_source_lines(messages, artifact)) + "\n"
 
 
+def _setpoint_frames(messages) -> list:
+    """The setpoint frames (``SETPOINT_<j>``, ``SETPOINTS_<J>``) by identifier: the order the layer sends them."""
+    return [m for m in messages if m.name.startswith(("SETPOINT_", "SETPOINTS_"))]
+
+
 def _header_lines(messages, artifact) -> list[str]:
     """fuzz_reference.h: the sizes of the bus and the artefact, and the tables' declarations."""
     header = [
@@ -76,7 +81,13 @@ def _header_lines(messages, artifact) -> list[str]:
         header.append(f"extern const fuzz_message fuzz_message_{m.name.lower()};")
     header += [
         "extern const fuzz_message *const fuzz_bus[FUZZ_MESSAGE_COUNT];",
+        "/* Per joint the frame (SETPOINT_<j> or SETPOINTS_<J>) and signal of its setpoint; the setpoint",
+        " * frames in the order the layer sends them (then the heartbeat) */",
         "extern const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS];",
+        "extern const char *const fuzz_setpoint_signals[FUZZ_JOINTS];",
+        f"#define FUZZ_SETPOINT_FRAMES {len(_setpoint_frames(messages))}u",
+        f"#define FUZZ_FIRST_SETPOINT_ID 0x{_setpoint_frames(messages)[0].frame_id:03X}u",
+        "extern const uint32_t fuzz_setpoint_frames[FUZZ_SETPOINT_FRAMES];",
         "extern const double fuzz_normal_force_min[FUZZ_JOINTS];",
         "extern const double fuzz_normal_force_max[FUZZ_JOINTS];",
         "/* The one safe force of the policy (artefact; docs/safety.md) */",
@@ -138,10 +149,26 @@ def _source_lines(messages, artifact) -> list[str]:
         + ", ".join(f"&fuzz_message_{m.name.lower()}" for m in messages)
         + "};"
     )
-    by_name = {m.name: m for m in messages}
-    setpoints = [by_name[f"SETPOINT_{j.upper()}"].frame_id for j in artifact.joint_names]
+    carriers = {}  # joint → (frame, signal) of its setpoint
+    for m in _setpoint_frames(messages):
+        for signal in m.signals:
+            if m.name.startswith("SETPOINT_") and signal.name == "voltage":
+                carriers[m.name[len("SETPOINT_") :]] = (m, signal.name)
+            elif signal.name.startswith("voltage_"):
+                carriers[signal.name[len("voltage_") :].upper()] = (m, signal.name)
+    setpoints = [carriers[j.upper()] for j in artifact.joint_names]
     source.append(
-        "const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS] = {" + ", ".join(f"0x{i:03X}u" for i in setpoints) + "};"
+        "const uint32_t fuzz_setpoint_ids[FUZZ_JOINTS] = {"
+        + ", ".join(f"0x{m.frame_id:03X}u" for m, _ in setpoints)
+        + "};"
+    )
+    source.append(
+        "const char *const fuzz_setpoint_signals[FUZZ_JOINTS] = {" + ", ".join(f'"{s}"' for _, s in setpoints) + "};"
+    )
+    source.append(
+        "const uint32_t fuzz_setpoint_frames[FUZZ_SETPOINT_FRAMES] = {"
+        + ", ".join(f"0x{m.frame_id:03X}u" for m in _setpoint_frames(messages))
+        + "};"
     )
     for name, values in (
         ("normal_force_min", artifact.normal_force_min),

@@ -732,22 +732,45 @@ typedef enum {
 typedef struct {
     uint16_t id;
     uint8_t length;
+    uint8_t bus;
     uint8_t kind;      /* input_kind */
     uint8_t index;     /* the joint of a JOINT or AMP_STATUS frame */
     uint8_t sensors_only; /* only a law that reads the tip sensors needs it */
 } input_entry;
 
 static const input_entry inputs[SMARTJOINT_CAN_INPUTS] = {
-    {SMARTJOINT_CAN_JOINT_A1_ID, SMARTJOINT_CAN_JOINT_A1_LENGTH, INPUT_JOINT, 0u, 0u},
-    {SMARTJOINT_CAN_JOINT_A2_ID, SMARTJOINT_CAN_JOINT_A2_LENGTH, INPUT_JOINT, 1u, 0u},
-    {SMARTJOINT_CAN_JOINT_A3_ID, SMARTJOINT_CAN_JOINT_A3_LENGTH, INPUT_JOINT, 2u, 0u},
-    {SMARTJOINT_CAN_TIP_SENSORS_ID, SMARTJOINT_CAN_TIP_SENSORS_LENGTH, INPUT_TIP, 0u, 1u},
-    {SMARTJOINT_CAN_AMP_STATUS_A1_ID, SMARTJOINT_CAN_AMP_STATUS_A1_LENGTH, INPUT_AMPLIFIER, 0u, 0u},
-    {SMARTJOINT_CAN_AMP_STATUS_A2_ID, SMARTJOINT_CAN_AMP_STATUS_A2_LENGTH, INPUT_AMPLIFIER, 1u, 0u},
-    {SMARTJOINT_CAN_AMP_STATUS_A3_ID, SMARTJOINT_CAN_AMP_STATUS_A3_LENGTH, INPUT_AMPLIFIER, 2u, 0u},
+    {SMARTJOINT_CAN_JOINT_A1_ID, SMARTJOINT_CAN_JOINT_A1_LENGTH, 0u, INPUT_JOINT, 0u, 0u},
+    {SMARTJOINT_CAN_JOINT_A2_ID, SMARTJOINT_CAN_JOINT_A2_LENGTH, 0u, INPUT_JOINT, 1u, 0u},
+    {SMARTJOINT_CAN_JOINT_A3_ID, SMARTJOINT_CAN_JOINT_A3_LENGTH, 0u, INPUT_JOINT, 2u, 0u},
+    {SMARTJOINT_CAN_TIP_SENSORS_ID, SMARTJOINT_CAN_TIP_SENSORS_LENGTH, 0u, INPUT_TIP, 0u, 1u},
+    {SMARTJOINT_CAN_AMP_STATUS_A1_ID, SMARTJOINT_CAN_AMP_STATUS_A1_LENGTH, 0u, INPUT_AMPLIFIER, 0u, 0u},
+    {SMARTJOINT_CAN_AMP_STATUS_A2_ID, SMARTJOINT_CAN_AMP_STATUS_A2_LENGTH, 0u, INPUT_AMPLIFIER, 1u, 0u},
+    {SMARTJOINT_CAN_AMP_STATUS_A3_ID, SMARTJOINT_CAN_AMP_STATUS_A3_LENGTH, 0u, INPUT_AMPLIFIER, 2u, 0u},
 };
 
-static const uint16_t setpoint_ids[SMARTJOINT_CAN_JOINTS] = {SMARTJOINT_CAN_SETPOINT_A1_ID, SMARTJOINT_CAN_SETPOINT_A2_ID, SMARTJOINT_CAN_SETPOINT_A3_ID};
+/* The frames the layer sends each sample, in order: per bus its setpoints, then its heartbeat. */
+typedef enum {
+    OUTPUT_SETPOINT,
+    OUTPUT_HEARTBEAT
+} output_kind;
+
+typedef struct {
+    uint16_t id;
+    uint8_t length;
+    uint8_t bus;
+    uint8_t kind;  /* output_kind */
+    uint8_t joint; /* the joint of a SETPOINT frame */
+} output_entry;
+
+static const output_entry outputs[SMARTJOINT_CAN_OUTPUTS] = {
+    {SMARTJOINT_CAN_SETPOINT_A1_ID, SMARTJOINT_CAN_SETPOINT_A1_LENGTH, 0u, OUTPUT_SETPOINT, 0u},
+    {SMARTJOINT_CAN_SETPOINT_A2_ID, SMARTJOINT_CAN_SETPOINT_A2_LENGTH, 0u, OUTPUT_SETPOINT, 1u},
+    {SMARTJOINT_CAN_SETPOINT_A3_ID, SMARTJOINT_CAN_SETPOINT_A3_LENGTH, 0u, OUTPUT_SETPOINT, 2u},
+    {SMARTJOINT_CAN_CONTROLLER_STATUS_ID, SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH, 0u, OUTPUT_HEARTBEAT, 0u},
+};
+
+/* The bus each joint's node and amplifier are on. */
+static const uint8_t joint_bus[SMARTJOINT_CAN_JOINTS] = {0u, 0u, 0u};
 static const smartjoint_real safe_normal_force[SMARTJOINT_CAN_JOINTS] = {400.0f, 400.0f, 400.0f};
 /* Plausibility ranges of the decoded signals (the design's [safety], docs/safety.md), as the
  * raw values whose decoded value (raw * scale + offset in double, as cantools) lies within. */
@@ -912,31 +935,41 @@ int smartjoint_can_init(smartjoint_can_state *state, smartjoint_can_law law)
         state->setpoint[k] = setpoint_voltage(safe_normal_force[k]);
         state->earlier_setpoint[k] = state->setpoint[k];
     }
+    for (k = 0u; k < SMARTJOINT_CAN_BUSES; ++k) {
+        state->bus_safe[k] = 1u;
+    }
     state->faults = state->law == SMARTJOINT_CAN_LAW_NONE ? SMARTJOINT_CAN_FAULT_LAW : 0u;
-    state->tx_next = SMARTJOINT_CAN_JOINTS + 1u; /* nothing to send before the first step */
+    state->tx_next = SMARTJOINT_CAN_OUTPUTS; /* nothing to send before the first step */
     return state->law == SMARTJOINT_CAN_LAW_NONE ? -1 : 0;
 }
 
-unsigned int smartjoint_can_rx(smartjoint_can_state *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us)
+/* The input of identifier `id` on bus `bus` (any bus: SMARTJOINT_CAN_BUSES), or SMARTJOINT_CAN_INPUTS. */
+static unsigned int find_input(unsigned int bus, uint32_t id)
 {
-    const input_entry *input = NULL;
     unsigned int k;
+    for (k = 0u; k < SMARTJOINT_CAN_INPUTS; ++k) {
+        if (inputs[k].id == id && (bus == SMARTJOINT_CAN_BUSES || inputs[k].bus == bus)) {
+            break;
+        }
+    }
+    return k;
+}
+
+static unsigned int receive_input(smartjoint_can_state *state, unsigned int k, uint32_t id, const uint8_t *data, uint8_t length,
+                                  uint32_t time_us)
+{
+    const input_entry *input;
     unsigned int result;
     uint8_t echo = 0u;
     uint16_t flags;
     if (state == NULL || data == NULL) {
         return SMARTJOINT_CAN_RX_WRONG_LENGTH;
     }
-    for (k = 0u; k < SMARTJOINT_CAN_INPUTS; ++k) {
-        if (inputs[k].id == id) {
-            input = &inputs[k];
-            break;
-        }
-    }
-    if (input == NULL) {
+    if (k >= SMARTJOINT_CAN_INPUTS) {
         state->unknown_ids++;
         return SMARTJOINT_CAN_RX_UNKNOWN_ID;
     }
+    input = &inputs[k];
     result = sj_e2e_check(&state->receivers[k], (uint16_t)id, data, length, input->length);
     if (result != SJ_E2E_OK) {
         if (result & SJ_E2E_WRONG_LENGTH) {
@@ -966,15 +999,45 @@ unsigned int smartjoint_can_rx(smartjoint_can_state *state, uint32_t id, const u
     return SMARTJOINT_CAN_RX_OK;
 }
 
-unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
+unsigned int smartjoint_can_rx_bus(smartjoint_can_state *state, uint8_t bus, uint32_t id, const uint8_t *data, uint8_t length,
+                    uint32_t time_us)
+{
+    const unsigned int k = bus < SMARTJOINT_CAN_BUSES ? find_input(bus, id) : SMARTJOINT_CAN_INPUTS;
+    return receive_input(state, k, id, data, length, time_us);
+}
+
+unsigned int smartjoint_can_rx(smartjoint_can_state *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us)
+{
+    return receive_input(state, find_input(SMARTJOINT_CAN_BUSES, id), id, data, length, time_us);
+}
+
+int smartjoint_can_bus_off(smartjoint_can_state *state, uint8_t bus, bool off)
+{
+    if (state == NULL || bus >= SMARTJOINT_CAN_BUSES) {
+        return -1;
+    }
+    state->bus_off[bus] = off ? 1u : 0u;
+    return 0;
+}
+
+/* Whether the law couples the joints: a law that reads the tip sensors estimates the whole truss,
+ * so every joint's command depends on every input and a fault anywhere stops all of it. The other
+ * laws read each joint's own measurements: a fault on one bus stops only the joints on it. */
+static int couples_joints(smartjoint_can_law law)
+{
+    return law == SMARTJOINT_CAN_LAW_CLQG;
+}
+
+/* Ages every input and sets each bus's fault bits (state->bus_faults) from its inputs the law
+ * needs and from a bus-off the caller reported; returns how many inputs the law needs are missing. */
+static unsigned int check_inputs(smartjoint_can_state *state)
 {
     unsigned int k;
+    unsigned int b;
     unsigned int missing = 0u;
-    uint16_t faults = 0u;
-    if (state == NULL) {
-        return SMARTJOINT_STATUS_NULL_POINTER;
+    for (b = 0u; b < SMARTJOINT_CAN_BUSES; ++b) {
+        state->bus_faults[b] = state->bus_off[b] ? SMARTJOINT_CAN_FAULT_BUS_OFF : 0u;
     }
-    state->step_time = time_us;
     for (k = 0u; k < SMARTJOINT_CAN_INPUTS; ++k) {
         const int needed = state->law == SMARTJOINT_CAN_LAW_CLQG || !inputs[k].sensors_only;
         /* Age of the newest frame in controller cycles: its sender sampled it after the
@@ -986,6 +1049,7 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
         const unsigned int age = state->heartbeats ? ((unsigned int)(state->cycle - state->echo[k]) & 0x0Fu) : 0u;
         const int late = !state->seen[k] || state->silent_steps[k] >= SMARTJOINT_CAN_TIMEOUT_CYCLES ||
                          age >= SMARTJOINT_CAN_TIMEOUT_CYCLES;
+        uint16_t *bus_faults = &state->bus_faults[inputs[k].bus];
         state->age[k] = (uint8_t)age;
         if (state->silent_steps[k] < 255u) {
             state->silent_steps[k]++;
@@ -1003,30 +1067,69 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
             if (needed) {
                 missing++;
                 /* never heard of, silent or late: a timeout; else its last frame failed E2E */
-                faults |= (uint16_t)(late ? SMARTJOINT_CAN_FAULT_TIMEOUT : SMARTJOINT_CAN_FAULT_E2E);
+                *bus_faults |= (uint16_t)(late ? SMARTJOINT_CAN_FAULT_TIMEOUT : SMARTJOINT_CAN_FAULT_E2E);
             }
         } else {
-            faults |= state->implausible[k]; /* a value beyond physics: a broken node, whichever law */
+            *bus_faults |= state->implausible[k]; /* a value beyond physics: a broken node, whichever law */
         }
+    }
+    return missing;
+}
+
+/* Per bus: leave the safe state only after RECOVERY_CYCLES steps in a row without any reason
+ * for it (its faults or `common`, those of every bus); at power-up the first such step starts
+ * the bus's joints (nothing has failed yet). Returns the buses whose joints run the law. */
+static unsigned int supervise_buses(smartjoint_can_state *state, uint16_t common)
+{
+    unsigned int b;
+    unsigned int running = 0u;
+    for (b = 0u; b < SMARTJOINT_CAN_BUSES; ++b) {
+        const int clear = (state->bus_faults[b] | common) == 0u;
+        if (clear) {
+            if (state->bus_clear_steps[b] < SMARTJOINT_CAN_RECOVERY_CYCLES) {
+                state->bus_clear_steps[b]++;
+            }
+        } else {
+            state->bus_clear_steps[b] = 0u;
+        }
+        if (state->bus_clear_steps[b] >= SMARTJOINT_CAN_RECOVERY_CYCLES ||
+            ((!state->bus_safe[b] || !state->bus_started[b]) && clear)) {
+            state->bus_started[b] = 1u;
+            state->bus_safe[b] = 0u;
+            running++;
+        } else {
+            state->bus_safe[b] = 1u;
+        }
+    }
+    return running;
+}
+
+unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
+{
+    unsigned int k;
+    unsigned int b;
+    unsigned int missing;
+    unsigned int running;
+    uint16_t faults = 0u;
+    int was_running;
+    if (state == NULL) {
+        return SMARTJOINT_STATUS_NULL_POINTER;
+    }
+    state->step_time = time_us;
+    missing = check_inputs(state);
+    for (b = 0u; b < SMARTJOINT_CAN_BUSES; ++b) {
+        faults |= state->bus_faults[b];
     }
     if (state->law == SMARTJOINT_CAN_LAW_NONE) {
         faults |= SMARTJOINT_CAN_FAULT_LAW;
     }
     state->missing = (uint8_t)missing;
-    /* Leave the safe state only after RECOVERY_CYCLES steps in a row without any reason for it;
-     * at power-up the first such step starts the controller (nothing has failed yet). */
-    if (missing == 0u && faults == 0u) {
-        if (state->clear_steps < SMARTJOINT_CAN_RECOVERY_CYCLES) {
-            state->clear_steps++;
-        }
-    } else {
-        state->clear_steps = 0u;
-    }
-    if (state->clear_steps >= SMARTJOINT_CAN_RECOVERY_CYCLES ||
-        ((!state->safe || !state->started) && missing == 0u && faults == 0u)) {
-        state->started = 1u;
+    was_running = !state->safe;
+    /* What keeps every bus's joints safe: no law, or under a law that couples the joints any fault. */
+    running = supervise_buses(state, couples_joints(state->law) ? faults : (uint16_t)(faults & SMARTJOINT_CAN_FAULT_LAW));
+    if (running > 0u) {
         unsigned int controller_status;
-        if (state->safe) {
+        if (!was_running) {
             /* fresh memories after the safe state */
 #ifndef SMARTJOINT_CAN_WITHOUT_SISO
             smartjoint_siso_init(&state->siso, state->siso.params);
@@ -1040,8 +1143,8 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
 #ifndef SMARTJOINT_CAN_WITHOUT_SLIPRATIO
             smartjoint_slipratio_init(&state->slipratio, state->slipratio.params);
 #endif
-            state->safe = 0;
         }
+        state->safe = 0;
         switch (state->law) {
 #ifndef SMARTJOINT_CAN_WITHOUT_CLQG
         case SMARTJOINT_CAN_LAW_CLQG: {
@@ -1050,12 +1153,14 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
             input.sensors[0] = smartjoint_can_tip_sensors_tip_y_decode(state->sensors[0]);
             input.sensors[1] = smartjoint_can_tip_sensors_tip_z_decode(state->sensors[1]);
             for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-                input.friction_force[k] = smartjoint_can_joint_friction_force_decode(state->friction_force[k]);
-                input.normal_force[k] = smartjoint_can_joint_normal_force_decode(state->normal_force[k]);
+                /* a joint whose bus is down is at rest to the law (0); it holds the safe force */
+                const int held = state->bus_safe[joint_bus[k]];
+                input.friction_force[k] = held ? 0.0f : smartjoint_can_joint_friction_force_decode(state->friction_force[k]);
+                input.normal_force[k] = held ? 0.0f : smartjoint_can_joint_normal_force_decode(state->normal_force[k]);
             }
             controller_status = smartjoint_clqg_step(&state->clqg, &input, &output);
             for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-                state->command[k] = output.normal_force[k];
+                state->command[k] = state->bus_safe[joint_bus[k]] ? safe_normal_force[k] : output.normal_force[k];
             }
             break;
         }
@@ -1065,11 +1170,13 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
             smartjoint_preset_input input;
             smartjoint_preset_output output;
             for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-                input.normal_force[k] = smartjoint_can_joint_normal_force_decode(state->normal_force[k]);
+                /* a joint whose bus is down is at rest to the law (0); it holds the safe force */
+                const int held = state->bus_safe[joint_bus[k]];
+                input.normal_force[k] = held ? 0.0f : smartjoint_can_joint_normal_force_decode(state->normal_force[k]);
             }
             controller_status = smartjoint_preset_step(&state->preset, &input, &output);
             for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-                state->command[k] = output.normal_force[k];
+                state->command[k] = state->bus_safe[joint_bus[k]] ? safe_normal_force[k] : output.normal_force[k];
             }
             break;
         }
@@ -1079,13 +1186,15 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
             smartjoint_siso_input input;
             smartjoint_siso_output output;
             for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-                input.sliding_velocity[k] = smartjoint_can_joint_sliding_velocity_decode(state->sliding_velocity[k]);
-                input.friction_force[k] = smartjoint_can_joint_friction_force_decode(state->friction_force[k]);
-                input.normal_force[k] = smartjoint_can_joint_normal_force_decode(state->normal_force[k]);
+                /* a joint whose bus is down is at rest to the law (0); it holds the safe force */
+                const int held = state->bus_safe[joint_bus[k]];
+                input.sliding_velocity[k] = held ? 0.0f : smartjoint_can_joint_sliding_velocity_decode(state->sliding_velocity[k]);
+                input.friction_force[k] = held ? 0.0f : smartjoint_can_joint_friction_force_decode(state->friction_force[k]);
+                input.normal_force[k] = held ? 0.0f : smartjoint_can_joint_normal_force_decode(state->normal_force[k]);
             }
             controller_status = smartjoint_siso_step(&state->siso, &input, &output);
             for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-                state->command[k] = output.normal_force[k];
+                state->command[k] = state->bus_safe[joint_bus[k]] ? safe_normal_force[k] : output.normal_force[k];
             }
             break;
         }
@@ -1095,12 +1204,14 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
             smartjoint_slipratio_input input;
             smartjoint_slipratio_output output;
             for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-                input.sliding_velocity[k] = smartjoint_can_joint_sliding_velocity_decode(state->sliding_velocity[k]);
-                input.normal_force[k] = smartjoint_can_joint_normal_force_decode(state->normal_force[k]);
+                /* a joint whose bus is down is at rest to the law (0); it holds the safe force */
+                const int held = state->bus_safe[joint_bus[k]];
+                input.sliding_velocity[k] = held ? 0.0f : smartjoint_can_joint_sliding_velocity_decode(state->sliding_velocity[k]);
+                input.normal_force[k] = held ? 0.0f : smartjoint_can_joint_normal_force_decode(state->normal_force[k]);
             }
             controller_status = smartjoint_slipratio_step(&state->slipratio, &input, &output);
             for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-                state->command[k] = output.normal_force[k];
+                state->command[k] = state->bus_safe[joint_bus[k]] ? safe_normal_force[k] : output.normal_force[k];
             }
             break;
         }
@@ -1109,12 +1220,15 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
             controller_status = SMARTJOINT_STATUS_NULL_POINTER;
             break;
         }
-        state->step_status = (uint8_t)controller_status;
+        state->step_status = (uint8_t)(controller_status | (running < SMARTJOINT_CAN_BUSES ? SMARTJOINT_CAN_STATUS_SAFE_STATE : 0u));
         if (controller_status != SMARTJOINT_STATUS_OK) {
             /* The controller could not use its inputs (or restarted its estimate): the same safe
-             * state as for a fault on the bus, and the same recovery. */
+             * state as for a fault on the bus, and the same recovery, on every bus. */
             faults |= SMARTJOINT_CAN_FAULT_CONTROLLER;
-            state->clear_steps = 0u;
+            for (b = 0u; b < SMARTJOINT_CAN_BUSES; ++b) {
+                state->bus_clear_steps[b] = 0u;
+                state->bus_safe[b] = 1u;
+            }
             state->safe = 1;
             state->step_status = (uint8_t)(controller_status | SMARTJOINT_CAN_STATUS_SAFE_STATE);
             for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
@@ -1133,7 +1247,7 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
         state->earlier_setpoint[k] = state->setpoint[k];
         state->setpoint[k] = setpoint_voltage(state->command[k]);
     }
-    state->tx_next = 0u; /* the setpoints, then the heartbeat: every cycle */
+    state->tx_next = 0u; /* per bus the setpoints, then the heartbeat: every cycle */
     /* Every frame of this step carries the cycle's counter: the amplifiers pair a setpoint with
      * its heartbeat, the nodes echo it. Step n counts n + 1, so the 0 a node echoes before it
      * has seen any heartbeat reads as older than the first. Steps wrap at 2^32, a multiple of
@@ -1143,33 +1257,46 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
     return state->step_status;
 }
 
-int smartjoint_can_tx(smartjoint_can_state *state, uint32_t *id, uint8_t *data, uint8_t *length)
+int smartjoint_can_tx_bus(smartjoint_can_state *state, uint8_t *bus, uint32_t *id, uint8_t *data, uint8_t *length)
 {
-    unsigned int k;
-    if (state == NULL || id == NULL || data == NULL || length == NULL || state->tx_next > SMARTJOINT_CAN_JOINTS) {
+    const output_entry *output;
+    if (state == NULL || bus == NULL || id == NULL || data == NULL || length == NULL ||
+        state->tx_next >= SMARTJOINT_CAN_OUTPUTS) {
         return 0;
     }
-    k = state->tx_next++;
-    if (k < SMARTJOINT_CAN_JOINTS) {
+    output = &outputs[state->tx_next++];
+    switch (output->kind) {
+    case OUTPUT_SETPOINT: {
         struct smartjoint_can_setpoint_t frame;
         frame.crc = 0u; /* both set by sj_e2e_protect */
         frame.counter = 0u;
-        frame.voltage = state->setpoint[k];
-        *length = (uint8_t)smartjoint_can_setpoint_pack(data, &frame, 6u);
-        *id = setpoint_ids[k];
-    } else {
-        /* The heartbeat the amplifiers must see: without it they go to the safe force. */
+        frame.voltage = state->setpoint[output->joint];
+        *length = (uint8_t)smartjoint_can_setpoint_pack(data, &frame, output->length);
+        break;
+    }
+    default: {
+        /* The heartbeat the amplifiers of the bus must see: without it they go to the safe force;
+         * it says "safe" while the bus's joints hold the safe force. */
         struct smartjoint_can_controller_status_t frame;
         frame.crc = 0u;
         frame.counter = 0u;
-        frame.mode = (uint8_t)(state->safe ? 3u : (unsigned int)state->law);
+        frame.mode = (uint8_t)(state->bus_safe[output->bus] ? 3u : (unsigned int)state->law);
         frame.missing_inputs = (uint8_t)(state->missing > 15u ? 15u : state->missing);
         frame.step_status = state->step_status;
         frame.faults = state->faults;
-        *length = (uint8_t)smartjoint_can_controller_status_pack(data, &frame, SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH);
-        *id = SMARTJOINT_CAN_CONTROLLER_STATUS_ID;
+        *length = (uint8_t)smartjoint_can_controller_status_pack(data, &frame, output->length);
         state->heartbeats = 1u;
+        break;
     }
+    }
+    *bus = output->bus;
+    *id = output->id;
     sj_e2e_protect((uint16_t)*id, data, *length, state->cycle);
     return 1;
+}
+
+int smartjoint_can_tx(smartjoint_can_state *state, uint32_t *id, uint8_t *data, uint8_t *length)
+{
+    uint8_t bus;
+    return smartjoint_can_tx_bus(state, &bus, id, data, length);
 }

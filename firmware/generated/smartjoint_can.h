@@ -17,11 +17,17 @@
 extern "C" {
 #endif
 
-/* CAN message layer of the controller (protocol: the DBC generated with it; safety policy:
- * docs/safety.md). Frames in -> smartjoint_can_rx(); once per sample smartjoint_can_step() runs the controller
- * (or holds the safe state); frames out <- smartjoint_can_tx() until it returns 0: the setpoints, then
- * the heartbeat CONTROLLER_STATUS. Inputs age in controller cycles by the heartbeat counter their
- * senders echo, so time stamps (uint32_t microseconds, wrapping) are diagnostics only.
+/* CAN message layer of the controller (protocol: the DBCs generated with it; safety policy:
+ * docs/safety.md). Frames in -> smartjoint_can_rx_bus() with the bus they came from; once per sample
+ * smartjoint_can_step() runs the controller (or holds the safe state); frames out <- smartjoint_can_tx_bus()
+ * until it returns 0, each with the bus it goes to: per bus its setpoints, then its heartbeat
+ * CONTROLLER_STATUS. smartjoint_can_rx() and smartjoint_can_tx() are the same without the bus (a frame the
+ * layer receives has one sender on one bus, so its identifier names the bus). Each bus is
+ * supervised on its own: while a bus's inputs are missing or the caller reports it bus-off
+ * (smartjoint_can_bus_off()), the joints on it hold the safe force; under a law that reads only each
+ * joint's own measurements the joints on the other buses keep their law. Inputs age in controller
+ * cycles by the heartbeat counter their senders echo, so time stamps (uint32_t microseconds,
+ * wrapping) are diagnostics only.
  * The codec has the shape of cantools' generated C: per frame layout a struct of raw fields,
  * pack/unpack (bit-exact with cantools on raw values) and per signal encode (physical -> raw:
  * NaN to raw 0, clamped to the signal's range, rounded half to even, kept within the field),
@@ -30,6 +36,8 @@ extern "C" {
  * A build links every law unless it defines SMARTJOINT_CAN_WITHOUT_<LAW> (e.g. -DSMARTJOINT_CAN_WITHOUT_SISO):
  * that law's state and code are left out and smartjoint_can_init refuses it as an unknown law. */
 #define SMARTJOINT_CAN_JOINTS 3
+#define SMARTJOINT_CAN_BUSES 1 /* 0: can0 (A1, A2, A3) */
+#define SMARTJOINT_CAN_OUTPUTS 4 /* frames smartjoint_can_tx_bus sends per sample */
 #define SMARTJOINT_CAN_SENSORS 2
 #define SMARTJOINT_CAN_INPUTS 7
 #define SMARTJOINT_CAN_CYCLE_US 1000u
@@ -72,6 +80,7 @@ typedef enum {
 #define SMARTJOINT_CAN_FAULT_E2E 0x0400u             /* an input the law needs failed its E2E check */
 #define SMARTJOINT_CAN_FAULT_CONTROLLER 0x0800u      /* the controller step reported a status */
 #define SMARTJOINT_CAN_FAULT_LAW 0x1000u             /* no valid law was given to smartjoint_can_init */
+#define SMARTJOINT_CAN_FAULT_BUS_OFF 0x2000u         /* the caller reports a bus off (smartjoint_can_bus_off) */
 
 /* Codec errors: pack and unpack return the frame length, or -SMARTJOINT_CAN_EINVAL for a NULL
  * pointer or a buffer shorter than the frame (errno's EINVAL, as cantools' generated C). */
@@ -108,7 +117,7 @@ struct smartjoint_can_controller_status_t {
     uint8_t mode; /* 0 init, 1 SISO, 2 cLQG, 3 safe state, 4 preset, 5 slip ratio; 4 bits at 16 */
     uint8_t missing_inputs; /* inputs in timeout or invalid; 4 bits at 20 */
     uint8_t step_status; /* status bits of the last step; 8 bits at 24 */
-    uint16_t faults; /* why the safe state holds: bits 0 velocity, 1 friction, 2 normal_force, 3 sensor, 4 temperature, 5 current, 6 tracking, 7 amplifier, 8 amplifier_safe, 9 timeout, 10 e2e, 11 controller, 12 law; 16 bits at 32 */
+    uint16_t faults; /* why the safe state holds: bits 0 velocity, 1 friction, 2 normal_force, 3 sensor, 4 temperature, 5 current, 6 tracking, 7 amplifier, 8 amplifier_safe, 9 timeout, 10 e2e, 11 controller, 12 law, 13 bus_off; 16 bits at 32 */
 };
 
 int smartjoint_can_controller_status_pack(uint8_t *dst_p, const struct smartjoint_can_controller_status_t *src_p, size_t size);
@@ -269,7 +278,12 @@ typedef struct {
     smartjoint_slipratio_state slipratio;
 #endif
     smartjoint_can_law law;
-    int safe;                                            /* 1 while in the safe state */
+    int safe;                                            /* 1 while every joint holds the safe force */
+    uint8_t bus_safe[SMARTJOINT_CAN_BUSES];                  /* 1 while the joints on the bus hold it */
+    uint8_t bus_clear_steps[SMARTJOINT_CAN_BUSES];           /* fault-free steps in a row on the bus */
+    uint8_t bus_started[SMARTJOINT_CAN_BUSES];               /* the bus's joints have run the law since power-up */
+    uint8_t bus_off[SMARTJOINT_CAN_BUSES];                   /* the caller reports the bus off */
+    uint16_t bus_faults[SMARTJOINT_CAN_BUSES];               /* FAULT_ bits of the bus's inputs in the last step */
     /* latest accepted inputs, raw as on the bus (decoded by the step) */
     int32_t sliding_velocity[SMARTJOINT_CAN_JOINTS];
     int32_t friction_force[SMARTJOINT_CAN_JOINTS];
@@ -290,11 +304,9 @@ typedef struct {
     uint8_t tracking_frames[SMARTJOINT_CAN_JOINTS];          /* status frames in a row off the setpoint */
     uint8_t cycle;                                       /* alive counter of the last step's frames */
     uint8_t heartbeats;                                  /* 1 once a heartbeat went out */
-    uint8_t clear_steps;                                 /* fault-free steps in a row */
-    uint8_t started;                                     /* the controller has run since power-up */
     uint8_t step_status;                                 /* status bits of the last step */
     uint8_t missing;                                     /* inputs the law needs that are missing */
-    uint8_t tx_next;                                     /* next frame smartjoint_can_tx sends; JOINTS + 1: none */
+    uint8_t tx_next;                                     /* next frame smartjoint_can_tx_bus sends; OUTPUTS: none */
     uint16_t faults;                                     /* FAULT_ bits of the last step */
     uint32_t steps;                                      /* diagnostics only: wraps after 2^32 steps */
     uint32_t step_time;
@@ -303,8 +315,18 @@ typedef struct {
 
 /* Returns 0, or -1 for a NULL state or an unknown law (the layer then stays in the safe state). */
 int smartjoint_can_init(smartjoint_can_state *state, smartjoint_can_law law);
+/* A frame received on bus `bus`; one of another bus counts as an unknown identifier. */
+unsigned int smartjoint_can_rx_bus(smartjoint_can_state *state, uint8_t bus, uint32_t id, const uint8_t *data, uint8_t length,
+                    uint32_t time_us);
+/* A frame received on the bus its identifier belongs to. */
 unsigned int smartjoint_can_rx(smartjoint_can_state *state, uint32_t id, const uint8_t *data, uint8_t length, uint32_t time_us);
+/* The CAN driver reports bus `bus` off (off = true) or back (false): until it is back its joints
+ * hold the safe force. Returns 0, or -1 for a NULL state or no such bus. */
+int smartjoint_can_bus_off(smartjoint_can_state *state, uint8_t bus, bool off);
 unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us);
+/* The next frame of the last step and the bus it goes to; 0 when there is none. */
+int smartjoint_can_tx_bus(smartjoint_can_state *state, uint8_t *bus, uint32_t *id, uint8_t *data, uint8_t *length);
+/* The same without the bus: for a caller with one bus. */
 int smartjoint_can_tx(smartjoint_can_state *state, uint32_t *id, uint8_t *data, uint8_t *length);
 
 #ifdef __cplusplus

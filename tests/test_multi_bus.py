@@ -1,0 +1,122 @@
+"""The firmware's CAN layer and the SIL bench on the buses of a network plan (issue 33): packed
+SETPOINTS frames packed in C bit for bit as cantools packs them, every frame on its bus, each bus
+supervised on its own (bus-off on one bus makes only its joints safe under a per-joint law), and
+the fault-free run on two buses bit for bit the one-bus run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import quiet_joint_frame, small_study
+
+from smartjoint.bench import e2e, firmware, sil
+from smartjoint.bench.faults import Fault
+from smartjoint.bench.loop import SilLoop
+from smartjoint.common.errors import ModelError
+from smartjoint.design.control import artifact
+from smartjoint.design.control import study as closed_loop
+from smartjoint.design.network.plan import plan
+from smartjoint.design.structure.description import Bus, Network
+
+ROOT = Path(__file__).resolve().parents[1]
+TWO = Network((Bus("can0"), Bus("can1")))
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return artifact.load(ROOT / "firmware" / "generated" / "controller.json")
+
+
+@pytest.fixture(scope="module")
+def small():
+    return small_study()
+
+
+def test_the_packed_setpoints_frame_packs_and_unpacks_as_cantools_in_the_double_build(reference):
+    """SETPOINTS_A1_A3 of the bundled one-bus plan: the generated codec against cantools on raw
+    values, and the frame the layer sends decodes to the setpoints of its commands."""
+    packed = plan(reference)
+    fw = firmware.Firmware(reference, "siso", "double", network=packed)
+    frame = fw.db.get_message_by_name("SETPOINTS_A1_A3")
+    rng = np.random.default_rng(7)
+    for _ in range(2000):
+        raw = {s.name: int(rng.integers(0, 2**s.length)) for s in frame.signals}
+        data = fw.pack_raw(frame.name, raw)
+        assert data == bytes(frame.encode(raw, scaling=False, strict=False))
+        assert fw.unpack_raw(frame.name, data) == raw
+    fw.step(0)
+    sent = fw.tx_bus()
+    assert [(b, i) for b, i, _ in sent] == [(0, frame.frame_id), (0, 0x080)]
+    data = sent[0][2]
+    assert e2e.check(frame.frame_id, data, None).crc_ok
+    volts = frame.decode(data, decode_choices=False)
+    for j, tag in enumerate(("a1", "a2", "a3")):  # the safe force at power-up, over the gain
+        expected = fw.unpack(frame.name, fw.pack(frame.name, {f"voltage_{tag}": fw.command[j] / 8.0}))
+        assert volts[f"voltage_{tag}"] == expected[f"voltage_{tag}"]
+
+
+def test_every_frame_goes_to_and_comes_from_its_bus(small):
+    """Two buses: the setpoint and heartbeat of each bus on it; a joint's frame on the other bus is
+    an unknown identifier; the caller's bus-off report is checked."""
+    _, a = small
+    two = plan(a, TWO)
+    fw = firmware.Firmware(a, "siso", "double", network=two)
+    fw.step(0)
+    expected = []
+    for b, p in enumerate(two.buses):
+        ids = sorted(m.frame_id for m in p.database.messages if m.senders == ["CONTROLLER"] and m.frame_id != 0x080)
+        expected += [(b, i) for i in ids] + [(b, 0x080)]
+    assert [(b, i) for b, i, _ in fw.tx_bus()] == expected
+    joint_b = fw.db.get_message_by_name(f"JOINT_{two.buses[1].joints[0].upper()}")
+    assert fw.rx(joint_b.frame_id, bytes(quiet_joint_frame(joint_b, 1)), 0, bus=0) == 16  # unknown on bus 0
+    assert fw.rx(joint_b.frame_id, bytes(quiet_joint_frame(joint_b, 1)), 0, bus=1) == 0
+    with pytest.raises(ModelError, match="bus: 2"):
+        fw.bus_off(2)
+
+
+def _run(small, law, network, faults=(), channel="multi-bus"):
+    setup, a = small
+    fw = firmware.Firmware(a, law, "double", network=None if network is None else plan(a, network))
+    loop = SilLoop(fw, closed_loop.PULSE_DURATION, faults=faults, channel=channel)
+    return loop, sil.run_loop(setup, loop)
+
+
+def test_two_buses_without_faults_run_bit_for_bit_as_one_bus(small):
+    """Only the frames' assignment differs: the same law on the same numbers."""
+    one, r1 = _run(small, "siso", None, channel="multi-one")
+    two, r2 = _run(small, "siso", TWO, channel="multi-two")
+    assert np.array_equal(np.array(one.record.command), np.array(two.record.command))
+    assert np.array_equal(r1.energy, r2.energy) and not any(two.record.safe)
+    s = two.statistics(0.2, 1_000_000, 5_000_000)
+    assert [b["frames_total"] for b in s["buses"]] == [1000, 800] and s["e2e_errors"] == 0
+
+
+@pytest.mark.parametrize("law", ["siso", "clqg"])
+def test_bus_off_on_one_bus_makes_only_its_joints_safe_under_a_per_joint_law(small, law):
+    """bus_off:can1 for 50 ms: its joint safe within 3 cycles at the firmware and its amplifier,
+    recovered after; under the SISO law the joint on can0 runs on, under the cLQG (it estimates the
+    whole truss from every joint) every joint holds the safe force."""
+    _, a = small
+    fault = Fault("bus_off", 0.1, 0.15, "can1")
+    loop, result = _run(small, law, TWO, [fault], channel=f"multi-off-{law}")
+    bus_safe, amp_safe = np.array(loop.record.bus_safe), np.array(loop.record.amplifier_safe)
+    k0, k1 = 100, 150  # the fault's samples at Δt = 1 ms
+    assert not bus_safe[:k0].any()
+    assert bus_safe[k0 + 2 : k1, 1].all() and not bus_safe[k1 + 6 :, 1].any()
+    assert amp_safe[k0 + 3 : k1, 1].all() and not amp_safe[:, 0].any()
+    if law == "siso":
+        assert not bus_safe[:, 0].any() and not any(loop.record.safe)
+        commands = np.array(loop.record.command)
+        assert np.all(commands[k0 + 2 : k1, 1] == a.safe_normal_force[1])
+    else:
+        assert bus_safe[k0 + 2 : k1, 0].all()
+    assert np.all(np.isfinite(result.energy))
+
+
+def test_a_bus_off_fault_names_a_bus_of_the_plan(small):
+    _, a = small
+    fw = firmware.Firmware(a, "siso", "double", network=plan(a, TWO))
+    with pytest.raises(ModelError, match=r"target 'can7' — a bus of the plan \(can0, can1\)"):
+        SilLoop(fw, 0.0, faults=[Fault("bus_off", 0.1, 0.2, "can7")])
