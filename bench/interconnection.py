@@ -69,17 +69,21 @@ class LocalNodesLoop:
         The nodes' design.
     real : str
         The nodes' scalar type ("float", the target's, or "double").
+    target_joints : sequence of int
+        Joints whose node runs as its image on the emulated target (``LocalLoop``).
     """
 
-    def __init__(self, artifact, real: str = "float"):
-        self.artifact, self.real = artifact, real
+    def __init__(self, artifact, real: str = "float", target_joints=()):
+        self.artifact, self.real, self.target_joints = artifact, real, tuple(target_joints)
         self.record: LocalRecord | None = None
 
     def run(self, s: StudySetup, law: str) -> tuple[Run, int]:
         entry, node = law_registry.law(law), law_registry.node_law()
         if entry.name != node.name:
             raise ModelError(f"law: {entry.name!r} — the joint nodes run {node.name!r} only (local mode)")
-        loop = LocalLoop(self.artifact, self.real, channel=f"smartjoint-local-{id(self)}")
+        loop = LocalLoop(
+            self.artifact, self.real, channel=f"smartjoint-local-{id(self)}", target_joints=self.target_joints
+        )
         try:
             run = run_semi_active(s, entry.display, loop)
         finally:

@@ -13,7 +13,9 @@ Per sample t_k (the plant simulation calls ``LocalLoop.step`` as its controller)
    pulse acts, as in ``bench.loop``).
 
 The nodes are the generated C (``bench.joint_node.compiled_nodes``, float build by default); the
-supervisor is a model that holds one mode (a generated supervisor is not part of this bench yet).
+nodes of ``target_joints`` run instead as node images on the emulated target
+(``bench.node_target.TargetNode``, processor in the loop) beside the others. The supervisor is a
+model that holds one mode (a generated supervisor is not part of this bench yet).
 ``heartbeat_until`` silences the supervisor from that time on: the nodes' policy on a lost bus.
 """
 
@@ -67,6 +69,8 @@ class LocalLoop:
     amplifier : dict, optional
         Options of the amplifier models (``time_constant``, ``slew_rate``, ``temperature``,
         ``voltage_max``).
+    target_joints : sequence of int
+        Joints whose node runs as its image on the emulated target (float build only).
     """
 
     def __init__(
@@ -81,8 +85,17 @@ class LocalLoop:
         interface: str = "virtual",
         channel: str = "smartjoint-local",
         amplifier: dict | None = None,
+        target_joints=(),
     ):
+        from smartjoint.common.errors import ModelError
+
         a = self.artifact = artifact
+        self.target_joints = tuple(sorted({int(j) for j in target_joints}))
+        if self.target_joints and real != "float":
+            raise ModelError(f"real: {real!r} — a node on the target runs the float build only")
+        if any(not 0 <= j < len(a.joint_names) for j in self.target_joints):
+            raise ModelError(f"target_joints: {list(target_joints)} — joint indices 0 … {len(a.joint_names) - 1}")
+        self.targets: dict = {}  # joint → TargetNode while its emulation runs
         self.sample_time = float(a.sample_time)
         self.real = real
         self.excitation_end = float(excitation_end)
@@ -107,7 +120,14 @@ class LocalLoop:
             raise
         self.supervisor_bus, self.node_bus = self.buses
         a = self.artifact
-        self.nodes = [CompiledNode(self.module, a, j) for j in range(len(a.joint_names))]
+        for j in self.target_joints:
+            if j in self.targets:
+                self.targets[j].reset()
+            else:
+                from smartjoint.bench.node_target import TargetNode
+
+                self.targets[j] = TargetNode(a, j)
+        self.nodes = [self.targets.get(j) or CompiledNode(self.module, a, j) for j in range(len(a.joint_names))]
         self.amplifiers = [AmplifierModel(**options) for options in self.amplifier_options]
         self.counter = 0
         self.k = 0
@@ -116,7 +136,10 @@ class LocalLoop:
         self.statuses: dict[int, dict] = {}  # the supervisor's last decoded status per node
 
     def close(self) -> None:
-        """Shut the buses."""
+        """Shut the buses and end the emulations of the target nodes."""
+        targets, self.targets = self.targets, {}
+        for node in targets.values():
+            node.close()
         buses, self.buses = self.buses, []
         for bus in buses:
             try:

@@ -6,9 +6,11 @@ Makefile builds (``-O2 -ffunction-sections -fdata-sections``, newlib-nano, ``--g
 
 * the **node image**: the node and a minimal runtime whose UART stands in for the ADC and the CAN
   controller (a frame: id, length, payload into ``<prefix>_node_rx``; a sample: the three
-  measurements into ``<prefix>_node_step``, the command and any status frame back). Its flash
-  (vectors, .text, .rodata, .ARM.exidx, .data image) and RAM (.data + .bss; the linker script's
-  stack region apart) are the node's figures;
+  measurements into ``<prefix>_node_step``, the command, the node's faults and status and any
+  status frame back, then an end mark). Its flash (vectors, .text, .rodata, .ARM.exidx, .data
+  image) and RAM (.data + .bss; the linker script's stack region apart) are the node's figures.
+  :class:`TargetNode` runs it in the emulator beside the SIL bench (processor in the loop: the
+  local loop's ``target_joints``);
 * the **self-test**: a valid heartbeat of the node law's mode, then ``steps`` seeded samples timed
   with SysTick under ``-icount shift=0`` (40 instructions a tick), the loop around an empty step
   subtracted, and every command printed for the host to compare with its own float build.
@@ -44,12 +46,15 @@ LIMITS = {"flash": 4096, "ram": 256, "instructions": 200}  # issue 33's targets 
 
 RUNTIME = """/* Minimal runtime of a joint node image (bench/node_target.py): the UART stands in for the
  * ADC and the CAN controller. In: id (4 bytes, little-endian), length, payload; length 0 is a
- * sample, followed by v, u_R, F_N (4-byte floats). Out: the command, then each status frame. */
+ * sample, followed by v, u_R, F_N (4-byte floats). Out: the command, the node's faults and
+ * status (4 bytes each), each status frame (id, length, payload), then the end mark 0xFFFFFFFF. */
 #include <stdint.h>
 #include <string.h>
 
 #include "board.h"
 #include "{name}.h"
+
+#define END_MARK 0xFFFFFFFFu /* no frame has this id: CAN ids are 29 bits at most */
 
 static {name}_state state;
 static uint8_t frame[64];
@@ -80,6 +85,8 @@ int main(void)
             command = {name}_step(&state, &input);
             memcpy(&bits, &command, sizeof bits);
             sj_uart_put_u32(bits);
+            sj_uart_put_u32(state.faults);
+            sj_uart_put_u32(state.status);
             while ({name}_tx(&state, &id, frame, &length) != 0) {{
                 sj_uart_put_u32(id);
                 sj_uart_putc((char)length);
@@ -87,6 +94,7 @@ int main(void)
                     sj_uart_putc((char)frame[k]);
                 }}
             }}
+            sj_uart_put_u32(END_MARK);
             continue;
         }}
         for (k = 0u; k < length && k < sizeof frame; ++k) {{
@@ -217,6 +225,130 @@ def _sections(elf: Path) -> dict[str, int]:
     return out
 
 
+def _write_node_sources(artifact, joint: int, folder: Path, prefix: str) -> list[str]:
+    """The float node firmware, its E2E runtime and the UART runtime of joint ``joint`` into
+    ``folder``; the sources of the node image but its ``main`` (``node_main.c`` for the image)."""
+    name = f"{prefix}_node"
+    files = joint_nodes.render_nodes(artifact, prefix, "float")
+    files[f"{prefix}_types.h"] = generate.render(artifact, "float", prefix)[f"{prefix}_types.h"]
+    for runtime in ("sj_e2e.c", "sj_e2e.h"):
+        files[runtime] = (e2e.RUNTIME / runtime).read_text()
+    output.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, folder)
+    (folder / "node_main.c").write_text(RUNTIME.format(name=name, joint=artifact.joint_names[joint].lower()))
+    return [f"{name}.c", f"{name}_config.c", "sj_e2e.c", "startup.c", "board.c"]
+
+
+class TargetNode:
+    """One joint's node image running in the emulator, behind ``JointNode``'s interface
+    (``receive``, ``step``, ``transmit``, ``faults``, ``status``): processor in the loop for a
+    node of local mode. The bench talks to the image's UART over TCP (the runtime's protocol,
+    module docstring). Close it (or use it as a context manager): that ends the emulation.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+        The design the node firmware is generated from (float build, the target's).
+    joint : int
+        The joint whose node it is.
+    timeout : float
+        Seconds the target may take to answer one request before the run is stopped.
+    """
+
+    END_MARK = 0xFFFFFFFF
+
+    def __init__(self, artifact, joint: int, prefix: str = "smartjoint", timeout: float = 30.0):
+        from smartjoint.bench import pil
+
+        reason = target.missing_tools()
+        if reason:
+            raise ModelError(reason)
+        self.timeout = float(timeout)
+        self._scratch = tempfile.TemporaryDirectory(prefix="sj-node-pil-")
+        folder = Path(self._scratch.name)
+        _link(folder, [*_write_node_sources(artifact, joint, folder, prefix), "node_main.c"], "node.elf")
+        self._command = pil.emulator_command(folder / "node.elf", pil._free_port())
+        self.process: subprocess.Popen | None = None
+        self.socket = None
+        self.reset()
+
+    def reset(self) -> None:
+        """A new emulation: the node powered up as after reset."""
+        import socket
+        import time
+
+        self._stop()
+        self._pending: list[tuple[int, bytes]] = []
+        self.faults = self.status = 0
+        port = int(self._command[self._command.index("-serial") + 1].split(":")[2].split(",")[0])
+        self.process = subprocess.Popen(self._command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        deadline = time.monotonic() + self.timeout
+        while True:
+            try:
+                self.socket = socket.create_connection(("127.0.0.1", port), timeout=self.timeout)
+                self.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                return
+            except OSError as error:
+                if self.process.poll() is not None or time.monotonic() > deadline:
+                    self._stop()
+                    raise ModelError(f"target {target.BOARD}: cannot reach the node's UART ({error})") from None
+                time.sleep(0.05)
+
+    def _read(self, count: int) -> bytes:
+        data = b""
+        while len(data) < count:
+            chunk = self.socket.recv(count - len(data)) if self.socket is not None else b""
+            if not chunk:
+                raise ModelError(f"target {target.BOARD}: the node image stopped answering")
+            data += chunk
+        return data
+
+    def _word(self) -> int:
+        return int.from_bytes(self._read(4), "little")
+
+    def receive(self, frame_id: int, data: bytes) -> bool:
+        """A frame from the bus into the node (its RX result stays on the target)."""
+        assert self.socket is not None
+        self.socket.sendall(int(frame_id).to_bytes(4, "little") + bytes([len(data)]) + bytes(data))
+        return True
+
+    def step(self, velocity: float, friction: float, applied: float) -> float:
+        """One sample: the three measurements in, the command out (and the node's status frames)."""
+        assert self.socket is not None
+        payload = np.array([velocity, friction, applied], dtype="<f4").tobytes()
+        self.socket.sendall(b"\0\0\0\0\0" + payload)
+        command = float(np.frombuffer(self._read(4), dtype="<f4")[0])
+        self.faults, self.status = self._word(), self._word()
+        while (frame_id := self._word()) != self.END_MARK:
+            length = self._read(1)[0]
+            self._pending.append((frame_id, self._read(length)))
+        return command
+
+    def transmit(self) -> tuple[int, bytes] | None:
+        return self._pending.pop(0) if self._pending else None
+
+    def _stop(self) -> None:
+        sock, self.socket = self.socket, None
+        if sock is not None:
+            sock.close()
+        process, self.process = self.process, None
+        if process is not None:
+            process.kill()
+            process.wait(timeout=10.0)
+            if process.stderr is not None:
+                process.stderr.close()
+
+    def close(self) -> None:
+        """End the emulation and remove the image."""
+        self._stop()
+        self._scratch.cleanup()
+
+    def __enter__(self) -> TargetNode:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def measure(artifact, joint: int = 0, steps: int = 500, seed: int = 33, prefix: str = "smartjoint") -> dict:
     """The node image of joint ``joint``: flash and RAM, instructions per step on the target
     (mean over ``steps``), and the commands the target computed (float32), with the inputs.
@@ -231,18 +363,12 @@ def measure(artifact, joint: int = 0, steps: int = 500, seed: int = 33, prefix: 
         raise ModelError(reason)
     name = f"{prefix}_node"
     joint_name = artifact.joint_names[joint].lower()
-    files = joint_nodes.render_nodes(artifact, prefix, "float")
-    files[f"{prefix}_types.h"] = generate.render(artifact, "float", prefix)[f"{prefix}_types.h"]
-    for runtime in ("sj_e2e.c", "sj_e2e.h"):
-        files[runtime] = (e2e.RUNTIME / runtime).read_text()
     rows = node_inputs(artifact, joint, steps, seed)
     with tempfile.TemporaryDirectory(prefix="sj-node-") as work:
         folder = Path(work)
-        output.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, folder)
-        (folder / "node_main.c").write_text(RUNTIME.format(name=name, joint=joint_name))
+        node = _write_node_sources(artifact, joint, folder, prefix)
         (folder / "node_selftest.c").write_text(SELFTEST.format(name=name, NAME=name.upper(), joint=joint_name))
         (folder / "node_inputs.h").write_text(_inputs_header(rows, name))
-        node = [f"{name}.c", f"{name}_config.c", "sj_e2e.c", "startup.c", "board.c"]
         _link(folder, [*node, "node_main.c"], "node.elf")
         _link(folder, [*node, "node_selftest.c"], "selftest.elf")
         parts = _sections(folder / "node.elf")
@@ -268,4 +394,4 @@ def measure(artifact, joint: int = 0, steps: int = 500, seed: int = 33, prefix: 
     }
 
 
-__all__ = ["LIMITS", "heartbeat", "measure", "node_inputs"]
+__all__ = ["LIMITS", "TargetNode", "heartbeat", "measure", "node_inputs"]

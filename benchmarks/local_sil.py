@@ -3,7 +3,9 @@
 The SISO law four ways on the study of ``firmware/generated/controller.json``'s design: the model in
 the loop (``PythonLoop``), the generated joint nodes on the SIL bench in local mode
 (``LocalNodesLoop``, double and float builds), and the central firmware through the CAN loop
-(``CanLoop``, float). The band is the model in the loop's spread under ``--runs`` perturbations of
+(``CanLoop``, float); and local mode with joint 0's node as its image on the emulated Cortex-M4F
+(``bench.node_target.TargetNode``, processor in the loop), which must equal the local float run
+bit for bit. The band is the model in the loop's spread under ``--runs`` perturbations of
 its commands at 6e-8 relative (float rounding, ``bench.sil.perturbed``). Written to
 ``benchmarks/local_sil.json``.
 
@@ -46,7 +48,12 @@ def main() -> int:
     runs = {"mil": {"energy_measure": mil.energy_measure(), "seconds": None}}
     print(f"MIL {law.display}: E(t_e) = {mil.energy_measure():.6f} J·s")
     loops = (("local double", LocalNodesLoop(a, "double")), ("local float", LocalNodesLoop(a, "float")))
-    for name, loop in (*loops, ("central float", CanLoop(a, "float"))):
+    target = f"local float, {a.joint_names[0]} on the target"
+    for name, loop in (
+        *loops,
+        (target, LocalNodesLoop(a, "float", target_joints=(0,))),
+        ("central float", CanLoop(a, "float")),
+    ):
         start = time.perf_counter()
         run, safe = loop.run(s, law.name)
         seconds = time.perf_counter() - start
@@ -54,6 +61,9 @@ def main() -> int:
         runs[name] = {"energy_measure": run.energy_measure(), "against_mil": deviation, "safe_samples": safe}
         runs[name]["seconds"] = seconds
         print(f"{name}: E(t_e) = {run.energy_measure():.6f} J·s, {deviation:+.2%} against MIL, {safe} safe samples")
+    same = runs[target]["energy_measure"] == runs["local float"]["energy_measure"]
+    runs[target]["equal_to_local_float"] = same
+    print(f"{target}: the local float run's E(t_e) bit for bit: {same}")
     spread = [
         run_semi_active(s, law.display, perturbed(law.python_reference(a), 6e-8, k)).energy_measure()
         / mil.energy_measure()

@@ -12,6 +12,7 @@ from conftest import small_study
 
 from smartjoint.bench.interconnection import CanLoop, LocalNodesLoop
 from smartjoint.bench.local_loop import LocalLoop
+from smartjoint.bench.target import missing_tools as target_missing
 from smartjoint.bench.sil import perturbed
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
@@ -87,3 +88,24 @@ def test_only_the_node_law_closes_the_local_loop(study):
     other = next(law for law in law_registry.LAWS.values() if law.name != LAW.name)
     with pytest.raises(ModelError, match=r"^law: .* — the joint nodes run"):
         LocalNodesLoop(artifact).run(s, other.name)
+
+
+@pytest.mark.skipif(target_missing() is not None, reason="the ARM toolchain and QEMU are needed")
+def test_a_node_image_on_the_emulated_target_beside_the_bench_is_the_host_node(study):
+    """Processor in the loop for local mode: joint 0's node runs as its image on the emulated
+    Cortex-M4F (bench.node_target.TargetNode), the others on the host; every command, fault and
+    status frame is the all-host float run's bit for bit, and so is the energy."""
+    s, artifact = study
+    runs = {}
+    for where, joints in (("host", ()), ("target", (0,))):
+        loop = LocalLoop(artifact, "float", channel=f"smartjoint-local-pil-{where}", target_joints=joints)
+        try:
+            runs[where] = run_semi_active(s, LAW.display, loop), loop.record, dict(loop.frame_counts)
+        finally:
+            loop.close()
+    (host, host_record, host_frames), (pil, pil_record, pil_frames) = runs["host"], runs["target"]
+    assert np.array(pil_record.command, np.float64).tobytes() == np.array(host_record.command, np.float64).tobytes()
+    assert pil_record.faults == host_record.faults and pil_frames == host_frames
+    assert pil.energy.tobytes() == host.energy.tobytes()
+    with pytest.raises(ModelError, match=r"^real: 'double' — a node on the target runs the float build only$"):
+        LocalLoop(artifact, "double", target_joints=(0,))
