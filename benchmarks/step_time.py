@@ -179,6 +179,30 @@ def structural_macs(n: int, l: int, ny: int, output_nonzero: int) -> dict:
     }
 
 
+def realised_macs(a) -> dict:
+    """The multiply-adds the generated cLQG step does, counted from its generator context
+    (``codegen.law_contexts.clqg``: the realisation's channels, coordinate groups and the nonzero
+    terms of the constant products), by the same rules as :func:`structural_macs`: products
+    only, the channels' sums and differences and the additions of C's unit entries not counted."""
+    from smartjoint.codegen import law_contexts
+
+    context = law_contexts.clqg(a, lambda value: "0", lambda values: "0")
+    l = len(a.joint_names)
+    output_phase = sum(len(t) for t in context["feedback_hold_terms"] + context["feedback_estimator_terms"]) + 2 * l
+    update = l + sum(len(t) for t in context["output_hold_terms"])
+    for g in context["groups"]:
+        per_coordinate = (
+            2 * len(g["joints"])  # E'_i over the group's channels, at u_k and u+
+            + (1 if g["unit_gamma1"] else 2)  # Γ1
+            + 2 * len(g["sensors"])  # M'
+            + 6  # Φ_i and Γ0
+            + sum(1 for t in g["output_terms"] if t[2] is not None)  # C' entries other than 1
+            + 2 * len(g["feedback_joints"])  # (K' − K'M'C')
+        )
+        update += per_coordinate * (g["stop"] - g["start"])
+    return {"total": output_phase + update, "output_phase": output_phase, "update_phase": update}
+
+
 def best_time(action, repeats: int) -> float:
     best = float("inf")
     for _ in range(repeats):
@@ -393,6 +417,12 @@ def main() -> int:
     )
     summary = _print_table(timing, counts, macs, python)
     _print_structural_minimum(macs, n, l, ny)
+    realised = realised_macs(a)
+    print(
+        f"  the realised cLQG step (codegen.law_contexts, control.realisation) does {realised['total']} "
+        f"(output phase {realised['output_phase']}, update phase {realised['update_phase']}): "
+        f"{counts['clqg_ir_per_step'] / realised['total']:.2f} Ir per multiply-add it does"
+    )
     print(
         f"whole bench program: ΔIr/ΔN = {counts['program_ir_per_step_both_laws']:.1f} per step of both laws "
         f"(loop, checksum and row indexing included); callgrind steps {CALLGRIND_STEPS}"
@@ -411,6 +441,7 @@ def main() -> int:
             "c_ns_per_step": timing,
             "callgrind": counts,
             "structural_macs": macs,
+            "realised_macs": realised,
             "python_ns_per_step": python,
             "summary": summary,
             "instructions_per_mac_target": INSTRUCTIONS_PER_MAC_TARGET,
