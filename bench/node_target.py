@@ -266,7 +266,7 @@ class TargetNode:
         self._scratch = tempfile.TemporaryDirectory(prefix="sj-node-pil-")
         folder = Path(self._scratch.name)
         _link(folder, [*_write_node_sources(artifact, joint, folder, prefix), "node_main.c"], "node.elf")
-        self._command = pil.emulator_command(folder / "node.elf", pil._free_port())
+        self._command = pil.emulator_command(folder / "node.elf", pil.free_port())
         self.process: subprocess.Popen | None = None
         self.socket = None
         self.reset()

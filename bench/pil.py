@@ -73,7 +73,8 @@ def build_image(artifact: ControllerArtifact, work: Path, timeout: float = 180.0
     return work / "build" / "pil.elf"
 
 
-def _free_port() -> int:
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now (the emulator serves its UART there)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.bind(("127.0.0.1", 0))
         return int(probe.getsockname()[1])
@@ -129,7 +130,7 @@ class TargetFirmware:
     def _start(self) -> None:
         import can
 
-        port = _free_port()
+        port = free_port()
         command = emulator_command(self.elf, port)
         self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + self.timeout

@@ -175,6 +175,7 @@ def _loop_inputs(args) -> tuple:
 def cmd_sil(args) -> dict:
     from smartjoint.bench import sil
     from smartjoint.design.control import study as closed_loop
+    from smartjoint.design.structure.description import Network
 
     design, model, controller, faults, laws = _loop_inputs(args)
     report_progress(
@@ -194,6 +195,7 @@ def cmd_sil(args) -> dict:
         args.interface,
         args.channel,
         report_progress,
+        network=None if design.network == Network() else design.network,  # the design's buses, if it has them
     )
     if not args.json:
         print(sil.sil_markdown(out))

@@ -46,6 +46,7 @@ from smartjoint.design.friction.stage import friction_entries, friction_stage, p
 from smartjoint.design.network import joint_node, plan, protocol
 from smartjoint.design.reduction import reduction_study, study_summary
 from smartjoint.design.reduction.study import DENSE_REFERENCE_DOFS, REFERENCE_MODES_PER_CONSIDERED
+from smartjoint.design.structure.description import Network
 from smartjoint.design.structure.solved import solved_model
 from smartjoint.pipeline_ensemble import ensemble_markdown, ensemble_stage
 from smartjoint.pipeline_fmu import fmu_markdown, fmu_stage
@@ -299,8 +300,11 @@ def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
     controller, control_study = control.artifact, control.study
     progress("[8/12] software in the loop: the study through CAN (firmware, bus, amplifier models)")
     # The bus logs go straight into the report (no temporary folder to leave behind).
+    # On the buses of the design's [network] when it has one (a design without: one bus, one
+    # SETPOINT frame per joint, the layout of firmware/bus.dbc).
+    buses = None if control.design.network == Network() else control.design.network
     sil_check = sil.sil_study(
-        control_study.setup, controller, spread_runs=4, log_folder=staging / "can", progress=progress
+        control_study.setup, controller, spread_runs=4, log_folder=staging / "can", progress=progress, network=buses
     )
     logs = tuple(sorted(p.name for p in (staging / "can").iterdir()))
     for law in sil_check["laws"].values():
@@ -308,7 +312,7 @@ def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
             law["log"] = Path(law["log"]).relative_to(staging).as_posix()
     demo = demo_faults(controller, control_study.setup.duration)
     progress("      injected faults in the study: " + ", ".join(f.label() for f in demo))
-    fault_check = sil.fault_run(control_study.setup, controller, faults=demo)
+    fault_check = sil.fault_run(control_study.setup, controller, faults=demo, network=buses)
     progress("      safe state under every fault kind on every frame (docs/safety.md) …")
     safety_check = safety.fault_matrix(controller, progress=progress)
     progress(
