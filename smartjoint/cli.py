@@ -311,6 +311,12 @@ def _add_control_commands(sub, o: SimpleNamespace) -> None:
         "before it is moved into place",
     )
     p.add_argument("--no-can", action="store_true", help="controllers only, without the CAN message layer and DBC")
+    p.add_argument(
+        "--network",
+        metavar="DESIGN",
+        help="the CAN layer on the buses of this design file's [network] (one DBC per bus, setpoints packed where "
+        "that lowers the load); default one bus, one SETPOINT frame per joint",
+    )
     p.set_defaults(func=cmd_codegen)
 
     bus = [

@@ -103,11 +103,28 @@ def _bus_loads(args, design, result) -> dict[str, float]:
     return {"can0": load.load}
 
 
+def _design_network(path: str, loaded):
+    """The plan of an artefact's frames over the buses of a design file's [network] (codegen's
+    --network); refused in one line when the design's controlled joints are not the artefact's."""
+    from smartjoint.common.errors import ModelError
+    from smartjoint.design.network import plan
+    from smartjoint.design.structure.spec import load_design
+
+    design = load_design(path)
+    joints = list(design.control.joints) if design.control.joints is not None else [j.name for j in design.joints]
+    if joints and joints != list(loaded.joint_names):
+        raise ModelError(
+            f"--network {path}: joints {', '.join(joints)} — the artefact's are {', '.join(loaded.joint_names)}"
+        )
+    return plan.plan(loaded, design.network)
+
+
 def cmd_codegen(args) -> dict:
     from smartjoint.codegen import generate
     from smartjoint.design.control import artifact
 
     loaded = artifact.load(Path(args.artifact))
+    can_options = {} if args.network is None else {"network": _design_network(args.network, loaded)}
     placed = generate.generate(
         loaded,
         Path(args.output),
@@ -116,6 +133,7 @@ def cmd_codegen(args) -> dict:
         can=not args.no_can,
         check=args.check,
         progress=report_progress,
+        **can_options,
     )
     out = {
         "artifact": args.artifact,

@@ -8,7 +8,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from conftest import small_truss
+from conftest import cli_error, run_cli, small_truss
 
 from smartjoint.bench import e2e
 from smartjoint.common.errors import DesignError, ModelError
@@ -147,3 +147,31 @@ def test_a_design_whose_frames_do_not_fit_is_refused_before_any_work():
         check_design(parse_design(d))
     d["network"] = {"buses": [{"name": f"can{k}"} for k in range(3)]}
     assert len(check_design(parse_design(d)).buses) == 3
+
+
+def test_codegen_lays_the_layer_on_the_buses_of_a_designs_network(tmp_path):
+    """`smartjoint codegen --network DESIGN`: one DBC per bus of the design's plan, each loading
+    as its bus's frames; a design whose joints are not the artefact's is refused in one line."""
+    design = tmp_path / "two_buses.toml"
+    design.write_text(
+        f'base = "{(ROOT / "design" / "data" / "three_type_a.toml").as_posix()}"\n'
+        '[[network.buses]]\nname = "can0"\nlimit = 0.5\n[[network.buses]]\nname = "can1"\nlimit = 0.5\n'
+    )
+    reference = ROOT / "firmware" / "generated" / "controller.json"
+    out = tmp_path / "firmware"
+    done = run_cli("codegen", reference, "-o", out, "--network", design)
+    assert done.returncode == 0, done.stderr
+    assert not (out / "bus.dbc").exists()
+    expected = plan(artifact.load(reference), Network((Bus("can0", limit=0.5), Bus("can1", limit=0.5))))
+    for p in expected.buses:
+        back = protocol.load_dbc((out / f"bus_{p.bus.name}.dbc").read_text())
+        assert {m.name for m in back.messages} == {m.name for m in p.database.messages}
+    other = tmp_path / "other.toml"
+    other.write_text(
+        f'base = "{(ROOT / "design" / "data" / "three_type_a.toml").as_posix()}"\n'
+        '[[joints]]\nname = "B1"\nmember = "L1_0"\nend = "start"\ntype = "A"\n'
+    )
+    assert "joints B1 — the artefact's are A1, A2, A3" in cli_error(
+        "codegen", reference, "-o", tmp_path / "x", "--network", other
+    )
+    assert not (tmp_path / "x").exists()
