@@ -26,6 +26,8 @@ FILES: dict[str, tuple[str, ...]] = {
         "data/three_type_a.toml",
         "data/paper_table1_type_a.toml",
         "data/paper_table1_type_b.toml",
+        "data/mast_30bay.toml",
+        "data/mast_30bay_twelve_a.toml",
     ),
     "smartjoint.codegen": tuple(
         f"templates/{name}"

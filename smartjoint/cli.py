@@ -273,11 +273,8 @@ def _add_dynamics_commands(sub, o: SimpleNamespace) -> None:
 
 def _add_control_commands(sub, o: SimpleNamespace) -> None:
     """design, codegen, sil, pil."""
-    one_bus = "; with any of --bitrate, --data-bitrate, --max-load: one bus instead of the design's [network]"
-    rates = _bus_rates(
-        "CAN (arbitration) bitrate (default: 1000000)" + one_bus,
-        "CAN FD data bitrate, 0: classical CAN (default: 5000000)",
-    )
+    one_bus = "CAN (arbitration) bitrate (default: 1000000); any bus option: one such bus, not the design's [network]"
+    rates = _bus_rates(one_bus, "CAN FD data bitrate, 0: classical CAN (default: 5000000)")
     p = sub.add_parser(
         "design",
         parents=[o.design, rates, o.no_update, o.json_summary],
@@ -311,12 +308,8 @@ def _add_control_commands(sub, o: SimpleNamespace) -> None:
         "before it is moved into place",
     )
     p.add_argument("--no-can", action="store_true", help="controllers only, without the CAN message layer and DBC")
-    p.add_argument(
-        "--network",
-        metavar="DESIGN",
-        help="the CAN layer on the buses of this design file's [network] (one DBC per bus, setpoints packed where "
-        "that lowers the load); default one bus, one SETPOINT frame per joint",
-    )
+    network_help = "the CAN layer on the buses of this design's [network], a DBC each (default: one bus)"
+    p.add_argument("--network", metavar="DESIGN", help=network_help)
     p.set_defaults(func=cmd_codegen)
 
     bus = [

@@ -50,6 +50,7 @@ from smartjoint.design.structure.description import Network
 from smartjoint.design.structure.solved import solved_model
 from smartjoint.pipeline_ensemble import ensemble_markdown, ensemble_stage
 from smartjoint.pipeline_fmu import fmu_markdown, fmu_stage
+from smartjoint.pipeline_local import local_mode_markdown, local_mode_run
 from smartjoint.pipeline_target import pil_markdown, pil_stage
 from smartjoint.report_control import control_markdown, plot_control_study, tuning_plots
 from smartjoint.report_folder import ReportFolder, iso, new_run_id, utc_now
@@ -295,62 +296,17 @@ def _firmware_stage(control: ControlStage, progress) -> FirmwareStage:
     return FirmwareStage(files, check)
 
 
-def _local_mode_run(control: ControlStage, sil_check: dict, progress) -> dict:
-    """The node law in local mode (``[network] siso = "local"``): one generated joint node per
-    joint on the SIL bench (float build, as on the nodes), against the same model-in-the-loop
-    run and its spread as the central SIL row of that law."""
-    from smartjoint.bench.interconnection import LocalNodesLoop
-    from smartjoint.common import law_registry
-
-    law = law_registry.node_law()
-    progress(f"      {law.name}: local mode, one joint node per joint (float build) …")
-    run, safe = LocalNodesLoop(control.artifact, "float").run(control.study.setup, law.name)
-    central = sil_check["laws"].get(law.name)
-    mil = None if central is None else central["energy_measure_mil"]
-    return {
-        "law": law.name,
-        "energy_measure_local": run.energy_measure(),
-        "energy_end_local": float(run.energy[-1]),
-        "energy_measure_mil": mil,
-        "difference": None if mil is None else run.energy_measure() / mil - 1.0,
-        "mil_spread_under_float_rounding": None if central is None else central["mil_spread_under_float_rounding"],
-        "central_difference": None if central is None else central["energy_measure_difference"],
-        "safe_samples": safe,
-    }
-
-
-def _local_mode_markdown(sil_check: dict) -> str:
-    """The local-mode row of stage 8 (``_local_mode_run``), or nothing."""
-    local = sil_check.get("local")
-    if local is None:
-        return ""
-    spread = local["mil_spread_under_float_rounding"]
-    band = "—" if spread is None else f"{100 * spread[0]:+.1f} … {100 * spread[1]:+.1f} %"
-    difference = "—" if local["difference"] is None else f"{100 * local['difference']:+.2f} %"
-    central = "—" if local["central_difference"] is None else f"{100 * local['central_difference']:+.2f} %"
-    return (
-        f'\nLocal mode (`[network] siso = "local"`, docs/safety.md): the {local["law"]} law on one generated joint '
-        "node per joint, each driving its own amplifier, float build:\n\n"
-        "| law | E(t_e) MIL | E(t_e) local | difference | central SIL's difference | MIL spread under 6e-8 "
-        "perturbations | safe samples |\n|---|---:|---:|---:|---:|---:|---:|\n"
-        f"| {local['law']} (local) | {local['energy_measure_mil'] or float('nan'):.4g} | "
-        f"{local['energy_measure_local']:.4g} | {difference} | {central} | {band} | {local['safe_samples']} |\n"
-    )
-
-
 def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
     """Stage 8: the study through the CAN loop, the demo faults and the safe-state fault matrix."""
     controller, control_study = control.artifact, control.study
     progress("[8/12] software in the loop: the study through CAN (firmware, bus, amplifier models)")
     # The bus logs go straight into the report (no temporary folder to leave behind).
-    # On the buses of the design's [network] when it has one (a design without: one bus, one
-    # SETPOINT frame per joint, the layout of firmware/bus.dbc).
-    buses = None if control.design.network == Network() else control.design.network
+    buses = None if control.design.network == Network() else control.design.network  # else firmware/bus.dbc's bus
     sil_check = sil.sil_study(
         control_study.setup, controller, spread_runs=4, log_folder=staging / "can", progress=progress, network=buses
     )
     if control.design.network.siso == "local":
-        sil_check["local"] = _local_mode_run(control, sil_check, progress)
+        sil_check["local"] = local_mode_run(control.artifact, control.study.setup, sil_check, progress)
     logs = tuple(sorted(p.name for p in (staging / "can").iterdir()))
     for law in sil_check["laws"].values():
         if law.get("log") is not None:
@@ -507,7 +463,7 @@ def _report_markdown(r: _Run, files: _ReportFiles, final: dict) -> str:
         + ", ".join(f"`{name}`" for name in sorted(r.firmware.files))
         + ".\n\n"
         + sil.sil_markdown(bench.sil)
-        + _local_mode_markdown(bench.sil)
+        + local_mode_markdown(bench.sil)
         + "\n![SIL energy](sil_energy.png)\n\n"
         + "\n\n".join(f"Bus `{p.bus.name}`:\n\n{p.load.table()}" for p in bench.network.buses)
         + "\n\nNetwork plan of the design's `[network]` (`design.network.plan`: "

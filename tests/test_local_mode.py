@@ -114,19 +114,16 @@ def test_a_node_image_on_the_emulated_target_beside_the_bench_is_the_host_node(s
 def test_smartjoint_run_reports_local_mode_against_the_same_mil_run(study):
     """Stage 8 of `smartjoint run` for `[network] siso = "local"`: the local run's E(t_e) against
     the central SIL row's MIL figure, and the report's row carries both differences and the band."""
-    from types import SimpleNamespace
-
-    from smartjoint.pipeline import _local_mode_markdown, _local_mode_run
+    from smartjoint.pipeline_local import local_mode_markdown, local_mode_run
 
     s, artifact = study
     mil, _ = PythonLoop(artifact).run(s, LAW.name)
     central = {"energy_measure_mil": mil.energy_measure(), "mil_spread_under_float_rounding": (-0.01, 0.02)}
     sil_check = {"laws": {LAW.name: central | {"energy_measure_difference": 0.005}}}
-    control = SimpleNamespace(artifact=artifact, study=SimpleNamespace(setup=s))
-    local = _local_mode_run(control, sil_check, lambda line: None)
+    local = local_mode_run(artifact, s, sil_check, lambda line: None)
     run, _ = LocalNodesLoop(artifact, "float").run(s, LAW.name)
     assert local["energy_measure_local"] == run.energy_measure()
     assert local["difference"] == run.energy_measure() / mil.energy_measure() - 1.0
-    row = _local_mode_markdown(sil_check | {"local": local})
+    row = local_mode_markdown(sil_check | {"local": local})
     assert f"| {LAW.name} (local) |" in row and "+0.50 %" in row and "-1.0 … +2.0 %" in row
-    assert _local_mode_markdown(sil_check) == ""
+    assert local_mode_markdown(sil_check) == ""
