@@ -185,7 +185,8 @@ class LocalLoop:
             commands.append(command)
             status = node.transmit()
             if status is not None:
-                self._send(self.node_bus, *status, t)
+                frame_id, data = status
+                self._send(self.node_bus, frame_id, data, t)
         for message in self._drain(self.supervisor_bus):
             definition = self.db.get_message_by_frame_id(message.arbitration_id)
             self.statuses[message.arbitration_id] = dict(definition.decode(bytes(message.data), decode_choices=False))

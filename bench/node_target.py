@@ -18,6 +18,7 @@ Makefile builds (``-O2 -ffunction-sections -fdata-sections``, newlib-nano, ``--g
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import tempfile
 from pathlib import Path
@@ -268,12 +269,11 @@ class TargetNode:
         _link(folder, [*_write_node_sources(artifact, joint, folder, prefix), "node_main.c"], "node.elf")
         self._command = pil.emulator_command(folder / "node.elf", pil.free_port())
         self.process: subprocess.Popen | None = None
-        self.socket = None
+        self.socket: socket.socket | None = None
         self.reset()
 
     def reset(self) -> None:
         """A new emulation: the node powered up as after reset."""
-        import socket
         import time
 
         self._stop()
