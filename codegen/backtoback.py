@@ -142,10 +142,13 @@ def markdown(figures: dict, artifact: artifacts.ControllerArtifact) -> str:
         judged = {k: v for k, v in orderings.items() if not k.startswith("power_ratio_") and v is not None}
         held = all(judged.values())
         unjudged = [k for k, v in orderings.items() if v is None]
+        failed = [k for k, v in judged.items() if not v]
         lines += [
             "",
             f"The paper's orderings with the float build in the loop: {'all hold' if held else '**not all hold**'} "
-            f"({', '.join(k for k, v in orderings.items() if v is True)})"
+            f"(hold: {', '.join(k for k, v in orderings.items() if v is True) or 'none'}"
+            + (f"; fail: {', '.join(failed)}" if failed else "")
+            + ")"
             + (f"; not judged without a displacement sensor: {', '.join(unjudged)}." if unjudged else "."),
         ]
     return "\n".join(lines) + "\n"

@@ -115,7 +115,11 @@ def fmu_markdown(stage: FmuStage) -> str:
     lines.append("")
     for version, figures in summary["versions"].items():
         held = [k for k, v in figures["orderings"].items() if v is True]
-        lines.append(f"FMI {version}, the paper's orderings with the co-simulated runs: {', '.join(held) or 'none'}.")
+        failed = [k for k, v in figures["orderings"].items() if v is False]
+        lines.append(
+            f"FMI {version}, the paper's orderings with the co-simulated runs — hold: {', '.join(held) or 'none'}"
+            + (f"; fail: {', '.join(failed)}." if failed else ".")
+        )
         lines.append("")
     first = next(iter(summary["versions"].values()))
     lines.append(

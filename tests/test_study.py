@@ -290,6 +290,15 @@ def test_without_a_displacement_sensor_the_deflection_orderings_say_so(small_stu
     assert "not judged without a displacement sensor: clqg_tip_rms_below_siso, active_tip_rms_below_clqg" in section
 
 
+def test_the_float_orderings_line_names_what_fails():
+    """The back-to-back section says which orderings hold and which fail, not only that some do."""
+    from smartjoint.codegen import backtoback
+
+    orderings = {"siso_below_both_passive": False, "clqg_below_both_passive": True, "clqg_tip_rms_below_siso": None}
+    section = backtoback.markdown({"float_orderings": orderings}, _artifact_stub())
+    assert "**not all hold** (hold: clqg_below_both_passive; fail: siso_below_both_passive)" in section
+
+
 def _artifact_stub():
     """What backtoback.markdown reads of an artefact: the normal-force span."""
     return type("Stub", (), {"normal_force_max": np.array([100.0]), "normal_force_min": np.array([5.0])})()
