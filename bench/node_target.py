@@ -267,7 +267,8 @@ class TargetNode:
         self._scratch = tempfile.TemporaryDirectory(prefix="sj-node-pil-")
         folder = Path(self._scratch.name)
         _link(folder, [*_write_node_sources(artifact, joint, folder, prefix), "node_main.c"], "node.elf")
-        self._command = pil.emulator_command(folder / "node.elf", pil.free_port())
+        self._port = pil.free_port()
+        self._command = pil.emulator_command(folder / "node.elf", self._port)
         self.process: subprocess.Popen | None = None
         self.socket: socket.socket | None = None
         self.reset()
@@ -279,12 +280,11 @@ class TargetNode:
         self._stop()
         self._pending: list[tuple[int, bytes]] = []
         self.faults = self.status = 0
-        port = int(self._command[self._command.index("-serial") + 1].split(":")[2].split(",")[0])
         self.process = subprocess.Popen(self._command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         deadline = time.monotonic() + self.timeout
         while True:
             try:
-                self.socket = socket.create_connection(("127.0.0.1", port), timeout=self.timeout)
+                self.socket = socket.create_connection(("127.0.0.1", self._port), timeout=self.timeout)
                 self.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 return
             except OSError as error:
