@@ -32,10 +32,12 @@ import numpy as np
 from smartjoint.bench import firmware as firmware_module
 from smartjoint.bench.amplifier import FAULTS as AMPLIFIER_FAULTS
 from smartjoint.bench.amplifier import OUTPUT_STAGE_FAULTS
+from smartjoint.bench.fault_scope import fault_scope, scoped_flags
 from smartjoint.bench.faults import FRAME_FAULTS, Fault
 from smartjoint.bench.loop import SilLoop
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
+from smartjoint.design.network import plan
 from smartjoint.design.plant.interface import Measurements
 
 DETECTION_LIMIT = 3  # cycles from a fault (or its detection bound) to the safe force at every joint
@@ -137,7 +139,7 @@ def _pairs(artifact, db, joints: list[str], dt: float, late: float) -> list[tupl
     ]
 
 
-def cases(artifact, db, timings=TIMINGS) -> list[Case]:
+def cases(artifact, db, timings=TIMINGS, buses=()) -> list[Case]:
     """Every fault kind on every frame, each signal, amplifier and the bus, in each timing.
 
     Also a delay within the latency bound on each frame (tolerated) and pairs of faults at once.
@@ -147,9 +149,11 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
     artifact : ControllerArtifact
         The controller design artefact.
     db : cantools.database.can.Database
-        The bus.
+        The bus (every frame of the plan once).
     timings : iterable of str
         Some of :data:`TIMINGS`.
+    buses : sequence of str
+        The plan's buses when there are several: each also goes off alone.
 
     Returns
     -------
@@ -171,6 +175,7 @@ def cases(artifact, db, timings=TIMINGS) -> list[Case]:
         for amplifier_fault in AMPLIFIER_FAULTS:
             single.append(("amplifier", dict(target=joint, amplifier_fault=amplifier_fault)))
     single.append(("bus_off", {}))
+    single += [("bus_off", dict(target=bus)) for bus in (buses if len(buses) > 1 else ())]
     windows = {
         "mid-run": (START, END, LENGTH),
         "from t = 0": (0, END - START, LENGTH - START),
@@ -268,7 +273,7 @@ def run_case_loop(firmware, case: Case, measurements) -> SilLoop:
     return loop
 
 
-def run_case(firmware, case: Case, measurements) -> dict:
+def run_case(firmware, case: Case, measurements, scope=None) -> dict:
     """One case on the bench (:func:`run_case_loop`) and its figures.
 
     Parameters
@@ -279,6 +284,8 @@ def run_case(firmware, case: Case, measurements) -> dict:
         The fault scenario.
     measurements : list of Measurements
         What the nodes measure (:func:`signals`); each joint's F_N is what its amplifier applied.
+    scope : bench.fault_scope.FaultScope, optional
+        What the case must stop and what must run on (:func:`measure`); None: every joint.
 
     Returns
     -------
@@ -289,7 +296,8 @@ def run_case(firmware, case: Case, measurements) -> dict:
     return {
         "case": case.name,
         "timing": case.timing,
-        **measure(loop.record, case.faults, firmware.artifact, case.tolerated),
+        "scope": None if scope is None else [j for j, s in zip(firmware.artifact.joint_names, scope.joints) if s],
+        **measure(loop.record, case.faults, firmware.artifact, case.tolerated, scope),
     }
 
 
@@ -317,7 +325,7 @@ def _settled(flags, reference: int, stop: int) -> int | None:
     return 0 if not off.size else (int(off[-1]) + 1 if off[-1] + 1 < stop - reference else None)
 
 
-def measure(record, faults, artifact, tolerated: bool = False) -> dict:
+def measure(record, faults, artifact, tolerated: bool = False, scope=None) -> dict:
     """The figures of the module docstring for faults acting together in a SIL record.
 
     Parameters
@@ -330,24 +338,27 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
         The controller design artefact (safe force, tolerances).
     tolerated : bool
         A delay within the latency bound: no safe state is expected.
+    scope : bench.fault_scope.FaultScope, optional
+        What must stop and what must run on (``running``) on several buses; None: every joint.
 
     Returns
     -------
     dict
         ``firmware``, ``joints``, ``holds``, ``recovery`` (cycles or None), ``observable`` and
         ``ok`` (the joints at the safe force within :data:`DETECTION_LIMIT` cycles, safe at power
-        up, and recovered after the fault's end).
+        up, recovered after the fault's end, and the buses out of scope running).
     """
     r = record
     dt = float(artifact.sample_time)
-    safe = np.array(r.safe, dtype=bool)
+    tolerated = tolerated or (scope is not None and scope.tolerated)
+    safe, stopped, amplifier_safe, running = scoped_flags(r, scope, len(artifact.joint_names))
     force = np.array(r.amplifier_force)
-    own_safe = np.asarray(np.array(r.amplifier_safe, dtype=bool).any(axis=1))
+    own_safe = np.asarray(amplifier_safe[:, stopped].any(axis=1))
     target = np.asarray(artifact.safe_normal_force, dtype=float)
     failed_stage = sorted(
         {f.target for f in faults if f.kind == "amplifier" and f.amplifier_fault in OUTPUT_STAGE_FAULTS}
     )
-    free = np.array([j not in failed_stage for j in artifact.joint_names])
+    free = np.array([j not in failed_stage for j in artifact.joint_names]) & stopped
     at_safe = np.all(np.abs(force - target)[:, free] <= FORCE_TOLERANCE, axis=1)
     start = min(int(round(f.start / dt)) for f in faults)
     ends = [f.end for f in faults]
@@ -358,6 +369,7 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
     if any(f.kind == "amplifier" and f.amplifier_fault == "gain_error" for f in faults):
         reference = _gain_error_shows(r, artifact, force, start, stop)
     row: dict[str, Any] = {
+        "running": running,
         "start": start,
         "end": end,
         "tolerated": tolerated,
@@ -369,13 +381,8 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
         return row
     if tolerated:
-        row.update(
-            firmware=None,
-            joints=None,
-            holds=None,
-            recovery=None,
-            ok=not safe[start:].any() and not own_safe[start:].any(),
-        )
+        quiet = not safe[start:].any() and not own_safe[start:].any()
+        row.update(firmware=None, joints=None, holds=None, recovery=None, ok=quiet and row["running"])
         return row
     if reference >= stop:  # a fault that never showed (a gain error on commands within the tolerance)
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
@@ -389,7 +396,8 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
     running = _first(~safe, 0)  # until the first valid command the joints hold the safe force
     row["power_up_safe"] = bool(np.all(at_safe[: len(safe) if running is None else running]))
     row["ok"] = bool(
-        row["joints"] is not None
+        row["running"]
+        and row["joints"] is not None
         and row["joints"] <= DETECTION_LIMIT
         and row["power_up_safe"]
         and (end is None or end >= len(safe) or row["recovery"] is not None)
@@ -398,7 +406,14 @@ def measure(record, faults, artifact, tolerated: bool = False) -> dict:
 
 
 def fault_matrix(
-    artifact, law: str | None = None, real: str = "float", measurements=None, timings=TIMINGS, progress=None, image=None
+    artifact,
+    law: str | None = None,
+    real: str = "float",
+    measurements=None,
+    timings=TIMINGS,
+    progress=None,
+    image=None,
+    network=None,
 ) -> dict:
     """Every case of :func:`cases` on one compiled firmware: rows and the worst figures.
 
@@ -419,6 +434,10 @@ def fault_matrix(
     image : firmware, optional
         The firmware to run the cases on (default: the host build of ``law`` and ``real``; the
         target's, ``bench.pil.TargetFirmware``, for processor in the loop).
+    network : Network, optional
+        The design's buses (``[network]``): the host build on their plan, each bus also off alone,
+        and under a per-joint law each case judged bus by bus (``bench.fault_scope``). Default
+        ``image``'s plan, or one bus.
 
     Returns
     -------
@@ -433,18 +452,21 @@ def fault_matrix(
     []
     """
     law = law_registry.fault_matrix_law().name if law is None else law
-    image = firmware_module.Firmware(artifact, law, real) if image is None else image
-    todo = cases(artifact, image.db, timings=timings)
+    planned = None if network is None else plan.plan(artifact, network)
+    image = firmware_module.Firmware(artifact, law, real, network=planned) if image is None else image
+    buses = [p.bus.name for p in image.network.buses]
+    todo = cases(artifact, image.db, timings=timings, buses=buses)
     seen = signals(measurements, artifact, max(c.cycles for c in todo))
     rows = []
     for i, case in enumerate(todo):
-        rows.append(run_case(image, case, seen))
+        rows.append(run_case(image, case, seen, fault_scope(case.faults, law, image.network, artifact.joint_names)))
         if progress and (i + 1) % 50 == 0:
             progress(f"        {i + 1}/{len(todo)} fault cases")
     checked = [r for r in rows if not r["tolerated"]]
     return {
         "law": law,
         "real": real,
+        "buses": buses,
         "rows": rows,
         "cases": len(rows),
         "failed": [r["case"] + " (" + r["timing"] + ")" for r in rows if not r["ok"]],

@@ -69,6 +69,19 @@ def matrix_markdown(out: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _buses_sentence(out: dict) -> str:
+    """On several buses: what each case had to stop (``bench.fault_scope``)."""
+    buses = out.get("buses", [])
+    if len(buses) < 2:
+        return ""
+    return f" On the plan's {len(buses)} buses ({', '.join(buses)}), each also off alone: under {out['law']} a " + (
+        "fault anywhere must stop every joint (the law reads every joint and the tip sensors)."
+        if all(r.get("scope") is None for r in out["rows"])
+        else "fault must stop the joints of the buses it touches while every other bus and its amplifiers run "
+        "on (bench.fault_scope)."
+    )
+
+
 def summary_markdown(out: dict, table: str) -> str:
     """The report's paragraph: what was run, the worst figures, the failing cases (if any).
 
@@ -98,6 +111,7 @@ def summary_markdown(out: dict, table: str) -> str:
             if not out["failed"]
             else f"**{len(out['failed'])} cases fail:** " + "; ".join(out["failed"][:20]) + "."
         )
+        + _buses_sentence(out)
         + f" All cases: [{table}]({table}).",
         "",
     ]

@@ -315,7 +315,7 @@ def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
     progress("      injected faults in the study: " + ", ".join(f.label() for f in demo))
     fault_check = sil.fault_run(control_study.setup, controller, faults=demo, network=buses)
     progress("      safe state under every fault kind on every frame (docs/safety.md) …")
-    safety_check = safety.fault_matrix(controller, progress=progress)
+    safety_check = safety.fault_matrix(controller, progress=progress, network=buses)
     progress(
         f"      {safety_check['cases']} fault cases: worst {safety_check['worst_joints']} cycles to the safe force "
         f"at every joint, {len(safety_check['failed'])} failing"

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from conftest import quiet_joint_frame, small_study
 
-from smartjoint.bench import e2e, firmware, sil
+from smartjoint.bench import e2e, firmware, safety, sil
+from smartjoint.bench.fault_scope import FaultScope
 from smartjoint.bench.faults import Fault
 from smartjoint.bench.loop import SilLoop
 from smartjoint.common.errors import ModelError
@@ -120,3 +121,28 @@ def test_a_bus_off_fault_names_a_bus_of_the_plan(small):
     fw = firmware.Firmware(a, "siso", "double", network=plan(a, TWO))
     with pytest.raises(ModelError, match=r"target 'can7' — a bus of the plan \(can0, can1\)"):
         SilLoop(fw, 0.0, faults=[Fault("bus_off", 0.1, 0.2, "can7")])
+
+
+@pytest.mark.parametrize("law", ["siso", "clqg"])
+def test_the_fault_matrix_on_two_buses_stops_what_a_fault_touches_and_nothing_else(small, law):
+    """Every case of the matrix on the plan's two buses, each bus also off alone: under the SISO law
+    (each joint's own measurements) a fault stops the joints of the buses it touches and the other
+    bus runs on; under the cLQG (every joint and the tip sensors) it stops every joint. A claim
+    the firmware does not keep fails: can1 off said to stop JA and leave can1 running."""
+    _, a = small
+    out = safety.fault_matrix(a, law=law, timings=("mid-run",), network=TWO)
+    rows = {r["case"]: r for r in out["rows"]}
+    assert out["failed"] == [] and out["buses"] == ["can0", "can1"]
+    if law == "siso":
+        assert rows["bus_off can1"]["scope"] == ["JB"] and rows["bus_off can0"]["scope"] == ["JA"]
+        assert rows["bus_off bus"]["scope"] == ["JA", "JB"] and rows["drop JOINT_JB"]["scope"] == ["JB"]
+        assert rows["drop TIP_SENSORS"]["scope"] == [] and rows["drop TIP_SENSORS"]["firmware"] is None
+        assert rows["drop CONTROLLER_STATUS"]["scope"] == ["JA", "JB"]  # the heartbeat is on every bus
+        assert rows["bus_off can1"]["running"] and rows["bus_off can1"]["joints"] <= safety.DETECTION_LIMIT
+    else:
+        assert all(r["scope"] is None for r in out["rows"])
+        assert rows["bus_off can1"]["joints"] <= safety.DETECTION_LIMIT
+    fw = firmware.Firmware(a, law, "float", network=plan(a, TWO))
+    case = next(c for c in safety.cases(a, fw.db, ("mid-run",), ["can0", "can1"]) if c.name == "bus_off can1")
+    seen = safety.signals(None, a, case.cycles)
+    assert not safety.run_case(fw, case, seen, FaultScope((0,), (True, False), (1,)))["ok"]
