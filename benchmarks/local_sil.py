@@ -22,7 +22,7 @@ from pathlib import Path
 from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py (the script's folder is on sys.path)
 
 from smartjoint.bench.interconnection import CanLoop, LocalNodesLoop
-from smartjoint.bench.sil import perturbed
+from smartjoint.bench.rounding_spread import perturbed
 from smartjoint.common import law_registry
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control.interconnection import PythonLoop

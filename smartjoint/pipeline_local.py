@@ -4,6 +4,7 @@ central SIL row of that law and against the same model-in-the-loop run and sprea
 
 from __future__ import annotations
 
+from smartjoint.bench import rounding_spread
 from smartjoint.bench.interconnection import LocalNodesLoop
 from smartjoint.common import law_registry
 
@@ -53,7 +54,7 @@ def local_mode_markdown(sil_check: dict) -> str:
     if local is None:
         return ""
     spread = local["mil_spread_under_float_rounding"]
-    band = "—" if spread is None else f"{100 * spread[0]:+.1f} … {100 * spread[1]:+.1f} %"
+    verdict = rounding_spread.verdict_cell(rounding_spread.within_band(local["difference"], spread), spread)
     difference = "—" if local["difference"] is None else f"{100 * local['difference']:+.2f} %"
     central = "—" if local["central_difference"] is None else f"{100 * local['central_difference']:+.2f} %"
     mil = "—" if local["energy_measure_mil"] is None else f"{local['energy_measure_mil']:.4g}"
@@ -61,9 +62,9 @@ def local_mode_markdown(sil_check: dict) -> str:
         f"\nLocal mode (`[network]`, docs/safety.md): the {local['law']} law on one generated joint node per "
         "joint, each driving its own amplifier, float build:\n\n"
         "| law | E(t_e) MIL | E(t_e) local | difference | central SIL's difference | MIL spread under 6e-8 "
-        "perturbations | safe samples |\n|---|---:|---:|---:|---:|---:|---:|\n"
+        "perturbations | within the band? | safe samples |\n|---|---:|---:|---:|---:|---:|---|---:|\n"
         f"| {local['law']} (local) | {mil} | {local['energy_measure_local']:.4g} | {difference} | {central} | "
-        f"{band} | {local['safe_samples']} |\n"
+        f"{rounding_spread.band_cell(spread)} | {verdict} | {local['safe_samples']} |\n"
     )
 
 

@@ -10,7 +10,7 @@ import pytest
 from conftest import small_study
 
 from smartjoint.bench.interconnection import CanLoop, FmuLoop
-from smartjoint.bench.sil import perturbed
+from smartjoint.bench.rounding_spread import perturbed
 from smartjoint.codegen.closed_loop import CompiledLoop
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError

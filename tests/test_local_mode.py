@@ -12,7 +12,7 @@ from conftest import small_study
 
 from smartjoint.bench.interconnection import CanLoop, LocalNodesLoop
 from smartjoint.bench.local_loop import LocalLoop
-from smartjoint.bench.sil import perturbed
+from smartjoint.bench.rounding_spread import perturbed
 from smartjoint.bench.target import missing_tools as target_missing
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
