@@ -12,7 +12,7 @@ import csv
 import math
 import re
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO, cast
@@ -355,20 +355,36 @@ class Decoded:
         }
 
 
-def decode(messages, db, problem: str | None = None) -> Decoded:
+def _by_bus(db, bus_names) -> list[tuple[str | None, dict]]:
+    """Per bus: the label its frames get where a name is on several buses, and its frames by id."""
+    databases = list(db) if isinstance(db, (list, tuple)) else [db]
+    names = list(bus_names) if bus_names is not None else [str(b) for b in range(len(databases))]
+    if len(names) != len(databases):
+        raise ModelError(f"bus names: {names} — one per database ({len(databases)})")
+    return [
+        (None if len(databases) == 1 else names[b], {m.frame_id: m for m in d.messages})
+        for b, d in enumerate(databases)
+    ]
+
+
+def decode(messages, db, problem: str | None = None, bus_names=None) -> Decoded:
     """Signals of every frame the DBC knows, skipping and counting the rest by kind.
 
-    Skipped: unknown identifier, wrong length, bad CRC, error and remote frames, frames without
-    a finite time stamp.
+    Skipped: unknown identifier (on its bus), wrong length, bad CRC, error and remote frames,
+    frames without a finite time stamp.
 
     Parameters
     ----------
     messages : list of can.Message or LogContent
         The frames (a ``LogContent`` carries its damage along).
-    db : cantools.database.can.Database
-        The bus.
+    db : cantools.database.can.Database or list of them
+        The bus, or one database per bus of a plan: a frame's bus is its log channel (0, 1, …,
+        as ``smartjoint sil`` writes them). A frame whose name is on several buses (the
+        heartbeat) is labelled ``NAME@bus``.
     problem : str, optional
         What reading the log found damaged.
+    bus_names : sequence of str, optional
+        The buses' names for those labels (default their indices).
 
     Returns
     -------
@@ -378,8 +394,10 @@ def decode(messages, db, problem: str | None = None) -> Decoded:
     out = Decoded(problem=problem)
     if isinstance(messages, LogContent):
         out.problem, out.log, messages = problem or messages.problem(), messages.skipped(), messages.messages
-    known = {m.frame_id: m for m in db.messages}
-    out.units = {(m.name, s.name): s.unit for m in db.messages for s in m.signals if s.unit}
+    buses = _by_bus(db, bus_names)
+    shared = Counter(m.name for _, known in buses for m in known.values())
+    label = lambda bus, name: name if bus is None or shared[name] == 1 else f"{name}@{bus}"  # noqa: E731
+    out.units = {(label(b, m.name), s.name): s.unit for b, k in buses for m in k.values() for s in m.signals if s.unit}
     for message in messages:
         out.frames += 1
         if message.is_error_frame:
@@ -391,6 +409,8 @@ def decode(messages, db, problem: str | None = None) -> Decoded:
         if not math.isfinite(float(message.timestamp)):
             out.non_finite_times += 1
             continue
+        channel = message.channel if len(buses) > 1 else 0
+        bus, known = buses[channel] if isinstance(channel, int) and 0 <= channel < len(buses) else (None, {})
         m = known.get(message.arbitration_id)
         if m is None:
             out.unknown_ids[message.arbitration_id] += 1
@@ -403,7 +423,7 @@ def decode(messages, db, problem: str | None = None) -> Decoded:
             out.bad_e2e[m.name] += 1
             continue
         for name, value in m.decode(data, decode_choices=False).items():
-            out.rows.append((float(message.timestamp), m.name, name, float(value)))
+            out.rows.append((float(message.timestamp), label(bus, m.name), name, float(value)))
     return out
 
 

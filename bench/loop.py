@@ -431,9 +431,10 @@ class SilLoop:
                     self._setpoint(self.joints.index(name[len("SETPOINT_") :]), message, "voltage")
 
     def _drain_log(self) -> None:
-        for bus in self.log_buses:
+        for index, bus in enumerate(self.log_buses):
             for message in self._drain(bus):
                 if self.writer is not None:
+                    message.channel = index  # the bus's index in the plan: bench decode/replay read it
                     self.writer.on_message_received(message)
 
     def _record_sample(self, t: float, status, amplifier_force: np.ndarray, applied: np.ndarray) -> None:

@@ -1,6 +1,7 @@
 """Replay a CAN log through the compiled firmware and compare its setpoints with the recorded
-ones: the recorded sensor and amplifier frames go to ``rx`` on the controller's sample grid, the
-``SETPOINT_*`` frames of ``tx`` are paired with the recorded ones of the same sample.
+ones: the recorded sensor and amplifier frames go to ``rx`` on the controller's sample grid (on
+their bus, for a firmware of several), the setpoint frames of ``tx`` are paired with the recorded
+ones of the same sample.
 """
 
 from __future__ import annotations
@@ -67,56 +68,89 @@ class _Comparison:
     counts: defaultdict = field(default_factory=lambda: defaultdict(int))
 
 
-def _replay_sample(firmware, known: dict, frames, time_us: int, t: float, tolerance: float, seen: _Comparison) -> None:
-    """One sample: the recorded inputs to ``rx``, ``step``, the replayed setpoints of ``tx``
-    paired with the recorded ones of the sample."""
+def _bus_of(message, buses: int) -> int | None:
+    """The plan's bus a logged frame was on: its log channel (0, 1, …, as ``smartjoint sil``
+    writes them) when there are several, else the one bus; None: a channel of no bus."""
+    if buses == 1:
+        return 0
+    channel = message.channel
+    return channel if isinstance(channel, int) and 0 <= channel < buses else None
+
+
+def _setpoints(m, data: bytes) -> dict:
+    """The voltages a setpoint frame carries: ``SETPOINT_<j>.voltage`` or each ``voltage_<j>`` of a
+    packed ``SETPOINTS_<J>`` frame (design.network.plan), by signal."""
+    return {k: v for k, v in m.decode(data, decode_choices=False).items() if k.startswith("voltage")}
+
+
+def _is_setpoint(m) -> bool:
+    return m.name.startswith(("SETPOINT_", "SETPOINTS_"))
+
+
+def _replay_sample(firmware, buses: list, frames, time_us: int, t: float, tolerance: float, seen: _Comparison) -> None:
+    """One sample: the recorded inputs to ``rx`` (on their bus), ``step``, the replayed setpoints
+    of ``tx`` paired with the recorded ones of the sample, frame by frame and signal by signal."""
     recorded = defaultdict(list)
     for message in frames:
-        m = known.get(message.arbitration_id)
+        bus = _bus_of(message, len(buses))
+        m = None if bus is None else buses[bus].get(message.arbitration_id)
         if m is None:
             seen.unknown += 1  # the firmware counts and rejects it, as on the bus
-        elif m.name.startswith("SETPOINT_"):
+        elif _is_setpoint(m):
             data = bytes(message.data)
             if len(data) != m.length:
                 seen.counts["recorded_wrong_length"] += 1
             elif not e2e.check(m.frame_id, data, None).crc_ok:
                 seen.counts["recorded_bad_crc"] += 1
             else:
-                recorded[m.name].append(m.decode(data, decode_choices=False)["voltage"])
+                for signal, volts in _setpoints(m, data).items():
+                    recorded[bus, m.name, signal].append(volts)
             continue
         elif m.name == "CONTROLLER_STATUS":  # the firmware's own frame, not an input
             continue
-        firmware.rx(message.arbitration_id, bytes(message.data), time_us)
+        if len(buses) == 1:
+            firmware.rx(message.arbitration_id, bytes(message.data), time_us)
+        else:
+            firmware.rx(message.arbitration_id, bytes(message.data), time_us, bus=bus)
     firmware.step(time_us)
     replayed = defaultdict(list)
-    for frame_id, data in firmware.tx():
-        m = known.get(frame_id)
-        if m is not None and m.name.startswith("SETPOINT_"):
-            replayed[m.name].append(m.decode(data, decode_choices=False)["voltage"])
-    for name in sorted(set(recorded) | set(replayed)):
-        ours, theirs = replayed[name], recorded[name]
-        for a, b in zip(ours, theirs):
-            seen.compared += 1
-            deviation = abs(a - b)
-            seen.worst = max(seen.worst, deviation)
-            if not deviation <= tolerance:
-                seen.differences.append({"time": t, "frame": name, "kind": "differs", "recorded_V": b, "replayed_V": a})
-        if len(theirs) > len(ours):
-            seen.counts["recorded_not_replayed"] += len(theirs) - len(ours)
-            seen.differences.append(
-                {
-                    "time": t,
-                    "frame": name,
-                    "kind": "recorded, not replayed",
-                    "recorded_V": theirs[len(ours)],
-                    "replayed_V": None,
-                }
-            )
-        elif len(ours) > len(theirs):
-            key = "replayed_not_recorded_in_silent_samples" if not frames else "replayed_not_recorded"
-            seen.counts[key] += len(ours) - len(theirs)
+    sent = firmware.tx_bus() if len(buses) > 1 else [(0, frame_id, data) for frame_id, data in firmware.tx()]
+    for bus, frame_id, data in sent:
+        m = buses[bus].get(frame_id)
+        if m is not None and _is_setpoint(m):
+            for signal, volts in _setpoints(m, data).items():
+                replayed[bus, m.name, signal].append(volts)
+    for key in sorted(set(recorded) | set(replayed)):
+        _compare(key, replayed[key], recorded[key], bool(frames), t, tolerance, seen)
     if not frames:
         seen.counts["silent_samples"] += 1
+
+
+def _compare(key, ours: list, theirs: list, heard: bool, t: float, tolerance: float, seen: _Comparison) -> None:
+    """One setpoint signal of a sample: replayed ``ours`` against recorded ``theirs``."""
+    _, frame, signal = key
+    name = frame if signal == "voltage" else f"{frame}.{signal}"
+    for a, b in zip(ours, theirs):
+        seen.compared += 1
+        deviation = abs(a - b)
+        seen.worst = max(seen.worst, deviation)
+        if not deviation <= tolerance:
+            seen.differences.append({"time": t, "frame": name, "kind": "differs", "recorded_V": b, "replayed_V": a})
+    if len(theirs) > len(ours):
+        seen.counts["recorded_not_replayed"] += len(theirs) - len(ours)
+        seen.differences.append(
+            {
+                "time": t,
+                "frame": name,
+                "kind": "recorded, not replayed",
+                "recorded_V": theirs[len(ours)],
+                "replayed_V": None,
+            }
+        )
+    elif len(ours) > len(theirs):
+        seen.counts["replayed_not_recorded" if heard else "replayed_not_recorded_in_silent_samples"] += len(ours) - len(
+            theirs
+        )
 
 
 def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None = None) -> dict:
@@ -142,7 +176,8 @@ def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None
     messages : list of can.Message or LogContent
         The recorded frames (``load`` / ``read``).
     firmware : bench.firmware.Firmware
-        The compiled firmware image to replay through (reset first).
+        The compiled firmware image to replay through (reset first); one of a single bus needs
+        only ``db``, ``rx``, ``step`` and ``tx``.
     tolerance : float
         Largest setpoint difference [V] that still counts as equal.
     sample_time : float, optional
@@ -162,7 +197,8 @@ def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None
     """
     if isinstance(messages, LogContent):
         messages = messages.messages
-    known = {m.frame_id: m for m in firmware.db.messages}
+    buses = [{m.frame_id: m for m in db.messages} for db in getattr(firmware, "databases", [firmware.db])]
+    known = {frame_id: m for bus in buses for frame_id, m in bus.items()}
     step = float(sample_time or firmware.artifact.sample_time)
     start, groups, samples = _samples(messages, known, step)
     start_us = int(round(start * 1e6))
@@ -170,7 +206,7 @@ def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None
     seen = _Comparison()
     for k in range(samples):
         _replay_sample(
-            firmware, known, groups.get(k, ()), start_us + int(round(k * step * 1e6)), start + k * step, tolerance, seen
+            firmware, buses, groups.get(k, ()), start_us + int(round(k * step * 1e6)), start + k * step, tolerance, seen
         )
     counts, differences = seen.counts, seen.differences
     differing = sum(1 for d in differences if d["kind"] == "differs")

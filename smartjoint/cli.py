@@ -399,8 +399,9 @@ def _add_bench_commands(sub, o: SimpleNamespace) -> None:
     q.add_argument("--rotate-bytes", type=int, default=0, help="rotate the file at this size (0: never)")
     q = bench.add_parser("decode", parents=[o.json], help="decode a log to signals (CSV) and plots with the DBC")
     q.add_argument("log")
-    q.add_argument("--dbc")
+    q.add_argument("--dbc", action="append", help="the bus's DBC; several: one per bus, in the log's channel order")
     q.add_argument("--artifact")
+    q.add_argument("--network", help="design file: the artefact's frames on its [network]'s buses (with --artifact)")
     q.add_argument("-o", "--output", help="CSV file (time_s, frame, signal, value)")
     q.add_argument("--plots", help="folder for one PNG per frame")
     q = bench.add_parser(
@@ -408,6 +409,7 @@ def _add_bench_commands(sub, o: SimpleNamespace) -> None:
     )
     q.add_argument("log")
     q.add_argument("--artifact", required=True)
+    q.add_argument("--network", help="design file: the firmware on its [network]'s buses (log channel = bus)")
     q.add_argument("--law", choices=law_registry.NAMES, default=law_registry.NAMES[0])
     q.add_argument("--real", choices=("float", "double"), default="float")
     q.add_argument("--tolerance", type=float, default=0.0, help="volts counted as equal (default 0: bit-exact)")

@@ -263,14 +263,23 @@ def _bench_database(args):
     from smartjoint.design.control import artifact
     from smartjoint.design.network import protocol
 
+    if args.dbc and (args.artifact or args.network):
+        raise ModelError("--dbc: give the DBCs or --artifact (with --network), not both")
     if args.dbc:
-        try:
-            return protocol.load_dbc(Path(args.dbc).read_text())
-        except OSError as error:
-            raise ModelError(f"--dbc {args.dbc}: cannot read ({error.strerror})") from None
+        databases = []
+        for path in args.dbc:
+            try:
+                databases.append(protocol.load_dbc(Path(path).read_text()))
+            except OSError as error:
+                raise ModelError(f"--dbc {path}: cannot read ({error.strerror})") from None
+        return databases, None
     if args.artifact:
-        return protocol.database(artifact.load(Path(args.artifact)))
-    raise ModelError("give the protocol: --dbc FILE or --artifact controller.json")
+        loaded = artifact.load(Path(args.artifact))
+        if args.network is None:
+            return [protocol.database(loaded)], None
+        network = _design_network(args.network, loaded)
+        return [p.database for p in network.buses], [p.bus.name for p in network.buses]
+    raise ModelError("give the protocol: --dbc FILE (one per bus) or --artifact controller.json [--network DESIGN]")
 
 
 def cmd_bench(args) -> dict:
@@ -331,7 +340,8 @@ def _bench_decode(args) -> dict:
     from smartjoint.bench import logs
 
     content = _bench_log(args)
-    decoded = logs.decode(content, _bench_database(args))
+    databases, names = _bench_database(args)
+    decoded = logs.decode(content, databases, bus_names=names)
     out = decoded.summary()
     if args.output:
         logs.write_csv(decoded, args.output)
@@ -360,12 +370,13 @@ def _bench_replay(args) -> dict:
 
     content = _bench_log(args)
     loaded = artifact.load(Path(args.artifact))
-    out = replay(content, firmware.Firmware(loaded, args.law, args.real), args.tolerance)
+    network = None if args.network is None else _design_network(args.network, loaded)
+    out = replay(content, firmware.Firmware(loaded, args.law, args.real, network=network), args.tolerance)
     out["log_problem"] = content.problem()
     out["log"] = content.skipped()
     if out["setpoints_compared"] == 0 and out["recorded_not_replayed"] == 0:
         raise ModelError(
-            f"log file {args.log}: no recorded SETPOINT_* frame to compare "
+            f"log file {args.log}: no recorded setpoint frame (SETPOINT_*, SETPOINTS_*) to compare "
             f"({out['samples']} samples replayed) — a log of the controller's bus is needed"
         )
     line = (

@@ -174,7 +174,7 @@ def test_empty_and_foreign_logs_are_errors_not_zero_comparisons(reference, tmp_p
         [m for m in logs.load(tmp_path / "short.blf").messages if m.arbitration_id < 0x200], tmp_path / "sensors.blf"
     )
     code, captured = _bench(capsys, "replay", sensors_only)
-    assert code == 2 and "no recorded SETPOINT_* frame" in captured.err
+    assert code == 2 and "no recorded setpoint frame (SETPOINT_*, SETPOINTS_*)" in captured.err
 
 
 def test_a_truncated_blf_says_after_how_many_frames_it_stops(bus_off_log, tmp_path):
