@@ -6,7 +6,7 @@ the loop (``PythonLoop``), the generated joint nodes on the SIL bench in local m
 (``CanLoop``, float); and local mode with joint 0's node as its image on the emulated Cortex-M4F
 (``bench.node_target.TargetNode``, processor in the loop), which must equal the local float run
 bit for bit. The band is the model in the loop's spread under ``--runs`` perturbations of
-its commands at 6e-8 relative (float rounding, ``bench.sil.perturbed``). Written to
+its commands at 6e-8 relative (float rounding, ``bench.rounding_spread.perturbed``). Written to
 ``benchmarks/local_sil.json``.
 
     python benchmarks/local_sil.py [--runs 8]

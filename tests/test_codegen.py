@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from conftest import artifact_fields, artifact_text, plausible_measurements, run, run_cli
 
-from smartjoint.bench import sil
+from smartjoint.bench import rounding_spread
 from smartjoint.codegen import build, build_files, controllers, generate, output
 from smartjoint.common import law_registry
 from smartjoint.design import plant
@@ -281,7 +281,7 @@ def test_study_back_to_back(reference, builds, three_type_a):
     reference moves by −5 … +2 % (cLQG) and by either ~0 % or +7 … +13 % (SISO, two outcomes)
     under 6e-8 relative perturbations of its commands, the size of float rounding). The band is
     measured here, on this machine's numerics, with ``SPREAD_RUNS`` such perturbed runs as the
-    SIL stage does (bench/sil.py); the float build is one more member of that ensemble, so it is
+    SIL stage does (bench/rounding_spread.py); the float build is one more member of that ensemble, so it is
     asserted within ``SPREAD_MARGIN`` times the ensemble's largest deviation. The margin covers
     that a new member can fall outside the range of SPREAD_RUNS others (probability 2/(n + 1));
     to exceed twice the range's largest magnitude it would need all perturbed SISO runs to take
@@ -316,7 +316,7 @@ def test_study_back_to_back(reference, builds, three_type_a):
         in_loop = study.run_semi_active(s, name, builds["float"].law(compiled))
         deviation = in_loop.energy_measure() / run.energy_measure() - 1.0
         spread = [
-            study.run_semi_active(s, name, sil.perturbed(python(reference), 6e-8, seed)).energy_measure()
+            study.run_semi_active(s, name, rounding_spread.perturbed(python(reference), 6e-8, seed)).energy_measure()
             / run.energy_measure()
             - 1.0
             for seed in range(SPREAD_RUNS)

@@ -49,7 +49,7 @@ def test_the_can_loop_gives_the_record_of_the_model_in_the_loop(study):
     in the loop, never in the safe state, its energy measure as close to the model in the loop's
     as a band measured here allows: twice the double build's deviation through the same loop (the
     frames' quantisation) plus ten times the spread of the model in the loop under 6e-8
-    perturbations of its commands (the float build's rounding, ``sil.perturbed``)."""
+    perturbations of its commands (the float build's rounding, ``rounding_spread.perturbed``)."""
     s, artifact = study
     python = PythonLoop(artifact)
     for entry in law_registry.LAWS.values():
