@@ -188,12 +188,20 @@ static int normal_forces_plausible(const smartjoint_clqg_input *input)
 
 /* Eq. 34 for one joint: F_N = F^min + (F^max - F^min) clip((u_d - u_R) sgn(u_R) / eps, 0, 1).
  * The same numbers as the product with sgn(u_R), as -(a - b) = b - a exactly; for u_R = 0 the
- * product's +-0 clips to 0. */
+ * product's +-0 clips to 0. The clip is decided on the error e = (u_d - u_R) sgn(u_R) before any
+ * division, with the same results bit for bit: e <= 0 gives a ratio <= 0, clipped to 0, so
+ * F^min + (F^max - F^min) 0 = F^min; e >= eps gives a quotient >= 1 (rounding keeps it so), clipped
+ * to 1, and (F^max - F^min) 1 is exact; in between the quotient is at most 1 after rounding. */
 static smartjoint_real clipped_command(const smartjoint_clqg_params *params, int j, smartjoint_real desired, smartjoint_real friction)
 {
-    smartjoint_real ratio = (friction > 0.0f ? desired - friction : (friction < 0.0f ? friction - desired : 0.0f)) / params->boundary_layer;
-    ratio = ratio > 0.0f ? (ratio < 1.0f ? ratio : 1.0f) : 0.0f;
-    return MULTIPLY_ADD(params->normal_force_min[j], params->normal_force_range[j], ratio);
+    const smartjoint_real error = friction > 0.0f ? desired - friction : (friction < 0.0f ? friction - desired : 0.0f);
+    if (!(error > 0.0f)) {
+        return params->normal_force_min[j];
+    }
+    if (error >= params->boundary_layer) {
+        return params->normal_force_min[j] + params->normal_force_range[j];
+    }
+    return MULTIPLY_ADD(params->normal_force_min[j], params->normal_force_range[j], error / params->boundary_layer);
 }
 
 /* Output phase, right after the measurements arrive: the command from the new measurement and what
