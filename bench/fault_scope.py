@@ -12,6 +12,9 @@ never an amplifier's own watchdog:
 - a frame fault stops the buses that carry the frame (the heartbeat is on every bus); on a frame
   the law does not read (the tip sensors under a per-joint law) timing and E2E faults stop
   nothing, while an implausible value is a broken node whichever law runs and stops its bus.
+
+Whatever the law, a fault on a frame the controller's CAN layer does not read at all (a joint
+node's status in local mode, for the supervisor) stops nothing: the firmware must not react.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ def _stopped(fault, law, plan, joint_bus: dict, frame_buses: dict) -> set[int]:
     return set(frame_buses[fault.target])
 
 
-def fault_scope(faults, law: str, plan, joint_names) -> FaultScope | None:
+def fault_scope(faults, law: str, plan, joint_names, unread=frozenset()) -> FaultScope | None:
     """What ``faults`` acting together must stop under ``law`` on the buses of ``plan``.
 
     Parameters
@@ -64,6 +67,9 @@ def fault_scope(faults, law: str, plan, joint_names) -> FaultScope | None:
         The buses, their joints and frames.
     joint_names : sequence of str
         The artefact's joints, in order.
+    unread : set of str
+        Frames other nodes send that the controller's CAN layer does not read
+        (``codegen.can_layer.input_frames``): a fault on them alone stops nothing.
 
     Returns
     -------
@@ -71,7 +77,8 @@ def fault_scope(faults, law: str, plan, joint_names) -> FaultScope | None:
         None where every joint must stop (one bus, or a law that couples the joints).
     """
     entry = law_registry.law(law)
-    if len(plan.buses) < 2 or "sensors" in entry.inputs:
+    faults = [f for f in faults if f.kind in ("bus_off", "amplifier") or f.target not in unread]
+    if faults and (len(plan.buses) < 2 or "sensors" in entry.inputs):
         return None
     joint_bus = {j: b for b, p in enumerate(plan.buses) for j in p.joints}
     frame_buses: dict[str, list[int]] = {}

@@ -35,6 +35,7 @@ from smartjoint.bench.amplifier import OUTPUT_STAGE_FAULTS
 from smartjoint.bench.fault_scope import fault_scope, scoped_flags
 from smartjoint.bench.faults import FRAME_FAULTS, Fault
 from smartjoint.bench.loop import SilLoop
+from smartjoint.codegen import can_layer
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.network import plan
@@ -458,8 +459,10 @@ def fault_matrix(
     todo = cases(artifact, image.db, timings=timings, buses=buses)
     seen = signals(measurements, artifact, max(c.cycles for c in todo))
     rows = []
+    unread = {m.name for m in image.db.messages if m.senders != ["CONTROLLER"]} - can_layer.input_frames(artifact)
     for i, case in enumerate(todo):
-        rows.append(run_case(image, case, seen, fault_scope(case.faults, law, image.network, artifact.joint_names)))
+        scope = fault_scope(case.faults, law, image.network, artifact.joint_names, unread)
+        rows.append(run_case(image, case, seen, scope))
         if progress and (i + 1) % 50 == 0:
             progress(f"        {i + 1}/{len(todo)} fault cases")
     checked = [r for r in rows if not r["tolerated"]]
@@ -467,6 +470,7 @@ def fault_matrix(
         "law": law,
         "real": real,
         "buses": buses,
+        "unread": sorted(unread),
         "rows": rows,
         "cases": len(rows),
         "failed": [r["case"] + " (" + r["timing"] + ")" for r in rows if not r["ok"]],

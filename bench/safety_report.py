@@ -70,15 +70,27 @@ def matrix_markdown(out: dict) -> str:
 
 
 def _buses_sentence(out: dict) -> str:
-    """On several buses: what each case had to stop (``bench.fault_scope``)."""
+    """On several buses: what each case had to stop (``bench.fault_scope``); and the frames on the
+    buses that the controller does not read."""
+    unread = out.get("unread", [])
+    text = (
+        f" {len(unread)} frames on the buses are not the controller's to read ({', '.join(unread[:4])}"
+        f"{' …' if len(unread) > 4 else ''}: a supervisor's); a fault on them must leave it undisturbed."
+        if unread
+        else ""
+    )
     buses = out.get("buses", [])
     if len(buses) < 2:
-        return ""
-    return f" On the plan's {len(buses)} buses ({', '.join(buses)}), each also off alone: under {out['law']} a " + (
-        "fault anywhere must stop every joint (the law reads every joint and the tip sensors)."
-        if all(r.get("scope") is None for r in out["rows"])
-        else "fault must stop the joints of the buses it touches while every other bus and its amplifiers run "
-        "on (bench.fault_scope)."
+        return text
+    scoped = any(r.get("scope") not in (None, []) for r in out["rows"])
+    return text + (
+        f" On the plan's {len(buses)} buses ({', '.join(buses)}), each also off alone: under {out['law']} a "
+        + (
+            "fault must stop the joints of the buses it touches while every other bus and its amplifiers run "
+            "on (bench.fault_scope)."
+            if scoped
+            else "fault anywhere must stop every joint (the law reads every joint and the tip sensors)."
+        )
     )
 
 

@@ -142,6 +142,14 @@ def _messages(db, joints: list[str], real: str, full_codec: bool) -> tuple[list[
     return messages, layouts
 
 
+def input_frames(artifact: ControllerArtifact) -> frozenset[str]:
+    """The frames the CAN layer receives and ages (the input table of ``render_can``): each joint's
+    ``JOINT_<j>`` and ``AMP_STATUS_<j>`` and ``TIP_SENSORS``. Any other frame a node sends (a joint
+    node's ``NODE_STATUS_<j>`` in local mode, which a supervisor reads) is an unknown identifier to it."""
+    joints = [j.upper() for j in artifact.joint_names]
+    return frozenset([*(f"JOINT_{t}" for t in joints), "TIP_SENSORS", *(f"AMP_STATUS_{t}" for t in joints)])
+
+
 def _inputs(db, joints: list[str], cycle_us: int, joint_bus: list[int]) -> list[dict]:
     """The frames the controller receives, in the order the C ages them, each with its bus
     (``joint_bus``: each joint's; the tip sensors on the first); each must come once per

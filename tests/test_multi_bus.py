@@ -26,6 +26,7 @@ from smartjoint.design.structure.description import Bus, Network
 
 ROOT = Path(__file__).resolve().parents[1]
 TWO = Network((Bus("can0"), Bus("can1")))
+LOCAL_TWO = Network((Bus("can0"), Bus("can1")), siso="local")  # NODE_STATUS_<j> frames on the buses too
 
 
 @pytest.fixture(scope="module")
@@ -133,9 +134,14 @@ def test_the_fault_matrix_on_two_buses_stops_what_a_fault_touches_and_nothing_el
     bus runs on; under the cLQG (every joint and the tip sensors) it stops every joint. A claim
     the firmware does not keep fails: can1 off said to stop JA and leave can1 running."""
     _, a = small
-    out = safety.fault_matrix(a, law=law, timings=("mid-run",), network=TWO)
+    out = safety.fault_matrix(a, law=law, timings=("mid-run",), network=LOCAL_TWO)
     rows = {r["case"]: r for r in out["rows"]}
     assert out["failed"] == [] and out["buses"] == ["can0", "can1"]
+    # the joint nodes' status frames of local mode are a supervisor's: the controller must not react
+    assert out["unread"] == ["NODE_STATUS_JA", "NODE_STATUS_JB"]
+    for kind in ("drop", "corrupt_crc", "silent"):
+        row = rows[f"{kind} NODE_STATUS_JB"]
+        assert row["scope"] == [] and row["tolerated"] and row["ok"] and row["safe_samples"] == 0
     if law == "siso":
         assert rows["bus_off can1"]["scope"] == ["JB"] and rows["bus_off can0"]["scope"] == ["JA"]
         assert rows["bus_off bus"]["scope"] == ["JA", "JB"] and rows["drop JOINT_JB"]["scope"] == ["JB"]
@@ -143,7 +149,7 @@ def test_the_fault_matrix_on_two_buses_stops_what_a_fault_touches_and_nothing_el
         assert rows["drop CONTROLLER_STATUS"]["scope"] == ["JA", "JB"]  # the heartbeat is on every bus
         assert rows["bus_off can1"]["running"] and rows["bus_off can1"]["joints"] <= safety.DETECTION_LIMIT
     else:
-        assert all(r["scope"] is None for r in out["rows"])
+        assert all(r["scope"] is None for r in out["rows"] if "NODE_STATUS" not in r["case"])
         assert rows["bus_off can1"]["joints"] <= safety.DETECTION_LIMIT
     fw = firmware.Firmware(a, law, "float", network=plan(a, TWO))
     case = next(c for c in safety.cases(a, fw.db, ("mid-run",), ["can0", "can1"]) if c.name == "bus_off can1")
