@@ -28,9 +28,7 @@ from machine import python_machine, write_json  # benchmarks/machine.py (the scr
 
 from smartjoint.common import package_data
 from smartjoint.design.control import runs, siso_tuning, study
-from smartjoint.design.control.runs import PLANT_STEPS_PER_SAMPLE, PULSE_DURATION
-from smartjoint.design.plant import simulate
-from smartjoint.design.plant.interface import HoldDuringExcitation
+from smartjoint.design.control.runs import PULSE_DURATION
 from smartjoint.design.structure.spec import load_design
 
 HERE = Path(__file__).resolve().parent
@@ -41,18 +39,7 @@ def books(setup, boundary_layer: float, floor: float):
     """The SISO run at ε = ``boundary_layer`` and F_N^min = ``floor`` with its energy books."""
     floors = np.full_like(setup.normal_force_min, floor)
     law = siso_tuning.siso(dataclasses.replace(setup, normal_force_min=floors), boundary_layer)
-    held = HoldDuringExcitation(law, PULSE_DURATION, setup.normal_force_max)
-    return simulate(
-        setup.plant,
-        setup.laws,
-        held,
-        setup.pulse(),
-        setup.duration,
-        setup.plant_step,
-        record_every=PLANT_STEPS_PER_SAMPLE,
-        energy_books=True,
-        sample_steps=setup.sample_steps,
-    )
+    return runs.simulate_semi_active(setup, law, energy_books=True)
 
 
 def figures(r) -> dict:

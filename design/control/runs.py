@@ -179,12 +179,33 @@ def run_semi_active(s: StudySetup, name: str, controller) -> Run:
     Run
         The run at the controller samples with its mean piezo charging power.
     """
+    return semi_active_run(s, name, simulate_semi_active(s, controller))
+
+
+def simulate_semi_active(s: StudySetup, controller, energy_books: bool = False):
+    """The plant under any normal-force controller as :func:`run_semi_active` runs it: F_N^max
+    during the pulse, the study's sensor noise and amplifier lag where it has them.
+
+    Parameters
+    ----------
+    s : StudySetup
+        The study's plant, laws, limits and timing.
+    controller : Controller
+        The normal-force law after the pulse (``design.plant.interface.Controller``).
+    energy_books : bool
+        Keep the plant's energy books (W_in, W_joints, W_damping; ``design.plant.loop``).
+
+    Returns
+    -------
+    SimulationResult
+        What ``plant.simulate`` returned, at the controller samples.
+    """
     if s.sensor_noise is not None:
         controller = NoisySensors(controller, s.sensor_noise)
     held: Controller = HoldDuringExcitation(controller, PULSE_DURATION, s.normal_force_max)
     if s.amplifier_lag is not None:
         held = LaggingAmplifiers(held, s.amplifier_lag)
-    r = simulate(
+    return simulate(
         s.plant,
         s.laws,
         held,
@@ -192,10 +213,9 @@ def run_semi_active(s: StudySetup, name: str, controller) -> Run:
         s.duration,
         s.plant_step,
         record_every=PLANT_STEPS_PER_SAMPLE,
-        energy_books=False,
+        energy_books=energy_books,
         sample_steps=s.sample_steps,
     )
-    return semi_active_run(s, name, r)
 
 
 class NoisySensors:
@@ -349,6 +369,7 @@ __all__ = [
     "run_active",
     "run_passive",
     "run_semi_active",
+    "simulate_semi_active",
     "semi_active_run",
     "setup",
 ]
