@@ -149,7 +149,9 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
     def row(values, kind: str) -> str:
         return ", ".join(rendering.literal(float(v), kind) for v in np.asarray(values, dtype=float).reshape(-1))
 
-    low, high = np.asarray(artifact.normal_force_min, dtype=float), np.asarray(artifact.normal_force_max, dtype=float)
+    # The law's own F_N^min (the SISO preload) is the start of its tunable F_N^min.
+    low = np.asarray(getattr(artifact, entry.lower_force_field()), dtype=float)
+    high = np.asarray(artifact.normal_force_max, dtype=float)
     context = {
         **rendering.naming(banner, prefix, name),
         "title": LAWS[law],
@@ -178,9 +180,14 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
 
 
 def _settings(artifact, entry) -> list[tuple]:
-    """Each of the law's settings with its values in the artefact (one per joint, or one)."""
+    """Each of the law's settings with its values in the artefact (one per joint, or one), but
+    its own F_N^min: that is the start of the tunable ``JOINT_<j>.normal_force_min``."""
     fields = dict(entry.artifact)
-    return [(s, np.atleast_1d(np.asarray(getattr(artifact, fields[s.key]), dtype=float))) for s in entry.settings]
+    return [
+        (s, np.atleast_1d(np.asarray(getattr(artifact, fields[s.key]), dtype=float)))
+        for s in entry.settings
+        if not s.lower_force
+    ]
 
 
 def _fmu_banner(banner: str) -> str:

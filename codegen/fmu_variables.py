@@ -192,10 +192,11 @@ def _controller_parameters(artifact, law: str) -> list[dict]:
     entry = law_registry.law(law)
     fields = dict(entry.artifact)
     rows = []
+    lowest = getattr(artifact, entry.lower_force_field())  # the law's own F_N^min (the SISO preload)
     for j, name in enumerate(artifact.joint_names):
         low, high = f"m->normal_force_min[{j}]", f"m->normal_force_max[{j}]"
         rows.append(_parameter(f"JOINT_{name}.normal_force_min", low, "N", f"F_N^min of joint {name}",
-                               artifact.normal_force_min[j], tuned, minimum=0.0,
+                               lowest[j], tuned, minimum=0.0,
                                condition=f"value >= 0.0 && value < {high}",
                                allowed="0 <= F_N^min < F_N^max = %g N (raise F_N^max first)",
                                allowed_value=high))  # fmt: skip
@@ -204,7 +205,7 @@ def _controller_parameters(artifact, law: str) -> list[dict]:
                                condition=f"value > {low} && isfinite(value)",
                                allowed="F_N^min = %g N < F_N^max, finite", allowed_value=low))  # fmt: skip
         for setting in entry.settings:
-            if setting.per_joint:
+            if setting.per_joint and not setting.lower_force:  # that one is F_N^min above
                 rows.append(_parameter(f"JOINT_{name}.{setting.key}", f"m->{setting.key}[{j}]", setting.unit,
                                        f"{setting.key.replace('_', ' ')} of joint {name}",
                                        getattr(artifact, fields[setting.key])[j], tuned, **POSITIVE))  # fmt: skip

@@ -56,6 +56,15 @@ def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: s
     }
 
 
+def _limits(artifact: artifacts.ControllerArtifact, law: law_registry.Law, row) -> dict:
+    """The law's normal-force limits: its own F_N^min (the SISO preload) where it has one."""
+    low = np.asarray(getattr(artifact, law.lower_force_field()), dtype=float)
+    return {
+        "normal_force_min": row(low),
+        "normal_force_range": row(np.asarray(artifact.normal_force_max, dtype=float) - low),
+    }
+
+
 def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: str = "smartjoint") -> dict[str, str]:
     """Render the controllers of an artefact (Eq. 30–31 and Eq. 33–34) into C99 text.
 
@@ -92,7 +101,8 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
     files[f"{prefix}_types.h"] = env.get_template("types.h.j2").render(common)
     for law in law_registry.LAWS.values():  # each law's templates with the context its entry names
         name = law.c_name(prefix)
-        context = {**common, "name": name, "NAME": name.upper(), **law.codegen_context(artifact, lit, row)}
+        context = {**common, "name": name, "NAME": name.upper(), **_limits(artifact, law, row)}
+        context.update(law.codegen_context(artifact, lit, row))
         for kind in "hc":
             files[f"{name}.{kind}"] = env.get_template(f"{law.name}.{kind}.j2").render(context)
     example = {

@@ -54,6 +54,10 @@ class Setting:
         (the SISO ε is optimised) or the setting is required.
     normal_force : bool
         It is a normal force: within [F_N^min, F_N^max] of its joint (else only > 0).
+    lower_force : bool
+        It is the lowest normal force the law commands, in place of the joints' F_N^min
+        (:meth:`Law.lower_force_field`): the law's templates, its FMU's tunable
+        ``JOINT_<j>.normal_force_min`` and the joint nodes take it as the law's F_N^min.
     """
 
     key: str
@@ -62,6 +66,7 @@ class Setting:
     meaning: str
     default: float | str | None = None
     normal_force: bool = False
+    lower_force: bool = False
 
     def design_key(self, law: str) -> str:
         """Its key in the design file's ``[control]`` table, ``<law>_<key>``."""
@@ -179,6 +184,12 @@ class Law:
         """What the law's templates see beyond the common context (the ``codegen`` function)."""
         return dict(_resolve(self.codegen)(artifact, lit, row))
 
+    def lower_force_field(self) -> str:
+        """The artefact field holding the lowest normal force the law commands per joint: its
+        ``lower_force`` setting's field (the SISO law's preload), else the joints' ``normal_force_min``."""
+        fields = dict(self.artifact)
+        return next((fields[s.key] for s in self.settings if s.lower_force), "normal_force_min")
+
     def cited(self) -> str:
         """Its equation as the reports cite it: " (Eq. 30)", or "" without one."""
         return "" if self.equation is None else f" (Eq. {self.equation})"
@@ -205,8 +216,21 @@ LAWS: dict[str, Law] = {
             inputs=("sliding_velocity", "friction_force", "normal_force"),
             outputs=("normal_force",),
             equation=30,
-            artifact=(("boundary_layer", "siso_boundary_layer"),),
-            settings=(Setting("boundary_layer", "m/s", True, "the boundary layer ε_j of Eq. 30"),),
+            artifact=(("boundary_layer", "siso_boundary_layer"), ("normal_force_min", "siso_normal_force_min")),
+            settings=(
+                Setting("boundary_layer", "m/s", True, "the boundary layer ε_j of Eq. 30"),
+                # A preload: the law's F_N^min of Eq. 30 raised above the joints' own (issue 33,
+                # benchmarks/mast_siso_grid.py); by default the joints' F_N^min, the paper's law.
+                Setting(
+                    "normal_force_min",
+                    "N",
+                    True,
+                    "the lowest normal force F_N,j^min the SISO law commands (Eq. 30)",
+                    "normal_force_min",
+                    normal_force=True,
+                    lower_force=True,
+                ),
+            ),
             tune="smartjoint.design.control.siso_tuning:tuned",
             controller="smartjoint.design.control.siso_tuning:controller",
             colour="tab:blue",

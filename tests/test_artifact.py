@@ -174,11 +174,11 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
 @pytest.mark.parametrize(
     "change, message",
     [
-        (lambda d: d.update(schema_version=6), r"schema_version: 6 — unknown; this version reads schema_version 5"),
+        (lambda d: d.update(schema_version=7), r"schema_version: 7 — unknown; this version reads schema_version 6"),
         (
             lambda d: d.update(schema_version=3),
             r"schema_version: 3 — .* flat, without the sections of version 4: re-run `smartjoint design` to write "
-            r"version 5",
+            r"version 6",
         ),
         (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
         (
@@ -226,7 +226,7 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
         (lambda d: d.update(siso_boundary_layer=[1e-3, -1.0]), r"siso_boundary_layer: -1.0 for joint 'JB'"),
         (lambda d: d.update(gamma0=[[1.0, 2.0], [3.0]]), r"gamma0: .* rectangular"),
         (lambda d: d["blocks"][0][0].__setitem__(0, True), r"blocks: True — expected a \(nested\) list of numbers"),
-        (lambda d: d.update(extra=1), r"extra: 1 — unknown section in schema_version 5"),
+        (lambda d: d.update(extra=1), r"extra: 1 — unknown section in schema_version 6"),
         (lambda d: d.update(design_sha256="abc"), r"design_sha256: 'abc'"),
     ],
 )

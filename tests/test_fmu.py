@@ -316,6 +316,7 @@ def test_tuned_limits_and_boundary_layer_are_the_law_generated_with_them(written
         clqg_boundary_layer=60.0,
         safe_normal_force=np.array([300.0, 350.0, 390.0]),
         preset_force=np.array([300.0, 350.0, 390.0]),
+        siso_normal_force_min=np.array([20.0, 30.0, 40.0]),
     )  # fmt: skip  (the safe force is the design's, not tunable: unused by these samples)
     built = fmu.controller_fmu(tuned, "clqg", tmp_path / "tuned.fmu", version)
     log = fmu_check.recorded_inputs(s.setup, a, "cLQG")[:400]

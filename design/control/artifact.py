@@ -6,7 +6,7 @@ file, its SHA-256, package version); ``artifact_building.from_design`` builds it
 The C generator reads only this file, and each law's Python reference is rebuilt from it alone
 (``Law.python_reference``), so firmware and reference are checked against the same numbers.
 
-Schema (``schema_version`` 5, documented in ``docs/controller-artifact.md``): a JSON object of
+Schema (``schema_version`` 6, documented in ``docs/controller-artifact.md``): a JSON object of
 sections — ``common``, ``safety``, ``friction``, ``network`` and ``laws.<law>`` per law of the
 registry (``artifact_layout``) — whose keys are the fields of :data:`SCHEMA` (``artifact_schema``),
 SI units; in Python every field is one attribute of :class:`ControllerArtifact`. Sizes: l controlled joints
@@ -41,6 +41,7 @@ from smartjoint.design.control.artifact_schema import (
     SCHEMA_VERSION,
     check_version,
     field_error,
+    migrated,
     validated,
 )
 from smartjoint.design.control.lqg import LqgDesign
@@ -240,6 +241,7 @@ def loads(text: str) -> ControllerArtifact:
         raise field_error("<artefact>", data, "expected a JSON object")
     if "schema_version" not in data:
         raise ModelError(f"schema_version: missing — required field; this version reads {SCHEMA_VERSION}")
+    data = migrated(data)  # version 5 reads as 6 (the SISO law's F_N^min: the joints')
     check_version(data["schema_version"])  # first: another version may have other fields
     return ControllerArtifact(**artifact_layout.flatten(data))
 

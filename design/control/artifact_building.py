@@ -71,8 +71,8 @@ def law_fields(design, joints: tuple[str, ...], settings=None) -> dict:
     joints : tuple of str
         The controlled joints, in artefact order (a per-joint setting has one value each).
     settings : dict, optional
-        Law name → setting key → value (``Study.settings()``); a law left out gets the design
-        file's values and defaults (``tuning.tuned``, nothing tuned).
+        Law name → setting key → value (``Study.settings()``); a law or a setting left out gets
+        the design file's value or its default (``tuning.tuned``, nothing tuned).
 
     Returns
     -------
@@ -82,7 +82,10 @@ def law_fields(design, joints: tuple[str, ...], settings=None) -> dict:
     settings = dict(settings or {})
     fields = {}
     for law in law_registry.LAWS.values():
-        values = settings[law.name] if law.name in settings else tuning.tuned(law, design).settings
+        if law.name in settings:
+            values = {**tuning.untuned(law, design), **settings[law.name]}
+        else:
+            values = tuning.tuned(law, design).settings
         by_key = dict(law.artifact)
         for setting in law.settings:
             field, value = by_key[setting.key], values[setting.key]

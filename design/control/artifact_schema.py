@@ -1,4 +1,4 @@
-"""The schema of the controller design artefact (``schema_version`` 5,
+"""The schema of the controller design artefact (``schema_version`` 6,
 ``docs/controller-artifact.md``) and its validation: every field's kind, shape (symbols n, 2n,
 l, n_y), unit and limits, checked with one-line errors that name the field and the value."""
 
@@ -16,7 +16,9 @@ from smartjoint.common.errors import ModelError
 
 # 2: the safe state and the plausibility ranges (docs/safety.md); 3: the joints' friction; 4: nested,
 # one section per component (artifact_layout).
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
+# 5: four laws; 6: the SISO law's own F_N^min (``laws.siso.normal_force_min``, a preload): a
+# version-5 file reads as version 6 with it equal to the joints' F_N^min (``migrated``).
 # The model whose parameters the artefact's friction section holds (its columns, in order).
 FRICTION_MODEL = friction_registry.LUGRE
 # Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo
@@ -329,6 +331,38 @@ _OLDER = {
 }
 
 
+def migrated(data: Any) -> Any:
+    """A version-5 artefact as version 6: each law's own F_N^min (``Setting.lower_force``: the
+    SISO law's ``laws.siso.normal_force_min``), which version 5 did not have, is the joints'
+    ``common.normal_force_min`` — what version 5's laws commanded, so every law's numbers stay the
+    same. Anything else is returned as it is (and refused by the checks after).
+
+    Parameters
+    ----------
+    data : object
+        The parsed JSON text.
+
+    Returns
+    -------
+    object
+        ``data``, or a version-6 copy of a version-5 artefact.
+    """
+    if not isinstance(data, dict) or data.get("schema_version") != 5 or isinstance(data["schema_version"], bool):
+        return data
+    laws, common = data.get("laws"), data.get("common")
+    if not isinstance(laws, dict) or not isinstance(common, dict) or "normal_force_min" not in common:
+        return data
+    laws = dict(laws)
+    for law in law_registry.LAWS.values():
+        for setting in law.settings:
+            section = laws.get(law.name)
+            if setting.lower_force and isinstance(section, dict):
+                if setting.key in section:  # not what version 5 wrote: refused as version 5
+                    return data
+                laws[law.name] = {**section, setting.key: common["normal_force_min"]}
+    return {**data, "schema_version": SCHEMA_VERSION, "laws": laws}
+
+
 def check_version(value) -> int:
     """``value`` if it is the schema version this package reads, else an error (with a hint for 1).
 
@@ -425,5 +459,6 @@ __all__ = [
     "SENSOR_QUANTITIES",
     "check_version",
     "field_error",
+    "migrated",
     "validated",
 ]

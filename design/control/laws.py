@@ -280,7 +280,7 @@ def siso_law(artifact) -> SisoLaw:
     """
     return SisoLaw(
         artifact.sample_time,
-        artifact.normal_force_min,
+        artifact.siso_normal_force_min,  # the law's own F_N^min (a preload), the joints' by default
         artifact.normal_force_max,
         artifact.siso_boundary_layer,
         sliding_velocity_limit=artifact.sliding_velocity_limit,

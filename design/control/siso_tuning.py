@@ -59,7 +59,9 @@ class BoundaryLayerOptimum:
         )
 
 
-def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) -> BoundaryLayerOptimum:
+def optimise_boundary_layer(
+    s: StudySetup, progress=print, grid=EPSILON_GRID, normal_force_min=None
+) -> BoundaryLayerOptimum:
     """ε of Eq. 30 minimising E(t_e) of Eq. 32 (Section 5.1): a half-decade scan of log ε, then
     bounded Brent (scipy ``minimize_scalar``) within a half decade of the best grid point. E is a
     rough function of ε (stick/slip events shift with it), hence the scan before the local search.
@@ -72,6 +74,8 @@ def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) ->
         Receives one line per evaluation.
     grid : sequence of float
         The ε [m/s] scanned before the local search.
+    normal_force_min : float or array_like, optional
+        The law's F_N^min [N] (a preload); None: the study's.
 
     Returns
     -------
@@ -82,7 +86,7 @@ def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) ->
     def measure(log_width: float) -> float:
         width = float(10.0**log_width)
         if width not in cache:
-            cache[width] = run_semi_active(s, LAW.display, siso(s, width)).energy_measure()
+            cache[width] = run_semi_active(s, LAW.display, siso(s, width, normal_force_min)).energy_measure()
             progress(f"      ε = {width:.3g} m/s: E(t_e) = {cache[width]:.5g} J·s")
         return cache[width]
 
@@ -98,7 +102,7 @@ def optimise_boundary_layer(s: StudySetup, progress=print, grid=EPSILON_GRID) ->
     return BoundaryLayerOptimum(width, best_value, list(cache.items()), tenth, tenfold)
 
 
-def siso(s: StudySetup, boundary_layer) -> SisoLaw:
+def siso(s: StudySetup, boundary_layer, normal_force_min=None) -> SisoLaw:
     """The SISO law of Eq. 30–31 on the study's limits and sample time.
 
     Parameters
@@ -106,18 +110,22 @@ def siso(s: StudySetup, boundary_layer) -> SisoLaw:
     s : StudySetup
     boundary_layer : float or array_like
         ε [m/s], one for all joints or one per joint.
+    normal_force_min : float or array_like, optional
+        The law's F_N^min [N], a preload within the joints' limits; None: the study's F_N^min.
 
     Returns
     -------
     SisoLaw
     """
     width = np.broadcast_to(np.asarray(boundary_layer, dtype=float), s.normal_force_min.shape)
-    return SisoLaw(s.sample_time, s.normal_force_min, s.normal_force_max, width)
+    low = s.normal_force_min if normal_force_min is None else normal_force_min
+    low = np.broadcast_to(np.asarray(low, dtype=float), s.normal_force_min.shape)
+    return SisoLaw(s.sample_time, low, s.normal_force_max, width)
 
 
 def controller(setup: StudySetup, lqg, settings: dict) -> SisoLaw:
-    """The SISO law the study runs with the tuned ε (``settings["boundary_layer"]``)."""
-    return siso(setup, settings["boundary_layer"])
+    """The SISO law the study runs with the tuned ε and its F_N^min (``settings``)."""
+    return siso(setup, settings["boundary_layer"], settings.get("normal_force_min"))
 
 
 def tuned(design, settings: dict, setup: StudySetup | None, progress) -> tuple[dict, BoundaryLayerOptimum | None]:
@@ -140,7 +148,7 @@ def tuned(design, settings: dict, setup: StudySetup | None, progress) -> tuple[d
     if settings["boundary_layer"] is not None or setup is None:
         return settings, None
     progress(f"      {LAW.display} boundary layer ε: optimising E(t_e) of Eq. 32 …")
-    optimum = optimise_boundary_layer(setup, progress)
+    optimum = optimise_boundary_layer(setup, progress, normal_force_min=settings.get("normal_force_min"))
     return {**settings, "boundary_layer": np.full(len(design.joints), optimum.boundary_layer)}, optimum
 
 

@@ -57,6 +57,25 @@ def _default(design, setting: Setting):
     return setting.default
 
 
+def untuned(law: Law, design) -> dict[str, Any]:
+    """The settings of ``law`` the design file gives or their defaults settle, before any tuning:
+    setting key → a float, an array with one value per joint, or None (left to ``tune``)."""
+    count = len(design.joints)
+    from_file = given(design, law)
+    values: dict[str, Any] = {}
+    for setting in law.settings:
+        value = from_file.get(setting.key)
+        value = _default(design, setting) if value is None else value
+        if value is not None:
+            value = (
+                np.array(np.broadcast_to(np.asarray(value, dtype=float), (count,)))
+                if setting.per_joint
+                else float(value)
+            )
+        values[setting.key] = value
+    return values
+
+
 def tuned(law: Law, design, setup=None, progress=print, tune=None) -> Tuning:
     """The settings of ``law`` for ``design``.
 
@@ -83,19 +102,8 @@ def tuned(law: Law, design, setup=None, progress=print, tune=None) -> Tuning:
     ModelError
         A setting that is still open, in one line naming its ``[control]`` key.
     """
-    count = len(design.joints)
     from_file = given(design, law)
-    values: dict[str, Any] = {}
-    for setting in law.settings:
-        value = from_file.get(setting.key)
-        value = _default(design, setting) if value is None else value
-        if value is not None:
-            value = (
-                np.array(np.broadcast_to(np.asarray(value, dtype=float), (count,)))
-                if setting.per_joint
-                else float(value)
-            )
-        values[setting.key] = value
+    values = untuned(law, design)
     record = None
     if tune is None and law.tune:
         module, function = law.tune.split(":")
@@ -152,4 +160,14 @@ def with_settings(design, changed: dict[str, Any]):
     return dataclasses.replace(design, control=dataclasses.replace(design.control, law_settings=laws))
 
 
-__all__ = ["Tuning", "design_keys", "from_artifact", "given", "setting_of", "tuned", "tuned_laws", "with_settings"]
+__all__ = [
+    "Tuning",
+    "design_keys",
+    "from_artifact",
+    "given",
+    "setting_of",
+    "tuned",
+    "tuned_laws",
+    "untuned",
+    "with_settings",
+]

@@ -68,7 +68,7 @@ def node_config(artifact, joint: int, supervision_cycles: int = SUPERVISION_CYCL
     return NodeConfig(
         index=joint,
         name=artifact.joint_names[joint],
-        normal_force_min=pick("normal_force_min"),
+        normal_force_min=pick(NODE_LAW.lower_force_field()),  # the law's F_N^min (a preload)
         normal_force_max=pick("normal_force_max"),
         boundary_layer=pick(dict(NODE_LAW.artifact)["boundary_layer"]),
         safe_normal_force=pick("safe_normal_force"),

@@ -132,6 +132,20 @@ def _check_control_limits(t: DesignTable, control: Control, count: int, dofs: in
         )
         if low[i] > high[i]:
             raise t.error("normal_force_min", float(low[i]), f"must be 0 <= F_N^min <= F_N^max = {high[i]:g} N{joint}")
+    for law in law_registry.LAWS.values():  # a normal force among a law's settings: within the limits
+        for setting in law.settings:
+            value = control.law_settings.get(law.name, {}).get(setting.key)
+            if not setting.normal_force or value is None:
+                continue
+            given = np.broadcast_to(np.asarray(value, dtype=float), (count,))
+            for i in range(count):
+                if not low[i] <= given[i] <= high[i]:
+                    where = f" (entry {i})" if isinstance(value, tuple) else ""
+                    raise t.error(
+                        setting.design_key(law.name),
+                        float(given[i]),
+                        f"{setting.meaning} must lie within [F_N^min, F_N^max] = [{low[i]:g}, {high[i]:g}] N{where}",
+                    )
     if count and control.piezo_preload > float(low.min()):
         raise t.error(
             "piezo_preload",
