@@ -3,20 +3,23 @@ amplifier, supervised over a python-can bus (docs/safety.md, "Local mode"; issue
 
 Per sample t_k (the plant simulation calls ``LocalLoop.step`` as its controller):
 
-1. every ``supervision_cycles`` samples the supervisor sends its heartbeat ``CONTROLLER_STATUS``
-   (mode: the node law's, or SAFE) — E2E-protected, with its own alive counter;
+1. the supervisor (the generated ``<prefix>_supervisor.c``, ``bench.supervisor``) steps and,
+   every ``supervision_cycles`` samples, sends its heartbeat ``CONTROLLER_STATUS`` (mode: the node
+   law's, or SAFE) — E2E-protected, with its own alive counter;
 2. each node takes the frames waiting for it (``<prefix>_node_rx``), steps on its own joint's
    measurements (v, u_R, F_N as the plant reports them, unquantised: they do not cross the bus)
    and drives its amplifier over its local link (``AmplifierModel.drive``);
-3. each node's status frame, when due, goes on the bus; the supervisor reads them;
+3. each node's status frame, when due, goes on the bus; the supervisor takes them and keeps each
+   node's health (silent, alone, safe, stale: ``LocalRecord.health``);
 4. the amplifiers' output over [t_k, t_k+1) sets the normal forces (F_N^max while the study's
    pulse acts, as in ``bench.loop``).
 
 The nodes are the generated C (``bench.joint_node.compiled_nodes``, float build by default); the
 nodes of ``target_joints`` run instead as node images on the emulated target
-(``bench.node_target.TargetNode``, processor in the loop) beside the others. The supervisor is a
-model that holds one mode (a generated supervisor is not part of this bench yet).
-``heartbeat_until`` silences the supervisor from that time on: the nodes' policy on a lost bus.
+(``bench.node_target.TargetNode``, processor in the loop) beside the others. The supervisor
+requests one mode for the run. ``heartbeat_until`` silences its transmitter from that time on
+(the nodes' policy on a lost bus); ``silent_nodes`` silences those nodes' status frames (the
+supervisor's view of a lost node).
 """
 
 from __future__ import annotations
@@ -26,23 +29,26 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from smartjoint.bench import e2e
 from smartjoint.bench.amplifier import AmplifierModel, amplifier_options
 from smartjoint.bench.joint_node import CompiledNode, compiled_nodes
 from smartjoint.bench.loop import open_bus
+from smartjoint.bench.supervisor import CompiledSupervisor, compiled_supervisor
+from smartjoint.common import law_registry
 from smartjoint.design.network import busload, joint_node, protocol
 from smartjoint.design.plant.interface import Measurements
 
 
 @dataclass
 class LocalRecord:
-    """Per sample: each node's command and fault bits, the amplifiers' force, the plant's F_N."""
+    """Per sample: each node's command and fault bits, the amplifiers' force, the plant's F_N, and
+    the supervisor's health word of each node."""
 
     time: list = field(default_factory=list)
     command: list = field(default_factory=list)
     faults: list = field(default_factory=list)
     amplifier_force: list = field(default_factory=list)
     applied: list = field(default_factory=list)
+    health: list = field(default_factory=list)  # the supervisor's health word of every node
 
 
 class LocalLoop:
@@ -59,7 +65,7 @@ class LocalLoop:
     excitation_force : array_like, optional
         F_N while the pulse acts [N]; default the artefact's F_N^max.
     mode : int, optional
-        The mode the supervisor commands; default the node law's.
+        The mode the operator requests of the supervisor: the node law's (default) or SAFE.
     heartbeat_until : float, optional
         The supervisor falls silent from this time on [s]; default never.
     supervision_cycles : int
@@ -71,6 +77,8 @@ class LocalLoop:
         ``voltage_max``).
     target_joints : sequence of int
         Joints whose node runs as its image on the emulated target (float build only).
+    silent_nodes : sequence of int
+        Joints whose node's status frames never reach the bus.
     """
 
     def __init__(
@@ -86,6 +94,7 @@ class LocalLoop:
         channel: str = "smartjoint-local",
         amplifier: dict | None = None,
         target_joints=(),
+        silent_nodes=(),
     ):
         from smartjoint.common.errors import ModelError
 
@@ -101,12 +110,19 @@ class LocalLoop:
         self.excitation_end = float(excitation_end)
         self.excitation_force = np.asarray(a.normal_force_max if excitation_force is None else excitation_force, float)
         self.mode = joint_node.NODE_LAW.mode if mode is None else int(mode)
+        self.silent_nodes = frozenset(int(j) for j in silent_nodes)
         self.heartbeat_until = float(heartbeat_until)
         self.supervision_cycles = int(supervision_cycles)
         self.db = joint_node.supervision_database(a, self.supervision_cycles)
         self.interface, self.channel = interface, channel
         self.amplifier_options = amplifier_options(a, amplifier, local=True)
         self.module = compiled_nodes(a, real)
+        self.supervisor = CompiledSupervisor(compiled_supervisor(a, supervision_cycles=self.supervision_cycles))
+        if not self.supervisor.request(self.mode):
+            raise ModelError(
+                f"mode: {self.mode} — the supervisor requests {joint_node.NODE_LAW.mode} "
+                f"({joint_node.NODE_LAW.name}) or {law_registry.MODE_SAFE} (SAFE)"
+            )
         self.buses: list = []
 
     def reset(self) -> None:
@@ -129,7 +145,8 @@ class LocalLoop:
                 self.targets[j] = TargetNode(a, j)
         self.nodes = [self.targets.get(j) or CompiledNode(self.module, a, j) for j in range(len(a.joint_names))]
         self.amplifiers = [AmplifierModel(**options) for options in self.amplifier_options]
-        self.counter = 0
+        self.supervisor.reset()
+        self.supervisor.request(self.mode)
         self.k = 0
         self.record = LocalRecord()
         self.frame_counts: defaultdict[str, int] = defaultdict(int)
@@ -163,13 +180,10 @@ class LocalLoop:
     def step(self, measurements: Measurements) -> np.ndarray:
         """One sample through local mode (steps 1–4 of the module docstring)."""
         t = float(measurements.time)
-        if self.k % self.supervision_cycles == 0 and t < self.heartbeat_until - 1e-12:
-            self.counter = (self.counter + 1) % e2e.COUNTER_MODULO
-            payload = bytearray(joint_node.HEARTBEAT_LENGTH)
-            payload[2] = self.mode
-            self._send(
-                self.supervisor_bus, joint_node.HEARTBEAT_ID, bytes(e2e.protect(0x080, payload, self.counter)), t
-            )
+        self.supervisor.step()
+        heartbeat = self.supervisor.transmit()
+        if heartbeat is not None and t < self.heartbeat_until - 1e-12:
+            self._send(self.supervisor_bus, *heartbeat, t)
         frames = [(int(m.arbitration_id), bytes(m.data)) for m in self._drain(self.node_bus)]
         commands, forces = [], []
         for j, (node, amplifier) in enumerate(zip(self.nodes, self.amplifiers)):
@@ -184,12 +198,13 @@ class LocalLoop:
             forces.append(amplifier.advance(self.sample_time))
             commands.append(command)
             status = node.transmit()
-            if status is not None:
+            if status is not None and j not in self.silent_nodes:
                 frame_id, data = status
                 self._send(self.node_bus, frame_id, data, t)
         for message in self._drain(self.supervisor_bus):
             definition = self.db.get_message_by_frame_id(message.arbitration_id)
             self.statuses[message.arbitration_id] = dict(definition.decode(bytes(message.data), decode_choices=False))
+            self.supervisor.receive(int(message.arbitration_id), bytes(message.data))
         amplifier_force = np.array(forces)
         applied = self.excitation_force.copy() if t < self.excitation_end - 1e-12 else amplifier_force.copy()
         r = self.record
@@ -198,6 +213,7 @@ class LocalLoop:
         r.faults.append([node.faults for node in self.nodes])
         r.amplifier_force.append(amplifier_force)
         r.applied.append(applied)
+        r.health.append(self.supervisor.health)
         self.k += 1
         return np.maximum(applied, 0.0)
 

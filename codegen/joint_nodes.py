@@ -1,7 +1,8 @@
 """The firmware of the joint nodes (``design.network.joint_node``; its executable specification
 is ``bench.joint_node``): one node source for every joint and one constants file per joint, so
 that the image of joint j is ``<prefix>_node.c`` + ``<prefix>_node_config.c`` (its constants; the
-others' fall to ``--gc-sections``) + the E2E runtime.
+others' fall to ``--gc-sections``) + the E2E runtime; and the supervisor, the central side of
+local mode (``<prefix>_supervisor.c``, its executable specification ``bench.supervisor``).
 ``smartjoint codegen`` writes them beside the central controller's files.
 """
 
@@ -21,8 +22,9 @@ def render_nodes(
     real: str = "float",
     supervision_cycles: int = joint_node.SUPERVISION_CYCLES,
 ) -> dict[str, str]:
-    """The node sources of an artefact, file name → text: ``<prefix>_node.h/.c`` and
-    ``<prefix>_node_config.c`` with every joint's ``<prefix>_node_<joint>_config``.
+    """The node sources of an artefact, file name → text: ``<prefix>_node.h/.c``,
+    ``<prefix>_node_config.c`` with every joint's ``<prefix>_node_<joint>_config``, and the
+    supervisor's ``<prefix>_supervisor.h/.c``.
 
     Parameters
     ----------
@@ -88,7 +90,30 @@ def render_nodes(
         for c in configs
     ]
     files[f"{name}_config.c"] = env.get_template("node_config.c.j2").render({**context, "configs": joints})
+    files.update(_supervisor(artifact, prefix, banner, configs, supervision_cycles))
     return files
+
+
+def _supervisor(artifact, prefix: str, banner: str, configs, supervision_cycles: int) -> dict[str, str]:
+    """``<prefix>_supervisor.h/.c``: the central side of local mode (``bench.supervisor``)."""
+    name = f"{prefix}_supervisor"
+    timeouts = {c.timeout_samples for c in configs}
+    context = {
+        **rendering.naming(banner, prefix, name),
+        "joints": [c.name for c in configs],
+        "supervision_cycles": int(supervision_cycles),
+        "timeout_samples": max(timeouts),  # one artefact-wide timeout_cycles: the same for every node
+        "heartbeat_id": joint_node.HEARTBEAT_ID,
+        "heartbeat_length": joint_node.HEARTBEAT_LENGTH,
+        "status_base": joint_node.NODE_STATUS_BASE,
+        "status_length": joint_node.NODE_STATUS_LENGTH,
+        "mode_law": joint_node.NODE_LAW.mode,
+        "mode_safe": law_registry.MODE_SAFE,
+        "heartbeat_lost_bit": 2 ** joint_node.NODE_FAULTS.index("heartbeat_lost"),
+        "health": joint_node.SUPERVISOR_HEALTH,
+    }
+    env = rendering.environment()
+    return {f"{name}.{kind}": env.get_template(f"supervisor.{kind}.j2").render(context) for kind in "hc"}
 
 
 __all__ = ["render_nodes"]

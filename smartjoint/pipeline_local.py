@@ -7,6 +7,7 @@ from __future__ import annotations
 from smartjoint.bench import rounding_spread
 from smartjoint.bench.interconnection import LocalNodesLoop
 from smartjoint.common import law_registry
+from smartjoint.design.network.joint_node import SUPERVISOR_HEALTH
 
 
 def local_mode_run(artifact, setup, sil_check: dict, progress) -> dict:
@@ -29,11 +30,14 @@ def local_mode_run(artifact, setup, sil_check: dict, progress) -> dict:
     -------
     dict
         E(t_e) and e(t_e) of the local run, its difference from MIL beside the central SIL row's,
-        the MIL spread and the samples in a safe state.
+        the MIL spread, the samples in a safe state and, per health bit of the generated
+        supervisor (``bench.supervisor``), the node-samples it was raised in.
     """
     law = law_registry.node_law()
     progress(f"      {law.name}: local mode, one joint node per joint (float build) …")
-    run, safe = LocalNodesLoop(artifact, "float").run(setup, law.name)
+    loop = LocalNodesLoop(artifact, "float")
+    run, safe = loop.run(setup, law.name)
+    health = [word for words in loop.record.health for word in words]
     central = sil_check["laws"].get(law.name)
     mil = None if central is None else central["energy_measure_mil"]
     return {
@@ -45,6 +49,8 @@ def local_mode_run(artifact, setup, sil_check: dict, progress) -> dict:
         "mil_spread_under_float_rounding": None if central is None else central["mil_spread_under_float_rounding"],
         "central_difference": None if central is None else central["energy_measure_difference"],
         "safe_samples": safe,
+        "supervisor_health": {bit: sum(1 for w in health if w & (1 << k)) for k, bit in enumerate(SUPERVISOR_HEALTH)},
+        "node_samples": len(health),
     }
 
 
@@ -64,8 +70,21 @@ def local_mode_markdown(sil_check: dict) -> str:
         "| law | E(t_e) MIL | E(t_e) local | difference | central SIL's difference | MIL spread under 6e-8 "
         "perturbations | within the band? | safe samples |\n|---|---:|---:|---:|---:|---:|---|---:|\n"
         f"| {local['law']} (local) | {mil} | {local['energy_measure_local']:.4g} | {difference} | {central} | "
-        f"{rounding_spread.band_cell(spread)} | {verdict} | {local['safe_samples']} |\n"
+        f"{rounding_spread.band_cell(spread)} | {verdict} | {local['safe_samples']} |\n" + _supervisor_line(local)
     )
+
+
+def _supervisor_line(local: dict) -> str:
+    """What the generated supervisor saw of the nodes over the run."""
+    raised = {bit: count for bit, count in local.get("supervisor_health", {}).items() if count}
+    if "supervisor_health" not in local:
+        return ""
+    seen = (
+        "every node healthy at every sample"
+        if not raised
+        else ", ".join(f"{bit} in {count} of {local['node_samples']} node-samples" for bit, count in raised.items())
+    )
+    return f"\nThe generated supervisor (`<prefix>_supervisor.c`, docs/safety.md) saw {seen}.\n"
 
 
 __all__ = ["local_mode_markdown", "local_mode_run"]

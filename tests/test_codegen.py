@@ -411,8 +411,8 @@ def test_bad_artefacts_and_options_write_nothing(reference, tmp_path):
     done = run_cli("codegen", REFERENCE / "controller.json", "-o", tmp_path / "ok", "--real", "double", "--json")
     assert done.returncode == 0, done.stderr
     # controllers, example, build files, CAN layer, E2E, DBC, the target's self-check and board
-    # support, and the joint nodes (source, header and every joint's constants)
-    assert len(json.loads(done.stdout)["files"]) == 15 + 2 * len(law_registry.LAWS) + 3
+    # support, the joint nodes (source, header and every joint's constants) and their supervisor
+    assert len(json.loads(done.stdout)["files"]) == 15 + 2 * len(law_registry.LAWS) + 3 + 2
 
 
 def _in_phases(reference_controller, compiled, lib, prefix="smartjoint"):

@@ -123,7 +123,10 @@ def test_smartjoint_run_reports_local_mode_against_the_same_mil_run(study):
     local = local_mode_run(artifact, s, sil_check, lambda line: None)
     run, _ = LocalNodesLoop(artifact, "float").run(s, LAW.name)
     assert local["energy_measure_local"] == run.energy_measure()
+    assert local["supervisor_health"] == dict.fromkeys(("silent", "alone", "safe", "stale"), 0)
+    assert local["node_samples"] == (len(run.time) - 1) * len(artifact.joint_names)  # a step per sample interval
     assert local["difference"] == run.energy_measure() / mil.energy_measure() - 1.0
     row = local_mode_markdown(sil_check | {"local": local})
     assert f"| {LAW.name} (local) |" in row and "+0.50 %" in row and "-1.0 … +2.0 %" in row
+    assert "saw every node healthy at every sample" in row
     assert local_mode_markdown(sil_check) == ""

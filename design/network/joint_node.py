@@ -31,6 +31,10 @@ FORCE_CODES = 0xFFFF
 SILENT_MAX = 0xFFFF  # the silence counter saturates
 # NODE_STATUS_<j>.faults (4 bits at bit 20), in bit order.
 NODE_FAULTS = ("input", "heartbeat_lost", "recovering", "safe_commanded")
+# The supervisor's health word of a node (``bench.supervisor``), in bit order: no valid status
+# for timeout_cycles periods; the node lost the heartbeat; it holds its safe force while the law
+# is requested; its heartbeat echo is older than the heartbeat before the last.
+SUPERVISOR_HEALTH = ("silent", "alone", "safe", "stale")
 NODE_LAW = law_registry.node_law()  # the law a node runs on its own joint
 
 
