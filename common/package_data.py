@@ -44,6 +44,8 @@ FILES: dict[str, tuple[str, ...]] = {
             "node.c.j2",
             "node.h.j2",
             "node_config.c.j2",
+            "supervisor.c.j2",
+            "supervisor.h.j2",
             *(f"{law}.{kind}.j2" for law in sorted(law_registry.NAMES) for kind in "ch"),
             "target_main.c.j2",
             "toolchain.cmake.j2",
