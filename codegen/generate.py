@@ -117,6 +117,18 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
     return files
 
 
+def firmware_files(
+    artifact: artifacts.ControllerArtifact, real: str = "float", prefix: str = "smartjoint", **can_options
+) -> dict[str, str]:
+    """The whole generated folder of an artefact, file name → text: the controllers (:func:`render`),
+    the CAN layer with its DBC files (``can_layer.render_can``; ``can_options`` such as the design's
+    ``network`` plan), and the joint nodes of local mode with their supervisor (``joint_nodes``)."""
+    files = render(artifact, real, prefix)
+    files.update(can_layer.render_can(artifact, prefix, real=real, **can_options))
+    files.update(joint_nodes.render_nodes(artifact, prefix, real))
+    return files
+
+
 def generate(
     source,
     folder,
@@ -163,10 +175,7 @@ def generate(
     >>> generate("firmware/generated/controller.json", "out", check=True)  # doctest: +SKIP
     """
     artifact = source if isinstance(source, artifacts.ControllerArtifact) else artifacts.load(Path(source))
-    files = render(artifact, real, prefix)
-    if can:
-        files.update(can_layer.render_can(artifact, prefix, real=real, **can_options))
-        files.update(joint_nodes.render_nodes(artifact, prefix, real))
+    files = firmware_files(artifact, real, prefix, **can_options) if can else render(artifact, real, prefix)
     compiled = {}
 
     def compile_all(staging: Path) -> None:

@@ -38,7 +38,7 @@ from smartjoint import __version__
 from smartjoint import report as plots
 from smartjoint.bench import safety, safety_report, sil
 from smartjoint.bench.faults import demo_faults
-from smartjoint.codegen import backtoback, can_layer, generate, identifiers, output
+from smartjoint.codegen import backtoback, generate, identifiers, output
 from smartjoint.design import build_model, load_design, updated_design
 from smartjoint.design.control import artifact, artifact_building
 from smartjoint.design.control import study as closed_loop
@@ -291,9 +291,8 @@ def _control_stage(structure: StructureStage, friction: FrictionStage, progress)
 def _firmware_stage(control: ControlStage, progress) -> FirmwareStage:
     """Stage 7: the generated C and its back-to-back check against the Python reference."""
     progress("[7/12] firmware: generated C (float and double), back-to-back on the study")
-    files = generate.render(control.artifact, "float")
     check = backtoback.back_to_back(control.study.setup, control.artifact, progress=progress, study=control.study)
-    return FirmwareStage(files, check)
+    return FirmwareStage(generate.render(control.artifact, "float"), check)
 
 
 def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
@@ -348,7 +347,8 @@ def _write_report_files(r: _Run, staging: Path) -> _ReportFiles:
     plot_study(r.reduction, staging)
     plot_control_study(r.control.study, staging)
     artifact.save(r.control.artifact, staging / "controller.json")
-    output.write({**r.firmware.files, **can_layer.render_can(r.control.artifact)}, staging / "firmware")
+    network = None if r.control.design.network == Network() else r.bench.network  # the buses SIL ran on
+    output.write(generate.firmware_files(r.control.artifact, network=network), staging / "firmware")
     sil.plot_sil(r.bench.sil, staging, r.bench.sil.get("mil_runs"))
     sil.plot_faults(r.bench.faults, staging / "sil_faults.png")
     safety_report.plot_matrix(r.bench.safety, staging / "safety_cycles.png")

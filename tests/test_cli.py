@@ -147,6 +147,10 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
         assert sil_summary["laws"][law]["bus"]["e2e_errors"] == 0
         assert (out / "can" / f"sil_{law}.blf").stat().st_size > 0
     assert (out / "firmware" / "bus.dbc").exists() and "Software in the loop" in (out / "report.md").read_text()
+    # the run's firmware folder is what `smartjoint codegen` writes: with the nodes and their supervisor
+    assert {"smartjoint_node.c", "smartjoint_node_config.c", "smartjoint_supervisor.c"} <= {
+        p.name for p in (out / "firmware").iterdir()
+    }
     labels = [fault["fault"] for fault in sil_summary["faults"]["faults"]]  # the user's frames and joints
     assert labels == ["drop JOINT_JA", "corrupt_crc TIP_SENSORS", "amplifier JB over_temperature", "bus_off bus"], (
         labels
