@@ -37,7 +37,9 @@ def local_mode_run(artifact, setup, sil_check: dict, progress) -> dict:
     progress(f"      {law.name}: local mode, one joint node per joint (float build) …")
     loop = LocalNodesLoop(artifact, "float")
     run, safe = loop.run(setup, law.name)
-    health = [word for words in loop.record.health for word in words]
+    record = loop.record
+    assert record is not None  # run() keeps the loop's record
+    health = [word for words in record.health for word in words]
     central = sil_check["laws"].get(law.name)
     mil = None if central is None else central["energy_measure_mil"]
     return {
