@@ -94,7 +94,7 @@ def _plot(candidates: list[dict], stiffness: dict, path: Path) -> None:
     left.set_ylim(0, 1.05)
     left.set_ylabel("probability over 100 plants")
     left.set_title("preloaded SISO law: the paper's orderings", fontsize=9)
-    left.legend(fontsize=7, loc="lower left")
+    left.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=3)
     names = sorted(stiffness, key=lambda n: stiffness[n]["median_tip_rms"])
     right.barh(range(len(names)), [stiffness[n]["median_tip_rms"] for n in names], color="tab:gray")
     right.set_yticks(range(len(names)), names, fontsize=8)
