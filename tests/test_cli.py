@@ -87,6 +87,12 @@ def _user_design(tmp_path, capsys) -> Path:
     return design
 
 
+def _firmware_folder_is_codegens(out) -> None:
+    """The run's firmware folder is what `smartjoint codegen` writes: with the nodes and their supervisor."""
+    names = {path.name for path in (out / "firmware").iterdir()}
+    assert {"smartjoint_node.c", "smartjoint_node_config.c", "smartjoint_supervisor.c"} <= names
+
+
 def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
     """The whole run on a user's truss that is not the paper's; nothing in it reads the paper's
     Table 1 or a bundled design, and the user's joints, friction and sensors reach the artefact
@@ -147,10 +153,7 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
         assert sil_summary["laws"][law]["bus"]["e2e_errors"] == 0
         assert (out / "can" / f"sil_{law}.blf").stat().st_size > 0
     assert (out / "firmware" / "bus.dbc").exists() and "Software in the loop" in (out / "report.md").read_text()
-    # the run's firmware folder is what `smartjoint codegen` writes: with the nodes and their supervisor
-    assert {"smartjoint_node.c", "smartjoint_node_config.c", "smartjoint_supervisor.c"} <= {
-        p.name for p in (out / "firmware").iterdir()
-    }
+    _firmware_folder_is_codegens(out)
     labels = [fault["fault"] for fault in sil_summary["faults"]["faults"]]  # the user's frames and joints
     assert labels == ["drop JOINT_JA", "corrupt_crc TIP_SENSORS", "amplifier JB over_temperature", "bus_off bus"], (
         labels
