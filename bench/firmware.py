@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from smartjoint.codegen import build, can_codec, can_layer, generate
+from smartjoint.codegen import build, can_codec, can_layer, generate, xcp_slave
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.network import plan, protocol
+from smartjoint.design.structure.description import Xcp
 
 LAWS = {law.name: law.mode for law in law_registry.LAWS.values()}  # the CAN layer's law ids
 
@@ -105,14 +106,73 @@ uint32_t {n}_counter(const uint8_t *state, int which)
     )
 
 
-def sources(artifact: ControllerArtifact, real: str = "float", prefix: str = "smartjoint", **can_options) -> dict:
-    """The generated sources of the firmware image (controllers + CAN layer + E2E runtime), file
-    name → text: what the SIL bench compiles on the host and the target self-test on the target
-    (``bench/target.py``). Arguments as for :class:`Firmware`."""
-    return {
+def _xcp_driver(prefix: str) -> tuple[str, str]:
+    """Header and source of the XCP slave's opaque-state accessors (not part of the firmware)."""
+    n = f"{prefix}_xcp"
+    header = f"""/* Opaque-state accessors of the XCP slave for Python (not part of the firmware). */
+#ifndef {n.upper()}_BENCH_DRIVER_H
+#define {n.upper()}_BENCH_DRIVER_H
+
+#include "_{prefix}_can_driver.h"
+#include "{n}.h"
+
+size_t {n}_state_size(void);
+uint8_t *{n}_controller_bytes(void);
+int {n}_init_opaque(uint8_t *xcp, uintptr_t base);
+void {n}_rx_opaque(uint8_t *xcp, const uint8_t *data, uint8_t length, uint32_t time_us);
+void {n}_event_opaque(uint8_t *xcp, uint32_t time_us);
+int {n}_tx_opaque(uint8_t *xcp, uint8_t *data, uint8_t *length);
+uint32_t {n}_overruns(const uint8_t *xcp);
+
+#endif
+"""
+    source = f"""#include "_{n}_driver.h"
+
+#define SLAVE(p) (({n}_state *)(void *)(p))
+size_t {n}_state_size(void) {{ return sizeof({n}_state); }}
+uint8_t *{n}_controller_bytes(void) {{ return (uint8_t *)(void *)&{prefix}_controller; }}
+int {n}_init_opaque(uint8_t *xcp, uintptr_t base) {{ return {n}_init(SLAVE(xcp), base); }}
+void {n}_rx_opaque(uint8_t *xcp, const uint8_t *data, uint8_t length, uint32_t time_us)
+{{
+    {n}_rx(SLAVE(xcp), data, length, time_us);
+}}
+void {n}_event_opaque(uint8_t *xcp, uint32_t time_us) {{ {n}_event(SLAVE(xcp), time_us); }}
+int {n}_tx_opaque(uint8_t *xcp, uint8_t *data, uint8_t *length) {{ return {n}_tx(SLAVE(xcp), data, length); }}
+uint32_t {n}_overruns(const uint8_t *xcp) {{ return ((const {n}_state *)(const void *)xcp)->overruns; }}
+"""
+    return header, source
+
+
+def sources(
+    artifact: ControllerArtifact, real: str = "float", prefix: str = "smartjoint", xcp: Xcp | None = None, **can_options
+) -> dict:
+    """The generated sources of the firmware image (controllers + CAN layer + E2E runtime, and
+    with ``xcp`` the XCP slave), file name → text: what the SIL bench compiles on the host and
+    the target self-test on the target (``bench/target.py``). Arguments as for :class:`Firmware`."""
+    files = {
         **generate.render(artifact, real, prefix),
         **can_layer.render_can(artifact, prefix, full_codec=True, real=real, **can_options),
     }
+    if xcp is not None:
+        files.update(xcp_slave.render_xcp(artifact, prefix, real, xcp))
+    return files
+
+
+def symbols(path: str, tool: str = "nm") -> dict[str, int]:
+    """The defined symbols of an ELF file and their values (``nm``): a shared library's are
+    offsets from its load address, a linked image's are its addresses."""
+    import subprocess
+
+    try:
+        text = subprocess.run([tool, "--defined-only", "-P", path], capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError) as error:
+        raise ModelError(f"symbols of {path}: {tool} failed ({error}) — binutils' nm reads them") from None
+    table = {}
+    for line in text.splitlines():
+        parts = line.split()
+        if len(parts) >= 3:
+            table[parts[0]] = int(parts[2], 16)
+    return table
 
 
 COUNTERS = (
@@ -139,6 +199,11 @@ class Firmware:
     real, prefix : str
         The controllers' scalar type and the prefix of every C identifier and file name, as
         ``codegen.generate.render`` takes them.
+    xcp : Xcp, optional
+        Link the XCP slave (``codegen.xcp_slave``; the design's ``[xcp]``). The CAN layer's state
+        is then the slave's ``<prefix>_controller``, a global of the image, so one image holds
+        one such firmware at a time; :meth:`xcp_rx`, :meth:`xcp_event` and :meth:`xcp_tx` serve
+        its port, and :attr:`xcp_base` is the address XCP address 0 stands for.
     **can_options
         Passed to ``codegen.can_layer.render_can`` (``amplifier``; ``network``: the plan of the
         buses, default the artefact's one-bus plan).
@@ -150,33 +215,47 @@ class Firmware:
         law: str = law_registry.NAMES[0],
         real: str = "float",
         prefix: str = "smartjoint",
+        xcp: Xcp | None = None,
         **can_options,
     ):
         if law not in LAWS:
             raise ModelError(f"law: {law!r} — allowed: {', '.join(LAWS)}")
-        files = sources(artifact, real, prefix, **can_options)
+        files = sources(artifact, real, prefix, xcp, **can_options)
         files[f"_{prefix}_can_driver.h"] = _driver_header(prefix)
         files[f"_{prefix}_can_driver.c"] = _driver(prefix)
+        header, extra = f"_{prefix}_can_driver.h", ()  # type: tuple[str, tuple[str, ...]]
+        if xcp is not None:
+            header = f"_{prefix}_xcp_driver.h"
+            files[header], files[f"_{prefix}_xcp_driver.c"] = _xcp_driver(prefix)
+            extra = (f"{prefix}_xcp.c", f"{prefix}_xcp_key.c", f"_{prefix}_xcp_driver.c")
         # The generated sources and the driver compile with the strict flags; the declarations
         # come from the generated headers through the driver's header.
         folder, module = build.load(
-            f"firmware_{prefix}_{real}",
+            f"firmware_{prefix}_{real}" + ("_xcp" if xcp is not None else ""),
             files,
-            f"_{prefix}_can_driver.h",
+            header,
             (
                 *(f"{prefix}_{law}.c" for law in law_registry.NAMES),
                 f"{prefix}_can.c",
                 "sj_e2e.c",
                 f"_{prefix}_can_driver.c",
+                *extra,
             ),
         )
         self.network = can_options.get("network") or plan.one_bus(artifact, protocol.load_dbc(files["bus.dbc"]))
         self.databases = [protocol.load_dbc(p.dbc) for p in self.network.buses]  # one per bus, as the DBCs say
         self.db = can_layer.network_database(self.network)  # every frame once: lookups by name or id
         self.ffi, self.lib, self.prefix, self.artifact, self.law = module.ffi, module.lib, prefix, artifact, law
+        self.module = module
         self.folder, self.files = folder, files
         self._name = f"{prefix}_can"
-        self._state = self.ffi.new("uint8_t[]", int(getattr(self.lib, f"{self._name}_state_size")()))
+        self.xcp = xcp
+        if xcp is None:
+            self._state = self.ffi.new("uint8_t[]", int(getattr(self.lib, f"{self._name}_state_size")()))
+        else:  # the slave's controller: the A2L's addresses point into it
+            self._state = getattr(self.lib, f"{prefix}_xcp_controller_bytes")()
+            self._slave = self.ffi.new("uint8_t[]", int(getattr(self.lib, f"{prefix}_xcp_state_size")()))
+            self._slave_data = self.ffi.new("uint8_t[64]")
         self._id = self.ffi.new("uint32_t *")
         self._data = self.ffi.new("uint8_t[64]")
         self._length = self.ffi.new("uint8_t *")
@@ -187,9 +266,48 @@ class Firmware:
         return getattr(self.lib, f"{self._name}_{suffix}")(*args)
 
     def reset(self) -> None:
-        """Power-up: the CAN layer's ``init`` with the law (the safe state until inputs arrive)."""
+        """Power-up: the CAN layer's ``init`` with the law (the safe state until inputs arrive),
+        then the XCP slave's (which points the laws at its calibration page)."""
         if self._call("init_opaque", self._state, LAWS[self.law]) != 0:
             raise ModelError(f"firmware: the CAN layer refused law {self.law!r}")
+        if self.xcp is not None:
+            getattr(self.lib, f"{self.prefix}_xcp_init_opaque")(self._slave, self.xcp_base)
+
+    @property
+    def xcp_base(self) -> int:
+        """The address in this process that XCP address 0 stands for: the image's load address,
+        so the A2L's addresses are the image's symbol values (``codegen.a2l``)."""
+        symbol = f"{self.prefix}_controller"
+        runtime = int(self.ffi.cast("uintptr_t", self.ffi.addressof(self.lib, symbol)))
+        return runtime - symbols(self.library)[symbol]
+
+    @property
+    def library(self) -> str:
+        """The shared library of the compiled image."""
+        return str(self.module.__file__)
+
+    def xcp_rx(self, data: bytes, time_us: int) -> None:
+        """One frame of the XCP master into the slave (``<prefix>_xcp_rx``)."""
+        getattr(self.lib, f"{self.prefix}_xcp_rx_opaque")(
+            self._slave, bytes(data), len(data) & 0xFF, time_us & 0xFFFFFFFF
+        )
+
+    def xcp_event(self, time_us: int) -> None:
+        """The sample boundary of the slave (``<prefix>_xcp_event``), after :meth:`step`."""
+        getattr(self.lib, f"{self.prefix}_xcp_event_opaque")(self._slave, time_us & 0xFFFFFFFF)
+
+    def xcp_tx(self) -> list[bytes]:
+        """Every frame the slave has to send (the answer, then the event's DTOs) until ``<prefix>_xcp_tx`` gives 0."""
+        frames = []
+        tx = getattr(self.lib, f"{self.prefix}_xcp_tx_opaque")
+        while tx(self._slave, self._slave_data, self._length):
+            frames.append(bytes(self.ffi.buffer(self._slave_data, self._length[0])))
+        return frames
+
+    @property
+    def xcp_overruns(self) -> int:
+        """DAQ events whose ODTs were not all sent before the next one (lost ODTs)."""
+        return int(getattr(self.lib, f"{self.prefix}_xcp_overruns")(self._slave))
 
     def rx(self, frame_id: int, data: bytes, time_us: int, bus: int | None = None) -> int:
         """One received frame into the CAN layer (``<prefix>_can_rx``, or ``<prefix>_can_rx_bus``

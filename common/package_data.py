@@ -50,6 +50,9 @@ FILES: dict[str, tuple[str, ...]] = {
             "target_main.c.j2",
             "toolchain.cmake.j2",
             "types.h.j2",
+            "xcp.c.j2",
+            "xcp.h.j2",
+            "xcp_key.c.j2",
             *(
                 f"fmu/{name}"
                 for name in (

@@ -276,6 +276,25 @@ class Network:
 
 
 @dataclass(frozen=True)
+class Xcp:
+    """The firmware's XCP slave on CAN FD (``[xcp]``, optional; docs/xcp.md): measurement by DAQ
+    at the controller's sample and calibration of the laws' tunables.
+
+    ``master_id``/``slave_id``: the CAN identifiers master → slave (commands) and slave → master
+    (answers and DAQ), above every frame of the control protocol so XCP never delays it;
+    ``key``: the 128-bit key of the seed & key algorithm as 32 hex digits (None: derived from
+    the artefact's hash, so every artefact has its own); ``daq_entries``: the ODT entries the
+    slave holds; ``calibration_decades``: a tunable that is no normal force may be calibrated
+    within this many decades of the design's value either side."""
+
+    master_id: int = 0x7F0
+    slave_id: int = 0x7F1
+    key: str | None = None
+    daq_entries: int = 32
+    calibration_decades: float = 2.0
+
+
+@dataclass(frozen=True)
 class Safety:
     """The safe state and the plausibility ranges of the firmware (``[safety]``, all optional;
     docs/safety.md says why each default is what it is).
@@ -338,6 +357,7 @@ class Design:
     placement: Placement | None = None  # joints `run` places on a design without [[joints]]
     uncertainty: Uncertainty = field(default_factory=Uncertainty)  # [uncertainty]: the physical spread
     network: Network = field(default_factory=Network)  # [network]: buses, local or central SISO
+    xcp: Xcp = field(default_factory=Xcp)  # [xcp]: the XCP slave's identifiers, key and DAQ memory
 
     def joint_friction(self, joint: Joint) -> JointFriction | None:
         """The joint's LuGre parameters: its own, else its type's; None when the design has none."""
@@ -418,5 +438,6 @@ __all__ = [
     "TubeSection",
     "UPDATABLE",
     "Updating",
+    "Xcp",
     "split_parameter",
 ]

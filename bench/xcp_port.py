@@ -1,0 +1,185 @@
+"""The SIL firmware's XCP port on a python-can bus (docs/xcp.md): frames of the master's
+identifier go into the slave (``<prefix>_xcp_rx``), its answers and DTOs go out.
+
+The bench is the firmware's clock: the slave answers whenever the bench services its port, and
+samples its DAQ list at the event that follows each controller step (:meth:`XcpPort.sample`).
+A master such as pyxcp waits on the wall clock, so a master's script runs in a thread of its own
+while the bench holds the simulation at a sample and services the port (:meth:`XcpPort.serve`):
+whatever the script does lands between two samples, at the sample the bench chose, and the run
+stays reproducible.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from smartjoint.bench.loop import SilLoop, open_bus
+from smartjoint.common.errors import ModelError
+
+
+class XcpPort:
+    """The slave side of XCP on one python-can bus.
+
+    Parameters
+    ----------
+    firmware : bench.firmware.Firmware
+        A firmware compiled with its XCP slave (``xcp=``).
+    interface, channel : str
+        The python-can bus the master is on (default the in-process ``virtual`` one).
+    """
+
+    def __init__(self, firmware, interface: str = "virtual", channel: str = "smartjoint-sil.xcp"):
+        if firmware.xcp is None:
+            raise ModelError("xcp: the firmware was compiled without its XCP slave (Firmware(..., xcp=Xcp()))")
+        self.fw, self.interface, self.channel = firmware, interface, channel
+        self.master_id, self.slave_id = firmware.xcp.master_id, firmware.xcp.slave_id
+        self.bus: Any = None
+        self.sent = 0  # frames the slave sent
+        self.commands = 0  # frames of the master it took
+
+    def open(self) -> XcpPort:
+        """Open the bus (the firmware keeps its state: reset it yourself)."""
+        if self.bus is None:
+            self.bus = open_bus(self.interface, self.channel)
+        return self
+
+    def close(self) -> None:
+        """Shut the bus."""
+        bus, self.bus = self.bus, None
+        if bus is not None:
+            bus.shutdown()
+
+    def __enter__(self) -> XcpPort:
+        return self.open()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _send(self, frames: list[bytes]) -> None:
+        import can
+
+        for data in frames:
+            self.bus.send(can.Message(arbitration_id=self.slave_id, data=data, is_extended_id=False, is_fd=True))
+            self.sent += 1
+
+    def receive(self, time_us: int, timeout: float = 0.0) -> int:
+        """Take every waiting frame of the master (each answered at once); returns how many."""
+        taken = 0
+        while True:
+            message = self.bus.recv(timeout=timeout if taken == 0 else 0.0)
+            if message is None:
+                return taken
+            if message.arbitration_id == self.master_id and not message.is_extended_id:
+                self.fw.xcp_rx(bytes(message.data), time_us)
+                self._send(self.fw.xcp_tx())
+                taken += 1
+                self.commands += 1
+
+    def sample(self, time_us: int) -> None:
+        """The sample boundary after a controller step: the slave's event, then its DTOs."""
+        self.receive(time_us)
+        self.fw.xcp_event(time_us)
+        self._send(self.fw.xcp_tx())
+
+    def serve(self, script: Callable[[], Any], time_us: int = 0, timeout: float = 60.0) -> Any:
+        """Run ``script()`` (a master's commands) in a thread while this thread answers it.
+
+        Returns
+        -------
+        Any
+            What the script returned; what it raised is raised here.
+        """
+        result: dict[str, Any] = {}
+
+        def run() -> None:
+            try:
+                result["value"] = script()
+            except BaseException as error:  # handed to the bench's thread
+                result["error"] = error
+
+        worker = threading.Thread(target=run, name="xcp-master", daemon=True)
+        worker.start()
+        deadline = time.monotonic() + timeout
+        while worker.is_alive():
+            self.receive(time_us, timeout=0.002)
+            if time.monotonic() > deadline:
+                raise ModelError(f"xcp: the master's script ran over {timeout:g} s")
+        self.receive(time_us)
+        if "error" in result:
+            raise result["error"]
+        return result.get("value")
+
+
+class XcpLoop(SilLoop):
+    """The SIL loop (``bench.loop.SilLoop``) with the firmware's XCP port on a bus of its own: the
+    slave's event after every controller step, and master scripts run at chosen samples.
+
+    Parameters
+    ----------
+    firmware : bench.firmware.Firmware
+        Compiled with its XCP slave.
+    port : XcpPort
+        The port the master talks to (opened and closed with the loop).
+    scripts : dict of int to callable, optional
+        Sample index → ``script()``: run by :meth:`XcpPort.serve` before that sample's frames,
+        so what it changes acts from that sample on.
+    **options
+        As for ``SilLoop``.
+    """
+
+    def __init__(self, firmware, port: XcpPort, scripts: dict[int, Callable[[], Any]] | None = None, **options):
+        super().__init__(firmware, **options)
+        self.port, self.scripts = port, dict(scripts or {})
+        self.results: dict[int, Any] = {}  # what each script returned, by sample
+
+    def reset(self) -> None:
+        super().reset()
+        self.port.open()
+
+    def close(self) -> None:
+        super().close()
+        if getattr(self, "port", None) is not None:
+            self.port.close()
+
+    def step(self, measurements):
+        k = self.k
+        if k in self.scripts:
+            self.results[k] = self.port.serve(self.scripts[k], int(round(float(measurements.time) * 1e6)) & 0xFFFFFFFF)
+        return super().step(measurements)
+
+    def _firmware_sample(self, t: float, time_us: int):
+        status = super()._firmware_sample(t, time_us)
+        self.port.sample(time_us)
+        return status
+
+
+def sil_description(firmware, bus=None):
+    """The A2L of a SIL image (``codegen.a2l``): the shared library's symbol values, which the
+    slave adds to its base (:attr:`bench.firmware.Firmware.xcp_base`), and the host compiler's layout.
+
+    Parameters
+    ----------
+    firmware : bench.firmware.Firmware
+        Compiled with its XCP slave.
+    bus : design.structure.description.Bus, optional
+        The bus XCP runs on (its bit rates); default a CAN FD bus of 1/5 Mbit/s.
+    """
+    from smartjoint.bench.firmware import symbols
+    from smartjoint.codegen import a2l
+    from smartjoint.design.structure.description import Bus
+
+    measured = a2l.measurements(firmware.artifact, firmware.db)
+    members = sorted({m.member for m in measured})
+    layout = a2l.probe(firmware.files, firmware.prefix, members)
+    real = "float" if "typedef float" in firmware.files[f"{firmware.prefix}_types.h"] else "double"
+    return a2l.describe(
+        firmware.artifact, real, firmware.prefix, firmware.xcp, symbols(firmware.library), layout, measured,
+        bus or Bus("xcp"), f"SIL shared library {firmware.library}: addresses are offsets from its "
+        "load address",
+    )  # fmt: skip
+
+
+__all__ = ["XcpLoop", "XcpPort", "sil_description"]

@@ -1,0 +1,215 @@
+"""Render the XCP slave of the firmware (``templates/xcp.*.j2``, ``xcp_key.c.j2``; docs/xcp.md):
+the calibration page of every law's tunables with the limits a DOWNLOAD must keep, the
+identification (EPK), the DAQ memory and the seed & key of one artefact.
+
+:func:`calibration_values` is the one description of the page: the C struct's values in order,
+each with its name, unit and limits, from which the C slave checks a DOWNLOAD and the A2L
+(``codegen.a2l``) declares its CHARACTERISTICs, so the two cannot disagree.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from smartjoint.codegen import rendering
+from smartjoint.common import law_registry
+from smartjoint.common.errors import ModelError
+from smartjoint.design.control.artifact import ControllerArtifact
+from smartjoint.design.structure.description import Xcp
+
+# Bytes of each command the slave serves (ASAM XCP 1.x; a shorter frame is ERR_CMD_SYNTAX).
+COMMANDS = {
+    "CONNECT": 2, "DISCONNECT": 1, "GET_STATUS": 1, "SYNCH": 1, "GET_COMM_MODE_INFO": 1, "GET_ID": 2,
+    "GET_SEED": 3, "UNLOCK": 2, "SET_MTA": 8, "UPLOAD": 2, "SHORT_UPLOAD": 8, "BUILD_CHECKSUM": 8,
+    "DOWNLOAD": 2, "SET_CAL_PAGE": 4, "GET_CAL_PAGE": 3, "SET_DAQ_PTR": 6, "WRITE_DAQ": 8,
+    "SET_DAQ_LIST_MODE": 8, "START_STOP_DAQ_LIST": 4, "START_STOP_SYNCH": 2, "GET_DAQ_PROCESSOR_INFO": 1,
+    "GET_DAQ_RESOLUTION_INFO": 1, "GET_DAQ_EVENT_INFO": 4, "FREE_DAQ": 1, "ALLOC_DAQ": 4, "ALLOC_ODT": 5,
+    "ALLOC_ODT_ENTRY": 6,
+}  # fmt: skip
+EVENT_NAME = "sample"  # the one event channel: the controller's sample
+DAQ_ODTS = 4  # ODTs per event when no bus plan says how many fit
+
+
+@dataclass(frozen=True)
+class CalibrationValue:
+    """One value of the calibration page (a ``<prefix>_real``), in struct order.
+
+    ``law``, ``field`` and ``joint`` (None for a law-wide value) locate it in the laws' ``_params``;
+    ``value`` is the design's, [``lower``, ``upper``] what a DOWNLOAD may write (in the build's
+    precision, so the slave and the A2L state the same numbers)."""
+
+    law: str
+    field: str
+    joint: str | None
+    unit: str
+    meaning: str
+    value: float
+    lower: float
+    upper: float
+
+    @property
+    def name(self) -> str:
+        """Its name in the A2L: ``<law>.<field>`` or ``<law>.<field>.<joint>``."""
+        return f"{self.law}.{self.field}" + (f".{self.joint}" if self.joint is not None else "")
+
+
+def _rounded(values, real: str) -> np.ndarray:
+    """Values as the build holds them (float32 or float64), returned as float64."""
+    return np.asarray(values, dtype=np.float32 if real == "float" else np.float64).astype(np.float64)
+
+
+def calibration_values(artifact: ControllerArtifact, real: str, xcp: Xcp) -> list[CalibrationValue]:
+    """The calibration page's values in struct order: per law of the registry its ``_params``
+    (F_N^min, F_N^max − F_N^min per joint, then its settings), with their limits.
+
+    F_N^min of a law lies within the joints' [F_N^min, F_N^max], its range within [0, F_N^max −
+    F_N^min], a setting that is a normal force within [F_N^min, F_N^max], any other setting within
+    ``xcp.calibration_decades`` decades of the design's value either side.
+    """
+    low = np.asarray(artifact.normal_force_min, dtype=float)
+    high = np.asarray(artifact.normal_force_max, dtype=float)
+    decades = 10.0 ** float(xcp.calibration_decades)
+    values: list[CalibrationValue] = []
+
+    def add(law, field, joints, unit, meaning, design, lowers, uppers):
+        design, lowers, uppers = (_rounded(np.atleast_1d(v), real) for v in (design, lowers, uppers))
+        for k, joint in enumerate(joints):
+            values.append(CalibrationValue(law, field, joint, unit, meaning, design[k], lowers[k], uppers[k]))
+
+    for law in law_registry.LAWS.values():
+        joints = list(artifact.joint_names)
+        lowest = np.asarray(getattr(artifact, law.lower_force_field()), dtype=float)
+        add(law.name, "normal_force_min", joints, "N", "lowest normal force F_N,j^min", lowest, low, high)
+        add(law.name, "normal_force_range", joints, "N", "F_N,j^max - F_N,j^min", high - lowest, 0 * low, high - low)
+        fields = dict(law.artifact)
+        for setting in law.settings:
+            if setting.lower_force:
+                continue  # it is normal_force_min above
+            design = np.asarray(getattr(artifact, fields[setting.key]), dtype=float).reshape(-1)
+            if np.any(~(design > 0)):
+                raise ModelError(f"{fields[setting.key]}: {design.tolist()!r} — a tunable must be > 0 to calibrate")
+            names = joints if setting.per_joint else [None]
+            lowers, uppers = (low, high) if setting.normal_force else (design / decades, design * decades)
+            add(law.name, setting.key, names, setting.unit, setting.meaning, design, lowers, uppers)
+    return values
+
+
+def force_pairs(values: list[CalibrationValue], artifact: ControllerArtifact, real: str) -> list[dict]:
+    """Per law and joint the indices of F_N^min and its range and the largest sum allowed: the
+    joint's F_N^max, or the reference page's own sum where the build's rounding lifts it above."""
+    scalar = np.float32 if real == "float" else np.float64
+    index = {(v.law, v.field, v.joint): k for k, v in enumerate(values)}
+    pairs = []
+    for law in law_registry.LAWS:
+        for j, joint in enumerate(artifact.joint_names):
+            m, r = index[(law, "normal_force_min", joint)], index[(law, "normal_force_range", joint)]
+            rounded_sum = float(scalar(values[m].value) + scalar(values[r].value))
+            limit = max(float(scalar(artifact.normal_force_max[j])), rounded_sum)
+            pairs.append({"minimum": m, "range": r, "maximum": rendering.literal(limit, real)})
+    return pairs
+
+
+def secret(artifact: ControllerArtifact, xcp: Xcp) -> tuple[int, int, int, int]:
+    """The 128-bit key of the seed & key algorithm as four 32-bit words: ``xcp.key`` (32 hex
+    digits), else the first 16 bytes of SHA-256 over the artefact's hash, so each artefact has its own."""
+    if xcp.key is not None:
+        raw = bytes.fromhex(xcp.key)
+    else:
+        raw = hashlib.sha256(f"smartjoint-xcp-key:{artifact.artifact_sha256}".encode()).digest()[:16]
+    return tuple(int.from_bytes(raw[4 * k : 4 * k + 4], "little") for k in range(4))  # type: ignore[return-value]
+
+
+def key_from_seed(seed: bytes, words: tuple[int, int, int, int]) -> bytes:
+    """The key of an 8-byte seed: XTEA (32 cycles) under ``words``, as ``<prefix>_xcp_key`` computes it."""
+    mask = 0xFFFFFFFF
+    v0, v1 = int.from_bytes(seed[:4], "little"), int.from_bytes(seed[4:8], "little")
+    total = 0
+    for _ in range(32):
+        v0 = (v0 + ((((v1 << 4) ^ (v1 >> 5)) + v1) ^ (total + words[total & 3]))) & mask
+        total = (total + 0x9E3779B9) & mask
+        v1 = (v1 + ((((v0 << 4) ^ (v0 >> 5)) + v0) ^ (total + words[(total >> 11) & 3]))) & mask
+    return v0.to_bytes(4, "little") + v1.to_bytes(4, "little")
+
+
+def epk(artifact: ControllerArtifact, real: str, prefix: str) -> str:
+    """The EPK: the image's identification that the A2L repeats (GET_ID type 0)."""
+    return f"{prefix} {real} {artifact.artifact_sha256[:16]} smartjoint {rendering.version()}"
+
+
+def event_cycle(sample_time: float) -> tuple[int, int]:
+    """(cycle, unit code) of the event channel: the smallest XCP time unit (1 ns · 10^unit) in
+    which the sample time is a whole number of at most 255 units."""
+    for unit in range(10):
+        ticks = sample_time / 10.0 ** (unit - 9)
+        if ticks <= 255 and abs(ticks - round(ticks)) < 1e-9 * max(ticks, 1.0):
+            return int(round(ticks)), unit
+    raise ModelError(f"sample_time: {sample_time!r} s — an XCP event cycle is 1…255 units of 1 ns … 1 s")
+
+
+def render_xcp(
+    artifact: ControllerArtifact,
+    prefix: str = "smartjoint",
+    real: str = "float",
+    xcp: Xcp | None = None,
+    daq_odts: int = DAQ_ODTS,
+) -> dict[str, str]:
+    """The slave's files ``<prefix>_xcp.h``, ``<prefix>_xcp.c`` and ``<prefix>_xcp_key.c``.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+    prefix, real : str
+        As for ``codegen.generate.render``.
+    xcp : Xcp, optional
+        The design's ``[xcp]`` (identifiers, key, DAQ memory); default :class:`Xcp` ().
+    daq_odts : int
+        ODTs per event the bus carrying XCP has room for (``design.network.plan``).
+
+    Returns
+    -------
+    dict of str to str
+    """
+    xcp = xcp or Xcp()
+    name = f"{prefix}_xcp"
+    lit = lambda value: rendering.literal(value, real)  # noqa: E731
+    values = calibration_values(artifact, real, xcp)
+    fields: list[dict[str, Any]] = []
+    for v in values:
+        if fields and (fields[-1]["law"], fields[-1]["name"]) == (v.law, v.field):
+            fields[-1]["items"].append(lit(v.value))
+        else:
+            fields.append({"law": v.law, "name": v.field, "unit": v.unit, "array": v.joint is not None,
+                           "items": [lit(v.value)]})  # fmt: skip
+    for f in fields:
+        f["text"] = ", ".join(f["items"])
+    cycle, unit = event_cycle(artifact.sample_time)
+    context = {
+        **rendering.naming(rendering.banner(artifact.artifact_sha256, real, "codegen, XCP slave"), prefix, name),
+        "laws": list(law_registry.LAWS),
+        "page_fields": fields,
+        "values": [{"lower": lit(v.lower), "upper": lit(v.upper)} for v in values],
+        "pairs": force_pairs(values, artifact, real),
+        "epk": epk(artifact, real, prefix),
+        "event_name": EVENT_NAME,
+        "event_cycle": cycle,
+        "event_unit": unit,
+        "master_id": xcp.master_id,
+        "slave_id": xcp.slave_id,
+        "daq_odts": int(daq_odts),
+        "daq_entries": int(xcp.daq_entries),
+        "command_lengths": sorted(COMMANDS.items(), key=lambda item: item[0]),
+        "secret": ", ".join(f"0x{w:08X}u" for w in secret(artifact, xcp)),
+    }
+    env = rendering.environment()
+    return {
+        f"{name}.h": env.get_template("xcp.h.j2").render(context),
+        f"{name}.c": env.get_template("xcp.c.j2").render(context),
+        f"{name}_key.c": env.get_template("xcp_key.c.j2").render(context),
+    }
+
+
+__all__ = ["COMMANDS", "CalibrationValue", "calibration_values", "epk", "key_from_seed", "render_xcp", "secret"]

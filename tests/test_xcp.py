@@ -1,0 +1,334 @@
+"""The firmware's XCP slave (issue 34, docs/xcp.md) against pyxcp, the open-source master, on the
+SIL bench: identification and uploads equal the artefact, calibration that cannot hurt the
+structure, a DOWNLOAD mid-study equal to a MIL law switching at the same sample, DAQ of the whole
+study equal to the firmware's own variables, and the generated A2L parsed by pya2l."""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+import zlib
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pyxcp")
+
+from test_can_layer import REFERENCE  # noqa: E402
+
+from smartjoint.bench import sil, xcp_master  # noqa: E402
+from smartjoint.bench.firmware import Firmware, symbols  # noqa: E402
+from smartjoint.bench.fmu_check import FLOAT_BOUND  # noqa: E402
+from smartjoint.bench.xcp_port import XcpLoop, XcpPort, sil_description  # noqa: E402
+from smartjoint.codegen import xcp_slave  # noqa: E402
+from smartjoint.design.control import artifact, laws  # noqa: E402
+from smartjoint.design.control import study as closed_loop  # noqa: E402
+from smartjoint.design.plant.interface import Measurements  # noqa: E402
+from smartjoint.design.structure.description import Xcp  # noqa: E402
+
+ERR_ACCESS_LOCKED, ERR_OUT_OF_RANGE, ERR_WRITE_PROTECTED, ERR_ACCESS_DENIED = 0x25, 0x22, 0x23, 0x24
+ERR_TEMPORARILY_NOT_ACCESSIBLE = 0x33
+SWITCH = 1000  # the sample of t = 1 s, where the calibration lands
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return artifact.load(REFERENCE)
+
+
+@pytest.fixture(scope="module")
+def images(reference):
+    """Per build the SIL firmware with its slave and its A2L description."""
+    out = {}
+    for real in ("double", "float"):
+        fw = Firmware(reference, "siso", real, xcp=Xcp())
+        out[real] = fw, sil_description(fw)
+    return out
+
+
+@pytest.fixture(scope="module")
+def study_setup(three_type_a):
+    design, model = three_type_a
+    return closed_loop.setup(design, model)
+
+
+def _code(error) -> int:
+    return int(error.get_error_code())
+
+
+def _session(fw, script, channel: str):
+    """``script(master)`` against the slave, this thread answering; connected first, closed after."""
+    app = xcp_master.application(fw.artifact, fw.xcp, channel=channel, timeout=1.0)
+    x = xcp_master.master(app)
+
+    def run():
+        with x:
+            x.connect()
+            return script(x)
+
+    with XcpPort(fw, channel=channel) as port:
+        return port.serve(run)
+
+
+def _refused(call) -> int:
+    from pyxcp.types import XcpResponseError
+
+    try:
+        call()
+    except XcpResponseError as error:
+        return _code(error)
+    return 0
+
+
+def _page(x, description, real: str) -> bytes:
+    first = min(c.address for c in description.characteristics.values())
+    x.setMta(first)
+    return bytes(x.fetch(len(description.characteristics) * (8 if real == "double" else 4)))
+
+
+def test_identification_and_uploads_equal_the_artefact(images, reference):
+    fw, description = images["double"]
+    fw.reset()
+    values = xcp_slave.calibration_values(reference, "double", Xcp())
+
+    def script(x):
+        epk, name = x.identifier(0), x.identifier(1)
+        uploaded = {n: struct.unpack("<d", bytes(x.shortUpload(8, c.address)))[0]
+                    for n, c in description.characteristics.items()}  # fmt: skip
+        page = _page(x, description, "double")
+        x.setMta(min(c.address for c in description.characteristics.values()))
+        checksum = x.buildChecksum(len(page))
+        return epk, name, uploaded, page, checksum
+
+    epk, name, uploaded, page, checksum = _session(fw, script, "xcp-identification")
+    assert epk == xcp_slave.epk(reference, "double", "smartjoint") and name == "smartjoint"
+    assert len(uploaded) == len(values) == 36
+    assert [uploaded[v.name] for v in values] == [v.value for v in values]  # every tunable, bit for bit
+    assert uploaded["siso.boundary_layer.A1"] == float(reference.siso_boundary_layer[0])
+    assert uploaded["clqg.boundary_layer"] == float(reference.clqg_boundary_layer)
+    assert page == struct.pack(f"<{len(values)}d", *[v.value for v in values])
+    assert checksum.checksumType == "XCP_CRC_32" and checksum.checksum == zlib.crc32(page)
+
+
+def test_without_unlock_or_with_a_wrong_key_nothing_is_written(images):
+    fw, description = images["double"]
+    fw.reset()
+
+    def script(x):
+        before = _page(x, description, "double")
+        codes = []
+        for c in description.characteristics.values():
+            x.setMta(c.address)
+            codes.append(_refused(lambda c=c: x.download(struct.pack("<d", c.lower))))
+        seed = bytes(x.getSeed(0, 0x01).seed)
+        wrong = bytearray(xcp_slave.key_from_seed(seed, xcp_slave.secret(fw.artifact, Xcp())))
+        wrong[0] ^= 1
+        unlock = _refused(lambda: x.unlock(8, bytes(wrong)))
+        x.connect()  # a wrong key ends the session; a new one starts locked
+        status = x.getStatus().resourceProtectionStatus
+        return codes, unlock, status.calpag and status.daq, before, _page(x, description, "double")
+
+    codes, unlock, locked, before, after = _session(fw, script, "xcp-locked")
+    assert set(codes) == {ERR_ACCESS_LOCKED} and len(codes) == 36
+    assert unlock == ERR_ACCESS_LOCKED and locked and after == before
+
+
+def _pack(value: float, real: str) -> bytes:
+    return struct.pack("<d" if real == "double" else "<f", value)
+
+
+def _refusals(fw, description, real: str):
+    """The DOWNLOADs the slave must refuse while the controller runs, with their codes."""
+    c = description.characteristics
+    table = symbols(fw.library)
+    eps, low, span = c["siso.boundary_layer.A1"], c["siso.normal_force_min.A1"], c["siso.normal_force_range.A1"]
+    controller = table["smartjoint_controller"]
+    return [
+        ("above its upper limit", eps.address, _pack(eps.upper * 1.01, real), ERR_OUT_OF_RANGE),
+        ("below its lower limit", eps.address, _pack(eps.lower * 0.99, real), ERR_OUT_OF_RANGE),
+        ("NaN", eps.address, _pack(float("nan"), real), ERR_OUT_OF_RANGE),
+        ("part of a value", eps.address, _pack(eps.upper, real)[:2], ERR_OUT_OF_RANGE),
+        ("F_N^min + range above F_N^max", low.address, _pack(low.upper, real), ERR_OUT_OF_RANGE),
+        ("both, one out", low.address, _pack(low.lower, real) * 3 + _pack(span.upper * 2, real), ERR_OUT_OF_RANGE),
+        ("the flash reference page", table["smartjoint_calibration_reference"], _pack(1.0, real), ERR_WRITE_PROTECTED),
+        ("the controller's state", controller, _pack(1.0, real), ERR_WRITE_PROTECTED),
+        ("a safety limit (safe force)", table["safe_normal_force"], _pack(1.0, real), ERR_ACCESS_DENIED),
+        ("nowhere", 0x10, _pack(1.0, real), ERR_ACCESS_DENIED),
+    ]
+
+
+def test_refused_downloads_change_no_byte_and_not_the_study(images, study_setup):
+    """In the safe state every DOWNLOAD is refused; while the law runs, one out of range, part of
+    a value, past F_N^max, to flash, to the state or to a safety limit is refused: the page's
+    bytes stay (UPLOAD, checksum) and the study's commands equal those of a run without XCP."""
+    fw, description = images["double"]
+    setup = dataclasses.replace(study_setup, duration=0.3)
+    app = xcp_master.application(fw.artifact, fw.xcp, channel="xcp-refusals.xcp", timeout=1.0)
+    x = xcp_master.master(app)
+    eps = description.characteristics["siso.boundary_layer.A1"]
+    seen = {}
+
+    def safe_state():
+        x.__enter__()
+        x.connect()
+        x.cond_unlock()
+        seen["before"] = _page(x, description, "double")
+        x.setMta(eps.address)
+        seen["safe"] = _refused(lambda: x.download(_pack(eps.value * 2, "double")))
+
+    def running():
+        seen["refused"] = []
+        for _, address, data, _ in _refusals(fw, description, "double"):
+            x.setMta(address)
+            seen["refused"].append(_refused(lambda data=data: x.download(data)))
+        seen["after"] = _page(x, description, "double")
+        x.disconnect()
+        x.__exit__(None, None, None)
+
+    port = XcpPort(fw, channel="xcp-refusals.xcp")
+    loop = XcpLoop(fw, port, {0: safe_state, 100: running}, excitation_end=closed_loop.PULSE_DURATION,
+                   channel="xcp-refusals")  # fmt: skip
+    sil.run_loop(setup, loop)
+    assert seen["safe"] == ERR_TEMPORARILY_NOT_ACCESSIBLE
+    assert seen["refused"] == [code for *_, code in _refusals(fw, description, "double")]
+    assert seen["after"] == seen["before"]
+    plain = XcpLoop(fw, XcpPort(fw, channel="xcp-plain.xcp"), {}, excitation_end=closed_loop.PULSE_DURATION,
+                    channel="xcp-plain")  # fmt: skip
+    sil.run_loop(setup, plain)
+    assert not loop.record.safe[100] and np.array_equal(np.array(loop.record.command), np.array(plain.record.command))
+
+
+def _calibrated_run(fw, description, setup, real: str, channel: str):
+    """The study with DAQ of every scalar measurement from sample 0 and ε of joint A1 tripled by
+    DOWNLOAD at sample 1000; per sample also the controller's bytes as the firmware holds them."""
+    scalars = [n for n, m in description.measurements.items() if m.count == 1]
+    entries = [(n, description.measurements[n].address, xcp_master.A2L_TYPES[description.measurements[n].datatype])
+               for n in scalars]  # fmt: skip
+    app = xcp_master.application(fw.artifact, fw.xcp, channel=f"{channel}.xcp", timeout=2.0)
+    policy = xcp_master.recorder("sample", entries)
+    x = xcp_master.master(app, policy)
+    eps = description.characteristics["siso.boundary_layer.A1"]
+    new = float(np.float32(3.0 * eps.value))
+
+    def start():
+        x.__enter__()
+        x.connect()
+        x.cond_unlock()
+        policy.setup()
+        policy.start()
+
+    def calibrate():
+        x.setMta(eps.address)
+        x.download(_pack(new, real))
+
+    class Snapshots(XcpLoop):
+        def _firmware_sample(self, t, time_us):
+            status = super()._firmware_sample(t, time_us)
+            self.snapshots.append(bytes(fw.ffi.buffer(fw._state, size)))
+            return status
+
+    size = int(fw.lib.smartjoint_can_state_size())
+    port = XcpPort(fw, channel=f"{channel}.xcp")
+    loop = Snapshots(fw, port, {0: start, SWITCH: calibrate}, excitation_end=closed_loop.PULSE_DURATION,
+                     channel=channel)  # fmt: skip
+    loop.snapshots = []
+    sil.run_loop(setup, loop)
+
+    def stop():
+        policy.stop()
+        x.disconnect()
+        x.__exit__(None, None, None)
+
+    with port:
+        port.serve(stop)
+    return loop, policy.recorded, new, entries
+
+
+def _mil_switching(reference, description, recorded, new: float):
+    """The SISO law's Python reference on the inputs the firmware decoded (its DAQ'd raw values),
+    restarted where the firmware leaves the safe state, ε_A1 switched to ``new`` at sample 1000."""
+    law = laws.siso_law(reference)
+    joints = list(reference.joint_names)
+
+    def decoded(field):
+        return np.stack([recorded.column(f"{field}.{j}") * description.measurements[f"{field}.{j}"].factor
+                         for j in joints], axis=1)  # fmt: skip
+
+    v, f, n = decoded("sliding_velocity"), decoded("friction_force"), decoded("normal_force")
+    safe = recorded.column("safe")
+    out, held = np.full((len(safe), len(joints)), np.nan), True
+    for k in range(len(safe)):
+        if k == SWITCH:
+            law.boundary_layer = law.boundary_layer.copy()
+            law.boundary_layer[0] = new
+        if safe[k]:
+            held = True
+            continue
+        if held:
+            law.reset()
+            held = False
+        out[k] = law.step(Measurements(k * reference.sample_time, np.zeros(2), v[k], f[k], n[k]))
+    return out
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("real", ["double", "float"])
+def test_calibration_mid_study_equals_mil_switching_and_daq_equals_the_firmware(images, reference, study_setup,
+                                                                                real, tmp_path):  # fmt: skip
+    fw, description = images[real]
+    loop, recorded, new, entries = _calibrated_run(fw, description, study_setup, real, f"xcp-study-{real}")
+    samples = int(round(study_setup.duration / reference.sample_time))
+    # DAQ: >= 20 signals every sample of the study, none lost, each the firmware's variable then.
+    assert len(entries) >= 20 and len(recorded.rows) == len(loop.record.time) == samples
+    assert fw.xcp_overruns == 0 and np.all(np.diff(recorded.time_us) == 1000)
+    controller = symbols(fw.library)["smartjoint_controller"]
+    for name, address, kind in entries:
+        offset, dtype = address - controller, np.dtype(xcp_master.NUMPY_TYPES[kind])
+        own = [np.frombuffer(s[offset : offset + dtype.itemsize], dtype)[0] for s in loop.snapshots]
+        assert np.array_equal(recorded.column(name), np.array(own)), name
+    commands = np.stack([recorded.column(f"command.{j}") for j in reference.joint_names], axis=1)
+    assert np.array_equal(commands, np.array(loop.record.command))
+    # Calibration: from sample 1000 on the law runs with the new ε, as a MIL law switched there.
+    mil = _mil_switching(reference, description, recorded, new)
+    compared = ~np.isnan(mil[:, 0])
+    assert compared[SWITCH:].all()
+    deviation = np.max(np.abs(mil[compared] - commands[compared]))
+    span = float(np.min(reference.normal_force_max - reference.normal_force_min))
+    assert deviation == 0.0 if real == "double" else deviation <= FLOAT_BOUND * span
+    unswitched = _mil_switching(reference, description, recorded, float(reference.siso_boundary_layer[0]))
+    assert np.max(np.abs(unswitched[SWITCH:] - commands[SWITCH:])) > 1.0  # the switch is seen in the commands
+    # The measurement as MF4 with the A2L's units.
+    from asammdf import MDF
+
+    path = xcp_master.write_mf4(recorded, description, tmp_path / "daq.mf4")
+    with MDF(path) as mdf:
+        signal = mdf.get("command.A1")
+        velocity = mdf.get("sliding_velocity.A1")
+    assert signal.unit == "N" and velocity.unit == "m/s" and len(signal.samples) == samples
+    assert np.array_equal(signal.samples, commands[:, 0])
+    assert np.allclose(velocity.samples, recorded.column("sliding_velocity.A1") * 1e-9, rtol=0, atol=1e-18)
+
+
+@pytest.fixture(scope="module")
+def a2l_parser():
+    parser = pytest.importorskip("pya2l.parser")
+    with parser.A2lParser() as p:
+        yield p
+
+
+def test_the_a2l_parses_and_states_the_image(a2l_parser, images, reference):
+    fw, description = images["float"]
+    tree = a2l_parser.tree_from_a2l(description.text.encode())
+    module = tree.PROJECT.MODULE[0]
+    measured = {m.Name.Value: m for m in module.MEASUREMENT}
+    calibrated = {c.Name.Value: c for c in module.CHARACTERISTIC}
+    assert set(measured) == set(description.measurements) and set(calibrated) == set(description.characteristics)
+    for name, m in measured.items():
+        assert m.ECU_ADDRESS.Address.Value == description.measurements[name].address
+        assert m.DataType.Value == description.measurements[name].datatype
+    for name, c in calibrated.items():
+        stated = description.characteristics[name]
+        assert (c.Address.Value, c.LowerLimit.Value, c.UpperLimit.Value) == (stated.address, stated.lower, stated.upper)
+    assert module.MOD_PAR.EPK.Identifier.Value == xcp_slave.epk(reference, "float", "smartjoint")
+    assert module.MOD_PAR.ADDR_EPK[0].Address.Value == symbols(fw.library)["smartjoint_xcp_epk"]
+    assert [m for m in measured if m.startswith("clqg.q")] == ["clqg.q0", "clqg.q1"]
