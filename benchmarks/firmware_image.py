@@ -21,8 +21,9 @@ from pathlib import Path
 
 from elf_tools import BASE_FLAGS, TARGET, Disassembly, callgraph_ci, run, sections, stack_usage, worst_stack
 
-from smartjoint.codegen import can_layer, generate, output
+from smartjoint.codegen import can_layer, generate, output, xcp_slave
 from smartjoint.common import law_registry
+from smartjoint.design.structure.description import Xcp
 
 ROOT = Path(__file__).resolve().parents[1]
 BOARD = ROOT / "firmware" / "target" / "mps2_an386"
@@ -81,20 +82,82 @@ int main(void)
 """
 
 
-def _compile_and_link(a, folder: Path, callgraph: bool, prefix: str, without=()) -> list[str]:
+MAIN_XCP = """/* The whole-image benchmark's runtime with the XCP slave: frames of the master's identifier
+ * into <prefix>_xcp_rx, the event after every step, the slave's frames after the layer's. */
+#include <stdint.h>
+
+#include "board.h"
+#include "{prefix}_xcp.h"
+
+static {prefix}_xcp_state xcp;
+static uint8_t frame[64];
+
+static void send(uint32_t id, uint8_t length)
+{{
+    unsigned int k;
+    sj_uart_put_u32(id);
+    sj_uart_putc((char)length);
+    for (k = 0u; k < length; ++k) {{
+        sj_uart_putc((char)frame[k]);
+    }}
+}}
+
+int main(void)
+{{
+    uint32_t now = 0u;
+    uint32_t id = 0u;
+    uint8_t length = 0u;
+    (void){prefix}_can_init(&{prefix}_controller, {PREFIX}_CAN_LAW_CLQG);
+    (void){prefix}_xcp_init(&xcp, 0u);
+    for (;;) {{
+        unsigned int k;
+        id = sj_uart_get_u32();
+        length = (uint8_t)sj_uart_getc();
+        if (length == 0u) {{
+            (void){prefix}_can_step(&{prefix}_controller, now);
+            {prefix}_xcp_event(&xcp, now);
+            while ({prefix}_can_tx(&{prefix}_controller, &id, frame, &length) != 0) {{
+                send(id, length);
+            }}
+            while ({prefix}_xcp_tx(&xcp, frame, &length) != 0) {{
+                send({PREFIX}_XCP_ID_SLAVE, length);
+            }}
+            now += {PREFIX}_CAN_CYCLE_US;
+            continue;
+        }}
+        for (k = 0u; k < length && k < sizeof frame; ++k) {{
+            frame[k] = (uint8_t)sj_uart_getc();
+        }}
+        if (id == {PREFIX}_XCP_ID_MASTER) {{
+            {prefix}_xcp_rx(&xcp, frame, length, now);
+        }} else {{
+            (void){prefix}_can_rx(&{prefix}_controller, id, frame, length, now);
+        }}
+    }}
+}}
+"""
+
+
+def _compile_and_link(a, folder: Path, callgraph: bool, prefix: str, without=(), xcp: bool = False) -> list[str]:
     """The image's objects built and linked into ``image.elf`` (with ``image.map``), the laws
-    ``without`` left out of the build; the names of the compiled modules."""
+    ``without`` left out of the build, with ``xcp`` the XCP slave (at -Os, as the generated
+    Makefile builds it) and a main that serves it; the names of the compiled modules."""
     files = {**generate.render(a, "float", prefix), **can_layer.render_can(a, prefix, real="float")}
+    if xcp:
+        files.update(xcp_slave.render_xcp(a, prefix, "float", Xcp()))
     output.write({k: v for k, v in files.items() if k.endswith((".c", ".h"))}, folder)
-    (folder / "image_main.c").write_text(MAIN.format(prefix=prefix, PREFIX=prefix.upper()))
+    (folder / "image_main.c").write_text((MAIN_XCP if xcp else MAIN).format(prefix=prefix, PREFIX=prefix.upper()))
     laws = [law.c_name(prefix) for law in law_registry.LAWS.values() if law.name not in without]
-    modules = [*laws, f"{prefix}_can", "sj_e2e", "image_main", "startup", "board"]
+    slave = [f"{prefix}_xcp", f"{prefix}_xcp_key"] if xcp else []
+    modules = [*laws, f"{prefix}_can", "sj_e2e", *slave, "image_main", "startup", "board"]
     flags = [*TARGET, "-O2", "-ffunction-sections", "-fdata-sections", "-fstack-usage", *BASE_FLAGS]
     flags += [f"-D{prefix.upper()}_CAN_WITHOUT_{name.upper()}" for name in without]
     flags += ["-fcallgraph-info=su"] if callgraph else []
     for name in modules:
         source = BOARD / f"{name}.c" if name in ("startup", "board") else folder / f"{name}.c"
-        run(["arm-none-eabi-gcc", *flags, f"-I{BOARD}", "-I.", "-c", str(source), "-o", f"{name}.o"], cwd=folder)
+        level = ["-Os"] if name in slave else []  # the last -O wins
+        run(["arm-none-eabi-gcc", *flags, *level, f"-I{BOARD}", "-I.", "-c", str(source), "-o", f"{name}.o"],
+            cwd=folder)  # fmt: skip
     run(
         [
             "arm-none-eabi-gcc",
@@ -129,11 +192,14 @@ def _code(obj: Path) -> int:
     return sum(size for name, size in sections(obj).items() if name.startswith((".text", ".rodata")))
 
 
-def measure_image(a, folder: Path, callgraph: bool, prefix: str = "smartjoint", without=PRODUCT_WITHOUT) -> dict:
+def measure_image(
+    a, folder: Path, callgraph: bool, prefix: str = "smartjoint", without=PRODUCT_WITHOUT, xcp: bool = False
+) -> dict:
     """Flash, RAM, double routines and the stack bound of each CAN entry point of the image with
-    every law but ``without`` (default: the product image, :data:`PRODUCT_WITHOUT`)."""
+    every law but ``without`` (default: the product image, :data:`PRODUCT_WITHOUT`), with ``xcp``
+    its XCP slave."""
     folder.mkdir(parents=True)
-    modules = _compile_and_link(a, folder, callgraph, prefix, tuple(without))
+    modules = _compile_and_link(a, folder, callgraph, prefix, tuple(without), xcp)
     image = Disassembly(folder / "image.elf")
     su: dict = {}
     graph: dict = {}
@@ -197,3 +263,21 @@ def print_whole_image(whole: dict) -> None:
     print(f"  double-precision routines linked: {', '.join(whole['double_routines']) or 'none'}")
     for entry, bound in whole["stack"].items():
         print(f"  stack bound {entry:5s} {bound['bytes']:4d} B  ({' → '.join(bound['chain'])})")
+
+
+XCP_LIMITS = {"flash": 3 * 1024, "ram": 512}  # what the XCP slave may add (issue 34)
+
+
+def print_xcp(whole: dict, with_xcp: dict) -> dict:
+    """What the XCP slave adds to the product image (its main serving the slave too), against
+    :data:`XCP_LIMITS`; returned for the JSON."""
+    added = {"flash": with_xcp["flash"] - whole["flash"], "ram": with_xcp["ram"] - whole["ram"]}
+    met = {k: added[k] <= XCP_LIMITS[k] for k in added}
+    mark = lambda ok: "✔" if ok else "✘"  # noqa: E731
+    top = ", ".join(f"{k} {v}" for k, v in with_xcp["ram_symbols"].items() if k not in whole["ram_symbols"])
+    print(
+        f"\nXCP slave (-Os) in the product image: flash +{added['flash']} B {mark(met['flash'])} ≤ "
+        f"{XCP_LIMITS['flash']}, RAM +{added['ram']} B {mark(met['ram'])} ≤ {XCP_LIMITS['ram']} ({top}); stack "
+        + ", ".join(f"{e} {b['bytes']} B" for e, b in with_xcp["stack"].items())
+    )
+    return {"added": added, "limits_bytes": XCP_LIMITS, "targets_met": met}

@@ -54,7 +54,7 @@ from elf_tools import (  # benchmarks/elf_tools.py (the script's folder is on sy
     supports_callgraph_info,
     worst_stack,
 )
-from firmware_image import measure_image, print_whole_image
+from firmware_image import measure_image, print_whole_image, print_xcp
 from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py
 
 from smartjoint.codegen import generate, output
@@ -242,13 +242,17 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="firmware_image-") as temporary:
         whole = measure_image(a, Path(temporary) / "image", callgraph)
         every = measure_image(a, Path(temporary) / "every", callgraph, without=())
+        with_xcp = measure_image(a, Path(temporary) / "xcp", callgraph, xcp=True)
     print_whole_image(whole)
     print_whole_image(every)
+    xcp = print_xcp(whole, with_xcp)
     write_json(
         args.json,
         {
             "whole_image": whole,
             "every_law_image": every,
+            "xcp_image": with_xcp,
+            "xcp_added": xcp,
             **artifact_header("firmware_size", facts, args.artifact, a),
             "target_flags": TARGET + BASE_FLAGS,
             "limits_bytes": LIMITS,

@@ -27,7 +27,7 @@ COMMANDS = {
     "GET_SEED": 3, "UNLOCK": 2, "SET_MTA": 8, "UPLOAD": 2, "SHORT_UPLOAD": 8, "BUILD_CHECKSUM": 8,
     "DOWNLOAD": 2, "SET_CAL_PAGE": 4, "GET_CAL_PAGE": 3, "SET_DAQ_PTR": 6, "WRITE_DAQ": 8,
     "SET_DAQ_LIST_MODE": 8, "START_STOP_DAQ_LIST": 4, "START_STOP_SYNCH": 2, "GET_DAQ_PROCESSOR_INFO": 1,
-    "GET_DAQ_RESOLUTION_INFO": 1, "GET_DAQ_EVENT_INFO": 4, "FREE_DAQ": 1, "ALLOC_DAQ": 4, "ALLOC_ODT": 5,
+    "GET_DAQ_RESOLUTION_INFO": 1, "FREE_DAQ": 1, "ALLOC_DAQ": 4, "ALLOC_ODT": 5,
     "ALLOC_ODT_ENTRY": 6,
 }  # fmt: skip
 EVENT_NAME = "sample"  # the one event channel: the controller's sample
@@ -98,19 +98,41 @@ def calibration_values(artifact: ControllerArtifact, real: str, xcp: Xcp) -> lis
     return values
 
 
-def force_pairs(values: list[CalibrationValue], artifact: ControllerArtifact, real: str) -> list[dict]:
-    """Per law and joint the indices of F_N^min and its range and the largest sum allowed: the
-    joint's F_N^max, or the reference page's own sum where the build's rounding lifts it above."""
+def _limit_tables(values: list[CalibrationValue], artifact: ControllerArtifact, real: str) -> dict:
+    """The slave's limit tables: the distinct ranges, each value's range, per law the index of its
+    F_N^min[0], and per joint the largest F_N^min + range: its F_N^max, or the reference page's own
+    sum where the build's rounding lifts it above."""
     scalar = np.float32 if real == "float" else np.float64
+    lit = lambda value: rendering.literal(value, real)  # noqa: E731
+    ranges: dict[tuple[float, float], int] = {}
+    what: dict[tuple[float, float], list[str]] = {}
+    range_of = []
+    for v in values:
+        key = (v.lower, v.upper)
+        range_of.append(ranges.setdefault(key, len(ranges)))
+        what.setdefault(key, []).append(v.name)
     index = {(v.law, v.field, v.joint): k for k, v in enumerate(values)}
-    pairs = []
-    for law in law_registry.LAWS:
-        for j, joint in enumerate(artifact.joint_names):
-            m, r = index[(law, "normal_force_min", joint)], index[(law, "normal_force_range", joint)]
-            rounded_sum = float(scalar(values[m].value) + scalar(values[r].value))
-            limit = max(float(scalar(artifact.normal_force_max[j])), rounded_sum)
-            pairs.append({"minimum": m, "range": r, "maximum": rendering.literal(limit, real)})
-    return pairs
+    joints = list(artifact.joint_names)
+    first = [index[(law, "normal_force_min", joints[0])] for law in law_registry.LAWS]
+    limits = []
+    for j, joint in enumerate(joints):
+        sums = [scalar(values[f + j].value) + scalar(values[f + j + len(joints)].value) for f in first]
+        limits.append(lit(max(float(scalar(artifact.normal_force_max[j])), *map(float, sums))))
+    if len(ranges) > 255 or max(first) > 255:
+        raise ModelError(f"calibration page: {len(values)} values, {len(ranges)} ranges — the slave indexes them "
+                         "with one byte: at most 255 ranges, each law's F_N^min within the first 256 values")  # fmt: skip
+    rows = [(law, [r for v, r in zip(values, range_of) if v.law == law]) for law in law_registry.LAWS]
+    return {
+        "ranges": [{"lower": lit(lo), "upper": lit(hi), "what": _ranged(what[(lo, hi)])} for lo, hi in ranges],
+        "range_rows": rows,
+        "force_sum_limit": limits,
+    }
+
+
+def _ranged(names: list[str]) -> str:
+    """The values a range holds, for its comment: "siso.boundary_layer.A1 …" shortened by joint."""
+    stems = sorted({n.rsplit(".", 1)[0] if n.count(".") > 1 else n for n in names})
+    return ", ".join(stems)
 
 
 def secret(artifact: ControllerArtifact, xcp: Xcp) -> tuple[int, int, int, int]:
@@ -191,8 +213,9 @@ def render_xcp(
         **rendering.naming(rendering.banner(artifact.artifact_sha256, real, "codegen, XCP slave"), prefix, name),
         "laws": list(law_registry.LAWS),
         "page_fields": fields,
-        "values": [{"lower": lit(v.lower), "upper": lit(v.upper)} for v in values],
-        "pairs": force_pairs(values, artifact, real),
+        "values": values,
+        "joints": list(artifact.joint_names),
+        **_limit_tables(values, artifact, real),
         "epk": epk(artifact, real, prefix),
         "event_name": EVENT_NAME,
         "event_cycle": cycle,
@@ -201,7 +224,7 @@ def render_xcp(
         "slave_id": xcp.slave_id,
         "daq_odts": int(daq_odts),
         "daq_entries": int(xcp.daq_entries),
-        "command_lengths": sorted(COMMANDS.items(), key=lambda item: item[0]),
+        "command_lengths": list(COMMANDS.items()),
         "secret": ", ".join(f"0x{w:08X}u" for w in secret(artifact, xcp)),
     }
     env = rendering.environment()
