@@ -115,7 +115,7 @@ def _limit_tables(values: list[CalibrationValue], artifact: ControllerArtifact, 
     joints = list(artifact.joint_names)
     first = [index[(law, "normal_force_min", joints[0])] for law in law_registry.LAWS]
     limits = []
-    for j, joint in enumerate(joints):
+    for j in range(len(joints)):
         sums = [scalar(values[f + j].value) + scalar(values[f + j + len(joints)].value) for f in first]
         limits.append(lit(max(float(scalar(artifact.normal_force_max[j])), *map(float, sums))))
     if len(ranges) > 255 or max(first) > 255:
