@@ -119,8 +119,10 @@ def _limit_tables(values: list[CalibrationValue], artifact: ControllerArtifact, 
         sums = [scalar(values[f + j].value) + scalar(values[f + j + len(joints)].value) for f in first]
         limits.append(lit(max(float(scalar(artifact.normal_force_max[j])), *map(float, sums))))
     if len(ranges) > 255 or max(first) > 255:
-        raise ModelError(f"calibration page: {len(values)} values, {len(ranges)} ranges — the slave indexes them "
-                         "with one byte: at most 255 ranges, each law's F_N^min within the first 256 values")  # fmt: skip
+        raise ModelError(
+            f"calibration page: {len(values)} values, {len(ranges)} ranges — the slave indexes them with one "
+            "byte: at most 255 ranges, each law's F_N^min within the first 256 values"
+        )
     rows = [(law, [r for v, r in zip(values, range_of) if v.law == law]) for law in law_registry.LAWS]
     return {
         "ranges": [{"lower": lit(lo), "upper": lit(hi), "what": _ranged(what[(lo, hi)])} for lo, hi in ranges],
