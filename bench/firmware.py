@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.codegen import build, can_codec, can_layer, generate, xcp_slave
-from smartjoint.common import law_registry
+from smartjoint.common import law_registry, native
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.network import plan, protocol
@@ -284,7 +284,7 @@ class Firmware:
     @property
     def library(self) -> str:
         """The shared library of the compiled image."""
-        return str(self.module.__file__)
+        return str(native.library(self.module))
 
     def xcp_rx(self, data: bytes, time_us: int) -> None:
         """One frame of the XCP master into the slave (``<prefix>_xcp_rx``)."""

@@ -32,13 +32,15 @@ from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.network import plan, protocol
+from smartjoint.design.structure.description import Xcp
 
 ID_TIME, ID_TICK, ID_RESET, ID_QUERY, ID_EXIT = 0x1FFFFF00, 0x1FFFFF01, 0x1FFFFF02, 0x1FFFFF03, 0x1FFFFF04
 ID_READY, ID_SAMPLE, ID_COUNTERS, ID_MEASURED, ID_COMMAND = 0x1FFFFF10, 0x1FFFFF11, 0x1FFFFF12, 0x1FFFFF13, 0x1FFFFF20
+ID_XCP_DONE = 0x1FFFFF14  # after the XCP slave's answer to one command
 ENTRY_POINTS = ("rx", "step", "tx", "empty")  # the MEASURED frame's timings, in order
 
 
-def build_image(artifact: ControllerArtifact, work: Path, timeout: float = 180.0) -> Path:
+def build_image(artifact: ControllerArtifact, work: Path, timeout: float = 180.0, xcp: Xcp | None = None) -> Path:
     """Make ``pil.elf`` in ``work`` from the SIL bench's generated float sources.
 
     Parameters
@@ -49,6 +51,8 @@ def build_image(artifact: ControllerArtifact, work: Path, timeout: float = 180.0
         An empty folder for the sources and the build.
     timeout : float
         Seconds for the build.
+    xcp : Xcp, optional
+        Link the XCP slave (``codegen.xcp_slave``) and serve it (``pil.c``'s SMARTJOINT_PIL_XCP).
 
     Returns
     -------
@@ -60,10 +64,12 @@ def build_image(artifact: ControllerArtifact, work: Path, timeout: float = 180.0
         raise ModelError(reason)
     generated = work / "generated"
     generated.mkdir(parents=True)
-    for name, text in firmware.sources(artifact, "float", target.PREFIX).items():
+    for name, text in firmware.sources(artifact, "float", target.PREFIX, xcp).items():
         (generated / name).write_text(text)
     board = package_data.folder("smartjoint.firmware", "target/mps2_an386")
     command = ["make", "-s", "-C", str(board), f"GENERATED={generated}", f"BUILD={work / 'build'}", "pil"]
+    if xcp is not None:
+        command.append("PIL_DEFINES=-DSMARTJOINT_PIL_XCP")
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -100,6 +106,9 @@ class TargetFirmware:
         ``"siso"`` or ``"clqg"``.
     timeout : float
         Seconds the target may take to answer one request before the run is stopped.
+    xcp : Xcp, optional
+        Link and serve the XCP slave: :meth:`xcp_rx`, :meth:`xcp_event` and :meth:`xcp_tx`
+        carry its frames over the SLCAN link (``bench.xcp_port.XcpPort`` serves them to a master).
 
     Notes
     -----
@@ -108,15 +117,24 @@ class TargetFirmware:
     it as a context manager): that ends the emulation.
     """
 
-    def __init__(self, artifact: ControllerArtifact, law: str = law_registry.NAMES[0], timeout: float = 30.0):
+    def __init__(
+        self,
+        artifact: ControllerArtifact,
+        law: str = law_registry.NAMES[0],
+        timeout: float = 30.0,
+        xcp: Xcp | None = None,
+    ):
         if law not in firmware.LAWS:
             raise ModelError(f"law: {law!r} — allowed: {', '.join(firmware.LAWS)}")
-        self.artifact, self.law, self.timeout = artifact, law, float(timeout)
+        self.artifact, self.law, self.timeout, self.xcp = artifact, law, float(timeout), xcp
+        self.files = firmware.sources(artifact, "float", target.PREFIX, xcp)
+        self.prefix = target.PREFIX
+        self._xcp_frames: list[bytes] = []
         # the target is built for one bus (design.network.plan.one_bus)
         self.network = plan.one_bus(artifact, protocol.database(artifact))
         self.db = can_layer.network_database(self.network)
         self._scratch = tempfile.TemporaryDirectory(prefix="smartjoint-pil-")
-        self.elf = build_image(artifact, Path(self._scratch.name))
+        self.elf = build_image(artifact, Path(self._scratch.name), xcp=xcp)
         self.process: subprocess.Popen | None = None
         self.bus: Any = None  # the python-can slcan bus while the emulator runs
         self._start()
@@ -235,8 +253,11 @@ class TargetFirmware:
         joints = len(self.artifact.joint_names)
         raw = b"".join(chunks)[: size * joints]
         self._command = np.frombuffer(raw, dtype=np.float32 if size == 4 else np.float64).astype(float)
-        self._frames = [(m.arbitration_id, bytes(m.data)) for m in frames if not m.is_extended_id]
-        if len(self._frames) != sample[9]:
+        standard = [(m.arbitration_id, bytes(m.data)) for m in frames if not m.is_extended_id]
+        slave = None if self.xcp is None else self.xcp.slave_id
+        self._frames = [(i, d) for i, d in standard if i != slave]
+        self._xcp_frames += [d for i, d in standard if i == slave]
+        if len(standard) != sample[9]:
             raise ModelError(f"target {target.BOARD}: {sample[9]} frames sent, {len(self._frames)} received")
         return frames
 
@@ -254,6 +275,25 @@ class TargetFirmware:
         self._until_sample(ID_TICK, int(time_us & 0xFFFFFFFF).to_bytes(4, "little"), f"TICK at {time_us} µs")
         self._time_us = time_us
         return self.status
+
+    def xcp_rx(self, data: bytes, time_us: int) -> None:
+        """One frame of the XCP master to the target's slave; its answer waits for :meth:`xcp_tx`."""
+        if self.xcp is None:
+            raise ModelError("xcp: the target image was built without its XCP slave (TargetFirmware(..., xcp=Xcp()))")
+        if time_us != self._time_us:
+            self._send(ID_TIME, int(time_us & 0xFFFFFFFF).to_bytes(4, "little"))
+            self._time_us = time_us
+        self._send(self.xcp.master_id, bytes(data))
+        frames = self._until(ID_XCP_DONE, "an XCP command")
+        self._xcp_frames += [bytes(m.data) for m in frames if not m.is_extended_id]
+
+    def xcp_event(self, time_us: int) -> None:
+        """Nothing: the target runs its slave's event with every TICK, after the step."""
+
+    def xcp_tx(self) -> list[bytes]:
+        """The slave's frames since the last call: answers, then the DTOs of the last event."""
+        frames, self._xcp_frames = self._xcp_frames, []
+        return frames
 
     def tx(self) -> list[tuple[int, bytes]]:
         """The frames of the last step, as (identifier, payload)."""

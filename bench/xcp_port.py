@@ -156,6 +156,32 @@ class XcpLoop(SilLoop):
         return status
 
 
+TARGET_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard")  # the PIL image's Makefile
+
+
+def target_description(firmware, bus=None):
+    """The A2L of the PIL target's image (``bench.pil.TargetFirmware`` built with its slave): the
+    linked ELF's symbol addresses (``arm-none-eabi-nm``) and the target compiler's layout; base 0.
+
+    Parameters
+    ----------
+    firmware : bench.pil.TargetFirmware
+    bus : design.structure.description.Bus, optional
+        The bus XCP runs on; default a CAN FD bus of 1/5 Mbit/s.
+    """
+    from smartjoint.bench.firmware import symbols
+    from smartjoint.codegen import a2l
+    from smartjoint.design.structure.description import Bus
+
+    measured = a2l.measurements(firmware.artifact, firmware.db)
+    layout = a2l.probe(firmware.files, firmware.prefix, sorted({m.member for m in measured}), "arm-none-eabi-gcc",
+                       "arm-none-eabi-objcopy", TARGET_FLAGS)  # fmt: skip
+    return a2l.describe(
+        firmware.artifact, "float", firmware.prefix, firmware.xcp, symbols(str(firmware.elf), "arm-none-eabi-nm"),
+        layout, measured, bus or Bus("xcp"), f"Cortex-M4F image {firmware.elf.name} (mps2-an386): linked addresses",
+    )  # fmt: skip
+
+
 def sil_description(firmware, bus=None):
     """The A2L of a SIL image (``codegen.a2l``): the shared library's symbol values, which the
     slave adds to its base (:attr:`bench.firmware.Firmware.xcp_base`), and the host compiler's layout.
@@ -182,4 +208,4 @@ def sil_description(firmware, bus=None):
     )  # fmt: skip
 
 
-__all__ = ["XcpLoop", "XcpPort", "sil_description"]
+__all__ = ["XcpLoop", "XcpPort", "sil_description", "target_description"]

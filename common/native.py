@@ -125,6 +125,11 @@ def _load(stem: str, declarations: str, source: Path, objects: tuple[Path, ...],
     return module
 
 
+def library(module) -> Path:
+    """The shared library a module of :func:`load` was loaded from (its symbols: ``nm``)."""
+    return Path(module.__spec__.origin)
+
+
 def choose(backend: str, what: str, compiled, mirror, failures: list[str], stacklevel: int = 3):
     """``compiled()`` or ``mirror()`` for ``backend`` 'c', 'python' or 'auto' (C where it builds).
 

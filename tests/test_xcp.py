@@ -16,10 +16,11 @@ pytest.importorskip("pyxcp")
 
 from test_can_layer import REFERENCE  # noqa: E402
 
-from smartjoint.bench import sil, xcp_master  # noqa: E402
+from smartjoint.bench import sil, target, xcp_master  # noqa: E402
 from smartjoint.bench.firmware import Firmware, symbols  # noqa: E402
 from smartjoint.bench.fmu_check import FLOAT_BOUND  # noqa: E402
-from smartjoint.bench.xcp_port import XcpLoop, XcpPort, sil_description  # noqa: E402
+from smartjoint.bench.pil import TargetFirmware  # noqa: E402
+from smartjoint.bench.xcp_port import XcpLoop, XcpPort, sil_description, target_description  # noqa: E402
 from smartjoint.codegen import xcp_slave  # noqa: E402
 from smartjoint.design.control import artifact, laws  # noqa: E402
 from smartjoint.design.control import study as closed_loop  # noqa: E402
@@ -332,3 +333,56 @@ def test_the_a2l_parses_and_states_the_image(a2l_parser, images, reference):
     assert module.MOD_PAR.EPK.Identifier.Value == xcp_slave.epk(reference, "float", "smartjoint")
     assert module.MOD_PAR.ADDR_EPK[0].Address.Value == symbols(fw.library)["smartjoint_xcp_epk"]
     assert [m for m in measured if m.startswith("clqg.q")] == ["clqg.q0", "clqg.q1"]
+
+
+@pytest.mark.skipif(target.missing_tools() is not None, reason=f"{target.missing_tools()} (CI installs them)")
+def test_pil_target_identification_calibration_and_daq(reference, study_setup):
+    """pyxcp to the slave on the emulated Cortex-M4F (its frames over the target's SLCAN link):
+    the identification and the page equal the artefact; DAQ of every scalar measurement at every
+    sample equals the commands the target reported; a DOWNLOAD at sample 250 is in the page."""
+    setup = dataclasses.replace(study_setup, duration=0.5)
+    values = xcp_slave.calibration_values(reference, "float", Xcp())
+    with TargetFirmware(reference, "siso", xcp=Xcp()) as fw:
+        description = target_description(fw)
+        scalars = [n for n, m in description.measurements.items() if m.count == 1]
+        entries = [(n, description.measurements[n].address, xcp_master.A2L_TYPES[description.measurements[n].datatype])
+                   for n in scalars]  # fmt: skip
+        app = xcp_master.application(reference, Xcp(), channel="xcp-pil.xcp", timeout=5.0)
+        policy = xcp_master.recorder("sample", entries)
+        x = xcp_master.master(app, policy)
+        eps = description.characteristics["siso.boundary_layer.A1"]
+        seen = {}
+
+        def start():
+            x.__enter__()
+            x.connect()
+            seen["epk"] = x.identifier(0)
+            seen["page"] = _page(x, description, "float")
+            x.cond_unlock()
+            policy.setup()
+            policy.start()
+
+        def calibrate():
+            x.setMta(eps.address)
+            x.download(_pack(3.0 * eps.value, "float"))
+            seen["eps"] = struct.unpack("<f", bytes(x.shortUpload(4, eps.address)))[0]
+
+        port = XcpPort(fw, channel="xcp-pil.xcp")
+        loop = XcpLoop(fw, port, {0: start, 250: calibrate}, excitation_end=closed_loop.PULSE_DURATION,
+                       channel="xcp-pil")  # fmt: skip
+        sil.run_loop(setup, loop)
+
+        def stop():
+            policy.stop()
+            x.disconnect()
+            x.__exit__(None, None, None)
+
+        with port:
+            port.serve(stop)
+    assert seen["epk"] == xcp_slave.epk(reference, "float", "smartjoint")
+    assert seen["page"] == struct.pack(f"<{len(values)}f", *[v.value for v in values])
+    assert seen["eps"] == float(np.float32(3.0 * eps.value))
+    recorded = policy.recorded
+    assert len(recorded.rows) == len(loop.record.time) == 500 and np.all(np.diff(recorded.time_us) == 1000)
+    commands = np.stack([recorded.column(f"command.{j}") for j in reference.joint_names], axis=1)
+    assert np.array_equal(commands, np.array(loop.record.command, dtype=np.float32))

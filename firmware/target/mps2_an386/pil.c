@@ -16,6 +16,10 @@
  *   QUERY                      answered by COUNTERS (the layer's diagnostic counters) and
  *                              MEASURED (SysTick ticks of every entry point, stack high water);
  *   EXIT  (data[0]: status)    end the emulation with that exit status (semihosting).
+ * Built with -DSMARTJOINT_PIL_XCP (bench/pil.py does when the image links the XCP slave), the
+ * frames of SMARTJOINT_XCP_ID_MASTER go to smartjoint_xcp_rx, each answered by the slave's frames
+ * and XCP_DONE; RESET also runs smartjoint_xcp_init, and TICK smartjoint_xcp_event after the
+ * step, the event's DTOs following the layer's frames (docs/xcp.md).
  * Instructions are counted with SysTick under QEMU's -icount shift=0 (board.h); each entry point
  * is called from main's own frame, so the painted stack below main's stack pointer is what the
  * firmware itself used (the SLCAN helpers here are shallower; their buffers are static). */
@@ -35,6 +39,7 @@
 #define PIL_ID_SAMPLE 0x1FFFFF11u
 #define PIL_ID_COUNTERS 0x1FFFFF12u
 #define PIL_ID_MEASURED 0x1FFFFF13u
+#define PIL_ID_XCP_DONE 0x1FFFFF14u
 #define PIL_ID_COMMAND 0x1FFFFF20u /* + chunk index: 64 bytes of the command array each */
 
 #define SLCAN_LINE 160u /* 'D', 8 id digits, DLC, 128 data digits, '\r' */
@@ -46,7 +51,13 @@ typedef struct {
     uint32_t largest;
 } pil_timing;
 
+#ifdef SMARTJOINT_PIL_XCP
+#include "smartjoint_xcp.h"
+#define state smartjoint_controller /* the slave's instance: the A2L's measurements point into it */
+static smartjoint_xcp_state xcp;
+#else
 static smartjoint_can_state state;
+#endif
 static char line[SLCAN_LINE];
 static uint8_t frame[64];
 static uint8_t reply[64];
@@ -204,6 +215,20 @@ static void send_sample(unsigned int status, unsigned int frames)
     send_frame(PIL_ID_SAMPLE, 1, reply, 12u);
 }
 
+#ifdef SMARTJOINT_PIL_XCP
+/* Every frame the XCP slave has to send; returns how many. */
+static unsigned int send_xcp(void)
+{
+    uint8_t length = 0u;
+    unsigned int sent = 0u;
+    while (smartjoint_xcp_tx(&xcp, reply, &length)) {
+        send_frame(SMARTJOINT_XCP_ID_SLAVE, 0, reply, length);
+        ++sent;
+    }
+    return sent;
+}
+#endif
+
 static void send_measurements(uintptr_t mark)
 {
     const pil_timing *timings[4] = {&rx_timing, &step_timing, &tx_timing, &empty_timing};
@@ -247,6 +272,14 @@ int main(void)
             continue;
         }
         if (!extended) {
+#ifdef SMARTJOINT_PIL_XCP
+            if (id == SMARTJOINT_XCP_ID_MASTER) {
+                smartjoint_xcp_rx(&xcp, frame, (uint8_t)length, time_us);
+                (void)send_xcp();
+                send_frame(PIL_ID_XCP_DONE, 1, reply, 0u);
+                continue;
+            }
+#endif
             start = sj_ticks();
             (void)smartjoint_can_rx(&state, id, frame, (uint8_t)length, time_us);
             record(&rx_timing, start);
@@ -269,6 +302,10 @@ int main(void)
             }
             start = sj_ticks();
             record(&empty_timing, start); /* the measurement's own overhead */
+#ifdef SMARTJOINT_PIL_XCP
+            smartjoint_xcp_event(&xcp, time_us);
+            frames += send_xcp();
+#endif
             send_sample(status, frames);
         } else if (id == PIL_ID_RESET) {
             memset(&rx_timing, 0, sizeof rx_timing);
@@ -276,6 +313,9 @@ int main(void)
             memset(&tx_timing, 0, sizeof tx_timing);
             memset(&empty_timing, 0, sizeof empty_timing);
             reply[0] = (uint8_t)(smartjoint_can_init(&state, (smartjoint_can_law)(length > 0 ? frame[0] : 0u)) != 0);
+#ifdef SMARTJOINT_PIL_XCP
+            (void)smartjoint_xcp_init(&xcp, 0u); /* after the layer's init: it points the laws at the page */
+#endif
             send_frame(PIL_ID_READY, 1, reply, 1u);
             send_sample(0u, 0u);
         } else if (id == PIL_ID_QUERY) {
