@@ -169,16 +169,39 @@ def target_description(firmware, bus=None):
     bus : design.structure.description.Bus, optional
         The bus XCP runs on; default a CAN FD bus of 1/5 Mbit/s.
     """
+    return elf_description(firmware.artifact, firmware.files, firmware.elf, firmware.xcp, firmware.db, bus)
+
+
+def elf_description(artifact, files: dict, elf, xcp, db, bus=None, prefix: str = "smartjoint"):
+    """The A2L of a linked Cortex-M4F image: its symbols' addresses (``arm-none-eabi-nm``) and
+    the layout the target compiler gives the generated ``files``; base 0.
+
+    Parameters
+    ----------
+    artifact : ControllerArtifact
+    files : dict of str to str
+        The image's generated sources.
+    elf : path
+        The linked image.
+    xcp : Xcp
+    db : cantools.database.can.Database
+        Every frame of the network (the raw signals' scales).
+    bus : design.structure.description.Bus, optional
+        The bus XCP runs on; default a CAN FD bus of 1/5 Mbit/s.
+    prefix : str
+    """
+    from pathlib import Path
+
     from smartjoint.bench.firmware import symbols
     from smartjoint.codegen import a2l
     from smartjoint.design.structure.description import Bus
 
-    measured = a2l.measurements(firmware.artifact, firmware.db)
-    layout = a2l.probe(firmware.files, firmware.prefix, sorted({m.member for m in measured}), "arm-none-eabi-gcc",
+    measured = a2l.measurements(artifact, db)
+    layout = a2l.probe(files, prefix, sorted({m.member for m in measured}), "arm-none-eabi-gcc",
                        "arm-none-eabi-objcopy", TARGET_FLAGS)  # fmt: skip
     return a2l.describe(
-        firmware.artifact, "float", firmware.prefix, firmware.xcp, symbols(str(firmware.elf), "arm-none-eabi-nm"),
-        layout, measured, bus or Bus("xcp"), f"Cortex-M4F image {firmware.elf.name} (mps2-an386): linked addresses",
+        artifact, "float", prefix, xcp, symbols(str(elf), "arm-none-eabi-nm"), layout, measured, bus or Bus("xcp"),
+        f"Cortex-M4F image {Path(elf).name} (mps2-an386): linked addresses",
     )  # fmt: skip
 
 
@@ -208,4 +231,4 @@ def sil_description(firmware, bus=None):
     )  # fmt: skip
 
 
-__all__ = ["XcpLoop", "XcpPort", "sil_description", "target_description"]
+__all__ = ["XcpLoop", "XcpPort", "elf_description", "sil_description", "target_description"]

@@ -219,6 +219,16 @@ def _name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.]", "_", text)
 
 
+_GREEK = {"ε": "eps", "μ": "mu", "σ": "sigma", "η": "eta", "ω": "omega", "Δ": "Delta", "−": "-", "…": "..."}
+
+
+def _ascii(text: str) -> str:
+    """A2L text in ASCII (what every tool reads): Greek letters spelled out, anything else '?'.'"""
+    for letter, word in _GREEK.items():
+        text = text.replace(letter, word)
+    return text.encode("ascii", "replace").decode("ascii").replace('"', "'")
+
+
 def _number(value: float) -> str:
     return repr(float(value))
 
@@ -233,7 +243,7 @@ def _interface_lines(artifact, real: str, prefix: str, xcp: Xcp, bus, epk_addres
     return [
         "ASAP2_VERSION 1 71",
         f'/begin PROJECT {_name(prefix)} "smartjoint controller firmware"',
-        f'  /begin HEADER "{where}" VERSION "{rendering.version()}" /end HEADER',
+        f'  /begin HEADER "{_ascii(where)}" VERSION "{rendering.version()}" /end HEADER',
         f'  /begin MODULE {_name(prefix)} "controller of artefact {artifact.artifact_sha256[:16]} ({real} build)"',
         '    /begin MOD_COMMON ""',
         "      BYTE_ORDER MSB_LAST",
@@ -260,7 +270,7 @@ def _interface_lines(artifact, real: str, prefix: str, xcp: Xcp, bus, epk_addres
         f"        /begin CAN_FD MAX_DLC 64 CAN_FD_DATA_TRANSFER_BAUDRATE {int(bus.data_bitrate)} /end CAN_FD",
         "      /end XCP_ON_CAN",
         "    /end IF_DATA",
-        f'    /begin MOD_PAR "{where}"',
+        f'    /begin MOD_PAR "{_ascii(where)}"',
         f"      ADDR_EPK 0x{epk_address:X}",
         f'      EPK "{xcp_slave.epk(artifact, real, prefix)}"',
         f'      /begin MEMORY_SEGMENT calibration "calibration page: every law\'s tunables" DATA RAM INTERN '
@@ -337,7 +347,7 @@ def describe(
         characteristics[c.name] = c
         method = methods.setdefault((1.0, 0.0, v.unit), f"CM_{len(methods)}")
         lines += [
-            f'    /begin CHARACTERISTIC {c.name} "{v.meaning} ({v.law} law)" VALUE 0x{c.address:X} RL_REAL 0 '
+            f'    /begin CHARACTERISTIC {c.name} "{_ascii(v.meaning)} ({v.law} law)" VALUE 0x{c.address:X} RL_REAL 0 '
             f"{method} {_number(v.lower)} {_number(v.upper)}",
             "    /end CHARACTERISTIC",
         ]
@@ -349,7 +359,7 @@ def describe(
         measurements_out[d.name] = d
         method = methods.setdefault((m.factor, m.offset, m.unit), f"CM_{len(methods)}")
         lines += [
-            f'    /begin MEASUREMENT {d.name} "{m.description}" {lay.datatype} {method} 0 0 {_number(low)} '
+            f'    /begin MEASUREMENT {d.name} "{_ascii(m.description)}" {lay.datatype} {method} 0 0 {_number(low)} '
             f"{_number(high)}",
             f"      ECU_ADDRESS 0x{d.address:X}",
             *([f"      MATRIX_DIM {m.count} 1 1"] if m.count > 1 else []),
@@ -358,7 +368,8 @@ def describe(
         ]
     for (factor, offset, unit_text), name in methods.items():
         lines += [
-            f'    /begin COMPU_METHOD {name} "physical = {factor!r} * raw + {offset!r}" LINEAR "%.6g" "{unit_text}"',
+            f'    /begin COMPU_METHOD {name} "physical = {factor!r} * raw + {offset!r}" LINEAR "%.6g" '
+            f'"{_ascii(unit_text)}"',
             f"      COEFFS_LINEAR {_number(factor)} {_number(offset)}",
             "    /end COMPU_METHOD",
         ]

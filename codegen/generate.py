@@ -22,9 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from smartjoint.codegen import build, build_files, can_layer, joint_nodes, output, rendering
+from smartjoint.codegen import build, build_files, can_layer, joint_nodes, output, rendering, xcp_slave
 from smartjoint.common import law_registry
 from smartjoint.design.control import artifact as artifacts
+from smartjoint.design.structure.description import Xcp
 
 
 def _common_context(artifact: artifacts.ControllerArtifact, real: str, prefix: str, lit, row) -> dict:
@@ -118,14 +119,20 @@ def render(artifact: artifacts.ControllerArtifact, real: str = "float", prefix: 
 
 
 def firmware_files(
-    artifact: artifacts.ControllerArtifact, real: str = "float", prefix: str = "smartjoint", **can_options
+    artifact: artifacts.ControllerArtifact,
+    real: str = "float",
+    prefix: str = "smartjoint",
+    xcp: Xcp | None = None,
+    **can_options,
 ) -> dict[str, str]:
     """The whole generated folder of an artefact, file name → text: the controllers (:func:`render`),
     the CAN layer with its DBC files (``can_layer.render_can``; ``can_options`` such as the design's
-    ``network`` plan), and the joint nodes of local mode with their supervisor (``joint_nodes``)."""
+    ``network`` plan), the joint nodes of local mode with their supervisor (``joint_nodes``) and
+    the XCP slave (``xcp_slave``; ``xcp`` the design's ``[xcp]``, default its defaults)."""
     files = render(artifact, real, prefix)
     files.update(can_layer.render_can(artifact, prefix, real=real, **can_options))
     files.update(joint_nodes.render_nodes(artifact, prefix, real))
+    files.update(xcp_slave.render_xcp(artifact, prefix, real, xcp))
     return files
 
 

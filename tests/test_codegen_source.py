@@ -56,14 +56,17 @@ def test_committed_reference_firmware_is_what_the_generator_emits(reference):
     assert reference.design_sha256 == load_design(spec.REFERENCE_DESIGN.parent / "three_type_a.toml").sha256, (
         "the bundled design changed: regenerate firmware/generated (firmware/README.md)"
     )
-    from smartjoint.codegen import can_layer
+    from smartjoint.codegen import can_layer, xcp_slave
 
     files = {
         **generate.render(reference, "float"),
         **can_layer.render_can(reference),
         **joint_nodes.render_nodes(reference),
+        **xcp_slave.render_xcp(reference),
     }
-    committed = {p.name for p in REFERENCE.iterdir()} - {"controller.json"}
+    # The A2L's addresses are the linked target image's: they move with the ARM toolchain's
+    # version, so it is checked apart (tests/test_xcp.py), not byte for byte.
+    committed = {p.name for p in REFERENCE.iterdir()} - {"controller.json", "smartjoint.a2l"}
     assert committed == set(files)
     for name, text in files.items():
         assert (REFERENCE / name).read_bytes() == text.encode("ascii"), name

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import struct
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -386,3 +387,19 @@ def test_pil_target_identification_calibration_and_daq(reference, study_setup):
     assert len(recorded.rows) == len(loop.record.time) == 500 and np.all(np.diff(recorded.time_us) == 1000)
     commands = np.stack([recorded.column(f"command.{j}") for j in reference.joint_names], axis=1)
     assert np.array_equal(commands, np.array(loop.record.command, dtype=np.float32))
+
+
+def test_the_committed_a2l_describes_the_committed_firmware(a2l_parser, reference):
+    """firmware/generated/smartjoint.a2l (``smartjoint codegen``: the PIL image's linked
+    addresses) parses, names the reference artefact's EPK, every tunable with the slave's limits
+    and every measurement, all in the target's RAM."""
+    text = (Path(REFERENCE).parent / "smartjoint.a2l").read_text(encoding="ascii")
+    module = a2l_parser.tree_from_a2l(text.encode()).PROJECT.MODULE[0]
+    assert module.MOD_PAR.EPK.Identifier.Value == xcp_slave.epk(reference, "float", "smartjoint")
+    values = xcp_slave.calibration_values(reference, "float", Xcp())
+    limits = {c.Name.Value: (c.LowerLimit.Value, c.UpperLimit.Value) for c in module.CHARACTERISTIC}
+    assert limits == {v.name: (v.lower, v.upper) for v in values}
+    addresses = [m.ECU_ADDRESS.Address.Value for m in module.MEASUREMENT] + [
+        c.Address.Value for c in module.CHARACTERISTIC
+    ]
+    assert len(module.MEASUREMENT) >= 20 and all(0x20000000 <= a < 0x20400000 for a in addresses)

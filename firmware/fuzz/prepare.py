@@ -13,7 +13,10 @@ Writes into FOLDER:
   order;
 - ``fuzz_reference.h/.c``: what the harnesses check against, taken from the protocol and the
   artefact rather than from the generated C: the signal layout of ``bus.dbc``, F^min and F^max,
-  the safe normal force, the amplifier gain and the plausible ranges of the controller inputs.
+  the safe normal force, the amplifier gain and the plausible ranges of the controller inputs;
+- ``fuzz_xcp_reference.h``: the XCP slave's calibration page as the A2L states it
+  (``codegen.xcp_slave.calibration_values``): each value's limits, and per law and joint where
+  F_N^min and its range lie and the largest sum the joint allows.
 
 Before writing anything it renders the float firmware again and requires it to equal
 ``firmware/generated`` byte for byte, so the extra builds come from the generator that wrote
@@ -261,6 +264,37 @@ def _ctype(signal) -> str:
     return f"{'int' if signal.is_signed else 'uint'}{width}_t"
 
 
+def _xcp_reference(artifact) -> str:
+    """fuzz_xcp_reference.h: the calibration page's limits in the float build (what the A2L says)."""
+    import numpy as np
+
+    from smartjoint.codegen import xcp_slave
+    from smartjoint.design.structure.description import Xcp
+
+    values = xcp_slave.calibration_values(artifact, "float", Xcp())
+    index = {(v.law, v.field, v.joint): k for k, v in enumerate(values)}
+    laws = list(dict.fromkeys(v.law for v in values))
+    joints = list(artifact.joint_names)
+    pairs, sums = [], []
+    for law in laws:
+        for j, joint in enumerate(joints):
+            m, r = index[(law, "normal_force_min", joint)], index[(law, "normal_force_range", joint)]
+            pairs.append(f"{{{m}u, {r}u}}")
+            design = float(np.float32(values[m].value) + np.float32(values[r].value))
+            sums.append(_number(max(float(np.float32(artifact.normal_force_max[j])), design)))
+    return "\n".join([
+        "/* The XCP slave's calibration page as the A2L states it (prepare.py): not the slave's tables. */",
+        f"#define XCP_VALUES {len(values)}u",
+        f"#define XCP_PAIRS {len(pairs)}u",
+        f"static const double xcp_lower[XCP_VALUES] = {{{', '.join(_number(v.lower) for v in values)}}};",
+        f"static const double xcp_upper[XCP_VALUES] = {{{', '.join(_number(v.upper) for v in values)}}};",
+        "/* per law and joint: the value indices of F_N^min and of its range, and the largest sum */",
+        f"static const unsigned int xcp_pairs[XCP_PAIRS][2] = {{{', '.join(pairs)}}};",
+        f"static const double xcp_sum_limit[XCP_PAIRS] = {{{', '.join(sums)}}};",
+        "",
+    ])  # fmt: skip
+
+
 def main(argv: list[str]) -> int:
     if len(argv) != 1:
         print("usage: prepare.py FOLDER", file=sys.stderr)
@@ -294,6 +328,7 @@ def main(argv: list[str]) -> int:
     messages = sorted(db.messages, key=lambda m: m.frame_id)
     layout_of = lambda name: can_codec.layout_name(name, joints)  # noqa: E731
     files["fuzz_codec.h"], files["fuzz_codec.c"] = _codec_binding(messages, layout_of)
+    files["fuzz_xcp_reference.h"] = _xcp_reference(artifact)
     for name, text in files.items():
         path = folder / name
         path.parent.mkdir(parents=True, exist_ok=True)
