@@ -220,8 +220,29 @@ def _loop_inputs(args) -> tuple:
     return design, model, controller, faults, law_registry.NAMES if args.law == "all" else (args.law,)
 
 
+def _xcp_runs(args, design, controller, laws, pil: bool = False, network=None) -> list[dict]:
+    """The report's XCP demonstration per law with a boundary layer: DAQ of the whole study and
+    the boundary layer × 3 at t = 1 s (``bench.xcp_study``); its A2L, MF4 and plot go to --plots."""
+    from smartjoint.bench import firmware, xcp_study
+    from smartjoint.bench import pil as target_bench
+    from smartjoint.design.control import study as closed_loop
+
+    setup = closed_loop.setup(design, closed_loop.design_model(design, lambda message: None))
+    runs = []
+    for law in (law for law in laws if law in ("siso", "clqg")):
+        if pil:
+            with target_bench.TargetFirmware(controller, law, xcp=design.xcp) as image:
+                runs.append(xcp_study.calibration_study(setup, image, law, "float", f"xcp-pil-{law}", args.plots,
+                                                        report_progress))  # fmt: skip
+        else:
+            image = firmware.Firmware(controller, law, args.real, xcp=design.xcp, network=network)
+            runs.append(xcp_study.calibration_study(setup, image, law, args.real, f"xcp-sil-{law}", args.plots,
+                                                    report_progress))  # fmt: skip
+    return [xcp_study.json_ready(r) for r in runs]
+
+
 def cmd_sil(args) -> dict:
-    from smartjoint.bench import sil
+    from smartjoint.bench import sil, xcp_study
     from smartjoint.design.control import study as closed_loop
     from smartjoint.design.structure.description import Network
 
@@ -245,8 +266,11 @@ def cmd_sil(args) -> dict:
         report_progress,
         network=None if design.network == Network() else design.network,  # the design's buses, if it has them
     )
+    out["xcp"] = _xcp_runs(
+        args, design, controller, laws, network=None if design.network == Network() else design.network
+    )
     if not args.json:
-        print(sil.sil_markdown(out))
+        print(sil.sil_markdown(out) + "\n" + xcp_study.xcp_markdown(out["xcp"]))
     write_plots(args, out, lambda folder: sil.plot_sil(out, folder, out.get("mil_runs")))
     out.pop("mil_runs", None)
     for law in out["laws"].values():
@@ -258,7 +282,7 @@ def cmd_sil(args) -> dict:
 
 
 def cmd_pil(args) -> dict:
-    from smartjoint.bench import pil, pil_study, safety, target
+    from smartjoint.bench import pil, pil_study, safety, target, xcp_study
     from smartjoint.common import law_registry
     from smartjoint.common.errors import ModelError
 
@@ -279,9 +303,11 @@ def cmd_pil(args) -> dict:
         report_progress(f"      every case of the fault matrix on the target ({law.display}) …")
         with pil.TargetFirmware(controller, law.name) as image:
             out["fault_matrix"] = safety.fault_matrix(controller, progress=report_progress, image=image)
+    xcp = _xcp_runs(args, design, controller, laws, pil=True)
     if not args.json:
-        print(pil_study.pil_markdown(out))
+        print(pil_study.pil_markdown(out) + "\n" + xcp_study.xcp_markdown(xcp))
     summary = pil_study.summary(out)
+    summary["xcp"] = xcp
     write_plots(args, summary, lambda folder: [pil_study.plot_pil(out, Path(folder) / "pil_energy.png")])
     summary["design"] = {"name": design.name, "sha256": design.sha256}
     summary["artifact_sha256"] = controller.artifact_sha256

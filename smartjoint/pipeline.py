@@ -36,7 +36,7 @@ import numpy as np
 
 from smartjoint import __version__
 from smartjoint import report as plots
-from smartjoint.bench import safety, safety_report, sil
+from smartjoint.bench import safety, safety_report, sil, xcp_study
 from smartjoint.bench.faults import demo_faults
 from smartjoint.codegen import backtoback, generate, identifiers, output
 from smartjoint.design import build_model, load_design, updated_design
@@ -296,16 +296,16 @@ def _firmware_stage(control: ControlStage, progress) -> FirmwareStage:
 
 
 def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
-    """Stage 8: the study through the CAN loop, the demo faults and the safe-state fault matrix."""
+    """Stage 8: the study through the CAN loop (and XCP), the demo faults and the fault matrix."""
     controller, control_study = control.artifact, control.study
     progress("[8/12] software in the loop: the study through CAN (firmware, bus, amplifier models)")
-    # The bus logs go straight into the report (no temporary folder to leave behind).
     buses = None if control.design.network == Network() else control.design.network  # else firmware/bus.dbc's bus
     sil_check = sil.sil_study(
         control_study.setup, controller, spread_runs=4, log_folder=staging / "can", progress=progress, network=buses
     )
     if control.design.network.siso == "local":
         sil_check["local"] = local_mode_run(control.artifact, control.study.setup, sil_check, progress)
+    sil_check["xcp"] = [xcp_study.demo(control_study.setup, controller, staging, progress, network=buses)]
     logs = tuple(sorted(p.name for p in (staging / "can").iterdir()))
     for law in sil_check["laws"].values():
         if law.get("log") is not None:
@@ -315,10 +315,8 @@ def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
     fault_check = sil.fault_run(control_study.setup, controller, faults=demo, network=buses)
     progress("      safe state under every fault kind on every frame (docs/safety.md) …")
     safety_check = safety.fault_matrix(controller, progress=progress, network=buses)
-    progress(
-        f"      {safety_check['cases']} fault cases: worst {safety_check['worst_joints']} cycles to the safe force "
-        f"at every joint, {len(safety_check['failed'])} failing"
-    )
+    cases, worst, failing = safety_check["cases"], safety_check["worst_joints"], len(safety_check["failed"])
+    progress(f"      {cases} fault cases: worst {worst} cycles to the safe force at every joint, {failing} failing")
     network = plan.plan(controller, control.design.network)
     progress(
         f"      network plan ([network]): {len(network.buses)} bus(es), worst-case load "
@@ -464,6 +462,7 @@ def _report_markdown(r: _Run, files: _ReportFiles, final: dict) -> str:
         + ".\n\n"
         + sil.sil_markdown(bench.sil)
         + local_mode_markdown(bench.sil)
+        + xcp_study.xcp_markdown(bench.sil["xcp"])
         + "\n![SIL energy](sil_energy.png)\n\n"
         + "\n\n".join(f"Bus `{p.bus.name}`:\n\n{p.load.table()}" for p in bench.network.buses)
         + "\n\nNetwork plan of the design's `[network]` (`design.network.plan`: "

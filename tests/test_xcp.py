@@ -403,3 +403,24 @@ def test_the_committed_a2l_describes_the_committed_firmware(a2l_parser, referenc
         c.Address.Value for c in module.CHARACTERISTIC
     ]
     assert len(module.MEASUREMENT) >= 20 and all(0x20000000 <= a < 0x20400000 for a in addresses)
+
+
+@pytest.mark.parametrize(
+    "line, key",
+    [
+        ("master_id = 0x100", "xcp.master_id"),  # among the control protocol's identifiers
+        ("slave_id = 0x7F0", "xcp.slave_id"),  # the master's
+        ('key = "0123"', "xcp.key"),
+        ("daq_entries = 0", "xcp.daq_entries"),
+        ("calibration_decades = 9", "xcp.calibration_decades"),
+        ("speed = 1", "xcp.speed"),
+    ],
+)
+def test_a_bad_xcp_table_is_refused_in_one_line(tmp_path, line, key):
+    from conftest import design_file_error
+
+    from smartjoint.design.structure import spec
+
+    base = (spec.REFERENCE_DESIGN.parent / "three_type_a.toml").as_posix()
+    message = design_file_error(tmp_path / "d.toml", f'base = "{base}"\n[xcp]\n{line}\n')
+    assert key in message and "\n" not in message

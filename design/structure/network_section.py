@@ -4,13 +4,14 @@ plan fills, where the SISO law runs and the supervision period of local mode."""
 from __future__ import annotations
 
 from smartjoint.common import law_registry
-from smartjoint.design.structure.description import Bus, Network
+from smartjoint.design.structure.description import Bus, Network, Xcp
 from smartjoint.design.structure.table import DesignTable
 
 PLACES = ("central", "local")  # where the node law runs
 MIN_BITRATE, MAX_BITRATE = 10_000, 20_000_000  # [bit/s]: what python-can and CAN FD controllers set
 MAX_BUSES = 16
 MAX_SUPERVISION_CYCLES = 1000  # a status frame at least every 1000 samples
+XCP_LOWEST_ID = 0x400  # the control protocol's identifiers lie in 0x080 … 0x3FF (design.network.protocol)
 
 
 def parse_network(t: DesignTable) -> Network:
@@ -47,4 +48,22 @@ def parse_network(t: DesignTable) -> Network:
     return Network(tuple(buses) or d.buses, siso, cycles)
 
 
-__all__ = ["PLACES", "parse_network"]
+def parse_xcp(t: DesignTable) -> Xcp:
+    """The [xcp] table (docs/xcp.md): ``master_id``/``slave_id`` (distinct 11-bit identifiers above
+    the control protocol's 0x080 … 0x3FF, so XCP never delays a control frame), ``key`` (32 hex
+    digits), ``daq_entries`` (1 … 255) and ``calibration_decades`` (0 … 6]."""
+    d = Xcp()
+    master = t.integer("master_id", d.master_id, minimum=XCP_LOWEST_ID, maximum=0x7FF)
+    slave = t.integer("slave_id", d.slave_id, minimum=XCP_LOWEST_ID, maximum=0x7FF)
+    if slave == master:
+        raise t.error("slave_id", slave, f"an identifier other than master_id {master:#x}")
+    key = t.string("key", None)
+    if key is not None and (len(key) != 32 or any(c not in "0123456789abcdefABCDEF" for c in key)):
+        raise t.error("key", key, "32 hex digits (a 128-bit key)")
+    entries = t.integer("daq_entries", d.daq_entries, minimum=1, maximum=255)
+    decades = t.number("calibration_decades", d.calibration_decades, positive=True, maximum=6.0)
+    t.finish()
+    return Xcp(master, slave, key, entries, decades)
+
+
+__all__ = ["PLACES", "parse_network", "parse_xcp"]

@@ -36,7 +36,7 @@ from smartjoint.design.structure.description import (
 )
 from smartjoint.design.structure.files import read_file, read_toml
 from smartjoint.design.structure.friction_section import joint_own_friction, parse_friction
-from smartjoint.design.structure.network_section import parse_network
+from smartjoint.design.structure.network_section import parse_network, parse_xcp
 from smartjoint.design.structure.sections import (
     check_member_lengths,
     joint_axis,
@@ -150,6 +150,7 @@ def parse_design(data: dict[str, Any], source: str = "<memory>", origins: dict[s
     safety = parse_safety(root.table("safety", {}), control, joints)
     uncertainty = parse_uncertainty(root, [j.name for j in joints])
     network = parse_network(root.table("network", {}))
+    xcp = parse_xcp(root.table("xcp", {}))
 
     root.finish()
     return Design(
@@ -177,6 +178,7 @@ def parse_design(data: dict[str, Any], source: str = "<memory>", origins: dict[s
         placement=placement,
         uncertainty=uncertainty,
         network=network,
+        xcp=xcp,
     )
 
 
