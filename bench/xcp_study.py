@@ -185,6 +185,7 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
         "unswitched_deviation_after": float(np.nanmax(np.abs(unswitched[switch:] - commands[switch:]))),
         "energy_measure": float(np.trapezoid(2.0 * result.energy, result.time)),
         "commands_equal_record": bool(np.array_equal(commands, np.array(loop.record.command, dtype=commands.dtype))),
+        "step_instructions": image.measurements()["step"]["instructions_mean"] if pil else None,
         "recorded": recorded,
         "description": description,
         "result": result,
