@@ -13,7 +13,7 @@ from smartjoint.codegen import build, can_codec, can_layer, generate, xcp_slave
 from smartjoint.common import law_registry, native
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
-from smartjoint.design.network import plan, protocol
+from smartjoint.design.network import plan, protocol, xcp_bus
 from smartjoint.design.structure.description import Xcp
 
 LAWS = {law.name: law.mode for law in law_registry.LAWS.values()}  # the CAN layer's law ids
@@ -154,7 +154,7 @@ def sources(
         **can_layer.render_can(artifact, prefix, full_codec=True, real=real, **can_options),
     }
     if xcp is not None:
-        files.update(xcp_slave.render_xcp(artifact, prefix, real, xcp))
+        files.update(xcp_slave.render_xcp(artifact, prefix, real, xcp, can_options.get("network")))
     return files
 
 
@@ -250,6 +250,7 @@ class Firmware:
         self.folder, self.files = folder, files
         self._name = f"{prefix}_can"
         self.xcp = xcp
+        self.xcp_plan = None if xcp is None else xcp_bus.xcp_plan(self.network, xcp)  # its bus and DAQ room
         if xcp is None:
             self._state = self.ffi.new("uint8_t[]", int(getattr(self.lib, f"{self._name}_state_size")()))
         else:  # the slave's controller: the A2L's addresses point into it

@@ -31,7 +31,7 @@ from smartjoint.codegen import can_layer
 from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
-from smartjoint.design.network import plan, protocol
+from smartjoint.design.network import plan, protocol, xcp_bus
 from smartjoint.design.structure.description import Xcp
 
 ID_TIME, ID_TICK, ID_RESET, ID_QUERY, ID_EXIT = 0x1FFFFF00, 0x1FFFFF01, 0x1FFFFF02, 0x1FFFFF03, 0x1FFFFF04
@@ -132,6 +132,7 @@ class TargetFirmware:
         self._xcp_frames: list[bytes] = []
         # the target is built for one bus (design.network.plan.one_bus)
         self.network = plan.one_bus(artifact, protocol.database(artifact))
+        self.xcp_plan = None if xcp is None else xcp_bus.xcp_plan(self.network, xcp)
         self.db = can_layer.network_database(self.network)
         self._scratch = tempfile.TemporaryDirectory(prefix="smartjoint-pil-")
         self.elf = build_image(artifact, Path(self._scratch.name), xcp=xcp)

@@ -121,7 +121,7 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     artifact = image.artifact
     pil = not hasattr(image, "library")
     description = target_description(image) if pil else sil_description(image)
-    entries = daq_entries(description)
+    entries = daq_entries(description, image.xcp_plan.odts, image.xcp.daq_entries)
     tunables = _tunables(description, law)
     new = [float(np.float32(FACTOR * c.value)) if real == "float" else FACTOR * c.value for c in tunables]
     switch = int(round(SWITCH_TIME / artifact.sample_time))
@@ -169,6 +169,7 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     gaps = int(np.sum(stamps // int(round(artifact.sample_time * 1e6)) - 1))  # samples between two DTO sets
     out = {
         "where": "PIL (mps2-an386)" if pil else f"SIL ({real})",
+        "bus": image.xcp_plan.row(),
         "law": law,
         "epk": seen.get("epk"),
         "signals": len(entries),
@@ -250,6 +251,10 @@ def xcp_markdown(runs: list[dict]) -> str:
             f"({r['mil_bound']:.3g}) {'✔' if r['mil_equal'] else '✘'} | {r['unswitched_deviation_after']:.3g} N | "
             f"{r['energy_measure']:.4g} J·s |"
         )
+    lines += ["", "The XCP bus (`design.network.xcp_bus`: per sample one command and its answer and every ODT, "
+              "64-byte frames, worst-case stuffing):", "",
+              "| bus | bit rates | joints | frames | setpoints | worst-case load (limit) | busy per sample |",
+              "|---|---|---|---:|---|---:|---:|", *sorted({r["bus"] for r in runs})]  # fmt: skip
     for r in runs:
         if r.get("a2l"):
             lines.append(f"\n{r['where']}: [A2L]({Path(r['a2l']).name}), [DAQ (MF4)]({Path(r['mf4']).name}), "

@@ -132,7 +132,7 @@ def firmware_files(
     files = render(artifact, real, prefix)
     files.update(can_layer.render_can(artifact, prefix, real=real, **can_options))
     files.update(joint_nodes.render_nodes(artifact, prefix, real))
-    files.update(xcp_slave.render_xcp(artifact, prefix, real, xcp))
+    files.update(xcp_slave.render_xcp(artifact, prefix, real, xcp, can_options.get("network")))
     return files
 
 

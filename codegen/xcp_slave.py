@@ -19,6 +19,7 @@ from smartjoint.codegen import rendering
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
+from smartjoint.design.network import plan, protocol, xcp_bus
 from smartjoint.design.structure.description import Xcp
 
 # Bytes of each command the slave serves (ASAM XCP 1.x; a shorter frame is ERR_CMD_SYNTAX).
@@ -31,7 +32,6 @@ COMMANDS = {
     "ALLOC_ODT_ENTRY": 6,
 }  # fmt: skip
 EVENT_NAME = "sample"  # the one event channel: the controller's sample
-DAQ_ODTS = 4  # ODTs per event when no bus plan says how many fit
 
 
 @dataclass(frozen=True)
@@ -179,7 +179,7 @@ def render_xcp(
     prefix: str = "smartjoint",
     real: str = "float",
     xcp: Xcp | None = None,
-    daq_odts: int = DAQ_ODTS,
+    network=None,
 ) -> dict[str, str]:
     """The slave's files ``<prefix>_xcp.h``, ``<prefix>_xcp.c`` and ``<prefix>_xcp_key.c``.
 
@@ -189,15 +189,19 @@ def render_xcp(
     prefix, real : str
         As for ``codegen.generate.render``.
     xcp : Xcp, optional
-        The design's ``[xcp]`` (identifiers, key, DAQ memory); default :class:`Xcp` ().
-    daq_odts : int
-        ODTs per event the bus carrying XCP has room for (``design.network.plan``).
+        The design's ``[xcp]`` (identifiers, key, DAQ memory, bus); default :class:`Xcp` ().
+    network : design.network.plan.NetworkPlan, optional
+        The controller's buses (default the artefact's one-bus plan): the XCP bus's room sets the
+        slave's ODTs per event (``design.network.xcp_bus``).
 
     Returns
     -------
     dict of str to str
+        The slave's sources and ``xcp.dbc``, its two frames.
     """
     xcp = xcp or Xcp()
+    room = xcp_bus.xcp_plan(network or plan.one_bus(artifact, protocol.database(artifact)), xcp)
+    daq_odts = room.odts
     name = f"{prefix}_xcp"
     lit = lambda value: rendering.literal(value, real)  # noqa: E731
     values = calibration_values(artifact, real, xcp)
@@ -234,6 +238,7 @@ def render_xcp(
         f"{name}.h": env.get_template("xcp.h.j2").render(context),
         f"{name}.c": env.get_template("xcp.c.j2").render(context),
         f"{name}_key.c": env.get_template("xcp_key.c.j2").render(context),
+        "xcp.dbc": room.dbc,
     }
 
 

@@ -412,9 +412,9 @@ def test_bad_artefacts_and_options_write_nothing(reference, tmp_path):
     assert done.returncode == 0, done.stderr
     # controllers, example, build files, CAN layer, E2E, DBC, the target's self-check and board
     # support, the joint nodes (source, header and every joint's constants), their supervisor and
-    # the XCP slave (header, source, key); the A2L is the float target image's, so not this one
+    # the XCP slave (header, source, key, its DBC); the A2L is the float target image's, so not this one
     out = json.loads(done.stdout)
-    assert len(out["files"]) == 15 + 2 * len(law_registry.LAWS) + 3 + 2 + 3
+    assert len(out["files"]) == 15 + 2 * len(law_registry.LAWS) + 3 + 2 + 4
     assert out["a2l"].startswith("not written") and not (tmp_path / "ok" / "smartjoint.a2l").exists()
 
 

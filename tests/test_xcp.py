@@ -17,7 +17,7 @@ pytest.importorskip("pyxcp")
 
 from test_can_layer import REFERENCE  # noqa: E402
 
-from smartjoint.bench import sil, target, xcp_master  # noqa: E402
+from smartjoint.bench import sil, target, xcp_master, xcp_study  # noqa: E402
 from smartjoint.bench.firmware import Firmware, symbols  # noqa: E402
 from smartjoint.bench.fmu_check import FLOAT_BOUND  # noqa: E402
 from smartjoint.bench.pil import TargetFirmware  # noqa: E402
@@ -203,9 +203,7 @@ def test_refused_downloads_change_no_byte_and_not_the_study(images, study_setup)
 def _calibrated_run(fw, description, setup, real: str, channel: str):
     """The study with DAQ of every scalar measurement from sample 0 and ε of joint A1 tripled by
     DOWNLOAD at sample 1000; per sample also the controller's bytes as the firmware holds them."""
-    scalars = [n for n, m in description.measurements.items() if m.count == 1]
-    entries = [(n, description.measurements[n].address, xcp_master.A2L_TYPES[description.measurements[n].datatype])
-               for n in scalars]  # fmt: skip
+    entries = xcp_study.daq_entries(description, fw.xcp_plan.odts)  # what the XCP bus has room for
     app = xcp_master.application(fw.artifact, fw.xcp, channel=f"{channel}.xcp", timeout=2.0)
     policy = xcp_master.recorder("sample", entries)
     x = xcp_master.master(app, policy)
@@ -345,9 +343,7 @@ def test_pil_target_identification_calibration_and_daq(reference, study_setup):
     values = xcp_slave.calibration_values(reference, "float", Xcp())
     with TargetFirmware(reference, "siso", xcp=Xcp()) as fw:
         description = target_description(fw)
-        scalars = [n for n, m in description.measurements.items() if m.count == 1]
-        entries = [(n, description.measurements[n].address, xcp_master.A2L_TYPES[description.measurements[n].datatype])
-                   for n in scalars]  # fmt: skip
+        entries = xcp_study.daq_entries(description, fw.xcp_plan.odts)
         app = xcp_master.application(reference, Xcp(), channel="xcp-pil.xcp", timeout=5.0)
         policy = xcp_master.recorder("sample", entries)
         x = xcp_master.master(app, policy)
@@ -424,3 +420,24 @@ def test_a_bad_xcp_table_is_refused_in_one_line(tmp_path, line, key):
     base = (spec.REFERENCE_DESIGN.parent / "three_type_a.toml").as_posix()
     message = design_file_error(tmp_path / "d.toml", f'base = "{base}"\n[xcp]\n{line}\n')
     assert key in message and "\n" not in message
+
+
+def test_xcp_has_a_bus_of_its_own_with_the_room_it_plans(reference, tmp_path):
+    """By default XCP gets a bus of its own at the control bus's rates and limit: one command pair
+    and 2 DTOs of 64 bytes per sample stay within 70 %; sharing the reference's control bus
+    (64.3 % of 70 %) is refused in one line before any work; xcp.dbc loads in cantools."""
+    from conftest import design_file_error  # noqa: F401 (the design file's refusals: above)
+
+    from smartjoint.common.errors import ModelError
+    from smartjoint.design.network import plan, protocol, xcp_bus
+
+    network = plan.one_bus(reference, protocol.database(reference))
+    room = xcp_bus.xcp_plan(network, Xcp())
+    assert (room.bus.name, room.shared, room.odts) == ("xcp", False, 2) and room.load <= room.bus.limit
+    frames = {m.name: (m.frame_id, m.length, m.is_fd) for m in protocol.load_dbc(room.dbc).messages}
+    assert frames == {"XCP_CMD": (0x7F0, 64, True), "XCP_RES": (0x7F1, 64, True)}
+    with pytest.raises(ModelError) as refused:
+        xcp_bus.xcp_plan(network, dataclasses.replace(Xcp(), bus="can0"))
+    assert "bus can0 would carry" in str(refused.value) and "\n" not in str(refused.value)
+    files = xcp_slave.render_xcp(reference)
+    assert "#define SMARTJOINT_XCP_DAQ_ODTS 2 " in files["smartjoint_xcp.h"] and files["xcp.dbc"] == room.dbc

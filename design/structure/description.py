@@ -280,6 +280,7 @@ class Xcp:
     """The firmware's XCP slave on CAN FD (``[xcp]``, optional; docs/xcp.md): measurement by DAQ
     at the controller's sample and calibration of the laws' tunables.
 
+    ``bus``: the bus of ``[network]`` XCP shares (None: a bus of its own, ``xcp``);
     ``master_id``/``slave_id``: the CAN identifiers master → slave (commands) and slave → master
     (answers and DAQ), above every frame of the control protocol so XCP never delays it;
     ``key``: the 128-bit key of the seed & key algorithm as 32 hex digits (None: derived from
@@ -290,6 +291,7 @@ class Xcp:
     master_id: int = 0x7F0
     slave_id: int = 0x7F1
     key: str | None = None
+    bus: str | None = None
     daq_entries: int = 32
     calibration_decades: float = 2.0
 

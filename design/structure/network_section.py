@@ -48,10 +48,11 @@ def parse_network(t: DesignTable) -> Network:
     return Network(tuple(buses) or d.buses, siso, cycles)
 
 
-def parse_xcp(t: DesignTable) -> Xcp:
+def parse_xcp(t: DesignTable, network: Network | None = None) -> Xcp:
     """The [xcp] table (docs/xcp.md): ``master_id``/``slave_id`` (distinct 11-bit identifiers above
     the control protocol's 0x080 … 0x3FF, so XCP never delays a control frame), ``key`` (32 hex
-    digits), ``daq_entries`` (1 … 255) and ``calibration_decades`` (0 … 6]."""
+    digits), ``daq_entries`` (1 … 255), ``calibration_decades`` (0 … 6] and ``bus`` (a bus of
+    ``network`` to share; left out: a bus of its own)."""
     d = Xcp()
     master = t.integer("master_id", d.master_id, minimum=XCP_LOWEST_ID, maximum=0x7FF)
     slave = t.integer("slave_id", d.slave_id, minimum=XCP_LOWEST_ID, maximum=0x7FF)
@@ -62,8 +63,10 @@ def parse_xcp(t: DesignTable) -> Xcp:
         raise t.error("key", key, "32 hex digits (a 128-bit key)")
     entries = t.integer("daq_entries", d.daq_entries, minimum=1, maximum=255)
     decades = t.number("calibration_decades", d.calibration_decades, positive=True, maximum=6.0)
+    names = [b.name for b in (network or Network()).buses]
+    bus = t.string("bus", None, choices=tuple(names))
     t.finish()
-    return Xcp(master, slave, key, entries, decades)
+    return Xcp(master_id=master, slave_id=slave, key=key, bus=bus, daq_entries=entries, calibration_decades=decades)
 
 
 __all__ = ["PLACES", "parse_network", "parse_xcp"]

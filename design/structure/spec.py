@@ -150,7 +150,7 @@ def parse_design(data: dict[str, Any], source: str = "<memory>", origins: dict[s
     safety = parse_safety(root.table("safety", {}), control, joints)
     uncertainty = parse_uncertainty(root, [j.name for j in joints])
     network = parse_network(root.table("network", {}))
-    xcp = parse_xcp(root.table("xcp", {}))
+    xcp = parse_xcp(root.table("xcp", {}), network)
 
     root.finish()
     return Design(

@@ -36,7 +36,7 @@ extern "C" {
 #define SMARTJOINT_XCP_ID_SLAVE 0x7F1u  /* RES/ERR/EV/DAQ: slave -> master */
 #define SMARTJOINT_XCP_MAX_CTO 64
 #define SMARTJOINT_XCP_MAX_DTO 64
-#define SMARTJOINT_XCP_DAQ_ODTS 4     /* ODTs per event the bus plan has room for */
+#define SMARTJOINT_XCP_DAQ_ODTS 2     /* ODTs per event the bus plan has room for */
 #define SMARTJOINT_XCP_DAQ_ENTRIES 32 /* ODT entries in all */
 #define SMARTJOINT_XCP_MAX_ENTRY_SIZE 59u /* bytes of one ODT entry: a DTO less its PID and time stamp */
 
