@@ -27,6 +27,10 @@ from smartjoint.design.plant.interface import Measurements
 from smartjoint.design.structure.description import Xcp
 
 SWITCH_TIME = 1.0  # [s]: when the DOWNLOAD lands
+# The laws with a boundary layer to calibrate (their Setting "boundary_layer").
+CALIBRATED = tuple(
+    law.name for law in law_registry.LAWS.values() if any(s.key == "boundary_layer" for s in law.settings)
+)
 FACTOR = 3.0  # the boundary layer after the DOWNLOAD, as a multiple of the design's
 
 
@@ -60,7 +64,7 @@ def _tunables(description, law: str) -> list:
     """The law's boundary layer(s) on the page, in page order (contiguous: one DOWNLOAD)."""
     found = [c for name, c in description.characteristics.items() if name.startswith(f"{law}.boundary_layer")]
     if not found:
-        raise ModelError(f"law: {law!r} — it has no boundary layer to calibrate (siso, clqg have)")
+        raise ModelError(f"law: {law!r} — it has no boundary layer to calibrate ({', '.join(CALIBRATED)} have)")
     return sorted(found, key=lambda c: c.address)
 
 
@@ -95,6 +99,30 @@ def _mil_switching(artifact, law: str, description, recorded, switch: int, new: 
     return out
 
 
+def _scripts(master, policy, seen: dict, address: int, new: list[float], real: str):
+    """The master's three scripts: start (connect, identify, unlock, DAQ on), calibrate (one
+    DOWNLOAD of the new boundary layers at ``address``) and stop (DAQ off, disconnect)."""
+
+    def start():
+        master.__enter__()
+        master.connect()
+        seen["epk"] = master.identifier(0)
+        master.cond_unlock()
+        policy.setup()
+        policy.start()
+
+    def calibrate():
+        master.setMta(address)
+        master.download(b"".join(struct.pack("<f" if real == "float" else "<d", value) for value in new))
+
+    def stop():
+        policy.stop()
+        master.disconnect()
+        master.__exit__(None, None, None)
+
+    return start, calibrate, stop
+
+
 def calibration_study(setup, image, law: str, real: str, channel: str, folder=None, progress=print) -> dict:
     """The study with DAQ of every scalar measurement and the law's boundary layer × 3 at t = 1 s.
 
@@ -104,7 +132,7 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     image : bench.firmware.Firmware or bench.pil.TargetFirmware
         Built with its XCP slave, running ``law``.
     law : str
-        ``"siso"`` or ``"clqg"``.
+        A law of :data:`CALIBRATED`.
     real : str
         The image's scalar type.
     channel : str
@@ -118,6 +146,8 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     dict
         The figures (JSON-ready) and, under ``"recorded"``/``"description"``, the measurement.
     """
+    from smartjoint.bench.sil import run_loop
+
     artifact = image.artifact
     pil = not hasattr(image, "library")
     description = target_description(image) if pil else sil_description(image)
@@ -127,37 +157,27 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     switch = int(round(SWITCH_TIME / artifact.sample_time))
     app = xcp_master.application(artifact, image.xcp, channel=f"{channel}.xcp", timeout=5.0)
     policy = xcp_master.recorder("sample", entries)
-    master = xcp_master.master(app, policy)
     seen: dict = {}
-
-    def start():
-        master.__enter__()
-        master.connect()
-        seen["epk"] = master.identifier(0)
-        master.cond_unlock()
-        policy.setup()
-        policy.start()
-
-    def calibrate():
-        master.setMta(tunables[0].address)
-        master.download(b"".join(struct.pack("<f" if real == "float" else "<d", value) for value in new))
-
-    def stop():
-        policy.stop()
-        master.disconnect()
-        master.__exit__(None, None, None)
-
+    start, calibrate, stop = _scripts(xcp_master.master(app, policy), policy, seen, tunables[0].address, new, real)
     port = XcpPort(image, channel=f"{channel}.xcp")
     loop = XcpLoop(image, port, {0: start, switch: calibrate}, excitation_end=closed_loop.PULSE_DURATION,
                    channel=channel)  # fmt: skip
     progress(f"      {law}: XCP on the {'target' if pil else 'SIL firmware'}: DAQ of {len(entries)} signals, "
              f"the boundary layer × {FACTOR:g} by DOWNLOAD at t = {SWITCH_TIME:g} s …")  # fmt: skip
-    from smartjoint.bench.sil import run_loop
-
     result = run_loop(setup, loop)
     with port:
         port.serve(stop)
-    recorded = policy.recorded
+    out = _figures(setup, image, law, real, policy.recorded, description, switch, tunables, new, loop, result)
+    out.update(where="PIL (mps2-an386)" if pil else f"SIL ({real})", epk=seen.get("epk"), signals=len(entries))
+    if folder is not None:
+        out.update(_files(out, Path(folder), f"xcp_{'pil' if pil else 'sil'}_{law}"))
+    return out
+
+
+def _figures(setup, image, law, real, recorded, description, switch, tunables, new, loop, result) -> dict:
+    """What a calibration study shows: DAQ completeness and the commands against MIL switching."""
+    artifact = image.artifact
+    pil = not hasattr(image, "library")
     mil = _mil_switching(artifact, law, description, recorded, switch, new)
     unswitched = _mil_switching(artifact, law, description, recorded, switch, [c.value for c in tunables])
     commands = np.stack([recorded.column(f"command.{j}") for j in artifact.joint_names], axis=1).astype(float)
@@ -167,12 +187,9 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     stamps = np.diff(np.asarray(recorded.time_us, dtype=np.int64))
     samples = int(round(setup.duration / artifact.sample_time))
     gaps = int(np.sum(stamps // int(round(artifact.sample_time * 1e6)) - 1))  # samples between two DTO sets
-    out = {
-        "where": "PIL (mps2-an386)" if pil else f"SIL ({real})",
+    return {
         "bus": image.xcp_plan.row(),
         "law": law,
-        "epk": seen.get("epk"),
-        "signals": len(entries),
         "samples": samples,
         "daq_samples": len(recorded.rows),
         "lost_samples": gaps + samples - len(recorded.rows),
@@ -191,9 +208,6 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
         "description": description,
         "result": result,
     }
-    if folder is not None:
-        out.update(_files(out, Path(folder), f"xcp_{'pil' if pil else 'sil'}_{law}"))
-    return out
 
 
 def _files(out: dict, folder: Path, name: str) -> dict:
@@ -268,6 +282,7 @@ def json_ready(out: dict) -> dict:
 
 
 __all__ = [
+    "CALIBRATED",
     "FACTOR",
     "SWITCH_TIME",
     "calibration_study",

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.codegen import rendering, xcp_slave
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
 from smartjoint.design.control.realisation import of_artifact
@@ -106,19 +107,16 @@ def measurements(artifact: ControllerArtifact, db) -> list[Measured]:
         Measured("steps", "steps", "", "controller steps since power-up"),
         Measured("law", "law", "", "the law the CAN layer runs (CONTROLLER_STATUS.mode)"),
     ]
-    for j, joint in enumerate(artifact.joint_names):
-        rows.append(Measured(f"siso.previous_friction.{joint}", f"siso.previous_friction[{j}]", "N",
-                             f"SISO law: u_R of joint {joint} at the previous sample (Eq. 31)"))  # fmt: skip
-        rows.append(Measured(f"siso.previous_normal_force.{joint}", f"siso.previous_normal_force[{j}]", "N",
-                             f"SISO law: F_N of joint {joint} at the previous sample (Eq. 31)"))  # fmt: skip
-    n = int(of_artifact(artifact).blocks.shape[0])  # the filter's coordinates (codegen.law_contexts)
-    rows += [
-        Measured("clqg.q0", "clqg.q0[0]", "", "cLQG filter state q, first component per coordinate (Eq. 33)", count=n),
-        Measured("clqg.q1", "clqg.q1[0]", "", "cLQG filter state q, second component per coordinate (Eq. 33)", count=n),
-    ]
-    for j, joint in enumerate(artifact.joint_names):
-        rows.append(Measured(f"clqg.feedback.{joint}", f"clqg.feedback[{j}]", "N",
-                             f"cLQG: -(K - K M C) q of joint {joint}, the LQR force's predicted part"))  # fmt: skip
+    coordinates = int(of_artifact(artifact).blocks.shape[0])  # the filter's (codegen.law_contexts)
+    for law in law_registry.LAWS.values():
+        for member, per, unit, meaning in law.memories:
+            if per == "coordinate":
+                rows.append(Measured(f"{law.name}.{member}", f"{law.name}.{member}[0]", unit,
+                                     f"{law.display}: {meaning}", count=coordinates))  # fmt: skip
+                continue
+            for j, joint in enumerate(artifact.joint_names):
+                rows.append(Measured(f"{law.name}.{member}.{joint}", f"{law.name}.{member}[{j}]", unit,
+                                     f"{law.display}: {meaning}, joint {joint}"))  # fmt: skip
     return rows
 
 

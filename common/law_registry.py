@@ -127,6 +127,9 @@ class Law:
     node : bool
         The law the joint nodes run on their own joint in local mode (``design.network.joint_node``:
         the paper's first concept, Section 5.1); it reads only its own joint's measurements.
+    memories : tuple of (str, str, str, str)
+        What the A2L measures of its C state (``codegen.a2l``): (member, "joint" or "coordinate"
+        — one value per joint or an array over the filter's coordinates —, unit, meaning).
     codegen : str
         ``module:function`` giving what its templates ``<name>.h.j2``/``<name>.c.j2`` see beyond
         the common context, ``function(artifact, lit, row) -> dict`` (:meth:`codegen_context`).
@@ -156,6 +159,7 @@ class Law:
     fault_matrix: bool = False
     constant: bool = False
     node: bool = False
+    memories: tuple[tuple[str, str, str, str], ...] = ()
 
     def python_reference(self, artifact: Any) -> Any:
         """The law's Python reference controller, built from a controller artefact alone.
@@ -237,6 +241,10 @@ LAWS: dict[str, Law] = {
             codegen="smartjoint.codegen.law_contexts:siso",
             reference="smartjoint.design.control.laws:siso_law",
             node=True,
+            memories=(
+                ("previous_friction", "joint", "N", "u_R at the previous sample (Eq. 31)"),
+                ("previous_normal_force", "joint", "N", "F_N at the previous sample (Eq. 31)"),
+            ),
         ),
         Law(
             name="clqg",
@@ -260,6 +268,11 @@ LAWS: dict[str, Law] = {
             clips_active=True,
             phased=True,
             fault_matrix=True,
+            memories=(
+                ("q0", "coordinate", "", "filter state q, first component per coordinate (Eq. 33)"),
+                ("q1", "coordinate", "", "filter state q, second component per coordinate (Eq. 33)"),
+                ("feedback", "joint", "N", "-(K - K M C) q, the LQR force's predicted part (Eq. 33)"),
+            ),
         ),
         Law(
             name="preset",
@@ -300,6 +313,7 @@ LAWS: dict[str, Law] = {
             colour="tab:green",
             codegen="smartjoint.design.control.slip_ratio:context",
             reference="smartjoint.design.control.slip_ratio:slip_ratio_law",
+            memories=(("command", "joint", "N", "the law's last F_N, its memory"),),
         ),
     )
 }

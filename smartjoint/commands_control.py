@@ -229,7 +229,7 @@ def _xcp_runs(args, design, controller, laws, pil: bool = False, network=None) -
 
     setup = closed_loop.setup(design, closed_loop.design_model(design, lambda message: None))
     runs = []
-    for law in (law for law in laws if law in ("siso", "clqg")):
+    for law in (law for law in laws if law in xcp_study.CALIBRATED):
         if pil:
             with target_bench.TargetFirmware(controller, law, xcp=design.xcp) as image:
                 runs.append(xcp_study.calibration_study(setup, image, law, "float", f"xcp-pil-{law}", args.plots,

@@ -171,7 +171,8 @@ def test_unusual_but_legal_names_compile_clean(reference, tmp_path):
     placed = generate.generate(odd, tmp_path / "odd", "double", "fw", check=True)
     laws = [f"{law.c_name('fw')}.c" for law in law_registry.LAWS.values()]
     nodes = ["fw_node.c", "fw_node_config.c", "fw_supervisor.c"]
-    assert placed.compiled["sources"] == sorted(["fw_can.c", *laws, *nodes, "main.c", "sj_e2e.c"])
+    slave = ["fw_xcp.c", "fw_xcp_key.c"]
+    assert placed.compiled["sources"] == sorted(["fw_can.c", *laws, *nodes, *slave, "main.c", "sj_e2e.c"])
     assert "#define FW_CAN_JOINT_JOINT_A1_ID 0x102u" in (tmp_path / "odd" / "fw_can.h").read_text()
 
 

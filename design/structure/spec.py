@@ -142,16 +142,14 @@ def parse_design(data: dict[str, Any], source: str = "<memory>", origins: dict[s
     modal_damping = damping.number("modal_ratio", 0.001, positive=True, maximum=0.99)
     damping.finish()
 
-    updating = None
-    if "updating" in root.data:
-        updating = parse_updating(root.table("updating"), materials, connectors, nodes)
+    has_updating = "updating" in root.data
+    updating = parse_updating(root.table("updating"), materials, connectors, nodes) if has_updating else None
 
     control = parse_control(root.table("control", {}), joints, dofs)
     safety = parse_safety(root.table("safety", {}), control, joints)
     uncertainty = parse_uncertainty(root, [j.name for j in joints])
     network = parse_network(root.table("network", {}))
     xcp = parse_xcp(root.table("xcp", {}), network)
-
     root.finish()
     return Design(
         name,
