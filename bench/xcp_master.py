@@ -7,6 +7,7 @@ pyxcp is imported on first use: it installs its own traceback printer when impor
 
 from __future__ import annotations
 
+import logging
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,6 +59,8 @@ def application(artifact, xcp: Xcp, interface: str = "virtual", channel: str = "
     c.General.disable_error_handling = True  # negative answers raise XcpResponseError
     c.General.seed_n_key_function = key or (lambda resource, seed: xcp_slave.key_from_seed(bytes(seed), words))
     app = PyXCP(config=c)
+    # python-can's virtual bus takes no bit rates: pyxcp warns of it on every connect.
+    logging.getLogger("pyxcp").setLevel(logging.ERROR)
     app.general = General(config=app.config, parent=app)
     app.transport = Transport(parent=app)
     set_application(app)  # the DAQ policy looks the application up
