@@ -233,6 +233,12 @@ def _calibrated_run(fw, description, setup, real: str, channel: str):
                      channel=channel)  # fmt: skip
     loop.snapshots = []
     sil.run_loop(setup, loop)
+    _finish(port, x, policy)
+    return loop, policy.recorded, new, entries
+
+
+def _finish(port, x, policy) -> None:
+    """After the study: the master stops DAQ and disconnects, the port answering."""
 
     def stop():
         policy.stop()
@@ -241,7 +247,6 @@ def _calibrated_run(fw, description, setup, real: str, channel: str):
 
     with port:
         port.serve(stop)
-    return loop, policy.recorded, new, entries
 
 
 def _mil_switching(reference, description, recorded, new: float):
@@ -368,14 +373,7 @@ def test_pil_target_identification_calibration_and_daq(reference, study_setup):
         loop = XcpLoop(fw, port, {0: start, 250: calibrate}, excitation_end=closed_loop.PULSE_DURATION,
                        channel="xcp-pil")  # fmt: skip
         sil.run_loop(setup, loop)
-
-        def stop():
-            policy.stop()
-            x.disconnect()
-            x.__exit__(None, None, None)
-
-        with port:
-            port.serve(stop)
+        _finish(port, x, policy)
     assert seen["epk"] == xcp_slave.epk(reference, "float", "smartjoint")
     assert seen["page"] == struct.pack(f"<{len(values)}f", *[v.value for v in values])
     assert seen["eps"] == float(np.float32(3.0 * eps.value))
