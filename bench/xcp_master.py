@@ -8,6 +8,7 @@ pyxcp is imported on first use: it installs its own traceback printer when impor
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,15 @@ NUMPY_TYPES = {"U8": "<u1", "I8": "<i1", "U16": "<u2", "I16": "<i2", "U32": "<u4
                "F64": "<f8"}  # fmt: skip
 A2L_TYPES = {"UBYTE": "U8", "SBYTE": "I8", "UWORD": "U16", "SWORD": "I16", "ULONG": "U32", "SLONG": "I32",
              "FLOAT32_IEEE": "F32", "FLOAT64_IEEE": "F64"}  # fmt: skip
+
+
+def _pyxcp() -> None:
+    """Import pyxcp and undo what its import does to the process: it installs rich's traceback
+    printer as ``sys.excepthook`` (the command line prints its own one-line errors)."""
+    hook = sys.excepthook
+    import pyxcp  # noqa: F401
+
+    sys.excepthook = hook
 
 
 def application(artifact, xcp: Xcp, interface: str = "virtual", channel: str = "smartjoint-sil.xcp",
@@ -42,6 +52,7 @@ def application(artifact, xcp: Xcp, interface: str = "virtual", channel: str = "
     key : callable, optional
         ``key(resource, seed) -> bytes``: a user's own algorithm; default this artefact's XTEA.
     """
+    _pyxcp()
     from pyxcp.config import General, PyXCP, Transport, set_application
     from traitlets.config import Config
 
@@ -84,6 +95,7 @@ class Recorded:
 def recorder(name: str, entries: list[tuple[str, int, str]], prescaler: int = 1):
     """A DAQ policy of one list on the slave's one event: ``entries`` are (name, address, pyxcp
     type "F32"/"U8"/…), recorded as :class:`Recorded` (``policy.recorded``)."""
+    _pyxcp()
     from pyxcp.daq_stim import DaqList, DaqOnlinePolicy
 
     class Policy(DaqOnlinePolicy):
@@ -151,6 +163,7 @@ def write_mf4(recorded: Recorded, description, path, start: float = 0.0, comment
 
 def master(app, policy=None) -> Any:
     """A pyxcp master on the configured bus (``with master(app) as x: x.connect() …``)."""
+    _pyxcp()
     from pyxcp.master import Master
 
     return Master("can", config=app, policy=policy)

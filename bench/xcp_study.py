@@ -219,7 +219,7 @@ def _files(out: dict, folder: Path, name: str) -> dict:
     what = f"{out['where']}: {out['law']}, boundary layer × {FACTOR:g} at sample {out['switch_sample']}"
     mf4 = xcp_master.write_mf4(out["recorded"], out["description"], folder / f"{name}_daq.mf4", comment=what)
     plot = plot_calibration(out, folder / f"{name}.png")
-    return {"a2l": str(folder / f"{name}.a2l"), "mf4": str(mf4), "plot": str(plot)}
+    return {"a2l": f"{name}.a2l", "mf4": mf4.name, "plot": plot.name}  # beside the report or the plots
 
 
 def plot_calibration(out: dict, path) -> Path:
