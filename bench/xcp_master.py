@@ -26,6 +26,14 @@ A2L_TYPES = {"UBYTE": "U8", "SBYTE": "I8", "UWORD": "U16", "SWORD": "I16", "ULON
              "FLOAT32_IEEE": "F32", "FLOAT64_IEEE": "F64"}  # fmt: skip
 
 
+class _ClosedSocket(logging.Filter):
+    """Drops pyxcp's "Error in CAN listen thread: [Errno 9] Bad file descriptor": its listener
+    reads once more after the bus's socket was closed (udp_multicast), which is no error."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "[Errno 9]" not in record.getMessage()
+
+
 def _pyxcp() -> None:
     """Import pyxcp and undo what its import does to the process: it installs rich's traceback
     printer as ``sys.excepthook`` (the command line prints its own one-line errors)."""
@@ -52,26 +60,56 @@ def application(artifact, xcp: Xcp, interface: str = "virtual", channel: str = "
     key : callable, optional
         ``key(resource, seed) -> bytes``: a user's own algorithm; default this artefact's XTEA.
     """
+    words = xcp_slave.secret(artifact, xcp)
+    return configure(interface, channel, xcp.master_id, xcp.slave_id,
+                     key or (lambda resource, seed: xcp_slave.key_from_seed(bytes(seed), words)), timeout)  # fmt: skip
+
+
+def configure(interface: str, channel: str, master_id: int, slave_id: int, key=None, timeout: float = 2.0,
+              bitrate: int | None = None, data_bitrate: int | None = None):  # fmt: skip
+    """A pyxcp application for an XCP on CAN (FD) slave on a python-can bus.
+
+    Parameters
+    ----------
+    interface, channel : str
+        The python-can bus.
+    master_id, slave_id : int
+        The slave's identifiers (11-bit).
+    key : callable, optional
+        ``key(resource, seed) -> bytes``, the seed & key algorithm (None: no UNLOCK possible).
+    timeout : float
+        Seconds per command.
+    bitrate, data_bitrate : int, optional
+        The bus's bit rates for an interface that sets them (a real adapter); ``data_bitrate``
+        None is classical CAN.
+    """
     _pyxcp()
     from pyxcp.config import General, PyXCP, Transport, set_application
     from traitlets.config import Config
 
-    words = xcp_slave.secret(artifact, xcp)
     c = Config()
     c.Transport.layer = "CAN"
     c.Transport.timeout = float(timeout)
     c.Transport.Can.interface = interface
     c.Transport.Can.channel = channel
-    c.Transport.Can.can_id_master = int(xcp.master_id)
-    c.Transport.Can.can_id_slave = int(xcp.slave_id)
-    c.Transport.Can.fd = True
+    c.Transport.Can.can_id_master = int(master_id)
+    c.Transport.Can.can_id_slave = int(slave_id)
+    c.Transport.Can.fd = data_bitrate != 0
+    if bitrate:
+        c.Transport.Can.bitrate = int(bitrate)
+    if data_bitrate:
+        c.Transport.Can.data_bitrate = int(data_bitrate)
     c.Transport.Can.max_dlc_required = False
     c.Transport.Can.pid_off = False  # an unset value reads as true in pyxcp's DAQ set-up
     c.General.disable_error_handling = True  # negative answers raise XcpResponseError
-    c.General.seed_n_key_function = key or (lambda resource, seed: xcp_slave.key_from_seed(bytes(seed), words))
+    if key is not None:
+        c.General.seed_n_key_function = key
     app = PyXCP(config=c)
     # python-can's virtual bus takes no bit rates: pyxcp warns of it on every connect.
     logging.getLogger("pyxcp").setLevel(logging.ERROR)
+    transport_log = logging.getLogger("pyxcp.transport")
+    if not any(isinstance(f, _ClosedSocket) for f in transport_log.filters):
+        transport_log.addFilter(_ClosedSocket())
     app.general = General(config=app.config, parent=app)
     app.transport = Transport(parent=app)
     set_application(app)  # the DAQ policy looks the application up
@@ -169,4 +207,4 @@ def master(app, policy=None) -> Any:
     return Master("can", config=app, policy=policy)
 
 
-__all__ = ["A2L_TYPES", "NUMPY_TYPES", "Recorded", "application", "master", "recorder", "write_mf4"]
+__all__ = ["A2L_TYPES", "NUMPY_TYPES", "Recorded", "application", "configure", "master", "recorder", "write_mf4"]

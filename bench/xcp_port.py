@@ -18,6 +18,7 @@ from typing import Any
 
 from smartjoint.bench.loop import SilLoop, open_bus
 from smartjoint.common.errors import ModelError
+from smartjoint.design.control import study as closed_loop
 
 
 class XcpPort:
@@ -126,14 +127,20 @@ class XcpLoop(SilLoop):
     scripts : dict of int to callable, optional
         Sample index → ``script()``: run by :meth:`XcpPort.serve` before that sample's frames,
         so what it changes acts from that sample on.
+    realtime : bool
+        Hold every sample until the wall clock reaches it, so that a master in another process
+        meets the firmware at its own pace (``serve_study``); a slower bench just runs late.
     **options
         As for ``SilLoop``.
     """
 
-    def __init__(self, firmware, port: XcpPort, scripts: dict[int, Callable[[], Any]] | None = None, **options):
+    def __init__(self, firmware, port: XcpPort, scripts: dict[int, Callable[[], Any]] | None = None,
+                 realtime: bool = False, **options):  # fmt: skip
         super().__init__(firmware, **options)
-        self.port, self.scripts = port, dict(scripts or {})
+        self.port, self.scripts, self.realtime = port, dict(scripts or {}), realtime
         self.results: dict[int, Any] = {}  # what each script returned, by sample
+        self.started: float | None = None  # the wall clock at the first sample
+        self.late = 0.0  # the largest lag behind the wall clock [s]
 
     def reset(self) -> None:
         super().reset()
@@ -153,7 +160,47 @@ class XcpLoop(SilLoop):
     def _firmware_sample(self, t: float, time_us: int):
         status = super()._firmware_sample(t, time_us)
         self.port.sample(time_us)
+        if self.realtime:
+            now = time.monotonic()
+            if self.started is None:
+                self.started = now - t
+            ahead = self.started + t - now
+            if ahead > 0.0:
+                time.sleep(ahead)
+            self.late = max(self.late, -ahead)
         return status
+
+
+def serve_study(setup, image, interface: str, channel: str, progress=print) -> dict:
+    """The study's closed loop with the image's XCP slave served on a python-can bus at the wall
+    clock's pace, for a master outside the bench (``smartjoint bench xcp``, CANape, INCA).
+
+    Parameters
+    ----------
+    setup : study.StudySetup
+        The plant and the study; ``setup.duration`` is how long the slave is served.
+    image : bench.firmware.Firmware or bench.pil.TargetFirmware
+        Built with its XCP slave.
+    interface, channel : str
+        The python-can bus of the master: ``udp_multicast`` reaches other processes on this host.
+    progress : callable
+
+    Returns
+    -------
+    dict
+        Frames the slave took and sent, how late the bench ran behind the wall clock, and the
+        ``loop`` itself (its record: what the firmware commanded at every sample).
+    """
+    from smartjoint.bench.sil import run_loop
+
+    port = XcpPort(image, interface, channel)
+    loop = XcpLoop(image, port, realtime=True, excitation_end=closed_loop.PULSE_DURATION,
+                   channel=f"serve-{id(port)}")  # fmt: skip
+    progress(f"      XCP slave 0x{port.slave_id:X} (master 0x{port.master_id:X}) on {interface}:{channel} for "
+             f"{setup.duration:g} s at the wall clock's pace …")  # fmt: skip
+    result = run_loop(setup, loop)
+    return {"seconds": float(result.time[-1]), "commands": port.commands, "frames_sent": port.sent,
+            "late_s": float(loop.late), "loop": loop}  # fmt: skip
 
 
 TARGET_FLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard")  # the PIL image's Makefile
@@ -231,4 +278,4 @@ def sil_description(firmware, bus=None):
     )  # fmt: skip
 
 
-__all__ = ["XcpLoop", "XcpPort", "elf_description", "sil_description", "target_description"]
+__all__ = ["XcpLoop", "XcpPort", "elf_description", "serve_study", "sil_description", "target_description"]

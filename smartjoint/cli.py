@@ -22,7 +22,8 @@ from smartjoint.commands import (
     cmd_simulate,
     cmd_update,
 )
-from smartjoint.commands_control import cmd_bench, cmd_codegen, cmd_design, cmd_pil, cmd_sil, cmd_study
+from smartjoint.commands_bench import add_bench_commands
+from smartjoint.commands_control import cmd_codegen, cmd_design, cmd_pil, cmd_sil, cmd_study
 from smartjoint.commands_fmu import cmd_fmu
 from smartjoint.commands_friction import cmd_campaign, cmd_identify, cmd_rig
 from smartjoint.commands_sweep import cmd_sweep
@@ -62,6 +63,15 @@ def _bus_channel(interface_help: str | None = None) -> argparse.ArgumentParser:
     parent = argparse.ArgumentParser(add_help=False)
     parent.add_argument("--interface", default="virtual", help=interface_help)
     parent.add_argument("--channel", default="smartjoint-sil")
+    return parent
+
+
+def _xcp_serve() -> argparse.ArgumentParser:
+    """--xcp-serve and --xcp-a2l of sil and pil: the slave served to a master outside the bench."""
+    parent = argparse.ArgumentParser(add_help=False)
+    serve = "instead of the study: one law's XCP slave on this python-can bus at the wall clock's pace (docs/xcp.md)"
+    parent.add_argument("--xcp-serve", metavar="INTERFACE:CHANNEL", help=serve)
+    parent.add_argument("--xcp-a2l", metavar="FILE", help="with --xcp-serve: where the served image's A2L goes")
     return parent
 
 
@@ -318,7 +328,7 @@ def _add_control_commands(sub, o: SimpleNamespace) -> None:
     ]
     p = sub.add_parser(
         "sil",
-        parents=[o.design, *bus, o.no_update, o.json_results],
+        parents=[o.design, *bus, o.no_update, o.json_results, _xcp_serve()],
         help="the paper's study through the CAN loop: firmware, bus, amplifiers (software in the loop)",
     )
     p.add_argument("--artifact", help="controller artefact (default: designed from DESIGN now)")
@@ -363,7 +373,7 @@ def _add_target_commands(sub, o: SimpleNamespace) -> None:
     """pil."""
     p = sub.add_parser(
         "pil",
-        parents=[o.design, o.no_update, o.json_results],
+        parents=[o.design, o.no_update, o.json_results, _xcp_serve()],
         help="the study with the firmware on its target: QEMU mps2-an386 (Cortex-M4F) in lock-step with "
         "the plant (processor in the loop)",
     )
@@ -379,42 +389,6 @@ def _add_target_commands(sub, o: SimpleNamespace) -> None:
     p.add_argument("--clock", type=float, default=168.0, help="processor clock of the budget [MHz] (default: 168)")
     p.add_argument("--plots", help="folder for pil_energy.png")
     p.set_defaults(func=cmd_pil)
-
-
-def _add_bench_commands(sub, o: SimpleNamespace) -> None:
-    """bench dbc, log, decode, replay."""
-    p = sub.add_parser("bench", help="CAN bench tools: dbc, log, decode, replay")
-    bench = p.add_subparsers(dest="bench_command", required=True, metavar="TOOL")
-    q = bench.add_parser(
-        "dbc", parents=[_bus_rates(), o.json], help="write the DBC of a controller artefact after the bus-load check"
-    )
-    q.add_argument("artifact")
-    q.add_argument("-o", "--output", required=True)
-    q.add_argument("--max-load", type=float, default=0.7, help="refuse above this load (default: %(default)s)")
-    q = bench.add_parser(
-        "log", parents=[_bus_channel(), o.json], help="record a python-can bus to ASC/BLF/MF4 (by suffix)"
-    )
-    q.add_argument("-o", "--output", required=True)
-    q.add_argument("--duration", type=float, help="seconds (default: until Ctrl-C)")
-    q.add_argument("--rotate-bytes", type=int, default=0, help="rotate the file at this size (0: never)")
-    q = bench.add_parser("decode", parents=[o.json], help="decode a log to signals (CSV) and plots with the DBC")
-    q.add_argument("log")
-    q.add_argument("--dbc", action="append", help="the bus's DBC; several: one per bus, in the log's channel order")
-    q.add_argument("--artifact")
-    q.add_argument("--network", help="design file: the artefact's frames on its [network]'s buses (with --artifact)")
-    q.add_argument("-o", "--output", help="CSV file (time_s, frame, signal, value)")
-    q.add_argument("--plots", help="folder for one PNG per frame")
-    q = bench.add_parser(
-        "replay", parents=[o.json], help="feed a log's sensor frames through the firmware; compare its setpoints"
-    )
-    q.add_argument("log")
-    q.add_argument("--artifact", required=True)
-    q.add_argument("--network", help="design file: the firmware on its [network]'s buses (log channel = bus)")
-    q.add_argument("--law", choices=law_registry.NAMES, default=law_registry.NAMES[0])
-    q.add_argument("--real", choices=("float", "double"), default="float")
-    q.add_argument("--tolerance", type=float, default=0.0, help="volts counted as equal (default 0: bit-exact)")
-    for tool in bench.choices.values():
-        tool.set_defaults(func=cmd_bench)
 
 
 def _add_study_command(sub, o: SimpleNamespace) -> None:
@@ -458,7 +432,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_control_commands(sub, shared)
     _add_fmu_command(sub, shared)
     _add_target_commands(sub, shared)
-    _add_bench_commands(sub, shared)
+    add_bench_commands(sub, shared, _bus_rates, _bus_channel)
     _add_study_command(sub, shared)
     return parser
 

@@ -1,10 +1,9 @@
-"""The commands of the control, firmware and bench stages (``study``, ``design``, ``codegen``,
-``sil``, ``bench``)."""
+"""The commands of the control and firmware stages (``study``, ``design``, ``codegen``, ``sil``,
+``pil``)."""
 
 from __future__ import annotations
 
-import json
-import sys
+import contextlib
 from pathlib import Path
 
 from smartjoint.commands import load_updated, report_progress, write_atomic, write_plots
@@ -103,7 +102,7 @@ def _bus_loads(args, design, result) -> dict[str, float]:
     return {"can0": load.load}
 
 
-def _design_network(path: str, loaded):
+def design_network(path: str, loaded):
     """The plan of an artefact's frames over the buses of a design file's [network] (codegen's
     --network); refused in one line when the design's controlled joints are not the artefact's."""
     from smartjoint.common.errors import ModelError
@@ -124,7 +123,7 @@ def cmd_codegen(args) -> dict:
     from smartjoint.design.control import artifact
 
     loaded = artifact.load(Path(args.artifact))
-    can_options = {} if args.network is None else {"network": _design_network(args.network, loaded)}
+    can_options = {} if args.network is None else {"network": design_network(args.network, loaded)}
     placed = generate.generate(
         loaded,
         Path(args.output),
@@ -241,12 +240,64 @@ def _xcp_runs(args, design, controller, laws, pil: bool = False, network=None) -
     return [xcp_study.json_ready(r) for r in runs]
 
 
+def _xcp_serve_bus(args) -> tuple[str, str] | None:
+    """sil/pil --xcp-serve's (interface, channel), checked before any work; None without it."""
+    from smartjoint.common.errors import ModelError
+
+    if args.xcp_serve is None:
+        if args.xcp_a2l is not None:
+            raise ModelError("--xcp-a2l: only with --xcp-serve INTERFACE:CHANNEL")
+        return None
+    interface, _, channel = args.xcp_serve.partition(":")
+    if not interface or not channel:
+        raise ModelError(f"--xcp-serve: {args.xcp_serve!r} — must be INTERFACE:CHANNEL (e.g. udp_multicast:239.0.0.1)")
+    if not args.xcp_a2l:
+        raise ModelError("--xcp-a2l: required with --xcp-serve (the file the served image's A2L goes to)")
+    if args.law == "all":
+        raise ModelError("--xcp-serve: serves one law — give --law")
+    if args.fault:
+        raise ModelError("--xcp-serve: serves the fault-free loop — drop --fault")
+    return interface, channel
+
+
+def _xcp_serve(args, bus, design, model, controller, pil: bool = False) -> dict:
+    """sil/pil --xcp-serve: one law's image with its XCP slave on the given bus at the wall
+    clock's pace, its A2L written first (``bench.xcp_port.serve_study``)."""
+    from smartjoint.bench import firmware, xcp_port
+    from smartjoint.bench import pil as target_bench
+    from smartjoint.design.control import study as closed_loop
+
+    interface, channel = bus
+    laws = [args.law]
+    setup = closed_loop.setup(design, model)
+    image: target_bench.TargetFirmware | firmware.Firmware
+    with contextlib.ExitStack() as stack:
+        if pil:  # the emulator runs while the context lasts
+            image = stack.enter_context(target_bench.TargetFirmware(controller, laws[0], xcp=design.xcp))
+        else:
+            image = firmware.Firmware(controller, laws[0], args.real, xcp=design.xcp)
+        description = xcp_port.target_description(image) if pil else xcp_port.sil_description(image)
+        write_atomic(Path(args.xcp_a2l), description.text)
+        report_progress(f"A2L of the served image: {args.xcp_a2l}; a master: smartjoint bench xcp {args.xcp_a2l} "
+                        f"--interface {interface} --channel {channel} --artifact … --measure all")  # fmt: skip
+        out = xcp_port.serve_study(setup, image, interface, channel, report_progress)
+    out.pop("loop")
+    out.update(law=laws[0], a2l=args.xcp_a2l, bus=args.xcp_serve, where="PIL" if pil else f"SIL ({args.real})")
+    if not args.json:
+        print(f"served {out['seconds']:g} s: {out['commands']} commands taken, {out['frames_sent']} frames sent, "
+              f"at most {out['late_s'] * 1e3:.0f} ms behind the wall clock")  # fmt: skip
+    return out
+
+
 def cmd_sil(args) -> dict:
     from smartjoint.bench import sil, xcp_study
     from smartjoint.design.control import study as closed_loop
     from smartjoint.design.structure.description import Network
 
+    serve = _xcp_serve_bus(args)
     design, model, controller, faults, laws = _loop_inputs(args)
+    if serve:
+        return _xcp_serve(args, serve, design, model, controller)
     report_progress(
         f"software in the loop on {design.name!r}: {', '.join(laws)}, t_e = {design.control.study_duration:g} s"
     )
@@ -291,7 +342,10 @@ def cmd_pil(args) -> dict:
     reason = target.missing_tools()
     if reason:
         raise ModelError(reason)
+    serve = _xcp_serve_bus(args)
     design, model, controller, faults, laws = _loop_inputs(args)
+    if serve:
+        return _xcp_serve(args, serve, design, model, controller, pil=True)
     report_progress(
         f"processor in the loop on {design.name!r}: {', '.join(laws)} on {target.BOARD}, "
         f"t_e = {design.control.study_duration:g} s"
@@ -312,152 +366,3 @@ def cmd_pil(args) -> dict:
     summary["design"] = {"name": design.name, "sha256": design.sha256}
     summary["artifact_sha256"] = controller.artifact_sha256
     return summary
-
-
-def _bench_database(args):
-    from smartjoint.common.errors import ModelError
-    from smartjoint.design.control import artifact
-    from smartjoint.design.network import protocol
-
-    if args.dbc and (args.artifact or args.network):
-        raise ModelError("--dbc: give the DBCs or --artifact (with --network), not both")
-    if args.dbc:
-        databases = []
-        for path in args.dbc:
-            try:
-                databases.append(protocol.load_dbc(Path(path).read_text()))
-            except OSError as error:
-                raise ModelError(f"--dbc {path}: cannot read ({error.strerror})") from None
-        return databases, None
-    if args.artifact:
-        loaded = artifact.load(Path(args.artifact))
-        if args.network is None:
-            return [protocol.database(loaded)], None
-        network = _design_network(args.network, loaded)
-        return [p.database for p in network.buses], [p.bus.name for p in network.buses]
-    raise ModelError("give the protocol: --dbc FILE (one per bus) or --artifact controller.json [--network DESIGN]")
-
-
-def cmd_bench(args) -> dict:
-    from smartjoint.bench import logs, loop
-    from smartjoint.design.control import artifact
-    from smartjoint.design.network import protocol
-
-    if args.bench_command == "dbc":
-        loaded = artifact.load(Path(args.artifact))
-        db = protocol.database(loaded)
-        from smartjoint.design.network import busload
-
-        load = busload.check(db, args.bitrate, args.data_bitrate, args.max_load)
-        write_atomic(Path(args.output), protocol.dbc_text(db))
-        out = {"dbc": args.output, "frames": len(db.messages), "bus_load": load.load}
-        if not args.json:
-            print(load.table())
-            print(f"DBC written to {args.output}")
-        return out
-    if args.bench_command == "log":
-        bus = loop.open_bus(args.interface, args.channel)
-        try:
-            report_progress(f"recording {args.interface}:{args.channel} to {args.output} (Ctrl-C stops) …")
-            out = logs.record(bus, args.output, args.duration, args.rotate_bytes, progress=report_progress)
-        finally:
-            bus.shutdown()
-        if not args.json:
-            print(f"{out['frames']} frames in {out['seconds']:.1f} s → {out['file']}")
-        return out
-    if args.bench_command == "decode":
-        return _bench_decode(args)
-    return _bench_replay(args)
-
-
-def _bench_log(args):
-    """The log of ``bench decode`` / ``bench replay``, its damage on stderr (counts by kind)."""
-    from smartjoint.bench import logs
-    from smartjoint.common.errors import ModelError
-
-    content = logs.load(args.log)
-    if not content.messages:
-        raise ModelError(
-            f"log file {args.log}: no frames"
-            + (f" ({content.problem()})" if content.problem() else "")
-            + " — nothing to "
-            + args.bench_command
-        )
-    problem = content.problem()
-    if problem:
-        early = " ends early and" if content.truncated else ""
-        report_progress(
-            f"warning: {args.log}{early} is damaged — {problem}; using the {len(content.messages)} frames read"
-        )
-    return content
-
-
-def _bench_decode(args) -> dict:
-    from smartjoint.bench import logs
-
-    content = _bench_log(args)
-    databases, names = _bench_database(args)
-    decoded = logs.decode(content, databases, bus_names=names)
-    out = decoded.summary()
-    if args.output:
-        logs.write_csv(decoded, args.output)
-        out["csv"] = args.output
-    write_plots(args, out, lambda folder: logs.plot(decoded, folder))
-    if decoded.skipped():
-        report_progress(
-            f"warning: {decoded.skipped()} of {decoded.frames} frames not decoded: "
-            f"unknown ids {sum(decoded.unknown_ids.values())}, "
-            f"wrong length {sum(decoded.wrong_length.values())}, "
-            f"bad CRC {sum(decoded.bad_e2e.values())}, error frames {decoded.error_frames}, remote frames "
-            f"{decoded.remote_frames}, non-finite time stamps {decoded.non_finite_times}"
-        )
-    if not args.json:
-        for key, value in out.items():
-            print(f"{key}: {value}")
-    return out
-
-
-def _bench_replay(args) -> dict:
-    """Exit 1 (after the report) when a setpoint differs or a recorded one was not replayed."""
-    from smartjoint.bench import firmware
-    from smartjoint.bench.replay import replay
-    from smartjoint.common.errors import ModelError
-    from smartjoint.design.control import artifact
-
-    content = _bench_log(args)
-    loaded = artifact.load(Path(args.artifact))
-    network = None if args.network is None else _design_network(args.network, loaded)
-    out = replay(content, firmware.Firmware(loaded, args.law, args.real, network=network), args.tolerance)
-    out["log_problem"] = content.problem()
-    out["log"] = content.skipped()
-    if out["setpoints_compared"] == 0 and out["recorded_not_replayed"] == 0:
-        raise ModelError(
-            f"log file {args.log}: no recorded setpoint frame (SETPOINT_*, SETPOINTS_*) to compare "
-            f"({out['samples']} samples replayed) — a log of the controller's bus is needed"
-        )
-    line = (
-        f"{out['samples']} samples ({out['silent_samples']} without frames), {out['setpoints_compared']} "
-        f"setpoints compared, {out['differing']} differ beyond {args.tolerance:g} V (max "
-        f"{out['max_difference_V']:.3g} V), {out['recorded_not_replayed']} recorded but not replayed, "
-        f"{out['replayed_not_recorded'] + out['replayed_not_recorded_in_silent_samples']} replayed but not "
-        f"recorded ({out['replayed_not_recorded_in_silent_samples']} of them in samples without frames)"
-    )
-    skipped = out["recorded_setpoints_bad_crc"] + out["recorded_setpoints_wrong_length"]
-    if skipped:
-        line += (
-            f"; {skipped} recorded setpoints not compared (bad CRC {out['recorded_setpoints_bad_crc']}, wrong "
-            f"length {out['recorded_setpoints_wrong_length']})"
-        )
-    if out["ok"]:
-        if not args.json:  # main prints the JSON
-            print(line)
-        return out
-    print(json.dumps(out, indent=1) if args.json else line)  # main does not get to print: the exit is 1
-    print(f"smartjoint bench replay: FAILED: {line}", file=sys.stderr)
-    for d in out["first_differences"][:10]:
-        replayed = "nothing" if d["replayed_V"] is None else f"{d['replayed_V']:.9g} V"
-        print(
-            f"  t = {d['time']:.6f} s {d['frame']} {d['kind']}: recorded {d['recorded_V']:.9g} V, replayed {replayed}",
-            file=sys.stderr,
-        )
-    raise SystemExit(1)
