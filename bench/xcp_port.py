@@ -11,6 +11,7 @@ stays reproducible.
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -219,9 +220,11 @@ def target_description(firmware, bus=None):
     return elf_description(firmware.artifact, firmware.files, firmware.elf, firmware.xcp, firmware.db, bus)
 
 
-def elf_description(artifact, files: dict, elf, xcp, db, bus=None, prefix: str = "smartjoint"):
-    """The A2L of a linked Cortex-M4F image: its symbols' addresses (``arm-none-eabi-nm``) and
-    the layout the target compiler gives the generated ``files``; base 0.
+def elf_description(artifact, files: dict, elf, xcp, db, bus=None, prefix: str = "smartjoint", real: str = "float",
+                    compiler: str = "arm-none-eabi-gcc", flags: tuple[str, ...] = TARGET_FLAGS,
+                    where: str | None = None):  # fmt: skip
+    """The A2L of a linked image: its symbols' addresses (the toolchain's ``nm``) and the layout
+    that ``compiler`` with ``flags`` gives the generated ``files``; base 0.
 
     Parameters
     ----------
@@ -235,7 +238,14 @@ def elf_description(artifact, files: dict, elf, xcp, db, bus=None, prefix: str =
         Every frame of the network (the raw signals' scales).
     bus : design.structure.description.Bus, optional
         The bus XCP runs on; default a CAN FD bus of 1/5 Mbit/s.
-    prefix : str
+    prefix, real : str
+        The generated sources' prefix and scalar type.
+    compiler : str
+        The image's C compiler (GCC-style; its ``nm`` and ``objcopy`` share its prefix).
+    flags : tuple of str
+        The compiler flags that fix the image's ABI (default the PIL target's Cortex-M4F).
+    where : str, optional
+        The A2L header's words for the addresses.
     """
     from pathlib import Path
 
@@ -243,13 +253,30 @@ def elf_description(artifact, files: dict, elf, xcp, db, bus=None, prefix: str =
     from smartjoint.codegen import a2l
     from smartjoint.design.structure.description import Bus
 
+    tools = compiler[: -len("gcc")] if compiler.endswith("gcc") else ""
     measured = a2l.measurements(artifact, db)
-    layout = a2l.probe(files, prefix, sorted({m.member for m in measured}), "arm-none-eabi-gcc",
-                       "arm-none-eabi-objcopy", TARGET_FLAGS)  # fmt: skip
+    layout = a2l.probe(files, prefix, sorted({m.member for m in measured}), compiler, f"{tools}objcopy", flags)
     return a2l.describe(
-        artifact, "float", prefix, xcp, symbols(str(elf), "arm-none-eabi-nm"), layout, measured, bus or Bus("xcp"),
-        f"Cortex-M4F image {Path(elf).name} (mps2-an386): linked addresses",
+        artifact, real, prefix, xcp, symbols(str(elf), f"{tools}nm"), layout, measured, bus or Bus("xcp"),
+        where or f"Cortex-M4F image {Path(elf).name} (mps2-an386): linked addresses",
     )  # fmt: skip
+
+
+def elf_bytes(elf, address: int, length: int, objdump: str = "arm-none-eabi-objdump") -> bytes:
+    """``length`` bytes of a linked image's contents at ``address`` (``objdump -s``)."""
+    import subprocess
+
+    try:
+        command = [objdump, "-s", f"--start-address=0x{address:x}", f"--stop-address=0x{address + length:x}", str(elf)]
+        text = subprocess.run(command, capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError) as error:
+        raise ModelError(f"{elf}: {objdump} cannot read it ({error})") from None
+    data = bytearray()
+    for line in text.splitlines():  # " 338c 736d6172 746a6f69 6e742066 6c6f6174  smartjoint float"
+        match = re.match(r"^ ([0-9a-f]+) ([0-9a-f ]{35})  ", line)
+        if match and int(match.group(1), 16) == address + len(data):
+            data += bytes.fromhex(match.group(2).replace(" ", ""))
+    return bytes(data[:length])
 
 
 def sil_description(firmware, bus=None):
@@ -278,4 +305,4 @@ def sil_description(firmware, bus=None):
     )  # fmt: skip
 
 
-__all__ = ["XcpLoop", "XcpPort", "elf_description", "serve_study", "sil_description", "target_description"]
+__all__ = ["XcpLoop", "XcpPort", "elf_bytes", "elf_description", "serve_study", "sil_description", "target_description"]

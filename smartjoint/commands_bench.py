@@ -11,7 +11,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from smartjoint.commands import report_progress, write_atomic, write_plots
-from smartjoint.commands_control import design_network
+from smartjoint.commands_control import design_network, design_xcp
 from smartjoint.common import law_registry
 
 
@@ -49,6 +49,18 @@ def add_bench_commands(sub, o: SimpleNamespace, bus_rates, bus_channel) -> None:
     q.add_argument("--real", choices=("float", "double"), default="float")
     q.add_argument("--tolerance", type=float, default=0.0, help="volts counted as equal (default 0: bit-exact)")
     _add_xcp_command(bench, o, bus_channel)
+    q = bench.add_parser(
+        "a2l", parents=[o.json], help="the A2L of your own image of the generated sources, from its linked ELF"
+    )
+    q.add_argument("elf", help="the linked image (with <prefix>_xcp.c)")
+    q.add_argument("--artifact", required=True, help="the controller artefact the sources were generated from")
+    q.add_argument("--design", help="design file: its [network] and [xcp] (default: one bus, [xcp]'s defaults)")
+    q.add_argument("--prefix", default="smartjoint", help="codegen's --prefix (default: %(default)s)")
+    q.add_argument("--real", choices=("float", "double"), default="float", help="codegen's --real (default: float)")
+    q.add_argument("--compiler", default="arm-none-eabi-gcc", help="the image's GCC (default: %(default)s)")
+    q.add_argument("--cflags", default="-mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard",
+                   help="the flags that fix the image's ABI (default: %(default)s)")  # fmt: skip
+    q.add_argument("-o", "--output", required=True, help="the A2L file")
     for tool in bench.choices.values():
         tool.set_defaults(func=cmd_bench)
 
@@ -129,6 +141,8 @@ def cmd_bench(args) -> dict:
         return _bench_decode(args)
     if args.bench_command == "xcp":
         return _bench_xcp(args)
+    if args.bench_command == "a2l":
+        return _bench_a2l(args)
     return _bench_replay(args)
 
 
@@ -290,6 +304,48 @@ def _bench_xcp(args) -> dict:
         write_plots(args, out, lambda folder: [xcp_session.plot_daq(daq, description, Path(folder) / "xcp_daq.png")])
     if not args.json:
         print(xcp_session.session_text(out, description))
+    return out
+
+
+def _bench_a2l(args) -> dict:
+    """The A2L of a user's linked image: the artefact's sources as codegen gave them, the ELF's
+    symbols, the layout the image's compiler gives; refused when the ELF's EPK is not theirs."""
+    import shlex
+
+    from smartjoint.bench import firmware, xcp_port
+    from smartjoint.codegen import can_layer, xcp_slave
+    from smartjoint.common.errors import ModelError
+    from smartjoint.design.control import artifact
+    from smartjoint.design.network import plan, protocol, xcp_bus
+
+    elf = Path(args.elf)
+    if not elf.is_file():
+        raise ModelError(f"ELF {args.elf}: not a file")
+    loaded = artifact.load(Path(args.artifact))
+    network = design_network(args.design, loaded) if args.design else plan.one_bus(loaded, protocol.database(loaded))
+    xcp = design_xcp(args.design)
+    tools = args.compiler[: -len("gcc")] if args.compiler.endswith("gcc") else ""
+    symbol = f"{args.prefix}_xcp_epk"
+    address = firmware.symbols(str(elf), f"{tools}nm").get(symbol)
+    if address is None:
+        raise ModelError(f"ELF {args.elf}: no symbol {symbol} — link {args.prefix}_xcp.c (or give codegen's --prefix)")
+    expected = xcp_slave.epk(loaded, args.real, args.prefix)
+    found = xcp_port.elf_bytes(elf, address, len(expected) + 1, f"{tools}objdump").split(b"\0")[0]
+    if found != expected.encode():
+        raise ModelError(f"ELF {args.elf}: its EPK {found.decode(errors='replace')!r} is not {expected!r} (this "
+                         "artefact, --real and --prefix) — built from other sources")  # fmt: skip
+    files = firmware.sources(loaded, args.real, args.prefix, xcp, network=network)
+    description = xcp_port.elf_description(
+        loaded, files, elf, xcp, can_layer.network_database(network), xcp_bus.xcp_plan(network, xcp).bus,
+        args.prefix, args.real, args.compiler, tuple(shlex.split(args.cflags)),
+        f"image {elf.name} ({args.compiler} {args.cflags}): linked addresses",
+    )  # fmt: skip
+    write_atomic(Path(args.output), description.text)
+    out = {"a2l": args.output, "epk": expected, "measurements": len(description.measurements),
+           "characteristics": len(description.characteristics)}  # fmt: skip
+    if not args.json:
+        print(f"{args.output}: {out['measurements']} MEASUREMENTs, {out['characteristics']} CHARACTERISTICs at the "
+              f"addresses of {args.elf} (EPK {expected!r})")  # fmt: skip
     return out
 
 

@@ -118,12 +118,21 @@ def design_network(path: str, loaded):
     return plan.plan(loaded, design.network)
 
 
+def design_xcp(path: str | None):
+    """The ``[xcp]`` of a design file (its identifiers, key, bus), or the defaults without one."""
+    from smartjoint.design.structure.description import Xcp
+    from smartjoint.design.structure.spec import load_design
+
+    return Xcp() if path is None else load_design(path).xcp
+
+
 def cmd_codegen(args) -> dict:
     from smartjoint.codegen import generate
     from smartjoint.design.control import artifact
 
     loaded = artifact.load(Path(args.artifact))
     can_options = {} if args.network is None else {"network": design_network(args.network, loaded)}
+    can_options["xcp"] = design_xcp(args.network)  # the design's identifiers and key, not the defaults
     placed = generate.generate(
         loaded,
         Path(args.output),
@@ -134,7 +143,11 @@ def cmd_codegen(args) -> dict:
         progress=report_progress,
         **can_options,
     )
-    a2l = _codegen_a2l(loaded, args) if not args.no_can else "without the CAN layer there is no XCP slave"
+    a2l = (
+        _codegen_a2l(loaded, args, can_options["xcp"], can_options.get("network"))
+        if not args.no_can
+        else "without the CAN layer there is no XCP slave"
+    )
     out = {
         "artifact": args.artifact,
         "artifact_sha256": loaded.artifact_sha256,
@@ -160,7 +173,7 @@ def cmd_codegen(args) -> dict:
     return out
 
 
-def _codegen_a2l(loaded, args) -> str:
+def _codegen_a2l(loaded, args, xcp, network=None) -> str:
     """``<prefix>.a2l`` beside the DBC: the XCP slave's description with the addresses of the
     Cortex-M4F image the PIL bench runs (linked here, float build); what was written, or why not."""
     import tempfile
@@ -168,20 +181,23 @@ def _codegen_a2l(loaded, args) -> str:
     from smartjoint.bench import pil, target
     from smartjoint.bench.xcp_port import elf_description
     from smartjoint.codegen import can_layer, output
-    from smartjoint.design.network import plan, protocol
-    from smartjoint.design.structure.description import Xcp
+    from smartjoint.design.network import plan, protocol, xcp_bus
 
     if args.prefix != target.PREFIX or args.real != "float":
         return f"not written: the target image is the float build with prefix {target.PREFIX!r}"
     missing = target.missing_tools()
     if missing:
         return f"not written: {missing} (the A2L's addresses come from the linked target image)"
+    if network is not None and len(network.buses) > 1:
+        return (f"not written: the PIL target image has one bus, [network] {len(network.buses)}; link your image and "
+                "run `smartjoint bench a2l` on it")  # fmt: skip
     report_progress("linking the Cortex-M4F image for the A2L's addresses …")
     with tempfile.TemporaryDirectory(prefix="smartjoint-a2l-") as work:
-        elf = pil.build_image(loaded, Path(work), xcp=Xcp())
-        db = can_layer.network_database(plan.one_bus(loaded, protocol.database(loaded)))
-        files = {**pil.firmware.sources(loaded, "float", target.PREFIX, Xcp())}
-        text = elf_description(loaded, files, elf, Xcp(), db).text
+        elf = pil.build_image(loaded, Path(work), xcp=xcp)
+        network = network or plan.one_bus(loaded, protocol.database(loaded))
+        files = {**pil.firmware.sources(loaded, "float", target.PREFIX, xcp)}
+        bus = xcp_bus.xcp_plan(network, xcp).bus
+        text = elf_description(loaded, files, elf, xcp, can_layer.network_database(network), bus).text
     path = Path(args.output) / f"{args.prefix}.a2l"
     output.write({path.name: text}, path.parent)
     return str(path)

@@ -42,13 +42,7 @@ def served_image(tmp_path_factory):
 
 def _bench(*argv) -> tuple[int, str, str]:
     """``smartjoint bench xcp …`` in this process: (exit code, stdout, stderr)."""
-    import contextlib
-    import io
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = cli.main(["bench", "xcp", *map(str, argv)])
-    return code, out.getvalue(), err.getvalue()
+    return _run_cli(["bench", "xcp", *argv])
 
 
 def test_the_a2l_reads_back_as_codegen_stated_it(served_image):
@@ -235,3 +229,58 @@ def test_sil_serves_a_master_in_another_process(tmp_path):
     finally:
         serve.terminate()
         serve.wait(timeout=60)
+
+
+def test_the_post_link_a2l_of_an_image_is_codegens_and_refuses_another_image(tmp_path):
+    """``bench a2l`` on the PIL image linked here gives codegen's committed A2L (but for the header's
+    words on where the addresses come from); an image of another build or prefix is refused."""
+    from smartjoint.bench import pil, target
+
+    if target.missing_tools():
+        pytest.skip(target.missing_tools())
+    elf = pil.build_image(artifact.load(REFERENCE), tmp_path / "image", xcp=Xcp())
+    out = tmp_path / "post.a2l"
+    assert cli.main(["bench", "a2l", str(elf), "--artifact", str(REFERENCE), "-o", str(out)]) == 0
+    committed = (REFERENCE.parent / "smartjoint.a2l").read_text().splitlines()
+    written = out.read_text().splitlines()
+    differing = [k for k, (a, b) in enumerate(zip(written, committed, strict=True)) if a != b]
+    assert [written[k].split()[1] for k in differing] == ["HEADER", "MOD_PAR"]
+    for options, words in [
+        (["--real", "double"], "is not 'smartjoint double"),
+        (["--prefix", "other"], "no symbol other_xcp_epk"),
+    ]:
+        code, _, err = _run_cli(["bench", "a2l", str(elf), "--artifact", str(REFERENCE), "-o", str(tmp_path / "x.a2l"),
+                                 *options])  # fmt: skip
+        assert code == 2 and words in err and err.count("\n") == 1, err
+        assert not (tmp_path / "x.a2l").exists()
+
+
+def _run_cli(argv) -> tuple[int, str, str]:
+    import contextlib
+    import io
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(list(map(str, argv)))
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_codegen_takes_the_designs_xcp_identifiers_and_key(tmp_path):
+    """codegen --network DESIGN gives the firmware and its A2L the design's [xcp], not the defaults."""
+    from smartjoint.bench import target
+    from smartjoint.codegen import xcp_slave
+    from smartjoint.design.structure import spec
+
+    base = (spec.REFERENCE_DESIGN.parent / "three_type_a.toml").as_posix()
+    key = "00112233445566778899aabbccddeeff"
+    design = tmp_path / "d.toml"
+    design.write_text(f'base = "{base}"\n[xcp]\nmaster_id = 0x700\nslave_id = 0x701\nkey = "{key}"\n')
+    code, _, err = _run_cli(["codegen", REFERENCE, "-o", tmp_path / "out", "--network", design])
+    assert code == 0, err
+    header = (tmp_path / "out" / "smartjoint_xcp.h").read_text()
+    assert "_ID_MASTER 0x700u" in header and "_ID_SLAVE 0x701u" in header
+    words = xcp_slave.secret(artifact.load(REFERENCE), Xcp(key=key))
+    assert ", ".join(f"0x{w:08X}u" for w in words) in (tmp_path / "out" / "smartjoint_xcp_key.c").read_text()
+    if not target.missing_tools():
+        described = a2l_file.read(tmp_path / "out" / "smartjoint.a2l")
+        assert (described.master_id, described.slave_id) == (0x700, 0x701)
