@@ -346,7 +346,8 @@ def _write_report_files(r: _Run, staging: Path) -> _ReportFiles:
     plot_control_study(r.control.study, staging)
     artifact.save(r.control.artifact, staging / "controller.json")
     network = None if r.control.design.network == Network() else r.bench.network  # the buses SIL ran on
-    output.write(generate.firmware_files(r.control.artifact, network=network), staging / "firmware")
+    firmware = generate.firmware_files(r.control.artifact, xcp=r.control.design.xcp, network=network)
+    output.write(firmware, staging / "firmware")
     sil.plot_sil(r.bench.sil, staging, r.bench.sil.get("mil_runs"))
     sil.plot_faults(r.bench.faults, staging / "sil_faults.png")
     safety_report.plot_matrix(r.bench.safety, staging / "safety_cycles.png")
