@@ -41,6 +41,7 @@ class XcpPort:
         self.bus: Any = None
         self.sent = 0  # frames the slave sent
         self.commands = 0  # frames of the master it took
+        self.on_frame: Callable[[Any, int], None] | None = None  # (message, time_us): a bench log
 
     def open(self) -> XcpPort:
         """Open the bus (the firmware keeps its state: reset it yourself)."""
@@ -60,12 +61,15 @@ class XcpPort:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def _send(self, frames: list[bytes]) -> None:
+    def _send(self, frames: list[bytes], time_us: int) -> None:
         import can
 
         for data in frames:
-            self.bus.send(can.Message(arbitration_id=self.slave_id, data=data, is_extended_id=False, is_fd=True))
+            message = can.Message(arbitration_id=self.slave_id, data=data, is_extended_id=False, is_fd=True)
+            self.bus.send(message)
             self.sent += 1
+            if self.on_frame is not None:
+                self.on_frame(message, time_us)
 
     def receive(self, time_us: int, timeout: float = 0.0) -> int:
         """Take every waiting frame of the master (each answered at once); returns how many."""
@@ -75,8 +79,10 @@ class XcpPort:
             if message is None:
                 return taken
             if message.arbitration_id == self.master_id and not message.is_extended_id:
+                if self.on_frame is not None:
+                    self.on_frame(message, time_us)
                 self.fw.xcp_rx(bytes(message.data), time_us)
-                self._send(self.fw.xcp_tx())
+                self._send(self.fw.xcp_tx(), time_us)
                 taken += 1
                 self.commands += 1
 
@@ -84,7 +90,7 @@ class XcpPort:
         """The sample boundary after a controller step: the slave's event, then its DTOs."""
         self.receive(time_us)
         self.fw.xcp_event(time_us)
-        self._send(self.fw.xcp_tx())
+        self._send(self.fw.xcp_tx(), time_us)
 
     def serve(self, script: Callable[[], Any], time_us: int = 0, timeout: float = 60.0) -> Any:
         """Run ``script()`` (a master's commands) in a thread while this thread answers it.
@@ -146,6 +152,15 @@ class XcpLoop(SilLoop):
     def reset(self) -> None:
         super().reset()
         self.port.open()
+        self.port.on_frame = None if self.writer is None else self._log_xcp
+
+    def _log_xcp(self, message, time_us: int) -> None:
+        """An XCP frame into the bench log, on the channel after the plan's buses (bench decode
+        reads it with xcp.dbc), at the sample's time."""
+        message.timestamp = time_us * 1e-6
+        message.channel = len(self.bus_names)
+        message.is_rx = message.arbitration_id == self.port.slave_id
+        self.writer.on_message_received(message)
 
     def close(self) -> None:
         super().close()

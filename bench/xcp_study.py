@@ -123,7 +123,8 @@ def _scripts(master, policy, seen: dict, address: int, new: list[float], real: s
     return start, calibrate, stop
 
 
-def calibration_study(setup, image, law: str, real: str, channel: str, folder=None, progress=print) -> dict:
+def calibration_study(setup, image, law: str, real: str, channel: str, folder=None, progress=print,
+                      log_path=None) -> dict:  # fmt: skip
     """The study with DAQ of every scalar measurement and the law's boundary layer × 3 at t = 1 s.
 
     Parameters
@@ -140,6 +141,8 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     folder : path, optional
         Where ``<name>.a2l`` and ``<name>_daq.mf4`` go (name ``xcp_<sil|pil>_<law>``).
     progress : callable
+    log_path : path, optional
+        The bench log of the run: the control buses' frames and, on the channel after them, XCP's.
 
     Returns
     -------
@@ -161,7 +164,7 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     start, calibrate, stop = _scripts(xcp_master.master(app, policy), policy, seen, tunables[0].address, new, real)
     port = XcpPort(image, channel=f"{channel}.xcp")
     loop = XcpLoop(image, port, {0: start, switch: calibrate}, excitation_end=closed_loop.PULSE_DURATION,
-                   channel=channel)  # fmt: skip
+                   channel=channel, log_path=log_path)  # fmt: skip
     progress(f"      {law}: XCP on the {'target' if pil else 'SIL firmware'}: DAQ of {len(entries)} signals, "
              f"the boundary layer × {FACTOR:g} by DOWNLOAD at t = {SWITCH_TIME:g} s …")  # fmt: skip
     result = run_loop(setup, loop)

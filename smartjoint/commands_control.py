@@ -251,8 +251,9 @@ def _xcp_runs(args, design, controller, laws, pil: bool = False, network=None) -
                                                         report_progress))  # fmt: skip
         else:
             image = firmware.Firmware(controller, law, args.real, xcp=design.xcp, network=network)
+            log = None if not args.log_folder else Path(args.log_folder) / f"xcp_sil_{law}.blf"
             runs.append(xcp_study.calibration_study(setup, image, law, args.real, f"xcp-sil-{law}", args.plots,
-                                                    report_progress))  # fmt: skip
+                                                    report_progress, log))  # fmt: skip
     return [xcp_study.json_ready(r) for r in runs]
 
 

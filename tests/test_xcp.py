@@ -159,10 +159,11 @@ def _refusals(fw, description, real: str):
     ]
 
 
-def test_refused_downloads_change_no_byte_and_not_the_study(images, study_setup):
+def test_refused_downloads_change_no_byte_and_not_the_study(images, study_setup, tmp_path):
     """In the safe state every DOWNLOAD is refused; while the law runs, one out of range, part of
     a value, past F_N^max, to flash, to the state or to a safety limit is refused: the page's
-    bytes stay (UPLOAD, checksum) and the study's commands equal those of a run without XCP."""
+    bytes stay (UPLOAD, checksum) and the study's commands equal those of a run without XCP.
+    The bench log holds the XCP frames on the channel after the control bus's."""
     fw, description = images["double"]
     setup = dataclasses.replace(study_setup, duration=0.3)
     app = xcp_master.application(fw.artifact, fw.xcp, channel="xcp-refusals.xcp", timeout=1.0)
@@ -189,8 +190,9 @@ def test_refused_downloads_change_no_byte_and_not_the_study(images, study_setup)
 
     port = XcpPort(fw, channel="xcp-refusals.xcp")
     loop = XcpLoop(fw, port, {0: safe_state, 100: running}, excitation_end=closed_loop.PULSE_DURATION,
-                   channel="xcp-refusals")  # fmt: skip
+                   channel="xcp-refusals", log_path=tmp_path / "bench.blf")  # fmt: skip
     sil.run_loop(setup, loop)
+    _assert_logged(tmp_path / "bench.blf", port, loop)
     assert seen["safe"] == ERR_TEMPORARILY_NOT_ACCESSIBLE
     assert seen["refused"] == [code for *_, code in _refusals(fw, description, "double")]
     assert seen["after"] == seen["before"]
@@ -198,6 +200,19 @@ def test_refused_downloads_change_no_byte_and_not_the_study(images, study_setup)
                     channel="xcp-plain")  # fmt: skip
     sil.run_loop(setup, plain)
     assert not loop.record.safe[100] and np.array_equal(np.array(loop.record.command), np.array(plain.record.command))
+
+
+def _assert_logged(path, port, loop) -> None:
+    """The log's XCP frames: every command the slave took and every frame it sent, on channel 1,
+    each within the run; the control frames stay on channel 0."""
+    from smartjoint.bench import logs
+
+    content = logs.load(str(path))
+    xcp = [m for m in content.messages if m.channel == 1]
+    assert sum(m.arbitration_id == port.master_id for m in xcp) == port.commands > 0
+    assert sum(m.arbitration_id == port.slave_id for m in xcp) == port.sent > 0
+    assert len(xcp) == port.commands + port.sent and all(0.0 <= m.timestamp <= loop.record.time[-1] for m in xcp)
+    assert {m.channel for m in content.messages} == {0, 1}
 
 
 def _calibrated_run(fw, description, setup, real: str, channel: str):
