@@ -321,6 +321,8 @@ class Decoded:
     unknown_ids: dict = field(default_factory=lambda: defaultdict(int))
     wrong_length: dict = field(default_factory=lambda: defaultdict(int))
     bad_e2e: dict = field(default_factory=lambda: defaultdict(int))
+    # Frames the DBC gives no signals (XCP_CMD, XCP_RES: their layout is XCP's): counted, not decoded.
+    without_signals: dict = field(default_factory=lambda: defaultdict(int))
     error_frames: int = 0
     remote_frames: int = 0
     non_finite_times: int = 0
@@ -347,6 +349,7 @@ class Decoded:
             "unknown_ids": {f"0x{k:03X}": v for k, v in sorted(self.unknown_ids.items())},
             "wrong_length": dict(self.wrong_length),
             "bad_e2e": dict(self.bad_e2e),
+            "frames_without_signals": dict(self.without_signals),
             "error_frames": self.error_frames,
             "remote_frames": self.remote_frames,
             "non_finite_times": self.non_finite_times,
@@ -414,6 +417,9 @@ def decode(messages, db, problem: str | None = None, bus_names=None) -> Decoded:
         m = known.get(message.arbitration_id)
         if m is None:
             out.unknown_ids[message.arbitration_id] += 1
+            continue
+        if not m.signals:
+            out.without_signals[label(bus, m.name)] += 1
             continue
         data = bytes(message.data)
         if len(data) != m.length:

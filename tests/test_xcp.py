@@ -206,6 +206,7 @@ def _assert_logged(path, port, loop) -> None:
     """The log's XCP frames: every command the slave took and every frame it sent, on channel 1,
     each within the run; the control frames stay on channel 0."""
     from smartjoint.bench import logs
+    from smartjoint.design.network import protocol, xcp_bus
 
     content = logs.load(str(path))
     xcp = [m for m in content.messages if m.channel == 1]
@@ -213,6 +214,9 @@ def _assert_logged(path, port, loop) -> None:
     assert sum(m.arbitration_id == port.slave_id for m in xcp) == port.sent > 0
     assert len(xcp) == port.commands + port.sent and all(0.0 <= m.timestamp <= loop.record.time[-1] for m in xcp)
     assert {m.channel for m in content.messages} == {0, 1}
+    bus_db = protocol.database(loop.fw.artifact)
+    decoded = logs.decode(content, [bus_db, xcp_bus.database(loop.fw.xcp)])  # as bench decode --dbc … --dbc xcp.dbc
+    assert decoded.skipped() == 0 and sum(decoded.without_signals.values()) == len(xcp)
 
 
 def _calibrated_run(fw, description, setup, real: str, channel: str):
