@@ -252,6 +252,15 @@ def _complete(path: Path, rows: int) -> bool:
         return False
 
 
+def check_output(folder: Path, resume: bool) -> None:
+    """Refuse (SweepError), before any work, an output that is not a folder or holds a sweep's
+    results without ``resume`` (:func:`open_output` compares their sweep)."""
+    if folder.exists() and not folder.is_dir():
+        raise SweepError(f"-o {folder}: not a folder")
+    if (folder / MANIFEST).exists() and not resume:
+        raise SweepError(f"-o {folder}: holds results of a sweep already; --resume continues it, or give another -o")
+
+
 def open_output(folder: Path, prepared: Prepared, resume: bool) -> list[int]:
     """Create or check the output folder; the batches still to compute.
 
@@ -262,11 +271,8 @@ def open_output(folder: Path, prepared: Prepared, resume: bool) -> list[int]:
     """
     manifest = _manifest(prepared)
     path = folder / MANIFEST
+    check_output(folder, resume)
     if path.exists():
-        if not resume:
-            raise SweepError(
-                f"-o {folder}: holds results of a sweep already; --resume continues it, or give another -o"
-            )
         try:
             found = json.loads(path.read_text())
         except (OSError, ValueError) as error:
@@ -361,6 +367,7 @@ def run_sweep(
     import dask
 
     folder = Path(folder)
+    check_output(folder, resume)  # before the scheduler and the preparation (minutes on a large design)
     # The LocalCluster's work files in a folder of this run, removed with it (nothing left behind).
     with (
         tempfile.TemporaryDirectory(prefix="smartjoint-dask-") as scratch,
@@ -465,25 +472,23 @@ def _submit_and_write(client, prepared: Prepared, folder: Path, todo: list[int],
             ): k
             for k in todo
         }
+        seen = set(client.scheduler_info().get("workers", {}))
         for future in as_completed(futures, loop=client.loop):
             k = futures[future]
             write_batch(folder, k, future.result(), schema)
             done, computed = done + len(batches[k]), computed + len(batches[k])
             progress("  " + _eta(done, sweep.samples, computed, time.perf_counter() - start))
+            seen = _report_lost_workers(client, seen, progress)
     return computed
 
 
-__all__ = [
-    "MANIFEST",
-    "RESULTS",
-    "SCHEDULER_TIMEOUT",
-    "Prepared",
-    "SweepError",
-    "batch_path",
-    "connect",
-    "open_output",
-    "prepare",
-    "read_results",
-    "run_sweep",
-    "write_batch",
-]
+def _report_lost_workers(client, seen: set, progress) -> set:
+    """Say which workers left the cluster since ``seen`` (killed, lost; Dask re-runs their tasks)."""
+    now = set(client.scheduler_info().get("workers", {}))
+    for address in sorted(seen - now):
+        progress(f"  warning: worker {address} left the cluster (killed or lost); Dask re-runs its tasks elsewhere")
+    return now
+
+
+__all__ = ["MANIFEST", "RESULTS", "SCHEDULER_TIMEOUT", "Prepared", "SweepError", "batch_path", "check_output",
+           "connect", "open_output", "prepare", "read_results", "run_sweep", "write_batch"]  # fmt: skip

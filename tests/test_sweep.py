@@ -401,8 +401,13 @@ def test_one_and_two_workers_give_identical_tables_and_resume_fills_a_gap(folder
     assert {k: batch_path(folder / "two", k).stat().st_mtime_ns for k in (0, 2)} == kept
     assert batch_path(folder / "two", 1).read_bytes() == batch_path(folder / "one", 1).read_bytes()
 
+    # Refused before any work: the scheduler it names is never asked (none listens there).
     with pytest.raises(SweepError, match="--resume continues it"):
-        run_sweep(sweep, folder / "two", scheduler=two_workers, progress=quiet.append)
+        run_sweep(sweep, folder / "two", scheduler=f"tcp://127.0.0.1:{_free_port()}", progress=quiet.append)
+    (folder / "a-file").write_text("mine")
+    with pytest.raises(SweepError, match="not a folder"):
+        run_sweep(sweep, folder / "a-file", scheduler=f"tcp://127.0.0.1:{_free_port()}", progress=quiet.append)
+    assert (folder / "a-file").read_text() == "mine"
     other = dataclasses.replace(sweep, seed=21, sha256="0" * 64)
     with pytest.raises(SweepError, match="results of another sweep"):
         run_sweep(other, folder / "two", scheduler=two_workers, resume=True, progress=quiet.append)
@@ -457,13 +462,17 @@ def test_killing_a_worker_mid_sweep_loses_no_sample(folder):
         with Client(cluster) as client:
             victim = next(iter(client.run(os.getpid).values()))
 
+            said = []
+
             def kill_once(line: str) -> None:
+                said.append(line)
                 if "samples (" in line and not killed:
                     os.kill(victim, signal.SIGKILL)
                     killed.append(line)
 
             out = run_sweep(sweep, folder / "killed", scheduler=cluster.scheduler_address, progress=kill_once)
     assert killed and killed[0].lstrip().startswith("1/12 samples")
+    assert any("left the cluster (killed or lost)" in line for line in said), said
     assert (out["samples_computed"], out["batches_computed"]) == (12, 12)
     calm = run_sweep(sweep, folder / "calm", workers=1, progress=lambda line: None)
     assert calm["rows"] == out["rows"] == 12 * 2 * 5
