@@ -175,8 +175,9 @@ def fmu_study(study, design, artifact, folder: Path, progress=print) -> dict:
         place = folder / f"fmi{version}"
         written = {"truss": fmu.plant_fmu(setup, design, place / "truss.fmu", version)}
         for law, _ in LAWS.values():
-            written[law] = fmu.controller_fmu(artifact, law, place / f"{law}.fmu", version, "double")
-            written[f"{law}_float"] = fmu.controller_fmu(artifact, law, place / f"{law}_float.fmu", version, "float")
+            for real, name in (("double", law), ("float", f"{law}_float")):  # the default experiment: the study
+                written[name] = fmu.controller_fmu(artifact, law, place / f"{name}.fmu", version, real,
+                                                   stop_time=setup.duration)  # fmt: skip
         figures: dict = {
             "fmus": {key: {"path": f.path, "problems": validate_fmu(str(f.path))} for key, f in written.items()}
         }

@@ -111,7 +111,8 @@ def _check_version(fmi: int) -> None:
         raise ModelError(f"--fmi: {fmi!r} — allowed: 2, 3")
 
 
-def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double", prefix: str = "smartjoint") -> Fmu:
+def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double", prefix: str = "smartjoint",
+                   stop_time: float = 1.0) -> Fmu:  # fmt: skip
     """Write the controller FMU of one generated law.
 
     Parameters
@@ -128,6 +129,8 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
         The law's scalar type, "double" or "float" (the firmware's build).
     prefix : str
         The generated code's prefix.
+    stop_time : float
+        The default experiment's stop time [s]: the design's study (t_e) where it is known.
 
     Returns
     -------
@@ -173,7 +176,7 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
     )
     return _write(
         path, identifier, fmi, variables, "fmu/fmu_controller.c.j2", context, sources, [f"{name}.c"],
-        dict(description=description, stop_time=1.0, step_size=artifact.sample_time, variable_step="false",
+        dict(description=description, stop_time=float(stop_time), step_size=artifact.sample_time, variable_step="false",
              fixed_step=None, rules=_controller_rules(artifact.sample_time)),
         _controller_dependencies(variables),
     )  # fmt: skip
@@ -447,6 +450,9 @@ def _pack(target: Path, members: dict[str, bytes]) -> None:
                 info.compress_type = zipfile.ZIP_DEFLATED
                 info.external_attr = (0o755 if name.endswith(".so") else 0o644) << 16
                 archive.writestr(info, members[name])
+        mask = os.umask(0o022)  # mkstemp's file is 0600: the FMU gets an ordinary file's mode
+        os.umask(mask)
+        os.chmod(temporary, 0o666 & ~mask)
         os.replace(temporary, target)
     finally:
         if os.path.exists(temporary):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from smartjoint.commands import load_updated, report_progress
@@ -53,7 +54,13 @@ def _controller(args):
         raise ModelError(
             f"{args.source}: a controller FMU is made from an artefact (JSON); a design file needs --plant"
         )
-    return fmu.controller_fmu(artifact.load(source), args.law, args.output, args.fmi, args.real)
+    from smartjoint.design.structure.description import Control
+
+    stop_time = Control.study_duration if args.stop_time is None else args.stop_time
+    if not (math.isfinite(stop_time) and stop_time > 0):
+        raise ModelError(f"--stop-time: {stop_time!r} s — must be a finite number > 0")
+    return fmu.controller_fmu(artifact.load(source), args.law, args.output, args.fmi, args.real,
+                              stop_time=stop_time)  # fmt: skip
 
 
 def _plant(args):

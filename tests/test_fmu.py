@@ -80,6 +80,30 @@ def test_every_fmu_passes_fmpys_validation_and_is_the_same_bytes_when_written_ag
     assert plant.path.read_bytes() == written[3, "truss"].path.read_bytes()
 
 
+def test_fmus_are_readable_by_others_and_the_default_experiment_is_the_study(small, tmp_path):
+    """An FMU gets an ordinary file's mode (0666 less the umask, not mkstemp's 0600); a controller
+    FMU's default experiment is the study it is given; its time variable has no start value, as
+    FMI 2.0 (2.2.7) and 3.0 demand of the independent variable (docs/fmu.md: FMI Library's error)."""
+    import os
+
+    design, s, a = small
+    mask = os.umask(0o022)
+    os.umask(mask)
+    written = fmu.controller_fmu(a, "siso", tmp_path / "siso.fmu", 2, "double", stop_time=s.setup.duration)
+    assert written.path.stat().st_mode & 0o777 == 0o666 & ~mask
+    description = read_model_description(str(written.path))
+    assert float(description.defaultExperiment.stopTime) == s.setup.duration == 0.3
+    independent = [v for v in description.modelVariables if v.causality == "independent"]
+    assert [v.name for v in independent] == ["time"] and independent[0].start is None
+    from test_can_layer import REFERENCE
+
+    done = run_cli("fmu", REFERENCE, "--law", "siso", "-o", tmp_path / "cli.fmu", "--json")
+    assert done.returncode == 0, done.stderr
+    assert float(read_model_description(str(tmp_path / "cli.fmu")).defaultExperiment.stopTime) == 4.0  # the default t_e
+    line = cli_error("fmu", str(REFERENCE), "--law", "siso", "-o", str(tmp_path / "x.fmu"), "--stop-time", "-1")
+    assert "--stop-time: -1.0 s — must be a finite number > 0" in line and not (tmp_path / "x.fmu").exists()
+
+
 @pytest.mark.numerics
 @pytest.mark.parametrize("version", VERSIONS)
 @pytest.mark.parametrize("name", ["SISO", "cLQG"])

@@ -582,7 +582,7 @@ void sj_stick_record_row(const sj_stick *p, const sj_stick_state *s, const sj_re
     }
     for (int k = 0; k < p->ny; ++k) r->sensors[row * p->ny + k] = dot(p->Cy + (size_t)(k * p->n2), s->z, p->n2);
     r->energy[row] = 0.5 * dot(s->z, s->z, p->n2);
-    r->works[3 * row] = r->works[3 * row + 1] = r->works[3 * row + 2] = NAN;
+    r->works[3 * row] = r->works[3 * row + 1] = r->works[3 * row + 2] = (double)NAN;
 }
 
 /* Disturbance samples at the short-step ends; rows from `rows` on are zero (a run samples a
