@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from smartjoint.common.canonical import canonical_signs
 from smartjoint.common.errors import ModelError
 from smartjoint.design.reduction.selection import (
     PATHS,
@@ -109,7 +110,7 @@ def krylov_vectors(
     values, T = np.linalg.eigh(0.5 * (small + small.T))  # Eq. 26
     if values.min() <= 0:
         raise ModelError("Krylov vectors span a zero-energy motion: the structure is not fully supported")
-    return Psi @ T, np.sqrt(values), labels
+    return canonical_signs(Psi @ T), np.sqrt(values), labels  # eigh's signs are the machine's
 
 
 QUASI_STATIC_DAMPING = 1.0  # ξ of a quasi-static correction: critical, real poles, no resonance

@@ -15,6 +15,7 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from smartjoint.common.canonical import canonical_signs
 from smartjoint.common.errors import ModelError
 
 DENSE_LIMIT = 2500  # DOFs up to which the dense solver is faster than shift-invert Lanczos
@@ -142,10 +143,9 @@ def eigensolve(stiffness: sp.spmatrix, mass: sp.spmatrix, n_modes: int) -> tuple
     # Explicit mass normalisation: ARPACK's vectors are M-orthogonal but scaled loosely.
     scale = np.sqrt(np.einsum("ij,ij->j", vectors, mass @ vectors))
     vectors = vectors / scale
-    # Deterministic sign: largest-magnitude entry positive (reports and files stay stable).
-    peak = np.argmax(np.abs(vectors), axis=0)
-    vectors = vectors * np.sign(vectors[peak, np.arange(vectors.shape[1])])
-    return values, vectors
+    # The same sign on every machine (common.canonical): the largest entry of a mirror-symmetric
+    # structure's antisymmetric mode has an equal and opposite twin, and its last bits decided.
+    return values, canonical_signs(vectors)
 
 
 def gross_energy(stiffness: sp.spmatrix, vectors: np.ndarray) -> np.ndarray:
