@@ -60,11 +60,17 @@ _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # every member's date: the FMU depends on its inputs alone
 
 
-def _controller_rules(sample_time: float) -> list[str]:
+def _controller_rules(sample_time: float, exchange: str = "feedthrough") -> list[str]:
+    timing = (
+        "The outputs at a communication point are the law's step from the inputs set at that point (direct "
+        "feedthrough): set the inputs, read the outputs, then step."
+        if exchange == "feedthrough"
+        else "The outputs are the law's step from the inputs of the last step, held until the next (no feedthrough; "
+        "F_N^max before the first): for masters that step every FMU, then pass outputs on."
+    )
     return [
         f"The communication step is the sample time, {sample_time!r} s, and nothing else.",
-        "The outputs at a communication point are the law's step from the inputs set at that point (direct "
-        "feedthrough): set the inputs, read the outputs, then step.",
+        timing,
         "The normal-force limits and the law's settings are tunable between steps; the safe normal force is not.",
     ]
 
@@ -111,8 +117,11 @@ def _check_version(fmi: int) -> None:
         raise ModelError(f"--fmi: {fmi!r} — allowed: 2, 3")
 
 
+EXCHANGES = ("feedthrough", "held")  # controller FMUs: outputs from this point's inputs, or held from the last step
+
+
 def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double", prefix: str = "smartjoint",
-                   stop_time: float = 1.0) -> Fmu:  # fmt: skip
+                   stop_time: float = 1.0, exchange: str = "feedthrough") -> Fmu:  # fmt: skip
     """Write the controller FMU of one generated law.
 
     Parameters
@@ -131,6 +140,12 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
         The generated code's prefix.
     stop_time : float
         The default experiment's stop time [s]: the design's study (t_e) where it is known.
+    exchange : str
+        ``"feedthrough"``: the outputs at a point are the law's step from the inputs set there (the
+        firmware's timing, for masters that set inputs before they read outputs: FMPy's loop,
+        Simulink, OMSimulator). ``"held"``: the outputs are the step of the last DoStep's inputs,
+        held until the next, for masters that step every FMU and then pass outputs on (libcosim);
+        the command then acts one sample later (docs/fmu.md).
 
     Returns
     -------
@@ -138,6 +153,8 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
     """
     if law not in LAWS:
         raise ModelError(f"--law: {law!r} — allowed: {', '.join(LAWS)}")
+    if exchange not in EXCHANGES:
+        raise ModelError(f"--exchange: {exchange!r} — allowed: {', '.join(EXCHANGES)}")
     if real not in ("float", "double"):
         raise ModelError(f"--real: {real!r} — allowed: float, double")
     _check_version(fmi)
@@ -170,15 +187,18 @@ def controller_fmu(artifact, law: str, path, fmi: int = 2, real: str = "double",
             }
             for setting, values in _settings(artifact, entry)
         ],
+        "held": exchange == "held",
+        "desired_force": "desired_force" in entry.outputs,
     }
     description = (
         f"{artifact.name}: {LAWS[law]}, {real} build, from controller artefact {artifact.artifact_sha256[:12]}"
+        + (", outputs held from the last step" if exchange == "held" else "")
     )
     return _write(
         path, identifier, fmi, variables, "fmu/fmu_controller.c.j2", context, sources, [f"{name}.c"],
         dict(description=description, stop_time=float(stop_time), step_size=artifact.sample_time, variable_step="false",
-             fixed_step=None, rules=_controller_rules(artifact.sample_time)),
-        _controller_dependencies(variables),
+             fixed_step=None, rules=_controller_rules(artifact.sample_time, exchange)),
+        _controller_dependencies(variables, exchange),
     )  # fmt: skip
 
 
@@ -198,9 +218,10 @@ def _fmu_banner(banner: str) -> str:
     return banner.replace("regenerate with `smartjoint codegen`", "regenerate with `smartjoint fmu`")
 
 
-def _controller_dependencies(variables) -> dict[int, list[int] | None]:
-    """Every output of a controller depends on every input (a law's step at the point)."""
-    inputs = fmu_variables.references(variables, "input")
+def _controller_dependencies(variables, exchange: str = "feedthrough") -> dict[int, list[int] | None]:
+    """Every output of a controller depends on every input (a law's step at the point); held
+    outputs depend on none (they change only in a step)."""
+    inputs = [] if exchange == "held" else fmu_variables.references(variables, "input")
     return {v.reference: inputs for v in variables if v.causality == "output"}
 
 
@@ -459,4 +480,14 @@ def _pack(target: Path, members: dict[str, bytes]) -> None:
             os.unlink(temporary)
 
 
-__all__ = ["LAWS", "VERSIONS", "Fmu", "compile_binary", "controller_fmu", "identifier_of", "plant_data", "plant_fmu"]
+__all__ = [
+    "EXCHANGES",
+    "LAWS",
+    "VERSIONS",
+    "Fmu",
+    "compile_binary",
+    "controller_fmu",
+    "identifier_of",
+    "plant_data",
+    "plant_fmu",
+]

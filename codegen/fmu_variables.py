@@ -130,7 +130,7 @@ def controller_variables(artifact, law: str, real: str = "double") -> list[Varia
     -------
     list of Variable
     """
-    status = _output("CONTROLLER_STATUS.step_status", "m->status", None, "status bits of the law's step (0: all "
+    status = _output("CONTROLLER_STATUS.step_status", "m->shown_status", None, "status bits of the law's step (0: all "
                      "inputs used; smartjoint_types.h)", "discrete")  # fmt: skip
     return _numbered(
         [
@@ -178,9 +178,9 @@ def _controller_outputs(artifact, law: str) -> list[dict]:
     rows = []
     for j, name in enumerate(artifact.joint_names):
         what = f"commanded normal force F_N of joint {name}{entry.cited()}"
-        rows.append(_output(f"SETPOINT_{name}.normal_force", f"m->output.normal_force[{j}]", "N", what, "discrete"))
+        rows.append(_output(f"SETPOINT_{name}.normal_force", f"m->shown.normal_force[{j}]", "N", what, "discrete"))
         if "desired_force" in entry.outputs:
-            rows.append(_output(f"SETPOINT_{name}.desired_force", f"m->output.desired_force[{j}]", "N",
+            rows.append(_output(f"SETPOINT_{name}.desired_force", f"m->shown.desired_force[{j}]", "N",
                                 f"LQR force u_d = -(K x_hat) of joint {name} (Eq. 33)", "discrete"))  # fmt: skip
     return rows
 

@@ -366,6 +366,8 @@ def _add_fmu_command(sub, o: SimpleNamespace) -> None:
     p.add_argument("-o", "--output", required=True, help="the FMU to write, <model identifier>.fmu")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default: %(default)s)")
     p.add_argument("--real", choices=("float", "double"), default="double", help="law build (default: %(default)s)")
+    exchange = "controller FMUs: outputs from this point's inputs, or held from the last step (libcosim; docs/fmu.md)"
+    p.add_argument("--exchange", choices=("feedthrough", "held"), default="feedthrough", help=exchange)
     p.add_argument("--stop-time", type=float, help="controller FMUs: the default experiment's stop time [s], your "
                    "design's control.study_duration (default: that setting's default)")  # fmt: skip
     p.set_defaults(func=cmd_fmu)

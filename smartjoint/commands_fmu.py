@@ -60,7 +60,7 @@ def _controller(args):
     if not (math.isfinite(stop_time) and stop_time > 0):
         raise ModelError(f"--stop-time: {stop_time!r} s — must be a finite number > 0")
     return fmu.controller_fmu(artifact.load(source), args.law, args.output, args.fmi, args.real,
-                              stop_time=stop_time)  # fmt: skip
+                              stop_time=stop_time, exchange=args.exchange)  # fmt: skip
 
 
 def _plant(args):
@@ -69,6 +69,8 @@ def _plant(args):
 
     if args.law is not None:
         raise ModelError(f"--law: {args.law!r} — a plant FMU has no law (leave --law out with --plant)")
+    if args.exchange != "feedthrough":
+        raise ModelError(f"--exchange: {args.exchange!r} — a controller FMU's timing; the plant has none to choose")
     args.design = args.source
     design, _ = load_updated(args, firmware_names=True)  # the names become FMI variable names
     if not design.joints:
