@@ -52,6 +52,24 @@ def test_the_bundled_design_is_realised_in_mirror_channels(reference):
     assert _update_terms(r) <= 0.7 * dense, (_update_terms(r), dense)
 
 
+def test_a_coordinate_far_below_its_matrixs_scale_pairs_to_the_solvers_absolute_accuracy(reference):
+    """A quasi-static correction coordinate's Kalman gains are 1e-7 of the matrix's largest and
+    mirror only to the Riccati solver's absolute accuracy (1e-12 of that largest, 1e-5 of their own
+    row): the sensors still pair (SCALE_FLOOR), as today's design needs; an asymmetry of the row's
+    own size (1e-3 of it) still breaks the pair."""
+    m = np.asarray(reference.estimator_gain, dtype=float).copy()
+    top = np.abs(m).max()
+    m[-2:] *= 1e-7 * top / np.abs(m[-2:]).max()  # the last coordinate's rows, tiny
+    solver = m.copy()
+    solver[-2, 0] += 1e-12 * top  # the solver's absolute accuracy: 1e-5 of the row
+    assert _realise(dataclasses.replace(reference, estimator_gain=solver.tolist())).sensors == Channels(
+        (0, 0), (1, 1), (1, -1)
+    )
+    broken = m.copy()
+    broken[-2, 0] *= 1.001
+    assert _realise(dataclasses.replace(reference, estimator_gain=broken.tolist())).sensors.identity
+
+
 def test_channels_transform_back_exactly():
     """Tᵀ·D⁻¹·T = I: the forces summed back from the channels are the joints' forces."""
     c = Channels((0, 0, 2), (1, 1, -1), (1, -1, 1))

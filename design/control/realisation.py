@@ -16,7 +16,9 @@ reading only the channels of its parity. The forward sums and the back transform
 Entries that cancel (|x'| ≤ ``SYMMETRY_TOLERANCE`` × the largest of its row of E or M, its column
 of C or K in the design) become structural zeros: the design's symmetry holds to the FE model's and
 LAPACK's rounding (1e-12 … 4e-9 relative on the bundled design), so dropping them moves no gain by
-more than that tolerance. Coordinates that use the same channels form a group, which the generated
+more than that tolerance. A row's (column's) scale is at least ``SCALE_FLOOR`` of its matrix's
+largest entry: a row far below it, as the Kalman gains of a quasi-static correction coordinate
+(1e-7 of the matrix), mirrors only to the solver's absolute accuracy. Coordinates that use the same channels form a group, which the generated
 C runs as one loop over a table of its own shape; the reference (``filter._Lqg``) sums in the
 same order. A design without such pairs, or whose pairs leave more than ``MAX_GROUPS`` groups, is
 realised as it is (one group, every channel, the coordinates in their order): its numbers are the
@@ -31,6 +33,11 @@ import numpy as np
 
 # An entry whose pair cancels it to this fraction of its row's (column's) largest is a structural zero.
 SYMMETRY_TOLERANCE = 1e-6
+# A row (column) scale is at least this fraction of its matrix's largest entry: a row far below the
+# matrix's scale (a quasi-static coordinate's Kalman gains, 1e-4 against 800) holds its symmetry only
+# to the solver's absolute accuracy (1e-9 there), so its own scale would call that an asymmetry.
+# Entries then count as cancelled at 1e-6 · 1e-5 = 1e-11 of the matrix's largest at the least.
+SCALE_FLOOR = 1e-5
 # More groups than this would multiply the generated loops for little gain: realise the design as it is.
 MAX_GROUPS = 4
 
@@ -210,10 +217,10 @@ def realise(blocks, gamma0, gamma1, joint_input, output, estimator_gain, feedbac
     blocks, gamma0, gamma1 = (np.asarray(v, dtype=float) for v in (blocks, gamma0, gamma1))
     e, c, m, k = (np.asarray(v, dtype=float) for v in (joint_input, output, estimator_gain, feedback_gain))
     n = e.shape[0]
-    row_e = np.abs(e).max(axis=1, keepdims=True)
-    row_m = np.abs(m).max(axis=1, keepdims=True)
-    column_c = np.abs(c).max(axis=0, keepdims=True)
-    column_k = np.abs(k).max(axis=0, keepdims=True)
+    row_e = np.maximum(np.abs(e).max(axis=1, keepdims=True), SCALE_FLOOR * np.abs(e).max())
+    row_m = np.maximum(np.abs(m).max(axis=1, keepdims=True), SCALE_FLOOR * np.abs(m).max())
+    column_c = np.maximum(np.abs(c).max(axis=0, keepdims=True), SCALE_FLOOR * np.abs(c).max())
+    column_k = np.maximum(np.abs(k).max(axis=0, keepdims=True), SCALE_FLOOR * np.abs(k).max())
     # A joint's signature: its column of E and row of K, each entry against its scale; a sensor's:
     # its row of C and column of M. Paired channels have equal magnitudes entry by entry.
     joints = _pairing(
