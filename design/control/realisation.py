@@ -13,16 +13,16 @@ the matrices become E' = E·Tᵀ·D⁻¹, M' = M·T_yᵀ·D_y⁻¹, C' = T_y·C 
 M·y = M'·ỹ, C·x = T_y⁻¹·(C'·x) and u_d = −Tᵀ·(K'·x̂) — the same filter, with each coordinate
 reading only the channels of its parity. The forward sums and the back transform are additions.
 
-Entries that cancel (|x'| ≤ ``SYMMETRY_TOLERANCE`` × the largest of its row of E or M, its column
-of C or K in the design) become structural zeros: the design's symmetry holds to the FE model's and
+Entries that cancel (|x'| ≤ ``SYMMETRY_TOLERANCE`` × the largest of its row of E or M, its column of
+C or K in the design) become structural zeros: the design's symmetry holds to the FE model's and
 LAPACK's rounding (1e-12 … 4e-9 relative on the bundled design), so dropping them moves no gain by
 more than that tolerance. A row's (column's) scale is at least ``SCALE_FLOOR`` of its matrix's
-largest entry: a row far below it, as the Kalman gains of a quasi-static correction coordinate
-(1e-7 of the matrix), mirrors only to the solver's absolute accuracy. Coordinates that use the
-same channels form a group, which the generated C runs as one loop over a table of its own shape;
-the reference (``filter._Lqg``) sums in the same order. A design without such pairs, or whose pairs leave more than ``MAX_GROUPS`` groups, is
-realised as it is (one group, every channel, the coordinates in their order): its numbers are the
-design's own.
+largest entry: a row far below it, as the Kalman gains of a quasi-static correction coordinate (1e-7
+of the matrix), mirrors only to the solver's absolute accuracy. Coordinates that use the same
+channels form a group, which the generated C runs as one loop over a table of its own shape; the
+reference (``filter._Lqg``) sums in the same order. A design without such pairs, or whose pairs
+leave more than ``MAX_GROUPS`` groups, is realised as it is (one group, every channel, the
+coordinates in their order): its numbers are the design's own.
 """
 
 from __future__ import annotations
