@@ -28,7 +28,12 @@ from smartjoint.design.control import artifact  # noqa: E402
 from smartjoint.design.control import study as closed_loop  # noqa: E402
 from smartjoint.design.structure.description import Xcp  # noqa: E402
 
-NEW_BOUNDARY_LAYER = 1e-5  # m/s, inside the A2L's decade limits around the design's 3.16e-6
+FACTOR = 3.0  # the new ε against the artefact's, inside the A2L's limits (two decades either way)
+
+
+def _designed(fw, joint: int) -> float:
+    """The artefact's ε of a joint as the float build holds it."""
+    return float(np.float32(np.asarray(fw.artifact.siso_boundary_layer, dtype=float)[joint]))
 
 
 @pytest.fixture(scope="module")
@@ -123,9 +128,10 @@ def test_bench_xcp_calibrates_mid_measurement_and_records_the_firmware(served_im
     fw.reset()
     setup = closed_loop.setup(*three_type_a)
     mf4, plots = tmp_path / "daq.mf4", tmp_path / "plots"
+    new = FACTOR * _designed(fw, 0)
     with _Served(fw, setup, "bench-xcp-served", 6.0) as served:
         code, out, err = _bench(path, "--channel", "bench-xcp-served", "--artifact", REFERENCE, "--measure", "all",
-                                "--duration", "1.5", "--set", f"siso.boundary_layer.A1={NEW_BOUNDARY_LAYER}",
+                                "--duration", "1.5", "--set", f"siso.boundary_layer.A1={new!r}",
                                 "--set-at", "0.5", "-o", mf4, "--plots", plots, "--json")  # fmt: skip
         assert code == 0, err
         report = json.loads(out)
@@ -133,8 +139,8 @@ def test_bench_xcp_calibrates_mid_measurement_and_records_the_firmware(served_im
         assert code == 0, err
         after = json.loads(out)["calibration"]
     daq = report["daq"]
-    assert report["calibration"]["siso.boundary_layer.A1"] == pytest.approx(3.1622776e-6, rel=1e-7)
-    written = float(np.float32(NEW_BOUNDARY_LAYER))
+    assert report["calibration"]["siso.boundary_layer.A1"] == _designed(fw, 0)
+    written = float(np.float32(new))
     assert report["read_back"]["siso.boundary_layer.A1"] == written == after["siso.boundary_layer.A1"]
     assert len(daq["signals"]) >= 20 and daq["lost_samples"] == 0 and daq["stopped"] == "duration"
     assert daq["seconds"] >= 1.5 and daq["set_at_s"] >= 0.5
@@ -171,17 +177,16 @@ def test_a_wrong_a2l_or_key_writes_nothing(served_image, three_type_a, tmp_path)
     epk = a2l_file.read(path).epk
     other.write_text(text.replace(epk, epk.replace("float", "double")))
     with _Served(fw, setup, "bench-xcp-wrong", 4.0):
-        code, _, err = _bench(other, "--channel", "bench-xcp-wrong", "--artifact", REFERENCE, "--set",
-                              "siso.boundary_layer.A2=1e-5")  # fmt: skip
+        setting = f"siso.boundary_layer.A2={FACTOR * _designed(fw, 1)!r}"
+        code, _, err = _bench(other, "--channel", "bench-xcp-wrong", "--artifact", REFERENCE, "--set", setting)
         assert code == 2 and "is not the A2L's" in err and "nothing written" in err
-        code, _, err = _bench(path, "--channel", "bench-xcp-wrong", "--key", "00" * 16, "--set",
-                              "siso.boundary_layer.A2=1e-5")  # fmt: skip
+        code, _, err = _bench(path, "--channel", "bench-xcp-wrong", "--key", "00" * 16, "--set", setting)
         assert code == 2 and "the slave refused UNLOCK" in err, err
-        code, _, err = _bench(path, "--channel", "bench-xcp-wrong", "--set", "siso.boundary_layer.A2=1e-5")
+        code, _, err = _bench(path, "--channel", "bench-xcp-wrong", "--set", setting)
         assert code == 2 and "needs UNLOCK" in err
         code, out, err = _bench(path, "--channel", "bench-xcp-wrong", "--json")
         assert code == 0, err
-    assert json.loads(out)["calibration"]["siso.boundary_layer.A2"] == pytest.approx(3.1622776e-6, rel=1e-7)
+    assert json.loads(out)["calibration"]["siso.boundary_layer.A2"] == _designed(fw, 1)
 
 
 def _multicast_reaches_this_host(group: str) -> bool:
