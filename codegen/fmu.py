@@ -386,7 +386,7 @@ def _write(path, identifier, fmi, variables, model_template, context, sources, c
 def _render_all(env, files, model_template, layer, context, variables, fmi, token) -> dict[str, str]:
     """The sources with the model and the FMI layer rendered for ``token``."""
     out = dict(files)
-    real_typed = lambda v: v.value.startswith(("m->input.", "m->output."))  # noqa: E731
+    real_typed = lambda v: v.value.startswith(("m->input.", "m->output.", "m->shown."))  # noqa: E731
     law_real = f"({context['prefix']}_real)" if "prefix" in context else ""
     out["fmu_model.c"] = env.get_template(model_template).render(
         **context, token=token, variables=variables, real_value=real_typed,
