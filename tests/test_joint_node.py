@@ -119,18 +119,19 @@ def test_the_policy_on_heartbeat_loss_safe_and_bad_inputs(reference, module):
     config = joint_node.node_config(reference, 1)
     node = CompiledNode(module, reference, 1)
     safe = config.safe_normal_force
-    assert node.step(1e-4, 30.0, 200.0) == safe and node.faults & 8  # no heartbeat yet
+    fast = 50.0 * float(config.boundary_layer)  # μ·v/ε = 0.15 · 50 = 7.5: F^max whatever the artefact's ε
+    assert node.step(fast, 30.0, 200.0) == safe and node.faults & 8  # no heartbeat yet
     node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, 1))
-    node.step(1e-4, 30.0, 200.0)
-    assert node.step(1e-4, 30.0, 200.0) == config.normal_force_max  # μ·v/ε = 4.7: F^max
+    node.step(fast, 30.0, 200.0)
+    assert node.step(fast, 30.0, 200.0) == config.normal_force_max
     for _ in range(config.timeout_samples + 5):
-        command = node.step(1e-4, 30.0, 200.0)
+        command = node.step(fast, 30.0, 200.0)
     assert command == config.normal_force_max and node.faults == 2  # lost, and the law runs on
     assert node.receive(joint_node.HEARTBEAT_ID, _heartbeat(SAFE, 2))
-    assert node.step(1e-4, 30.0, 200.0) == safe and node.faults == 8
+    assert node.step(fast, 30.0, 200.0) == safe and node.faults == 8
     node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, 3))
     assert node.step(np.nan, 30.0, 200.0) == safe and node.faults & 1
-    held = [node.step(1e-4, 30.0, 200.0) for _ in range(config.recovery_cycles + 1)]
+    held = [node.step(fast, 30.0, 200.0) for _ in range(config.recovery_cycles + 1)]
     assert held[:-1] == [safe] * config.recovery_cycles and held[-1] == config.normal_force_max
     assert not node.receive(joint_node.HEARTBEAT_ID, _heartbeat(SAFE, 3))  # a repeated counter
 
