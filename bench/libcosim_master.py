@@ -8,7 +8,7 @@ plant one step after the measurements it answers: no FMU can close a loop withou
 The controller FMU's ``held`` variant (``codegen.fmu``, ``exchange="held"``) makes that timing
 exact and its own: its outputs are the law's step from the inputs of its last step, held until the
 next, so the command of the measurements at t_k acts on [t_k+1, t_k+2]. The model-in-the-loop
-study with :class:`DelayedCommand` around the law is the same loop, number for number.
+study with ``runs.DelayedCommand`` around the law is the same loop, number for number.
 
 The study's protocol (F_N^max while the pulse acts) is an override manipulator on the plant's
 normal-force inputs, lifted at the first sample after the pulse.
@@ -21,37 +21,6 @@ import numpy as np
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import runs
 from smartjoint.design.plant.loop import SimulationResult
-
-
-class DelayedCommand:
-    """A normal-force law whose command acts one sample late: at sample k it returns the command
-    of sample k − 1 (``first`` at sample 0), the law itself stepping on every sample's measurements.
-
-    Parameters
-    ----------
-    inner : Controller
-        The law (``design.plant.interface.Controller``).
-    first : array_like
-        The command before the law's first (F_N^max: the study holds it during the pulse anyway).
-    """
-
-    def __init__(self, inner, first):
-        self.inner, self.first, self.sample_time = inner, np.asarray(first, dtype=float), inner.sample_time
-        self.previous: np.ndarray | None = None
-
-    @property
-    def status(self):
-        return getattr(self.inner, "status", 0)
-
-    def reset(self) -> None:
-        self.inner.reset()
-        self.previous = None
-
-    def step(self, measurements) -> np.ndarray:
-        now = np.asarray(self.inner.step(measurements), dtype=float)
-        out = self.first.copy() if self.previous is None else self.previous
-        self.previous = now.copy()
-        return out
 
 
 def _references(execution, index: int) -> dict[str, tuple[int, int]]:
@@ -148,4 +117,4 @@ def _run(s, execution, observer, hold, plant, pv, applied, name) -> runs.Run:
     return runs.semi_active_run(s, name, result)
 
 
-__all__ = ["DelayedCommand", "cosimulate"]
+__all__ = ["cosimulate"]

@@ -51,7 +51,7 @@ def written(three_type_a, tmp_path_factory):
 
 def _delayed_mil(written, name: str) -> runs.Run:
     setup, artifact = written["setup"], written["artifact"]
-    law = libcosim_master.DelayedCommand(LAWS[name][1](artifact), setup.normal_force_max)
+    law = runs.DelayedCommand(LAWS[name][1](artifact), setup.normal_force_max)
     return closed_loop.run_semi_active(setup, name, law)
 
 

@@ -276,6 +276,39 @@ class LaggingAmplifiers:
         return self.applied.copy()
 
 
+class DelayedCommand:
+    """A normal-force law whose command acts one sample late: at sample k it returns the command
+    of sample k − 1 (``first`` at sample 0), the law itself stepping on every sample's measurements.
+    The loop a master that steps every FMU before it passes outputs on runs (libcosim,
+    ``bench.libcosim_master``); the Python loop only, the compiled one has no delay.
+
+    Parameters
+    ----------
+    inner : Controller
+        The law (``design.plant.interface.Controller``).
+    first : array_like
+        The command before the law's first (F_N^max: the study holds it during the pulse anyway).
+    """
+
+    def __init__(self, inner, first):
+        self.inner, self.first, self.sample_time = inner, np.asarray(first, dtype=float), inner.sample_time
+        self.previous: np.ndarray | None = None
+
+    @property
+    def status(self):
+        return getattr(self.inner, "status", 0)
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.previous = None
+
+    def step(self, measurements) -> np.ndarray:
+        now = np.asarray(self.inner.step(measurements), dtype=float)
+        out = self.first.copy() if self.previous is None else self.previous
+        self.previous = now.copy()
+        return out
+
+
 def semi_active_run(s: StudySetup, name: str, r: SimulationResult) -> Run:
     """The :class:`Run` of a normal-force law from its simulation (recorded every sample), with
     its mean piezo charging power.
@@ -358,6 +391,7 @@ def run_active(s: StudySetup, design: LqgDesign) -> Run:
 
 __all__ = [
     "PLANT_STEPS_PER_SAMPLE",
+    "DelayedCommand",
     "LaggingAmplifiers",
     "NoisySensors",
     "PULSE_AMPLITUDE",
