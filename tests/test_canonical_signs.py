@@ -59,3 +59,31 @@ def test_the_artefact_designed_on_perturbed_inputs_has_the_same_signs_and_number
         assert np.array_equal(np.sign(a[large]), np.sign(b[large])), name
         compared += a.size
     assert compared > 150
+
+
+@pytest.mark.numerics
+def test_the_committed_artefact_is_what_the_bundled_design_gives_today(three_type_a):
+    """``firmware/generated/controller.json`` is ``smartjoint design`` of the bundled design on this
+    machine, within the same tolerance: a change to the design chain that moves the artefact
+    (a reduction's form, a sign rule) fails here until the firmware is regenerated
+    (firmware/README.md). The tuned settings (ε of Eq. 32, the slip-ratio law's) are taken from the
+    committed artefact: their search runs the chaotic study, whose optimum is not a last-bit
+    quantity (tests/test_codegen_source.py checks the C against the artefact byte for byte)."""
+    from smartjoint.common import law_registry
+    from smartjoint.design.control import artifact
+
+    design, model = three_type_a
+    committed = artifact.load(Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json")
+    settings = {
+        law.name: {key: getattr(committed, field) for key, field in law.artifact} for law in law_registry.LAWS.values()
+    }
+    today = artifact_building.from_design(design, model, closed_loop.lqg_for(design, model), settings)
+    for name in ("blocks", "gamma0", "gamma1", "joint_input", "output", "feedback_gain", "estimator_gain"):
+        a, b = np.asarray(getattr(committed, name), float), np.asarray(getattr(today, name), float)
+        assert a.shape == b.shape, name
+        scale = np.max(np.abs(a))
+        assert np.max(np.abs(a - b)) <= TOLERANCE * scale, (name, np.max(np.abs(a - b)) / scale)
+        large = np.abs(a) > TOLERANCE * scale
+        assert np.array_equal(np.sign(a[large]), np.sign(b[large])), name
+    a, b = np.asarray(committed.modal_frequencies), np.asarray(today.modal_frequencies)
+    assert np.allclose(a, b, rtol=TOLERANCE, atol=0)

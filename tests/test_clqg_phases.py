@@ -22,6 +22,7 @@ from smartjoint.design.control.filter import clipped_lqg
 from smartjoint.design.control.realisation import SYMMETRY_TOLERANCE
 
 ROOT = Path(__file__).resolve().parents[1]
+FLOAT_TRUE_MIN = float(np.finfo(np.float32).smallest_subnormal)
 
 
 @pytest.fixture(scope="module")
@@ -129,17 +130,24 @@ def _scaled(reference, **factors):
     )
 
 
+def _gamma1_at_the_float_floor(reference) -> dict:
+    """Γ1 scaled so that its smallest entry is 2× the least float: every entry fits, and
+    C·Γ1·E, whose smallest entry is a few % of Γ1's (C and E entries below 1), does not."""
+    g = np.abs(np.asarray(reference.gamma1, dtype=float))
+    return {"gamma1": 2 * FLOAT_TRUE_MIN / g[g > 0].min()}
+
+
 @pytest.mark.parametrize(
     "factors, product, words",
     [
-        ({"feedback_gain": 1e25, "estimator_gain": 1e25}, "feedback_hold", "exceeds the float range"),
-        ({"gamma1": 1e-37}, "output_hold", "underflows to 0 in float"),
+        (lambda _: {"feedback_gain": 1e25, "estimator_gain": 1e25}, "feedback_hold", "exceeds the float range"),
+        (_gamma1_at_the_float_floor, "output_hold", "underflows to 0 in float"),
     ],
 )
 def test_the_float_build_refuses_products_it_cannot_hold(reference, tmp_path, capsys, factors, product, words):
     """Every field fits a float, a precomputed product does not: one line naming the product and
     entry, nothing written; the double build takes the same artefact."""
-    changed = _scaled(reference, **factors)
+    changed = _scaled(reference, **factors(reference))
     with pytest.raises(ModelError) as refused:
         generate.render(changed, "float")
     message = str(refused.value)

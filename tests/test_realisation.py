@@ -53,20 +53,21 @@ def test_the_bundled_design_is_realised_in_mirror_channels(reference):
 
 
 def test_a_coordinate_far_below_its_matrixs_scale_pairs_to_the_solvers_absolute_accuracy(reference):
-    """A quasi-static correction coordinate's Kalman gains are 1e-7 of the matrix's largest and
-    mirror only to the Riccati solver's absolute accuracy (1e-12 of that largest, 1e-5 of their own
-    row): the sensors still pair (SCALE_FLOOR), as today's design needs; an asymmetry of the row's
-    own size (1e-3 of it) still breaks the pair."""
-    m = np.asarray(reference.estimator_gain, dtype=float).copy()
-    top = np.abs(m).max()
-    m[-2:] *= 1e-7 * top / np.abs(m[-2:]).max()  # the last coordinate's rows, tiny
+    """The design's smallest Kalman gain row (a quasi-static correction coordinate's, about 1e-7 of
+    the matrix's largest) mirrors only to the Riccati solver's absolute accuracy (about 1e-12 of that
+    largest, 1e-5 of the row): the sensors still pair (SCALE_FLOOR), as the design needs; an
+    asymmetry of the row's own size (1e-3 of it) breaks the pair."""
+    m = np.asarray(reference.estimator_gain, dtype=float)
+    top, rows = np.abs(m).max(), np.abs(m).max(axis=1)
+    row = int(np.argmin(rows))
+    assert rows[row] < 1e-6 * top  # the situation this test is about is the design's own
     solver = m.copy()
-    solver[-2, 0] += 1e-12 * top  # the solver's absolute accuracy: 1e-5 of the row
+    solver[row, 0] += 1e-5 * rows[row]
     assert _realise(dataclasses.replace(reference, estimator_gain=solver.tolist())).sensors == Channels(
         (0, 0), (1, 1), (1, -1)
     )
     broken = m.copy()
-    broken[-2, 0] *= 1.001
+    broken[row, 0] += 1e-3 * rows[row]
     assert _realise(dataclasses.replace(reference, estimator_gain=broken.tolist())).sensors.identity
 
 
