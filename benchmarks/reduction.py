@@ -121,9 +121,7 @@ def _bode(result, paper, name, path) -> None:
 def friction_figures(design) -> dict:
     """Fig. 10: 60 modes + 2 Krylov vectors for the active joint under the pulse, the paper's
     corrections and the quasi-static ones, friction RMS error against the full model."""
-    forces = np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
-    if not forces.any():
-        forces[0] = 400.0
+    forces = study.load_case(design)
     active = int(np.argmax(forces))
     fe, full, first, _, _ = study._full_model(
         design, 100, lambda line: None, None, study.correction_frequency(design.control.sample_time)
@@ -146,9 +144,7 @@ def sensitivity_figures(design) -> list[dict]:
     """Fig. 10's friction RMS error (60 modes + 2 Krylov vectors, active joint) with the corrections
     quasi-static at each of ``SENSITIVITY_MULTIPLES`` × Nyquist and each ξ of
     ``SENSITIVITY_DAMPING``: how much of a 0–50 ms figure is the choice of ω_q and ξ."""
-    forces = np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
-    if not forces.any():
-        forces[0] = 400.0
+    forces = study.load_case(design)
     active = int(np.argmax(forces))
     nyquist = np.pi / design.control.sample_time
     fe, full, first, _, _ = study._full_model(design, 100, lambda line: None, None, 4.0 * nyquist)

@@ -246,7 +246,10 @@ def _add_dynamics_commands(sub, o: SimpleNamespace) -> None:
     p.add_argument("--considered", type=_positive_int, default=100, help="modes to choose from (default: %(default)s)")
     p.add_argument("--krylov", type=int, default=2, help="Krylov vectors per joint (default: %(default)s)")
     p.add_argument("--krylov-joints", help="comma-separated joint names that get vectors (default: the active joint)")
-    p.add_argument("--normal-force", help="F_N per joint, comma-separated [N] (default: 400 for type B, else 0)")
+    p.add_argument(
+        "--normal-force",
+        help="F_N per joint, comma-separated [N] (default: the design's load case, [control] reduction_normal_force)",
+    )
     p.add_argument("--duration", type=float, default=0.5, help="simulated time [s] (default: %(default)s)")
     p.add_argument("--plots", help="folder for hankel.png, friction_moment.png, energy.png, reduction_bode.png")
     p.set_defaults(func=cmd_reduce)

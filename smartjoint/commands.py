@@ -24,7 +24,7 @@ def report_progress(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def load_updated(args, *, firmware_names: bool = False):
+def load_updated(args, *, firmware_names: bool = False, friction: bool = False):
     """The design, updated to its EMA unless --no-update, and the updating result (or None).
 
     The updated parameters also hold for a design that adds joints to an updated base.
@@ -36,6 +36,8 @@ def load_updated(args, *, firmware_names: bool = False):
         ``no_update``.
     firmware_names : bool
         Refuse, before any work, joint and sensor names the firmware cannot carry.
+    friction : bool
+        Refuse, before any work, joints without friction parameters or records.
 
     Returns
     -------
@@ -47,6 +49,10 @@ def load_updated(args, *, firmware_names: bool = False):
     design = load_design(args.design)
     if firmware_names:
         check_firmware_names(design)
+    if friction:
+        from smartjoint.design.friction.stage import check_friction_given
+
+        check_friction_given(design)
     if design.updating is None or getattr(args, "no_update", False):
         return design, None
     report_progress(
@@ -254,6 +260,12 @@ def cmd_run(args) -> dict:
     from smartjoint.pipeline import run
 
     result = run(args.design, Path(args.output), progress=report_progress)
+    if result.get("stopped"):  # the report of the stages before it is written; the run failed
+        from smartjoint.common.errors import ModelError
+
+        if args.json:
+            print(json.dumps(result, indent=1))
+        raise ModelError(f"{result['stopped']} — the report up to it: {result['report']}")
     if not args.json:
         print(f"report: {result['report']}")
     return result
@@ -315,19 +327,19 @@ def _released_for_reduction(design, considered: int):
 def cmd_reduce(args) -> dict:
     import numpy as np
 
-    from smartjoint.design.reduction import reduction_study, study_summary
+    from smartjoint.design.reduction import load_case, reduction_study, study_summary
     from smartjoint.report_reduction import plot_study
 
-    design, _ = load_updated(args)
+    design, _ = load_updated(args, friction=True)
     forces = (
-        parse_normal_forces(args.normal_force, design)
-        if args.normal_force
-        else np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
+        (parse_normal_forces(args.normal_force, design) if args.normal_force else load_case(design))
         if design.joints
         else None
     )
     if forces is not None and not forces.any():
-        forces[0] = 400.0
+        from smartjoint.common.errors import ModelError
+
+        raise ModelError(f"--normal-force: {args.normal_force!r} — at least one joint > 0 N (the joint compared)")
     joints = None
     if args.krylov_joints:
         names = [j.name for j in design.joints]

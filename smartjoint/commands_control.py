@@ -16,7 +16,7 @@ def _control_design(args, *, firmware_names: bool = False):
 
     if args.design is None:
         args.design = str(spec.REFERENCE_DESIGN.parent / "three_type_a.toml")
-    design, _ = load_updated(args, firmware_names=firmware_names)
+    design, _ = load_updated(args, firmware_names=firmware_names, friction=True)
     if args.duration is not None:
         import dataclasses
 

@@ -29,41 +29,35 @@ import json
 import os
 import re
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from smartjoint import __version__
-from smartjoint import report as plots
-from smartjoint.bench import safety, safety_report, sil, xcp_study
+from smartjoint import run_report
+from smartjoint.bench import safety, sil, xcp_study
 from smartjoint.bench.faults import demo_faults
-from smartjoint.codegen import backtoback, generate, identifiers, output
+from smartjoint.codegen import backtoback, generate, identifiers
+from smartjoint.common.errors import SmartjointError
 from smartjoint.design import build_model, load_design, updated_design
-from smartjoint.design.control import artifact, artifact_building
+from smartjoint.design.control import artifact_building
 from smartjoint.design.control import study as closed_loop
-from smartjoint.design.friction.stage import friction_entries, friction_stage, place_joints
-from smartjoint.design.network import joint_node, plan, protocol
-from smartjoint.design.reduction import reduction_study, study_summary
+from smartjoint.design.friction.stage import check_friction_given, friction_stage, place_joints
+from smartjoint.design.network import plan, protocol
+from smartjoint.design.reduction import load_case, reduction_study
 from smartjoint.design.reduction.study import DENSE_REFERENCE_DOFS, REFERENCE_MODES_PER_CONSIDERED
 from smartjoint.design.structure.description import Network
 from smartjoint.design.structure.solved import solved_model
-from smartjoint.pipeline_ensemble import ensemble_markdown, ensemble_stage
-from smartjoint.pipeline_fmu import fmu_markdown, fmu_stage
-from smartjoint.pipeline_local import local_mode_markdown, local_mode_run
-from smartjoint.pipeline_target import pil_markdown, pil_stage
-from smartjoint.report_control import control_markdown, plot_control_study, tuning_plots
+from smartjoint.pipeline_ensemble import ensemble_stage
+from smartjoint.pipeline_fmu import fmu_stage
+from smartjoint.pipeline_local import local_mode_run
+from smartjoint.pipeline_target import pil_stage
 from smartjoint.report_folder import ReportFolder, iso, new_run_id, utc_now
-from smartjoint.report_friction import friction_markdown
-from smartjoint.report_reduction import plot_study, study_markdown
+from smartjoint.run_report import RunStages
 from smartjoint.stages import (
     BenchStage,
     ControlStage,
-    EnsembleStage,
     FirmwareStage,
-    FmuStage,
     FrictionStage,
-    PilStage,
     StructureStage,
 )
 
@@ -72,7 +66,9 @@ NO_JOINTS = (
     "friction joints — add [[joints]] or a [placement] table (docs/design-file.md)"
 )
 
-REPORT_MODES = 30
+# The stage a run stops at, by the number of joint stages that finished before it.
+STAGE_NAMES = ((4, "friction"), (5, "reduction"), (6, "control"), (7, "firmware"), (8, "software in the loop"),
+               (9, "processor in the loop"), (10, "ensemble"), (11, "FMUs"))  # fmt: skip
 
 
 def run(design_path: str | None, output: Path, progress=print) -> dict:
@@ -134,52 +130,39 @@ def _paths(value) -> list[str]:
     return []
 
 
-@dataclass(frozen=True)
-class _Run:
-    """Every stage's result of one run; the summary and the report read it. The stages after the
-    structure are None where the design has no joints (``skipped`` says why)."""
-
-    structure: StructureStage
-    skipped: str | None = None
-    friction: FrictionStage | None = None
-    reduction: dict | None = None  # the reduction study (design.reduction.reduction_study)
-    control: ControlStage | None = None
-    firmware: FirmwareStage | None = None
-    bench: BenchStage | None = None
-    pil: PilStage | None = None
-    ensemble: EnsembleStage | None = None
-    fmu: FmuStage | None = None
-
-
-@dataclass(frozen=True)
-class _ReportFiles:
-    """What writing the report's files adds to the summary: the hysteresis plots and the joints'
-    friction entries (with the parameter files they wrote)."""
-
-    hysteresis: tuple[str, ...] = ()
-    friction_entries: dict = field(default_factory=dict)
-
-
 def _stages(design_path: str | None, staging: Path, progress):
     """Stages 1–12 into the folder ``staging``: the summary (without the run's id and times) and a
     function of the final summary that gives report.md."""
     structure = _structure_stage(design_path, staging, progress)
     if structure.design.joints:
-        friction = _friction_stage(structure, staging, progress)
-        reduction = _reduction_stage(structure, friction, progress)
-        control = _control_stage(structure, friction, progress)
-        firmware = _firmware_stage(control, progress)
-        bench = _bench_stage(control, staging, progress)
-        pil = pil_stage(control.study, control.artifact, staging, progress)
-        ensemble = ensemble_stage(control.design, control.study, list(friction.types), staging, progress)
-        fmu = fmu_stage(control.design, control.study, control.artifact, staging, progress)
-        r = _Run(structure, None, friction, reduction, control, firmware, bench, pil, ensemble, fmu)
+        r = _joint_stages(structure, staging, progress)
     else:
-        r = _Run(structure, skipped=NO_JOINTS)
+        r = RunStages(structure, skipped=NO_JOINTS)
         progress(f"[4/12]–[11/12] skipped: {NO_JOINTS}")
     progress("[12/12] report")
-    files = _write_report_files(r, staging)
-    return _summary(r, files), lambda final: _report_markdown(r, files, final)
+    files = run_report.write_files(r, staging)
+    return run_report.summary(r, files), lambda final: run_report.markdown(r, files, final)
+
+
+def _joint_stages(structure: StructureStage, staging: Path, progress) -> RunStages:
+    """Stages 4–11. A stage's one-line error (a design that cannot be controlled at its sample
+    time, say) stops the run there: the report keeps every stage that finished before it."""
+    done: dict = {}
+    try:
+        friction = done["friction"] = _friction_stage(structure, staging, progress)
+        done["reduction"] = _reduction_stage(structure, friction, progress)
+        control = done["control"] = _control_stage(structure, friction, progress)
+        done["firmware"] = _firmware_stage(control, progress)
+        done["bench"] = _bench_stage(control, staging, progress)
+        done["pil"] = pil_stage(control.study, control.artifact, staging, progress)
+        done["ensemble"] = ensemble_stage(control.design, control.study, list(friction.types), staging, progress)
+        done["fmu"] = fmu_stage(control.design, control.study, control.artifact, staging, progress)
+    except SmartjointError as error:
+        number, name = STAGE_NAMES[len(done)]
+        stopped = f"stage {number} ({name}): {error}"
+        progress(f"[{number}/12] stopped: {error}")
+        return RunStages(structure, stopped=stopped, **done)
+    return RunStages(structure, **done)
 
 
 def _structure_stage(design_path: str | None, staging: Path, progress) -> StructureStage:
@@ -194,6 +177,7 @@ def _structure_stage(design_path: str | None, staging: Path, progress) -> Struct
         fields=identifiers.DESIGN_FIELDS,
     )
     plan.check_design(design)  # and the frames on the buses of [network] (one line when they do not fit)
+    check_friction_given(design)  # stage 4 needs it: one line now, not after the FE work
     progress(
         f"[1/12] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
         f"{len(design.members)} members, {len(design.joints)} joints"
@@ -219,7 +203,7 @@ def _structure_stage(design_path: str | None, staging: Path, progress) -> Struct
         progress("[3/12] model updating: skipped (no [updating] section)")
     # One solution of the locked truss: the report's spectrum and the placement's target modes.
     targets = design.placement.modes if design.placement is not None and not design.joints else ()
-    count = max((REPORT_MODES, *targets))
+    count = max((run_report.REPORT_MODES, *targets))
     progress(f"      the lowest {min(count, model.n_dof)} modes of the locked truss ({model.n_dof} DOFs) …")
     locked = solved_model(model, count)
     placed, placed_design = place_joints(design, staging, progress, locked)
@@ -228,7 +212,7 @@ def _structure_stage(design_path: str | None, staging: Path, progress) -> Struct
         # One solution of the released truss: the spectrum and the design model (the reduction
         # study takes its FE model and solves every mode for its full-model reference).
         released_model = build_model(placed, joints="released")
-        count = max(REPORT_MODES, placed.control.considered_modes)
+        count = max(run_report.REPORT_MODES, placed.control.considered_modes)
         if released_model.n_dof > DENSE_REFERENCE_DOFS:  # the reduction study's sparse reference too
             count = REFERENCE_MODES_PER_CONSIDERED * count
         progress(
@@ -250,16 +234,15 @@ def _friction_stage(structure: StructureStage, staging: Path, progress) -> Frict
 
 
 def _reduction_stage(structure: StructureStage, friction: FrictionStage, progress) -> dict:
-    """Stage 5, reduction (Section 4.3, Fig. 10) on the design's joints: the largest normal force
-    at the type B joints (else the first joint), Krylov vectors for that joint."""
+    """Stage 5, reduction (Section 4.3, Fig. 10) on the design's joints, in the design's load case
+    (``reduction.load_case``: its ``reduction_normal_force``, else the first controlled joint at
+    F_N^max and the others at F_N^min), Krylov vectors for the joint of the largest force."""
     design = friction.design
     progress(
         f"[5/12] model reduction (Section 4, Fig. 10) on {design.name!r}: joints "
         f"{', '.join(j.name + ' (' + j.type + ')' for j in design.joints)}"
     )
-    forces = np.array([400.0 if j.type == "B" else 0.0 for j in design.joints])
-    if not forces.any():
-        forces[0] = 400.0
+    forces = load_case(design)
     # The controllers' design model, compared with balanced truncation to the Nyquist frequency.
     model = None
     if design.sensors and design.disturbances:
@@ -323,178 +306,3 @@ def _bench_stage(control: ControlStage, staging: Path, progress) -> BenchStage:
         + ", ".join(f"{p.bus.name} {p.load.load:.1%}" for p in network.buses)
     )
     return BenchStage(sil_check, logs, fault_check, safety_check, network)
-
-
-def _write_report_files(r: _Run, staging: Path) -> _ReportFiles:
-    """Stage 9: the plots, the artefact, the firmware and the fault tables into the report."""
-    structure = r.structure
-    design, locked = structure.design, structure.locked
-    spectrum = locked.first(REPORT_MODES)
-    plots.plot_mode_shapes(locked.fe, spectrum, staging / "mode_shapes.png")
-    measured = [(m.mode, m.frequency_hz) for m in design.updating.measured] if design.updating else []
-    plots.plot_spectrum(spectrum, measured, staging / "spectrum.png", updated=structure.updating is not None)
-    if structure.updating is not None:
-        plots.plot_updating(structure.updating, staging / "updating.png")
-        if structure.updating.correlation is not None:  # EMA shapes: the MAC matrix of Fig. 7
-            plots.plot_mac(structure.updating.correlation, staging / "mac.png")
-    if r.skipped:
-        return _ReportFiles()
-    assert r.friction and r.control and r.firmware and r.bench and r.reduction is not None
-    hysteresis = tuple(p.name for f in r.friction.types for p in plots.plot_hysteresis(f.identification, staging))
-    entries = friction_entries(r.friction.design, list(r.friction.types), staging)
-    plot_study(r.reduction, staging)
-    plot_control_study(r.control.study, staging)
-    artifact.save(r.control.artifact, staging / "controller.json")
-    network = None if r.control.design.network == Network() else r.bench.network  # the buses SIL ran on
-    firmware = generate.firmware_files(r.control.artifact, xcp=r.control.design.xcp, network=network)
-    output.write(firmware, staging / "firmware")
-    sil.plot_sil(r.bench.sil, staging, r.bench.sil.get("mil_runs"))
-    sil.plot_faults(r.bench.faults, staging / "sil_faults.png")
-    safety_report.plot_matrix(r.bench.safety, staging / "safety_cycles.png")
-    (staging / "safety_cases.md").write_text(safety_report.matrix_markdown(r.bench.safety), encoding="utf-8")
-    return _ReportFiles(hysteresis, entries)
-
-
-def _spectra(structure: StructureStage):
-    """The report's modes: the locked truss's and the released truss's (None without joints)."""
-    released = structure.released.first(REPORT_MODES) if structure.released is not None else None
-    return structure.locked.first(REPORT_MODES), released
-
-
-def _summary(r: _Run, files: _ReportFiles) -> dict:
-    """summary.json without the run's id and times."""
-    structure = r.structure
-    design, model = structure.source_design, structure.locked.fe
-    modes, released = _spectra(structure)
-    source = os.path.abspath(design.source) if os.path.isfile(design.source) else design.source
-    updating = structure.updating
-    out = {
-        "smartjoint_version": __version__,
-        "design": {"name": design.name, "source": source, "sha256": design.sha256, "placed": structure.placed_design},
-        "fe_model": {"n_dof": model.n_dof, "elements": len(model.element_kind), "mass_kg": model.total_mass},
-        "updating": updating.as_dict() if updating is not None else None,
-        "modes_hz": [float(f) for f in modes.frequencies_hz],
-        "modes_released_hz": [float(f) for f in released.frequencies_hz] if released is not None else None,
-        "skipped": r.skipped,
-    }
-    if r.skipped:
-        return {
-            **out,
-            **dict.fromkeys(("friction", "reduction", "control", "firmware", "sil", "pil", "ensemble", "fmu")),
-        }
-    return {**out, **_joint_stages_summary(r, files)}
-
-
-def _joint_stages_summary(r: _Run, files: _ReportFiles) -> dict:
-    """The summary of stages 4–11, which run on a design with joints."""
-    assert r.friction and r.control and r.firmware and r.bench and r.reduction is not None
-    assert r.pil is not None and r.ensemble is not None and r.fmu is not None
-    sil_check, safety_check = r.bench.sil, r.bench.safety
-    return {
-        "friction": {
-            "joints": files.friction_entries,
-            "types": [f.as_dict() for f in r.friction.types],
-        },
-        "reduction": study_summary(r.reduction),
-        "control": {
-            **closed_loop.summary(r.control.study),
-            "design": r.control.design.name,
-            "artifact": "controller.json",
-            "artifact_sha256": r.control.artifact.artifact_sha256,
-        },
-        "firmware": {
-            "folder": "firmware",
-            "real": "float",
-            "files": [f"firmware/{n}" for n in sorted(r.firmware.files)],
-            "back_to_back": r.firmware.check,
-        },
-        "sil": {
-            **{k: v for k, v in sil_check.items() if k not in ("laws", "mil_runs")},
-            "laws": {
-                law: {k: v for k, v in f.items() if k not in ("record", "result")}
-                for law, f in sil_check["laws"].items()
-            },
-            "logs": [f"can/{name}" for name in r.bench.logs],
-            "faults": {k: v for k, v in r.bench.faults.items() if k not in ("result", "record")},
-            "safety": {
-                "cases": safety_check["cases"],
-                "failed": safety_check["failed"],
-                "worst_firmware_cycles": safety_check["worst_firmware"],
-                "worst_joint_cycles": safety_check["worst_joints"],
-                "worst_recovery_cycles": safety_check["worst_recovery"],
-                "table": "safety_cases.md",
-                "plot": "safety_cycles.png",
-            },
-        },
-        "pil": r.pil.summary,
-        "ensemble": r.ensemble.summary,
-        "fmu": r.fmu.summary,
-    }
-
-
-def _report_markdown(r: _Run, files: _ReportFiles, final: dict) -> str:
-    """report.md from the stages' results and the final summary."""
-    structure = r.structure
-    modes, released = _spectra(structure)
-    head = plots.structure_markdown(
-        structure.source_design, structure.locked.fe, modes, released, structure.updating, final
-    )
-    if structure.placed_design:
-        head += (
-            f"The design has no friction joints: [placement] placed {len(structure.design.joints)} type A joints "
-            f"(paper Section 6), written as `{structure.placed_design}`; every later stage runs on it.\n\n"
-        )
-    if r.skipped:
-        return head + f"\n## Friction joints, reduction, control, firmware and SIL\n\nNot run: {r.skipped}.\n"
-    assert r.friction and r.control and r.firmware and r.bench and r.reduction is not None
-    assert r.pil is not None and r.ensemble is not None and r.fmu is not None
-    bench = r.bench
-    return (
-        head
-        + friction_markdown(r.friction.design, list(r.friction.types), list(files.hysteresis))
-        + "\n"
-        + study_markdown(r.reduction)
-        + "\n"
-        + _control_section(r.control.study, r.control.artifact)
-        + "\n"
-        + backtoback.markdown(r.firmware.check, r.control.artifact)
-        + "\nFiles (float build for the Cortex-M4F): `firmware/` — "
-        + ", ".join(f"`{name}`" for name in sorted(r.firmware.files))
-        + ".\n\n"
-        + sil.sil_markdown(bench.sil)
-        + local_mode_markdown(bench.sil)
-        + xcp_study.xcp_markdown(bench.sil["xcp"])
-        + "\n![SIL energy](sil_energy.png)\n\n"
-        + "\n\n".join(f"Bus `{p.bus.name}`:\n\n{p.load.table()}" for p in bench.network.buses)
-        + "\n\nNetwork plan of the design's `[network]` (`design.network.plan`: "
-        + f"{joint_node.NODE_LAW.display} law {r.control.design.network.siso}; "
-        + "setpoints packed where that lowers the load; busy = one sample's "
-        + "frames back to back, the worst-case latency of the last):\n\n"
-        + bench.network.table()
-        + "\n\n"
-        + sil.fault_markdown(bench.faults)
-        + "\n![faults](sil_faults.png)\n\n"
-        + safety_report.summary_markdown(bench.safety, "safety_cases.md")
-        + "\n![cycles to the safe state](safety_cycles.png)\n\n"
-        + "Bus logs (BLF, simulated time stamps; `smartjoint bench decode` / "
-        "`bench replay`): "
-        + ", ".join(f"`can/{n}`" for n in bench.logs)
-        + "; protocol: `firmware/bus.dbc`.\n\n"
-        + pil_markdown(r.pil)
-        + "\n"
-        + ensemble_markdown(r.ensemble)
-        + "\n"
-        + fmu_markdown(r.fmu)
-    )
-
-
-def _control_section(study, controller) -> str:
-    return (
-        control_markdown(study)
-        + "\n![energy](control_energy.png)\n\n![tip](control_tip.png)\n\n"
-        + "".join(f"![tuning]({name})\n\n" for name in tuning_plots(study))
-        + "![normal forces](control_normal_force.png)\n\n"
-        f"Controller design artefact: `controller.json` (schema {controller.schema_version}, "
-        f"sha256 `{controller.artifact_sha256[:16]}…`, docs/controller-artifact.md) — the input of the "
-        "firmware generator.\n"
-    )

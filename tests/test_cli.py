@@ -8,6 +8,7 @@ import sys
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import cli_error, count_model_calls, run_cli
 from test_rig_cli import JOINT_B
@@ -67,6 +68,9 @@ class _Forbidden(dict):
     get = __getitem__
 
 
+USER_FORCES = (12.0, 150.0)  # [N]: the user's F_N^min, F_N^max (the paper's are 10 and 400)
+
+
 def _user_design(tmp_path, capsys) -> Path:
     """small_truss (not the paper's: 2 bays, a type B joint, a velocity sensor) with its own
     friction: type A inline, type B from the records `smartjoint rig` writes for USER_TYPE_B at
@@ -82,6 +86,7 @@ def _user_design(tmp_path, capsys) -> Path:
     capsys.readouterr()
     data = small_truss()
     data["friction"] = {"A": dict(USER_TYPE_A), "B": {"file": "joint_b_prior.toml"}, "records": ["rig/*.csv"]}
+    data["control"] = {"normal_force_min": USER_FORCES[0], "normal_force_max": USER_FORCES[1]}  # not the paper's
     design = tmp_path / "small.toml"
     design.write_text(tomli_w.dumps(data))
     return design
@@ -119,8 +124,17 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(lugre, "TABLE_1", _Forbidden())
     out = tmp_path / "report"
     calls = count_model_calls(monkeypatch)
+    forces = _record_normal_forces(monkeypatch)
     assert main(["run", str(design), "-o", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
+    # Every normal force the run held constant (reduction, passive runs, the pulse's hold) and the
+    # best constant forces of the ensemble lie within the user's limits: no paper value.
+    assert {"reduction", "passive", "hold"} <= set(forces), forces.keys()
+    for where, values in forces.items():
+        assert USER_FORCES[0] <= min(values) and max(values) <= USER_FORCES[1], (where, min(values), max(values))
+    assert summary["reduction"]["normal_forces"] == [USER_FORCES[1], USER_FORCES[0]]
+    for force in summary["ensemble"]["best_passive_normal_force_median"].values():
+        assert USER_FORCES[0] <= force <= USER_FORCES[1], force
     # Every stage of the run on the structure stage's models: each FE model built once (locked,
     # released), each one's modes solved once, the reduction study's full reference apart.
     assert dict(calls) == {("build", "locked"): 1, ("build", "released"): 1, ("solve", False): 2, ("solve", True): 1}
@@ -173,6 +187,28 @@ def test_run_writes_a_complete_report(tmp_path, capsys, monkeypatch):
         "rig",
         "small.toml",
     ]
+
+
+def _record_normal_forces(monkeypatch) -> dict:
+    """Every constant F_N a run in this process holds: where → the forces."""
+    from smartjoint.design import plant
+    from smartjoint.design.reduction import study
+
+    found: dict = {}
+
+    def record(where, values):
+        found.setdefault(where, []).extend(np.ravel(values).tolist())
+
+    simulation = study._pulse_simulation
+    monkeypatch.setattr(study, "_pulse_simulation", lambda d, f, *a: record("reduction", f) or simulation(d, f, *a))
+    step, hold = plant.ConstantNormalForce.step, plant.HoldDuringExcitation.__init__
+    monkeypatch.setattr(
+        plant.ConstantNormalForce, "step", lambda self, m: record("passive", self.normal_forces) or step(self, m)
+    )
+    monkeypatch.setattr(
+        plant.HoldDuringExcitation, "__init__", lambda self, i, u, f: record("hold", f) or hold(self, i, u, f)
+    )
+    return found
 
 
 def _user_friction_reaches_the_artifact(out: Path, summary: dict) -> None:

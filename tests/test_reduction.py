@@ -238,3 +238,34 @@ def test_smartjoint_reduce_above_the_dense_limit_solves_the_released_truss_once(
     assert len(calls) == 1 and calls[0] >= 2 * 12
     assert f"the lowest {calls[0]} modes of the released truss" in err
     assert summary["reference_band_hz"] is not None and set(summary["reference_convergence"]) == {"0.05"}
+
+
+def test_reduce_takes_the_load_case_from_the_design(tmp_path, capsys):
+    """No paper value (issue 36): on a design with F_N 12–150 N the first joint is held at its
+    F_N^max and the other at its F_N^min; `reduction_normal_force` replaces that; an all-zero
+    `--normal-force` is one line, not a silent 400 N."""
+    import json
+
+    import tomli_w
+    from conftest import small_truss
+
+    from smartjoint.cli import main
+
+    data = small_truss()
+    data["control"] = {"normal_force_min": 12.0, "normal_force_max": 150.0}
+    path = tmp_path / "small.toml"
+    path.write_text(tomli_w.dumps(data))
+    quick = ["--json", "--considered", "12", "--modes", "6", "--duration", "0.02"]
+    assert main(["reduce", str(path), *quick]) == 0
+    assert json.loads(capsys.readouterr().out)["normal_forces"] == [150.0, 12.0]
+    data["control"]["reduction_normal_force"] = [0.0, 90.0]
+    path.write_text(tomli_w.dumps(data))
+    assert main(["reduce", str(path), *quick]) == 0
+    assert json.loads(capsys.readouterr().out)["normal_forces"] == [0.0, 90.0]
+    assert main(["reduce", str(path), *quick, "--normal-force", "0,0"]) == 2
+    assert "at least one joint > 0 N" in capsys.readouterr().err
+    data["control"]["reduction_normal_force"] = [0.0, 0.0]
+    path.write_text(tomli_w.dumps(data))
+    assert main(["reduce", str(path), *quick]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "control.reduction_normal_force" in err and "at least one > 0" in err and err.count("\n") == 0, err

@@ -48,3 +48,64 @@ def test_placement_puts_type_a_joints_on_the_design_and_writes_it(tmp_path):
     assert written.friction == design.friction  # the design's own friction, through its base
     unchanged, none = place_joints(parse_design(small_truss()), tmp_path, lines.append)
     assert none is None and [j.name for j in unchanged.joints] == ["JA", "JB"]  # own joints kept
+
+
+def test_joints_without_friction_are_refused_before_any_fe_work(tmp_path, capsys, monkeypatch):
+    """No [friction.A], no joint's own and no records: `run`, `design` and `reduce` stop in one line
+    naming the joint, before the FE model is built and without writing anything; a design whose
+    [placement] would put type A joints on it is refused the same way."""
+    from smartjoint.design.structure import fem
+
+    def no_fe_work(*args, **kwargs):
+        raise AssertionError("FE work before the friction check")
+
+    monkeypatch.setattr(fem.FEModel, "__init__", no_fe_work)  # every build_model ends in one
+    data = small_truss()
+    del data["friction"]
+    placed = _without_joints()
+    del placed["friction"]
+    placed["placement"] = {"modes": [1], "count": 1}
+    for name, design, where in (("bare.toml", data, "joints[0].friction"), ("placed.toml", placed, "placement")):
+        (tmp_path / name).write_text(tomli_w.dumps(design))
+        for command in (
+            ["run", "-o", str(tmp_path / "report")],
+            ["design", "-o", str(tmp_path / "c.json")],
+            ["reduce"],
+        ):
+            assert main([command[0], str(tmp_path / name), *command[1:]]) == 2
+            err = capsys.readouterr().err.strip()
+            assert err.count("\n") == 0 and f"{where}: missing" in err and "no friction parameters" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bare.toml", "placed.toml"]
+
+
+def test_records_of_the_joints_type_stand_in_for_its_parameters(tmp_path):
+    from smartjoint.design.friction.stage import check_friction_given
+
+    record = tmp_path / "a.csv"
+    record.write_text(
+        "# joint_type = A\n# inertia = 1 kg\ntime [s],sliding_velocity [m/s],friction_force [N],normal_force [N]\n"
+        + "".join(f"{k * 1e-3},{1e-3 * k},{0.3 * k},400.0\n" for k in range(50))
+    )
+    data = small_truss()
+    data["friction"] = {"B": data["friction"]["B"], "records": [str(record)]}
+    (tmp_path / "d.toml").write_text(tomli_w.dumps(data))
+    check_friction_given(load_design(tmp_path / "d.toml"))  # type A from the records, type B given
+
+
+def test_a_stage_that_stops_the_run_leaves_the_report_of_the_stages_before_it(tmp_path, capsys):
+    """A sample time too coarse for the retained modes stops stage 6 in one line that names the
+    choices; the report folder holds the structure, friction and reduction and says where it stopped."""
+    data = small_truss()
+    data["control"] = {"sample_time": 0.02}
+    (tmp_path / "coarse.toml").write_text(tomli_w.dumps(data))
+    out = tmp_path / "report"
+    assert main(["run", str(tmp_path / "coarse.toml"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("smartjoint run: error: stage 6 (control): sample_time: 0.02 s is too coarse"), err
+    assert "use Δt <" in err and "retain fewer modes" in err and str(out / "report.md") in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stopped"].startswith("stage 6 (control)") and summary["control"] is None
+    assert summary["friction"]["types"] and summary["reduction"]["normal_forces"]
+    report = (out / "report.md").read_text()
+    assert "## Stopped" in report and "The run stopped at stage 6 (control)" in report
+    assert (out / "reduction_bode.png").is_file() and not (out / "controller.json").exists()

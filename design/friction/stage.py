@@ -16,7 +16,9 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from smartjoint.common.errors import DesignError
+import numpy as np
+
+from smartjoint.common.errors import MISSING, DesignError
 from smartjoint.design.friction import rig
 from smartjoint.design.friction.identifiability import not_identified
 from smartjoint.design.friction.identify import Identification, identify
@@ -24,9 +26,9 @@ from smartjoint.design.friction.model import joint_parameters
 from smartjoint.design.friction.parameter_file import file_hashes, provenance, result_text
 from smartjoint.design.friction.record_screening import classify
 from smartjoint.design.friction.records import Record, read_record
-from smartjoint.design.friction.rig_campaign import campaign, run_campaign
+from smartjoint.design.friction.rig_campaign import DEFAULT_RIGS, campaign, run_campaign
 from smartjoint.design.structure import placement
-from smartjoint.design.structure.description import Design, JointFriction
+from smartjoint.design.structure.description import Design, Joint, JointFriction
 from smartjoint.design.structure.fem import build_model
 from smartjoint.design.structure.solved import SolvedModel, solved_model
 from smartjoint.design.structure.spec import load_design
@@ -61,6 +63,35 @@ class JointTypeFriction:
             "result_file": self.result_file,
             "identification": self.identification.as_dict(),
         }
+
+
+def check_friction_given(design: Design) -> None:
+    """Refuse, before any FE work, a design whose joints (or the type A joints its
+    ``[placement]`` will put on it) have no friction: neither the joint's own nor its type's
+    ``[friction.X]`` parameters, nor rig records of that type among ``[friction] records``.
+
+    Raises
+    ------
+    DesignError
+        The same one line as ``model.joint_parameters``, for the first joint without friction.
+    """
+    joints = list(design.joints)
+    if not joints and design.placement is not None:  # placement puts type A joints (placement.design_text)
+        joints = [Joint("A1 (placed)", "", "start", "A", None)]
+    missing = [(k, j) for k, j in enumerate(joints) if design.joint_friction(j) is None]
+    if not missing:
+        return
+    recorded = {read_record(path).joint_type for path in design.friction_records}
+    for index, joint in missing:
+        if joint.type not in recorded:
+            where = f"joints[{index}].friction" if design.joints else "placement"
+            raise DesignError(
+                where,
+                MISSING,
+                f"joint {joint.name!r} (type {joint.type}) has no friction parameters and no rig records of its type — "
+                f"give [friction.{joint.type}] (inline or file = …), the joint's own friction, or records",
+                design.source,
+            )
 
 
 def place_joints(
@@ -208,11 +239,24 @@ def _rig_check(design: Design, joint_type: str, progress) -> JointTypeFriction:
         f"({os.path.basename(stated.source)}; prior = the simulated parameters), {RIG_NOISE:.0%} noise, "
         "then identified back"
     )
-    tests = campaign(joint_type, prior=truth, noise=RIG_NOISE, cycles=RIG_CYCLES)  # prior = the simulated parameters
+    # The rig set to the joints' own F_N^max and half of it (the paper's rig: 400 and 200 N).
+    largest = min(_largest_normal_forces(design, joint_type))
+    described = dataclasses.replace(DEFAULT_RIGS[joint_type], normal_forces=(0.5 * largest, largest))
+    tests = campaign(joint_type, prior=truth, rig_description=described, noise=RIG_NOISE, cycles=RIG_CYCLES)
     measured = run_campaign(tests, truth, lambda test: rig.simulate(test, truth, source=stated.source))
     records = measured.micro + measured.stick
     identification = _identify(records, progress)
     return JointTypeFriction(joint_type, identification, stated, stated, [r.name for r in records], True, None)
+
+
+def _largest_normal_forces(design: Design, joint_type: str) -> list[float]:
+    """F_N^max of each controlled joint of ``joint_type`` (every joint of it when none is controlled)."""
+    c = design.control
+    controlled = list(c.joints) if c.joints is not None else [j.name for j in design.joints]
+    high = np.broadcast_to(np.asarray(c.normal_force_max, dtype=float), (len(controlled),))
+    types = {j.name: j.type for j in design.joints}
+    found = [float(f) for name, f in zip(controlled, high) if types[name] == joint_type]
+    return found or [float(np.max(high))]
 
 
 def _identify(records: list[Record], progress) -> Identification:

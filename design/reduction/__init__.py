@@ -34,7 +34,7 @@ from smartjoint.design.reduction.selection import (
     modal_gramians,
     select_modes,
 )
-from smartjoint.design.reduction.study import WINDOWS, reduction_study, study_summary
+from smartjoint.design.reduction.study import WINDOWS, load_case, reduction_study, study_summary
 
 __all__ = [
     "ChannelReference",
@@ -56,6 +56,7 @@ __all__ = [
     "modal_gramians",
     "modal_compliance",
     "reduce",
+    "load_case",
     "reduction_study",
     "select_modes",
     "static_compliance",

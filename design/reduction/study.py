@@ -168,11 +168,37 @@ def _compared_run(count: int, reduced, result, reference, errors: dict, metrics:
     }
 
 
+def load_case(design) -> np.ndarray:
+    """The reduction study's constant F_N per joint of ``design`` (Fig. 10's load case), from the
+    design only: ``[control] reduction_normal_force`` where given, else the first controlled joint
+    at its F_N^max (the joint compared, which gets the Krylov vectors) and every other joint at its
+    F_N^min, 0 N for a joint no controller sets.
+
+    Returns
+    -------
+    ndarray
+        One F_N [N] per ``design.joints`` entry; empty for a design without joints.
+    """
+    names = [j.name for j in design.joints]
+    c = design.control
+    if not names:
+        return np.zeros(0)
+    if c.reduction_normal_force is not None:
+        return np.array(np.broadcast_to(np.asarray(c.reduction_normal_force, dtype=float), (len(names),)))
+    controlled = list(c.joints) if c.joints is not None else names
+    low = np.broadcast_to(np.asarray(c.normal_force_min, dtype=float), (len(controlled),))
+    high = np.broadcast_to(np.asarray(c.normal_force_max, dtype=float), (len(controlled),))
+    forces = np.zeros(len(names))
+    for k, name in enumerate(controlled):
+        forces[names.index(name)] = high[k] if k == 0 else low[k]
+    return forces
+
+
 def _pulse_simulation(design, normal_forces: np.ndarray, duration: float, step: float):
     """``plant.simulate`` of a model under the study's run: the design's joint laws, the normal
     forces held constant, the paper's tip pulse (200 N along every input), no energy books."""
     laws = joint_parameters(design)
-    controller = plant.ConstantNormalForce(normal_forces, 1e-3)
+    controller = plant.ConstantNormalForce(normal_forces, design.control.sample_time)
     pulse = plant.triangular_pulse(directions=np.ones(len(design.disturbances)))  # 200 N along every input
 
     def simulate_model(model):
@@ -374,4 +400,4 @@ def study_summary(study: dict) -> dict:
     }
 
 
-__all__ = ["WINDOWS", "reduction_study", "study_summary", "window_text"]
+__all__ = ["WINDOWS", "load_case", "reduction_study", "study_summary", "window_text"]

@@ -74,13 +74,14 @@ def parse_control(t: DesignTable, joints, dofs: int) -> Control:
         piezo_force_per_volt=t.number("piezo_force_per_volt", d.piezo_force_per_volt, positive=True),
         piezo_preload=t.number("piezo_preload", d.piezo_preload, non_negative=True),
         study_duration=t.number("study_duration", d.study_duration, positive=True),
+        reduction_normal_force=per_joint(t, "reduction_normal_force", None, len(names), non_negative=True),
     )
-    _check_control_limits(t, control, count, dofs)
+    _check_control_limits(t, control, count, dofs, joints)
     t.finish()
     return control
 
 
-def _check_control_limits(t: DesignTable, control: Control, count: int, dofs: int) -> None:
+def _check_control_limits(t: DesignTable, control: Control, count: int, dofs: int, joints=()) -> None:
     """Ranges of [control] that single keys cannot express: sizes the study allocates or runs
     through, and the normal forces a piezo joint can set (F_N = force_per_volt·V + preload)."""
     if control.sample_time < MIN_SAMPLE_TIME:
@@ -146,6 +147,15 @@ def _check_control_limits(t: DesignTable, control: Control, count: int, dofs: in
                         float(given[i]),
                         f"{setting.meaning} must lie within [F_N^min, F_N^max] = [{low[i]:g}, {high[i]:g}] N{where}",
                     )
+    load = control.reduction_normal_force
+    if load is not None:
+        forces = np.broadcast_to(np.asarray(load, dtype=float), (max(len(joints), 1),))
+        if float(forces.max()) > MAX_NORMAL_FORCE or not float(forces.max()) > 0:
+            raise t.error(
+                "reduction_normal_force",
+                list(load) if isinstance(load, tuple) else load,
+                f"one F_N per joint in [0, {MAX_NORMAL_FORCE:g}] N, at least one > 0 (the joint compared)",
+            )
     if count and control.piezo_preload > float(low.min()):
         raise t.error(
             "piezo_preload",

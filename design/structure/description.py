@@ -249,6 +249,7 @@ class Control:
     piezo_force_per_volt: float = 8.0
     piezo_preload: float = 0.0
     study_duration: float = 4.0
+    reduction_normal_force: tuple[float, ...] | float | None = None
 
 
 @dataclass(frozen=True)
