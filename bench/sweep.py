@@ -28,6 +28,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from smartjoint.bench.sweep_landscape import LANDSCAPE, write_landscape
 from smartjoint.codegen.closed_loop import CompiledLoops
 from smartjoint.common.errors import ModelError, SmartjointError
 from smartjoint.design.control import ensemble, sweep_sampling
@@ -381,7 +382,8 @@ def run_sweep(
             )
             prepared = prepare(sweep, progress, design, model)
             todo = open_output(folder, prepared, resume)
-            return _compute(client, prepared, folder, todo, progress)
+            out = _compute(client, prepared, folder, todo, progress)
+            return {**out, "landscape": LANDSCAPE if write_landscape(prepared, folder, progress) else None}
         finally:
             client.close()
             if cluster is not None:

@@ -8,12 +8,14 @@ sweep reports the same; written atomically beside the results (``report.md``, ``
 
 from __future__ import annotations
 
+import json
 import math
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
+from smartjoint.bench.sweep_landscape import LANDSCAPE
 from smartjoint.design.control import orderings as paper_orderings
 from smartjoint.design.control.ensemble import KEYS
 from smartjoint.design.control.sweep_file import LAWS
@@ -236,8 +238,56 @@ def plot_ecdf(columns: dict, path: Path) -> None:
     plt.close(figure)
 
 
+LANDSCAPE_PLOT = "best_passive_landscape.png"
+
+
+def plot_landscape(landscape: dict, path: Path) -> None:
+    """E(t_e) and e(t_e) against the constant F_N on the nominal plant: every force the two
+    searches ran (``bench.sweep_landscape``), the best of each marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    forces = np.asarray(landscape["forces"], dtype=float)
+    figure, axes = plt.subplots(2, 1, figsize=(6.4, 5.6), sharex=True)
+    for axis, metric, label in (
+        (axes[0], "energy_measure", "E(t_e) [J·s] (Eq. 32)"),
+        (axes[1], "energy_end", "e(t_e) [J]"),
+    ):
+        axis.semilogy(forces, landscape[metric], ".-", lw=0.8, ms=3)
+        best = landscape["best"][metric]
+        axis.semilogy([best["force"]], [best["value"]], "o", color="tab:red", label=f"best {best['force']:.1f} N")
+        axis.set_ylabel(label)
+        axis.grid(True, alpha=0.3)
+        axis.legend()
+    axes[1].set_xlabel("constant normal force F_N at every joint [N] (F^max during the pulse)")
+    axes[0].set_title("best constant F_N on the nominal plant: every force the searches ran")
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def landscape_lines(landscape: dict) -> list[str]:
+    """The report's section on the nominal plant's landscape."""
+    search, best = landscape["search"], landscape["best"]
+    return [
+        "",
+        "## The best constant normal force on the nominal plant",
+        "",
+        f"{len(landscape['forces'])} constant-force runs: a grid of {search['grid_intervals']} intervals over "
+        f"[F^min, F^max], then Brent to {search['tolerance']:g} N around its {search['refined']} best local minima "
+        "(`design/control/best_passive.py`). "
+        f"Best for E(t_e): {best['energy_measure']['force']:.1f} N ({best['energy_measure']['value']:.4g} J·s); "
+        f"for e(t_e): {best['energy_end']['force']:.1f} N ({best['energy_end']['value']:.3g} J).",
+        "",
+        f"![E(t_e) and e(t_e) against the constant F_N]({LANDSCAPE_PLOT})",
+    ]
+
+
 def write(folder: str | Path, table, inputs: list[str], source: str) -> Path:
-    """Write ``report.md`` and ``ecdf.png`` into the sweep's folder (each atomically).
+    """Write ``report.md`` and ``ecdf.png`` into the sweep's folder (each atomically), and the
+    best passive landscape's plot where the sweep wrote one (``bench.sweep_landscape``).
 
     Parameters
     ----------
@@ -263,11 +313,19 @@ def write(folder: str | Path, table, inputs: list[str], source: str) -> Path:
     temporary = folder / f".ecdf.png.{os.getpid()}.png"
     plot_ecdf(columns, temporary)
     os.replace(temporary, folder / "ecdf.png")
+    text = markdown(columns, inputs, source)
+    if (folder / LANDSCAPE).is_file():
+        landscape = json.loads((folder / LANDSCAPE).read_text())
+        temporary = folder / f".{LANDSCAPE_PLOT}.{os.getpid()}.png"
+        plot_landscape(landscape, temporary)
+        os.replace(temporary, folder / LANDSCAPE_PLOT)
+        text += "\n".join(landscape_lines(landscape)) + "\n"
     report = folder / "report.md"
     staging = folder / f".report.md.{os.getpid()}"
-    staging.write_text(markdown(columns, inputs, source))
+    staging.write_text(text)
     os.replace(staging, report)
     return report
 
 
-__all__ = ["ORDERINGS", "advantage", "markdown", "orderings", "plot_ecdf", "sensitivity", "write"]
+__all__ = ["LANDSCAPE_PLOT", "ORDERINGS", "advantage", "landscape_lines", "markdown", "orderings", "plot_ecdf",
+           "plot_landscape", "sensitivity", "write"]  # fmt: skip

@@ -57,3 +57,49 @@ def test_the_report_is_written_whole(tmp_path):
     report = write(tmp_path, pa.table(columns), ["a", "b"], "sweep.toml")
     assert report.read_text() == text and (tmp_path / "ecdf.png").stat().st_size > 1000
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ecdf.png", "report.md"]
+
+
+def test_the_nominal_landscape_joins_the_report_where_the_sweep_wrote_one(tmp_path):
+    """best_passive_landscape.json (bench.sweep_landscape) → its plot and a section naming both
+    best forces; the rest of the report unchanged."""
+    import json
+
+    from smartjoint.bench.sweep_landscape import LANDSCAPE
+
+    forces = np.linspace(10.0, 400.0, 41)
+    landscape = {
+        "forces": forces.tolist(),
+        "energy_measure": (1.0 / forces).tolist(),
+        "energy_end": (1e-3 + (forces - 40.0) ** 2 * 1e-6).tolist(),
+        "best": {"energy_measure": {"force": 400.0, "value": 0.0025}, "energy_end": {"force": 40.0, "value": 1e-3}},
+        "search": {"grid_intervals": 40, "refined": 3, "tolerance": 0.1},
+    }
+    (tmp_path / LANDSCAPE).write_text(json.dumps(landscape))
+    columns = _table()
+    report = write(tmp_path, pa.table(columns), ["a", "b"], "sweep.toml").read_text()
+    assert report.startswith(markdown(columns, ["a", "b"], "sweep.toml"))
+    assert "41 constant-force runs" in report and "for E(t_e): 400.0 N" in report and "for e(t_e): 40.0 N" in report
+    assert (tmp_path / "best_passive_landscape.png").stat().st_size > 1000
+
+
+def test_energies_at_the_floor_tie_and_the_tie_holds_in_every_section():
+    """e(t_e) of the active LQG 2.01e-7 J against the cLQG's 1.99e-7 J, passive F^max 1e-2 J: a
+    difference of 2e-7 of passive F^max's, below ENERGY_TIE, is a tie and the ordering holds; a
+    difference above it (1e-6 J, 1e-4 of it) does not; without a passive reference nothing ties."""
+    from smartjoint.design.control.orderings import ACTIVE, ENERGY_TIE, orderings
+
+    ordering = next(o for o in orderings() if o.key == "active_energy_below_clqg")
+    reference = 1e-2
+
+    def figures(active: float, clqg: float, with_reference: bool = True) -> dict:
+        relative = (lambda e: e / reference) if with_reference else (lambda e: math.nan)
+        return {
+            ACTIVE: {"energy_end": active, "energy_end_relative": relative(active)},
+            "cLQG": {"energy_end": clqg, "energy_end_relative": relative(clqg)},
+        }
+
+    assert 2.01e-7 - 1.99e-7 < ENERGY_TIE * reference < 1e-6
+    assert ordering.holds(figures(2.01e-7, 1.99e-7)) is True
+    assert ordering.holds(figures(1.2e-6, 2e-7)) is False
+    assert ordering.holds(figures(2.01e-7, 1.99e-7, with_reference=False)) is False
+    assert ordering.holds(figures(1.99e-7, 2.01e-7, with_reference=False)) is True
