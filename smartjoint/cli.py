@@ -261,7 +261,7 @@ def _add_dynamics_commands(sub, o: SimpleNamespace) -> None:
     )
     p.add_argument("--normal-force", required=True, help="F_N per joint, comma-separated [N]")
     p.add_argument("--duration", type=float, default=1.0, help="simulated time [s] (default: %(default)s)")
-    p.add_argument("--sample-time", type=float, default=1e-3, help="controller sample time [s] (default: %(default)s)")
+    p.add_argument("--sample-time", type=float, help="controller sample time [s] (default: the design's [control])")
     p.add_argument(
         "--stick-step",
         type=float,

@@ -386,7 +386,11 @@ def cmd_simulate(args) -> dict:
     from smartjoint.design.friction.model import joint_parameters
     from smartjoint.design.structure import modal
 
-    design, _ = load_updated(args)
+    if args.sample_time is not None and not (np.isfinite(args.sample_time) and args.sample_time > 0):
+        from smartjoint.common.errors import ModelError
+
+        raise ModelError(f"--sample-time: {args.sample_time!r} — must be a finite number > 0 [s]")
+    design, _ = load_updated(args, friction=True)
     forces = parse_normal_forces(args.normal_force, design)
     fe = build_model(design, joints="released")
     if args.reduced:
@@ -408,7 +412,7 @@ def cmd_simulate(args) -> dict:
     result = plant.simulate(
         model,
         joint_parameters(design),
-        plant.ConstantNormalForce(forces, args.sample_time),
+        plant.ConstantNormalForce(forces, args.sample_time if args.sample_time else design.control.sample_time),
         plant.triangular_pulse(directions=np.ones(len(design.disturbances))),
         args.duration,
         args.step,
