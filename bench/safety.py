@@ -363,7 +363,8 @@ def measure(record, faults, artifact, tolerated: bool = False, scope=None) -> di
     at_safe = np.all(np.abs(force - target)[:, free] <= FORCE_TOLERANCE, axis=1)
     start = min(int(round(f.start / dt)) for f in faults)
     ends = [f.end for f in faults]
-    end = None if any(math.isinf(e) for e in ends) else int(round(max(ends) / dt))
+    # An end beyond the run (inf, or 1e308 s) never ends within it.
+    end = None if any(not e / dt < len(safe) for e in ends) else int(round(max(ends) / dt))
     bound = max((int(math.ceil(f.lateness / dt - 1e-9)) - 1 if f.kind == "delay" else 0) for f in faults)
     reference = start + max(bound, 0)
     stop = len(safe) if end is None else min(end, len(safe))

@@ -200,6 +200,8 @@ def _bench_replay(args) -> dict:
     from smartjoint.common.errors import ModelError
     from smartjoint.design.control import artifact
 
+    if not (args.tolerance >= 0 and args.tolerance < float("inf")):
+        raise ModelError(f"--tolerance: {args.tolerance!r} V — must be a finite number >= 0")
     content = _bench_log(args)
     loaded = artifact.load(Path(args.artifact))
     network = None if args.network is None else design_network(args.network, loaded)

@@ -228,10 +228,19 @@ def _loop_inputs(args) -> tuple:
     from smartjoint.common import law_registry
     from smartjoint.design.control import study as closed_loop
 
+    faults = [parse_fault(text) for text in args.fault or []]  # their spelling first: before any work
     design = _control_design(args, firmware_names=True)
+    duration = design.control.study_duration
+    for text, fault in zip(args.fault or [], faults):
+        if not fault.start < duration:
+            from smartjoint.common.errors import ModelError
+
+            raise ModelError(
+                f"--fault {text!r}: starts at {fault.start:g} s, not before the study's end t_e = {duration:g} s "
+                "— it would never be injected"
+            )
     model = closed_loop.design_model(design, report_progress)
     controller = _controller_artifact(args, design, model)
-    faults = [parse_fault(text) for text in args.fault or []]
     return design, model, controller, faults, law_registry.NAMES if args.law == "all" else (args.law,)
 
 
@@ -354,8 +363,8 @@ def cmd_pil(args) -> dict:
     from smartjoint.common import law_registry
     from smartjoint.common.errors import ModelError
 
-    if not (args.clock > 0):
-        raise ModelError(f"--clock: {args.clock!r} MHz — must be > 0")
+    if not (args.clock > 0 and args.clock < float("inf")):
+        raise ModelError(f"--clock: {args.clock!r} MHz — must be a finite number > 0")
     reason = target.missing_tools()
     if reason:
         raise ModelError(reason)

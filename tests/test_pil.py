@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cli_error
+from conftest import cli_error, run_cli
 
 from smartjoint.bench import firmware, pil, pil_study, safety, target
 from smartjoint.common.errors import ModelError
@@ -121,8 +121,29 @@ def test_without_the_tools_the_stage_is_skipped_with_the_reason(monkeypatch, tmp
 
 
 def test_the_command_refuses_a_bad_clock_and_missing_tools_in_one_line():
-    line = cli_error("pil", "--clock", "0")
-    assert "--clock" in line and "must be > 0" in line
+    for clock in ("0", "inf", "nan", "-5"):
+        line = cli_error("pil", "--clock", clock)
+        assert "--clock" in line and "must be a finite number > 0" in line, line
+
+
+def test_a_fault_after_the_study_and_a_bad_replay_tolerance_are_one_line():
+    """Issue 37: a fault that starts at or after t_e would never be injected; a replay tolerance
+    that is negative or not a number compares nothing."""
+    done = run_cli("sil", "--fault", "drop:JOINT_A1:5:6", "--law", "siso", "--no-update")
+    line = done.stderr.strip().splitlines()[-1]
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "--fault 'drop:JOINT_A1:5:6': starts at 5 s, not before the study's end t_e = 4 s" in line, line
+    for tolerance in ("-1", "nan", "inf"):
+        line = cli_error(
+            "bench",
+            "replay",
+            "missing.blf",
+            "--artifact",
+            str(ROOT / "firmware" / "generated" / "controller.json"),
+            "--tolerance",
+            tolerance,
+        )
+        assert line.endswith("must be a finite number >= 0") and "--tolerance" in line, line
 
 
 def test_the_budget_adds_every_frame_of_a_sample():
