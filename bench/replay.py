@@ -66,6 +66,8 @@ class _Comparison:
     unknown: int = 0
     differences: list = field(default_factory=list)
     counts: defaultdict = field(default_factory=lambda: defaultdict(int))
+    logged: set = field(default_factory=set)  # (bus, frame name) of every known frame in the log
+    sent: set = field(default_factory=set)  # … of every frame the firmware sent in a sample with traffic
 
 
 def _bus_of(message, buses: int) -> int | None:
@@ -96,7 +98,9 @@ def _replay_sample(firmware, buses: list, frames, time_us: int, t: float, tolera
         m = None if bus is None else buses[bus].get(message.arbitration_id)
         if m is None:
             seen.unknown += 1  # the firmware counts and rejects it, as on the bus
-        elif _is_setpoint(m):
+            continue
+        seen.logged.add((bus, m.name))
+        if _is_setpoint(m):
             data = bytes(message.data)
             if len(data) != m.length:
                 seen.counts["recorded_wrong_length"] += 1
@@ -117,6 +121,8 @@ def _replay_sample(firmware, buses: list, frames, time_us: int, t: float, tolera
     sent = firmware.tx_bus() if len(buses) > 1 else [(0, frame_id, data) for frame_id, data in firmware.tx()]
     for bus, frame_id, data in sent:
         m = buses[bus].get(frame_id)
+        if m is not None and frames:
+            seen.sent.add((bus, m.name))
         if m is not None and _is_setpoint(m):
             for signal, volts in _setpoints(m, data).items():
                 replayed[bus, m.name, signal].append(volts)
@@ -225,5 +231,12 @@ def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None
         "tolerance_V": tolerance,
         "first_differences": differences[:20],
     }
-    out["ok"] = seen.compared > 0 and differing == 0 and out["recorded_not_replayed"] == 0
+    # A frame the firmware sends while the bus carries traffic but that the log never holds (every
+    # SETPOINT_A1 or every heartbeat cut out of it): the log is not the bus's, nothing compared it.
+    out["sent_never_logged"] = sorted(
+        f"{name}" + (f" (bus {bus})" if len(buses) > 1 else "") for bus, name in seen.sent - seen.logged
+    )
+    out["ok"] = (
+        seen.compared > 0 and differing == 0 and out["recorded_not_replayed"] == 0 and not out["sent_never_logged"]
+    )
     return out

@@ -226,6 +226,8 @@ def _bench_replay(args) -> dict:
             f"; {skipped} recorded setpoints not compared (bad CRC {out['recorded_setpoints_bad_crc']}, wrong "
             f"length {out['recorded_setpoints_wrong_length']})"
         )
+    if out["sent_never_logged"]:
+        line += f"; sent by the firmware but never in the log: {', '.join(out['sent_never_logged'])}"
     if out["ok"]:
         if not args.json:  # main prints the JSON
             print(line)

@@ -157,6 +157,15 @@ def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed
     assert code == 1 and "1 recorded but not replayed" in captured.err.splitlines()[0]
     assert '"recorded_not_replayed": 1' in captured.out and '"differing": 0' in captured.out
 
+    # Issue 37: a log with every frame of one kind the firmware sends cut out is not the bus's log.
+    db = protocol.database(reference)
+    for name in ("SETPOINT_A1", "CONTROLLER_STATUS"):
+        frame_id = db.get_message_by_name(name).frame_id
+        cut = _write([m for m in messages if m.arbitration_id != frame_id], tmp_path / f"without_{name}.blf")
+        code, captured = _bench(capsys, "replay", cut, "--law", "clqg")
+        assert code == 1, (name, captured)
+        assert f"sent by the firmware but never in the log: {name}" in captured.err.splitlines()[0], captured.err
+
 
 def test_empty_and_foreign_logs_are_errors_not_zero_comparisons(reference, tmp_path, capsys):
     (tmp_path / "empty.asc").write_text("")
