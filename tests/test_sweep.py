@@ -16,7 +16,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import tomli_w
-from conftest import cli_error, small_truss
+from conftest import cli_error, run_cli, small_truss
 
 from smartjoint.bench.sweep import SweepError, batch_path, connect, prepare, read_results, run_sweep
 from smartjoint.common.errors import DesignError, ModelError
@@ -146,6 +146,22 @@ def test_sweep_file_reads_inputs_grid_and_laws(folder):
 def test_zero_samples_is_one_line_on_the_command_line(folder):
     (folder / "zero.toml").write_text(_replace("samples = 5", "samples = 0"))
     assert "samples: 0 — must be an integer 1" in cli_error("sweep", str(folder / "zero.toml"))
+
+
+def test_a_sample_table_too_large_for_memory_is_one_line_before_the_design_model(folder, tmp_path):
+    """Issue 37: 10 000 000 samples grew to 4.9 GB in 90 s; now refused before any table is drawn."""
+    from smartjoint.design.control import sweep_sampling
+    from smartjoint.design.control.sweep_file import load_sweep
+
+    (folder / "huge.toml").write_text(_replace("samples = 5", "samples = 10000000"))
+    sweep = load_sweep(folder / "huge.toml")
+    with pytest.raises(ModelError, match=r"^samples: 10000000 × \d+ uncertain inputs need [\d.]+ GiB") as refused:
+        sweep_sampling.sample_inputs(sweep, ["JA", "JB"])
+    assert "at most 512 MiB" in str(refused.value) and "\n" not in str(refused.value)
+    done = run_cli("sweep", str(folder / "huge.toml"), "-o", str(tmp_path / "out"))
+    line = done.stderr.strip().splitlines()[-1]
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert line.startswith("smartjoint sweep: error: samples: 10000000") and not (tmp_path / "out").exists()
 
 
 def test_the_example_sweep_reads():

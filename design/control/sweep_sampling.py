@@ -13,6 +13,7 @@ import numpy as np
 from scipy import stats
 from scipy.stats import qmc
 
+from smartjoint.common.errors import ModelError
 from smartjoint.design.control.sweep_file import Distribution, Sweep
 
 PER_JOINT = ("friction.", "identification.")  # factors drawn for every joint: <prefix><joint>.<parameter>
@@ -122,6 +123,11 @@ def inverse(distribution: Distribution, unit: np.ndarray) -> np.ndarray:
     return np.clip(frozen.ppf(bottom + unit * (top - bottom)), d.low, d.high)
 
 
+# The sample table every sweep draws at once, before its first run (issue 37: 10 000 000 samples
+# grew to 4.9 GB in 90 s): at most this many bytes.
+MAX_INPUT_BYTES = 512 * 1024**2
+
+
 def sample_inputs(sweep: Sweep, joint_names) -> tuple[list[str], np.ndarray]:
     """Every sample's uncertain inputs.
 
@@ -137,6 +143,13 @@ def sample_inputs(sweep: Sweep, joint_names) -> tuple[list[str], np.ndarray]:
         (the column names of :func:`input_columns`, an array of one row per sample).
     """
     columns = column_distributions(sweep.inputs, joint_names)
+    needed = 2 * 8 * sweep.samples * max(len(columns), 1)  # the unit samples and the values, float64
+    if needed > MAX_INPUT_BYTES:
+        raise ModelError(
+            f"samples: {sweep.samples} × {len(columns)} uncertain inputs need {needed / 1024**3:.2f} GiB before the "
+            f"first run — at most {MAX_INPUT_BYTES // 1024**2} MiB: {MAX_INPUT_BYTES // (16 * max(len(columns), 1))} "
+            "samples; run several sweeps with other seeds"
+        )
     unit = unit_samples(sweep.sampler, sweep.samples, len(columns), sweep.seed)
     values = np.empty_like(unit)
     for k, (_, distribution) in enumerate(columns):
@@ -144,4 +157,4 @@ def sample_inputs(sweep: Sweep, joint_names) -> tuple[list[str], np.ndarray]:
     return [column for column, _ in columns], values
 
 
-__all__ = ["column_distributions", "input_columns", "inverse", "sample_inputs", "unit_samples"]
+__all__ = ["MAX_INPUT_BYTES", "column_distributions", "input_columns", "inverse", "sample_inputs", "unit_samples"]
