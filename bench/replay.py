@@ -231,8 +231,7 @@ def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None
         "tolerance_V": tolerance,
         "first_differences": differences[:20],
     }
-    # A frame the firmware sends while the bus carries traffic but that the log never holds (every
-    # SETPOINT_A1 or every heartbeat cut out of it): the log is not the bus's, nothing compared it.
+    # Sent while the bus carried traffic, never in the log (every SETPOINT_A1 or heartbeat cut out).
     out["sent_never_logged"] = sorted(
         f"{name}" + (f" (bus {bus})" if len(buses) > 1 else "") for bus, name in seen.sent - seen.logged
     )

@@ -130,26 +130,8 @@ def _plot(grids: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--plants", type=int, default=20)
-    parser.add_argument("--seed", type=int, default=36)
-    parser.add_argument("--intervals", default="10,20,40,80")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--store", action="store_true", help="write the nominal 1-N landscape as test data")
-    parser.add_argument("--json", default=str(HERE / "best_passive.json"))
-    args = parser.parse_args(argv)
-    intervals = [int(v) for v in args.intervals.split(",")]
-    from smartjoint.design.control.best_passive import GRID_INTERVALS, REFINED, TOLERANCE
-
-    started = time.perf_counter()
-    with ProcessPoolExecutor(args.workers, initializer=_start, initargs=(args.plants, args.seed)) as pool:
-        grids, grid_seconds = {}, 0.0
-        for index, rows, seconds in pool.map(_grid, range(args.plants + 1)):
-            grids[index], grid_seconds = rows, grid_seconds + seconds
-            print(f"1-N grid of plant {index}: {len(rows)} runs, {seconds:.1f} s", flush=True)
-        jobs = [(index, n) for n in intervals for index in grids]
-        searched = {(index, n): out for index, n, out in pool.map(_search, jobs)}
+def _compare(grids: dict, searched: dict, intervals: list[int]) -> dict:
+    """Per first-pass interval count: every plant's search against its 1-N grid, and the summary."""
     per_intervals = {}
     for n in intervals:
         rows = []
@@ -186,6 +168,11 @@ def main(argv=None) -> int:
             f"{e['nominal_force_gap']:.2f} / {big_e['nominal_force_gap']:.2f} N",
             flush=True,
         )
+    return per_intervals
+
+
+def _structure(grids: dict) -> dict:
+    """The landscapes' local minima and basins, per metric."""
     structure = {}
     for column, metric in ((1, "energy_end"), (2, "energy_measure")):
         found = [basins(np.asarray(g)[:, 0], np.asarray(g)[:, column]) for _, g in sorted(grids.items())]
@@ -200,6 +187,31 @@ def main(argv=None) -> int:
             f"narrowest basin holding a plant's best: {structure[metric]['narrowest_best_basin']:.0f} N",
             flush=True,
         )
+    return structure
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--plants", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=36)
+    parser.add_argument("--intervals", default="10,20,40,80")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--store", action="store_true", help="write the nominal 1-N landscape as test data")
+    parser.add_argument("--json", default=str(HERE / "best_passive.json"))
+    args = parser.parse_args(argv)
+    intervals = [int(v) for v in args.intervals.split(",")]
+    from smartjoint.design.control.best_passive import GRID_INTERVALS, REFINED, TOLERANCE
+
+    started = time.perf_counter()
+    with ProcessPoolExecutor(args.workers, initializer=_start, initargs=(args.plants, args.seed)) as pool:
+        grids, grid_seconds = {}, 0.0
+        for index, rows, seconds in pool.map(_grid, range(args.plants + 1)):
+            grids[index], grid_seconds = rows, grid_seconds + seconds
+            print(f"1-N grid of plant {index}: {len(rows)} runs, {seconds:.1f} s", flush=True)
+        jobs = [(index, n) for n in intervals for index in grids]
+        searched = {(index, n): out for index, n, out in pool.map(_search, jobs)}
+    per_intervals = _compare(grids, searched, intervals)
+    structure = _structure(grids)
     _plot(grids, HERE / "best_passive_landscape.png")
     write_json(
         args.json,

@@ -10,7 +10,7 @@ import json
 import sys
 from pathlib import Path
 
-from smartjoint.common.errors import SmartjointError
+from smartjoint.common.errors import ModelError, SmartjointError
 
 
 def report_progress(message: str) -> None:
@@ -261,8 +261,6 @@ def cmd_run(args) -> dict:
 
     result = run(args.design, Path(args.output), progress=report_progress)
     if result.get("stopped"):  # the report of the stages before it is written; the run failed
-        from smartjoint.common.errors import ModelError
-
         if args.json:
             print(json.dumps(result, indent=1))
         raise ModelError(f"{result['stopped']} — the report up to it: {result['report']}")
@@ -337,16 +335,12 @@ def cmd_reduce(args) -> dict:
         else None
     )
     if forces is not None and not forces.any():
-        from smartjoint.common.errors import ModelError
-
         raise ModelError(f"--normal-force: {args.normal_force!r} — at least one joint > 0 N (the joint compared)")
     joints = None
     if args.krylov_joints:
         names = [j.name for j in design.joints]
         unknown = [n for n in args.krylov_joints.split(",") if n not in names]
         if unknown:
-            from smartjoint.common.errors import ModelError
-
             raise ModelError(f"--krylov-joints: {unknown[0]!r} — joints are {', '.join(names)}")
         joints = [names.index(n) for n in args.krylov_joints.split(",")]
     elif forces is not None:
@@ -387,8 +381,6 @@ def cmd_simulate(args) -> dict:
     from smartjoint.design.structure import modal
 
     if args.sample_time is not None and not (np.isfinite(args.sample_time) and args.sample_time > 0):
-        from smartjoint.common.errors import ModelError
-
         raise ModelError(f"--sample-time: {args.sample_time!r} — must be a finite number > 0 [s]")
     design, _ = load_updated(args, friction=True)
     forces = parse_normal_forces(args.normal_force, design)

@@ -189,9 +189,8 @@ def campaign(
     lightest, heaviest = description.inertia
     fraction = prior.coulomb / (prior.coulomb + prior.stribeck)  # C/B of the prior
     tests = []
-    largest = max(description.normal_forces)
     for k, (share, rung, frequency) in enumerate(MICRO_RUNGS + STICK_RUNGS):
-        normal_force = share * largest
+        normal_force = share * max(description.normal_forces)
         if normal_force not in description.normal_forces:
             raise RigError(
                 f"normal_forces: {description.normal_forces!r} — the campaign needs F_N = {normal_force:g} N"

@@ -147,21 +147,26 @@ def _check_control_limits(t: DesignTable, control: Control, count: int, dofs: in
                         float(given[i]),
                         f"{setting.meaning} must lie within [F_N^min, F_N^max] = [{low[i]:g}, {high[i]:g}] N{where}",
                     )
-    load = control.reduction_normal_force
-    if load is not None:
-        forces = np.broadcast_to(np.asarray(load, dtype=float), (max(len(joints), 1),))
-        if float(forces.max()) > MAX_NORMAL_FORCE or not float(forces.max()) > 0:
-            raise t.error(
-                "reduction_normal_force",
-                list(load) if isinstance(load, tuple) else load,
-                f"one F_N per joint in [0, {MAX_NORMAL_FORCE:g}] N, at least one > 0 (the joint compared)",
-            )
+    _check_reduction_load(t, control.reduction_normal_force, len(joints))
     if count and control.piezo_preload > float(low.min()):
         raise t.error(
             "piezo_preload",
             control.piezo_preload,
             f"must be 0 <= preload <= F_N^min = {float(low.min()):g} N (at 0 V the stack "
             "already presses with the preload, so no setting could reach F_N^min)",
+        )
+
+
+def _check_reduction_load(t: DesignTable, load, joints: int) -> None:
+    """``reduction_normal_force``: within [0, MAX_NORMAL_FORCE] N, at least one joint > 0."""
+    if load is None:
+        return
+    forces = np.broadcast_to(np.asarray(load, dtype=float), (max(joints, 1),))
+    if float(forces.max()) > MAX_NORMAL_FORCE or not float(forces.max()) > 0:
+        raise t.error(
+            "reduction_normal_force",
+            list(load) if isinstance(load, tuple) else load,
+            f"one F_N per joint in [0, {MAX_NORMAL_FORCE:g}] N, at least one > 0 (the joint compared)",
         )
 
 
