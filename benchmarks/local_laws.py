@@ -24,6 +24,7 @@ standard error √(p(1−p)/n). Written to ``benchmarks/local_laws.json``.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import tempfile
 import time
@@ -37,7 +38,12 @@ from smartjoint.common import package_data
 from smartjoint.design.control.sweep_file import load_sweep
 
 DESIGN = package_data.path("smartjoint.design", "data/three_type_a.toml")
-PAPER_EPSILON = 3.16e-6  # m/s: the study's SISO ε (docs/control.md, firmware/generated)
+# m/s: the study's SISO ε as the committed firmware holds it (Eq. 32's search in `smartjoint design`)
+PAPER_EPSILON = float(
+    json.loads((Path(__file__).resolve().parents[1] / "firmware/generated/controller.json").read_text())["laws"][
+        "siso"
+    ]["boundary_layer"][0]
+)
 EPSILONS = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2)  # m/s: the preloaded SISO's grid
 PRELOADS = (10.0, 50.0, 100.0, 200.0, 300.0)  # N: F_N^min of the preloaded SISO's grid
 
