@@ -262,7 +262,7 @@ def plot_landscape(landscape: dict, path: Path) -> None:
         axis.grid(True, alpha=0.3)
         axis.legend()
     axes[1].set_xlabel("constant normal force F_N at every joint [N] (F^max during the pulse)")
-    axes[0].set_title("best constant F_N on the nominal plant: every force the searches ran")
+    axes[0].set_title("constant F_N on the nominal plant: every force searched", fontsize=10)
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
