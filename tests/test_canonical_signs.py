@@ -30,6 +30,21 @@ def _perturbation():
     return module
 
 
+def _same_signs_and_numbers(first, second, names) -> int:
+    """Each array ``names`` of two artefacts equal to TOLERANCE of its largest entry, with the same
+    signs where an entry is above that; the entries compared."""
+    compared = 0
+    for name in names:
+        a, b = np.asarray(getattr(first, name), float), np.asarray(getattr(second, name), float)
+        assert a.shape == b.shape, name
+        scale = np.max(np.abs(a))
+        assert np.max(np.abs(a - b)) <= TOLERANCE * scale, (name, np.max(np.abs(a - b)) / scale)
+        large = np.abs(a) > TOLERANCE * scale
+        assert np.array_equal(np.sign(a[large]), np.sign(b[large])), name
+        compared += a.size
+    return compared
+
+
 def test_an_antisymmetric_modes_sign_survives_the_last_bit_that_decides_its_largest_entry():
     mode = np.array([0.3, -1.0, 0.2, 1.0, -0.3, 0.0])  # mirror images: ±1 are its largest entries
     nudged = mode * (1.0 + np.array([0, -1e-15, 0, 1e-15, 0, 0]))  # now the -1 is the larger
@@ -49,16 +64,8 @@ def test_the_artefact_designed_on_perturbed_inputs_has_the_same_signs_and_number
     shaken = artifact_building.from_design(
         shaken_design, shaken_model, closed_loop.lqg_for(shaken_design, shaken_model), settings
     )
-    compared = 0
-    for name in ("blocks", "joint_input", "output", "feedback_gain", "estimator_gain", "modal_frequencies"):
-        a, b = np.asarray(getattr(plain, name), float), np.asarray(getattr(shaken, name), float)
-        assert a.shape == b.shape, name
-        scale = np.max(np.abs(a))
-        assert np.max(np.abs(a - b)) <= TOLERANCE * scale, (name, np.max(np.abs(a - b)) / scale)
-        large = np.abs(a) > TOLERANCE * scale
-        assert np.array_equal(np.sign(a[large]), np.sign(b[large])), name
-        compared += a.size
-    assert compared > 150
+    names = ("blocks", "joint_input", "output", "feedback_gain", "estimator_gain", "modal_frequencies")
+    assert _same_signs_and_numbers(plain, shaken, names) > 150
 
 
 @pytest.mark.numerics
@@ -78,12 +85,7 @@ def test_the_committed_artefact_is_what_the_bundled_design_gives_today(three_typ
         law.name: {key: getattr(committed, field) for key, field in law.artifact} for law in law_registry.LAWS.values()
     }
     today = artifact_building.from_design(design, model, closed_loop.lqg_for(design, model), settings)
-    for name in ("blocks", "gamma0", "gamma1", "joint_input", "output", "feedback_gain", "estimator_gain"):
-        a, b = np.asarray(getattr(committed, name), float), np.asarray(getattr(today, name), float)
-        assert a.shape == b.shape, name
-        scale = np.max(np.abs(a))
-        assert np.max(np.abs(a - b)) <= TOLERANCE * scale, (name, np.max(np.abs(a - b)) / scale)
-        large = np.abs(a) > TOLERANCE * scale
-        assert np.array_equal(np.sign(a[large]), np.sign(b[large])), name
+    names = ("blocks", "gamma0", "gamma1", "joint_input", "output", "feedback_gain", "estimator_gain")
+    _same_signs_and_numbers(committed, today, names)
     a, b = np.asarray(committed.modal_frequencies), np.asarray(today.modal_frequencies)
     assert np.allclose(a, b, rtol=TOLERANCE, atol=0)
