@@ -291,8 +291,6 @@ def parse_normal_forces(text: str, design):
     """
     import numpy as np
 
-    from smartjoint.common.errors import ModelError
-
     try:
         values = np.array([float(v) for v in text.split(",")], dtype=float)
     except ValueError:
@@ -444,7 +442,6 @@ def cmd_simulate(args) -> dict:
 def cmd_place(args) -> dict:
     import os
 
-    from smartjoint.common.errors import ModelError
     from smartjoint.design import build_model, solve_modes
     from smartjoint.design.structure import placement
 

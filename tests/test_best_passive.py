@@ -80,6 +80,7 @@ def bundled():
     return design, setup(design, model), CompiledLoop(artifact)
 
 
+@pytest.mark.numerics
 def test_the_bundled_studys_best_force_is_the_1_n_grids_within_1_n(bundled):
     """e(t_e) has a notch 400× below its surroundings at 40 N and a second basin at 23 N; E(t_e)
     a local minimum at 45 N and its best at F^max. The search lands within 1 N of the stored grid's
