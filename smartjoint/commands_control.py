@@ -68,6 +68,7 @@ def cmd_design(args) -> dict:
         **closed_loop.settings_figures(tunings),
         "lqg_max_pole_magnitude": float(abs(poles).max()),
         "lqg_stability_margin": float(1 - abs(poles).max()),
+        "lqg_blind_modes_hz": closed_loop.blind_modes_hz(lqg, model),
         "bus_load": max(loads.values()),
         "bus_loads": loads,
         "tuning": {name: None if t.record is None else t.record.figures() for name, t in tunings.items()},

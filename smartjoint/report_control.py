@@ -207,6 +207,19 @@ def _orderings_lines(c: dict) -> list[str]:
     return lines
 
 
+def _blind_lines(blind: dict[str, list[float]]) -> list[str]:
+    """The design model's modes no sensor sees (the filter predicts them from the measured u_R
+    alone) and no joint moves (the LQR leaves them alone), when there are any."""
+    words = {"unseen": "no sensor sees", "unmoved": "no friction joint moves"}
+    return [
+        f"- The design model keeps {len(hz)} mode(s) {words[kind]} (to round-off): "
+        + ", ".join(f"{f:.2f} Hz" for f in hz)
+        + (" — the filter predicts them from the measured friction forces alone." if kind == "unseen" else ".")
+        for kind, hz in blind.items()
+        if hz
+    ]
+
+
 def control_markdown(study: closed_loop.Study) -> str:
     s = closed_loop.summary(study)
     lines = [
@@ -219,6 +232,7 @@ def control_markdown(study: closed_loop.Study) -> str:
         "",
         f"- LQG (Eq. 33): linear closed loop max|λ| = {s['lqg_max_pole_magnitude']:.6f} "
         f"(stability margin {s['lqg_stability_margin']:.2e}).",
+        *_blind_lines(s["lqg_blind_modes_hz"]),
         *_settings_lines(study),
     ]
     lines += _runs_table(s)

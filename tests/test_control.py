@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import control as ct
 import numpy as np
 import pytest
@@ -124,20 +126,32 @@ def test_bad_controller_inputs_are_named(model):
         control.design_lqg(model, 1.0 / model.omega.max() * 2 * np.pi)
     with pytest.raises(ModelError, match="control_weight"):
         control.design_lqg(model, 1e-3, control_weight=-1.0)
-    blind = (
-        modal.ModalModel(
-            **{
-                **model.__dict__,
-                "displacement_output": np.zeros_like(model.displacement_output),
-                "velocity_output": np.zeros_like(model.velocity_output),
-            }
-        )
-        if hasattr(model, "__dict__")
-        else None
+    blind = dataclasses.replace(
+        model,
+        displacement_output=np.zeros_like(model.displacement_output),
+        velocity_output=np.zeros_like(model.velocity_output),
     )
-    if blind is not None:
-        with pytest.raises(ModelError, match="not detectable"):
-            control.design_lqg(blind, 1e-3)
+    with pytest.raises(ModelError, match="not detectable in practice: no sensor sees any mode"):
+        control.design_lqg(blind, 1e-3)
+
+
+def test_a_mode_no_sensor_sees_or_no_joint_moves_is_designed_for_and_named(model):
+    """A symmetric truss has such modes (a triangular mast's axial modes under tip sensors): they
+    are stable, so the LQG exists; the design names them, the LQR leaves the unmoved one alone and
+    the loop stays stable."""
+    unseen, unmoved = 1, 2
+    outputs = {name: getattr(model, name).copy() for name in ("displacement_output", "velocity_output")}
+    for matrix in outputs.values():
+        matrix[:, unseen] = 0.0
+    joint_input = model.joint_input.copy()
+    joint_input[unmoved] = 0.0
+    symmetric = dataclasses.replace(model, joint_input=joint_input, **outputs)
+    design = control.design_lqg(symmetric, 1e-3)
+    assert design.blind_modes() == {"unseen": (unseen,), "unmoved": (unmoved,)}
+    gain = np.abs(design.feedback_gain)
+    assert gain[:, 2 * unmoved : 2 * unmoved + 2].max() <= 1e-9 * gain.max()
+    assert np.abs(design.closed_loop_poles()).max() < 1.0
+    assert control.design_lqg(model, 1e-3).blind_modes() == {"unseen": (), "unmoved": ()}
 
 
 def test_design_file_control_table_errors_name_the_key():

@@ -56,6 +56,11 @@ class LqgDesign:
         g1 = (self.gamma1[:, :, None] * e[:, None, :]).reshape(2 * n, -1)
         return g0, g1
 
+    def blind_modes(self) -> dict[str, tuple[int, ...]]:
+        """Coordinates (0-based) that no sensor sees and that no joint moves (`blind_coordinates`)."""
+        g0, g1 = self.input_matrices()
+        return {"unseen": blind_coordinates(self.output.T), "unmoved": blind_coordinates(g0 + g1)}
+
     def closed_loop_poles(self) -> np.ndarray:
         """Eigenvalues of the linear LQG loop (plant + current estimator + u = −Kx̂, ZOH force)."""
         a = self.state_matrix
@@ -201,7 +206,8 @@ def _check_weights(**weights: float) -> None:
 
 
 def _check_pbh(a, b, word, reason, model) -> None:
-    """PBH rank test per 2×2 mode block (modes are decoupled): rank[A − λI, B] = 2 for each λ."""
+    """PBH rank test per 2×2 mode block (modes are decoupled): rank[A − λI, B] = 2 for each λ
+    on or outside the unit circle; and at least one mode that ``b`` reaches at all."""
     n = a.shape[0] // 2
     for i in range(n):
         block = a[2 * i : 2 * i + 2, 2 * i : 2 * i + 2]
@@ -215,15 +221,30 @@ def _check_pbh(a, b, word, reason, model) -> None:
                     f"reduced model is not {word}: {reason} {i + 1} "
                     f"({model.omega[i] / 2 / np.pi:.2f} Hz) with |λ| = {abs(lam):.6f}"
                 )
-    # With structural damping every mode is strictly stable, so the loop above only catches
-    # undamped modes; a mode that no joint moves / no sensor sees is still reported:
-    norms = np.linalg.norm(b.reshape(n, 2, -1), axis=(1, 2))
-    if np.any(norms <= 1e-14 * max(norms.max(), 1e-300)):
-        i = int(np.argmin(norms))
-        raise ModelError(
-            f"reduced model is not {word} in practice: {reason} {i + 1} "
-            f"({model.omega[i] / 2 / np.pi:.2f} Hz) at all — drop it from the reduced model"
-        )
+    if len(blind_coordinates(b)) == n:
+        raise ModelError(f"reduced model is not {word} in practice: {reason.removesuffix(' mode')} any mode")
 
 
-__all__ = ["LqgDesign", "check_sample_time", "design_lqg"]
+def blind_coordinates(b: np.ndarray) -> tuple[int, ...]:
+    """The coordinates whose 2-row block of ``b`` (an input matrix, or Cᵀ) is zero to round-off.
+
+    With structural damping every mode is strictly stable, so such a coordinate leaves the design
+    detectable and stabilisable: no joint moves it (the LQR leaves it alone), or no sensor sees it
+    (the filter predicts it from the measured friction forces alone, Eq. 33). A symmetric truss
+    has such modes (a triangular mast's axial modes under tip sensors).
+
+    Parameters
+    ----------
+    b : ndarray (2n, k)
+
+    Returns
+    -------
+    tuple of int
+        0-based coordinates whose rows are at most 1e-14 of the largest block's norm.
+    """
+    norms = np.linalg.norm(b.reshape(b.shape[0] // 2, 2, -1), axis=(1, 2))
+    top = norms.max() if norms.size else 0.0
+    return tuple(int(i) for i in np.flatnonzero(norms <= 1e-14 * max(top, 1e-300)))
+
+
+__all__ = ["LqgDesign", "blind_coordinates", "check_sample_time", "design_lqg"]

@@ -336,6 +336,11 @@ def settings_figures(tunings: dict[str, Tuning]) -> dict:
     return out
 
 
+def blind_modes_hz(lqg: LqgDesign, model: ModalModel) -> dict[str, list[float]]:
+    """The design model's coordinates no sensor sees / no joint moves, by frequency [Hz]."""
+    return {kind: [float(model.omega[i] / (2 * np.pi)) for i in found] for kind, found in lqg.blind_modes().items()}
+
+
 def summary(study: Study) -> dict:
     """JSON-ready figures of the study (no time series).
 
@@ -361,6 +366,7 @@ def summary(study: Study) -> dict:
         "tuning": {name: None if t.record is None else t.record.summary() for name, t in study.tunings.items()},
         "lqg_max_pole_magnitude": 1.0 - study.stability_margin,
         "lqg_stability_margin": study.stability_margin,
+        "lqg_blind_modes_hz": blind_modes_hz(study.lqg, s.model),
         "runs": {r.name: r.metrics for r in study.runs},
         "orderings": study.orderings(),
         "joints": study.joint_names,
@@ -377,6 +383,7 @@ __all__ = [
     "Run",
     "Study",
     "StudySetup",
+    "blind_modes_hz",
     "controlled_joints",
     "design_model",
     "lqg_for",
