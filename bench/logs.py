@@ -20,7 +20,7 @@ from typing import TextIO, cast
 import numpy as np
 
 from smartjoint.bench import e2e
-from smartjoint.common import figures
+from smartjoint.common import figures, output_path
 from smartjoint.common.errors import ModelError
 
 
@@ -443,15 +443,11 @@ def write_csv(decoded: Decoded, path) -> None:
     path : path
         The CSV file.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(path.name + ".partial")
-    with temporary.open("w", newline="") as stream:
+    with output_path.writing(path) as stream:
         writer = csv.writer(stream)
         writer.writerow(["time_s", "frame", "signal", "value"])
         for row in decoded.rows:
             writer.writerow([repr(row[0]), row[1], row[2], repr(row[3])])
-    temporary.replace(path)
 
 
 def plot(decoded: Decoded, folder, frames=None) -> list[Path]:

@@ -28,15 +28,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from smartjoint.bench.sweep_folder import MANIFEST, RESULTS, check_output
 from smartjoint.bench.sweep_landscape import LANDSCAPE, write_landscape
 from smartjoint.codegen.closed_loop import CompiledLoops
+from smartjoint.common import output_path
 from smartjoint.common.errors import ModelError, SmartjointError
 from smartjoint.design.control import ensemble, sweep_sampling
 from smartjoint.design.control.sweep_file import Sweep
 
 SCHEDULER_TIMEOUT = 3.0  # s: an unreachable scheduler is reported after this, the command within 10 s
-MANIFEST = "sweep.json"
-RESULTS = "results"
 
 
 class SweepError(SmartjointError):
@@ -253,15 +253,6 @@ def _complete(path: Path, rows: int) -> bool:
         return False
 
 
-def check_output(folder: Path, resume: bool) -> None:
-    """Refuse (SweepError), before any work, an output that is not a folder or holds a sweep's
-    results without ``resume`` (:func:`open_output` compares their sweep)."""
-    if folder.exists() and not folder.is_dir():
-        raise SweepError(f"-o {folder}: not a folder")
-    if (folder / MANIFEST).exists() and not resume:
-        raise SweepError(f"-o {folder}: holds results of a sweep already; --resume continues it, or give another -o")
-
-
 def open_output(folder: Path, prepared: Prepared, resume: bool) -> list[int]:
     """Create or check the output folder; the batches still to compute.
 
@@ -288,10 +279,7 @@ def open_output(folder: Path, prepared: Prepared, resume: bool) -> list[int]:
                 "--resume continues only the same sweep file and design"
             )
     else:
-        (folder / RESULTS).mkdir(parents=True, exist_ok=True)
-        temporary = path.with_name(f".{MANIFEST}.{os.getpid()}")
-        temporary.write_text(json.dumps(manifest, indent=1) + "\n")
-        os.replace(temporary, path)
+        output_path.write_file(path, json.dumps(manifest, indent=1) + "\n")
     (folder / RESULTS).mkdir(parents=True, exist_ok=True)
     batches = prepared.sweep.batches()
     return [k for k, b in enumerate(batches) if not _complete(batch_path(folder, k), prepared.batch_rows(b))]
@@ -492,5 +480,5 @@ def _report_lost_workers(client, seen: set, progress) -> set:
     return now
 
 
-__all__ = ["MANIFEST", "RESULTS", "SCHEDULER_TIMEOUT", "Prepared", "SweepError", "batch_path", "check_output",
-           "connect", "open_output", "prepare", "read_results", "run_sweep", "write_batch"]  # fmt: skip
+__all__ = ["SCHEDULER_TIMEOUT", "Prepared", "SweepError", "batch_path", "connect", "open_output", "prepare",
+           "read_results", "run_sweep", "write_batch"]  # fmt: skip

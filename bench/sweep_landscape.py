@@ -6,14 +6,15 @@ report plots it (``sweep_report``). Only when the sweep runs a best passive law.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
+from smartjoint.common import output_path
 from smartjoint.design.control import ensemble
 from smartjoint.design.control.best_passive import search_landscape
 from smartjoint.design.control.interconnection import PythonLoop
 
 LANDSCAPE = "best_passive_landscape.json"
+LANDSCAPE_PLOT = "best_passive_landscape.png"  # drawn by the sweep report
 
 
 def write_landscape(prepared, folder: Path, progress=print) -> dict | None:
@@ -25,10 +26,8 @@ def write_landscape(prepared, folder: Path, progress=print) -> dict | None:
     loop = prepared.compiled(base.artifacts[0]) if prepared.compiled is not None else PythonLoop(base.artifacts[0])
     progress("  best constant F_N on the nominal plant: the landscape of both searches …")
     landscape = search_landscape(base.setup, loop.run_passive)
-    staging = Path(folder) / f".{LANDSCAPE}.{os.getpid()}"
-    staging.write_text(json.dumps(landscape, indent=1) + "\n")
-    os.replace(staging, Path(folder) / LANDSCAPE)
+    output_path.write_file(Path(folder) / LANDSCAPE, json.dumps(landscape, indent=1) + "\n")
     return landscape
 
 
-__all__ = ["LANDSCAPE", "write_landscape"]
+__all__ = ["LANDSCAPE", "LANDSCAPE_PLOT", "write_landscape"]

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from smartjoint.codegen import build, fmi_headers, fmu_variables, generate, rendering
-from smartjoint.common import law_registry, package_data
+from smartjoint.common import law_registry, output_path, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.plant import fixed_step
 from smartjoint.design.plant.interface import ConstantNormalForce
@@ -459,25 +459,13 @@ def compile_binary(files: dict[str, str], sources: list[str], identifier: str, f
 def _pack(target: Path, members: dict[str, bytes]) -> None:
     """Zip the members deterministically into a temporary file beside ``target``, then move it
     into place: never a half-written FMU, and an existing one replaced only whole."""
-    if target.is_dir():
-        raise ModelError(f"-o: {str(target)!r} is a folder — name the .fmu file to write")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-    os.close(handle)
-    try:
-        with zipfile.ZipFile(temporary, "w", zipfile.ZIP_DEFLATED) as archive:
+    with output_path.writing(target, binary=True) as stream:  # the output rule, whole or not at all
+        with zipfile.ZipFile(stream, "w", zipfile.ZIP_DEFLATED) as archive:
             for name in sorted(members):
                 info = zipfile.ZipInfo(name, _ZIP_TIME)
                 info.compress_type = zipfile.ZIP_DEFLATED
                 info.external_attr = (0o755 if name.endswith(".so") else 0o644) << 16
                 archive.writestr(info, members[name])
-        mask = os.umask(0o022)  # mkstemp's file is 0600: the FMU gets an ordinary file's mode
-        os.umask(mask)
-        os.chmod(temporary, 0o666 & ~mask)
-        os.replace(temporary, target)
-    finally:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
 
 
 __all__ = [

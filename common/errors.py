@@ -28,6 +28,11 @@ class ModelError(SmartjointError, ValueError):
     """The structure described is valid text but not a valid mechanical model."""
 
 
+class OutputError(SmartjointError, ValueError):
+    """An output path a command must not write: a link, a FIFO, a device, a path below a file, a
+    folder holding a user's files (``common.output_path``)."""
+
+
 def _show(value: object) -> str:
     if value is _MISSING:
         return "missing"

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from smartjoint.common import output_path
+
 
 def pyplot():
     """``matplotlib.pyplot`` on the Agg backend.
@@ -37,9 +39,15 @@ def folder_for(folder) -> Path:
     Path
         ``folder``, which now exists.
     """
-    folder = Path(folder)
+    folder = output_path.check_folder(folder, "--plots", ours=is_figure)
     folder.mkdir(parents=True, exist_ok=True)
     return folder
+
+
+def is_figure(entry: Path) -> bool:
+    """A figure a command may replace in its plots folder: a regular PNG file (by the output
+    rule, `common.output_path`, anything else there is a user's and refused)."""
+    return output_path.kind(entry) == "file" and entry.suffix.lower() == ".png"
 
 
 def save(fig, path, dpi: int) -> None:
@@ -55,5 +63,8 @@ def save(fig, path, dpi: int) -> None:
         The resolution.
     """
     fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    pyplot().close(fig)
+    try:
+        with output_path.writing(path, binary=True) as stream:  # whole, never through a link
+            fig.savefig(stream, dpi=dpi, format=Path(path).suffix[1:] or "png")
+    finally:
+        pyplot().close(fig)

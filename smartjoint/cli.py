@@ -27,7 +27,7 @@ from smartjoint.commands_control import cmd_codegen, cmd_design, cmd_pil, cmd_si
 from smartjoint.commands_fmu import cmd_fmu
 from smartjoint.commands_friction import cmd_campaign, cmd_identify, cmd_rig
 from smartjoint.commands_sweep import cmd_sweep
-from smartjoint.common import friction_registry, law_registry
+from smartjoint.common import figures, friction_registry, law_registry, output_path
 from smartjoint.common.errors import SmartjointError
 
 _LAWS_SHOWN = ", ".join(law.display for law in law_registry.LAWS.values())  # the laws, as a reader knows them
@@ -452,6 +452,24 @@ def _terminate(signum, frame) -> None:
     raise Terminated()
 
 
+# The commands whose -o names a folder (rig with --campaign too); every other -o names a file.
+_FOLDER_OUTPUTS = ("run", "codegen", "sweep")
+
+
+def check_outputs(args) -> None:
+    """The output rule (`common.output_path`) on -o and --plots before any work: a file where a
+    file is meant, a folder where a folder is, never a link, FIFO, device or a path below a file;
+    a plots folder holds only PNGs. Which entries of an output folder are its own each command
+    decides (run: its manifest, codegen: its banners, sweep: its batches)."""
+    if getattr(args, "output", None):
+        if args.command in _FOLDER_OUTPUTS or (args.command == "rig" and args.campaign):
+            output_path.check_folder(args.output, "-o", ours=lambda entry: True)
+        else:
+            output_path.check_file(args.output, "-o")
+    if getattr(args, "plots", None):
+        output_path.check_folder(args.plots, "--plots", ours=figures.is_figure)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -460,6 +478,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError:  # not the main thread (an embedding program): it keeps its own handling
         previous = None
     try:
+        check_outputs(args)
         out = args.func(args)
         if args.json:
             print(json.dumps(out, indent=1))

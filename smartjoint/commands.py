@@ -10,6 +10,7 @@ import json
 import sys
 from pathlib import Path
 
+from smartjoint.common import figures, output_path
 from smartjoint.common.errors import ModelError, SmartjointError
 
 
@@ -103,13 +104,12 @@ def write_plots(args, out: dict, draw) -> None:
         ``draw(folder)`` writes the PNGs and returns their paths.
     """
     if args.plots:
-        folder = Path(args.plots)
-        folder.mkdir(parents=True, exist_ok=True)
+        folder = figures.folder_for(args.plots)
         out["plots"] = [str(p) for p in draw(folder)]
 
 
 def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file, so that a failure never leaves half a file.
+    """Write ``text`` to ``path`` whole, by the output rule (`common.output_path.write_file`).
 
     Parameters
     ----------
@@ -118,10 +118,7 @@ def write_atomic(path: Path, text: str) -> None:
     text : str
         The content.
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(path.name + ".partial")
-    temporary.write_text(text)
-    temporary.replace(path)
+    output_path.write_file(path, text)
 
 
 def _model(args, *, joints: str = "locked"):

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from smartjoint.commands import report_progress, write_atomic, write_plots
-from smartjoint.common import friction_registry
+from smartjoint.common import friction_registry, output_path
 from smartjoint.common.errors import SmartjointError
 
 _MODEL = friction_registry.friction_model()  # the rig's flags are the default model's parameters
@@ -79,6 +79,11 @@ def _rig_test(args, joint_type, normal_force, amplitude, frequency, seed):
     )
 
 
+def _is_rig_record(entry: Path) -> bool:
+    """A record `smartjoint rig --campaign` wrote (``rig_<type>_FN….csv``): replaced by name."""
+    return output_path.kind(entry) == "file" and entry.name.startswith("rig_") and entry.suffix == ".csv"
+
+
 def cmd_rig(args) -> dict:
     """``smartjoint rig``: simulate one rig test, or the whole campaign, and write the records.
 
@@ -101,18 +106,15 @@ def cmd_rig(args) -> dict:
     chosen = _rig_parameters(args)
     parameters, joint_type = chosen.parameters, chosen.joint_type
     if args.campaign:
-        if output.exists() and not output.is_dir():
-            raise SmartjointError(
-                f"-o {output}: exists and is not a folder — --campaign writes its records into a folder"
-            )
+        # The output rule (common.output_path): a folder of rig records at most, replaced by name.
+        output_path.check_folder(output, "-o", ours=_is_rig_record)
         prior = _campaign_prior(args, chosen)
         tests = campaign(joint_type, prior.parameters, noise=args.noise, seed=args.seed, cycles=args.cycles)
     else:
         missing = [n for n in ("normal_force", "amplitude", "frequency") if getattr(args, n) is None]
         if missing:
             raise SmartjointError(f"give --{missing[0].replace('_', '-')} (or --campaign)")
-        if output.is_dir():
-            raise SmartjointError(f"-o {output}: is a folder — give a record file name (or --campaign)")
+        output_path.check_file(output, "-o")
         if args.prior is not None:
             raise SmartjointError("--prior: designs a campaign — give it with --campaign")
         tests = [_rig_test(args, joint_type, args.normal_force, args.amplitude, args.frequency, args.seed)]

@@ -10,10 +10,12 @@ from smartjoint.commands import report_progress
 
 def cmd_sweep(args) -> dict:
     from smartjoint.bench.sweep import run_sweep
+    from smartjoint.bench.sweep_folder import check_output
     from smartjoint.design.control.sweep_file import load_sweep
 
-    sweep = load_sweep(args.sweep)
     folder = Path(args.output) if args.output else Path(f"{Path(args.sweep).stem}-results")
+    check_output(folder, args.resume)  # the output rule before the sweep file is even read
+    sweep = load_sweep(args.sweep)
     out = run_sweep(sweep, folder, args.scheduler, args.workers, args.resume, report_progress)
     from smartjoint.bench.sweep import read_results
     from smartjoint.design.control.ensemble import KEYS, METRICS

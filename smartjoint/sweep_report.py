@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from smartjoint.bench.sweep_landscape import LANDSCAPE
+from smartjoint.bench.sweep_landscape import LANDSCAPE, LANDSCAPE_PLOT
+from smartjoint.common import figures, output_path
 from smartjoint.design.control import orderings as paper_orderings
 from smartjoint.design.control.ensemble import KEYS
 from smartjoint.design.control.sweep_file import LAWS
@@ -233,12 +234,7 @@ def plot_ecdf(columns: dict, path: Path) -> None:
     axis.set_ylabel("fraction of samples")
     axis.legend()
     axis.grid(True, alpha=0.3)
-    figure.tight_layout()
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
-
-
-LANDSCAPE_PLOT = "best_passive_landscape.png"
+    figures.save(figure, path, 120)
 
 
 def plot_landscape(landscape: dict, path: Path) -> None:
@@ -263,9 +259,7 @@ def plot_landscape(landscape: dict, path: Path) -> None:
         axis.legend()
     axes[1].set_xlabel("constant normal force F_N at every joint [N] (F^max during the pulse)")
     axes[0].set_title("constant F_N on the nominal plant: every force searched", fontsize=10)
-    figure.tight_layout()
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
+    figures.save(figure, path, 120)
 
 
 def landscape_lines(landscape: dict) -> list[str]:
@@ -305,27 +299,17 @@ def write(folder: str | Path, table, inputs: list[str], source: str) -> Path:
     Path
         The report.
     """
-    import os
-
     folder = Path(folder)
     columns = table.to_pydict()
     assert set(KEYS) <= set(columns)
-    temporary = folder / f".ecdf.png.{os.getpid()}.png"
-    plot_ecdf(columns, temporary)
-    os.replace(temporary, folder / "ecdf.png")
+    plot_ecdf(columns, folder / "ecdf.png")
     text = markdown(columns, inputs, source)
     if (folder / LANDSCAPE).is_file():
         landscape = json.loads((folder / LANDSCAPE).read_text())
-        temporary = folder / f".{LANDSCAPE_PLOT}.{os.getpid()}.png"
-        plot_landscape(landscape, temporary)
-        os.replace(temporary, folder / LANDSCAPE_PLOT)
+        plot_landscape(landscape, folder / LANDSCAPE_PLOT)
         text += "\n".join(landscape_lines(landscape)) + "\n"
-    report = folder / "report.md"
-    staging = folder / f".report.md.{os.getpid()}"
-    staging.write_text(text)
-    os.replace(staging, report)
-    return report
+    return output_path.write_file(folder / "report.md", text)
 
 
-__all__ = ["LANDSCAPE_PLOT", "ORDERINGS", "advantage", "landscape_lines", "markdown", "orderings", "plot_ecdf",
+__all__ = ["ORDERINGS", "advantage", "landscape_lines", "markdown", "orderings", "plot_ecdf",
            "plot_landscape", "sensitivity", "write"]  # fmt: skip

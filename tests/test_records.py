@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from smartjoint.common.errors import OutputError
 from smartjoint.design.friction import lugre, rig
 from smartjoint.design.friction.records import RecordError, read_record, write_record
 from smartjoint.design.friction.rig_campaign import standard_campaign
@@ -242,9 +243,9 @@ def test_write_record_refuses_what_it_could_not_read_back(tmp_path):
     with pytest.raises(RecordError, match=r"row 15, column 'normal_force': -200.0 N — F_N must be > 0"):
         write_record(record, tmp_path / "b.csv")
     assert list(tmp_path.iterdir()) == []  # nothing half-written
-    with pytest.raises(RecordError, match="cannot write record"):
-        record.normal_force[5] = 300.0
-        write_record(record, tmp_path)  # a folder
+    record.normal_force[5] = 300.0
+    with pytest.raises(OutputError, match="is a folder — name a file"):  # the output rule
+        write_record(record, tmp_path)
     assert list(tmp_path.iterdir()) == []
 
 

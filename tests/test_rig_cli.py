@@ -134,9 +134,9 @@ def test_bad_rig_options_are_one_line_errors(tmp_path, capsys, monkeypatch, argu
 
 def test_campaign_output_must_be_a_folder_and_nothing_is_written_on_error(tmp_path, capsys):
     (tmp_path / "file").write_text("keep")
-    assert "exists and is not a folder" in _rig_error(capsys, "--campaign", "-o", str(tmp_path / "file"))
+    assert "is a file — name a folder" in _rig_error(capsys, "--campaign", "-o", str(tmp_path / "file"))
     assert (tmp_path / "file").read_text() == "keep"
-    assert "is a folder — give a record file name" in _rig_error(capsys, *SINGLE, "-o", str(tmp_path))
+    assert "is a folder — name a file" in _rig_error(capsys, *SINGLE, "-o", str(tmp_path))
     # F_d = 0: the campaign cannot size its stick-slip inertia; refused before the folder is made
     (tmp_path / "flat.toml").write_text(_toml({**JOINT_B, "stribeck": 0.0}))
     assert "stribeck: 0.0 — the campaign sizes the stick-slip inertia from F_d" in _rig_error(

@@ -143,7 +143,7 @@ def test_an_existing_file_is_refused_untouched(tmp_path, no_work, capsys):
     target = tmp_path / "report"
     target.write_bytes(b"not a folder\x00\xff")
     before = _snapshot(tmp_path)
-    assert "is a file, not a folder" in _refuse(target, capsys)
+    assert "is a file — name a folder" in _refuse(target, capsys)
     assert _snapshot(tmp_path) == before
     assert "is a file" in _refuse(target / "inside", capsys)  # a path below a file
     assert _snapshot(tmp_path) == before

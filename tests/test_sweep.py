@@ -19,7 +19,7 @@ import tomli_w
 from conftest import cli_error, run_cli, small_truss
 
 from smartjoint.bench.sweep import SweepError, batch_path, connect, prepare, read_results, run_sweep
-from smartjoint.common.errors import DesignError, ModelError
+from smartjoint.common.errors import DesignError, ModelError, OutputError
 from smartjoint.design.control import ensemble, sweep_sampling, tuning
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.control.sweep_file import load_sweep
@@ -418,10 +418,10 @@ def test_one_and_two_workers_give_identical_tables_and_resume_fills_a_gap(folder
     assert batch_path(folder / "two", 1).read_bytes() == batch_path(folder / "one", 1).read_bytes()
 
     # Refused before any work: the scheduler it names is never asked (none listens there).
-    with pytest.raises(SweepError, match="--resume continues it"):
+    with pytest.raises(OutputError, match="--resume continues it"):
         run_sweep(sweep, folder / "two", scheduler=f"tcp://127.0.0.1:{_free_port()}", progress=quiet.append)
     (folder / "a-file").write_text("mine")
-    with pytest.raises(SweepError, match="not a folder"):
+    with pytest.raises(OutputError, match="is a file — name a folder"):
         run_sweep(sweep, folder / "a-file", scheduler=f"tcp://127.0.0.1:{_free_port()}", progress=quiet.append)
     assert (folder / "a-file").read_text() == "mine"
     other = dataclasses.replace(sweep, seed=21, sha256="0" * 64)

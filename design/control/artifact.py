@@ -25,14 +25,13 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from smartjoint.common import output_path
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact_layout
 from smartjoint.design.control.artifact_schema import (
@@ -185,23 +184,10 @@ def save(artifact: ControllerArtifact, path) -> Path:
         ``path``.
     """
     path = Path(path)
-    text = dumps(artifact)
-    temporary = None
     try:
-        with tempfile.NamedTemporaryFile(
-            "w", encoding="ascii", dir=path.parent, prefix=f".{path.name}.", suffix=".tmp", delete=False
-        ) as handle:
-            temporary = handle.name
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(temporary, path)
+        return output_path.write_file(path, dumps(artifact))  # the output rule
     except OSError as error:
         raise ModelError(f"{path}: cannot write controller artefact ({error.strerror or error})") from None
-    finally:
-        if temporary is not None and os.path.exists(temporary):
-            os.unlink(temporary)
-    return path
 
 
 def _object(pairs):

@@ -27,7 +27,6 @@ number in the file), the column, the value and what is allowed.
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import math
 from array import array
@@ -37,6 +36,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
+from smartjoint.common import output_path
 from smartjoint.common.errors import SmartjointError
 from smartjoint.design.friction.record_quantities import COLUMNS, MIN_NORMAL_FORCE, MIN_RADIUS, UNITS, bound, si_unit
 
@@ -427,13 +427,9 @@ def write_record(record: Record, path: str | Path) -> None:
         )
     matrix = np.column_stack([v for _, v in columns])
     lines += [",".join(repr(float(x)) for x in row) for row in matrix]
-    temporary = path.with_name(path.name + ".partial")
     try:
-        temporary.write_text("\n".join(lines) + "\n", encoding="utf-8")
-        temporary.replace(path)
+        output_path.write_file(path, "\n".join(lines) + "\n")
     except OSError as error:
-        with contextlib.suppress(OSError):
-            temporary.unlink(missing_ok=True)
         raise RecordError(f"{path}: cannot write record ({error.strerror or error})") from None
 
 
