@@ -107,10 +107,9 @@ def _design_spread(sweep: Sweep, design, progress) -> Sweep:
     """``[uncertain] from = "design"``: the design's physical spread (its ``[uncertainty]`` and the
     defaults, ``physical_spread``) with the file's own entries replacing those of the same name."""
     from smartjoint.design.control.physical_spread import describe, physical_spread
-    from smartjoint.design.control.runs import PULSE_AMPLITUDE
 
     own = {u.name for u in sweep.inputs}
-    entries = [e for e in physical_spread(design, PULSE_AMPLITUDE) if e.input.name not in own]
+    entries = [e for e in physical_spread(design, design.control.pulse_amplitude) if e.input.name not in own]
     for line in describe(entries):
         progress(f"  spread: {line}")
     return dataclasses.replace(sweep, inputs=(*(e.input for e in entries), *sweep.inputs))

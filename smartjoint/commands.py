@@ -400,7 +400,7 @@ def cmd_simulate(args) -> dict:
         model,
         joint_parameters(design),
         plant.ConstantNormalForce(forces, args.sample_time if args.sample_time else design.control.sample_time),
-        plant.triangular_pulse(directions=np.ones(len(design.disturbances))),
+        plant.triangular_pulse(design.control.pulse_amplitude, directions=np.ones(len(design.disturbances))),
         args.duration,
         args.step,
         progress=report_progress,

@@ -45,6 +45,7 @@ from smartjoint.design.friction.stage import check_friction_given, friction_stag
 from smartjoint.design.network import plan, protocol
 from smartjoint.design.reduction import load_case, reduction_study
 from smartjoint.design.reduction.study import DENSE_REFERENCE_DOFS, REFERENCE_MODES_PER_CONSIDERED
+from smartjoint.design.structure.control_section import paper_values_note
 from smartjoint.design.structure.description import Network
 from smartjoint.design.structure.solved import solved_model
 from smartjoint.pipeline_ensemble import ensemble_stage
@@ -182,6 +183,9 @@ def _structure_stage(design_path: str | None, staging: Path, progress) -> Struct
         f"[1/12] design {design.name!r} ({design.source}): {len(design.nodes)} nodes, "
         f"{len(design.members)} members, {len(design.joints)} joints"
     )
+    note = paper_values_note(design.control)
+    if note and (design.joints or design.placement is not None):
+        progress(f"      {note}")
     model = build_model(design, joints="locked")
     progress(
         f"[2/12] FE model: {model.n_dof} DOFs, {len(model.element_kind)} beam elements, mass {model.total_mass:.2f} kg"

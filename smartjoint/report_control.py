@@ -227,7 +227,7 @@ def control_markdown(study: closed_loop.Study) -> str:
         "",
         f"Design model {s['states']} states; controller sample time {1e3 * s['sample_time']:g} ms, plant step "
         f"{1e6 * s['plant_step']:g} µs; F_N^min/F_N^max = {s['normal_force_min']} / {s['normal_force_max']} N; "
-        f"tip pulse 200 N over 40 ms in every disturbance direction with F_N^max during the pulse; "
+        f"tip pulse {s['pulse_amplitude']:g} N over 40 ms in every disturbance direction, F_N^max during the pulse; "
         f"t_e = {s['duration']:g} s.",
         "",
         f"- LQG (Eq. 33): linear closed loop max|λ| = {s['lqg_max_pole_magnitude']:.6f} "

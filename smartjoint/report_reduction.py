@@ -191,7 +191,8 @@ def study_markdown(study: dict) -> str:
     lines = [
         "## Model reduction (paper Section 4, Figs. 9–10)",
         "",
-        f"Joints {', '.join(s['joints'])} with F_N = {s['normal_forces']} N, tip pulse 200 N over 40 ms in y and z. "
+        f"Joints {', '.join(s['joints'])} with F_N = {s['normal_forces']} N, tip pulse {s['pulse_amplitude']:g} N "
+        f"over 40 ms along {', '.join(s['disturbances'])}. "
         + (
             f"Full model: all modes of the released truss ({s['full_states']} states); "
             if s["reference_band_hz"] is None

@@ -19,6 +19,7 @@ from smartjoint.design.control import study as closed_loop
 from smartjoint.design.friction.stage import friction_entries
 from smartjoint.design.network import joint_node
 from smartjoint.design.reduction import study_summary
+from smartjoint.design.structure.control_section import paper_values_note
 from smartjoint.design.structure.description import Network
 from smartjoint.pipeline_ensemble import ensemble_markdown
 from smartjoint.pipeline_fmu import fmu_markdown
@@ -210,6 +211,9 @@ def markdown(r: RunStages, files: ReportFiles, final: dict) -> str:
             f"The design has no friction joints: [placement] placed {len(structure.design.joints)} type A joints "
             f"(paper Section 6), written as `{structure.placed_design}`; every later stage runs on it.\n\n"
         )
+    note = paper_values_note(structure.design.control)
+    if note and structure.design.joints:
+        head += f"Note: {note}.\n\n"
     if r.skipped:
         return head + f"\n## Friction joints, reduction, control, firmware and SIL\n\nNot run: {r.skipped}.\n"
     if not r.complete:

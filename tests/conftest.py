@@ -133,6 +133,45 @@ def small_truss() -> dict:
     }
 
 
+def triangular_mast(bays: int = 6) -> dict:
+    """A triangular mast (not the paper's square one): ``bays`` bays of 0.8 m, three corners on a
+    0.4 m radius, battens, longerons and one diagonal per face and bay, a tip node on the axis
+    joined to the last frame, clamped at x = 0; the small truss's components; tip sensors and
+    pulses along y and z, F_N within 5 … 200 N, three joints placed for the first bending pair
+    (issue 36's case). Its axial modes are symmetric, so the tip sensors see some not at all."""
+    data = small_truss()
+    for key in ("truss", "joints"):
+        del data[key]
+    corners, length, radius = 3, 0.8, 0.4
+    nodes = [
+        {
+            "name": f"N{i}_{c}",
+            "position": [i * length, radius * math.cos(2 * math.pi * c / 3), radius * math.sin(2 * math.pi * c / 3)],
+            "type": "ball",
+        }
+        for i in range(bays + 1)
+        for c in range(corners)
+    ]
+    nodes.append({"name": "TIP", "position": [bays * length, 0.0, 0.0], "type": "ball"})
+    ends = []
+    for i in range(bays + 1):
+        for c in range(corners):
+            ends.append((f"B{i}_{c}", f"N{i}_{c}", f"N{i}_{(c + 1) % corners}"))
+            if i < bays:
+                ends.append((f"L{i + 1}_{c}", f"N{i}_{c}", f"N{i + 1}_{c}"))
+                ends.append((f"D{i + 1}_{c}", f"N{i}_{c}", f"N{i + 1}_{(c + 1) % corners}"))
+    ends += [(f"S{c}", f"N{bays}_{c}", "TIP") for c in range(corners)]
+    data["nodes"] = nodes
+    data["members"] = [{"name": n, "start": a, "end": b, "section": "tube", "connector": "c"} for n, a, b in ends]
+    data["supports"] = [{"node": f"N0_{c}", "dofs": "all"} for c in range(corners)]
+    data["sensors"] = [{"name": f"tip_{d}", "node": "TIP", "direction": f"u{d}"} for d in ("y", "z")]
+    data["disturbances"] = [{"name": f"f{d}", "node": "TIP", "direction": f"u{d}"} for d in ("y", "z")]
+    data["placement"] = {"modes": [1, 2], "count": 3}
+    data["control"] = {"normal_force_min": 5.0, "normal_force_max": 200.0}
+    data["name"] = "triangular-mast"
+    return data
+
+
 # The slip-ratio law's settings of the small truss (given: its tuning runs an ensemble).
 SLIP_RATIO_LAW = {"velocity": 1e-3, "rise": 85.0, "decay": 15.0}
 SLIP_RATIO_SETTINGS = {f"slipratio_{key}": value for key, value in SLIP_RATIO_LAW.items()}

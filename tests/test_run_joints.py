@@ -109,3 +109,27 @@ def test_a_stage_that_stops_the_run_leaves_the_report_of_the_stages_before_it(tm
     report = (out / "report.md").read_text()
     assert "## Stopped" in report and "The run stopped at stage 6 (control)" in report
     assert (out / "reduction_bode.png").is_file() and not (out / "controller.json").exists()
+
+
+def test_the_placed_triangular_mast_gets_its_controller_and_the_mode_no_sensor_sees_is_named(tmp_path):
+    """Issue 36's case: a 6-bay triangular mast with F_N^max = 200 N and its joints placed by
+    [placement]. Stage 6 stopped on it ("no sensor sees mode 9 … drop it from the reduced model",
+    with no setting to do so); its axial modes are symmetric, the tip sensors see one of them not at
+    all. The design model keeps it, the LQG exists and is stable, and the design names it; the
+    reduction study's forces come from the design's own limits (`smartjoint run` on it: a full
+    report, every constant F_N within 5 … 200 N)."""
+    from conftest import triangular_mast
+
+    from smartjoint.design.control import study as closed_loop
+    from smartjoint.design.reduction.study import load_case
+
+    (tmp_path / "mast.toml").write_text(tomli_w.dumps(triangular_mast()))
+    placed, _ = place_joints(load_design(tmp_path / "mast.toml"), tmp_path, lambda line: None)
+    assert [j.type for j in placed.joints] == ["A", "A", "A"]
+    assert load_case(placed).tolist() == [200.0, 5.0, 5.0]
+    model = closed_loop.design_model(placed, lambda line: None)
+    lqg = closed_loop.lqg_for(placed, model)
+    blind = closed_loop.blind_modes_hz(lqg, model)
+    assert len(blind["unseen"]) >= 1 and blind["unmoved"] == [], blind
+    assert all(f > 0 for f in blind["unseen"])
+    assert abs(lqg.closed_loop_poles()).max() < 1.0

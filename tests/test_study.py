@@ -332,3 +332,20 @@ def test_the_report_gives_each_sensor_its_unit(small_study, monkeypatch, tmp_pat
     monkeypatch.setattr(figures, "save", keep_labels)
     report_control.plot_control_study(result, tmp_path)
     assert labels["control_tip.png"] == ["tip_y [mm]", "tip_vz [mm/s]"]
+
+
+def test_the_pulse_and_the_limits_are_the_designs_and_the_papers_defaults_are_named():
+    """`[control] pulse_amplitude` is the study's tip pulse (the reduction study's too); a design that
+    leaves out the settings whose defaults are the paper's demonstrator's is told which, by name."""
+    from smartjoint.design.control.runs import PULSE_DURATION
+    from smartjoint.design.structure.control_section import paper_values_note
+
+    data = small_control_truss(0.2, pulse_amplitude=50.0, sample_time=2e-3)
+    design = parse_design(data)
+    setup = study.setup(design, study.design_model(design, lambda line: None))
+    pulse = setup.pulse()
+    assert setup.pulse_amplitude == 50.0 and float(np.max(pulse(PULSE_DURATION / 2))) == pytest.approx(50.0)
+    assert paper_values_note(design.control) is None  # 5 … 100 N, 2 ms, 0.2 s, 50 N: all the user's
+    note = paper_values_note(parse_design(small_truss()).control)
+    for shown in ("sample_time = 0.001 s", "normal_force_max = 400.0 N", "pulse_amplitude = 200 N", "not your joints'"):
+        assert shown in note, note

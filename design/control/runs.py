@@ -136,6 +136,7 @@ def setup(design, model: ModalModel, plant: ModalModel | None = None) -> StudySe
         float(c.piezo_capacitance),
         float(c.piezo_force_per_volt),
         float(c.piezo_preload),
+        pulse_amplitude=float(c.pulse_amplitude),
     )
 
 

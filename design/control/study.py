@@ -359,6 +359,7 @@ def summary(study: Study) -> dict:
         "sample_time": s.sample_time,
         "plant_step": s.plant_step,
         "duration": s.duration,
+        "pulse_amplitude": s.pulse_amplitude,
         "states": s.model.n_states,
         "normal_force_min": s.normal_force_min.tolist(),
         "normal_force_max": s.normal_force_max.tolist(),

@@ -196,10 +196,11 @@ def load_case(design) -> np.ndarray:
 
 def _pulse_simulation(design, normal_forces: np.ndarray, duration: float, step: float):
     """``plant.simulate`` of a model under the study's run: the design's joint laws, the normal
-    forces held constant, the paper's tip pulse (200 N along every input), no energy books."""
+    forces held constant, the study's tip pulse (``[control] pulse_amplitude`` along every input), no
+    energy books."""
     laws = joint_parameters(design)
     controller = plant.ConstantNormalForce(normal_forces, design.control.sample_time)
-    pulse = plant.triangular_pulse(directions=np.ones(len(design.disturbances)))  # 200 N along every input
+    pulse = plant.triangular_pulse(design.control.pulse_amplitude, directions=np.ones(len(design.disturbances)))
 
     def simulate_model(model):
         return plant.simulate(model, laws, controller, pulse, duration, step, energy_books=False)
@@ -345,6 +346,8 @@ def reduction_study(
         "correction_frequency_hz": correction / (2.0 * np.pi),
         "joint_names": [j.name for j in design.joints],
         "normal_forces": normal_forces.tolist(),
+        "pulse_amplitude": design.control.pulse_amplitude,
+        "disturbances": [d.name for d in design.disturbances],
     }
 
 
@@ -367,6 +370,8 @@ def study_summary(study: dict) -> dict:
     return {
         "joints": study["joint_names"],
         "normal_forces": study["normal_forces"],
+        "pulse_amplitude": study["pulse_amplitude"],
+        "disturbances": study["disturbances"],
         "active_joint": study["joint_names"][study["active"]],
         "full_states": study["full"].n_states,
         # None: every mode (dense); else the sparse reference's highest mode [Hz], its band's end

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from smartjoint.common import law_registry
-from smartjoint.design.structure.description import Control
+from smartjoint.design.structure.description import PAPER_VALUES, Control
 from smartjoint.design.structure.sections import MAX_MODES
 from smartjoint.design.structure.table import DesignTable, per_joint
 
@@ -22,6 +22,7 @@ MAX_CONTROLLER_STEPS = 10_000_000  # study_duration / sample_time
 # force of the largest multilayer piezo stacks is some tens of kN, and the bolt of a truss joint
 # (M12, property class 8.8: proof load 48 kN) holds no more. 1e5 N is above both.
 MAX_NORMAL_FORCE = 1e5  # [N]
+MAX_PULSE_AMPLITUDE = 1e6  # [N]: the study's tip pulse; far above any impact hammer's (some 10 kN)
 
 
 def parse_control(t: DesignTable, joints, dofs: int) -> Control:
@@ -75,10 +76,40 @@ def parse_control(t: DesignTable, joints, dofs: int) -> Control:
         piezo_preload=t.number("piezo_preload", d.piezo_preload, non_negative=True),
         study_duration=t.number("study_duration", d.study_duration, positive=True),
         reduction_normal_force=per_joint(t, "reduction_normal_force", None, len(names), non_negative=True),
+        pulse_amplitude=t.number("pulse_amplitude", d.pulse_amplitude, positive=True),
+        paper_values=tuple(key for key in PAPER_VALUES if key not in t.data),
     )
     _check_control_limits(t, control, count, dofs, joints)
     t.finish()
     return control
+
+
+def paper_values_note(control: Control) -> str | None:
+    """One sentence naming the [control] settings a design left out and so runs with the paper's
+    demonstrator values (``PAPER_VALUES``); None when it gives them all.
+
+    Parameters
+    ----------
+    control : Control
+
+    Returns
+    -------
+    str or None
+    """
+    if not control.paper_values:
+        return None
+    shown = {
+        "sample_time": f"sample_time = {control.sample_time:g} s",
+        "normal_force_min": f"normal_force_min = {control.normal_force_min} N",
+        "normal_force_max": f"normal_force_max = {control.normal_force_max} N",
+        "study_duration": f"study_duration = {control.study_duration:g} s",
+        "pulse_amplitude": f"pulse_amplitude = {control.pulse_amplitude:g} N",
+    }
+    return (
+        "[control] leaves out "
+        + ", ".join(shown[key] for key in control.paper_values)
+        + ": the paper's demonstrator values, not your joints' — give them in [control]"
+    )
 
 
 def _check_control_limits(t: DesignTable, control: Control, count: int, dofs: int, joints=()) -> None:
@@ -89,6 +120,12 @@ def _check_control_limits(t: DesignTable, control: Control, count: int, dofs: in
             "sample_time",
             control.sample_time,
             f"must be >= {MIN_SAMPLE_TIME:g} s (the firmware counts its cycle in whole microseconds)",
+        )
+    if control.pulse_amplitude > MAX_PULSE_AMPLITUDE:
+        raise t.error(
+            "pulse_amplitude",
+            control.pulse_amplitude,
+            f"must be 0 < peak <= {MAX_PULSE_AMPLITUDE:g} N (a hammer pulse)",
         )
     if control.study_duration > MAX_STUDY_DURATION:
         raise t.error("study_duration", control.study_duration, f"must be 0 < t_e <= {MAX_STUDY_DURATION:g} s")
@@ -175,8 +212,10 @@ __all__ = [
     "MAX_KRYLOV",
     "MAX_LANCZOS_BYTES",
     "MAX_NORMAL_FORCE",
+    "MAX_PULSE_AMPLITUDE",
     "MAX_STUDY_DURATION",
     "MIN_SAMPLE_TIME",
+    "paper_values_note",
     "parse_control",
 ]
 

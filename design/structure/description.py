@@ -250,6 +250,14 @@ class Control:
     piezo_preload: float = 0.0
     study_duration: float = 4.0
     reduction_normal_force: tuple[float, ...] | float | None = None
+    pulse_amplitude: float = 200.0  # N: the study's tip pulse (Section 4.3)
+    # The keys of PAPER_VALUES the file left out: those settings are the paper's, and a stage says so.
+    paper_values: tuple[str, ...] = ()
+
+
+# The [control] keys whose defaults are the paper's demonstrator (Section 6): a design that leaves
+# them out runs with the paper's values, which the report names (they are not the user's joints').
+PAPER_VALUES = ("sample_time", "normal_force_min", "normal_force_max", "study_duration", "pulse_amplitude")
 
 
 @dataclass(frozen=True)
