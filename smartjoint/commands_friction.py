@@ -172,11 +172,13 @@ def cmd_identify(args) -> dict:
     """
     from smartjoint.design.friction import parameter_file
     from smartjoint.design.friction.identify import identify
-    from smartjoint.design.friction.record_screening import classify
+    from smartjoint.design.friction.record_screening import check_friction_coefficient, classify
     from smartjoint.design.friction.records import read_record
     from smartjoint.report import identification_table, plot_hysteresis
 
     records = [read_record(path, args.radius) for path in args.records]
+    for path, record in zip(args.records, records):  # identify screens again, naming the records only
+        check_friction_coefficient(record, args.radius, str(path))
     micro = [r for r in records if classify(r, args.radius) == "micro-slip"]
     stick = [r for r in records if classify(r, args.radius) == "stick-slip"]
     result = identify(micro, stick, radius=args.radius, progress=report_progress, output_error=not args.no_output_error)

@@ -213,3 +213,35 @@ def test_stick_slip_step_refuses_a_record_without_slip():
     still = rig.simulate(rig.RigTest("A", 400.0, 100.0, 8.0, cycles=1.0))
     with pytest.raises(RecordError, match="rig_A_FN400_A100_f8: column 'sliding_velocity' shows no gross slip"):
         identify([micro], [still])
+
+
+def test_identify_refuses_a_record_whose_friction_coefficient_no_metal_contact_has():
+    """A type B rig record with F_N in daN read as N (μ ×10): refused in one line naming the
+    record, the peak of its friction column F_exc − m·a averaged over a quarter excitation period
+    (its m·a noise is not friction), μ = u_R/(r·F_N) there and the bound — also with the radius
+    given to identify instead of carried by the records."""
+    import re
+
+    from smartjoint.design.friction.identify import identify
+    from smartjoint.design.friction.record_screening import MAX_FRICTION_COEFFICIENT, friction_coefficient_peak
+    from smartjoint.design.friction.records import RecordError
+
+    records = [rig.simulate(test) for test in standard_campaign("B", lugre.TYPE_B, noise=0.01, cycles=2)]
+    micro = [r for r in records if classify(r) == "micro-slip"]
+    stick = [r for r in records if classify(r) == "stick-slip"]
+    assert max(friction_coefficient_peak(r)[0] for r in micro + stick) < 0.6  # Table 1: F_c + F_d = 0.57
+    slipped = stick[0]
+    slipped.normal_force = slipped.normal_force / 10.0
+    mu, time, window = friction_coefficient_peak(slipped)
+    assert window == 500 and 5.0 < mu < 6.0  # 10 Hz at 20 kHz: a quarter period is 0.025 s
+    expected = (
+        f"{slipped.name}: friction coefficient |u_R|/(r·F_N) = {mu:.4g} at t = {time:.6g} s (its peak, averaged "
+        f"over 500 samples = 0.025 s) — allowed: <= {MAX_FRICTION_COEFFICIENT:g} (dry friction of metal contacts "
+        "stays below about 1.5; check the units of the force columns and the inertia)"
+    )
+    with pytest.raises(RecordError, match=f"^{re.escape(expected)}$"):
+        identify(micro, stick)
+    for record in micro + stick:
+        record.radius = None
+    with pytest.raises(RecordError, match=f"^{re.escape(expected)}$"):
+        identify(micro, stick, radius=lugre.TYPE_B.radius)

@@ -372,3 +372,102 @@ def test_degenerate_records_never_crash_identify():
             assert "\n" not in str(error)
             outcomes.append("refused")
     assert "refused" in outcomes
+
+
+# --- identify: the friction coefficient screen (record_screening.check_friction_coefficient) ----------------------
+
+# A joint at the top of metal contacts: F_c + F_d = 1.5 (type A: Table 1's F_c, F_d doubled).
+TOP_OF_METAL = {"A": {"coulomb": 1.22, "stribeck": 0.28}, "B": {"coulomb": 1.3, "stribeck": 0.2}}
+
+
+@pytest.mark.parametrize(
+    "joint_type, joint, noise, seed, measured",
+    [
+        ("A", "Table 1", 0.03, 7, 0.685),
+        ("B", "Table 1", 0.03, 7, 0.534),
+        ("A", "Table 1", 0.1, 7, 0.730),
+        ("A", "top of metal", 0.03, 33, 1.408),
+        ("B", "top of metal", 0.1, 7, 1.544),
+    ],
+)
+def test_every_record_a_campaign_writes_passes_the_friction_coefficient_screen(
+    joint_type, joint, noise, seed, measured
+):
+    """The largest μ of the records `rig --campaign` writes, from a prior at half the truth (the
+    worst of priors ×0.5 … ×2 and five seeds, record_screening's comment): Table 1 peaks at 0.73
+    (2.7× below the bound of 2), a joint with F_c + F_d = 1.5 at 1.54 even at 10 % noise (1.3×).
+    Sample by sample the friction column F_exc − m·a of the same records is m·a noise above 2."""
+    import dataclasses
+
+    from smartjoint.design.friction.record_screening import (
+        MAX_FRICTION_COEFFICIENT,
+        check_records,
+        friction_coefficient_peak,
+    )
+    from smartjoint.design.friction.rig_campaign import campaign, run_campaign
+
+    truth = lugre.TABLE_1[joint_type]
+    if joint != "Table 1":
+        truth = dataclasses.replace(truth, **TOP_OF_METAL[joint_type])
+    prior = dataclasses.replace(
+        truth,
+        sigma0=truth.sigma0 / 2,
+        coulomb=truth.coulomb / 2,
+        stribeck=truth.stribeck / 2,
+        stribeck_velocity=truth.stribeck_velocity / 2,
+    )
+    written = run_campaign(campaign(joint_type, prior, noise=noise, seed=seed), prior, lambda t: rig.simulate(t, truth))
+    records = written.micro + written.stick
+    assert written.micro and written.stick
+    peak = max(friction_coefficient_peak(record)[0] for record in records)
+    assert peak == pytest.approx(measured, abs=0.005)
+    assert MAX_FRICTION_COEFFICIENT / peak > (2.7 if joint == "Table 1" else 1.29)
+    check_records(records)  # none refused
+    # Why the derived friction column is averaged first: sample by sample these records would be refused.
+    samplewise = max(float(np.max(np.abs(r.friction_force) / (r.moment_arm * r.normal_force))) for r in records)
+    assert samplewise > MAX_FRICTION_COEFFICIENT
+
+
+def test_a_record_with_friction_coefficient_100_is_refused_in_one_line(tmp_path, capsys, monkeypatch):
+    """A campaign's records and one with μ = 100 (issue 37: accepted with exit 0, σ1 moved): exit 2,
+    one line naming the file, the peak, μ and the bound. The valid records alone identify as
+    without the screen (it refuses, never alters)."""
+    import json
+
+    from smartjoint.cli import main
+    from smartjoint.design.friction import record_screening
+    from smartjoint.design.friction.identify import identify
+    from smartjoint.design.friction.records import Record
+    from smartjoint.design.friction.rig_campaign import campaign, run_campaign
+
+    p = lugre.TYPE_A
+    measured = run_campaign(campaign("A", p, noise=0.01, cycles=2), p, lambda test: rig.simulate(test, p))
+    valid = []
+    for record in measured.micro + measured.stick:
+        write_record(record, tmp_path / f"{record.name}.csv")
+        valid.append(str(tmp_path / f"{record.name}.csv"))
+    base = measured.micro[0]
+    scale = 100.0 / float(np.max(np.abs(base.friction_force) / base.normal_force))
+    bad = tmp_path / "implausible.csv"
+    write_record(
+        Record("implausible", base.time, base.sliding_velocity, base.friction_force * scale, base.normal_force), bad
+    )
+    mu, time, window = record_screening.friction_coefficient_peak(read_record(bad))
+    assert window == 1 and mu == pytest.approx(100.0)  # its own friction column: sample by sample
+    message = _identify_error(capsys, *valid[:2], str(bad), *valid[2:])
+    assert message == (
+        f"smartjoint identify: error: {bad}: friction coefficient |F_R|/F_N = 100 at t = {time:.6g} s (its peak) "
+        "— allowed: <= 2 (dry friction of metal contacts stays below about 1.5; check the units of the force "
+        "columns and the inertia)"
+    )
+    assert main(["identify", *valid, "--no-output-error", "--json"]) == 0
+    screened = json.loads(capsys.readouterr().out)["parameters"]
+    monkeypatch.setattr(record_screening, "check_friction_coefficient", lambda *args, **kwargs: None)
+    records = [read_record(path) for path in valid]
+    unscreened = identify(
+        [r for r in records if r.metadata["regime"] == "micro-slip"],
+        [r for r in records if r.metadata["regime"] == "stick-slip"],
+        output_error=False,
+    )
+    for name, entry in unscreened.parameter_entries().items():
+        assert screened[name]["value"] == pytest.approx(entry["value"], rel=1e-12), name

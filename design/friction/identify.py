@@ -7,7 +7,8 @@ velocity) and compared with the measured friction force::
     min_p  J(p) = ½ Σ_records Σ_k [(u_R(t_k) − û_R(v(t_k), F_N, p)) / (rms_r·√N_r)]²     (Eq. 3)
 
 Each record is normalised by its RMS force and length so that every record counts alike. The records
-are screened first (``record_screening``: usable samples, one joint's radius, the regime).
+are screened first (``record_screening``: usable samples, one joint's radius, a friction
+coefficient μ ≤ 2, the regime); a record that fails is refused in one line, never dropped.
 As in the paper the problem is split in two:
 
 1. p1 = [σ0, σ1] from micro-slip records (p2 held fixed),
@@ -322,7 +323,7 @@ def identify(
     names = [r.name for r in micro + stick]
     if len(set(names)) != len(names):
         raise RecordError("identify: two records share a name; rename the files")
-    check_records(micro + stick)
+    check_records(micro + stick, radius)
     try:
         with np.errstate(all="ignore"):
             return _identify(micro, stick, joint_type, radius, progress, cutoff_hz, output_error, previous)
