@@ -64,6 +64,7 @@ FILES: dict[str, tuple[str, ...]] = {
                     "fmu_controller.c.j2",
                     "fmu_model.h.j2",
                     "fmu_plant.c.j2",
+                    "fmu_state.c.j2",
                     "modelDescription2.xml.j2",
                     "modelDescription3.xml.j2",
                 )

@@ -302,14 +302,15 @@ def test_bad_input_is_answered_with_the_fmi_error_status_and_a_message_never_a_c
     with FmuInstance(written[version, "siso", "float"].path) as single:
         single.initialize()
         velocity = single.references(["JOINT_A3.sliding_velocity"])
-        _refused(single, lambda: single.set_real(velocity, [1e300]), "JOINT_A3.sliding_velocity", "float range")
-        single.set_real(velocity, [1e30])  # beyond the plausible range, within float's: the law's safe state
+        _refused(single, lambda: single.set_real(velocity, [1e300]), "JOINT_A3.sliding_velocity", "1000 m/s")
+        _refused(single, lambda: single.set_real(velocity, [1e30]), "sliding_velocity_limit")  # no measurement
+        single.set_real(velocity, [10.0])  # beyond the plausible range (1 m/s), within the input's: the safe state
         assert single.get_integer(single.references(["CONTROLLER_STATUS.step_status"])) == [8]
     with FmuInstance(written[version, "truss"].path) as plant:
         ref = {name: v.valueReference for name, v in plant.variables.items()}
         plant.initialize()
         _refused(plant, lambda: plant.step(0.0, 1.5 * s.setup.plant_step), "communication step", "whole number")
-        _refused(plant, lambda: plant.set_real([ref["SETPOINT_A2.normal_force"]], [-1.0]), "SETPOINT_A2", ">= 0")
+        _refused(plant, lambda: plant.set_real([ref["SETPOINT_A2.normal_force"]], [-1.0]), "SETPOINT_A2", "0 <= value")
         _refused(plant, lambda: plant.set_real([ref["pulse.duration"]], [0.5]), "pulse.duration", "fixed parameter")
         _refused(plant, lambda: plant.step(0.5, s.setup.sample_time), "communication point", "0.5")
         plant.step(0.0, s.setup.sample_time)
