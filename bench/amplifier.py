@@ -20,9 +20,14 @@ Injectable faults: ``over_temperature`` and ``over_current`` (status bit and rea
 holds the safe voltage, which a capacitive stack keeps without current), ``no_response`` (the CAN
 transceiver is dead: no status frames, no frames received — the watchdog drives the safe
 voltage), ``stuck_output`` (output frozen, status bit) and ``gain_error`` (the stage delivers half
-its target, no bit: only the firmware's monitor-voltage check sees it). The last two are failed
+its target, no bit: only the firmware's monitor-voltage check sees it). Those two are failed
 output stages: no command can make that joint safe, the firmware detects them and makes the
-others safe (:data:`OUTPUT_STAGE_FAULTS`).
+others safe (:data:`OUTPUT_STAGE_FAULTS`). Three more fail past the amplifier, which reports
+healthy — its voltage, monitor and status all as commanded — while the joint gets ``zero_force``
+(0 N: a broken stack lead), ``half_force`` (half the force: a depolarised stack) or
+``stuck_force`` (the force of the sample before the fault: a jammed joint). Only the firmware's
+actuation check on the measured F_N sees them; it names the joint and the law runs on
+(:data:`SILENT_FAULTS`, docs/safety.md).
 """
 
 from __future__ import annotations
@@ -35,11 +40,12 @@ from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.network.protocol import MODE_SAFE
 
-FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current", "gain_error")
+SILENT_FAULTS = ("zero_force", "half_force", "stuck_force")  # past the amplifier, which reports healthy
+FAULTS = ("over_temperature", "no_response", "stuck_output", "over_current", "gain_error", *SILENT_FAULTS)
 OUTPUT_STAGE_FAULTS = ("stuck_output", "gain_error")  # the joint itself cannot reach the safe force
 HOT_TEMPERATURE = 95.0  # °C reported under ``over_temperature``
 HIGH_CURRENT = 2.9  # A reported under ``over_current``
-GAIN_ERROR = 0.5  # output / target under ``gain_error``
+GAIN_ERROR = 0.5  # output / target under ``gain_error``, force / force driven under ``half_force``
 # What a heartbeat may say: a law's mode (common.law_registry) or the safe state.
 CONTROLLER_MODES = (*(law.mode for law in law_registry.LAWS.values()), MODE_SAFE)
 
@@ -160,6 +166,8 @@ class AmplifierModel:
         self.waiting = 0  # … until it waited timeout_cycles: then its watchdog says so)
         self.clear_cycles = 0
         self.reasons: tuple[str, ...] = ("power-up",)
+        self.force = self.force_per_volt * self.voltage + self.preload  # what the joint got last sample [N]
+        self.stuck: float | None = None  # the force a ``stuck_force`` fault froze
 
     def volts(self, normal_force: float) -> float:
         """The setpoint voltage of a normal force [V] (F_N = force_per_volt·V + preload)."""
@@ -228,7 +236,24 @@ class AmplifierModel:
 
     def advance(self, step: float) -> float:
         """One controller sample: the watchdog decides, the output moves; returns the mean normal
-        force over the sample [N]."""
+        force over the sample [N] the joint gets (past the amplifier under a ``SILENT_FAULTS`` one)."""
+        driven = self._drive(step)
+        if self.fault == "zero_force":
+            force = 0.0
+        elif self.fault == "half_force":
+            force = GAIN_ERROR * driven
+        elif self.fault == "stuck_force":
+            force = self.force if self.stuck is None else self.stuck
+            self.stuck = force
+        else:
+            force = driven
+        if self.fault != "stuck_force":
+            self.stuck = None
+        self.force = force
+        return force
+
+    def _drive(self, step: float) -> float:
+        """The amplifier's own sample: its output voltage moves; the mean force it drives [N]."""
         self._watchdog()
         start = self.voltage
         if self.fault == "stuck_output":

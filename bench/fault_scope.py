@@ -8,7 +8,9 @@ buses it touches, and the joints of the other buses must run on — never a safe
 never an amplifier's own watchdog:
 
 - ``bus_off`` stops the bus it names (every bus without a target);
-- an amplifier fault stops its joint's bus;
+- an amplifier fault stops its joint's bus, except one past the amplifier (``SILENT_FAULTS``: the
+  joint gets less force than driven while the amplifier reports healthy), which stops nothing
+  whatever the law: the actuation check names the joint and the law runs on;
 - a frame fault stops the buses that carry the frame (the heartbeat is on every bus); on a frame
   the law does not read (the tip sensors under a per-joint law) timing and E2E faults stop
   nothing, while an implausible value is a broken node whichever law runs and stops its bus.
@@ -23,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from smartjoint.bench.actuation import silent_fault
 from smartjoint.common import law_registry
 
 SENSOR_FRAME = "TIP_SENSORS"  # the frame only a law that reads the sensors needs
@@ -77,7 +80,11 @@ def fault_scope(faults, law: str, plan, joint_names, unread=frozenset()) -> Faul
         None where every joint must stop (one bus, or a law that couples the joints).
     """
     entry = law_registry.law(law)
+    silent = [f for f in faults if silent_fault(f)]
     faults = [f for f in faults if f.kind in ("bus_off", "amplifier") or f.target not in unread]
+    faults = [f for f in faults if f not in silent]  # past the amplifier: the law runs on (actuation check)
+    if silent and not faults:
+        return FaultScope((), tuple(False for _ in joint_names), tuple(range(len(plan.buses))))
     if faults and (len(plan.buses) < 2 or "sensors" in entry.inputs):
         return None
     joint_bus = {j: b for b, p in enumerate(plan.buses) for j in p.joints}

@@ -88,6 +88,7 @@ class SilRecord:
     amplifier_safe: list = field(default_factory=list)
     applied: list = field(default_factory=list)
     bus_safe: list = field(default_factory=list)  # per bus of the plan: its joints hold the safe force
+    failed: list = field(default_factory=list)  # per joint: its heartbeat's failed_<joint> (actuation check)
 
 
 class SilLoop:
@@ -177,6 +178,7 @@ class SilLoop:
         self.frame_counts: defaultdict[str, int] = defaultdict(int)
         self.bus_frame_counts: list[defaultdict[str, int]] = [defaultdict(int) for _ in self.bus_names]
         self.amplifier_e2e_errors = 0
+        self.failed = [False] * len(self.joints)
 
     def close(self) -> None:
         """Shut the buses and stop the log writer (whatever fails, the others are still closed)."""
@@ -395,6 +397,9 @@ class SilLoop:
         status = self.fw.step(time_us)
         self._release_delayed(t, self.firmware_buses)
         for b, frame_id, data in self.fw.tx_bus():
+            if frame_id == self.frames[HEARTBEAT].frame_id and b == 0:  # what the firmware tells of its joints
+                sent = self.frames[HEARTBEAT].decode(bytes(data), decode_choices=False)
+                self.failed = [bool(sent[f"failed_{joint.lower()}"]) for joint in self.joints]
             self._transmit(self.firmware_buses[b], self._frame(frame_id, data, t), t, b)
         return status
 
@@ -448,6 +453,7 @@ class SilLoop:
         r.amplifier_safe.append([a.own_safe for a in self.amplifiers])
         r.applied.append(applied)
         r.bus_safe.append(self.fw.bus_safe)
+        r.failed.append(list(self.failed))
 
     def statistics(self, duration: float, bitrate: int, data_bitrate: int | None) -> dict:
         """Frames per name, measured bus load over the run, E2E errors, timeouts.

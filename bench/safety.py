@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from smartjoint.bench import firmware as firmware_module
+from smartjoint.bench.actuation import actuation_figures, silent_fault
 from smartjoint.bench.amplifier import FAULTS as AMPLIFIER_FAULTS
 from smartjoint.bench.amplifier import OUTPUT_STAGE_FAULTS
 from smartjoint.bench.fault_scope import fault_scope, scoped_flags
@@ -351,7 +352,7 @@ def measure(record, faults, artifact, tolerated: bool = False, scope=None) -> di
     """
     r = record
     dt = float(artifact.sample_time)
-    tolerated = tolerated or (scope is not None and scope.tolerated)
+    tolerated = tolerated or (scope is not None and scope.tolerated) or all(silent_fault(f) for f in faults)
     safe, stopped, amplifier_safe, running = scoped_flags(r, scope, len(artifact.joint_names))
     force = np.array(r.amplifier_force)
     own_safe = np.asarray(amplifier_safe[:, stopped].any(axis=1))
@@ -370,21 +371,18 @@ def measure(record, faults, artifact, tolerated: bool = False, scope=None) -> di
     stop = len(safe) if end is None else min(end, len(safe))
     if any(f.kind == "amplifier" and f.amplifier_fault == "gain_error" for f in faults):
         reference = _gain_error_shows(r, artifact, force, start, stop)
-    row: dict[str, Any] = {
-        "running": running,
-        "start": start,
-        "end": end,
-        "tolerated": tolerated,
-        "failed_output_stage": failed_stage,
-        "safe_samples": int(safe.sum()),
-        "observable": True,
-    }
+    row: dict[str, Any] = {"running": running, "start": start, "end": end, "tolerated": tolerated}
+    row.update(failed_output_stage=failed_stage, safe_samples=int(safe.sum()), observable=True)
     if start >= len(safe):
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
         return row
+    actuation = actuation_figures(r, faults, artifact, DETECTION_LIMIT)
+    if actuation is not None:
+        row["actuation"] = actuation
     if tolerated:
         quiet = not safe[start:].any() and not own_safe[start:].any()
-        row.update(firmware=None, joints=None, holds=None, recovery=None, ok=quiet and row["running"])
+        checked = actuation is None or actuation["ok"]
+        row.update(firmware=None, joints=None, holds=None, recovery=None, ok=quiet and row["running"] and checked)
         return row
     if reference >= stop:  # a fault that never showed (a gain error on commands within the tolerance)
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)

@@ -226,11 +226,13 @@ def _raw_limits(db, artifact: ControllerArtifact) -> dict[str, str]:
 
 
 def _limit_literals(artifact: ControllerArtifact, amplifier: protocol.Amplifier, real: str) -> dict[str, str]:
-    """The safe state's force, the tracking tolerance and the amplifier's scaling as C literals."""
+    """The safe state's force, the tracking and actuation tolerances and the amplifier's scaling as
+    C literals."""
     lit = lambda value: rendering.literal(float(value), real)  # noqa: E731
     return {
         "safe_normal_force": ", ".join(lit(v) for v in artifact.safe_normal_force),
         "tracking_tolerance": lit(artifact.tracking_tolerance),
+        "actuation_tolerance": ", ".join(lit(v) for v in artifact.actuation_tolerance),
         "force_per_volt": lit(amplifier.force_per_volt),
         "preload": lit(amplifier.preload),
         "amplifier_text": f"F_N = {amplifier.force_per_volt:g} N/V * V + {amplifier.preload:g} N, "

@@ -39,7 +39,7 @@ def folder_for(folder) -> Path:
     Path
         ``folder``, which now exists.
     """
-    folder = output_path.check_folder(folder, "--plots", ours=is_figure)
+    folder = Path(folder)  # the command line checked a user's --plots by the output rule before any work
     folder.mkdir(parents=True, exist_ok=True)
     return folder
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import SLIP_RATIO_LAW, SLIP_RATIO_SETTINGS
 
-from smartjoint.common import law_registry
+from smartjoint.common import law_registry, output_path
 from smartjoint.common.errors import ModelError
 from smartjoint.design import control, plant
 from smartjoint.design.control import artifact, artifact_building, artifact_layout, tuning
@@ -174,11 +174,11 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
 @pytest.mark.parametrize(
     "change, message",
     [
-        (lambda d: d.update(schema_version=7), r"schema_version: 7 — unknown; this version reads schema_version 6"),
+        (lambda d: d.update(schema_version=8), r"schema_version: 8 — unknown; this version reads schema_version 7"),
         (
             lambda d: d.update(schema_version=3),
             r"schema_version: 3 — .* flat, without the sections of version 4: re-run `smartjoint design` to write "
-            r"version 6",
+            r"version 7",
         ),
         (lambda d: d.update(schema_version=1), r"schema_version: 1 — .* re-run `smartjoint design`"),
         (
@@ -226,7 +226,7 @@ def test_controlled_joints_set_the_order_and_limits_broadcast(setup):
         (lambda d: d.update(siso_boundary_layer=[1e-3, -1.0]), r"siso_boundary_layer: -1.0 for joint 'JB'"),
         (lambda d: d.update(gamma0=[[1.0, 2.0], [3.0]]), r"gamma0: .* rectangular"),
         (lambda d: d["blocks"][0][0].__setitem__(0, True), r"blocks: True — expected a \(nested\) list of numbers"),
-        (lambda d: d.update(extra=1), r"extra: 1 — unknown section in schema_version 6"),
+        (lambda d: d.update(extra=1), r"extra: 1 — unknown section in schema_version 7"),
         (lambda d: d.update(design_sha256="abc"), r"design_sha256: 'abc'"),
     ],
 )
@@ -258,7 +258,7 @@ def test_bad_text_and_files_raise_model_errors(setup, tmp_path, monkeypatch):
     def failing_replace(*args):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(artifact.os, "replace", failing_replace)
+    monkeypatch.setattr(output_path.os, "replace", failing_replace)  # the output rule's one rename
     with pytest.raises(ModelError, match="controller.json: cannot write controller artefact"):
         artifact.save(dataclasses.replace(built, clqg_boundary_layer=9.0), path)
     monkeypatch.undo()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -13,12 +14,14 @@ import pytest
 from conftest import cli_error, quiet_joint_frame, run, run_cli
 
 from smartjoint.bench import e2e, firmware, logs, rounding_spread, sil
+from smartjoint.bench.amplifier import SILENT_FAULTS
 from smartjoint.bench.faults import Fault, check_faults, parse_fault
 from smartjoint.bench.loop import SilLoop, open_bus
 from smartjoint.bench.replay import replay
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
 from smartjoint.design.control import study as closed_loop
+from smartjoint.design.network import protocol
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated" / "controller.json"
@@ -102,6 +105,50 @@ def test_every_injected_fault_reaches_the_safe_state_within_three_cycles_and_rec
     assert np.allclose(applied[k1 + 15 :], commands[k1 + 15 :], atol=1e-5)
     after = result.time > closed_loop.PULSE_DURATION
     assert result.energy[after].max() <= result.energy.max() and np.all(np.isfinite(result.energy))
+
+
+@pytest.mark.parametrize("kind", SILENT_FAULTS)
+def test_a_joint_that_gets_less_force_than_driven_is_named_and_the_others_keep_their_law(bench, kind):
+    """Issue 37: the joint's amplifier reports healthy (status, monitor voltage as commanded) while
+    the joint gets 0 N, half the force or a frozen one. With the plant in the loop under the SISO
+    law, from 0.1 s on: the firmware's heartbeat names that joint within 3 cycles of two short
+    samples in a row, never another; nothing goes safe, every amplifier keeps taking the law. A
+    force frozen high is never short of a command (more force is not judged): it is frozen at a
+    sample where the fault-free run commands F_N^min, so the law's next F_N^max shows it."""
+    from smartjoint.bench import safety
+
+    start = 0.1
+    if kind == "stuck_force":
+        free, _ = _run(bench, "siso")
+        low = np.array(free.record.command)[:, 1] < 0.5 * (bench[1].normal_force_max[1] + bench[1].normal_force_min[1])
+        start = free.record.time[int(np.flatnonzero(low[100:])[0]) + 101]  # the sample after one at F_N^min
+    fault = Fault("amplifier", start, math.inf, "A2", amplifier_fault=kind)
+    loop, result = _run(bench, "siso", [fault])
+    row = safety.measure(loop.record, (fault,), bench[1])
+    shown = row["actuation"]
+    assert row["ok"] and row["safe_samples"] == 0, row
+    assert shown["shows"] is not None and shown["actuation"] <= safety.DETECTION_LIMIT, row
+    assert shown["named"] == ["A2"], row
+    failed = np.array(loop.record.failed)
+    assert failed[shown["shows"] + shown["actuation"] :, 1].mean() > 0.5  # it stays named while it shows
+    first = int(round(start / bench[1].sample_time))
+    assert not np.array(loop.record.amplifier_safe)[first:].any()  # every amplifier keeps taking the law
+    assert np.all(np.isfinite(result.energy))
+
+
+def test_a_lagging_amplifier_and_the_pulse_protocol_never_trip_the_actuation_check(bench):
+    """No false alarm: amplifiers with a first-order lag of half a sample (the sweep's widest) and
+    the study's F_N^max during the pulse, under every law, name no joint in the whole study."""
+    setup, reference = bench
+    for law in ("siso", "clqg"):
+        loop = SilLoop(
+            firmware.Firmware(reference, law, "float"),
+            closed_loop.PULSE_DURATION,
+            amplifier={"time_constant": 0.5 * reference.sample_time},
+        )
+        sil.run_loop(setup, loop)
+        assert not np.array(loop.record.failed).any(), law
+        assert not any(b & 1 << protocol.CONTROLLER_FAULTS.index("actuation") for b in loop.record.faults), law
 
 
 @pytest.mark.numerics

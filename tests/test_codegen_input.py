@@ -275,7 +275,7 @@ def test_an_existing_folder_keeps_every_file_codegen_did_not_write(reference, tm
     a_file = tmp_path / "file"
     a_file.write_text("x")
     code, err = _codegen(capsys, str(REFERENCE / "controller.json"), "-o", str(a_file))
-    assert code == 2 and "not a folder" in err and a_file.read_text() == "x"
+    assert code == 2 and "is a file — name a folder" in err and a_file.read_text() == "x"
 
 
 def test_a_symlink_in_place_of_a_generated_file_is_not_followed(reference, tmp_path):

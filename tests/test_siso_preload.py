@@ -55,17 +55,25 @@ def test_the_setting_is_the_laws_lower_force_and_defaults_to_the_joints(artefact
     assert np.array_equal(reference.siso_normal_force_min, reference.normal_force_min)
 
 
-def test_a_version_5_artefact_reads_as_6_with_the_same_numbers():
-    """Version 5 had no preload: it reads with the joints' F_N^min, which is the committed
-    version-6 artefact byte for byte once written again."""
+def test_version_5_and_6_artefacts_read_as_7_with_the_same_numbers():
+    """Version 5 had no preload, version 6 no actuation tolerance: each reads with what it implied
+    (the joints' F_N^min; 0.1 × F_N^max, the design default), which is the committed version-7
+    artefact byte for byte once written again."""
     data = json.loads(REFERENCE.read_text())
-    assert data["schema_version"] == 6
+    assert data["schema_version"] == 7
+    del data["safety"]["actuation_tolerance"]
+    data["schema_version"] = 6
+    assert artifact.dumps(artifact.loads(json.dumps(data))) == REFERENCE.read_text()
     del data["laws"]["siso"]["normal_force_min"]
     data["schema_version"] = 5
     migrated = artifact.loads(json.dumps(data))
     assert artifact.dumps(migrated) == REFERENCE.read_text()
     data["laws"]["siso"]["normal_force_min"] = [1.0, 1.0, 1.0]  # a version-5 file with a key it never had
     with pytest.raises(ModelError, match=r"schema_version: 5 — unknown"):
+        artifact.loads(json.dumps(data))
+    data = json.loads(REFERENCE.read_text())
+    data["schema_version"] = 6  # a version-6 file with the key version 7 added: refused as version 6
+    with pytest.raises(ModelError, match=r"schema_version: 6 — unknown"):
         artifact.loads(json.dumps(data))
 
 

@@ -34,13 +34,13 @@ import numpy as np
 from smartjoint.common import output_path
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact_layout
+from smartjoint.design.control.artifact_migration import migrated
 from smartjoint.design.control.artifact_schema import (
     LAW_SETTINGS,
     SCHEMA,
     SCHEMA_VERSION,
     check_version,
     field_error,
-    migrated,
     validated,
 )
 from smartjoint.design.control.lqg import LqgDesign
@@ -96,6 +96,7 @@ class ControllerArtifact:
     amplifier_temperature_limit: float
     amplifier_current_limit: float
     tracking_tolerance: float
+    actuation_tolerance: np.ndarray
     timeout_cycles: int
     recovery_cycles: int
     design_source: str
@@ -185,6 +186,8 @@ def save(artifact: ControllerArtifact, path) -> Path:
     """
     path = Path(path)
     try:
+        if not path.parent.is_dir():  # the library never makes folders; the command line does
+            raise FileNotFoundError(2, f"no folder {path.parent}")
         return output_path.write_file(path, dumps(artifact))  # the output rule
     except OSError as error:
         raise ModelError(f"{path}: cannot write controller artefact ({error.strerror or error})") from None
@@ -227,7 +230,7 @@ def loads(text: str) -> ControllerArtifact:
         raise field_error("<artefact>", data, "expected a JSON object")
     if "schema_version" not in data:
         raise ModelError(f"schema_version: missing — required field; this version reads {SCHEMA_VERSION}")
-    data = migrated(data)  # version 5 reads as 6 (the SISO law's F_N^min: the joints')
+    data = migrated(data)  # versions 5 and 6 read as 7 (artifact_migration)
     check_version(data["schema_version"])  # first: another version may have other fields
     return ControllerArtifact(**artifact_layout.flatten(data))
 

@@ -235,6 +235,7 @@ def safety_fields(design, joints: tuple[str, ...]) -> dict:
         amplifier_temperature_limit=safety.amplifier_temperature_limit,
         amplifier_current_limit=safety.amplifier_current_limit,
         tracking_tolerance=safety.tracking_tolerance,
+        actuation_tolerance=safety.actuation_tolerance * high,
         timeout_cycles=safety.timeout_cycles,
         recovery_cycles=safety.recovery_cycles,
     )

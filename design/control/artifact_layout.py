@@ -55,6 +55,7 @@ LAYOUT: dict[str, tuple[tuple[str, str], ...]] = {
             "amplifier_temperature_limit",
             "amplifier_current_limit",
             "tracking_tolerance",
+            "actuation_tolerance",
             "timeout_cycles",
             "recovery_cycles",
         )

@@ -16,9 +16,11 @@ from smartjoint.common.errors import ModelError
 
 # 2: the safe state and the plausibility ranges (docs/safety.md); 3: the joints' friction; 4: nested,
 # one section per component (artifact_layout).
-SCHEMA_VERSION = 6
+SCHEMA_VERSION = 7
 # 5: four laws; 6: the SISO law's own F_N^min (``laws.siso.normal_force_min``, a preload): a
-# version-5 file reads as version 6 with it equal to the joints' F_N^min (``migrated``).
+# version-5 file reads as version 6 with it equal to the joints' F_N^min (``migrated``); 7: the
+# actuation check's tolerance (``safety.actuation_tolerance``): a version-6 file reads as version 7
+# with the default, 0.1 × F_N^max.
 # The model whose parameters the artefact's friction section holds (its columns, in order).
 FRICTION_MODEL = friction_registry.LUGRE
 # Plausibility bound on F_N^max: a bolted friction joint is clamped with kN, the largest piezo
@@ -105,6 +107,14 @@ SCHEMA: tuple[FieldSpec, ...] = (
     FieldSpec("amplifier_current_limit", "number", unit="A", meaning="|amplifier current| above is a fault (> 0)"),
     FieldSpec(
         "tracking_tolerance", "number", unit="V", meaning="|monitor voltage − setpoint| above is a tracking fault (> 0)"
+    ),
+    FieldSpec(
+        "actuation_tolerance",
+        "array",
+        ("l",),
+        "N",
+        "a measured F_N this far below the least of the last three commands: the joint does not follow "
+        "(> 0, <= F_N^max)",
     ),
     FieldSpec(
         "timeout_cycles",
@@ -307,6 +317,11 @@ def _check_safety(out: dict) -> None:
                 f"measured_normal_force_min[{j}]: {float(out['measured_normal_force_min'][j])!r} N for "
                 f"joint {joint!r} — must be <= 0 N (an unloaded joint reads 0 N)"
             )
+        if not 0 < out["actuation_tolerance"][j] <= high[j]:
+            raise ModelError(
+                f"actuation_tolerance[{j}]: {float(out['actuation_tolerance'][j])!r} N for joint {joint!r} — "
+                f"must be > 0 and <= normal_force_max = {float(high[j])!r} N"
+            )
         if out["measured_normal_force_max"][j] < high[j]:
             raise ModelError(
                 f"measured_normal_force_max[{j}]: {float(out['measured_normal_force_max'][j])!r} N for "
@@ -329,38 +344,6 @@ _OLDER = {
     3: "flat, without the sections of version 4",
     4: "with three sections under laws, not one per law of the registry",
 }
-
-
-def migrated(data: Any) -> Any:
-    """A version-5 artefact as version 6: each law's own F_N^min (``Setting.lower_force``: the
-    SISO law's ``laws.siso.normal_force_min``), which version 5 did not have, is the joints'
-    ``common.normal_force_min`` — what version 5's laws commanded, so every law's numbers stay the
-    same. Anything else is returned as it is (and refused by the checks after).
-
-    Parameters
-    ----------
-    data : object
-        The parsed JSON text.
-
-    Returns
-    -------
-    object
-        ``data``, or a version-6 copy of a version-5 artefact.
-    """
-    if not isinstance(data, dict) or data.get("schema_version") != 5 or isinstance(data["schema_version"], bool):
-        return data
-    laws, common = data.get("laws"), data.get("common")
-    if not isinstance(laws, dict) or not isinstance(common, dict) or "normal_force_min" not in common:
-        return data
-    laws = dict(laws)
-    for law in law_registry.LAWS.values():
-        for setting in law.settings:
-            section = laws.get(law.name)
-            if setting.lower_force and isinstance(section, dict):
-                if setting.key in section:  # not what version 5 wrote: refused as version 5
-                    return data
-                laws[law.name] = {**section, setting.key: common["normal_force_min"]}
-    return {**data, "schema_version": SCHEMA_VERSION, "laws": laws}
 
 
 def check_version(value) -> int:
@@ -459,6 +442,5 @@ __all__ = [
     "SENSOR_QUANTITIES",
     "check_version",
     "field_error",
-    "migrated",
     "validated",
 ]

@@ -71,6 +71,7 @@ CONTROLLER_FAULTS = (
     "controller",
     "law",
     "bus_off",
+    "actuation",
 )
 E2E_SIGNALS = ("crc", "counter", "sync")  # E2E bytes and the heartbeat echo; no sensor signal may take these names
 SYNC_COMMENT = (
@@ -315,8 +316,10 @@ def _tip_message(sensors: list[str], quantities: list[str], cycle: int) -> can.M
     )
 
 
-def _controller_status_message(cycle: int) -> can.Message:
-    """The CONTROLLER_STATUS heartbeat: mode, step status, missing inputs and fault bits."""
+def _controller_status_message(cycle: int, joints: tuple[str, ...] = ()) -> can.Message:
+    """The CONTROLLER_STATUS heartbeat: mode, step status, missing inputs and fault bits, and per
+    joint of ``joints`` whether it does not follow its commands (``failed_<joint>``, from bit 48:
+    the actuation check, docs/safety.md; the local mode's supervisor sends none)."""
     mode = can.Signal(
         "mode",
         16,
@@ -336,14 +339,23 @@ def _controller_status_message(cycle: int) -> can.Message:
             "faults",
             32,
             16,
-            comment="why the safe state holds: bits "
+            comment="why the safe state holds, and actuation (a joint does not follow; the law runs on): bits "
             + ", ".join(f"{k} {name}" for k, name in enumerate(CONTROLLER_FAULTS)),
         ),
+    ]
+    controller += [
+        can.Signal(
+            f"failed_{_identifier(name, 'joint').lower()}",
+            48 + j,
+            1,
+            comment=f"joint {name}: its measured F_N falls short of its commands (actuation check); 1 while it does",
+        )
+        for j, name in enumerate(joints)
     ]
     return can.Message(
         CONTROLLER_ID,
         "CONTROLLER_STATUS",
-        8,
+        _fd_length(6 + -(-len(joints) // 8)),
         controller,
         senders=[CONTROLLER],
         cycle_time=cycle,
@@ -424,7 +436,7 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
         nodes += joint_nodes
         messages += joint_messages
     messages.append(_tip_message(sensors, list(artifact.sensor_quantities), cycle))
-    messages.append(_controller_status_message(cycle))
+    messages.append(_controller_status_message(cycle, tuple(joints)))
     messages.sort(key=lambda m: m.frame_id)
     _set_receivers(messages, [name.upper() for name in joints])
     db = can.Database(

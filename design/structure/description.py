@@ -322,7 +322,9 @@ class Safety:
     ``displacement_limit`` [m] / ``velocity_limit`` [m/s] for the sensors by quantity
     (displacement default: 5 % of the truss's largest extent); ``amplifier_temperature_limit``
     [°C], ``amplifier_current_limit`` [A]; ``tracking_tolerance`` [V] between the setpoint and
-    the amplifier's monitor voltage.
+    the amplifier's monitor voltage; ``actuation_tolerance`` (a fraction of F_N^max) by which the
+    measured F_N may fall short of the least of the last three commands before the joint counts as
+    not following (docs/safety.md, the actuation check).
 
     Timing, the same in the firmware and the amplifiers: an input whose newest frame is
     ``timeout_cycles`` controller cycles old is missing (2: a frame may come up to one cycle
@@ -337,6 +339,7 @@ class Safety:
     amplifier_temperature_limit: float = 85.0
     amplifier_current_limit: float = 2.5
     tracking_tolerance: float = 3.0
+    actuation_tolerance: float = 0.1
     timeout_cycles: int = 2
     recovery_cycles: int = 3
 

@@ -94,6 +94,7 @@ def parse_safety(t: DesignTable, control: Control, joints) -> Safety:
         tracking_tolerance=t.number(
             "tracking_tolerance", d.tracking_tolerance, positive=True, maximum=MAX_TRACKING_TOLERANCE
         ),
+        actuation_tolerance=t.number("actuation_tolerance", d.actuation_tolerance, positive=True, maximum=1.0),
         timeout_cycles=t.integer("timeout_cycles", d.timeout_cycles, minimum=2, maximum=MAX_TIMEOUT_CYCLES),
         recovery_cycles=t.integer("recovery_cycles", d.recovery_cycles, minimum=1, maximum=255),
     )

@@ -215,6 +215,9 @@ static void check_setpoint(const bench *b, unsigned int joint, const uint8_t *fr
 
 static void check_status_frame(const bench *b, unsigned int status, const uint8_t *frame)
 {
+    unsigned int j;
+    unsigned int named = 0u;
+    int any = 0;
     const fuzz_message *message = fuzz_find_message(SMARTJOINT_CAN_CONTROLLER_STATUS_ID);
     const double mode = field_value(message, "mode", frame);
     const double expected = b->can.safe ? 3.0 : (double)b->can.law;
@@ -223,6 +226,16 @@ static void check_status_frame(const bench *b, unsigned int status, const uint8_
         fuzz_fail("can_layer", "status frame: mode %g (expected %g), step status %g (expected %u), faults %g (%u)", mode,
                   expected, field_value(message, "step_status", frame), status & 0xFFu,
                   field_value(message, "faults", frame), (unsigned int)b->can.faults);
+    }
+    /* The actuation check: the heartbeat names exactly the joints the layer holds failed (bit
+     * 48 + j, docs/safety.md), and its fault bit stands for any of them; it makes nothing safe. */
+    for (j = 0u; j < FUZZ_JOINTS; ++j) {
+        named |= (unsigned int)((frame[6u + j / 8u] >> (j % 8u)) & 1u) != (b->can.failed[j] != 0u);
+        any |= b->can.failed[j] != 0u;
+    }
+    if (named || any != ((b->can.faults & SMARTJOINT_CAN_FAULT_ACTUATION) != 0u)) {
+        fuzz_fail("can_layer", "status frame: failed joints differ from the layer's, or the actuation bit (0x%x)",
+                  (unsigned int)b->can.faults);
     }
 }
 

@@ -38,7 +38,9 @@ void sj_fault_handler(void)
     sj_exit(3);
 }
 
-void sj_reset_handler(void)
+/* The copy and clear loops stay loops: GCC would otherwise turn them into calls of newlib's
+ * memcpy and memset, and memcpy alone is 308 B of flash for a .data section that is empty. */
+__attribute__((optimize("no-tree-loop-distribute-patterns"))) void sj_reset_handler(void)
 {
     const uint32_t *from = __sj_data_load;
     uint32_t *to = __sj_data_start;
