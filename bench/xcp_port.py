@@ -157,12 +157,16 @@ class XcpLoop(SilLoop):
     def _log_xcp(self, message, time_us: int) -> None:
         """An XCP frame into the bench log, on the channel after the plan's buses (bench decode
         reads it with xcp.dbc), at the sample's time."""
+        if self.writer is None:  # the log is closed: frames of the port's own shut-down go unlogged
+            return
         message.timestamp = time_us * 1e-6
         message.channel = len(self.bus_names)
         message.is_rx = message.arbitration_id == self.port.slave_id
         self.writer.on_message_received(message)
 
     def close(self) -> None:
+        if getattr(self, "port", None) is not None:
+            self.port.on_frame = None  # the log closes with the buses; the port's last frames are not the run's
         super().close()
         if getattr(self, "port", None) is not None:
             self.port.close()

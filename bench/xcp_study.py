@@ -26,7 +26,7 @@ from smartjoint.design.control import study as closed_loop
 from smartjoint.design.plant.interface import Measurements
 from smartjoint.design.structure.description import Xcp
 
-SWITCH_TIME = 1.0  # [s]: when the DOWNLOAD lands
+SWITCH_TIME = 1.0  # [s]: when the DOWNLOAD lands (half the study, when that is shorter)
 # The laws with a boundary layer to calibrate (their Setting "boundary_layer").
 CALIBRATED = tuple(
     law.name for law in law_registry.LAWS.values() if any(s.key == "boundary_layer" for s in law.settings)
@@ -157,7 +157,7 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     entries = daq_entries(description, image.xcp_plan.odts, image.xcp.daq_entries)
     tunables = _tunables(description, law)
     new = [float(np.float32(FACTOR * c.value)) if real == "float" else FACTOR * c.value for c in tunables]
-    switch = int(round(SWITCH_TIME / artifact.sample_time))
+    switch = int(round(min(SWITCH_TIME, 0.5 * setup.duration) / artifact.sample_time))
     app = xcp_master.application(artifact, image.xcp, channel=f"{channel}.xcp", timeout=5.0)
     policy = xcp_master.recorder("sample", entries)
     seen: dict = {}
@@ -166,7 +166,7 @@ def calibration_study(setup, image, law: str, real: str, channel: str, folder=No
     loop = XcpLoop(image, port, {0: start, switch: calibrate}, excitation_end=closed_loop.PULSE_DURATION,
                    channel=channel, log_path=log_path)  # fmt: skip
     progress(f"      {law}: XCP on the {'target' if pil else 'SIL firmware'}: DAQ of {len(entries)} signals, "
-             f"the boundary layer × {FACTOR:g} by DOWNLOAD at t = {SWITCH_TIME:g} s …")  # fmt: skip
+             f"the boundary layer × {FACTOR:g} by DOWNLOAD at t = {switch * artifact.sample_time:g} s …")  # fmt: skip
     result = run_loop(setup, loop)
     with port:
         port.serve(stop)
@@ -236,7 +236,8 @@ def plot_calibration(out: dict, path) -> Path:
     top.axvline(out["switch_sample"] * (t[1] - t[0]) if len(t) > 1 else 0.0, color="k", ls="--", lw=0.8)
     top.set_ylabel("F_N [N]")
     top.legend(fontsize=8, loc="upper right")
-    top.set_title(f"XCP on the {out['where']}: boundary layer × {FACTOR:g} by DOWNLOAD at t = {SWITCH_TIME:g} s")
+    switched = out["switch_sample"] * (t[1] - t[0]) if len(t) > 1 else 0.0
+    top.set_title(f"XCP on the {out['where']}: boundary layer × {FACTOR:g} by DOWNLOAD at t = {switched:g} s")
     layer = np.where(np.arange(len(t)) < out["switch_sample"], out["boundary_layer"]["before"][0],
                      out["boundary_layer"]["after"][0])  # fmt: skip
     bottom.step(t, layer, where="post", color="tab:red")
@@ -252,7 +253,8 @@ def xcp_markdown(runs: list[dict]) -> str:
         "## XCP: measurement and calibration on the running firmware",
         "",
         "pyxcp connects to the firmware's XCP slave, measures every scalar of the A2L by DAQ at every sample, "
-        f"and multiplies the law's boundary layer by {FACTOR:g} with one DOWNLOAD at t = {SWITCH_TIME:g} s. The MIL "
+        f"and multiplies the law's boundary layer by {FACTOR:g} with one DOWNLOAD at t = {SWITCH_TIME:g} s (half a "
+        "shorter study). The MIL "
         "column feeds the law's Python reference the inputs the firmware decoded and switches it at the same "
         "sample (docs/xcp.md).",
         "",

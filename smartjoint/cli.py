@@ -468,6 +468,10 @@ def check_outputs(args) -> None:
             output_path.check_file(args.output, "-o")
     if getattr(args, "plots", None):
         output_path.check_folder(args.plots, "--plots", ours=figures.is_figure)
+    if getattr(args, "log_folder", None):  # sil: sil_<law>.blf and xcp_sil_<law>.blf, replaced by name
+        output_path.check_folder(args.log_folder, "--log-folder", ours=lambda entry: entry.suffix == ".blf")
+    if getattr(args, "xcp_a2l", None):
+        output_path.check_file(args.xcp_a2l, "--xcp-a2l")
 
 
 def main(argv: list[str] | None = None) -> int:

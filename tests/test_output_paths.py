@@ -75,7 +75,12 @@ COMMANDS = {
     "bench log": (["bench", "log", "--interface", "virtual", "--duration", "0.1"], "-o", "file"),
     "bench decode": (["bench", "decode", "missing.blf", "--artifact", ARTIFACT], "-o", "file"),
     "bench decode --plots": (["bench", "decode", "missing.blf", "--artifact", ARTIFACT], "--plots", "plots"),
+    "sil --log-folder": (["sil", "--artifact", ARTIFACT], "--log-folder", "folder"),
+    "sil --xcp-a2l": (["sil", "--artifact", ARTIFACT], "--xcp-a2l", "file"),
+    # the experimenter's records folder (positional): its own files are kept, never replaced
+    "campaign": (["campaign", "--prior", str(ROOT / "design" / "data" / "paper_table1_type_a.toml")], "", "shared"),
 }
+SHARED = ("codegen", "campaign")  # folders shared by design: other files are left as they are
 
 
 def _refused(argv: list[str], capsys) -> str:
@@ -91,13 +96,13 @@ def test_every_command_refuses_a_path_it_must_not_write_and_leaves_it_as_it_was(
     (tmp_path / "s.toml").write_text(SWEEP)
     argv, option, meant = COMMANDS[command]
     cases = _cases(tmp_path)
-    wrong = tmp_path / ("a-file" if meant in ("folder", "plots") else "a-folder")
+    wrong = tmp_path / ("a-folder" if meant == "file" else "a-file")
     cases["a file where a folder is meant" if meant != "file" else "a folder where a file is meant"] = wrong
-    if meant != "file" and command != "codegen":  # codegen shares its folder (below)
+    if meant != "file" and command not in SHARED:  # codegen shares its folder (below)
         cases["a folder with a user's file"] = tmp_path / "a-folder"
     before = _snapshot(tmp_path)
     for case, target in cases.items():
-        err = _refused([*argv, option, str(target)], capsys)
+        err = _refused([*argv, *([option] if option else []), str(target)], capsys)
         assert str(target) in err and option in err, (case, err)
         assert _snapshot(tmp_path) == before, case  # nothing replaced, made or left behind
 

@@ -19,6 +19,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from smartjoint.common import output_path
 from smartjoint.common.errors import SmartjointError
 from smartjoint.design.friction import lugre, rig
 from smartjoint.design.friction.records import Record, read_record, write_record
@@ -77,8 +78,9 @@ def run_folder(
     -------
     FolderCampaign
     """
-    if folder.exists() and not folder.is_dir():
-        raise SmartjointError(f"campaign folder {folder}: exists and is not a folder")
+    # The output rule (common.output_path): a folder — the experimenter's own records live in it, so
+    # its other files are kept, never replaced — not a file, link, FIFO, device or a path below a file.
+    output_path.check_folder(folder, "campaign folder", ours=lambda entry: True)
     folder.mkdir(parents=True, exist_ok=True)
     simulated: list[Path] = []
 
