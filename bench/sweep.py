@@ -20,6 +20,8 @@ import dataclasses
 import json
 import logging
 import os
+import signal
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -190,14 +192,22 @@ def connect(scheduler: str | None, workers: int | None, scratch: str | None = No
         return Client(scheduler, timeout=SCHEDULER_TIMEOUT, set_as_default=False), None
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # inherited by the worker processes: one core each
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    cluster = LocalCluster(
-        n_workers=workers or os.cpu_count() or 1,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=":0",
-        silence_logs=logging.ERROR,
-        local_directory=scratch,
-    )
+    # Ctrl-C reaches every process of the terminal's group: the worker processes start with SIGINT
+    # ignored (inherited through exec), so only this process answers it and shuts them down.
+    main = threading.current_thread() is threading.main_thread()  # signals are the main thread's
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        cluster = LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            silence_logs=logging.ERROR,
+            local_directory=scratch,
+        )
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
     return Client(cluster, set_as_default=False), cluster
 
 
@@ -371,6 +381,12 @@ def run_sweep(
             todo = open_output(folder, prepared, resume)
             out = _compute(client, prepared, folder, todo, progress)
             return {**out, "landscape": LANDSCAPE if write_landscape(prepared, folder, progress) else None}
+        except KeyboardInterrupt:
+            # Tasks still running when the client goes: the scheduler logs its failed reports to it with
+            # tracebacks. The command's one line says what happened.
+            for name in ["distributed", *(n for n in logging.root.manager.loggerDict if n.startswith("distributed."))]:
+                logging.getLogger(name).setLevel(logging.CRITICAL + 1)  # the scheduler logs a lost comm as critical
+            raise
         finally:
             client.close()
             if cluster is not None:
