@@ -41,12 +41,12 @@ void sj_fault_handler(void)
     sj_exit(3);
 }
 
-/* The copy and clear loops stay loops: GCC would otherwise turn them into calls of newlib's
- * memcpy and memset, and memcpy alone is 308 B of flash for a .data section that is empty. */
-__attribute__((optimize("no-tree-loop-distribute-patterns"))) void sj_reset_handler(void)
+void sj_reset_handler(void)
 {
+    /* Volatile stores keep the copy and clear loops loops: the compiler would otherwise call
+     * newlib's memcpy, 308 B of flash for a .data section that is empty. */
     const uint32_t *from = __sj_data_load;
-    uint32_t *to = __sj_data_start;
+    volatile uint32_t *to = __sj_data_start;
     while (to < __sj_data_end) {
         *to++ = *from++;
     }
