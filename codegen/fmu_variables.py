@@ -246,10 +246,6 @@ def normal_force_limit(artifact, j: int) -> tuple[float, str]:
     return NORMAL_FORCE_LIMIT, "artifact_schema.NORMAL_FORCE_LIMIT"
 
 
-# Settings bounded by the sample time: r_decay of the slip-ratio law, dt r_decay < 1 (slip_ratio.SlipRatioLaw).
-_BELOW_SAMPLE_RATE = {("slipratio", "decay")}
-
-
 def _setting_rules(artifact, law: str, setting, j: int | None) -> dict[str, Any]:
     """A setting's range: a normal force within (0, the F_N^max limit], a rate bounded by the
     sample time, else any finite number > 0."""
@@ -257,7 +253,7 @@ def _setting_rules(artifact, law: str, setting, j: int | None) -> dict[str, Any]
         joints = range(len(artifact.joint_names)) if j is None else [j]
         limit, why = min(normal_force_limit(artifact, k) for k in joints)
         return _within(0.0, limit, setting.unit, why, strict_low=True)
-    if (law, setting.key) in _BELOW_SAMPLE_RATE:
+    if setting.per_sample_rate:  # dt r < 1 (``law_registry.Setting``)
         dt = float(artifact.sample_time)
         allowed = f"0 < value < 1/dt = {1.0 / dt:g} {setting.unit} (F_N would turn negative in one sample)"
         return dict(condition=f"value > 0.0 && {_c(dt)} * value < 1.0", minimum=0.0, maximum=1.0 / dt, allowed=allowed)

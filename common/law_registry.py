@@ -58,6 +58,9 @@ class Setting:
         It is the lowest normal force the law commands, in place of the joints' F_N^min
         (:meth:`Law.lower_force_field`): the law's templates, its FMU's tunable
         ``JOINT_<j>.normal_force_min`` and the joint nodes take it as the law's F_N^min.
+    per_sample_rate : bool
+        A rate r [1/s] the law applies once per sample: Δt·r < 1, or F_N turns negative in one
+        sample (the FMU's tunable refuses it).
     """
 
     key: str
@@ -67,6 +70,7 @@ class Setting:
     default: float | str | None = None
     normal_force: bool = False
     lower_force: bool = False
+    per_sample_rate: bool = False
 
     def design_key(self, law: str) -> str:
         """Its key in the design file's ``[control]`` table, ``<law>_<key>``."""
@@ -306,7 +310,13 @@ LAWS: dict[str, Law] = {
             settings=(
                 Setting("velocity", "m/s", True, "the sliding speed v*_j above which a joint counts as slipping"),
                 Setting("rise", "1/s", False, "the relative rate r_rise at which F_N grows while a joint slips"),
-                Setting("decay", "1/s", False, "the relative rate r_decay at which F_N relaxes while a joint sticks"),
+                Setting(
+                    "decay",
+                    "1/s",
+                    False,
+                    "the relative rate r_decay at which F_N relaxes while a joint sticks",
+                    per_sample_rate=True,
+                ),
             ),
             tune="smartjoint.design.control.slip_ratio:tuned",
             controller="smartjoint.design.control.slip_ratio:controller",

@@ -183,6 +183,17 @@ static const uint8_t fd_lengths[16] = {0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u, 8u, 12u, 
  * with an error code (PID_ERR and the code). */
 #define REFUSED 0x80u
 
+/* n bytes from `from` to `to`: a loop of volatile stores, which the compiler keeps a loop; a
+ * variable-length memcpy would link newlib's, 308 B, for copies of at most a frame. */
+static void copy_bytes(uint8_t *to, const uint8_t *from, size_t n)
+{
+    volatile uint8_t *out = to;
+    size_t k;
+    for (k = 0u; k < n; ++k) {
+        out[k] = from[k];
+    }
+}
+
 static uint32_t dword(const uint8_t *p)
 {
     return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
@@ -270,7 +281,8 @@ int smartjoint_xcp_init(smartjoint_xcp_state *xcp, uintptr_t base)
     xcp->ecu_page = 1u;
     xcp->ecu_page_next = 1u;
     xcp->xcp_page = 1u;
-    smartjoint_calibration_working = smartjoint_calibration_reference;
+    copy_bytes((uint8_t *)&smartjoint_calibration_working, (const uint8_t *)&smartjoint_calibration_reference,
+               sizeof smartjoint_calibration_working); /* the working page starts as the reference */
     use_page(1u);
     return 0;
 }
@@ -359,7 +371,7 @@ static uint8_t download(smartjoint_xcp_state *xcp, const uint8_t *cmd, uint8_t l
     if (code != 0u) {
         return REFUSED | code;
     }
-    memcpy((uint8_t *)&smartjoint_calibration_working + offset, &cmd[2], n);
+    copy_bytes((uint8_t *)&smartjoint_calibration_working + offset, &cmd[2], n);
     xcp->mta += n;
     return 1u;
 }
@@ -430,7 +442,7 @@ static uint8_t upload(smartjoint_xcp_state *xcp, uint32_t n)
     if (bytes == NULL) {
         return REFUSED | ERR_ACCESS_DENIED;
     }
-    memcpy(&xcp->response[1], bytes, n);
+    copy_bytes(&xcp->response[1], bytes, n);
     xcp->mta += n;
     return (uint8_t)(1u + n);
 }
@@ -826,7 +838,7 @@ int smartjoint_xcp_tx(smartjoint_xcp_state *xcp, uint8_t *data, uint8_t *length)
     }
     if (xcp->response_length > 0u) {
         n = xcp->response_length;
-        memcpy(data, xcp->response, n);
+        copy_bytes(data, xcp->response, n);
         xcp->response_length = 0u;
     } else if (xcp->daq.running && xcp->daq.tx_odt < xcp->daq.odts) {
         const unsigned int odt = xcp->daq.tx_odt++;
@@ -839,7 +851,7 @@ int smartjoint_xcp_tx(smartjoint_xcp_state *xcp, uint8_t *data, uint8_t *length)
         }
         for (k = xcp->odt_first[odt]; k < end; ++k) {
             if (xcp->entry_size[k] > 0u) { /* an entry never written has size 0 */
-                memcpy(&data[n], xcp->entry[k], xcp->entry_size[k]);
+                copy_bytes(&data[n], xcp->entry[k], xcp->entry_size[k]);
                 n += xcp->entry_size[k];
             }
         }
