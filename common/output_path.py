@@ -99,12 +99,7 @@ def check_file(path: str | os.PathLike, option: str = "-o") -> Path:
         A folder, a link, a FIFO, a device or a socket there, or a path below a file.
     """
     path = Path(path)
-    found = kind(path)
-    if found == "folder":
-        raise OutputError(f"{option}: {path} is a folder — name a file")
-    if found not in (None, "file"):
-        _refuse_special(path, found, option)
-    _check_ancestors(path, option)
+    _check_kind(path, option, "file")
     return path
 
 
@@ -133,13 +128,7 @@ def check_folder(path: str | os.PathLike, option: str = "-o", ours: Callable[[Pa
         holding an entry the command did not write (the first one is named).
     """
     path = Path(path)
-    found = kind(path)
-    if found == "file":
-        raise OutputError(f"{option}: {path} is a file — name a folder")
-    if found not in (None, "folder"):
-        _refuse_special(path, found, option)
-    _check_ancestors(path, option)
-    if found == "folder":
+    if _check_kind(path, option, "folder") == "folder":
         foreign = sorted(entry.name for entry in path.iterdir() if ours is None or not ours(entry))
         if foreign:
             raise OutputError(
@@ -147,6 +136,19 @@ def check_folder(path: str | os.PathLike, option: str = "-o", ours: Callable[[Pa
                 "name a new or empty folder (nothing in it is replaced)"
             )
     return path
+
+
+def _check_kind(path: Path, option: str, meant: str) -> str | None:
+    """What is at ``path`` (:func:`kind`), refused unless nothing or a ``meant`` ("file" or
+    "folder") in a writable folder."""
+    found = kind(path)
+    other = "folder" if meant == "file" else "file"
+    if found == other:
+        raise OutputError(f"{option}: {path} is a {other} — name a {meant}")
+    if found not in (None, meant):
+        _refuse_special(path, found, option)
+    _check_ancestors(path, option)
+    return found
 
 
 def _refuse_special(path: Path, found: str, option: str) -> None:
