@@ -295,3 +295,21 @@ def test_update_without_an_updating_section_is_refused_before_the_fe_model(tmp_p
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "has no [updating] section" in err[0] and str(design) in err[0], err
     assert not calls, calls
+
+
+def test_reduce_on_a_users_design_holds_only_the_users_normal_forces(tmp_path, capsys, monkeypatch):
+    """`smartjoint reduce` on a truss that is not the paper's, F_N within 12 … 300 N: its load case
+    (the first joint at the user's F_N^max, the other at F_N^min) and every force its simulations
+    hold come from the design, no 400 N."""
+    import tomli_w
+    from conftest import small_truss
+
+    data = small_truss()
+    data["control"] = {"normal_force_min": USER_FORCES[0], "normal_force_max": USER_FORCES[1], "considered_modes": 20}
+    (tmp_path / "user.toml").write_text(tomli_w.dumps(data))
+    forces = _record_normal_forces(monkeypatch)
+    argv = ["reduce", str(tmp_path / "user.toml"), "--modes", "8", "--duration", "0.05", "--json"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["normal_forces"] == [USER_FORCES[1], USER_FORCES[0]], summary["normal_forces"]
+    assert forces["reduction"] and all(USER_FORCES[0] <= f <= USER_FORCES[1] for f in forces["reduction"])
