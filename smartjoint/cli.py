@@ -27,8 +27,9 @@ from smartjoint.commands_control import cmd_codegen, cmd_design, cmd_pil, cmd_si
 from smartjoint.commands_fmu import cmd_fmu
 from smartjoint.commands_friction import cmd_campaign, cmd_identify, cmd_rig
 from smartjoint.commands_sweep import cmd_sweep
-from smartjoint.common import figures, friction_registry, law_registry, output_path
+from smartjoint.common import friction_registry, law_registry
 from smartjoint.common.errors import SmartjointError
+from smartjoint.output_options import check_outputs
 
 _LAWS_SHOWN = ", ".join(law.display for law in law_registry.LAWS.values())  # the laws, as a reader knows them
 
@@ -450,28 +451,6 @@ class Terminated(KeyboardInterrupt):
 
 def _terminate(signum, frame) -> None:
     raise Terminated()
-
-
-# The commands whose -o names a folder (rig with --campaign too); every other -o names a file.
-_FOLDER_OUTPUTS = ("run", "codegen", "sweep")
-
-
-def check_outputs(args) -> None:
-    """The output rule (`common.output_path`) on -o and --plots before any work: a file where a
-    file is meant, a folder where a folder is, never a link, FIFO, device or a path below a file;
-    a plots folder holds only PNGs. Which entries of an output folder are its own each command
-    decides (run: its manifest, codegen: its banners, sweep: its batches)."""
-    if getattr(args, "output", None):
-        if args.command in _FOLDER_OUTPUTS or (args.command == "rig" and args.campaign):
-            output_path.check_folder(args.output, "-o", ours=lambda entry: True)
-        else:
-            output_path.check_file(args.output, "-o")
-    if getattr(args, "plots", None):
-        output_path.check_folder(args.plots, "--plots", ours=figures.is_figure)
-    if getattr(args, "log_folder", None):  # sil: sil_<law>.blf and xcp_sil_<law>.blf, replaced by name
-        output_path.check_folder(args.log_folder, "--log-folder", ours=lambda entry: entry.suffix == ".blf")
-    if getattr(args, "xcp_a2l", None):
-        output_path.check_file(args.xcp_a2l, "--xcp-a2l")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -145,7 +145,7 @@ def test_a_design_refuses_a_parameter_that_was_not_identified_unless_it_states_i
 def test_the_campaign_command_refuses_bad_input_in_one_line(tmp_path):
     prior = _toml(tmp_path / "prior.toml", "A", TRUTH_A)
     (tmp_path / "file").write_text("keep")
-    assert "exists and is not a folder" in cli_error("campaign", tmp_path / "file", "--prior", prior)
+    assert "is a file — name a folder" in cli_error("campaign", tmp_path / "file", "--prior", prior)
     assert (tmp_path / "file").read_text() == "keep"
     assert "--noise" in cli_error("campaign", tmp_path / "c", "--prior", prior, "--noise", "2")
     (tmp_path / "c").mkdir()
