@@ -22,7 +22,10 @@ def report_progress(message: str) -> None:
     message : str
         One line.
     """
-    print(message, file=sys.stderr, flush=True)
+    # One write with its newline: print() writes the line and the newline apart, and a Ctrl-C or
+    # SIGTERM between the two would put the command's last line on the end of this one.
+    sys.stderr.write(f"{message}\n")
+    sys.stderr.flush()
 
 
 def load_updated(args, *, firmware_names: bool = False, friction: bool = False):
