@@ -246,7 +246,7 @@ def normal_force_limit(artifact, j: int) -> tuple[float, str]:
     return NORMAL_FORCE_LIMIT, "artifact_schema.NORMAL_FORCE_LIMIT"
 
 
-def _setting_rules(artifact, law: str, setting, j: int | None) -> dict[str, Any]:
+def _setting_rules(artifact, setting, j: int | None) -> dict[str, Any]:
     """A setting's range: a normal force within (0, the F_N^max limit], a rate bounded by the
     sample time, else any finite number > 0."""
     if setting.normal_force:
@@ -286,13 +286,13 @@ def _controller_parameters(artifact, law: str) -> list[dict]:
                 rows.append(_parameter(f"JOINT_{name}.{setting.key}", f"m->{setting.key}[{j}]", setting.unit,
                                        f"{setting.key.replace('_', ' ')} of joint {name}",
                                        getattr(artifact, fields[setting.key])[j], tuned,
-                                       **_setting_rules(artifact, law, setting, j)))  # fmt: skip
+                                       **_setting_rules(artifact, setting, j)))  # fmt: skip
     for setting in entry.settings:
         if not setting.per_joint:
             rows.append(_parameter(setting.key, f"m->{setting.key}[0]", setting.unit,
                                    f"{setting.key.replace('_', ' ')} of the {entry.display} law",
                                    getattr(artifact, fields[setting.key]), tuned,
-                                   **_setting_rules(artifact, law, setting, None)))  # fmt: skip
+                                   **_setting_rules(artifact, setting, None)))  # fmt: skip
     return rows
 
 
