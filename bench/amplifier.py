@@ -63,12 +63,19 @@ class FrameWatch:
     healthy: bool = False
     failed: bool = False  # an E2E failure since the last tick
 
-    def receive(self, frame_id: int, data: bytes, length: int) -> bool:
-        """Take one received frame: its length and E2E check; whether it was accepted."""
+    def receive(self, frame_id: int, data: bytes, length: int, cycle: int | None = None) -> bool:
+        """Take one received frame: its length and E2E check; whether it was accepted.
+
+        ``cycle``: the frame's whole cycle as read from the last heartbeat (a setpoint); its
+        freshness byte is that cycle's and its step counts in 12 bits. None: a heartbeat, checked
+        by the cycle it carries (``e2e.check_heartbeat``)."""
         if len(data) != length:
             self.failed, self.healthy = True, False
             return False
-        checked = e2e.check(frame_id, data, self.last_counter)
+        if cycle is None:
+            checked = e2e.check_heartbeat(frame_id, data, self.last_counter)
+        else:
+            checked = e2e.check(frame_id, data, self.last_counter, e2e.freshness(cycle), cycle)
         if checked.resynchronises:  # the receiver policy of sj_e2e.c
             self.last_counter = checked.counter
         if not checked.ok:
@@ -178,9 +185,21 @@ class AmplifierModel:
         """Whether the amplifier takes frames (not under a ``no_response`` fault)."""
         return self.fault != "no_response"
 
+    @property
+    def echo_freshness(self) -> int:
+        """The freshness byte of the heartbeat its status frame echoes (0 before any)."""
+        return e2e.freshness(self.heartbeat_watch.counter or 0)
+
     def receive_setpoint(self, frame_id: int, data: bytes, length: int, decode) -> None:
-        """A SETPOINT frame as it came off the bus; ``decode(data)`` gives its voltage."""
-        if not self.listening or not self.setpoint_watch.receive(frame_id, data, length):
+        """A SETPOINT frame as it came off the bus; ``decode(data)`` gives its voltage.
+
+        The controller sends it just before the heartbeat of its cycle: its cycle is the one with
+        its counter's bits 0–3 nearest the last heartbeat's, whose bits 4–11 its CRC must cover
+        — a setpoint 9 to 4 095 cycles old fails here, a younger one lags its heartbeat."""
+        watch = self.heartbeat_watch  # the heartbeat cycle it follows (a jump is followed, not taken)
+        heartbeat = watch.last_counter if watch.last_counter is not None else watch.counter or 0
+        cycle = e2e.nearest_cycle(heartbeat, data[1] & 0x0F if len(data) > 1 else 0)
+        if not self.listening or not self.setpoint_watch.receive(frame_id, data, length, cycle):
             return
         voltage = float(decode(bytes(data)))
         low = self.volts(self.normal_force_min) - self.setpoint_tolerance
@@ -292,5 +311,5 @@ class AmplifierModel:
             "stuck_output": int(self.fault == "stuck_output"),
             "over_current": int(self.fault == "over_current"),
             "safe_state": int(self.own_safe and (self.started or self.waiting >= self.timeout_cycles)),
-            "sync": self.heartbeat_watch.counter or 0,
+            "sync": (self.heartbeat_watch.counter or 0) & 0x0F,
         }

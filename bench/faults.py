@@ -3,11 +3,12 @@ the command-line spelling (``kind:target:start:end[:detail]``, :func:`parse_faul
 
 Frame faults act on one frame name on its way over the bus (the firmware's own frames included),
 ``implausible`` puts a value beyond the design's range into a signal with a valid E2E
-protection, ``amplifier`` makes one joint's amplifier report (or suffer) a fault, ``bus_off``
-takes a bus off: the one its target names (``bus_off:can1:…``, a bus of the network plan), or
-every bus without a target. The loop that injects them is ``bench/loop.py``; the report's
-demonstration sequence, built from the design's own frames and joints, is :func:`demo_faults`.
-"""
+protection, ``replay`` sends instead of each frame the one its sender sent ``age`` cycles
+before, exactly as it was (a gateway that buffers, a babbling node, a replay), ``amplifier``
+makes one joint's amplifier report (or suffer) a fault, ``bus_off`` takes a bus off: the one its
+target names (``bus_off:can1:…``, a bus of the network plan), or every bus without a target. The
+injector is ``bench/fault_injection.py``, the loop ``bench/loop.py``; the report's demonstration
+sequence, built from the design's own frames and joints, is :func:`demo_faults`."""
 
 from __future__ import annotations
 
@@ -19,7 +20,8 @@ from smartjoint.common.errors import ModelError
 
 FRAME_FAULTS = ("drop", "delay", "duplicate", "corrupt_crc", "corrupt_counter", "wrong_dlc", "silent")
 BUS_FAULTS = ("bus_off",)
-KINDS = FRAME_FAULTS + ("implausible", "amplifier") + BUS_FAULTS
+KINDS = FRAME_FAULTS + ("replay", "implausible", "amplifier") + BUS_FAULTS
+MAX_REPLAY_AGE = 4095  # cycles: the freshness byte makes every age from 16 on fail the CRC (docs/can.md)
 NEVER = math.inf  # the end of a fault that never ends
 DEFAULT_DELAY = 0.005  # s
 
@@ -32,7 +34,8 @@ class Fault:
     the firmware's own ``SETPOINT_<j>`` and ``CONTROLLER_STATUS`` included — those are faulted on
     their way to the amplifiers), a joint name for ``amplifier`` (with ``amplifier_fault``), a
     bus name or nothing (every bus) for ``bus_off``. ``delay`` [s] only for ``delay``; ``signal`` and ``value`` only for
-    ``implausible`` (the sender puts that value into the signal, with a valid E2E protection)."""
+    ``implausible`` (the sender puts that value into the signal, with a valid E2E protection);
+    ``age`` [cycles] only for ``replay``."""
 
     kind: str
     start: float
@@ -42,6 +45,7 @@ class Fault:
     delay: float | None = None
     signal: str = ""
     value: float | None = None
+    age: int = 0  # replay: how many cycles old the replayed frames are
 
     def active(self, t: float) -> bool:
         """Whether the fault acts at time ``t`` [s]."""
@@ -58,6 +62,7 @@ class Fault:
             "delay": f" {1e3 * self.lateness:g} ms",
             "amplifier": f" {self.amplifier_fault}",
             "implausible": f".{self.signal} = {self.value:g}" if self.value is not None else "",
+            "replay": f" {self.age} cycles old",
         }.get(self.kind, "")
         return f"{self.kind} {self.target or 'bus'}{detail}"
 
@@ -91,7 +96,7 @@ def check_faults(faults, frame_names, joint_names, signals=None, bus_names=None)
         what = f"fault {f.kind}"
         if f.kind not in KINDS:
             raise ModelError(f"fault kind {f.kind!r} — allowed: {', '.join(KINDS)}")
-        if f.kind in FRAME_FAULTS + ("implausible",):
+        if f.kind in FRAME_FAULTS + ("replay", "implausible"):
             if f.target not in frame_names:
                 raise ModelError(f"{what}: target {f.target!r} — a frame on the bus: {', '.join(sorted(frame_names))}")
         elif f.kind == "amplifier":
@@ -111,6 +116,8 @@ def check_faults(faults, frame_names, joint_names, signals=None, bus_names=None)
             raise ModelError(f"{what}: delay {f.delay!r} — only for kind delay")
         if f.kind == "delay" and not (f.delay is None or (math.isfinite(f.delay) and f.delay > 0)):
             raise ModelError(f"{what}: delay {f.delay!r} — a time > 0 s")
+        if (f.kind == "replay") != (f.age != 0) or not (isinstance(f.age, int) and 0 <= f.age <= MAX_REPLAY_AGE):
+            raise ModelError(f"{what}: age {f.age!r} — replay only, a whole number of cycles 1 … {MAX_REPLAY_AGE}")
         if f.kind == "implausible":
             names = signals.get(f.target)
             if names is not None and f.signal not in names:
@@ -130,9 +137,9 @@ def parse_fault(text: str) -> Fault:
     ----------
     text : str
         ``kind:target:start:end[:detail]``; ``end``: seconds or ``inf`` (never ends); detail: the
-        delay [s] (``delay``, default 5 ms), the amplifier fault (``amplifier``), the value
-        (``implausible``, target ``FRAME.signal``); ``bus_off`` has no detail, and as target a
-        bus of the network plan or none (every bus).
+        delay [s] (``delay``, default 5 ms), the age in cycles (``replay``, 1 … 4095), the
+        amplifier fault (``amplifier``), the value (``implausible``, target ``FRAME.signal``);
+        ``bus_off`` has no detail, and as target a bus of the network plan or none (every bus).
 
     Returns
     -------
@@ -151,7 +158,8 @@ def parse_fault(text: str) -> Fault:
     """
     parts = text.split(":")
     example = (
-        "e.g. drop:JOINT_A1:1.0:1.2, delay:JOINT_A1:1.0:1.2:0.002, amplifier:A1:1.0:inf:over_temperature, "
+        "e.g. drop:JOINT_A1:1.0:1.2, delay:JOINT_A1:1.0:1.2:0.002, replay:JOINT_A1:1.0:1.2:16, "
+        "amplifier:A1:1.0:inf:over_temperature, "
         "implausible:JOINT_A1.sliding_velocity:1.0:1.2:2.1, bus_off::1.0:1.05, bus_off:can1:1.0:1.05"
     )
     if len(parts) not in (4, 5):
@@ -169,6 +177,13 @@ def parse_fault(text: str) -> Fault:
             fields["delay"] = float(detail)
         except ValueError:
             raise ModelError(f"--fault {text!r}: the delay {detail!r} must be a number [s]") from None
+    elif kind == "replay":
+        if detail is None or not detail.isdigit() or not 1 <= int(detail) <= MAX_REPLAY_AGE:
+            raise ModelError(
+                f"--fault {text!r}: the age {detail!r} — a whole number of cycles 1 … {MAX_REPLAY_AGE}, "
+                "e.g. replay:JOINT_A1:1.0:1.2:16"
+            )
+        fields["age"] = int(detail)
     elif kind == "amplifier":
         fields["amplifier_fault"] = detail or ""
     elif kind == "implausible":

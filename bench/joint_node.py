@@ -6,9 +6,13 @@ normal force F_N, at the joint, not over CAN), runs the SISO law of Eq. 30–31 
 its own amplifier. The bus carries only supervision, every ``supervision_cycles`` samples:
 
 * the supervisor's heartbeat ``CONTROLLER_STATUS`` (its mode: ``siso`` runs the local law, every
-  other mode puts the joint at its safe normal force), which the node checks end to end;
+  other mode puts the joint at its safe normal force), which the node checks end to end: its CRC
+  with the freshness byte it carries in the clear (``cycle_high``), its 4-bit alive counter
+  (``e2e.check``) and its whole 12-bit count (``e2e.check_heartbeat``), so that a heartbeat stream
+  replayed 16·m heartbeats old, whose 4-bit counter runs on as if fresh, feeds no node;
 * the node's ``NODE_STATUS_<j>`` (0x300 + j, 8 bytes): E2E bytes with the heartbeat echo, the mode
-  the node applies, its fault bits, the law's status bits, the commanded and the measured F_N.
+  the node applies, its fault bits, the law's status bits, the commanded and the measured F_N; its
+  CRC covers the freshness byte of the heartbeat it echoes (0 before any).
 
 Policy (docs/safety.md): a node follows the last valid heartbeat's mode. A node that loses the
 heartbeat (``timeout_cycles`` supervision periods without a valid one) **keeps that mode** and
@@ -29,6 +33,7 @@ from smartjoint.bench import e2e
 from smartjoint.common import law_registry
 from smartjoint.design.control.laws import SisoLaw
 from smartjoint.design.network.joint_node import (
+    HEARTBEAT_CYCLE_BYTE,
     HEARTBEAT_ID,
     HEARTBEAT_LENGTH,
     NODE_LAW,
@@ -65,8 +70,9 @@ class JointNode:
         self.law.reset()
         self.mode = law_registry.MODE_INIT  # the last valid heartbeat's
         self.silent = SILENT_MAX  # samples since the last valid heartbeat: none yet
-        self.heartbeat_counter = 0  # echoed in the status frame
-        self.receiver: int | None = None  # the heartbeat's last accepted alive counter
+        self.echoed = 0  # the last valid heartbeat's count: its bits 0–3 echoed, 4–11 the status's freshness
+        self.receiver: int | None = None  # the heartbeat's last followed alive counter
+        self.heartbeat_count: int | None = None  # its last followed 12-bit count
         self.hold = 0  # samples the safe force still holds after a bad input
         self.sample = 0
         self.counter = 0  # the status frame's alive counter
@@ -77,17 +83,25 @@ class JointNode:
         self.pending = False
 
     def receive(self, frame_id: int, data: bytes) -> bool:
-        """A frame from the bus: only a heartbeat of the right length that passes its E2E check
-        counts (``e2e.check``; the receiver follows it unless it repeats or is stale)."""
+        """A frame from the bus: only a heartbeat of the right length whose CRC holds and whose
+        12-bit count (``e2e.check_heartbeat``) and 4-bit counter (``e2e.check``) both step 1…3
+        counts. A count repeated or behind the last one — a replay 16·m heartbeats old, whose
+        4-bit counter looks fresh — is ignored before the counter moves (else the next genuine
+        heartbeat would be its repeat); otherwise each follows the frame unless it repeats or is
+        stale (``e2e.Check.resynchronises``)."""
         if frame_id != HEARTBEAT_ID or len(data) != HEARTBEAT_LENGTH:
             return False
-        result = e2e.check(frame_id, data, self.receiver)
-        if result.resynchronises:
-            self.receiver = result.counter
-        if not result.ok:
+        count = e2e.check_heartbeat(frame_id, data, self.heartbeat_count)
+        if not count.resynchronises:
+            return False
+        counter = e2e.check(frame_id, data, self.receiver, data[HEARTBEAT_CYCLE_BYTE])
+        if counter.resynchronises:
+            self.receiver = counter.counter
+        self.heartbeat_count = count.counter
+        if not (counter.ok and count.ok):
             return False
         self.mode = data[2] & 0x0F
-        self.heartbeat_counter = result.counter
+        self.echoed = count.counter
         self.silent = 0
         return True
 
@@ -132,12 +146,12 @@ class JointNode:
             return None
         self.pending = False
         payload = bytearray(NODE_STATUS_LENGTH)
-        payload[1] = (self.heartbeat_counter & 0x0F) << 4
+        payload[1] = (self.echoed & 0x0F) << 4
         payload[2] = self.applied_mode() | (self.faults << 4)
         payload[3] = self.status & 0xFF
         payload[4:6] = force_code(self.command).to_bytes(2, "little")
         payload[6:8] = force_code(self.applied).to_bytes(2, "little")
-        e2e.protect(self.config.status_id, payload, self.counter)
+        e2e.protect(self.config.status_id, payload, self.counter, e2e.freshness(self.echoed))
         self.counter = (self.counter + 1) % e2e.COUNTER_MODULO
         return self.config.status_id, bytes(payload)
 

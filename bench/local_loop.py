@@ -5,7 +5,8 @@ Per sample t_k (the plant simulation calls ``LocalLoop.step`` as its controller)
 
 1. the supervisor (the generated ``<prefix>_supervisor.c``, ``bench.supervisor``) steps and,
    every ``supervision_cycles`` samples, sends its heartbeat ``CONTROLLER_STATUS`` (mode: the node
-   law's, or SAFE) — E2E-protected, with its own alive counter;
+   law's, or SAFE) — E2E-protected: bits 0–3 of its heartbeat count as the alive counter, bits
+   4–11 in the clear (``cycle_high``) and as its CRC's freshness byte;
 2. each node takes the frames waiting for it (``<prefix>_node_rx``), steps on its own joint's
    measurements (v, u_R, F_N as the plant reports them, unquantised: they do not cross the bus)
    and drives its amplifier over its local link (``AmplifierModel.drive``);
@@ -18,7 +19,9 @@ The nodes are the generated C (``bench.joint_node.compiled_nodes``, float build 
 nodes of ``target_joints`` run instead as node images on the emulated target
 (``bench.node_target.TargetNode``, processor in the loop) beside the others. The supervisor
 requests one mode for the run. ``heartbeat_until`` silences its transmitter from that time on
-(the nodes' policy on a lost bus); ``silent_nodes`` silences those nodes' status frames (the
+(the nodes' policy on a lost bus; the supervisor counts on, so from the 16th heartbeat after the
+last one the nodes took their statuses echo it too old — a replay's bytes — and fail its CRC:
+the nodes fall silent to it); ``silent_nodes`` silences those nodes' status frames (the
 supervisor's view of a lost node).
 """
 

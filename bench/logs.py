@@ -401,6 +401,10 @@ def decode(messages, db, problem: str | None = None, bus_names=None) -> Decoded:
     shared = Counter(m.name for _, known in buses for m in known.values())
     label = lambda bus, name: name if bus is None or shared[name] == 1 else f"{name}@{bus}"  # noqa: E731
     out.units = {(label(b, m.name), s.name): s.unit for b, k in buses for m in k.values() for s in m.signals if s.unit}
+    fresh = e2e.LogFreshness(
+        (f for _, k in buses for f, m in k.items() if any(s.name == "sync" for s in m.signals)),
+        next((m.cycle_time / 1000.0 for _, k in buses for m in k.values() if m.cycle_time), None),
+    )
     for message in messages:
         out.frames += 1
         if message.is_error_frame:
@@ -425,7 +429,7 @@ def decode(messages, db, problem: str | None = None, bus_names=None) -> Decoded:
         if len(data) != m.length:
             out.wrong_length[m.name] += 1
             continue
-        if not e2e.check(m.frame_id, data, None).crc_ok:
+        if not fresh.crc_ok(m.frame_id, data, float(message.timestamp)):
             out.bad_e2e[m.name] += 1
             continue
         for name, value in m.decode(data, decode_choices=False).items():

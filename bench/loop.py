@@ -32,7 +32,8 @@ import numpy as np
 
 from smartjoint.bench import e2e
 from smartjoint.bench.amplifier import AmplifierModel, amplifier_options
-from smartjoint.bench.faults import Fault, check_faults
+from smartjoint.bench.fault_injection import FaultInjector
+from smartjoint.bench.faults import check_faults
 from smartjoint.common.errors import ModelError
 from smartjoint.design.network import busload
 from smartjoint.design.plant.interface import Measurements
@@ -169,12 +170,13 @@ class SilLoop:
         self.fw.reset()
         self.amplifiers = [AmplifierModel(**options) for options in self.amplifier_options]
         self.counters: defaultdict[str, int] = defaultdict(int)
-        self.delayed: list[tuple] = []  # (due time, bus handle, message, bus index)
-        self.frozen_counters: dict = {}  # corrupt_counter: the counter each fault froze
-        self.node_echo = [0] * len(self.bus_names)  # per bus: heartbeat counter its sensor nodes last saw
+        self.injector = FaultInjector(self.faults, self.db, self._frame)
+        # per bus: the heartbeat's counter (its bits 0-3) and cycle_high (bits 4-11) its sensor nodes last saw
+        self.node_echo = [0] * len(self.bus_names)
+        self.node_freshness = [0] * len(self.bus_names)
         self.k = 0
         self.record = SilRecord()
-        self.stats: defaultdict[str, int] = defaultdict(int)
+        self.stats = self.injector.stats
         self.frame_counts: defaultdict[str, int] = defaultdict(int)
         self.bus_frame_counts: list[defaultdict[str, int]] = [defaultdict(int) for _ in self.bus_names]
         self.amplifier_e2e_errors = 0
@@ -195,7 +197,7 @@ class SilLoop:
                 writer.stop()
 
     # ------------------------------------------------------------------------------ frames
-    def _message(self, name: str, values: dict, t: float):
+    def _message(self, name: str, values: dict, t: float, fresh: int = 0):
         m = self.frames[name]
         counter = self.counters[name]
         self.counters[name] = (counter + 1) % e2e.COUNTER_MODULO
@@ -206,7 +208,7 @@ class SilLoop:
                 signals[s.name] = s.offset
             elif s.minimum is not None:
                 signals[s.name] = min(max(signals[s.name], s.minimum), s.maximum)
-        data = e2e.protect(m.frame_id, bytearray(m.encode(signals, strict=False)), counter)
+        data = e2e.protect(m.frame_id, bytearray(m.encode(signals, strict=False)), counter, fresh)
         return self._frame(m.frame_id, bytes(data), t)
 
     def _frame(self, frame_id: int, data: bytes, t: float):
@@ -216,24 +218,6 @@ class SilLoop:
         return can.Message(
             arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=m.is_fd, bitrate_switch=m.is_fd, timestamp=t
         )
-
-    def _implausible(self, message, f: Fault, t: float):
-        """The frame with ``f.value`` in ``f.signal``, re-protected with its own counter: a sender
-        whose sensor or stage is broken, not a damaged frame."""
-        m = self.db.get_message_by_frame_id(message.arbitration_id)
-        values = m.decode(bytes(message.data), decode_choices=False, scaling=True)
-        values[f.signal] = f.value
-        signal = m.get_signal_by_name(f.signal)
-        raw = round((f.value - signal.offset) / signal.scale)
-        low = -(2 ** (signal.length - 1)) if signal.is_signed else 0
-        high = 2 ** (signal.length - 1) - 1 if signal.is_signed else 2**signal.length - 1
-        if not low <= raw <= high:
-            raise ModelError(
-                f"fault implausible: value {f.value!r} — {m.name}.{f.signal} carries "
-                f"{low * signal.scale + signal.offset:g} … {high * signal.scale + signal.offset:g}"
-            )
-        data = bytearray(m.encode(values, strict=False, scaling=True))
-        return self._frame(m.frame_id, bytes(e2e.protect(m.frame_id, data, message.data[1] & 0x0F)), t)
 
     def _bus_off(self, t: float, index: int) -> bool:
         """Bus ``index`` is off at ``t``: a ``bus_off`` fault on it, or on every bus (no target)."""
@@ -245,53 +229,17 @@ class SilLoop:
 
     def _transmit(self, bus, message, t: float, index: int = 0) -> None:
         """Put ``message`` on bus ``index`` from ``bus``'s side, through the fault injector."""
-        import can
-
         name = self.db.get_message_by_frame_id(message.arbitration_id).name
         if self._bus_off(t, index):
             self.stats["frames_lost_bus_off"] += 1
             return
-        copies = 1
-        for f in self.faults:
-            if f.target != name or not f.active(t):
-                continue
-            self.stats[f"injected_{f.kind}"] += 1
-            if f.kind in ("drop", "silent"):
-                return
-            if f.kind == "delay":
-                self.delayed.append((t + f.lateness, bus, message, index))
-                return
-            if f.kind == "duplicate":
-                copies = 2
-            elif f.kind == "corrupt_crc":
-                data = bytearray(message.data)
-                data[-1] ^= 0x5A
-                message = self._frame(message.arbitration_id, bytes(data), t)
-            elif f.kind == "corrupt_counter":  # a sender whose counter froze: valid CRC, the same counter again
-                frozen = self.frozen_counters.setdefault(id(f), message.data[1] & 0x0F)
-                data = e2e.protect(message.arbitration_id, bytearray(message.data), frozen)
-                message = self._frame(message.arbitration_id, bytes(data), t)
-            elif f.kind == "wrong_dlc":  # the next shorter length a CAN (FD) frame can have
-                shorter = max(n for n in (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48) if n < len(message.data))
-                message = can.Message(
-                    arbitration_id=message.arbitration_id,
-                    data=bytes(message.data[:shorter]),
-                    is_fd=message.is_fd,
-                    bitrate_switch=message.bitrate_switch,
-                    timestamp=t,
-                )
-            elif f.kind == "implausible":
-                message = self._implausible(message, f, t)
-        for _ in range(copies):
-            bus.send(message)
+        for copy in self.injector.alter(bus, message, name, t, index):
+            bus.send(copy)
             self._count(name, index)
 
     def _release_delayed(self, t: float, senders) -> None:
         """Late frames of the ``senders``' side go out at the first sample after their delay."""
-        mine = lambda bus, when: any(bus is s for s in senders) and when <= t + 1e-12  # noqa: E731
-        due = [(bus, m, k) for when, bus, m, k in self.delayed if mine(bus, when)]
-        self.delayed = [d for d in self.delayed if not mine(d[1], d[0])]
-        for bus, message, index in due:
+        for bus, message, index in self.injector.due(t, senders):
             if self._bus_off(t, index):
                 self.stats["frames_lost_bus_off"] += 1
                 continue
@@ -358,6 +306,7 @@ class SilLoop:
                         "sync": echo,
                     },
                     t,
+                    self.node_freshness[b],
                 ),
                 t,
                 b,
@@ -369,6 +318,7 @@ class SilLoop:
                 "TIP_SENSORS",
                 {"sync": self.node_echo[b], **dict(zip(self.sensor_signals, map(float, measurements.sensors)))},
                 t,
+                self.node_freshness[b],
             ),
             t,
             b,
@@ -388,7 +338,8 @@ class SilLoop:
             status = self.amplifiers[j].status()
             if status is not None:
                 b = self.joint_bus[j]
-                self._transmit(self.node_buses[b], self._message(f"AMP_STATUS_{joint}", status, t), t, b)
+                frame = self._message(f"AMP_STATUS_{joint}", status, t, self.amplifiers[j].echo_freshness)
+                self._transmit(self.node_buses[b], frame, t, b)
 
     def _firmware_sample(self, t: float, time_us: int):
         for b, bus in enumerate(self.firmware_buses):
@@ -426,8 +377,8 @@ class SilLoop:
                     for j, amplifier in enumerate(self.amplifiers):
                         if self.joint_bus[j] == b:
                             amplifier.receive_heartbeat(message.arbitration_id, data, heartbeat.length, mode)
-                    if len(data) == heartbeat.length and e2e.check(message.arbitration_id, data, None).crc_ok:
-                        self.node_echo[b] = data[1] & 0x0F
+                    if len(data) == heartbeat.length and e2e.check_heartbeat(message.arbitration_id, data, None).crc_ok:
+                        self.node_echo[b], self.node_freshness[b] = data[1] & 0x0F, data[e2e.HEARTBEAT_CYCLE_BYTE]
                 elif name.startswith("SETPOINTS_"):
                     for s in self.frames[name].signals:
                         if s.name.startswith("voltage_"):

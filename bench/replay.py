@@ -68,6 +68,7 @@ class _Comparison:
     counts: defaultdict = field(default_factory=lambda: defaultdict(int))
     logged: set = field(default_factory=set)  # (bus, frame name) of every known frame in the log
     sent: set = field(default_factory=set)  # … of every frame the firmware sent in a sample with traffic
+    fresh: e2e.LogFreshness = field(default_factory=e2e.LogFreshness)  # the logged frames' freshness bytes
 
 
 def _bus_of(message, buses: int) -> int | None:
@@ -104,13 +105,14 @@ def _replay_sample(firmware, buses: list, frames, time_us: int, t: float, tolera
             data = bytes(message.data)
             if len(data) != m.length:
                 seen.counts["recorded_wrong_length"] += 1
-            elif not e2e.check(m.frame_id, data, None).crc_ok:
+            elif not seen.fresh.crc_ok(m.frame_id, data, t):
                 seen.counts["recorded_bad_crc"] += 1
             else:
                 for signal, volts in _setpoints(m, data).items():
                     recorded[bus, m.name, signal].append(volts)
             continue
-        elif m.name == "CONTROLLER_STATUS":  # the firmware's own frame, not an input
+        elif m.name == "CONTROLLER_STATUS":  # the firmware's own frame, not an input: its cycle
+            seen.fresh.crc_ok(m.frame_id, bytes(message.data), t)
             continue
         if len(buses) == 1:
             firmware.rx(message.arbitration_id, bytes(message.data), time_us)
@@ -159,61 +161,8 @@ def _compare(key, ours: list, theirs: list, heard: bool, t: float, tolerance: fl
         )
 
 
-def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None = None) -> dict:
-    """Replay a log through ``firmware`` and compare its setpoints with the recorded ones.
-
-    The controller samples are t0 + k·Δt, k = 0, 1, … (Δt: ``sample_time``, default the
-    artefact's; t0 the sample of the earliest frame on the grid that fits all time stamps best);
-    each frame belongs to its nearest sample (a rig's time stamps jitter within the cycle, the
-    SIL's sit on the grid). Every sample from the first to the last is
-    stepped, also those without any frame (a bus-off, a silent bus): the firmware's timeouts and
-    recovery then replay exactly. Per sample the recorded sensor and amplifier frames go to
-    ``rx``, then ``step``, then the ``SETPOINT_*`` frames of ``tx`` are paired with the recorded
-    ones of that sample and their voltages compared.
-
-    Only samples where the log holds a setpoint can be compared: what the firmware sent while it
-    was off the bus never reached the log. So a replayed setpoint without a recorded one is
-    counted (``replayed_not_recorded``, split into samples with and without other traffic) but is
-    no failure; a recorded setpoint without a replayed one (``recorded_not_replayed``) is.
-    Recorded setpoints that fail their length or CRC are counted and not compared.
-
-    Parameters
-    ----------
-    messages : list of can.Message or LogContent
-        The recorded frames (``load`` / ``read``).
-    firmware : bench.firmware.Firmware
-        The compiled firmware image to replay through (reset first); one of a single bus needs
-        only ``db``, ``rx``, ``step`` and ``tx``.
-    tolerance : float
-        Largest setpoint difference [V] that still counts as equal.
-    sample_time : float, optional
-        The controller sample time [s]; default the artefact's.
-
-    Returns
-    -------
-    dict
-        Samples, setpoints compared, differing, the counts above, the largest difference and
-        the first 20 differences; ``ok`` when something was compared and nothing differs.
-
-    Raises
-    ------
-    ModelError
-        A log without frames the firmware's protocol knows, time stamps that are not finite, a
-        time span beyond ``MAX_SAMPLES`` samples.
-    """
-    if isinstance(messages, LogContent):
-        messages = messages.messages
-    buses = [{m.frame_id: m for m in db.messages} for db in getattr(firmware, "databases", [firmware.db])]
-    known = {frame_id: m for bus in buses for frame_id, m in bus.items()}
-    step = float(sample_time or firmware.artifact.sample_time)
-    start, groups, samples = _samples(messages, known, step)
-    start_us = int(round(start * 1e6))
-    firmware.reset()
-    seen = _Comparison()
-    for k in range(samples):
-        _replay_sample(
-            firmware, buses, groups.get(k, ()), start_us + int(round(k * step * 1e6)), start + k * step, tolerance, seen
-        )
+def _summary(seen: _Comparison, samples: int, tolerance: float, buses: int) -> dict:
+    """What :func:`replay` returns, from what it compared (``buses``: how many)."""
     counts, differences = seen.counts, seen.differences
     differing = sum(1 for d in differences if d["kind"] == "differs")
     out = {
@@ -233,9 +182,77 @@ def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None
     }
     # Sent while the bus carried traffic, never in the log (every SETPOINT_A1 or heartbeat cut out).
     out["sent_never_logged"] = sorted(
-        f"{name}" + (f" (bus {bus})" if len(buses) > 1 else "") for bus, name in seen.sent - seen.logged
+        f"{name}" + (f" (bus {bus})" if buses > 1 else "") for bus, name in seen.sent - seen.logged
     )
+    # A recorded setpoint that fails its CRC is damaged, or not of the cycle its place in the log
+    # says (the freshness byte): the log cannot vouch for what the firmware sent there.
     out["ok"] = (
-        seen.compared > 0 and differing == 0 and out["recorded_not_replayed"] == 0 and not out["sent_never_logged"]
+        seen.compared > 0
+        and differing == 0
+        and out["recorded_not_replayed"] == 0
+        and out["recorded_setpoints_bad_crc"] == 0
+        and not out["sent_never_logged"]
     )
     return out
+
+
+def replay(messages, firmware, tolerance: float = 0.0, sample_time: float | None = None) -> dict:
+    """Replay a log through ``firmware`` and compare its setpoints with the recorded ones.
+
+    The controller samples are t0 + k·Δt, k = 0, 1, … (Δt: ``sample_time``, default the
+    artefact's; t0 the sample of the earliest frame on the grid that fits all time stamps best);
+    each frame belongs to its nearest sample (a rig's time stamps jitter within the cycle, the
+    SIL's sit on the grid). Every sample from the first to the last is
+    stepped, also those without any frame (a bus-off, a silent bus): the firmware's timeouts and
+    recovery then replay exactly. Per sample the recorded sensor and amplifier frames go to
+    ``rx``, then ``step``, then the ``SETPOINT_*`` frames of ``tx`` are paired with the recorded
+    ones of that sample and their voltages compared.
+
+    Only samples where the log holds a setpoint can be compared: what the firmware sent while it
+    was off the bus never reached the log. So a replayed setpoint without a recorded one is
+    counted (``replayed_not_recorded``, split into samples with and without other traffic) but is
+    no failure; a recorded setpoint without a replayed one (``recorded_not_replayed``) is.
+    Recorded setpoints that fail their length or CRC are counted and not compared; one that fails
+    its CRC — checked with the freshness byte of its place in the log (``e2e.LogFreshness``) —
+    fails the replay.
+
+    Parameters
+    ----------
+    messages : list of can.Message or LogContent
+        The recorded frames (``load`` / ``read``).
+    firmware : bench.firmware.Firmware
+        The compiled firmware image to replay through (reset first); one of a single bus needs
+        only ``db``, ``rx``, ``step`` and ``tx``.
+    tolerance : float
+        Largest setpoint difference [V] that still counts as equal.
+    sample_time : float, optional
+        The controller sample time [s]; default the artefact's.
+
+    Returns
+    -------
+    dict
+        Samples, setpoints compared, differing, the counts above, the largest difference and
+        the first 20 differences; ``ok`` when something was compared, nothing differs and no
+        recorded setpoint failed its CRC.
+
+    Raises
+    ------
+    ModelError
+        A log without frames the firmware's protocol knows, time stamps that are not finite, a
+        time span beyond ``MAX_SAMPLES`` samples.
+    """
+    if isinstance(messages, LogContent):
+        messages = messages.messages
+    buses = [{m.frame_id: m for m in db.messages} for db in getattr(firmware, "databases", [firmware.db])]
+    known = {frame_id: m for bus in buses for frame_id, m in bus.items()}
+    step = float(sample_time or firmware.artifact.sample_time)
+    start, groups, samples = _samples(messages, known, step)
+    start_us = int(round(start * 1e6))
+    firmware.reset()
+    echoes = (f for bus in buses for f, m in bus.items() if any(s.name == "sync" for s in m.signals))
+    seen = _Comparison(fresh=e2e.LogFreshness(echoes, step))
+    for k in range(samples):
+        _replay_sample(
+            firmware, buses, groups.get(k, ()), start_us + int(round(k * step * 1e6)), start + k * step, tolerance, seen
+        )
+    return _summary(seen, samples, tolerance, len(buses))

@@ -46,6 +46,8 @@ DETECTION_LIMIT = 3  # cycles from a fault (or its detection bound) to the safe 
 FORCE_TOLERANCE = 1e-6  # N: "at the safe force" (the setpoint quantum is 8e-7 N)
 START, END, LENGTH = 20, 40, 70  # cycles: fault window and run length of a mid-run case
 TIMINGS = ("mid-run", "from t = 0", "never ending")
+REPLAY_AGES = range(1, 65)  # cycles: every frame replayed at each age (the 16·m the 4-bit counter misses among them)
+REPLAY_WINDOW = (max(REPLAY_AGES) + 6, max(REPLAY_AGES) + 26, max(REPLAY_AGES) + 56)  # start, end, run length
 
 
 @dataclass(frozen=True)
@@ -141,10 +143,12 @@ def _pairs(artifact, db, joints: list[str], dt: float, late: float) -> list[tupl
     ]
 
 
-def cases(artifact, db, timings=TIMINGS, buses=()) -> list[Case]:
+def cases(artifact, db, timings=TIMINGS, buses=(), replay_ages=REPLAY_AGES) -> list[Case]:
     """Every fault kind on every frame, each signal, amplifier and the bus, in each timing.
 
-    Also a delay within the latency bound on each frame (tolerated) and pairs of faults at once.
+    Also a delay within the latency bound on each frame (tolerated), each frame replayed seamlessly
+    at every age of ``replay_ages`` (mid-run, once its sender has sent that many) and pairs of
+    faults at once.
 
     Parameters
     ----------
@@ -156,6 +160,8 @@ def cases(artifact, db, timings=TIMINGS, buses=()) -> list[Case]:
         Some of :data:`TIMINGS`.
     buses : sequence of str
         The plan's buses when there are several: each also goes off alone.
+    replay_ages : iterable of int
+        The ages [cycles] each frame is replayed at.
 
     Returns
     -------
@@ -193,6 +199,11 @@ def cases(artifact, db, timings=TIMINGS, buses=()) -> list[Case]:
     for frame in frames:  # late, but within the bound: used, never a timeout
         fault = Fault("delay", START * dt, END * dt, frame, delay=bound)
         out.append(Case(fault.label(), "within the latency bound", (fault,), LENGTH, tolerated=True))
+    first, last, length = REPLAY_WINDOW
+    for frame in frames:
+        for age in replay_ages:
+            fault = Fault("replay", first * dt, last * dt, frame, age=age)
+            out.append(Case(fault.label(), "replayed, mid-run", (fault,), length))
     for pair in _pairs(artifact, db, joints, dt, late):
         length = LENGTH if math.isfinite(pair[0].end) else END + 10
         timing = "two at once" if math.isfinite(pair[0].end) else "two at once, from t = 0, never ending"
@@ -387,8 +398,12 @@ def measure(record, faults, artifact, tolerated: bool = False, scope=None) -> di
     if reference >= stop:  # a fault that never showed (a gain error on commands within the tolerance)
         row.update(firmware=None, joints=None, holds=None, recovery=None, observable=False, ok=True)
         return row
-    row["firmware"] = _settled(safe, reference, stop)
-    row["joints"] = _settled(at_safe, reference, stop)
+    # A replay younger than the latency bound is seen at its seam (a repeated counter); after it
+    # the stream is what a sender one cycle late sends, and is used as such (docs/safety.md).
+    if all(f.kind == "replay" and f.age < artifact.timeout_cycles for f in faults):
+        row["firmware"], row["joints"] = _first(safe, reference), _first(at_safe, reference)
+    else:
+        row["firmware"], row["joints"] = _settled(safe, reference, stop), _settled(at_safe, reference, stop)
     row["holds"] = row["joints"] is not None
     # Recovery counts from the fault's end; for a delay, from its last late frame.
     over = None if end is None else end + max((int(math.ceil(f.lateness / dt - 1e-9)) for f in faults), default=0)

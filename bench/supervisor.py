@@ -14,6 +14,13 @@ last valid status, decoded, and a health word (``SUPERVISOR_HEALTH``, in bit ord
 * ``stale``: its heartbeat echo is neither the last heartbeat's counter nor the one before: it
   acts on old supervision.
 
+The supervisor counts its heartbeats modulo 4 096: a heartbeat carries bits 0–3 of its count as
+its alive counter and bits 4–11 in the clear (``cycle_high``), its CRC covering them as the
+freshness byte (``bench.e2e``). A status is taken to echo one of the last 16 heartbeats
+(``e2e.echoed_cycle``) and its CRC checked with that heartbeat's freshness byte: a status replayed
+16…4 095 heartbeats old fails, and so does the status of a node that has lost the heartbeat for 16
+periods or more — it falls silent.
+
 Policy (docs/safety.md, "Local mode"): the supervisor never changes the requested mode by
 itself. A semi-active joint cannot destabilise the structure, and a node that runs alone does
 the best it can; what a degraded node calls for (log it, tell the operator, request SAFE) is the
@@ -31,6 +38,8 @@ from dataclasses import dataclass, field
 from smartjoint.bench import e2e
 from smartjoint.common import law_registry
 from smartjoint.design.network.joint_node import (
+    HEARTBEAT_COUNTS,
+    HEARTBEAT_CYCLE_BYTE,
     HEARTBEAT_ID,
     HEARTBEAT_LENGTH,
     NODE_FAULTS,
@@ -58,7 +67,7 @@ class NodeView:
     mode: int = 0  # the mode it applies
     faults: int = 0  # its NODE_STATUS fault bits
     law_status: int = 0  # its law's status bits
-    echo: int = 0  # the heartbeat counter it echoes
+    echo: int = 0  # the heartbeat counter it echoes (bits 0–3 of the heartbeat's count)
     health: int = SILENT  # SILENT | ALONE | SAFE | STALE
 
 
@@ -94,9 +103,14 @@ class Supervisor:
         self.nodes = [NodeView() for _ in range(self.joints)]
         self.phase = 0
         self.mode = law_registry.MODE_SAFE
-        self.counter = 0
+        self.heartbeats = 0  # the last heartbeat's count, modulo HEARTBEAT_COUNTS (e2e.CYCLE_MODULO)
         self.sent = False
         self.pending = False
+
+    @property
+    def counter(self) -> int:
+        """The last heartbeat's alive counter: bits 0–3 of its count."""
+        return self.heartbeats % e2e.COUNTER_MODULO
 
     def request(self, mode: int) -> bool:
         """The operator's mode: the node law's or SAFE (True), anything else refused (False)."""
@@ -119,19 +133,22 @@ class Supervisor:
         if not self.pending:
             return None
         self.pending = False
-        self.counter = (self.counter + 1) % e2e.COUNTER_MODULO
+        self.heartbeats = (self.heartbeats + 1) % HEARTBEAT_COUNTS
         self.sent = True
         payload = bytearray(HEARTBEAT_LENGTH)
         payload[2] = self.mode
-        return HEARTBEAT_ID, bytes(e2e.protect(HEARTBEAT_ID, payload, self.counter))
+        payload[HEARTBEAT_CYCLE_BYTE] = fresh = e2e.freshness(self.heartbeats)  # cycle_high, in the clear
+        return HEARTBEAT_ID, bytes(e2e.protect(HEARTBEAT_ID, payload, self.counter, fresh))
 
     def receive(self, frame_id: int, data: bytes) -> bool:
         """A frame from the bus: only a node status of the right length that passes its E2E check
-        counts (``e2e.check``; the receiver follows it unless it repeats or is stale)."""
+        counts (``e2e.check`` with the freshness byte of the heartbeat it echoes, taken 0…15
+        heartbeats old; the receiver follows it unless it repeats or is stale)."""
         if not NODE_STATUS_BASE <= frame_id < NODE_STATUS_BASE + self.joints or len(data) != NODE_STATUS_LENGTH:
             return False
         node = self.nodes[frame_id - NODE_STATUS_BASE]
-        result = e2e.check(frame_id, data, node.receiver)
+        fresh = e2e.freshness(e2e.echoed_cycle(self.heartbeats, data[1] >> 4))
+        result = e2e.check(frame_id, data, node.receiver, fresh)
         if result.resynchronises:
             node.receiver = result.counter
         if not result.ok:
@@ -183,6 +200,11 @@ class CompiledSupervisor:
     def reset(self) -> None:
         self._call("init", self.state)
 
+    @property
+    def counter(self) -> int:
+        """The last heartbeat's alive counter: bits 0–3 of its count."""
+        return self.heartbeats % e2e.COUNTER_MODULO
+
     def request(self, mode: int) -> bool:
         return bool(self._call("request", self.state, mode))
 
@@ -205,6 +227,10 @@ class CompiledSupervisor:
     @property
     def mode(self) -> int:
         return int(self.state.mode)
+
+    @property
+    def heartbeats(self) -> int:
+        return int(self.state.heartbeats)
 
 
 __all__ = ["ALONE", "SAFE", "SILENT", "STALE", "CompiledSupervisor", "NodeView", "Supervisor", "compiled_supervisor"]

@@ -54,6 +54,8 @@ def render_nodes(
         "supervision_cycles": int(supervision_cycles),
         "heartbeat_id": joint_node.HEARTBEAT_ID,
         "heartbeat_length": joint_node.HEARTBEAT_LENGTH,
+        "heartbeat_cycle_byte": joint_node.HEARTBEAT_CYCLE_BYTE,
+        "heartbeat_counts": joint_node.HEARTBEAT_COUNTS,
         "status_length": joint_node.NODE_STATUS_LENGTH,
         "mode_init": law_registry.MODE_INIT,
         "mode_law": joint_node.NODE_LAW.mode,
@@ -105,6 +107,8 @@ def _supervisor(artifact, prefix: str, banner: str, configs, supervision_cycles:
         "timeout_samples": max(timeouts),  # one artefact-wide timeout_cycles: the same for every node
         "heartbeat_id": joint_node.HEARTBEAT_ID,
         "heartbeat_length": joint_node.HEARTBEAT_LENGTH,
+        "heartbeat_cycle_byte": joint_node.HEARTBEAT_CYCLE_BYTE,
+        "heartbeat_counts": joint_node.HEARTBEAT_COUNTS,
         "status_base": joint_node.NODE_STATUS_BASE,
         "status_length": joint_node.NODE_STATUS_LENGTH,
         "mode_law": joint_node.NODE_LAW.mode,

@@ -12,6 +12,8 @@ prefix) are never touched; they are reported as ``untouched``.
 
 from __future__ import annotations
 
+import re
+
 import os
 import shutil
 import tempfile
@@ -85,6 +87,11 @@ class Placed:
     compiled: dict | None = None  # what the compile check did, when one ran
 
 
+def _runtime_banner(line: str) -> str:
+    """The opening words of a runtime file's first line, up to its first colon, comma or full stop."""
+    return re.split(r"[:,.]", line, maxsplit=1)[0]
+
+
 def written_by_codegen(path: Path, text: str) -> bool:
     """Whether the existing ``path`` is a file codegen wrote, so it may be replaced.
 
@@ -111,8 +118,8 @@ def written_by_codegen(path: Path, text: str) -> bool:
     if head == text.encode("ascii"):
         return True
     first = head.split(b"\n", 1)[0].decode("ascii", errors="replace")
-    if path.name in RUNTIME_FILES:
-        return first == text.split("\n", 1)[0]
+    if path.name in RUNTIME_FILES:  # the runtime's opening words, whatever its version says after them
+        return _runtime_banner(first) == _runtime_banner(text.split("\n", 1)[0])
     if path.suffix == ".dbc":
         return first.startswith(DBC_BANNER)
     return first.startswith(BANNERS)

@@ -291,7 +291,8 @@ def test_bench_log_records_a_live_bus_that_reopens_and_converts(reference, tmp_p
 
     def send():
         for k in range(300):
-            data = e2e.protect(m.frame_id, bytearray(m.encode({"crc": 0, "counter": 0, "voltage": 0.1 * k})), k)
+            payload = bytearray(m.encode({"crc": 0, "counter": 0, "voltage": 0.1 * k}))
+            data = e2e.protect(m.frame_id, payload, k, e2e.freshness(k))  # the controller's cycle k
             sender.send(can.Message(arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False))
             sent.append(0.1 * k)
 
@@ -331,7 +332,8 @@ def test_bench_log_writes_mf4_that_reopens(reference, tmp_path):
 
     def send():
         for k, volts in enumerate(sent):
-            data = e2e.protect(m.frame_id, bytearray(m.encode({"crc": 0, "counter": 0, "voltage": volts})), k)
+            payload = bytearray(m.encode({"crc": 0, "counter": 0, "voltage": volts}))
+            data = e2e.protect(m.frame_id, payload, k, e2e.freshness(k))  # the controller's cycle k
             sender.send(can.Message(arbitration_id=m.frame_id, data=bytes(data), is_extended_id=False))
 
     thread = threading.Thread(target=send)

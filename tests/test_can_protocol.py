@@ -47,11 +47,31 @@ def test_frame_crc_and_protection_agree_between_c_and_python(runtime):
         frame_id = int(rng.integers(0, 0x800))
         payload = bytearray(rng.integers(0, 256, length, dtype=np.uint8).tobytes())
         counter = int(rng.integers(0, 16))
-        expected = e2e.protect(frame_id, bytearray(payload), counter)
+        fresh = int(rng.integers(0, 256))
+        expected = e2e.protect(frame_id, bytearray(payload), counter, fresh)
         buffer = ffi.new("uint8_t[]", bytes(payload))
-        lib.sj_e2e_protect(frame_id, buffer, length, counter)
+        lib.sj_e2e_protect(frame_id, buffer, length, counter, fresh)
         assert bytes(ffi.buffer(buffer, length)) == bytes(expected)
-        assert lib.sj_e2e_frame_crc(frame_id, bytes(expected), length) == expected[0]
+        assert lib.sj_e2e_frame_crc(frame_id, bytes(expected), length, fresh) == expected[0]
+        assert e2e.freshness_of(frame_id, expected) == fresh
+
+
+def test_a_frame_of_another_cycle_16_to_4095_cycles_away_fails_its_crc(runtime):
+    """The freshness byte (bits 4-11 of the frame's cycle) is in the CRC but not on the wire: every
+    one of its 255 wrong values changes the CRC (a difference within 8 adjacent bits, which a
+    CRC-8 with x^0 always detects), so a frame read as 0..15 cycles old that is really 16..4095
+    older fails, whatever its payload. Exhaustive over the wrong bytes, for random payloads."""
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        payload = e2e.protect(0x101, bytearray(rng.integers(0, 256, 12, dtype=np.uint8).tobytes()), 3, 0x5A)
+        assert e2e.check(0x101, payload, None, 0x5A).crc_ok
+        assert sum(e2e.check(0x101, payload, None, f).crc_ok for f in range(256)) == 1
+        assert runtime.lib.sj_e2e_check(runtime.ffi.new("sj_e2e_receiver *"), 0x101, bytes(payload), 12, 12, 0x5B) == 2
+    heartbeat = 0x7A3  # the newest cycle the receiver knows
+    for age in range(4096):  # a node frame echoing heartbeat - age, read back by its 4-bit echo
+        sent = (heartbeat - age) % e2e.CYCLE_MODULO
+        read = e2e.echoed_cycle(heartbeat, sent % 16)
+        assert (e2e.freshness(read) == e2e.freshness(sent)) == (age < 16), age
 
 
 def test_every_single_bit_error_and_a_wrong_identifier_are_detected(runtime):
@@ -78,7 +98,7 @@ def test_alive_counter_policy_is_the_same_in_c_and_python(runtime):
         if k % 97 == 0:
             payload[5] ^= 0x10  # corrupted on the wire
         python = e2e.check(0x180, payload, last)
-        status = lib.sj_e2e_check(receiver, 0x180, bytes(payload), len(payload), 12)
+        status = lib.sj_e2e_check(receiver, 0x180, bytes(payload), len(payload), 12, 0)
         expected = {"ok": 0, "crc": 2, "counter repeated": 4, "counter jump": 8, "counter stale": 32}[python.reason]
         assert status == expected, (k, status, python)
         assert (status == 0) == python.ok
@@ -86,7 +106,7 @@ def test_alive_counter_policy_is_the_same_in_c_and_python(runtime):
         if python.resynchronises:
             last = python.counter
     assert seen == {"ok", "crc", "counter repeated", "counter jump", "counter stale"}
-    assert lib.sj_e2e_check(receiver, 0x180, bytes(12), 8, 12) == 1  # wrong length
+    assert lib.sj_e2e_check(receiver, 0x180, bytes(12), 8, 12, 0) == 1  # wrong length
 
 
 @pytest.fixture(scope="module")

@@ -34,29 +34,37 @@ def module(reference):
     return compiled_nodes(reference, "double")
 
 
-def _heartbeat(mode: int, counter: int) -> bytes:
+def _heartbeat(mode: int, count: int) -> bytes:
+    """The supervisor's heartbeat number ``count`` (mod 4096): counter bits 0–3, cycle_high 4–11."""
     payload = bytearray(joint_node.HEARTBEAT_LENGTH)
     payload[2] = mode
-    return bytes(e2e.protect(joint_node.HEARTBEAT_ID, payload, counter))
+    payload[joint_node.HEARTBEAT_CYCLE_BYTE] = fresh = e2e.freshness(count)
+    return bytes(e2e.protect(joint_node.HEARTBEAT_ID, payload, count, fresh))
 
 
 def _script(count: int, seed: int, faults: bool):
     """(frames, measurement) per sample: a heartbeat every 10 samples (law mode, a few SAFE, a
-    silence, a bad CRC, a repeat), joint measurements around the boundary layer, with NaN and
-    out-of-range inputs when ``faults``."""
+    silence, a bad CRC, a repeat, replays 16 and 32 heartbeats old, the count's wrap at 4096),
+    joint measurements around the boundary layer, with NaN and out-of-range inputs when ``faults``."""
     rng = np.random.default_rng(seed)
-    counter, script = 0, []
+    heartbeats, sent, script = 4000, {}, []
     for k in range(count):
         frames = []
+        if k % 10 == 0:
+            # The supervisor's whole count, running on through the silence: since the 12-bit
+            # count is judged, a bare 4-bit counter wrapping to 0 under cycle_high 0 would be stale.
+            heartbeats = (heartbeats + 1) % 4096
         if k % 10 == 0 and not 400 <= k < 700:  # 300 samples of silence: the heartbeat is lost
             mode = SAFE if 1000 <= k < 1100 else LAW
-            counter = (counter + 1) % 16
-            frame = bytearray(_heartbeat(mode, counter))
+            frame = bytearray(_heartbeat(mode, heartbeats))
             if faults and k in (1500, 1510):
                 frame[3] ^= 0x40  # a corrupted heartbeat
             frames.append((joint_node.HEARTBEAT_ID, bytes(frame)))
+            sent[heartbeats] = bytes(frame)
             if k == 1600:
                 frames.append((joint_node.HEARTBEAT_ID, bytes(frame)))  # a repeat
+            if k in (1800, 1900):  # the heartbeat 16 or 32 old after it: its 4-bit counter 1 ahead
+                frames.append((joint_node.HEARTBEAT_ID, sent[(heartbeats + 1 - (k - 1700) // 100 * 16) % 4096]))
         velocity, friction, applied = rng.normal(0, 1e-5), rng.normal(0, 20), rng.uniform(10, 400)
         if faults and rng.random() < 0.01:
             velocity = float(rng.choice([np.nan, np.inf, 5.0]))
@@ -67,12 +75,12 @@ def _script(count: int, seed: int, faults: bool):
 
 
 def _run(node, script):
+    """Per sample: the command, fault and status bytes, the status frame and whether each frame was taken."""
     out = []
     for frames, measured in script:
-        for frame in frames:
-            node.receive(*frame)
+        taken = tuple(node.receive(*frame) for frame in frames)
         command = node.step(*measured)
-        out.append((command, node.faults, node.status, node.transmit()))
+        out.append((command, node.faults, node.status, node.transmit(), taken))
     return out
 
 
@@ -87,7 +95,7 @@ def test_the_node_firmware_is_its_reference_bit_for_bit(reference, module, joint
     for k, (p, c) in enumerate(zip(python, compiled)):
         assert np.float64(p[0]).tobytes() == np.float64(c[0]).tobytes(), (k, p, c)
         assert p[1:] == c[1:], (k, p, c)
-    faults = {f for _, f, _, _ in python}
+    faults = {p[1] for p in python}
     assert {1, 2, 4, 8} <= {bit for f in faults for bit in (1, 2, 4, 8) if f & bit}, faults
 
 
@@ -106,7 +114,7 @@ def test_local_nodes_run_the_central_siso_law_numbers(reference, module):
         expected = central.step(m)
         if k % 10 == 0:
             for node in nodes:
-                node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, (k // 10 + 2) % 16))
+                node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, k // 10 + 2))  # the count, not mod 16
         local = [n.step(m.sliding_velocity[j], m.friction_force[j], m.normal_force[j]) for j, n in enumerate(nodes)]
         assert np.asarray(local).tobytes() == np.asarray(expected).tobytes(), k
     assert central.status == 0
@@ -136,18 +144,74 @@ def test_the_policy_on_heartbeat_loss_safe_and_bad_inputs(reference, module):
     assert not node.receive(joint_node.HEARTBEAT_ID, _heartbeat(SAFE, 3))  # a repeated counter
 
 
+REPLAY = (60, 140, 150)  # heartbeat periods: genuine until 60, replayed until 140, genuine again
+START = 4050  # the first heartbeat's count: the genuine stream crosses the wrap at 4096
+
+
+def _replay_script(age: int | None, seed: int = 9):
+    """A heartbeat (the law's mode) every 10 samples, counts START, START + 1, …; from period
+    REPLAY[0] to REPLAY[1], when ``age`` is given, the last ``age`` heartbeats the node took
+    replayed in a loop instead — seamless: the 4-bit counter steps by 1 throughout, across the
+    loop's seam too, as the genuine stream's would. Measurements as in ``_script``, fault-free."""
+    rng = np.random.default_rng(seed)
+    script = []
+    for k in range(REPLAY[2] * 10):
+        period, frames = k // 10, []
+        if k % 10 == 0:
+            count = START + period
+            if age is not None and REPLAY[0] <= period < REPLAY[1]:
+                count = START + REPLAY[0] - age + (period - REPLAY[0]) % age
+            frames.append((joint_node.HEARTBEAT_ID, _heartbeat(LAW, count % 4096)))
+        script.append((frames, (rng.normal(0, 1e-5), rng.normal(0, 20), rng.uniform(10, 400))))
+    return script
+
+
+@pytest.mark.parametrize("age", [16, 32, 48, 64])
+def test_a_heartbeat_stream_replayed_16_m_heartbeats_old_does_not_feed_the_node(reference, module, age):
+    """A seamless replay of the heartbeats 16·m old (m = 1 … 4), whose 4-bit counter alone would
+    pass every frame: neither twin takes one (their whole 12-bit count is behind), both report
+    heartbeat_lost one timeout after the last genuine heartbeat and keep its mode (the law runs on,
+    its commands those of the genuine run bit for bit), and both are fed again by the genuine
+    stream's second heartbeat (the first is a jump). A genuine stream keeps them fed throughout."""
+    config = joint_node.node_config(reference, 0)
+    replayed, genuine = _replay_script(age), _replay_script(None)
+    # the 4-bit rule alone (CRC with the byte carried, counter steps 1 … 3) passes the replay
+    last = None
+    for frames, _ in replayed:
+        for frame_id, data in frames:
+            checked = e2e.check(frame_id, data, last, data[joint_node.HEARTBEAT_CYCLE_BYTE])
+            assert checked.ok
+            last = checked.counter
+    runs = {}
+    for name, script in (("replayed", replayed), ("genuine", genuine)):
+        python = _run(JointNode(config), script)
+        compiled = _run(CompiledNode(module, reference, 0), script)
+        assert [np.float64(p[0]).tobytes() for p in python] == [np.float64(c[0]).tobytes() for c in compiled]
+        assert [p[1:] for p in python] == [c[1:] for c in compiled], name
+        runs[name] = python
+    taken = [p[4][0] for p in runs["replayed"][::10]]
+    assert taken == [True] * REPLAY[0] + [False] * (REPLAY[1] - REPLAY[0] + 1) + [True] * (REPLAY[2] - REPLAY[1] - 1)
+    lost = [k for k, p in enumerate(runs["replayed"]) if p[1] & 2]
+    last_genuine = (REPLAY[0] - 1) * 10
+    assert lost == list(range(last_genuine + config.timeout_samples, (REPLAY[1] + 1) * 10))
+    assert all(p[1] == 2 for p in runs["replayed"][lost[0] : lost[-1] + 1])  # the law runs on: no safe_commanded
+    assert [p[0] for p in runs["replayed"]] == [p[0] for p in runs["genuine"]]
+    assert all(p[4] == (True,) for p in runs["genuine"][::10]) and not any(p[1] & 2 for p in runs["genuine"])
+
+
 def test_the_status_frame_decodes_with_the_supervision_dbc(reference, module):
     """The node's NODE_STATUS frame is what the local mode's DBC says (cantools decodes it)."""
     db = protocol.load_dbc(protocol.dbc_text(joint_node.supervision_database(reference)))
     node = CompiledNode(module, reference, 2)
-    node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, 7))
+    node.receive(joint_node.HEARTBEAT_ID, _heartbeat(LAW, 0x127))
     node.step(0.0, 10.0, 123.44)
     frame_id, data = node.transmit()
     decoded = db.decode_message(frame_id, data)
     assert db.get_message_by_frame_id(frame_id).name == "NODE_STATUS_A3"
     assert decoded["sync"] == 7 and decoded["applied"] == pytest.approx(123.44, abs=0.01)
     assert decoded["command"] == pytest.approx(joint_node.node_config(reference, 2).normal_force_min, abs=0.01)
-    assert e2e.check(frame_id, data, None).ok
+    # its CRC covers the echoed heartbeat's bits 4-11 (0x12), not sent: another byte fails
+    assert e2e.check(frame_id, data, None, 0x12).ok and e2e.freshness_of(frame_id, data) == 0x12
 
 
 @pytest.mark.parametrize("joints, limit", [(3, 0.03), (12, 0.15)])

@@ -96,9 +96,10 @@ def test_a_bus_off_log_replays_every_setpoint(reference, bus_off_log):
     assert jittered["differing"] == 0 and jittered["setpoints_compared"] == out["setpoints_compared"]
 
 
-def _setpoint(reference, name: str, voltage: float, counter: int, t: float) -> can.Message:
+def _setpoint(reference, name: str, voltage: float, counter: int, t: float, fresh: int = 0) -> can.Message:
     m = protocol.database(reference).get_message_by_name(name)
-    data = e2e.protect(m.frame_id, bytearray(m.encode({"crc": 0, "counter": 0, "voltage": voltage})), counter)
+    payload = bytearray(m.encode({"crc": 0, "counter": 0, "voltage": voltage}))
+    data = e2e.protect(m.frame_id, payload, counter, fresh)
     return can.Message(
         arbitration_id=m.frame_id,
         data=bytes(data),
@@ -137,10 +138,11 @@ def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed
     a1 = next(k for k, m in enumerate(messages) if m.arbitration_id == 0x200 and m.timestamp > 0.3)
     original = messages[a1]
     counter = original.data[1] & 0x0F
-    voltage = next(r[3] for r in logs.decode([original], protocol.database(reference)).rows if r[2] == "voltage")
+    voltage = protocol.database(reference).get_message_by_name("SETPOINT_A1").decode(original.data)["voltage"]
+    fresh = e2e.freshness_of(original.arbitration_id, original.data)
     changed = list(messages)  # the recorded setpoint moved by 1 mV, CRC and counter kept valid
     changed[a1] = _setpoint(
-        reference, "SETPOINT_A1", voltage + (1e-3 if voltage < 25 else -1e-3), counter, original.timestamp
+        reference, "SETPOINT_A1", voltage + (1e-3 if voltage < 25 else -1e-3), counter, original.timestamp, fresh
     )
     code, captured = _bench(capsys, "replay", _write(changed, tmp_path / "changed.blf"), "--law", "clqg")
     assert code == 1
@@ -152,7 +154,10 @@ def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed
     assert code == 0
 
     extra = list(messages)  # a second recorded SETPOINT_A1 in one sample: the firmware sent one
-    extra.insert(a1 + 1, _setpoint(reference, "SETPOINT_A1", voltage, (counter + 1) % 16, original.timestamp))
+    cycle = (fresh << 4 | counter) + 1  # the next cycle's setpoint, in the same sample
+    extra.insert(
+        a1 + 1, _setpoint(reference, "SETPOINT_A1", voltage, cycle % 16, original.timestamp, e2e.freshness(cycle))
+    )
     code, captured = _bench(capsys, "replay", _write(extra, tmp_path / "extra.blf"), "--law", "clqg", "--json")
     assert code == 1 and "1 recorded but not replayed" in captured.err.splitlines()[0]
     assert '"recorded_not_replayed": 1' in captured.out and '"differing": 0' in captured.out
@@ -299,6 +304,7 @@ class StepAgeingFirmware:
             self.frame.frame_id,
             bytearray(self.frame.encode({"crc": 0, "counter": 0, "voltage": voltage})),
             self.counter,
+            e2e.freshness(self.steps - 1),  # the cycle its counter counts
         )
         self.counter = (self.counter + 1) % e2e.COUNTER_MODULO
         self.out = [(self.frame.frame_id, bytes(data))]
@@ -335,8 +341,9 @@ def test_replay_reproduces_a_layer_that_ages_its_inputs_by_steps(reference):
     assert out["samples"] == 200 and out["silent_samples"] == 30
     assert out["setpoints_compared"] == 160 and out["differing"] == 0 and out["ok"]
     assert out["replayed_not_recorded_in_silent_samples"] == 30 and out["replayed_not_recorded"] == 10
-    # The same log with the silent samples squeezed out (what a replay that skips them sees)
-    # diverges from the first setpoint after the gap on.
+    # The same log with the silent samples squeezed out (what a replay that skips them sees): the
+    # setpoints after the gap are 30 cycles from where their time stamps put them, so their
+    # freshness byte fails there, and the replay fails.
     squeezed = [
         can.Message(
             arbitration_id=m.arbitration_id,
@@ -347,4 +354,5 @@ def test_replay_reproduces_a_layer_that_ages_its_inputs_by_steps(reference):
         for m in frames
     ]
     diverged = replay(squeezed, StepAgeingFirmware(reference))
-    assert diverged["differing"] == diverged["setpoints_compared"] - 50 and not diverged["ok"]
+    assert diverged["setpoints_compared"] == 50 and diverged["recorded_setpoints_bad_crc"] == 110
+    assert not diverged["ok"]

@@ -8,6 +8,14 @@ Every ``supervision_cycles`` samples the supervisor sends its heartbeat ``CONTRO
 the heartbeat echo (bits 4–7), byte 2 the mode the node applies (bits 0–3) and its fault bits
 (bits 4–7, ``NODE_FAULTS``), byte 3 the law's status bits, bytes 4–5 and 6–7 the commanded and the
 measured F_N (uint16, 0.02 N, little-endian).
+
+Freshness (``bench.e2e``): the supervisor counts its heartbeats modulo ``HEARTBEAT_COUNTS``; a
+heartbeat carries bits 0–3 of its count as its alive counter and bits 4–11 in the clear
+(``cycle_high``, byte ``HEARTBEAT_CYCLE_BYTE``), and its CRC covers them as its freshness byte. A
+node judges the whole 12-bit count (a heartbeat behind the last one is ignored: a replay 16·m
+heartbeats old, whose 4-bit counter looks fresh, cannot feed it) and protects its status with the
+freshness byte of the heartbeat it echoes, so a status replayed 16…4 095 heartbeats old fails the
+supervisor's CRC.
 """
 
 from __future__ import annotations
@@ -24,7 +32,9 @@ from smartjoint.design.network import protocol
 NODE_STATUS_BASE = 0x300
 NODE_STATUS_LENGTH = 8
 HEARTBEAT_ID = 0x080  # CONTROLLER_STATUS (design.network.protocol)
-HEARTBEAT_LENGTH = 8
+HEARTBEAT_LENGTH = 8  # CONTROLLER_STATUS without failed_<joint> bits (protocol.controller_status_message)
+HEARTBEAT_CYCLE_BYTE = 6  # CONTROLLER_STATUS.cycle_high: bits 4–11 of the heartbeat count
+HEARTBEAT_COUNTS = 4096  # the heartbeat count wraps here: counter (bits 0–3) and cycle_high (4–11)
 SUPERVISION_CYCLES = 10  # heartbeat and node status every 10 samples: 100 Hz at 1 kHz
 FORCE_SCALE = 0.02  # N per bit of the F_N fields (uint16: 0 … 1310.7 N)
 FORCE_CODES = 0xFFFF
@@ -153,6 +163,8 @@ def supervision_database(artifact, supervision_cycles: int = SUPERVISION_CYCLES)
 
 
 __all__ = [
+    "HEARTBEAT_COUNTS",
+    "HEARTBEAT_CYCLE_BYTE",
     "HEARTBEAT_ID",
     "NODE_FAULTS",
     "NODE_LAW",

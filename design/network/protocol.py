@@ -3,15 +3,13 @@
 The DBC is the one source of truth of the bus: every frame, signal, scaling, range, sender and
 cycle time. Frames (11-bit identifiers, all CAN FD with bit-rate switch — at 1 ms a classical
 bus cannot carry them: 8-byte classical frames take 135 µs each; every frame
-starts with the E2E bytes of ``bench/e2e.py``: byte 0 CRC-8 J1850, bits 8–11 alive counter):
+starts with the E2E bytes of ``bench/e2e.py``: byte 0 CRC-8 J1850 (also over an implicit
+freshness byte), bits 8–11 alive counter, bits 12–15 the heartbeat echo of the frames the
+controller reads):
 
-| frame | id | sender → receivers | cycle | payload |
-|---|---|---|---|---|
-| ``JOINT_<j>`` | 0x100 + j | joint sensor node → controller | Δt | sliding velocity v_j, friction u_R,j, F_N,j |
-| ``TIP_SENSORS`` | 0x180 | tip sensor node → controller | Δt | the design's sensors y (m or m/s) |
-| ``SETPOINT_<j>`` | 0x200 + j | controller → amplifier j | Δt | piezo voltage setpoint V_j (F_N = k·V + preload) |
-| ``AMP_STATUS_<j>`` | 0x280 + j | amplifier j → controller | Δt | monitor voltage, current, temperature, faults |
-| ``CONTROLLER_STATUS`` | 0x080 | controller → every other node | Δt | heartbeat: mode, inputs missing, status, faults |
+Frames: ``JOINT_<j>`` (0x100 + j, the joint's v, u_R, F_N), ``TIP_SENSORS`` (0x180, the design's
+sensors y), ``SETPOINT_<j>`` (0x200 + j, the piezo voltage), ``AMP_STATUS_<j>`` (0x280 + j) and
+the heartbeat ``CONTROLLER_STATUS`` (0x080), all every Δt; the table is in docs/can.md.
 
 The heartbeat goes every cycle: the amplifiers watch it (and their setpoints) and go to the
 safe normal force on their own when either stops, fails its E2E check or says "safe"
@@ -57,23 +55,14 @@ MODE_SAFE = law_registry.MODE_SAFE
 _MODE_TEXT = {law_registry.MODE_INIT: "init", MODE_SAFE: "safe state"}  # the modes that are no law
 # Fault bits of CONTROLLER_STATUS.faults, in bit order (the C layer's <PREFIX>_CAN_FAULT_*).
 CONTROLLER_FAULTS = (
-    "velocity",
-    "friction",
-    "normal_force",
-    "sensor",
-    "temperature",
-    "current",
-    "tracking",
-    "amplifier",
-    "amplifier_safe",
-    "timeout",
-    "e2e",
-    "controller",
-    "law",
-    "bus_off",
-    "actuation",
-)
+    "velocity", "friction", "normal_force", "sensor", "temperature", "current", "tracking", "amplifier",
+    "amplifier_safe", "timeout", "e2e", "controller", "law", "bus_off", "actuation",
+)  # fmt: skip
 E2E_SIGNALS = ("crc", "counter", "sync")  # E2E bytes and the heartbeat echo; no sensor signal may take these names
+CRC_COMMENT = (
+    "CRC-8 SAE J1850 over id (2 bytes, low first), the freshness byte (bits 4-11 of the frame's "
+    "controller cycle, not sent) and bytes 1..n-1"
+)
 SYNC_COMMENT = (
     "the alive counter of the last controller heartbeat this node saw: the controller tells from it "
     "how many of its cycles the frame is old (docs/safety.md)"
@@ -97,7 +86,7 @@ def _e2e(frame_id: int, sync: int | None = None) -> list[can.Signal]:
     (4 bits at ``sync``)."""
     crc, counter, echo = E2E_SIGNALS
     signals = [
-        can.Signal(crc, 0, 8, comment="CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1"),
+        can.Signal(crc, 0, 8, comment=CRC_COMMENT),
         can.Signal(counter, 8, 4, minimum=0, maximum=15, comment="alive counter, +1 per frame, mod 16"),
     ]
     if sync is not None:
@@ -239,7 +228,7 @@ def _setpoint_message(j: int, name: str, tag: str, amplifier: Amplifier, cycle: 
 def _amplifier_status_message(j: int, name: str, tag: str, amplifier: Amplifier, cycle: int) -> can.Message:
     """The AMP_STATUS frame amplifier ``j`` sends: monitor voltage, current, temperature, faults."""
     status = (
-        _e2e(STATUS_BASE + j, sync=60)
+        _e2e(STATUS_BASE + j, sync=12)
         + [
             _scaled("monitor_voltage", 16, 16, 0.005, False, "V", 0.0, amplifier.voltage_max, "measured output"),
             _scaled("current", 32, 16, 1e-4, True, "A", -3.0, 3.0, "output current"),
@@ -255,7 +244,7 @@ def _amplifier_status_message(j: int, name: str, tag: str, amplifier: Amplifier,
             ),
         ]
         + [
-            can.Signal(fault, 12 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
+            can.Signal(fault, 57 + k, 1, comment=f"fault bit: {fault.replace('_', ' ')}")
             for k, fault in enumerate(AMPLIFIER_FAULTS)
         ]
         + [
@@ -318,7 +307,7 @@ def _tip_message(sensors: list[str], quantities: list[str], cycle: int) -> can.M
 
 def _controller_status_message(cycle: int, joints: tuple[str, ...] = ()) -> can.Message:
     """The CONTROLLER_STATUS heartbeat: mode, step status, missing inputs and fault bits, and per
-    joint of ``joints`` whether it does not follow its commands (``failed_<joint>``, from bit 48:
+    joint of ``joints`` whether it does not follow its commands (``failed_<joint>``, from bit 56:
     the actuation check, docs/safety.md; the local mode's supervisor sends none)."""
     mode = can.Signal(
         "mode",
@@ -336,6 +325,15 @@ def _controller_status_message(cycle: int, joints: tuple[str, ...] = ()) -> can.
         can.Signal("step_status", 24, 8, comment="status bits of the last step"),
         can.Signal("missing_inputs", 20, 4, comment="inputs in timeout or invalid"),
         can.Signal(
+            "cycle_high",
+            48,
+            8,
+            minimum=0,
+            maximum=255,
+            comment="bits 4-11 of the controller's cycle count (the alive counter carries bits 0-3): a node "
+            "learns from it the freshness byte its frames' CRC covers (docs/can.md, E2E)",
+        ),
+        can.Signal(
             "faults",
             32,
             16,
@@ -346,7 +344,7 @@ def _controller_status_message(cycle: int, joints: tuple[str, ...] = ()) -> can.
     controller += [
         can.Signal(
             f"failed_{_identifier(name, 'joint').lower()}",
-            48 + j,
+            56 + j,
             1,
             comment=f"joint {name}: its measured F_N falls short of its commands (actuation check); 1 while it does",
         )
@@ -355,7 +353,7 @@ def _controller_status_message(cycle: int, joints: tuple[str, ...] = ()) -> can.
     return can.Message(
         CONTROLLER_ID,
         "CONTROLLER_STATUS",
-        _fd_length(6 + -(-len(joints) // 8)),
+        _fd_length(7 + -(-len(joints) // 8)),
         controller,
         senders=[CONTROLLER],
         cycle_time=cycle,

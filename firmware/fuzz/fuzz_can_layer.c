@@ -3,9 +3,15 @@
  * Input: the law, a start time, then a sequence of events: a received frame (identifier — mostly
  * one the controller listens to —, length, payload, optionally given a valid E2E CRC and
  * counter and the heartbeat echo of a healthy node so the fuzzer gets past the checks, and the
- * time since the last event), a step followed by draining the transmit queue, or a healthy bus
- * cycle (every input frame with any payload, valid E2E, the right echo) followed by a step.
- * Times wrap around uint32.
+ * time since the last event), 1..8 steps each followed by draining the transmit queue, a healthy bus
+ * cycle (every input frame with any payload, valid E2E, the right echo) followed by a step, or
+ * a replay: the frame an input's node sent `age` (1..64) cycles ago, byte for byte as it was
+ * sent (the valid CRC of its time). Times wrap around uint32.
+ * A node protects its frame as the nodes do: the counter of the last heartbeat it saw in byte 1's
+ * high nibble (the signal `sync`) and the CRC over that heartbeat's freshness byte, its
+ * `cycle_high` (bits 4-11 of the controller cycle, docs/can.md, E2E), both read from the
+ * heartbeat frame the layer sent. The harness keeps, per input, the frames its nodes sent over
+ * the last HISTORY_CYCLES cycles with the cycle each echoes (static storage).
  * Checks after every event (the policy of docs/safety.md):
  * - smartjoint_can_rx returns only its documented result bits;
  * - smartjoint_can_step returns only documented status bits; in the safe state the status has
@@ -15,10 +21,16 @@
  *   state means the safe state, whatever the layer remembers itself;
  * - smartjoint_can_tx sends the setpoint frames in order (one SETPOINT_<j> per joint, or
  *   SETPOINTS_<J> frames of several), then the heartbeat, then nothing; each frame has its length,
- *   a valid CRC, and every frame of a step the step's alive counter (step n sends n + 1, mod 16);
+ *   a valid CRC over the freshness byte of the step's cycle (step n: SJ_E2E_FRESHNESS(n + 1)),
+ *   and every frame of a step the step's alive counter (step n sends n + 1, mod 16);
  *   each joint's setpoint decodes (bit-wise reference, bus.dbc) to the command over the amplifier
  *   gain, within the amplifier's range; the heartbeat's mode is 3 in
- *   the safe state, else the law, and it carries the step status and the fault bits.
+ *   the safe state, else the law, and it carries the step status, the fault bits, the failed
+ *   joints (signals failed_<joint>) and cycle_high, bits 4-11 of the cycle n + 1;
+ * - freshness: a replayed frame whose echoed cycle is 16 or more cycles old is never accepted
+ *   (rx OK); an accepted frame of an input resets its silence; at the next step an input whose
+ *   newest accepted frame (accepted since the last step) echoes a cycle TIMEOUT_CYCLES or more
+ *   cycles old is late (timed_out), and its age is the cycles since that echoed cycle.
  * Every frame sits in a buffer of exactly its size; ASan and UBSan abort on any bad access or
  * undefined behaviour. */
 #include <float.h>
@@ -34,6 +46,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 #define MAX_EVENTS 2048
 #define TX_LENGTH 64u /* the longest CAN FD frame */
+#define HISTORY_CYCLES 128u /* a power of two above the oldest replay (64 cycles) */
+#define MAX_REPLAY_AGE 64u
+#define FRESH_WINDOW 16u /* the 4-bit echo: a frame up to 15 cycles old passes E2E, an older one fails */
 
 /* The frames the controller receives, then two it sends itself (which it must ignore). */
 static const uint32_t frame_ids[] = {
@@ -49,10 +64,31 @@ typedef struct {
     smartjoint_can_state can;
     uint32_t time;
     uint8_t rx_counter[FRAME_IDS]; /* alive counters the harness sends with */
-    uint8_t heartbeat;             /* counter of the last heartbeat sent: what healthy nodes echo */
+    /* The last heartbeat the nodes saw, as the layer sent it: its alive counter (what they echo)
+     * and cycle_high (the freshness byte they protect with); and its true cycle (the steps). */
+    uint8_t heartbeat;
+    uint8_t heartbeat_high;
+    uint32_t heartbeat_cycle;
     uint8_t amplifier_alarm[FUZZ_JOINTS]; /* the newest accepted status frame had a fault or safe bit */
-    unsigned int steps;
+    /* Per input the newest accepted frame: the cycle it echoes, and the step count then. */
+    uint8_t accepted[INPUT_IDS];
+    uint32_t accepted_echo[INPUT_IDS];
+    uint32_t accepted_at[INPUT_IDS];
+    uint32_t steps;
 } bench;
+
+/* A frame a node sent: byte for byte, the harness cycle it was sent in and the cycle it echoes. */
+typedef struct {
+    uint8_t valid;
+    uint8_t length;
+    uint32_t cycle;
+    uint32_t echoed;
+    uint8_t frame[FUZZ_MAX_LENGTH];
+} sent_frame;
+
+/* Per input the newest frame its node sent in each of the last HISTORY_CYCLES cycles (cleared
+ * for every fuzz input). */
+static sent_frame history[INPUT_IDS][HISTORY_CYCLES];
 
 static double field_value(const fuzz_message *message, const char *name, const uint8_t *frame)
 {
@@ -71,13 +107,43 @@ static void put_field(uint8_t *frame, const fuzz_signal *signal, uint64_t raw)
     }
 }
 
-static void deliver(bench *b, uint32_t id, const uint8_t *frame, uint8_t length)
+/* The input slot of an identifier, or INPUT_IDS. */
+static unsigned int input_slot(uint32_t id)
+{
+    unsigned int slot;
+    for (slot = 0u; slot < INPUT_IDS && frame_ids[slot] != id; ++slot) {
+    }
+    return slot;
+}
+
+/* The cycle a frame echoing ECHO (0..15) is read as at step count NOW: the latest cycle up to NOW
+ * with those low bits (bench/e2e.py echoed_cycle), i.e. taken 0..15 cycles old. */
+static uint32_t echoed_cycle(uint32_t now, unsigned int echo)
+{
+    return now - ((now - echo) & 15u);
+}
+
+/* Delivers a frame; ECHOED is the cycle a node frame truly echoes (KNOWN), else the harness
+ * takes the reading any receiver must take of it. Returns the rx result. */
+static unsigned int deliver(bench *b, uint32_t id, const uint8_t *frame, uint8_t length, int known, uint32_t echoed)
 {
     const unsigned int result = smartjoint_can_rx(&b->can, id, frame, length, b->time);
+    const unsigned int slot = input_slot(id);
     unsigned int j;
     if (result & ~(SMARTJOINT_CAN_RX_WRONG_LENGTH | SMARTJOINT_CAN_RX_BAD_CRC | SMARTJOINT_CAN_RX_COUNTER_REPEATED |
                    SMARTJOINT_CAN_RX_COUNTER_JUMP | SMARTJOINT_CAN_RX_UNKNOWN_ID | SMARTJOINT_CAN_RX_COUNTER_STALE)) {
         fuzz_fail("can_layer", "rx of id 0x%x, length %u: undocumented result 0x%x", id, length, result);
+    }
+    if (result == SMARTJOINT_CAN_RX_OK && slot < INPUT_IDS) {
+        /* An accepted frame is the input's newest: its silence ends (input k of the layer is
+         * frame_ids[k], the order of bus.dbc's inputs). */
+        if (!b->can.seen[slot] || b->can.silent_steps[slot] != 0u || !b->can.healthy[slot]) {
+            fuzz_fail("can_layer", "rx of id 0x%x accepted, but input %u is not seen, healthy and heard this cycle", id,
+                      slot);
+        }
+        b->accepted[slot] = 1u;
+        b->accepted_echo[slot] = known ? echoed : echoed_cycle(b->steps, frame[1] >> 4);
+        b->accepted_at[slot] = b->steps;
     }
     for (j = 0u; j < FUZZ_JOINTS && result == SMARTJOINT_CAN_RX_OK; ++j) {
         if (id == frame_ids[FUZZ_JOINTS + 1u + j]) {
@@ -89,19 +155,41 @@ static void deliver(bench *b, uint32_t id, const uint8_t *frame, uint8_t length)
                                               field_value(m, "safe_state", frame) != 0.0);
         }
     }
+    return result;
 }
 
-/* A healthy node echoes the last heartbeat and protects the frame. */
+/* Keeps a frame a node of input SLOT sent in this cycle (the newest of the cycle wins). */
+static void remember(bench *b, unsigned int slot, const uint8_t *frame, uint8_t length)
+{
+    sent_frame *entry;
+    if (slot >= INPUT_IDS || length > FUZZ_MAX_LENGTH) {
+        return;
+    }
+    entry = &history[slot][b->steps % HISTORY_CYCLES];
+    entry->valid = 1u;
+    entry->length = length;
+    entry->cycle = b->steps;
+    entry->echoed = b->heartbeat_cycle;
+    memcpy(entry->frame, frame, length);
+}
+
+/* A healthy node echoes the last heartbeat it saw (its counter, in `sync`: byte 1's high nibble)
+ * and protects the frame with that heartbeat's freshness byte (its cycle_high). */
 static void protect_as_node(bench *b, uint32_t id, uint8_t *frame, uint8_t length, uint8_t counter)
 {
     const fuzz_message *message = fuzz_find_message(id);
     unsigned int k;
     for (k = 0u; message != NULL && length == message->length && k < message->count; ++k) {
         if (strcmp(message->signals[k].name, "sync") == 0) { /* the frames the controller reads */
-            put_field(frame, &message->signals[k], b->heartbeat);
+            const fuzz_signal *sync = &message->signals[k];
+            if (sync->start != 12u || sync->length != 4u) {
+                fuzz_fail("can_layer", "bus.dbc: %s.sync at bit %u, %u bits — the E2E echo is byte 1's high nibble",
+                          message->name, sync->start, sync->length);
+            }
+            put_field(frame, sync, b->heartbeat);
         }
     }
-    sj_e2e_protect((uint16_t)id, frame, length, counter);
+    sj_e2e_protect((uint16_t)id, frame, length, counter, b->heartbeat_high);
 }
 
 static void receive(bench *b, fuzz_reader *reader)
@@ -121,9 +209,49 @@ static void receive(bench *b, fuzz_reader *reader)
         const unsigned int slot = choice < 224u ? choice % FRAME_IDS : 0u;
         b->rx_counter[slot] = (uint8_t)(b->rx_counter[slot] + 1u + ((control >> 4) & 3u));
         protect_as_node(b, id, frame, length, b->rx_counter[slot]);
+        if (message != NULL && length == message->length) {
+            remember(b, input_slot(id), frame, length);
+        }
     }
     b->time += (control & 4u) ? fuzz_take_u32(reader) : fuzz_take_u8(reader);
-    deliver(b, id, frame, length);
+    (void)deliver(b, id, frame, length, (control & 2u) != 0u, b->heartbeat_cycle);
+    free(frame);
+}
+
+/* A replay: the frame the node of an input sent AGE cycles ago (else the newest before that
+ * still kept), byte for byte. Whatever its counter, a frame echoing a cycle 16 or more cycles
+ * old must fail its CRC (its freshness byte is another), so the layer never takes it. */
+static void replay(bench *b, fuzz_reader *reader)
+{
+    const unsigned int slot = fuzz_take_u8(reader) % INPUT_IDS;
+    const uint32_t age = 1u + fuzz_take_u8(reader) % MAX_REPLAY_AGE;
+    const sent_frame *entry = NULL;
+    uint32_t back;
+    uint8_t *frame;
+    unsigned int result;
+    b->time += fuzz_take_u8(reader);
+    for (back = age; back <= b->steps && back < HISTORY_CYCLES; ++back) {
+        const sent_frame *candidate = &history[slot][(b->steps - back) % HISTORY_CYCLES];
+        if (candidate->valid && candidate->cycle == b->steps - back) {
+            entry = candidate;
+            break;
+        }
+    }
+    if (entry == NULL) {
+        return;
+    }
+    frame = malloc(entry->length); /* exactly the frame, as every frame here */
+    if (frame == NULL) {
+        abort();
+    }
+    memcpy(frame, entry->frame, entry->length);
+    result = deliver(b, frame_ids[slot], frame, entry->length, 1, entry->echoed);
+    if (result == SMARTJOINT_CAN_RX_OK && b->steps - entry->echoed >= FRESH_WINDOW) {
+        fuzz_fail("can_layer", "replay of id 0x%x sent in cycle %u, echoing cycle %u, accepted in cycle %u: a frame %u "
+                               "cycles old passed E2E",
+                  frame_ids[slot], (unsigned int)entry->cycle, (unsigned int)entry->echoed, (unsigned int)b->steps,
+                  (unsigned int)(b->steps - entry->echoed));
+    }
     free(frame);
 }
 
@@ -192,8 +320,9 @@ static void bus_cycle(bench *b, fuzz_reader *reader)
             fuzz_take_bytes(reader, frame, message->length);
         }
         protect_as_node(b, message->id, frame, (uint8_t)message->length, ++b->rx_counter[slot]);
+        remember(b, slot, frame, (uint8_t)message->length);
         b->time += 10u;
-        deliver(b, message->id, frame, (uint8_t)message->length);
+        (void)deliver(b, message->id, frame, (uint8_t)message->length, 1, b->heartbeat_cycle);
         free(frame);
     }
 }
@@ -215,7 +344,7 @@ static void check_setpoint(const bench *b, unsigned int joint, const uint8_t *fr
 
 static void check_status_frame(const bench *b, unsigned int status, const uint8_t *frame)
 {
-    unsigned int j;
+    unsigned int j, k;
     unsigned int named = 0u;
     int any = 0;
     const fuzz_message *message = fuzz_find_message(SMARTJOINT_CAN_CONTROLLER_STATUS_ID);
@@ -227,15 +356,27 @@ static void check_status_frame(const bench *b, unsigned int status, const uint8_
                   expected, field_value(message, "step_status", frame), status & 0xFFu,
                   field_value(message, "faults", frame), (unsigned int)b->can.faults);
     }
-    /* The actuation check: the heartbeat names exactly the joints the layer holds failed (bit
-     * 48 + j, docs/safety.md), and its fault bit stands for any of them; it makes nothing safe. */
-    for (j = 0u; j < FUZZ_JOINTS; ++j) {
-        named |= (unsigned int)((frame[6u + j / 8u] >> (j % 8u)) & 1u) != (b->can.failed[j] != 0u);
-        any |= b->can.failed[j] != 0u;
+    /* The actuation check: the heartbeat names exactly the joints the layer holds failed (the
+     * signals failed_<joint> of bus.dbc in joint order, docs/safety.md), and its fault bit stands
+     * for any of them; it makes nothing safe. */
+    j = 0u;
+    for (k = 0u; k < message->count; ++k) {
+        if (strncmp(message->signals[k].name, "failed_", 7u) == 0 && j < FUZZ_JOINTS) {
+            const double failed = fuzz_reference_decode(fuzz_reference_field(frame, &message->signals[k]),
+                                                        &message->signals[k]);
+            named |= (unsigned int)(failed != 0.0) != (b->can.failed[j] != 0u);
+            any |= b->can.failed[j] != 0u;
+            j++;
+        }
     }
-    if (named || any != ((b->can.faults & SMARTJOINT_CAN_FAULT_ACTUATION) != 0u)) {
-        fuzz_fail("can_layer", "status frame: failed joints differ from the layer's, or the actuation bit (0x%x)",
-                  (unsigned int)b->can.faults);
+    if (j != FUZZ_JOINTS || named || any != ((b->can.faults & SMARTJOINT_CAN_FAULT_ACTUATION) != 0u)) {
+        fuzz_fail("can_layer", "status frame: failed joints (%u signals) differ from the layer's, or the actuation bit "
+                               "(0x%x)", j, (unsigned int)b->can.faults);
+    }
+    /* The freshness byte the nodes learn: bits 4-11 of the cycle, step n + 1. */
+    if (field_value(message, "cycle_high", frame) != (double)SJ_E2E_FRESHNESS(b->steps + 1u)) {
+        fuzz_fail("can_layer", "status frame of step %u: cycle_high %g, expected 0x%02x", (unsigned int)b->steps,
+                  field_value(message, "cycle_high", frame), (unsigned int)SJ_E2E_FRESHNESS(b->steps + 1u));
     }
 }
 
@@ -269,6 +410,31 @@ static void check_commands(const bench *b, unsigned int status)
     }
 }
 
+/* After the step of cycle count b->steps: an input whose newest accepted frame came since the
+ * last step and echoes a cycle TIMEOUT_CYCLES or more cycles old is late; its age (exact below 16
+ * cycles, as any accepted frame's is) is the cycles since that cycle. */
+static void check_ages(const bench *b)
+{
+    unsigned int slot;
+    for (slot = 0u; slot < INPUT_IDS; ++slot) {
+        const uint32_t age = b->steps - b->accepted_echo[slot];
+        if (!b->accepted[slot] || b->accepted_at[slot] != b->steps || b->steps == 0u) {
+            continue; /* no frame since the last step; or before the first heartbeat, nothing to echo */
+        }
+        if (age >= FRESH_WINDOW) {
+            fuzz_fail("can_layer", "input 0x%x: the frame accepted in cycle %u echoes cycle %u, %u cycles old",
+                      frame_ids[slot], (unsigned int)b->steps, (unsigned int)b->accepted_echo[slot],
+                      (unsigned int)age);
+        }
+        if (b->can.age[slot] != age || (age >= SMARTJOINT_CAN_TIMEOUT_CYCLES) != (b->can.timed_out[slot] != 0u)) {
+            fuzz_fail("can_layer", "step %u: input 0x%x's newest frame echoes cycle %u (%u cycles old), the layer ages it "
+                                   "%u and has it %s",
+                      (unsigned int)b->steps, frame_ids[slot], (unsigned int)b->accepted_echo[slot], (unsigned int)age,
+                      b->can.age[slot], b->can.timed_out[slot] ? "late" : "in time");
+        }
+    }
+}
+
 static void step_and_send(bench *b, fuzz_reader *reader)
 {
     const uint8_t control = fuzz_take_u8(reader);
@@ -280,8 +446,13 @@ static void step_and_send(bench *b, fuzz_reader *reader)
         abort();
     }
     b->time += (control & 1u) ? fuzz_take_u32(reader) : (uint32_t)SMARTJOINT_CAN_CYCLE_US * (control >> 6);
+    if (b->can.steps != b->steps) {
+        fuzz_fail("can_layer", "the layer counts %u steps, the harness %u", (unsigned int)b->can.steps,
+                  (unsigned int)b->steps);
+    }
     status = smartjoint_can_step(&b->can, b->time);
     check_commands(b, status);
+    check_ages(b);
     expected_frames = FUZZ_SETPOINT_FRAMES + 1u; /* the setpoints and the heartbeat, every step */
     while (smartjoint_can_tx(&b->can, &id, frame, &length)) {
         const uint32_t expected_id =
@@ -291,9 +462,11 @@ static void step_and_send(bench *b, fuzz_reader *reader)
             fuzz_fail("can_layer", "tx frame %u of step %u: id 0x%x length %u (expected id 0x%x length %u, %u frames)",
                       sent, b->steps, id, length, expected_id, message->length, expected_frames);
         }
-        if (frame[0] != sj_e2e_frame_crc((uint16_t)id, frame, length) || (frame[1] & 0x0Fu) != (b->steps + 1u) % 16u) {
-            fuzz_fail("can_layer", "tx frame 0x%x: CRC 0x%02x or counter %u wrong (expected counter %u)", id, frame[0],
-                      frame[1] & 0x0Fu, (b->steps + 1u) % 16u);
+        if (frame[0] != sj_e2e_frame_crc((uint16_t)id, frame, length, SJ_E2E_FRESHNESS(b->steps + 1u)) ||
+            (frame[1] & 0x0Fu) != (b->steps + 1u) % 16u) {
+            fuzz_fail("can_layer", "tx frame 0x%x of step %u: CRC 0x%02x (freshness 0x%02x) or counter %u wrong (expected "
+                                   "counter %u)", id, (unsigned int)b->steps, frame[0],
+                      (unsigned int)SJ_E2E_FRESHNESS(b->steps + 1u), frame[1] & 0x0Fu, (b->steps + 1u) % 16u);
         }
         if (sent < FUZZ_SETPOINT_FRAMES) {
             unsigned int j;
@@ -304,13 +477,16 @@ static void step_and_send(bench *b, fuzz_reader *reader)
             }
         } else {
             check_status_frame(b, status, frame);
+            /* what the nodes see of it: its counter and cycle_high */
+            b->heartbeat = (uint8_t)(frame[1] & 0x0Fu);
+            b->heartbeat_high = (uint8_t)field_value(message, "cycle_high", frame);
+            b->heartbeat_cycle = b->steps + 1u;
         }
         sent++;
     }
     if (sent != expected_frames) {
         fuzz_fail("can_layer", "step %u sent %u frames, expected %u", b->steps, sent, expected_frames);
     }
-    b->heartbeat = (uint8_t)((b->steps + 1u) % 16u);
     b->steps++;
     free(frame);
 }
@@ -322,15 +498,24 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     int event;
     fuzz_reader_init(&reader, data, size);
     memset(&b, 0, sizeof b);
+    memset(history, 0, sizeof history);
     smartjoint_can_init(&b.can, (fuzz_take_u8(&reader) & 1u) ? SMARTJOINT_CAN_LAW_CLQG : SMARTJOINT_CAN_LAW_SISO);
     b.time = fuzz_take_u32(&reader);
     for (event = 0; event < MAX_EVENTS && fuzz_more(&reader); ++event) {
-        switch (fuzz_take_u8(&reader) % 4u) {
+        const uint8_t kind = fuzz_take_u8(&reader);
+        unsigned int repeat;
+        switch (kind % 5u) {
         case 0u:
             receive(&b, &reader);
             break;
         case 1u:
-            step_and_send(&b, &reader);
+            /* 1..8 steps without frames in between: many cycles (the replays' history) cheaply */
+            for (repeat = 0u; repeat <= (kind / 5u) % 8u && fuzz_more(&reader); ++repeat) {
+                step_and_send(&b, &reader);
+            }
+            break;
+        case 2u:
+            replay(&b, &reader);
             break;
         default:
             bus_cycle(&b, &reader);

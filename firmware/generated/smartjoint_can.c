@@ -52,6 +52,7 @@ int smartjoint_can_controller_status_pack(uint8_t *dst_p, const struct smartjoin
     const uint32_t missing_inputs_raw = (uint32_t)src_p->missing_inputs;
     const uint32_t step_status_raw = (uint32_t)src_p->step_status;
     const uint32_t faults_raw = (uint32_t)src_p->faults;
+    const uint32_t cycle_high_raw = (uint32_t)src_p->cycle_high;
     const uint32_t failed_a1_raw = (uint32_t)src_p->failed_a1;
     const uint32_t failed_a2_raw = (uint32_t)src_p->failed_a2;
     const uint32_t failed_a3_raw = (uint32_t)src_p->failed_a3;
@@ -62,9 +63,10 @@ int smartjoint_can_controller_status_pack(uint8_t *dst_p, const struct smartjoin
     dst_p[3] |= (uint8_t)(step_status_raw & 0xffu);
     dst_p[4] |= (uint8_t)(faults_raw & 0xffu);
     dst_p[5] |= (uint8_t)((faults_raw >> 8u) & 0xffu);
-    dst_p[6] |= (uint8_t)(failed_a1_raw & 0x01u);
-    dst_p[6] |= (uint8_t)((failed_a2_raw << 1u) & 0x02u);
-    dst_p[6] |= (uint8_t)((failed_a3_raw << 2u) & 0x04u);
+    dst_p[6] |= (uint8_t)(cycle_high_raw & 0xffu);
+    dst_p[7] |= (uint8_t)(failed_a1_raw & 0x01u);
+    dst_p[7] |= (uint8_t)((failed_a2_raw << 1u) & 0x02u);
+    dst_p[7] |= (uint8_t)((failed_a3_raw << 2u) & 0x04u);
     return 8;
 }
 
@@ -168,6 +170,24 @@ smartjoint_real smartjoint_can_controller_status_faults_decode(uint16_t value)
 }
 
 bool smartjoint_can_controller_status_faults_is_in_range(uint16_t value)
+{
+    (void)value;
+    return true;
+}
+
+/* controller_status.cycle_high: scale 1, offset 0, range [0, 255] */
+uint8_t smartjoint_can_controller_status_cycle_high_encode(smartjoint_real value)
+{
+    const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 255.0f), 1.0f, 0.0f);
+    return raw < 0.0f ? 0u : (raw >= 256.0f ? 255u : (uint8_t)raw);
+}
+
+smartjoint_real smartjoint_can_controller_status_cycle_high_decode(uint8_t value)
+{
+    return (smartjoint_real)value;
+}
+
+bool smartjoint_can_controller_status_cycle_high_is_in_range(uint8_t value)
 {
     (void)value;
     return true;
@@ -549,15 +569,15 @@ int smartjoint_can_amp_status_unpack(struct smartjoint_can_amp_status_t *dst_p, 
 {
     uint32_t crc_raw;
     uint32_t counter_raw;
-    uint32_t over_temperature_raw;
-    uint32_t no_response_raw;
-    uint32_t stuck_output_raw;
-    uint32_t over_current_raw;
+    uint32_t sync_raw;
     uint32_t monitor_voltage_raw;
     uint32_t current_raw;
     uint32_t temperature_raw;
     uint32_t safe_state_raw;
-    uint32_t sync_raw;
+    uint32_t over_temperature_raw;
+    uint32_t no_response_raw;
+    uint32_t stuck_output_raw;
+    uint32_t over_current_raw;
     if (dst_p == NULL || src_p == NULL || size < 8u) {
         return -SMARTJOINT_CAN_EINVAL;
     }
@@ -565,14 +585,8 @@ int smartjoint_can_amp_status_unpack(struct smartjoint_can_amp_status_t *dst_p, 
     dst_p->crc = (uint8_t)crc_raw;
     counter_raw = (uint32_t)(src_p[1] & 0x0fu);
     dst_p->counter = (uint8_t)counter_raw;
-    over_temperature_raw = (uint32_t)(src_p[1] & 0x10u) >> 4u;
-    dst_p->over_temperature = (uint8_t)over_temperature_raw;
-    no_response_raw = (uint32_t)(src_p[1] & 0x20u) >> 5u;
-    dst_p->no_response = (uint8_t)no_response_raw;
-    stuck_output_raw = (uint32_t)(src_p[1] & 0x40u) >> 6u;
-    dst_p->stuck_output = (uint8_t)stuck_output_raw;
-    over_current_raw = (uint32_t)(src_p[1] & 0x80u) >> 7u;
-    dst_p->over_current = (uint8_t)over_current_raw;
+    sync_raw = (uint32_t)(src_p[1] & 0xf0u) >> 4u;
+    dst_p->sync = (uint8_t)sync_raw;
     monitor_voltage_raw = (uint32_t)src_p[2];
     monitor_voltage_raw |= (uint32_t)src_p[3] << 8u;
     dst_p->monitor_voltage = (uint16_t)monitor_voltage_raw;
@@ -583,8 +597,14 @@ int smartjoint_can_amp_status_unpack(struct smartjoint_can_amp_status_t *dst_p, 
     dst_p->temperature = (uint8_t)temperature_raw;
     safe_state_raw = (uint32_t)(src_p[7] & 0x01u);
     dst_p->safe_state = (uint8_t)safe_state_raw;
-    sync_raw = (uint32_t)(src_p[7] & 0xf0u) >> 4u;
-    dst_p->sync = (uint8_t)sync_raw;
+    over_temperature_raw = (uint32_t)(src_p[7] & 0x02u) >> 1u;
+    dst_p->over_temperature = (uint8_t)over_temperature_raw;
+    no_response_raw = (uint32_t)(src_p[7] & 0x04u) >> 2u;
+    dst_p->no_response = (uint8_t)no_response_raw;
+    stuck_output_raw = (uint32_t)(src_p[7] & 0x08u) >> 3u;
+    dst_p->stuck_output = (uint8_t)stuck_output_raw;
+    over_current_raw = (uint32_t)(src_p[7] & 0x10u) >> 4u;
+    dst_p->over_current = (uint8_t)over_current_raw;
     return 8;
 }
 
@@ -623,72 +643,21 @@ bool smartjoint_can_amp_status_counter_is_in_range(uint8_t value)
     return value <= 15u;
 }
 
-/* amp_status.over_temperature: scale 1, offset 0, range none (the field's) */
-uint8_t smartjoint_can_amp_status_over_temperature_encode(smartjoint_real value)
+/* amp_status.sync: scale 1, offset 0, range [0, 15] */
+uint8_t smartjoint_can_amp_status_sync_encode(smartjoint_real value)
 {
-    const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
-    return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
+    const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
+    return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-smartjoint_real smartjoint_can_amp_status_over_temperature_decode(uint8_t value)
+smartjoint_real smartjoint_can_amp_status_sync_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-bool smartjoint_can_amp_status_over_temperature_is_in_range(uint8_t value)
+bool smartjoint_can_amp_status_sync_is_in_range(uint8_t value)
 {
-    return value <= 1u;
-}
-
-/* amp_status.no_response: scale 1, offset 0, range none (the field's) */
-uint8_t smartjoint_can_amp_status_no_response_encode(smartjoint_real value)
-{
-    const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
-    return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
-}
-
-smartjoint_real smartjoint_can_amp_status_no_response_decode(uint8_t value)
-{
-    return (smartjoint_real)value;
-}
-
-bool smartjoint_can_amp_status_no_response_is_in_range(uint8_t value)
-{
-    return value <= 1u;
-}
-
-/* amp_status.stuck_output: scale 1, offset 0, range none (the field's) */
-uint8_t smartjoint_can_amp_status_stuck_output_encode(smartjoint_real value)
-{
-    const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
-    return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
-}
-
-smartjoint_real smartjoint_can_amp_status_stuck_output_decode(uint8_t value)
-{
-    return (smartjoint_real)value;
-}
-
-bool smartjoint_can_amp_status_stuck_output_is_in_range(uint8_t value)
-{
-    return value <= 1u;
-}
-
-/* amp_status.over_current: scale 1, offset 0, range none (the field's) */
-uint8_t smartjoint_can_amp_status_over_current_encode(smartjoint_real value)
-{
-    const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
-    return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
-}
-
-smartjoint_real smartjoint_can_amp_status_over_current_decode(uint8_t value)
-{
-    return (smartjoint_real)value;
-}
-
-bool smartjoint_can_amp_status_over_current_is_in_range(uint8_t value)
-{
-    return value <= 1u;
+    return value <= 15u;
 }
 
 /* amp_status.monitor_voltage: scale 0.005, offset 0, range [0, 150] */
@@ -760,21 +729,72 @@ bool smartjoint_can_amp_status_safe_state_is_in_range(uint8_t value)
     return value <= 1u;
 }
 
-/* amp_status.sync: scale 1, offset 0, range [0, 15] */
-uint8_t smartjoint_can_amp_status_sync_encode(smartjoint_real value)
+/* amp_status.over_temperature: scale 1, offset 0, range none (the field's) */
+uint8_t smartjoint_can_amp_status_over_temperature_encode(smartjoint_real value)
 {
-    const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
-    return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
+    const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
+    return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
 }
 
-smartjoint_real smartjoint_can_amp_status_sync_decode(uint8_t value)
+smartjoint_real smartjoint_can_amp_status_over_temperature_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-bool smartjoint_can_amp_status_sync_is_in_range(uint8_t value)
+bool smartjoint_can_amp_status_over_temperature_is_in_range(uint8_t value)
 {
-    return value <= 15u;
+    return value <= 1u;
+}
+
+/* amp_status.no_response: scale 1, offset 0, range none (the field's) */
+uint8_t smartjoint_can_amp_status_no_response_encode(smartjoint_real value)
+{
+    const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
+    return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
+}
+
+smartjoint_real smartjoint_can_amp_status_no_response_decode(uint8_t value)
+{
+    return (smartjoint_real)value;
+}
+
+bool smartjoint_can_amp_status_no_response_is_in_range(uint8_t value)
+{
+    return value <= 1u;
+}
+
+/* amp_status.stuck_output: scale 1, offset 0, range none (the field's) */
+uint8_t smartjoint_can_amp_status_stuck_output_encode(smartjoint_real value)
+{
+    const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
+    return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
+}
+
+smartjoint_real smartjoint_can_amp_status_stuck_output_decode(uint8_t value)
+{
+    return (smartjoint_real)value;
+}
+
+bool smartjoint_can_amp_status_stuck_output_is_in_range(uint8_t value)
+{
+    return value <= 1u;
+}
+
+/* amp_status.over_current: scale 1, offset 0, range none (the field's) */
+uint8_t smartjoint_can_amp_status_over_current_encode(smartjoint_real value)
+{
+    const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
+    return raw < 0.0f ? 0u : (raw >= 2.0f ? 1u : (uint8_t)raw);
+}
+
+smartjoint_real smartjoint_can_amp_status_over_current_decode(uint8_t value)
+{
+    return (smartjoint_real)value;
+}
+
+bool smartjoint_can_amp_status_over_current_is_in_range(uint8_t value)
+{
+    return value <= 1u;
 }
 
 /* The frames the layer receives, by identifier (ascending): where each goes. The handler is
@@ -977,26 +997,23 @@ static uint16_t check_actuation(smartjoint_can_state *state)
 }
 
 /* Unpacks an accepted frame (its length checked by sj_e2e_check) into its handler: the fault
- * bits of its values; *echo the heartbeat counter it echoes. */
-static uint16_t receive(smartjoint_can_state *state, const input_entry *input, const uint8_t *data, uint8_t *echo)
+ * bits of its values. */
+static uint16_t receive(smartjoint_can_state *state, const input_entry *input, const uint8_t *data)
 {
     switch (input->kind) {
     case INPUT_JOINT: {
         struct smartjoint_can_joint_t frame;
         (void)smartjoint_can_joint_unpack(&frame, data, input->length);
-        *echo = frame.sync;
         return receive_joint(state, input->index, &frame);
     }
     case INPUT_TIP: {
         struct smartjoint_can_tip_sensors_t frame;
         (void)smartjoint_can_tip_sensors_unpack(&frame, data, input->length);
-        *echo = frame.sync;
         return receive_tip(state, &frame);
     }
     default: {
         struct smartjoint_can_amp_status_t frame;
         (void)smartjoint_can_amp_status_unpack(&frame, data, input->length);
-        *echo = frame.sync;
         return receive_amplifier(state, input->index, &frame);
     }
     }
@@ -1069,7 +1086,7 @@ static unsigned int receive_input(smartjoint_can_state *state, unsigned int k, u
 {
     const input_entry *input;
     unsigned int result;
-    uint8_t echo = 0u;
+    uint32_t echoed = 0u;
     uint16_t flags;
     if (state == NULL || data == NULL) {
         return SMARTJOINT_CAN_RX_WRONG_LENGTH;
@@ -1079,7 +1096,13 @@ static unsigned int receive_input(smartjoint_can_state *state, unsigned int k, u
         return SMARTJOINT_CAN_RX_UNKNOWN_ID;
     }
     input = &inputs[k];
-    result = sj_e2e_check(&state->receivers[k], (uint16_t)id, data, length, input->length);
+    if (length >= 2u) {
+        /* The heartbeat the frame echoes (bits 0-3 in byte 1's high nibble) taken 0..15 cycles
+         * old: its bits 4-11 are the freshness byte the sender's CRC covers. A frame 16 to 4095
+         * cycles old fails the check here; a younger one shows its age in check_inputs. */
+        echoed = state->steps - ((state->steps - (uint32_t)(data[1] >> 4)) & 0x0Fu);
+    }
+    result = sj_e2e_check(&state->receivers[k], (uint16_t)id, data, length, input->length, SJ_E2E_FRESHNESS(echoed));
     if (result != SJ_E2E_OK) {
         if (result & SJ_E2E_WRONG_LENGTH) {
             state->length_errors++;
@@ -1095,13 +1118,13 @@ static unsigned int receive_input(smartjoint_can_state *state, unsigned int k, u
         return result;
     }
     state->rx_frames++;
-    flags = receive(state, input, data, &echo);
+    flags = receive(state, input, data);
     state->implausible[k] = flags;
     if (flags != 0u) {
         state->implausible_frames++;
     }
     state->last_time[k] = time_us; /* diagnostics only: ageing counts cycles, not receive times */
-    state->echo[k] = (uint8_t)(echo & 0x0Fu);
+    state->echoed[k] = (uint16_t)echoed;
     state->silent_steps[k] = 0u;
     state->seen[k] = 1u;
     state->healthy[k] = 1u;
@@ -1153,9 +1176,11 @@ static unsigned int check_inputs(smartjoint_can_state *state)
          * heartbeat it echoes, and the last heartbeat (of the last step, counter `cycle`) went
          * out a cycle ago: exact whatever the
          * bus jitter, from power-up on, and a frame kept back beyond the bound shows. A silence
-         * counts as well (the 4-bit echo repeats after 16 cycles). Wrapped "ahead" ages are late
-         * too: no sender can echo a heartbeat not yet sent. */
-        const unsigned int age = state->heartbeats ? ((unsigned int)(state->cycle - state->echo[k]) & 0x0Fu) : 0u;
+         * counts as well. The cycle was read 0..15 cycles back from the echo on receipt (older
+         * frames failed their freshness byte) and ages on here without wrapping. Wrapped "ahead"
+         * echoes read 15 old: late too, as no sender can echo a heartbeat not yet sent. */
+        const uint16_t since = (uint16_t)((uint16_t)state->steps - state->echoed[k]); /* a silence shows first */
+        const unsigned int age = state->heartbeats ? (since > 255u ? 255u : (unsigned int)since) : 0u;
         const int late = !state->seen[k] || state->silent_steps[k] >= SMARTJOINT_CAN_TIMEOUT_CYCLES ||
                          age >= SMARTJOINT_CAN_TIMEOUT_CYCLES;
         uint16_t *bus_faults = &state->bus_faults[inputs[k].bus];
@@ -1360,10 +1385,10 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
         state->setpoint[k] = setpoint_voltage(state->command[k]);
     }
     state->tx_next = 0u; /* per bus the setpoints, then the heartbeat: every cycle */
-    /* Every frame of this step carries the cycle's counter: the amplifiers pair a setpoint with
-     * its heartbeat, the nodes echo it. Step n counts n + 1, so the 0 a node echoes before it
-     * has seen any heartbeat reads as older than the first. Steps wrap at 2^32, a multiple of
-     * 16: no hiccup. */
+    /* Every frame of this step carries the cycle's counter (its bits 4-11 in the CRC): the
+     * amplifiers pair a setpoint with its heartbeat, the nodes echo it. Step n counts n + 1, so
+     * the 0 a node echoes before it has seen any heartbeat reads as older than the first. Steps
+     * wrap at 2^32, a multiple of 4096: no hiccup. */
     state->cycle = (uint8_t)((state->steps + 1u) & 0x0Fu);
     state->steps++;
     return state->step_status;
@@ -1396,6 +1421,7 @@ int smartjoint_can_tx_bus(smartjoint_can_state *state, uint8_t *bus, uint32_t *i
         frame.missing_inputs = (uint8_t)(state->missing > 15u ? 15u : state->missing);
         frame.step_status = state->step_status;
         frame.faults = state->faults;
+        frame.cycle_high = SJ_E2E_FRESHNESS(state->steps); /* the nodes' freshness byte, in the clear */
         frame.failed_a1 = state->failed[0];
         frame.failed_a2 = state->failed[1];
         frame.failed_a3 = state->failed[2];
@@ -1406,7 +1432,7 @@ int smartjoint_can_tx_bus(smartjoint_can_state *state, uint8_t *bus, uint32_t *i
     }
     *bus = output->bus;
     *id = output->id;
-    sj_e2e_protect((uint16_t)*id, data, *length, state->cycle);
+    sj_e2e_protect((uint16_t)*id, data, *length, state->cycle, SJ_E2E_FRESHNESS(state->steps));
     return 1;
 }
 

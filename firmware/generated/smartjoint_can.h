@@ -116,15 +116,16 @@ typedef enum {
 
 /* Layout controller_status (CONTROLLER_STATUS): the raw signal values as on the bus. */
 struct smartjoint_can_controller_status_t {
-    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first), the freshness byte (bits 4-11 of the frame's controller cycle, not sent) and bytes 1..n-1; 8 bits at 0 */
     uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
     uint8_t mode; /* 0 init, 1 SISO, 2 cLQG, 3 safe state, 4 preset, 5 slip ratio; 4 bits at 16 */
     uint8_t missing_inputs; /* inputs in timeout or invalid; 4 bits at 20 */
     uint8_t step_status; /* status bits of the last step; 8 bits at 24 */
     uint16_t faults; /* why the safe state holds, and actuation (a joint does not follow; the law runs on): bits 0 velocity, 1 friction, 2 normal_force, 3 sensor, 4 temperature, 5 current, 6 tracking, 7 amplifier, 8 amplifier_safe, 9 timeout, 10 e2e, 11 controller, 12 law, 13 bus_off, 14 actuation; 16 bits at 32 */
-    uint8_t failed_a1; /* joint A1: its measured F_N falls short of its commands (actuation check); 1 while it does; 1 bits at 48 */
-    uint8_t failed_a2; /* joint A2: its measured F_N falls short of its commands (actuation check); 1 while it does; 1 bits at 49 */
-    uint8_t failed_a3; /* joint A3: its measured F_N falls short of its commands (actuation check); 1 while it does; 1 bits at 50 */
+    uint8_t cycle_high; /* bits 4-11 of the controller's cycle count (the alive counter carries bits 0-3): a node learns from it the freshness byte its frames' CRC covers (docs/can.md, E2E); 8 bits at 48 */
+    uint8_t failed_a1; /* joint A1: its measured F_N falls short of its commands (actuation check); 1 while it does; 1 bits at 56 */
+    uint8_t failed_a2; /* joint A2: its measured F_N falls short of its commands (actuation check); 1 while it does; 1 bits at 57 */
+    uint8_t failed_a3; /* joint A3: its measured F_N falls short of its commands (actuation check); 1 while it does; 1 bits at 58 */
 };
 
 int smartjoint_can_controller_status_pack(uint8_t *dst_p, const struct smartjoint_can_controller_status_t *src_p, size_t size);
@@ -146,6 +147,9 @@ bool smartjoint_can_controller_status_step_status_is_in_range(uint8_t value);
 uint16_t smartjoint_can_controller_status_faults_encode(smartjoint_real value);
 smartjoint_real smartjoint_can_controller_status_faults_decode(uint16_t value);
 bool smartjoint_can_controller_status_faults_is_in_range(uint16_t value);
+uint8_t smartjoint_can_controller_status_cycle_high_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_controller_status_cycle_high_decode(uint8_t value);
+bool smartjoint_can_controller_status_cycle_high_is_in_range(uint8_t value);
 uint8_t smartjoint_can_controller_status_failed_a1_encode(smartjoint_real value);
 smartjoint_real smartjoint_can_controller_status_failed_a1_decode(uint8_t value);
 bool smartjoint_can_controller_status_failed_a1_is_in_range(uint8_t value);
@@ -158,7 +162,7 @@ bool smartjoint_can_controller_status_failed_a3_is_in_range(uint8_t value);
 
 /* Layout joint (JOINT_A1, JOINT_A2, JOINT_A3): the raw signal values as on the bus. */
 struct smartjoint_can_joint_t {
-    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first), the freshness byte (bits 4-11 of the frame's controller cycle, not sent) and bytes 1..n-1; 8 bits at 0 */
     uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
     uint8_t sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md); 4 bits at 12 */
     int32_t sliding_velocity; /* v of the joint [m/s]; 32 bits at 16 */
@@ -188,7 +192,7 @@ bool smartjoint_can_joint_normal_force_is_in_range(uint16_t value);
 
 /* Layout tip_sensors (TIP_SENSORS): the raw signal values as on the bus. */
 struct smartjoint_can_tip_sensors_t {
-    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first), the freshness byte (bits 4-11 of the frame's controller cycle, not sent) and bytes 1..n-1; 8 bits at 0 */
     uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
     uint8_t sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md); 4 bits at 12 */
     int32_t tip_y; /* sensor tip_y [m]; 32 bits at 16 */
@@ -214,7 +218,7 @@ bool smartjoint_can_tip_sensors_tip_z_is_in_range(int32_t value);
 
 /* Layout setpoint (SETPOINT_A1, SETPOINT_A2, SETPOINT_A3): the raw signal values as on the bus. */
 struct smartjoint_can_setpoint_t {
-    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first), the freshness byte (bits 4-11 of the frame's controller cycle, not sent) and bytes 1..n-1; 8 bits at 0 */
     uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
     uint32_t voltage; /* piezo voltage setpoint of the joint: F_N = 8*V + 0 N [V]; 32 bits at 16 */
 };
@@ -232,17 +236,17 @@ bool smartjoint_can_setpoint_voltage_is_in_range(uint32_t value);
 
 /* Layout amp_status (AMP_STATUS_A1, AMP_STATUS_A2, AMP_STATUS_A3): the raw signal values as on the bus. */
 struct smartjoint_can_amp_status_t {
-    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first) and bytes 1..n-1; 8 bits at 0 */
+    uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first), the freshness byte (bits 4-11 of the frame's controller cycle, not sent) and bytes 1..n-1; 8 bits at 0 */
     uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
-    uint8_t over_temperature; /* fault bit: over temperature; 1 bits at 12 */
-    uint8_t no_response; /* fault bit: no response; 1 bits at 13 */
-    uint8_t stuck_output; /* fault bit: stuck output; 1 bits at 14 */
-    uint8_t over_current; /* fault bit: over current; 1 bits at 15 */
+    uint8_t sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md); 4 bits at 12 */
     uint16_t monitor_voltage; /* measured output [V]; 16 bits at 16 */
     int16_t current; /* output current [A]; 16 bits at 32 */
     uint8_t temperature; /* amplifier temperature [degC]; 8 bits at 48 */
     uint8_t safe_state; /* the amplifier's watchdog tripped and holds the safe force (no fresh valid setpoint or heartbeat, or an implausible setpoint; not the power-up hold before the first command, nor following the heartbeat's mode); 1 bits at 56 */
-    uint8_t sync; /* the alive counter of the last controller heartbeat this node saw: the controller tells from it how many of its cycles the frame is old (docs/safety.md); 4 bits at 60 */
+    uint8_t over_temperature; /* fault bit: over temperature; 1 bits at 57 */
+    uint8_t no_response; /* fault bit: no response; 1 bits at 58 */
+    uint8_t stuck_output; /* fault bit: stuck output; 1 bits at 59 */
+    uint8_t over_current; /* fault bit: over current; 1 bits at 60 */
 };
 
 int smartjoint_can_amp_status_unpack(struct smartjoint_can_amp_status_t *dst_p, const uint8_t *src_p, size_t size);
@@ -252,18 +256,9 @@ bool smartjoint_can_amp_status_crc_is_in_range(uint8_t value);
 uint8_t smartjoint_can_amp_status_counter_encode(smartjoint_real value);
 smartjoint_real smartjoint_can_amp_status_counter_decode(uint8_t value);
 bool smartjoint_can_amp_status_counter_is_in_range(uint8_t value);
-uint8_t smartjoint_can_amp_status_over_temperature_encode(smartjoint_real value);
-smartjoint_real smartjoint_can_amp_status_over_temperature_decode(uint8_t value);
-bool smartjoint_can_amp_status_over_temperature_is_in_range(uint8_t value);
-uint8_t smartjoint_can_amp_status_no_response_encode(smartjoint_real value);
-smartjoint_real smartjoint_can_amp_status_no_response_decode(uint8_t value);
-bool smartjoint_can_amp_status_no_response_is_in_range(uint8_t value);
-uint8_t smartjoint_can_amp_status_stuck_output_encode(smartjoint_real value);
-smartjoint_real smartjoint_can_amp_status_stuck_output_decode(uint8_t value);
-bool smartjoint_can_amp_status_stuck_output_is_in_range(uint8_t value);
-uint8_t smartjoint_can_amp_status_over_current_encode(smartjoint_real value);
-smartjoint_real smartjoint_can_amp_status_over_current_decode(uint8_t value);
-bool smartjoint_can_amp_status_over_current_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_sync_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_sync_decode(uint8_t value);
+bool smartjoint_can_amp_status_sync_is_in_range(uint8_t value);
 uint16_t smartjoint_can_amp_status_monitor_voltage_encode(smartjoint_real value);
 smartjoint_real smartjoint_can_amp_status_monitor_voltage_decode(uint16_t value);
 bool smartjoint_can_amp_status_monitor_voltage_is_in_range(uint16_t value);
@@ -276,9 +271,18 @@ bool smartjoint_can_amp_status_temperature_is_in_range(uint8_t value);
 uint8_t smartjoint_can_amp_status_safe_state_encode(smartjoint_real value);
 smartjoint_real smartjoint_can_amp_status_safe_state_decode(uint8_t value);
 bool smartjoint_can_amp_status_safe_state_is_in_range(uint8_t value);
-uint8_t smartjoint_can_amp_status_sync_encode(smartjoint_real value);
-smartjoint_real smartjoint_can_amp_status_sync_decode(uint8_t value);
-bool smartjoint_can_amp_status_sync_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_over_temperature_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_over_temperature_decode(uint8_t value);
+bool smartjoint_can_amp_status_over_temperature_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_no_response_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_no_response_decode(uint8_t value);
+bool smartjoint_can_amp_status_no_response_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_stuck_output_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_stuck_output_decode(uint8_t value);
+bool smartjoint_can_amp_status_stuck_output_is_in_range(uint8_t value);
+uint8_t smartjoint_can_amp_status_over_current_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_amp_status_over_current_decode(uint8_t value);
+bool smartjoint_can_amp_status_over_current_is_in_range(uint8_t value);
 
 typedef struct {
 #ifndef SMARTJOINT_CAN_WITHOUT_SISO
@@ -312,7 +316,7 @@ typedef struct {
     uint32_t last_time[SMARTJOINT_CAN_INPUTS];               /* receive time of the last accepted frame (diagnostics) */
     uint16_t implausible[SMARTJOINT_CAN_INPUTS];             /* fault bits of the last accepted frame */
     uint8_t age[SMARTJOINT_CAN_INPUTS];                      /* cycles since the newest frame was sampled */
-    uint8_t echo[SMARTJOINT_CAN_INPUTS];                     /* heartbeat counter the newest frame echoes */
+    uint16_t echoed[SMARTJOINT_CAN_INPUTS];                  /* the cycle (mod 2^16) of the heartbeat the newest frame echoes */
     uint8_t silent_steps[SMARTJOINT_CAN_INPUTS];             /* steps without a frame */
     uint8_t timed_out[SMARTJOINT_CAN_INPUTS];
     uint8_t seen[SMARTJOINT_CAN_INPUTS];
@@ -330,7 +334,7 @@ typedef struct {
     uint8_t missing;                                     /* inputs the law needs that are missing */
     uint8_t tx_next;                                     /* next frame smartjoint_can_tx_bus sends; OUTPUTS: none */
     uint16_t faults;                                     /* FAULT_ bits of the last step */
-    uint32_t steps;                                      /* diagnostics only: wraps after 2^32 steps */
+    uint32_t steps;                                      /* the cycle count: frames carry its bits 0-11 */
     uint32_t step_time;
     uint32_t rx_frames, crc_errors, counter_errors, length_errors, unknown_ids, timeouts, implausible_frames;
 } smartjoint_can_state;

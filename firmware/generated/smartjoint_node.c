@@ -6,6 +6,7 @@
 #include "smartjoint_node.h"
 
 #define LOST(state) ((state)->silent > (state)->config->timeout_samples)
+#define NO_COUNT UINT16_MAX /* no heartbeat followed yet: counts are 0..4095 */
 
 void smartjoint_node_init(smartjoint_node_state *state, const smartjoint_node_config *config)
 {
@@ -19,11 +20,12 @@ void smartjoint_node_init(smartjoint_node_state *state, const smartjoint_node_co
     state->applied = 0.0f;
     state->heartbeat.last_counter = 0u;
     state->heartbeat.valid = 0u;
+    state->heartbeat_count = NO_COUNT;
+    state->echoed = 0u;
     state->silent = UINT16_MAX;
     state->hold = 0u;
     state->phase = 0u;
     state->mode = SMARTJOINT_NODE_MODE_INIT;
-    state->heartbeat_counter = 0u;
     state->counter = 0u;
     state->faults = 0u;
     state->status = 0u;
@@ -32,14 +34,34 @@ void smartjoint_node_init(smartjoint_node_state *state, const smartjoint_node_co
 
 int smartjoint_node_rx(smartjoint_node_state *state, uint32_t id, const uint8_t *data, uint8_t length)
 {
+    unsigned int result;
+    uint16_t count;
+    uint16_t step = 1u; /* the first heartbeat counts as fresh */
     if (state == NULL || data == NULL || id != SMARTJOINT_NODE_HEARTBEAT_ID || length != SMARTJOINT_NODE_HEARTBEAT_LENGTH) {
         return 0;
     }
-    if (sj_e2e_check(&state->heartbeat, (uint16_t)id, data, length, SMARTJOINT_NODE_HEARTBEAT_LENGTH) != SJ_E2E_OK) {
+    count = (uint16_t)(((unsigned int)data[SMARTJOINT_NODE_HEARTBEAT_CYCLE_BYTE] << 4) | (data[1] & 0x0Fu));
+    if (state->heartbeat_count != NO_COUNT) {
+        /* The 4-bit counter of a replay 16*m heartbeats old looks fresh; its whole count does not.
+         * A repeat or a count behind (2048..4095 ahead) is ignored before the counter moves (else
+         * the next genuine heartbeat would be its repeat); a jump (4..2047) is refused, followed. */
+        step = (uint16_t)((unsigned int)(count - state->heartbeat_count) % SMARTJOINT_NODE_HEARTBEAT_COUNTS);
+        if (step == 0u || step >= SMARTJOINT_NODE_HEARTBEAT_COUNTS / 2u) {
+            return 0;
+        }
+    }
+    /* cycle_high travels in the clear; the CRC covers it as the freshness byte. */
+    result = sj_e2e_check(&state->heartbeat, (uint16_t)id, data, length, SMARTJOINT_NODE_HEARTBEAT_LENGTH,
+                          data[SMARTJOINT_NODE_HEARTBEAT_CYCLE_BYTE]);
+    if (result & (SJ_E2E_WRONG_LENGTH | SJ_E2E_BAD_CRC)) {
+        return 0;
+    }
+    state->heartbeat_count = count;
+    if (result != SJ_E2E_OK || step > SJ_E2E_MAX_COUNTER_STEP) {
         return 0;
     }
     state->mode = (uint8_t)(data[2] & 0x0Fu);
-    state->heartbeat_counter = (uint8_t)(data[1] & 0x0Fu);
+    state->echoed = count;
     state->silent = 0u;
     return 1;
 }
@@ -154,14 +176,16 @@ int smartjoint_node_tx(smartjoint_node_state *state, uint32_t *id, uint8_t *data
     command = force_code(state->command);
     applied = force_code(state->applied);
     data[0] = 0u;
-    data[1] = (uint8_t)((state->heartbeat_counter & 0x0Fu) << 4);
+    data[1] = (uint8_t)((state->echoed & 0x0Fu) << 4);
     data[2] = (uint8_t)(mode | (uint8_t)(state->faults << 4));
     data[3] = state->status;
     data[4] = (uint8_t)(command & 0xFFu);
     data[5] = (uint8_t)(command >> 8);
     data[6] = (uint8_t)(applied & 0xFFu);
     data[7] = (uint8_t)(applied >> 8);
-    sj_e2e_protect(state->config->status_id, data, SMARTJOINT_NODE_STATUS_LENGTH, state->counter);
+    /* The echoed heartbeat's bits 4-11: the supervisor refuses a status 16 or more heartbeats old. */
+    sj_e2e_protect(state->config->status_id, data, SMARTJOINT_NODE_STATUS_LENGTH, state->counter,
+                   SJ_E2E_FRESHNESS(state->echoed));
     state->counter = (uint8_t)((state->counter + 1u) & 0x0Fu);
     *id = state->config->status_id;
     *length = (uint8_t)SMARTJOINT_NODE_STATUS_LENGTH;

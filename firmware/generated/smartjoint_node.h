@@ -18,15 +18,22 @@ extern "C" {
  * SMARTJOINT_NODE_SUPERVISION_CYCLES samples: the heartbeat CONTROLLER_STATUS (its mode: SISO runs
  * the law, any other the safe normal force) and the node's NODE_STATUS_<j> (0x300 + j).
  * Policy (docs/safety.md): the node follows the last valid heartbeat's mode and keeps it when the
- * heartbeat is lost (its law needs no bus and can only dissipate); before any heartbeat it holds
- * the safe force; an input the law cannot use holds the safe force until recovery_cycles usable
- * samples have followed. One image per joint: this code with that joint's smartjoint_node_<joint>_config.
- * Call smartjoint_node_step once every SMARTJOINT_NODE_SAMPLE_TIME seconds, smartjoint_node_rx for every frame
- * received, and smartjoint_node_tx after each step until it returns 0. */
+ * heartbeat is lost (its law needs no bus and can only dissipate); a heartbeat whose 12-bit count
+ * is behind the last one's is not valid (a replay, whatever its 4-bit counter); before any
+ * heartbeat it holds the safe force; an input the law cannot use holds the safe force until
+ * recovery_cycles usable samples have followed. One image per joint: this code with that
+ * joint's smartjoint_node_<joint>_config. Call smartjoint_node_step once every SMARTJOINT_NODE_SAMPLE_TIME
+ * seconds, smartjoint_node_rx for every frame received, and smartjoint_node_tx after each step until it
+ * returns 0. */
 #define SMARTJOINT_NODE_SAMPLE_TIME 0.001f
 #define SMARTJOINT_NODE_SUPERVISION_CYCLES 10u
 #define SMARTJOINT_NODE_HEARTBEAT_ID 0x080u /* CONTROLLER_STATUS */
 #define SMARTJOINT_NODE_HEARTBEAT_LENGTH 8u
+/* The heartbeat counts modulo SMARTJOINT_NODE_HEARTBEAT_COUNTS: its alive counter is bits 0-3, the byte
+ * SMARTJOINT_NODE_HEARTBEAT_CYCLE_BYTE (cycle_high) bits 4-11, and its CRC covers that byte as the
+ * freshness byte; the status's CRC covers the echoed heartbeat's. */
+#define SMARTJOINT_NODE_HEARTBEAT_CYCLE_BYTE 6u
+#define SMARTJOINT_NODE_HEARTBEAT_COUNTS 4096u
 #define SMARTJOINT_NODE_STATUS_LENGTH 8u
 #define SMARTJOINT_NODE_MODE_INIT 0u
 #define SMARTJOINT_NODE_MODE_LAW 1u
@@ -65,12 +72,13 @@ typedef struct {
     smartjoint_real previous_normal_force;  /* F_N of the last usable sample */
     smartjoint_real command;                /* the last command [N] */
     smartjoint_real applied;                /* the last measured F_N [N] */
-    sj_e2e_receiver heartbeat;
+    sj_e2e_receiver heartbeat;                /* the heartbeat's 4-bit alive counter */
+    uint16_t heartbeat_count;                 /* its 12-bit count last followed; UINT16_MAX before any */
+    uint16_t echoed;                          /* the last valid heartbeat's count: echo and status freshness */
     uint16_t silent;                          /* samples since the last valid heartbeat (saturating) */
     uint16_t hold;                            /* samples the safe force still holds after a bad input */
     uint16_t phase;                           /* samples until the next status frame */
     uint8_t mode;                             /* the last valid heartbeat's */
-    uint8_t heartbeat_counter;                /* its alive counter, echoed in the status */
     uint8_t counter;                          /* the status frame's alive counter */
     uint8_t faults;                           /* SMARTJOINT_NODE_FAULT_* of the last step */
     uint8_t status;                           /* the law's status bits of the last step */

@@ -27,7 +27,7 @@ void smartjoint_supervisor_init(smartjoint_supervisor_state *state)
     }
     state->phase = 0u;
     state->mode = SMARTJOINT_SUPERVISOR_MODE_SAFE;
-    state->counter = 0u;
+    state->heartbeats = 0u;
     state->sent = 0u;
     state->pending = 0u;
 }
@@ -67,13 +67,16 @@ int smartjoint_supervisor_tx(smartjoint_supervisor_state *state, uint32_t *id, u
         return 0;
     }
     state->pending = 0u;
-    state->counter = (uint8_t)((state->counter + 1u) % SJ_E2E_COUNTER_MODULO);
+    state->heartbeats = (uint16_t)((state->heartbeats + 1u) % SMARTJOINT_SUPERVISOR_HEARTBEAT_COUNTS);
     state->sent = 1u;
     for (k = 0u; k < SMARTJOINT_SUPERVISOR_HEARTBEAT_LENGTH; ++k) {
         data[k] = 0u;
     }
     data[2] = state->mode;
-    sj_e2e_protect((uint16_t)SMARTJOINT_SUPERVISOR_HEARTBEAT_ID, data, SMARTJOINT_SUPERVISOR_HEARTBEAT_LENGTH, state->counter);
+    /* cycle_high in the clear: the nodes learn from it the freshness byte of their statuses. */
+    data[SMARTJOINT_SUPERVISOR_HEARTBEAT_CYCLE_BYTE] = SJ_E2E_FRESHNESS(state->heartbeats);
+    sj_e2e_protect((uint16_t)SMARTJOINT_SUPERVISOR_HEARTBEAT_ID, data, SMARTJOINT_SUPERVISOR_HEARTBEAT_LENGTH,
+                   (uint8_t)(state->heartbeats % SJ_E2E_COUNTER_MODULO), data[SMARTJOINT_SUPERVISOR_HEARTBEAT_CYCLE_BYTE]);
     *id = SMARTJOINT_SUPERVISOR_HEARTBEAT_ID;
     *length = (uint8_t)SMARTJOINT_SUPERVISOR_HEARTBEAT_LENGTH;
     return 1;
@@ -83,20 +86,28 @@ int smartjoint_supervisor_tx(smartjoint_supervisor_state *state, uint32_t *id, u
  * the bus at most one supervision period after the heartbeat it answers). */
 static int echo_fresh(const smartjoint_supervisor_state *state, uint8_t echo)
 {
-    const uint8_t before = (uint8_t)((state->counter + SJ_E2E_COUNTER_MODULO - 1u) % SJ_E2E_COUNTER_MODULO);
-    return !state->sent || echo == state->counter || echo == before;
+    const uint8_t counter = (uint8_t)(state->heartbeats % SJ_E2E_COUNTER_MODULO);
+    const uint8_t before = (uint8_t)((counter + SJ_E2E_COUNTER_MODULO - 1u) % SJ_E2E_COUNTER_MODULO);
+    return !state->sent || echo == counter || echo == before;
 }
 
 int smartjoint_supervisor_rx(smartjoint_supervisor_state *state, uint32_t id, const uint8_t *data, uint8_t length)
 {
     smartjoint_supervisor_node *node;
+    unsigned int age;
+    uint16_t echoed;
     uint8_t health = 0u;
     if (state == NULL || data == NULL || id < SMARTJOINT_SUPERVISOR_STATUS_BASE ||
         id >= SMARTJOINT_SUPERVISOR_STATUS_BASE + SMARTJOINT_SUPERVISOR_JOINTS || length != SMARTJOINT_SUPERVISOR_STATUS_LENGTH) {
         return 0;
     }
     node = &state->nodes[id - SMARTJOINT_SUPERVISOR_STATUS_BASE];
-    if (sj_e2e_check(&node->receiver, (uint16_t)id, data, length, SMARTJOINT_SUPERVISOR_STATUS_LENGTH) != SJ_E2E_OK) {
+    /* The heartbeat the status echoes, taken 0..15 heartbeats old: its bits 4-11 are the freshness
+     * byte of the node's CRC, so a status 16 to 4095 heartbeats old fails. */
+    age = (unsigned int)(state->heartbeats - (data[1] >> 4)) % SJ_E2E_COUNTER_MODULO;
+    echoed = (uint16_t)((state->heartbeats + SMARTJOINT_SUPERVISOR_HEARTBEAT_COUNTS - age) % SMARTJOINT_SUPERVISOR_HEARTBEAT_COUNTS);
+    if (sj_e2e_check(&node->receiver, (uint16_t)id, data, length, SMARTJOINT_SUPERVISOR_STATUS_LENGTH,
+                     SJ_E2E_FRESHNESS(echoed)) != SJ_E2E_OK) {
         return 0;
     }
     node->silent = 0u;

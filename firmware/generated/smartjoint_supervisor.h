@@ -20,7 +20,9 @@ extern "C" {
  * (SMARTJOINT_SUPERVISOR_HEALTH_*): silent (no valid status for timeout_cycles periods: the node or its bus
  * is lost), alone (the node has lost the heartbeat and runs on by itself), safe (it holds its safe
  * force while the law is requested: a bad input or its recovery), stale (its echo is older than
- * the heartbeat before the last: it acts on old supervision). The supervisor never changes the
+ * the heartbeat before the last: it acts on old supervision). A status is taken to echo one of the
+ * last 16 heartbeats: one that echoes an older one (a replay) fails its CRC, as does the status of
+ * a node that has lost the heartbeat for 16 periods or more, which then falls silent. The supervisor never changes the
  * requested mode by itself: a semi-active joint cannot destabilise the structure, so what a
  * degraded node calls for is the application's decision (log it, tell the operator, request SAFE).
  * Integers only: the same in the float and the double build.
@@ -31,6 +33,11 @@ extern "C" {
 #define SMARTJOINT_SUPERVISOR_TIMEOUT_SAMPLES 20u /* without a valid status: silent */
 #define SMARTJOINT_SUPERVISOR_HEARTBEAT_ID 0x080u /* CONTROLLER_STATUS */
 #define SMARTJOINT_SUPERVISOR_HEARTBEAT_LENGTH 8u
+/* The heartbeats are counted modulo SMARTJOINT_SUPERVISOR_HEARTBEAT_COUNTS: a heartbeat's alive counter is
+ * bits 0-3 of its count, its byte SMARTJOINT_SUPERVISOR_HEARTBEAT_CYCLE_BYTE (cycle_high) bits 4-11, and its
+ * CRC covers that byte as the freshness byte; a status's CRC covers the echoed heartbeat's. */
+#define SMARTJOINT_SUPERVISOR_HEARTBEAT_CYCLE_BYTE 6u
+#define SMARTJOINT_SUPERVISOR_HEARTBEAT_COUNTS 4096u
 #define SMARTJOINT_SUPERVISOR_STATUS_BASE 0x300u /* NODE_STATUS_<j>: base + j */
 #define SMARTJOINT_SUPERVISOR_STATUS_LENGTH 8u
 #define SMARTJOINT_SUPERVISOR_MODE_LAW 1u
@@ -59,8 +66,8 @@ typedef struct {
 typedef struct {
     smartjoint_supervisor_node nodes[SMARTJOINT_SUPERVISOR_JOINTS]; /* in the artefact's joint order */
     uint16_t phase;                           /* samples until the next heartbeat */
+    uint16_t heartbeats;                      /* the last heartbeat's count, mod SMARTJOINT_SUPERVISOR_HEARTBEAT_COUNTS */
     uint8_t mode;                             /* the requested mode, sent in every heartbeat */
-    uint8_t counter;                          /* the last heartbeat's alive counter */
     uint8_t sent;                             /* a heartbeat was sent */
     uint8_t pending;                          /* a heartbeat is due */
 } smartjoint_supervisor_state;

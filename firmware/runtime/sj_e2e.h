@@ -1,7 +1,8 @@
 /* End-to-end protection of CAN frames: CRC-8 SAE J1850 and a 4-bit alive counter.
- * The C twin of bench/e2e.py (same layout, same vectors): byte 0 holds the CRC over the two
- * identifier bytes (low first) and payload bytes 1..n-1; the low nibble of byte 1 holds the
- * alive counter. Hand-written runtime, C99, no heap, no global mutable state. */
+ * With an implicit freshness byte. The C twin of bench/e2e.py (same layout, same vectors):
+ * byte 0 holds the CRC over the two identifier bytes (low first), the freshness byte (bits 4-11 of the controller cycle
+ * the frame belongs to; not sent: both ends know it) and payload bytes 1..n-1; the low nibble of
+ * byte 1 holds the alive counter. Hand-written runtime, C99, no heap, no global mutable state. */
 #ifndef SJ_E2E_H
 #define SJ_E2E_H
 
@@ -30,13 +31,16 @@ typedef struct {
 } sj_e2e_receiver;
 
 uint8_t sj_crc8_j1850(const uint8_t *data, size_t length, uint8_t crc);
-uint8_t sj_e2e_frame_crc(uint16_t frame_id, const uint8_t *payload, size_t length);
+uint8_t sj_e2e_frame_crc(uint16_t frame_id, const uint8_t *payload, size_t length, uint8_t freshness);
 /* Writes counter (mod 16) into byte 1 and the CRC into byte 0; length >= 2. */
-void sj_e2e_protect(uint16_t frame_id, uint8_t *payload, size_t length, uint8_t counter);
-/* Checks a received frame of the expected length. The receiver follows every frame except a repeat
- * or a stale one, so a late frame cannot make the next genuine frame fail. */
+void sj_e2e_protect(uint16_t frame_id, uint8_t *payload, size_t length, uint8_t counter, uint8_t freshness);
+/* Checks a received frame of the expected length against the freshness byte the receiver expects.
+ * The receiver follows every frame except a repeat or a stale one, so a late frame cannot make the
+ * next genuine frame fail. */
 unsigned int sj_e2e_check(sj_e2e_receiver *receiver, uint16_t frame_id, const uint8_t *payload, size_t length,
-                          size_t expected_length);
+                          size_t expected_length, uint8_t freshness);
+/* The freshness byte of a frame of the frame's cycle: bits 4..11 (the counter carries bits 0..3). */
+#define SJ_E2E_FRESHNESS(cycle) ((uint8_t)(((cycle) >> 4) & 0xFFu))
 
 #ifdef __cplusplus
 }
