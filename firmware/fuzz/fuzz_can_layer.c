@@ -28,9 +28,13 @@
  *   the safe state, else the law, and it carries the step status, the fault bits, the failed
  *   joints (signals failed_<joint>) and cycle_high, bits 4-11 of the cycle n + 1;
  * - freshness: a replayed frame whose echoed cycle is 16 or more cycles old is never accepted
- *   (rx OK); an accepted frame of an input resets its silence; at the next step an input whose
- *   newest accepted frame (accepted since the last step) echoes a cycle TIMEOUT_CYCLES or more
- *   cycles old is late (timed_out), and its age is the cycles since that echoed cycle.
+ *   (rx OK); an accepted frame of an input resets its silence, and the step after it the frame
+ *   is 0..15 cycles old;
+ * - ageing, at every step and for every input: the layer's age of an input is the cycles since
+ *   the cycle its newest accepted frame echoes, saturated at 255 (0 before the first heartbeat);
+ *   the input is late (timed_out) exactly when that age or its silence is TIMEOUT_CYCLES or
+ *   more, and then, if the law needs it, FAULT_TIMEOUT and the safe state; an input never
+ *   accepted is never timed_out.
  * Every frame sits in a buffer of exactly its size; ASan and UBSan abort on any bad access or
  * undefined behaviour. */
 #include <float.h>
@@ -45,6 +49,10 @@
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 #define MAX_EVENTS 2048
+#define STEPS_PER_EVENT 8u /* the most steps one event makes */
+#define MAX_STEPS (MAX_EVENTS * STEPS_PER_EVENT)
+/* The layer keeps each echoed cycle mod 2^16 and ages it in uint16: exact while a run is shorter. */
+typedef char no_echo_wrap[MAX_STEPS < 65536u ? 1 : -1];
 #define TX_LENGTH 64u /* the longest CAN FD frame */
 #define HISTORY_CYCLES 128u /* a power of two above the oldest replay (64 cycles) */
 #define MAX_REPLAY_AGE 64u
@@ -410,27 +418,47 @@ static void check_commands(const bench *b, unsigned int status)
     }
 }
 
-/* After the step of cycle count b->steps: an input whose newest accepted frame came since the
- * last step and echoes a cycle TIMEOUT_CYCLES or more cycles old is late; its age (exact below 16
- * cycles, as any accepted frame's is) is the cycles since that cycle. */
+/* After the step of cycle count b->steps, for every input (the layer's check_inputs): one with an
+ * accepted frame has the age of its newest, the cycles since the cycle it echoes (truly, for a
+ * node's frame; else as read on receipt), saturated at 255 — 0 before the first heartbeat went
+ * out; a frame is exactly 0..15 cycles old the step after its acceptance. It is late
+ * (timed_out) exactly when that age or its silence (steps since the acceptance) is
+ * TIMEOUT_CYCLES or more; a late input the law needs (the tip sensors only the cLQG) sets
+ * FAULT_TIMEOUT and the safe state (the reference has one bus). An input never accepted is
+ * missing but never timed_out. The layer keeps the echoed cycle mod 2^16; a run is at most
+ * MAX_STEPS steps, so the true age (uint32) and the layer's never differ by a wrap. */
 static void check_ages(const bench *b)
 {
     unsigned int slot;
     for (slot = 0u; slot < INPUT_IDS; ++slot) {
         const uint32_t age = b->steps - b->accepted_echo[slot];
-        if (!b->accepted[slot] || b->accepted_at[slot] != b->steps || b->steps == 0u) {
-            continue; /* no frame since the last step; or before the first heartbeat, nothing to echo */
+        const uint32_t silent = b->steps - b->accepted_at[slot];
+        const unsigned int reported = b->heartbeat_cycle == 0u ? 0u : (age > 255u ? 255u : (unsigned int)age);
+        const int late = reported >= SMARTJOINT_CAN_TIMEOUT_CYCLES || silent >= SMARTJOINT_CAN_TIMEOUT_CYCLES;
+        const int needed = slot != FUZZ_JOINTS || b->can.law == SMARTJOINT_CAN_LAW_CLQG;
+        if (!b->accepted[slot]) {
+            if (b->can.timed_out[slot]) {
+                fuzz_fail("can_layer", "step %u: input 0x%x never accepted a frame but is timed out",
+                          (unsigned int)b->steps, frame_ids[slot]);
+            }
+            continue;
         }
-        if (age >= FRESH_WINDOW) {
+        if (b->accepted_at[slot] == b->steps && b->heartbeat_cycle != 0u && age >= FRESH_WINDOW) {
             fuzz_fail("can_layer", "input 0x%x: the frame accepted in cycle %u echoes cycle %u, %u cycles old",
                       frame_ids[slot], (unsigned int)b->steps, (unsigned int)b->accepted_echo[slot],
                       (unsigned int)age);
         }
-        if (b->can.age[slot] != age || (age >= SMARTJOINT_CAN_TIMEOUT_CYCLES) != (b->can.timed_out[slot] != 0u)) {
-            fuzz_fail("can_layer", "step %u: input 0x%x's newest frame echoes cycle %u (%u cycles old), the layer ages it "
-                                   "%u and has it %s",
-                      (unsigned int)b->steps, frame_ids[slot], (unsigned int)b->accepted_echo[slot], (unsigned int)age,
-                      b->can.age[slot], b->can.timed_out[slot] ? "late" : "in time");
+        if (b->can.age[slot] != reported || late != (b->can.timed_out[slot] != 0u)) {
+            fuzz_fail("can_layer", "step %u: input 0x%x's newest frame, accepted in cycle %u, echoes cycle %u (age %u, "
+                                   "silent %u steps), the layer ages it %u and has it %s",
+                      (unsigned int)b->steps, frame_ids[slot], (unsigned int)b->accepted_at[slot],
+                      (unsigned int)b->accepted_echo[slot], reported, (unsigned int)silent, b->can.age[slot],
+                      b->can.timed_out[slot] ? "late" : "in time");
+        }
+        if (late && needed && (!(b->can.faults & SMARTJOINT_CAN_FAULT_TIMEOUT) || !b->can.safe)) {
+            fuzz_fail("can_layer", "step %u: input 0x%x is late (age %u, silent %u steps), but faults 0x%x, %s",
+                      (unsigned int)b->steps, frame_ids[slot], reported, (unsigned int)silent,
+                      (unsigned int)b->can.faults, b->can.safe ? "safe" : "not in the safe state");
         }
     }
 }
@@ -510,7 +538,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             break;
         case 1u:
             /* 1..8 steps without frames in between: many cycles (the replays' history) cheaply */
-            for (repeat = 0u; repeat <= (kind / 5u) % 8u && fuzz_more(&reader); ++repeat) {
+            for (repeat = 0u; repeat <= (kind / 5u) % STEPS_PER_EVENT && fuzz_more(&reader); ++repeat) {
                 step_and_send(&b, &reader);
             }
             break;
