@@ -67,6 +67,7 @@ static const uint32_t frame_ids[] = {
 #define FRAME_IDS (sizeof frame_ids / sizeof frame_ids[0])
 #define INPUT_IDS 7u
 typedef char inputs_agree[SMARTJOINT_CAN_INPUTS == INPUT_IDS ? 1 : -1];
+typedef char one_bus[SMARTJOINT_CAN_BUSES == 1 ? 1 : -1]; /* a late input makes the whole layer safe */
 
 typedef struct {
     smartjoint_can_state can;
