@@ -12,9 +12,8 @@ prefix) are never touched; they are reported as ``untouched``.
 
 from __future__ import annotations
 
-import re
-
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Callable
