@@ -301,6 +301,16 @@ def test_written_by_codegen_recognises_each_kind_of_generated_file(reference, tm
         assert output.written_by_codegen(path, text), name
         path.write_text("hand-written\n")
         assert not output.written_by_codegen(path, text), name
+    # The runtime copies of an earlier release (before the freshness byte) are recognised too: a
+    # user who upgrades regenerates into the same folder.
+    for name, first in (
+        ("sj_e2e.c", "/* CRC-8 SAE J1850 and alive counter, see sj_e2e.h. */\n"),
+        ("sj_e2e.h", "/* End-to-end protection of CAN frames: CRC-8 SAE J1850 and a 4-bit alive counter.\n"),
+    ):
+        (tmp_path / name).write_text(first + "int older;\n")
+        assert output.written_by_codegen(tmp_path / name, files[name]), name
+        (tmp_path / name).write_text("/* CRC-16 of my own */\n")
+        assert not output.written_by_codegen(tmp_path / name, files[name]), name
 
 
 def test_the_current_folder_as_target(reference, tmp_path, monkeypatch):
