@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from smartjoint.bench.safety import DETECTION_LIMIT
+from smartjoint.bench.safety import DETECTION_LIMIT, REPLAY_AGES
 from smartjoint.common import figures
 
 
@@ -111,10 +111,13 @@ def summary_markdown(out: dict, table: str) -> str:
     """
 
     timings = sorted({r["timing"] for r in out["rows"]})
+    replays = sum(r["case"].startswith("replay ") for r in out["rows"])
+    ages = f"{min(REPLAY_AGES)} to {max(REPLAY_AGES)}"
+    replayed = f" ({replays} of them seamless replays of a frame, {ages} cycles old)" if replays else ""
     lines = [
         _heading(out),
         "",
-        f"{out['cases']} cases — every fault kind on every frame, every implausible signal, every amplifier "
+        f"{out['cases']} cases{replayed} — every fault kind on every frame, every implausible signal, every amplifier "
         f"fault and the bus off, timed {', '.join(timings)}. Worst cycles until the safe state holds: "
         f"firmware {_cell(out['worst_firmware'])}, the force at every joint {_cell(out['worst_joints'])} (limit "
         f"{DETECTION_LIMIT}); worst recovery {_cell(out['worst_recovery'])} cycles after a fault ends. "
