@@ -203,7 +203,7 @@ def cases(artifact, db, timings=TIMINGS, buses=(), replay_ages=REPLAY_AGES) -> l
     for frame in frames:
         for age in replay_ages:
             fault = Fault("replay", first * dt, last * dt, frame, age=age)
-            out.append(Case(fault.label(), "replayed, mid-run", (fault,), length))
+            out.append(Case(fault.label(), "replayed mid-run", (fault,), length))
     for pair in _pairs(artifact, db, joints, dt, late):
         length = LENGTH if math.isfinite(pair[0].end) else END + 10
         timing = "two at once" if math.isfinite(pair[0].end) else "two at once, from t = 0, never ending"
