@@ -357,6 +357,9 @@ def test_fault_fields_that_mean_nothing_are_refused():
         (Fault("amplifier", 0.1, 0.2, "A9", amplifier_fault="stuck_output"), "target 'A9'"),
         (Fault("drop", 0.2, 0.1, "SETPOINT_A1"), "window"),
         (Fault("drop", 0.1, math.nan, "SETPOINT_A1"), "window"),
+        (Fault("replay", 0.1, 0.2, "JOINT_A1"), "age 0 — replay only, a whole number of cycles 1 … 4095"),
+        (Fault("drop", 0.1, 0.2, "JOINT_A1", age=3), "age 3 — replay only"),
+        (Fault("replay", 0.1, 0.2, "JOINT_A9", age=3), "target 'JOINT_A9'"),
     ):
         with pytest.raises(ModelError, match=message):
             check_faults([fault], names, joints, signals)
@@ -365,6 +368,9 @@ def test_fault_fields_that_mean_nothing_are_refused():
         ("bus_off:X:1:2", None),
         ("melt:X:1:2", "kind 'melt'"),
         ("delay:JOINT_A1:1:2:soon", "the delay 'soon'"),
+        ("replay:JOINT_A1:1:2", "the age None — a whole number of cycles 1 … 4095"),
+        ("replay:JOINT_A1:1:2:4096", "the age '4096'"),
+        ("replay:JOINT_A1:1:2:1.5", "the age '1.5'"),
     ):
         if message is None:
             with pytest.raises(ModelError, match="give no target"):
@@ -373,3 +379,4 @@ def test_fault_fields_that_mean_nothing_are_refused():
             with pytest.raises(ModelError, match=message):
                 parse_fault(text)
     assert parse_fault("silent:CONTROLLER_STATUS:0:inf").end == math.inf
+    assert parse_fault("replay:TIP_SENSORS:1:2:64") == Fault("replay", 1.0, 2.0, "TIP_SENSORS", age=64)
