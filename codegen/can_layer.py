@@ -408,6 +408,7 @@ def render_can(
     full_codec: bool = False,
     real: str = "float",
     network: plan.NetworkPlan | None = None,
+    nodes: bool = False,
 ) -> dict[str, str]:
     """Render the CAN message layer of the controller.
 
@@ -425,6 +426,9 @@ def render_can(
     real : str
         The scalar type of the controllers the layer drives (``<prefix>_real``): the codec's
         encode/decode compute in it, so the float build uses no double arithmetic.
+    nodes : bool
+        The joint nodes and their supervisor are generated beside it (``joint_nodes``): the
+        example ``main.c`` runs local mode as well.
     network : NetworkPlan, optional
         The buses and their frames (``design.network.plan.plan``: its setpoints packed into
         ``SETPOINTS_<J>`` frames where that lowers the load); default every frame of
@@ -476,5 +480,7 @@ def render_can(
     files = {f"{prefix}_can.{kind}": env.get_template(f"can.{kind}.j2").render(context) for kind in "hc"}
     files.update({**_runtime_sources(), **dbc_files(network)})
     example = _example_context(context, real, digest)
+    # With the joint nodes and their supervisor beside it (``joint_nodes``), the example runs local mode too.
+    example["node_configs"] = [f"{prefix}_node_{j.lower()}_config" for j in joints] if nodes else []
     files["main.c"] = env.get_template("main_can.c.j2").render(example)
     return files

@@ -130,7 +130,7 @@ def firmware_files(
     ``network`` plan), the joint nodes of local mode with their supervisor (``joint_nodes``) and
     the XCP slave (``xcp_slave``; ``xcp`` the design's ``[xcp]``, default its defaults)."""
     files = render(artifact, real, prefix)
-    files.update(can_layer.render_can(artifact, prefix, real=real, **can_options))
+    files.update(can_layer.render_can(artifact, prefix, real=real, nodes=True, **can_options))
     files.update(joint_nodes.render_nodes(artifact, prefix, real))
     files.update(xcp_slave.render_xcp(artifact, prefix, real, xcp, can_options.get("network")))
     return files

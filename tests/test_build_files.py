@@ -18,6 +18,7 @@ from smartjoint.codegen import build, build_files, generate, output
 from smartjoint.common import law_registry, package_data
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
+from smartjoint.design.network import joint_node
 
 ROOT = Path(__file__).resolve().parents[1]
 CROSS = shutil.which("arm-none-eabi-gcc") is not None
@@ -93,12 +94,18 @@ def test_build_files_are_deterministic_bannered_and_held_to_the_tested_warnings(
     assert "library call" in double["Makefile"] and "library call" not in first["Makefile"]
 
 
-def test_make_builds_the_host_example(folder):
+def test_make_builds_the_host_example(folder, reference):
     done = run("make", "-C", folder)
     assert done.returncode == 0, done.stderr
     assert "-Werror" in done.stdout and "target_main.c" not in done.stdout and "startup.c" not in done.stdout
     example = run(folder / "example")
     assert example.returncode == 0 and "status 0" in example.stdout
+    # Local mode as the example runs it: the supervisor and every node on a bus in memory, a status
+    # from each node every SUPERVISION_CYCLES samples, every node healthy under the law.
+    local = re.search(r"local mode: 100 samples, (\d+) node statuses taken, node 0 F_N = (\S+) N, health of node 0: (\d+)",
+                      example.stdout)  # fmt: skip
+    assert local, example.stdout
+    assert int(local[1]) == len(reference.joint_names) * 100 // joint_node.SUPERVISION_CYCLES and local[3] == "0"
 
 
 @pytest.mark.skipif(not CROSS, reason=NO_CROSS)

@@ -58,12 +58,15 @@ def test_committed_reference_firmware_is_what_the_generator_emits(reference):
     )
     from smartjoint.codegen import can_layer, xcp_slave
 
-    files = {
+    files = generate.firmware_files(reference)  # what `smartjoint codegen` writes
+    # …which is the sum of its parts, the example main.c with local mode as the nodes are there.
+    parts = {
         **generate.render(reference, "float"),
-        **can_layer.render_can(reference),
+        **can_layer.render_can(reference, nodes=True),
         **joint_nodes.render_nodes(reference),
         **xcp_slave.render_xcp(reference),
     }
+    assert parts == files
     # The A2L's addresses are the linked target image's: they move with the ARM toolchain's
     # version, so it is checked apart (tests/test_xcp.py), not byte for byte.
     committed = {p.name for p in REFERENCE.iterdir()} - {"controller.json", "smartjoint.a2l"}

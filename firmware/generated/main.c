@@ -5,6 +5,8 @@
 #include <stdio.h>
 
 #include "smartjoint_can.h"
+#include "smartjoint_node.h"
+#include "smartjoint_supervisor.h"
 
 int main(void)
 {
@@ -79,6 +81,57 @@ int main(void)
         }
         printf("CAN layer: %u frames sent in %d samples, safe state %d, F_N[0] = %g N\n", sent, k, can.safe,
                (double)can.command[0]);
+    }
+
+    /* Local mode (docs/safety.md): each joint node runs the SISO law on its own measurements and
+     * drives its own amplifier; the central controller runs only the supervisor. Per sample the
+     * supervisor steps and sends the heartbeat when one is due, each node takes the frames it
+     * receives, steps its law and sends its status when due, and the supervisor takes the
+     * statuses. The bus is a variable here; on the target each call pair is a CAN driver's. */
+    {
+        static smartjoint_supervisor_state supervisor;
+        static smartjoint_node_state nodes[SMARTJOINT_SUPERVISOR_JOINTS];
+        static const smartjoint_node_config *const configs[SMARTJOINT_SUPERVISOR_JOINTS] = {
+            &smartjoint_node_a1_config,
+            &smartjoint_node_a2_config,
+            &smartjoint_node_a3_config,
+        };
+        static uint8_t heartbeat[64];
+        static uint8_t status_frame[64];
+        smartjoint_real command[SMARTJOINT_SUPERVISOR_JOINTS] = { 0.0f };
+        uint32_t heartbeat_id = 0u;
+        uint32_t status_id = 0u;
+        uint8_t heartbeat_length = 0u;
+        uint8_t status_length = 0u;
+        unsigned int statuses = 0u;
+        smartjoint_real wave = 0.001f;
+        smartjoint_supervisor_init(&supervisor);
+        (void)smartjoint_supervisor_request(&supervisor, SMARTJOINT_SUPERVISOR_MODE_LAW);
+        for (j = 0; j < SMARTJOINT_SUPERVISOR_JOINTS; ++j) {
+            smartjoint_node_init(&nodes[j], configs[j]);
+        }
+        for (k = 0; k < 100; ++k) {
+            int beat;
+            smartjoint_supervisor_step(&supervisor);
+            beat = smartjoint_supervisor_tx(&supervisor, &heartbeat_id, heartbeat, &heartbeat_length);
+            wave = (k % 40 < 20) ? 0.001f : -0.001f;
+            for (j = 0; j < SMARTJOINT_SUPERVISOR_JOINTS; ++j) {
+                smartjoint_node_input input;
+                input.sliding_velocity = wave;
+                input.friction_force = 10000.0f * wave;
+                input.normal_force = command[j]; /* applied = last command */
+                if (beat) {
+                    (void)smartjoint_node_rx(&nodes[j], heartbeat_id, heartbeat, heartbeat_length);
+                }
+                command[j] = smartjoint_node_step(&nodes[j], &input);
+                while (smartjoint_node_tx(&nodes[j], &status_id, status_frame, &status_length)) {
+                    statuses += (unsigned int)smartjoint_supervisor_rx(&supervisor, status_id, status_frame,
+                                                                 status_length);
+                }
+            }
+        }
+        printf("local mode: %d samples, %u node statuses taken, node 0 F_N = %g N, health of node 0: %u\n", k,
+               statuses, (double)command[0], (unsigned int)supervisor.nodes[0].health);
     }
     return status == 0u ? 0 : 1;
 }
