@@ -235,33 +235,19 @@ def check(frame_id: int, payload: bytes, last_counter: int | None, fresh: int = 
 
 def check_heartbeat(frame_id: int, payload: bytes, last_cycle: int | None) -> Check:
     """Check a heartbeat: its CRC with the freshness byte it carries in the clear, and its whole
-    12-bit cycle (``cycle_high``·16 + counter) against the last accepted one.
+    12-bit cycle (``cycle_high``·16 + counter) against the last accepted one (``last_cycle``,
+    None before the first; ``frame_id`` and ``payload`` as for :func:`check`).
 
     A step of 1…3 is fresh; a repeat, a jump of 4…2047 and a cycle behind (2048…4095 ahead) are
     not — so a heartbeat stream replayed 16·m cycles old, whose 4-bit counter runs on as if
-    fresh, is stale here.
-
-    Parameters
-    ----------
-    frame_id : int
-        The identifier the frame arrived under.
-    payload : bytes
-        The received payload.
-    last_cycle : int or None
-        The last accepted heartbeat's cycle; None before the first.
-
-    Returns
-    -------
-    Check
-        ``counter`` is the heartbeat's 12-bit cycle and ``counter_step`` its step, modulo 4096.
+    fresh, is stale here. The returned ``counter`` is the heartbeat's 12-bit cycle and
+    ``counter_step`` its step, modulo 4096.
     """
     payload = bytes(payload)
     if len(payload) <= HEARTBEAT_CYCLE_BYTE:
         return Check(False, 0, None, CYCLE_MODULO)
     fresh = payload[HEARTBEAT_CYCLE_BYTE]
-    cycle = fresh << 4 | payload[1] & 0x0F
-    step = None if last_cycle is None else (cycle - last_cycle) % CYCLE_MODULO
-    return Check(payload[0] == frame_crc(frame_id, payload, fresh), cycle, step, CYCLE_MODULO)
+    return check(frame_id, payload, last_cycle, fresh, fresh << 4 | payload[1] & 0x0F)
 
 
 class LogFreshness:
