@@ -69,7 +69,7 @@ def test_flags_and_file_give_the_same_records(tmp_path, capsys):
         (_toml({**JOINT_B, "sigma0": -1.0}), "sigma0: -1.0 — allowed: > 0 and <= 1e+10 1/rad"),
         (_toml({**JOINT_B, "coulomb": 0.0}), "coulomb: 0.0 — allowed: > 0 and <= 10"),
         # within each range, but together a break-away its own records would carry past μ = 2
-        (_toml({**JOINT_B, "coulomb": 1.2, "stribeck": 0.5}), "coulomb + stribeck: 1.7 — allowed: <= 1.5"),
+        (_toml({**JOINT_B, "coulomb": 1.2, "stribeck": 0.5}), "break-away coefficient 1.7 — allowed: <= 1.5"),
         (
             _toml({**JOINT_B, "stribeck_velocity": 1e6}),
             "stribeck_velocity: 1000000.0 — allowed: > 0 and <= 10000 rad/s",

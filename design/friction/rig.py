@@ -288,10 +288,10 @@ def simulate(test: RigTest, parameters: FrictionParameters | None = None, source
     entry = friction_registry.friction_model(p.model)
     if source is None:
         source = TABLE_1_SOURCE if parameters is None else "given"
-    static = getattr(p, "coulomb", 0.0) + getattr(p, "stribeck", 0.0)
+    static = law_of(p.model).breakaway_coefficient(p)
     if static > MAX_BREAKAWAY_COEFFICIENT:  # a prior may say so; a simulated joint may not
         raise RigError(
-            f"{source}: coulomb + stribeck: {static:g} — allowed: <= {MAX_BREAKAWAY_COEFFICIENT:g} for a simulated "
+            f"{source}: break-away coefficient {static:g} — allowed: <= {MAX_BREAKAWAY_COEFFICIENT:g} for a simulated "
             f"joint (its records would peak near the friction coefficient {MAX_FRICTION_COEFFICIENT:g} that identify "
             "refuses)"
         )
