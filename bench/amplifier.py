@@ -62,6 +62,8 @@ class FrameWatch:
     seen: bool = False
     healthy: bool = False
     failed: bool = False  # an E2E failure since the last tick
+    followed: int | None = None  # the counter (a heartbeat's cycle) last followed, accepted or a jump …
+    since_followed: int = 0  # … and the cycles since
 
     def receive(self, frame_id: int, data: bytes, length: int, cycle: int | None = None) -> bool:
         """Take one received frame: its length and E2E check; whether it was accepted.
@@ -77,7 +79,8 @@ class FrameWatch:
         else:
             checked = e2e.check(frame_id, data, self.last_counter, e2e.freshness(cycle), cycle)
         if checked.resynchronises:  # the receiver policy of sj_e2e.c
-            self.last_counter = checked.counter
+            self.last_counter = self.followed = checked.counter
+            self.since_followed = 0
         if not checked.ok:
             if checked.reason != "counter stale":  # older than what we have: ignored
                 self.failed, self.healthy = True, False
@@ -89,6 +92,7 @@ class FrameWatch:
     def tick(self) -> str | None:
         """One controller cycle passed: the reason this frame cannot be used, or None."""
         silent, self.silent = self.silent, min(self.silent + 1, 255)
+        self.since_followed = min(self.since_followed + 1, e2e.CYCLE_MODULO)
         failed, self.failed = self.failed, False
         if not self.seen or silent >= self.timeout_cycles:
             if self.seen:
@@ -194,11 +198,14 @@ class AmplifierModel:
         """A SETPOINT frame as it came off the bus; ``decode(data)`` gives its voltage.
 
         The controller sends it just before the heartbeat of its cycle: its cycle is the one with
-        its counter's bits 0–3 nearest the last heartbeat's, whose bits 4–11 its CRC must cover
-        — a setpoint 9 to 4 095 cycles old fails here, a younger one lags its heartbeat."""
-        watch = self.heartbeat_watch  # the heartbeat cycle it follows (a jump is followed, not taken)
-        heartbeat = watch.last_counter if watch.last_counter is not None else watch.counter or 0
-        cycle = e2e.nearest_cycle(heartbeat, data[1] & 0x0F if len(data) > 1 else 0)
+        its counter's bits 0–3 nearest the cycle now (the heartbeat last followed and the cycles
+        since), whose bits 4–11 its CRC must cover — a setpoint 9 to about 4 087 cycles old fails
+        here, a younger one lags its heartbeat."""
+        # The cycle now: the heartbeat last followed (a jump is followed, not taken) and the cycles
+        # since, so a setpoint after a silence of the heartbeat is read at its own cycle.
+        watch = self.heartbeat_watch
+        now = 0 if watch.followed is None else watch.followed + watch.since_followed
+        cycle = e2e.nearest_cycle(now, data[1] & 0x0F if len(data) > 1 else 0)
         if not self.listening or not self.setpoint_watch.receive(frame_id, data, length, cycle):
             return
         voltage = float(decode(bytes(data)))

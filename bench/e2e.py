@@ -132,12 +132,15 @@ def frame_crc(frame_id: int, payload: bytes | bytearray, fresh: int = 0) -> int:
 
 
 def freshness_of(frame_id: int, payload: bytes | bytearray) -> int | None:
-    """The freshness byte a frame was protected with, or None if its CRC holds for none.
+    """The freshness byte a frame's CRC holds with; None for a frame too short to carry one.
 
-    One byte of a CRC-8's input maps one to one onto the CRC, so a valid frame has exactly one.
-    Fault injection uses it to re-protect a frame it alters as its sender would have.
+    One byte of a CRC-8's input maps one to one onto the CRC, so every frame has exactly one such
+    byte — for an intact frame the one its sender protected it with, for a damaged one some byte.
+    Fault injection uses it to re-protect a sender's frame it alters as the sender would have.
     """
-    return next((f for f in range(256) if payload[0] == frame_crc(frame_id, payload, f)), None)
+    if len(payload) < 2:
+        return None
+    return next(f for f in range(256) if payload[0] == frame_crc(frame_id, payload, f))
 
 
 def protect(frame_id: int, payload: bytearray, counter: int, fresh: int = 0) -> bytearray:
@@ -294,9 +297,13 @@ class LogFreshness:
             return False
         if frame_id == HEARTBEAT_ID:
             checked = check_heartbeat(frame_id, payload, None)
-            if checked.crc_ok:
+            # Once the cycle is known, a heartbeat more than 8 cycles from it is a stale or
+            # replayed one: it fails, and the cycle stays.
+            running = self._running(time)
+            near = self.time is None or (checked.counter - running + 8) % CYCLE_MODULO < 16
+            if checked.crc_ok and near:
                 self._set(checked.counter, time)
-            return checked.crc_ok
+            return checked.crc_ok and near
         running = self._running(time)
         if frame_id in self.echoes:
             return payload[0] == frame_crc(frame_id, payload, freshness(echoed_cycle(running, payload[1] >> 4)))

@@ -40,7 +40,7 @@ class FaultInjector:
         self.stats: defaultdict[str, int] = defaultdict(int)
         self.delayed: list[tuple] = []  # (due time, bus handle, message, bus index)
         self.frozen_counters: dict = {}  # corrupt_counter: the counter each fault froze
-        depth = max((f.age for f in self.faults if f.kind == "replay"), default=0)
+        depth = max((f.age + 1 for f in self.faults if f.kind == "replay"), default=0)
         # replay: per frame and bus the frames its sender sent, newest last (what a replay repeats)
         self.sent: defaultdict[tuple, deque] = defaultdict(lambda: deque(maxlen=depth))
 
@@ -66,25 +66,25 @@ class FaultInjector:
             What goes on the bus now.
         """
         history = self.sent[name, index] if self._replays(name) else None
-        copies = [message]
-        for f in self.faults:
+        if history is not None:
+            history.append(message)  # what the sender sent, before any fault
+        frame, copies = message, 1
+        for f in self.faults:  # in order; the first that withholds the frame ends it
             if f.target != name or not f.active(t):
                 continue
             self.stats[f"injected_{f.kind}"] += 1
             if f.kind in ("drop", "silent"):
-                copies = []
-                break
+                return []
             if f.kind == "delay":
-                self.delayed.append((t + f.lateness, bus, message, index))
-                copies = []
-                break
-            copies = [self._altered(copy, f, t, history) for copy in copies]
-            copies = [c for c in copies if c is not None]
+                self.delayed.append((t + f.lateness, bus, frame, index))
+                return []
             if f.kind == "duplicate":
-                copies = copies * 2
-        if history is not None:
-            history.append(message)
-        return copies
+                copies = 2
+            else:
+                frame = self._altered(frame, f, t, history)
+                if frame is None:  # a replay before its sender has sent that many frames
+                    return []
+        return [frame] * copies
 
     def _replays(self, name: str) -> bool:
         return any(f.kind == "replay" and f.target == name for f in self.faults)
@@ -111,14 +111,16 @@ class FaultInjector:
             )
         if f.kind == "implausible":
             return self._implausible(message, f, t)
-        if f.kind == "replay":  # the frame its sender sent f.age cycles ago, as it was; none before then
-            if history is None or len(history) < f.age:
+        if f.kind == "replay":  # the frame its sender sent f.age frames ago, as it was; none before then
+            if history is None or len(history) <= f.age:
                 return None
-            old = history[-f.age]
+            old = history[-1 - f.age]
             return self.frame(old.arbitration_id, bytes(old.data), t)
         return message
 
     def _reprotected(self, message, data: bytearray, counter: int, t: float):
+        # The byte its CRC holds with: the sender's own when the frame is intact (as it is under
+        # these faults, which act on the sender's frames; a damaged frame maps to some byte too).
         fresh = e2e.freshness_of(message.arbitration_id, bytes(message.data))
         data = e2e.protect(message.arbitration_id, data, counter, 0 if fresh is None else fresh)
         return self.frame(message.arbitration_id, bytes(data), t)

@@ -230,3 +230,32 @@ def test_tip_sensor_signals_carry_the_unit_and_range_of_their_quantity():
     # A velocity limit beyond what the frame carries would never trip: refused before rendering.
     with pytest.raises(ModelError, match=r"sensor_limit\[1\]: 15.0 for sensor 'tip_vz'.*up to 10"):
         can_layer.check_can(_small_artifact(velocity_limit=15.0), protocol.Amplifier())
+
+
+def test_a_logs_freshness_follows_its_heartbeats_and_refuses_a_replayed_one():
+    """``e2e.LogFreshness`` reads every frame of a log at its cycle: node frames by the heartbeat
+    they echo, the controller's by their counter, the cycle running on with the time stamps; a
+    heartbeat replayed 20 cycles old fails and does not move the cycle, so the genuine frames
+    around it still pass."""
+    fresh = e2e.LogFreshness(echoes={0x101}, sample_time=1e-3)
+
+    def heartbeat(cycle):
+        payload = bytearray(8)
+        payload[e2e.HEARTBEAT_CYCLE_BYTE] = e2e.freshness(cycle)
+        return e2e.protect(e2e.HEARTBEAT_ID, payload, cycle, e2e.freshness(cycle))
+
+    def joint(echoed):
+        payload = bytearray(12)
+        payload[1] = (echoed & 0x0F) << 4
+        return e2e.protect(0x101, payload, echoed, e2e.freshness(echoed))
+
+    passed = []
+    for cycle in range(1, 120):
+        t = cycle * 1e-3
+        passed.append(fresh.crc_ok(0x101, joint(cycle - 1), t))  # sampled after the last heartbeat
+        passed.append(fresh.crc_ok(0x200, e2e.protect(0x200, bytearray(6), cycle, e2e.freshness(cycle)), t))
+        sent = cycle - 20 if 50 <= cycle < 60 else cycle
+        assert fresh.crc_ok(e2e.HEARTBEAT_ID, heartbeat(sent), t) == (sent == cycle), cycle
+    assert all(passed) and len(passed) == 238
+    # …and a node frame that echoes a heartbeat 16 or more cycles back does not.
+    assert not fresh.crc_ok(0x101, joint(100), 0.120)
