@@ -88,20 +88,26 @@ class JointNode:
         counts. A count repeated or behind the last one — a replay 16·m heartbeats old, whose
         4-bit counter looks fresh — is ignored before the counter moves (else the next genuine
         heartbeat would be its repeat); otherwise each follows the frame unless it repeats or is
-        stale (``e2e.Check.resynchronises``)."""
+        stale (``e2e.Check.resynchronises``). A node that has lost the heartbeat takes a SAFE
+        heartbeat with a count of 0 … 3 as a supervisor's (re)start and follows it afresh."""
         if frame_id != HEARTBEAT_ID or len(data) != HEARTBEAT_LENGTH:
             return False
-        count = e2e.check_heartbeat(frame_id, data, self.heartbeat_count)
-        if not count.resynchronises:
+        count = data[HEARTBEAT_CYCLE_BYTE] << 4 | data[1] & 0x0F
+        start = count <= e2e.MAX_COUNTER_STEP and data[2] & 0x0F == law_registry.MODE_SAFE
+        start = start and data[0] == e2e.frame_crc(frame_id, data, data[HEARTBEAT_CYCLE_BYTE])
+        if self.heartbeat_lost and start:  # a supervisor that has (re)started, SAFE at power-up: a new count
+            self.heartbeat_count = self.receiver = None
+        checked = e2e.check_heartbeat(frame_id, data, self.heartbeat_count)
+        if not checked.resynchronises:
             return False
         counter = e2e.check(frame_id, data, self.receiver, data[HEARTBEAT_CYCLE_BYTE])
         if counter.resynchronises:
             self.receiver = counter.counter
-        self.heartbeat_count = count.counter
-        if not (counter.ok and count.ok):
+        self.heartbeat_count = checked.counter
+        if not (counter.ok and checked.ok):
             return False
         self.mode = data[2] & 0x0F
-        self.echoed = count.counter
+        self.echoed = checked.counter
         self.silent = 0
         return True
 

@@ -199,6 +199,35 @@ def test_a_heartbeat_stream_replayed_16_m_heartbeats_old_does_not_feed_the_node(
     assert all(p[4] == (True,) for p in runs["genuine"][::10]) and not any(p[1] & 2 for p in runs["genuine"])
 
 
+@pytest.mark.parametrize("silence", [0, 1000])
+def test_a_node_that_lost_the_heartbeat_follows_a_restarted_supervisor(reference, module, silence):
+    """The supervisor stops at count 1 999 and, after a silence, starts again from 1, now asking
+    for SAFE: a count its node reads as 1 902 behind. A node that has lost the heartbeat takes the
+    new supervisor's first heartbeat (a count of 0 … 3 is a start) and holds the safe force from
+    there, C and Python alike; without the loss (the new count right after the old) it is not
+    taken, as a replay of a start would not be."""
+    config = joint_node.node_config(reference, 0)
+    restart = 1000 + silence
+    script = []
+    for k in range(restart + 200):
+        frames = []
+        if k < 1000 and k % 10 == 0:
+            frames.append((joint_node.HEARTBEAT_ID, _heartbeat(LAW, 1900 + k // 10)))
+        if k >= restart and k % 10 == 0:
+            frames.append((joint_node.HEARTBEAT_ID, _heartbeat(SAFE, 1 + (k - restart) // 10)))
+        script.append((frames, (0.0, 0.0, 100.0)))
+    python = _run(JointNode(config), script)
+    compiled = _run(CompiledNode(module, reference, 0), script)
+    assert [p[1:] for p in python] == [c[1:] for c in compiled]
+    assert [np.float64(p[0]).tobytes() for p in python] == [np.float64(c[0]).tobytes() for c in compiled]
+    taken = python[restart][4]
+    if silence:
+        assert taken == (True,) and python[restart][0] == config.safe_normal_force
+        assert all(p[4] == (True,) for p in python[restart::10]) and not python[-1][1] & 2
+    else:
+        assert taken == (False,) and python[restart][0] != config.safe_normal_force
+
+
 def test_the_status_frame_decodes_with_the_supervision_dbc(reference, module):
     """The node's NODE_STATUS frame is what the local mode's DBC says (cantools decodes it)."""
     db = protocol.load_dbc(protocol.dbc_text(joint_node.supervision_database(reference)))

@@ -129,12 +129,13 @@ def test_the_joint_nodes_run_the_preloaded_central_law(artefacts):
     rng = np.random.default_rng(5)
     for k in range(1500):
         if k % 10 == 0:
+            count = k // 10 + 1  # the supervisor's heartbeat count: bits 0-3 the counter, 4-11 cycle_high
+            heartbeat = bytearray(joint_node.HEARTBEAT_LENGTH)
+            heartbeat[2] = joint_node.NODE_LAW.mode
+            heartbeat[joint_node.HEARTBEAT_CYCLE_BYTE] = e2e.freshness(count)
+            frame = bytes(e2e.protect(joint_node.HEARTBEAT_ID, heartbeat, count, e2e.freshness(count)))
             for node in nodes:
-                heartbeat = bytearray(joint_node.HEARTBEAT_LENGTH)
-                heartbeat[2] = joint_node.NODE_LAW.mode
-                node.receive(
-                    joint_node.HEARTBEAT_ID, bytes(e2e.protect(joint_node.HEARTBEAT_ID, heartbeat, k // 10 % 16))
-                )
+                assert node.receive(joint_node.HEARTBEAT_ID, frame), k  # every heartbeat taken
         m = Measurements(k * 1e-3, np.zeros(2), rng.normal(0, 1e-5, 3), rng.normal(0, 20, 3), rng.uniform(10, 400, 3))
         expected = central.step(m)
         local = [n.step(m.sliding_velocity[j], m.friction_force[j], m.normal_force[j]) for j, n in enumerate(nodes)]

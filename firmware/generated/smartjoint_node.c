@@ -41,6 +41,16 @@ int smartjoint_node_rx(smartjoint_node_state *state, uint32_t id, const uint8_t 
         return 0;
     }
     count = (uint16_t)(((unsigned int)data[SMARTJOINT_NODE_HEARTBEAT_CYCLE_BYTE] << 4) | (data[1] & 0x0Fu));
+    if (state->config != NULL && LOST(state) && count <= SJ_E2E_MAX_COUNTER_STEP &&
+        (data[2] & 0x0Fu) == SMARTJOINT_NODE_MODE_SAFE &&
+        data[0] == sj_e2e_frame_crc((uint16_t)id, data, length, data[SMARTJOINT_NODE_HEARTBEAT_CYCLE_BYTE])) {
+        /* Lost, and the heartbeat of a supervisor that has (re)started, SAFE at power-up: its
+         * count begins afresh, which the old count would read as behind for up to 2047
+         * heartbeats. A replay is taken so only where it replays SAFE at a count of 0..3, and
+         * it then commands the safe force. */
+        state->heartbeat_count = NO_COUNT;
+        state->heartbeat.valid = 0u;
+    }
     if (state->heartbeat_count != NO_COUNT) {
         /* The 4-bit counter of a replay 16*m heartbeats old looks fresh; its whole count does not.
          * A repeat or a count behind (2048..4095 ahead) is ignored before the counter moves (else
