@@ -102,7 +102,7 @@ def test_make_builds_the_host_example(folder, reference):
     assert example.returncode == 0 and "status 0" in example.stdout
     # Local mode as the example runs it: the supervisor and every node on a bus in memory, a status
     # from each node every SUPERVISION_CYCLES samples, every node healthy under the law.
-    line = r"local mode: 100 samples, (\d+) node statuses taken, node 0 F_N = (\S+) N, health of node 0: (\d+)"
+    line = r"local mode: 100 samples, (\d+) node statuses taken, node 0 F_N = (\S+) N, health of the nodes: (\d+)"
     local = re.search(line, example.stdout)
     assert local, example.stdout
     assert int(local[1]) == len(reference.joint_names) * 100 // joint_node.SUPERVISION_CYCLES and local[3] == "0"

@@ -104,6 +104,7 @@ int main(void)
         uint8_t heartbeat_length = 0u;
         uint8_t status_length = 0u;
         unsigned int statuses = 0u;
+        unsigned int health = 0u;
         smartjoint_real wave = 0.001f;
         smartjoint_supervisor_init(&supervisor);
         (void)smartjoint_supervisor_request(&supervisor, SMARTJOINT_SUPERVISOR_MODE_LAW);
@@ -130,8 +131,11 @@ int main(void)
                 }
             }
         }
-        printf("local mode: %d samples, %u node statuses taken, node 0 F_N = %g N, health of node 0: %u\n", k,
-               statuses, (double)command[0], (unsigned int)supervisor.nodes[0].health);
+        for (j = 0; j < SMARTJOINT_SUPERVISOR_JOINTS; ++j) {
+            health |= supervisor.nodes[j].health; /* 0: every node healthy */
+        }
+        printf("local mode: %d samples, %u node statuses taken, node 0 F_N = %g N, health of the nodes: %u\n", k,
+               statuses, (double)command[0], health);
     }
     return status == 0u ? 0 : 1;
 }
