@@ -64,6 +64,7 @@ class FrameWatch:
     failed: bool = False  # an E2E failure since the last tick
     followed: int | None = None  # the counter (a heartbeat's cycle) last followed, accepted or a jump …
     since_followed: int = 0  # … and the cycles since
+    keeps_order: bool = False  # after a loss, still refuse a counter behind the last (a heartbeat's 12 bits)
 
     def receive(self, frame_id: int, data: bytes, length: int, cycle: int | None = None) -> bool:
         """Take one received frame: its length and E2E check; whether it was accepted.
@@ -89,13 +90,18 @@ class FrameWatch:
         self.seen = self.healthy = True
         return True
 
+    @property
+    def lost(self) -> bool:
+        """Whether no frame was accepted for ``timeout_cycles`` cycles."""
+        return self.seen and self.silent >= self.timeout_cycles
+
     def tick(self) -> str | None:
         """One controller cycle passed: the reason this frame cannot be used, or None."""
         silent, self.silent = self.silent, min(self.silent + 1, 255)
         self.since_followed = min(self.since_followed + 1, e2e.CYCLE_MODULO)
         failed, self.failed = self.failed, False
         if not self.seen or silent >= self.timeout_cycles:
-            if self.seen:
+            if self.seen and not self.keeps_order:
                 self.last_counter = None  # the E2E check accepts whatever counter comes next
             return "timeout"
         if failed or not self.healthy:
@@ -169,7 +175,9 @@ class AmplifierModel:
         self.voltage = self.setpoint = self.safe_voltage  # power-up: the safe force at once
         self.current = 0.0
         self.setpoint_watch = FrameWatch(self.timeout_cycles)
-        self.heartbeat_watch = FrameWatch(self.timeout_cycles)
+        # The heartbeat's 12-bit cycle keeps its order through a loss: a replayed heartbeat stream
+        # (with its setpoints, a gateway replaying everything) stays behind and is never followed.
+        self.heartbeat_watch = FrameWatch(self.timeout_cycles, keeps_order=True)
         self.controller_mode = None
         self.implausible = False
         self.own_safe = True
@@ -229,8 +237,20 @@ class AmplifierModel:
             self.setpoints_received += 1
 
     def receive_heartbeat(self, frame_id: int, data: bytes, length: int, decode) -> None:
-        """A CONTROLLER_STATUS frame; ``decode(data)`` gives its mode."""
-        if self.listening and self.heartbeat_watch.receive(frame_id, data, length):
+        """A CONTROLLER_STATUS frame; ``decode(data)`` gives its mode.
+
+        Its cycle must step on from the last one followed, also after a loss: a stream behind it
+        (replayed, up to 2 047 cycles old) is ignored for as long as it lasts. Only a controller
+        that has (re)started — SAFE at a cycle of 0 … 3, its CRC valid — is taken afresh once the
+        heartbeat is lost."""
+        watch = self.heartbeat_watch
+        if not self.listening:
+            return
+        if watch.lost and len(data) == length:
+            checked = e2e.check_heartbeat(frame_id, data, None)
+            if checked.crc_ok and checked.counter <= e2e.MAX_COUNTER_STEP and int(decode(bytes(data))) == MODE_SAFE:
+                watch.last_counter = None
+        if watch.receive(frame_id, data, length):
             self.controller_mode = int(decode(bytes(data)))
 
     def _watchdog(self) -> None:

@@ -380,3 +380,30 @@ def test_fault_fields_that_mean_nothing_are_refused():
                 parse_fault(text)
     assert parse_fault("silent:CONTROLLER_STATUS:0:inf").end == math.inf
     assert parse_fault("replay:TIP_SENSORS:1:2:64") == Fault("replay", 1.0, 2.0, "TIP_SENSORS", age=64)
+
+
+@pytest.mark.parametrize("age", [16, 50, 2000])
+def test_a_replay_of_the_controllers_whole_stream_holds_every_joint_safe(reference_firmware, age, monkeypatch):
+    """Heartbeat and setpoints replayed together ``age`` cycles old (a gateway replaying all it
+    buffered): their CRCs hold and the 4-bit counters run on, so an amplifier that followed any
+    heartbeat after a loss would drive the old setpoints. The heartbeat's 12-bit cycle keeps its
+    order through the loss: every joint reaches the safe force within 3 cycles and holds it while
+    the replay lasts; after it the jump back costs one cycle more than a single fault's recovery.
+    With the receiver that followed whatever came after a loss, the same case fails."""
+    dt = LOADED.sample_time
+    start = age + 6
+    frames = ["CONTROLLER_STATUS", *(f"SETPOINT_{j.upper()}" for j in LOADED.joint_names)]
+    faults = tuple(Fault("replay", start * dt, (start + 40) * dt, f, age=age) for f in frames)
+    case = safety.Case(f"whole stream {age} cycles old", "replayed mid-run", faults, start + 80)
+    measured = safety.signals(None, LOADED, case.cycles)
+    row = safety.measure(safety.run_case_loop(reference_firmware, case, measured).record, faults, LOADED)
+    assert row["ok"] and row["joints"] <= safety.DETECTION_LIMIT and row["recovery"] <= RECOVERY_LIMIT + 1, row
+    post_init = AmplifierModel.__post_init__
+
+    def forgetful(amplifier):  # the receiver before: after a loss, whatever heartbeat comes next
+        post_init(amplifier)
+        amplifier.heartbeat_watch.keeps_order = False
+
+    monkeypatch.setattr(AmplifierModel, "__post_init__", forgetful)
+    before = safety.measure(safety.run_case_loop(reference_firmware, case, measured).record, faults, LOADED)
+    assert not before["ok"], before
