@@ -375,11 +375,14 @@ def _checked_dbc(db) -> str:
     return text
 
 
-def _example_context(context: dict, real: str, digest: str) -> dict:
-    """The example ``main.c``'s context: the layer's, with its stimulus in the controllers' scalar."""
+def _example_context(context: dict, real: str, digest: str, nodes: bool) -> dict:
+    """The example ``main.c``'s context: the layer's, with its stimulus in the controllers' scalar;
+    with ``nodes`` (the joint nodes and their supervisor beside it) it runs local mode too."""
     lit = lambda value: rendering.literal(value, real)  # noqa: E731
+    prefix = context["prefix"]
     return {
         **context,
+        "node_configs": [f"{prefix}_node_{j.lower()}_config" for j in context["joints"]] if nodes else [],
         "zero": lit(0.0),
         "amplitude": lit(1e-3),
         "decay": lit(0.995),
@@ -426,13 +429,12 @@ def render_can(
     real : str
         The scalar type of the controllers the layer drives (``<prefix>_real``): the codec's
         encode/decode compute in it, so the float build uses no double arithmetic.
-    nodes : bool
-        The joint nodes and their supervisor are generated beside it (``joint_nodes``): the
-        example ``main.c`` runs local mode as well.
     network : NetworkPlan, optional
         The buses and their frames (``design.network.plan.plan``: its setpoints packed into
         ``SETPOINTS_<J>`` frames where that lowers the load); default every frame of
         ``protocol.database`` on one bus, one ``SETPOINT_<j>`` per joint (``plan.one_bus``).
+    nodes : bool
+        The joint nodes and their supervisor are beside it: ``main.c`` runs local mode too.
 
     Returns
     -------
@@ -479,8 +481,6 @@ def render_can(
     env = rendering.environment()
     files = {f"{prefix}_can.{kind}": env.get_template(f"can.{kind}.j2").render(context) for kind in "hc"}
     files.update({**_runtime_sources(), **dbc_files(network)})
-    example = _example_context(context, real, digest)
-    # With the joint nodes and their supervisor beside it (``joint_nodes``), the example runs local mode too.
-    example["node_configs"] = [f"{prefix}_node_{j.lower()}_config" for j in joints] if nodes else []
+    example = _example_context(context, real, digest, nodes)
     files["main.c"] = env.get_template("main_can.c.j2").render(example)
     return files

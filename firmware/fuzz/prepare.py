@@ -45,7 +45,7 @@ def _number(value: float) -> str:
 
 
 def _reference_sources(artifact, can_layer, generate) -> dict[str, str]:
-    files = {**generate.render(artifact, "float", PREFIX), **can_layer.render_can(artifact, PREFIX)}
+    files = {**generate.render(artifact, "float", PREFIX), **can_layer.render_can(artifact, PREFIX, nodes=True)}
     return {name: text for name, text in files.items() if name.endswith((".c", ".h"))}
 
 
