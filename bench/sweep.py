@@ -382,9 +382,10 @@ def run_sweep(
             out = _compute(client, prepared, folder, todo, progress)
             return {**out, "landscape": LANDSCAPE if write_landscape(prepared, folder, progress) else None}
         except KeyboardInterrupt:
-            # Tasks still running when the client goes: the scheduler logs its failed reports to it with
-            # tracebacks. The command's one line says what happened.
-            for name in ["distributed", *(n for n in logging.root.manager.loggerDict if n.startswith("distributed."))]:
+            # Tasks still running when the client goes: the scheduler and its event loop (tornado, asyncio) log
+            # their failed reports and callbacks with tracebacks. The command's one line says what happened.
+            noisy = ("distributed", "tornado", "asyncio")
+            for name in [*noisy, *(n for n in logging.root.manager.loggerDict if n.startswith(noisy))]:
                 logging.getLogger(name).setLevel(logging.CRITICAL + 1)  # the scheduler logs a lost comm as critical
             raise
         finally:
