@@ -33,7 +33,7 @@ class FaultInjector:
         ``frame(frame_id, data, t)`` → a ``can.Message`` as the loop sends it.
     """
 
-    def __init__(self, faults, db, frame):
+    def __init__(self, faults, db, frame) -> None:
         self.faults = list(faults)
         self.db = db
         self.frame = frame
