@@ -30,6 +30,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from smartjoint.bench.interrupts import quiet_on_interrupt
 from smartjoint.bench.sweep_folder import MANIFEST, RESULTS, check_output
 from smartjoint.bench.sweep_landscape import LANDSCAPE, write_landscape
 from smartjoint.codegen.closed_loop import CompiledLoops
@@ -368,6 +369,7 @@ def run_sweep(
     check_output(folder, resume)  # before the scheduler and the preparation (minutes on a large design)
     # The LocalCluster's work files in a folder of this run, removed with it (nothing left behind).
     with (
+        quiet_on_interrupt(),  # the event loop's logs of what an interrupt cuts short
         tempfile.TemporaryDirectory(prefix="smartjoint-dask-") as scratch,
         dask.config.set({"temporary-directory": scratch}),
     ):
@@ -381,13 +383,6 @@ def run_sweep(
             todo = open_output(folder, prepared, resume)
             out = _compute(client, prepared, folder, todo, progress)
             return {**out, "landscape": LANDSCAPE if write_landscape(prepared, folder, progress) else None}
-        except KeyboardInterrupt:
-            # Tasks still running when the client goes: the scheduler and its event loop (tornado, asyncio) log
-            # their failed reports and callbacks with tracebacks. The command's one line says what happened.
-            noisy = ("distributed", "tornado", "asyncio")
-            for name in [*noisy, *(n for n in logging.root.manager.loggerDict if n.startswith(noisy))]:
-                logging.getLogger(name).setLevel(logging.CRITICAL + 1)  # the scheduler logs a lost comm as critical
-            raise
         finally:
             client.close()
             if cluster is not None:
