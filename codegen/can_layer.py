@@ -443,9 +443,7 @@ def render_can(
         every bus (``dbc_files``) and an example ``main.c`` with the CAN loop.
     """
     rendering.check(artifact, real, prefix)
-    amplifier = amplifier or protocol.Amplifier(
-        force_per_volt=artifact.piezo_force_per_volt, preload=artifact.piezo_preload
-    )
+    amplifier = amplifier or protocol.amplifier_of(artifact)
     check_can(artifact, amplifier)
     network = network or plan.one_bus(artifact, protocol.database(artifact, amplifier))
     db = network_database(network)

@@ -34,6 +34,8 @@ def _joints(reference, count: int):
         sensor_quantities=list(reference.sensor_quantities),
         sample_time=reference.sample_time,
         artifact_sha256=reference.artifact_sha256,
+        piezo_force_per_volt=reference.piezo_force_per_volt,
+        piezo_preload=reference.piezo_preload,
     )
 
 
@@ -71,6 +73,21 @@ def test_the_bundled_design_fits_one_bus_with_packed_setpoints(reference):
     data = e2e.protect(frame.frame_id, bytearray(frame.encode(values)), 3)
     decoded = frame.decode(bytes(data))
     assert decoded["voltage_a1"] == pytest.approx(12.5, abs=1e-7) and decoded["voltage_a3"] == pytest.approx(149.9)
+
+
+def test_every_dbc_states_the_artefacts_own_amplifier(reference):
+    """The setpoint's F_N = force_per_volt·V + preload is the artefact's in every database: the
+    one-bus default (`codegen`, `bench dbc`) and each planned bus, packed setpoints included
+    (the plan used the paper's 8 N/V and no preload whatever the design said)."""
+    import dataclasses
+
+    own = dataclasses.replace(reference, piezo_force_per_volt=10.0, piezo_preload=5.0)
+    words = "F_N = 10*V + 5 N"
+    comments = lambda db: [s.comment for m in db.messages for s in m.signals if s.name.startswith("voltage")]  # noqa: E731
+    assert all(words in c for c in comments(protocol.database(own)))
+    planned = comments(plan(own).buses[0].database) + comments(plan(_joints(own, 12), _buses(3)).buses[2].database)
+    assert planned and all(words in c for c in planned)
+    assert not any(words in c for c in comments(protocol.database(reference)))  # the reference's own: 8*V + 0 N
 
 
 def test_twelve_joints_need_three_buses_and_each_stays_within_70_percent(reference):

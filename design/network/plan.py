@@ -85,6 +85,8 @@ def _setpoints_message(joints: Sequence[tuple[int, str]], template: can.Message,
     first = joints[0][0]
     frame_id = protocol.SETPOINT_BASE + first
     voltage = template.get_signal_by_name("voltage")
+    conversion = voltage.comment.partition(": ")[2]  # "F_N = <force per volt>*V + <preload> N", every joint's
+    comments = [f"piezo voltage setpoint of joint {name}: {conversion}" for _, name in joints]
     signals = protocol.e2e_signals(frame_id)
     for k, (_, name) in enumerate(joints):
         signals.append(
@@ -97,7 +99,7 @@ def _setpoints_message(joints: Sequence[tuple[int, str]], template: can.Message,
                 voltage.unit,
                 voltage.minimum,
                 voltage.maximum,
-                f"piezo voltage setpoint of joint {name}",
+                comments[k],
             )
         )
     tags = [protocol.identifier(name, "joint") for _, name in joints]
@@ -165,18 +167,23 @@ def _bus_plan(full, artifact, bus: Bus, joints: list[int], first: bool, spec) ->
     return BusPlan(bus, [names[j] for j in joints], db, load, per_sample, packed)
 
 
+def _packed(database: can.Database) -> bool:
+    """Whether a database's setpoints travel in ``SETPOINTS_<J>`` frames."""
+    return any(m.name.startswith("SETPOINTS_") for m in database.messages)
+
+
 def one_bus(artifact, database: can.Database) -> NetworkPlan:
-    """Every frame of ``database`` (``protocol.database``: one ``SETPOINT_<j>`` per joint) on one
-    bus at CAN FD 1/5 Mbit/s: the plan of a controller built without a ``[network]``."""
+    """Every frame of ``database`` on one bus at CAN FD 1/5 Mbit/s, as it is (a DBC read back, for
+    example): the plan of frames already laid out."""
     bus = Network().buses[0]
     load = busload.bus_load(database, bus.bitrate, bus.data_bitrate)
     busy = sum(f.frame_time for f in load.frames)
     return NetworkPlan(
-        [BusPlan(bus, list(artifact.joint_names), database, load, busy, False)], float(artifact.sample_time)
+        [BusPlan(bus, list(artifact.joint_names), database, load, busy, _packed(database))], float(artifact.sample_time)
     )
 
 
-def plan(artifact, spec: Network | None = None) -> NetworkPlan:
+def plan(artifact, spec: Network | None = None, amplifier: protocol.Amplifier | None = None) -> NetworkPlan:
     """Assign an artefact's frames to the buses of ``spec`` (module docstring).
 
     Parameters
@@ -186,6 +193,8 @@ def plan(artifact, spec: Network | None = None) -> NetworkPlan:
     spec : Network, optional
         The buses (in order of filling), where the SISO law runs, the supervision period; default
         one bus at CAN FD 1/5 Mbit/s, limit 70 %, the SISO law central.
+    amplifier : protocol.Amplifier, optional
+        The amplifier the setpoints command; default the artefact's (``protocol.amplifier_of``).
 
     Returns
     -------
@@ -199,7 +208,7 @@ def plan(artifact, spec: Network | None = None) -> NetworkPlan:
         when the joints do not fit the buses.
     """
     spec = Network() if spec is None else spec
-    full = protocol.database(artifact)
+    full = protocol.database(artifact, amplifier)
     memo: dict[tuple[int, int, int], BusPlan] = {}  # (bus, first joint, end) → its plan
     result = _fill(full, artifact, spec, 1.0, memo)
     if result is None:
@@ -278,6 +287,8 @@ def check_design(design) -> NetworkPlan | None:
         sensor_quantities=[s.quantity for s in design.sensors],
         sample_time=design.control.sample_time,
         artifact_sha256="0" * 64,
+        piezo_force_per_volt=design.control.piezo_force_per_volt,
+        piezo_preload=design.control.piezo_preload,
     )
     return plan(frames, design.network)
 

@@ -389,7 +389,12 @@ def _fd_specifics() -> DbcSpecifics:
     )
 
 
-def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -> can.Database:
+def amplifier_of(artifact: ControllerArtifact) -> Amplifier:
+    """The piezo amplifier of an artefact: its ``piezo_force_per_volt`` and ``piezo_preload``."""
+    return Amplifier(force_per_volt=float(artifact.piezo_force_per_volt), preload=float(artifact.piezo_preload))
+
+
+def database(artifact: ControllerArtifact, amplifier: Amplifier | None = None) -> can.Database:
     """The cantools database of an artefact's controller bus (frames of the module docstring).
 
     Parameters
@@ -397,8 +402,9 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
     artifact : ControllerArtifact
         The controller design artefact: joints, sensors, sample time (the cycle time of every
         frame) and the ranges the signals carry.
-    amplifier : Amplifier
-        The piezo amplifier the setpoint frames command (force per volt, preload, voltage range).
+    amplifier : Amplifier, optional
+        The piezo amplifier the setpoint frames command (force per volt, preload, voltage range);
+        default the artefact's own (:func:`amplifier_of`).
 
     Returns
     -------
@@ -410,14 +416,9 @@ def database(artifact: ControllerArtifact, amplifier: Amplifier = Amplifier()) -
     ModelError
         Too many joints or sensors for the identifier blocks or a CAN FD frame, names the DBC
         cannot carry, or a range beyond what a signal's field holds.
-
-    Examples
-    --------
-    >>> db = database(artifact)  # doctest: +SKIP
-    >>> db.get_message_by_name("TIP_SENSORS").frame_id  # doctest: +SKIP
-    384
     """
     joints, sensors = list(artifact.joint_names), list(artifact.sensor_names)
+    amplifier = amplifier_of(artifact) if amplifier is None else amplifier
     if not 1 <= len(joints) <= MAX_JOINTS:
         raise ModelError(f"joint_names: {len(joints)} joints — the protocol carries 1…{MAX_JOINTS}")
     if not 1 <= len(sensors) <= MAX_SENSORS:
