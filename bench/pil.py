@@ -130,8 +130,8 @@ class TargetFirmware:
         self.files = firmware.sources(artifact, "float", target.PREFIX, xcp)
         self.prefix = target.PREFIX
         self._xcp_frames: list[bytes] = []
-        # the target is built for one bus (design.network.plan.one_bus)
-        self.network = plan.one_bus(artifact, protocol.database(artifact))
+        # the target is built for one bus: the default plan (design.network.plan.plan)
+        self.network = plan.plan(artifact)
         self.xcp_plan = None if xcp is None else xcp_bus.xcp_plan(self.network, xcp)
         self.db = can_layer.network_database(self.network)
         self._scratch = tempfile.TemporaryDirectory(prefix="smartjoint-pil-")

@@ -21,7 +21,7 @@ from smartjoint.common import figures, law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design import plant
 from smartjoint.design.control import study as closed_loop
-from smartjoint.design.network import busload, plan, protocol
+from smartjoint.design.network import busload, plan
 
 
 def run_loop(setup, loop: SilLoop):
@@ -178,7 +178,7 @@ def sil_study(
         injected faults' figures (``safety.measure``), the SIL record and result.
     """
     python = {law.name: law.python_reference for law in law_registry.LAWS.values()}
-    planned = plan.one_bus(artifact, protocol.database(artifact)) if network is None else plan.plan(artifact, network)
+    planned = plan.plan(artifact, network)
     _check_faults_against(planned, artifact, faults)
     out = _study_header(planned, bitrate, data_bitrate, real, amplifier)
     for law in laws:
@@ -351,7 +351,7 @@ def fault_run(setup, artifact, law: str | None = None, faults=None, real: str = 
     """
     law = law_registry.fault_matrix_law().name if law is None else law
     faults = demo_faults(artifact, setup.duration) if faults is None else tuple(faults)
-    planned = plan.one_bus(artifact, protocol.database(artifact)) if network is None else plan.plan(artifact, network)
+    planned = plan.plan(artifact, network)
     _check_faults_against(planned, artifact, faults)
     late = [f.label() for f in faults if not f.start < setup.duration]
     if late:  # it would never act, and its cycles could not be counted

@@ -6,7 +6,7 @@ RAM of the linked image), and its step on the target (instructions under ``-icou
 mean over seeded samples with the empty loop subtracted); its commands are checked against the
 host float build bit for bit. Then the supervision bus of local mode
 (``design.network.joint_node.supervision_database``) for 3, 12 and 30 joints at the artefact's
-sample time, on CAN FD 1/5 Mbit/s, beside the central bus of today's frames (``protocol.database``)
+sample time, on CAN FD 1/5 Mbit/s, beside the central bus of the default plan (``plan.plan``)
 for the artefact's joints. Targets: ≤ 4 KiB flash, ≤ 256 B RAM, ≤ 200 instructions a step, the
 12-joint bus ≤ 15 %.
 
@@ -27,7 +27,7 @@ from machine import artifact_header, cpu_model, write_json  # benchmarks/machine
 from smartjoint.bench import node_target
 from smartjoint.bench.joint_node import CompiledNode, compiled_nodes
 from smartjoint.design.control import artifact as artifacts
-from smartjoint.design.network import busload, joint_node, protocol
+from smartjoint.design.network import busload, joint_node, plan, protocol
 
 ROOT = Path(__file__).resolve().parents[1]
 RATES = (1_000_000, 5_000_000)
@@ -67,7 +67,7 @@ def main() -> int:
         print(
             f"local mode, {count} joints, supervision every {joint_node.SUPERVISION_CYCLES} samples: {loads[count]:.2%}"
         )
-    central = busload.bus_load(protocol.database(a), *RATES).load
+    central = plan.plan(a).buses[0].load.load
     print(f"central bus of this artefact ({len(a.joint_names)} joints, every frame every sample): {central:.2%}")
     facts = {
         "cpu": cpu_model(),

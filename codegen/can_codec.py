@@ -118,6 +118,25 @@ def _pack_lines(name: str, start: int, length: int, raw: str) -> list[str]:
     return lines
 
 
+def _byte_loops(rows: list[dict]) -> list[dict]:
+    """Fields of whole bytes on byte boundaries, two or more of one width (the voltages of a packed
+    SETPOINTS frame, the tip sensors): packed in one loop over the byte index, least significant
+    byte first, instead of a statement per byte (which compilers merge into word-wise shuffles
+    several times the size). Their rows then pack nothing of their own."""
+    widths: dict[int, list[dict]] = {}
+    for row in rows:
+        if row["start"] % 8 == 0 and row["length"] % 8 == 0 and row["length"] >= 16:
+            widths.setdefault(row["length"], []).append(row)
+    loops = []
+    for width, fields in sorted(widths.items()):
+        if len(fields) < 2:
+            continue
+        for row in fields:
+            row["pack"] = []
+        loops.append({"bytes": width // 8, "fields": [(row["start"] // 8, row["name"]) for row in fields]})
+    return loops
+
+
 def _unpack_lines(start: int, length: int, raw: str) -> list[str]:
     """The statements that gather a field's bits from ``src_p`` into the uint32_t ``raw``."""
     terms = []
@@ -218,10 +237,13 @@ def layouts(db, joints: list[str], real: str) -> tuple[list[dict], dict[str, str
                 "NAME": name.upper(),
                 "length": m.length,
                 "signals": [signal_row(s, real, _joint_tag(m.name, name)) for s in signals],
+                "byte_loops": [],
                 "frames": [],
                 "sent": False,
                 "received": False,
             }
         rows[name]["frames"].append(m.name)
         of[m.name] = name
+    for row in rows.values():
+        row["byte_loops"] = _byte_loops(row["signals"])
     return list(rows.values()), of

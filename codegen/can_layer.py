@@ -431,8 +431,8 @@ def render_can(
         encode/decode compute in it, so the float build uses no double arithmetic.
     network : NetworkPlan, optional
         The buses and their frames (``design.network.plan.plan``: its setpoints packed into
-        ``SETPOINTS_<J>`` frames where that lowers the load); default every frame of
-        ``protocol.database`` on one bus, one ``SETPOINT_<j>`` per joint (``plan.one_bus``).
+        ``SETPOINTS_<J>`` frames where that lowers the load); default the plan of one bus at
+        CAN FD 1/5 Mbit/s (``plan.plan`` without a ``[network]``).
     nodes : bool
         The joint nodes and their supervisor are beside it: ``main.c`` runs local mode too.
 
@@ -445,7 +445,7 @@ def render_can(
     rendering.check(artifact, real, prefix)
     amplifier = amplifier or protocol.amplifier_of(artifact)
     check_can(artifact, amplifier)
-    network = network or plan.one_bus(artifact, protocol.database(artifact, amplifier))
+    network = network or plan.plan(artifact, amplifier=amplifier)
     db = network_database(network)
     joints = [j.upper() for j in artifact.joint_names]
     messages, layouts = _messages(db, joints, real, full_codec)

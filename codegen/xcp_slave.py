@@ -19,7 +19,7 @@ from smartjoint.codegen import rendering
 from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control.artifact import ControllerArtifact
-from smartjoint.design.network import plan, protocol, xcp_bus
+from smartjoint.design.network import plan, xcp_bus
 from smartjoint.design.structure.description import Xcp
 
 # Bytes of each command the slave serves (ASAM XCP 1.x; a shorter frame is ERR_CMD_SYNTAX).
@@ -200,7 +200,7 @@ def render_xcp(
         The slave's sources and ``xcp.dbc``, its two frames.
     """
     xcp = xcp or Xcp()
-    room = xcp_bus.xcp_plan(network or plan.one_bus(artifact, protocol.database(artifact)), xcp)
+    room = xcp_bus.xcp_plan(network or plan.plan(artifact), xcp)
     daq_odts = room.odts
     name = f"{prefix}_xcp"
     lit = lambda value: rendering.literal(value, real)  # noqa: E731

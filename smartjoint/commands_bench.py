@@ -89,7 +89,7 @@ def _add_xcp_command(bench, o: SimpleNamespace, bus_channel) -> None:
 def _bench_database(args):
     from smartjoint.common.errors import ModelError
     from smartjoint.design.control import artifact
-    from smartjoint.design.network import protocol
+    from smartjoint.design.network import plan, protocol
 
     if args.dbc and (args.artifact or args.network):
         raise ModelError("--dbc: give the DBCs or --artifact (with --network), not both")
@@ -104,7 +104,7 @@ def _bench_database(args):
     if args.artifact:
         loaded = artifact.load(Path(args.artifact))
         if args.network is None:
-            return [protocol.database(loaded)], None
+            return [p.database for p in plan.plan(loaded).buses], None
         network = design_network(args.network, loaded)
         return [p.database for p in network.buses], [p.bus.name for p in network.buses]
     raise ModelError("give the protocol: --dbc FILE (one per bus) or --artifact controller.json [--network DESIGN]")
@@ -116,10 +116,10 @@ def cmd_bench(args) -> dict:
     from smartjoint.design.network import protocol
 
     if args.bench_command == "dbc":
-        loaded = artifact.load(Path(args.artifact))
-        db = protocol.database(loaded)
-        from smartjoint.design.network import busload
+        from smartjoint.design.network import busload, plan
 
+        loaded = artifact.load(Path(args.artifact))
+        db = plan.at_rates(loaded, args.bitrate, args.data_bitrate).database
         load = busload.check(db, args.bitrate, args.data_bitrate, args.max_load)
         write_atomic(Path(args.output), protocol.dbc_text(db))
         out = {"dbc": args.output, "frames": len(db.messages), "bus_load": load.load}
@@ -320,13 +320,13 @@ def _bench_a2l(args) -> dict:
     from smartjoint.codegen import can_layer, xcp_slave
     from smartjoint.common.errors import ModelError
     from smartjoint.design.control import artifact
-    from smartjoint.design.network import plan, protocol, xcp_bus
+    from smartjoint.design.network import plan, xcp_bus
 
     elf = Path(args.elf)
     if not elf.is_file():
         raise ModelError(f"ELF {args.elf}: not a file")
     loaded = artifact.load(Path(args.artifact))
-    network = design_network(args.design, loaded) if args.design else plan.one_bus(loaded, protocol.database(loaded))
+    network = design_network(args.design, loaded) if args.design else plan.plan(loaded)
     xcp = design_xcp(args.design)
     tools = args.compiler[: -len("gcc")] if args.compiler.endswith("gcc") else ""
     symbol = f"{args.prefix}_xcp_epk"

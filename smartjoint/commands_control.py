@@ -82,7 +82,7 @@ def cmd_design(args) -> dict:
 def _bus_loads(args, design, result) -> dict[str, float]:
     """The worst-case load of each bus: the design's [network] plan (``plan.plan``), or one bus of
     the command line's --bitrate, --data-bitrate and --max-load when any of them is given."""
-    from smartjoint.design.network import busload, plan, protocol
+    from smartjoint.design.network import busload, plan
 
     if args.bitrate is None and args.data_bitrate is None and args.max_load is None:
         result_plan = plan.plan(result, design.network)
@@ -95,7 +95,9 @@ def _bus_loads(args, design, result) -> dict[str, float]:
     bitrate = 1_000_000 if args.bitrate is None else args.bitrate
     data_bitrate = 5_000_000 if args.data_bitrate is None else args.data_bitrate
     limit = 0.7 if args.max_load is None else args.max_load
-    load = busload.check(protocol.database(result), bitrate, data_bitrate or None, limit)
+    load = busload.check(
+        plan.at_rates(result, bitrate, data_bitrate or None).database, bitrate, data_bitrate or None, limit
+    )
     report_progress(
         f"CAN bus load {100 * load.load:.1f} % at {bitrate / 1e6:g}"
         f"{'' if not data_bitrate else f'/{data_bitrate / 1e6:g}'} Mbit/s (limit {100 * limit:.0f} %)"
@@ -182,7 +184,7 @@ def _codegen_a2l(loaded, args, xcp, network=None) -> str:
     from smartjoint.bench import pil, target
     from smartjoint.bench.xcp_port import elf_description
     from smartjoint.codegen import can_layer, output
-    from smartjoint.design.network import plan, protocol, xcp_bus
+    from smartjoint.design.network import plan, xcp_bus
 
     if args.prefix != target.PREFIX or args.real != "float":
         return f"not written: the target image is the float build with prefix {target.PREFIX!r}"
@@ -195,7 +197,7 @@ def _codegen_a2l(loaded, args, xcp, network=None) -> str:
     report_progress("linking the Cortex-M4F image for the A2L's addresses …")
     with tempfile.TemporaryDirectory(prefix="smartjoint-a2l-") as work:
         elf = pil.build_image(loaded, Path(work), xcp=xcp)
-        network = network or plan.one_bus(loaded, protocol.database(loaded))
+        network = network or plan.plan(loaded)
         files = {**pil.firmware.sources(loaded, "float", target.PREFIX, xcp)}
         bus = xcp_bus.xcp_plan(network, xcp).bus
         text = elf_description(loaded, files, elf, xcp, can_layer.network_database(network), bus).text

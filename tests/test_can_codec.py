@@ -22,7 +22,7 @@ from smartjoint.design.control import artifact
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated" / "controller.json"
-KINDS = ("JOINT_A1", "TIP_SENSORS", "SETPOINT_A1", "AMP_STATUS_A1", "CONTROLLER_STATUS")
+KINDS = ("JOINT_A1", "TIP_SENSORS", "SETPOINTS_A1_A3", "AMP_STATUS_A1", "CONTROLLER_STATUS")
 COUNT = 100_000
 EINVAL = can_codec.EINVAL
 
@@ -221,7 +221,7 @@ def test_one_struct_of_raw_fields_per_layout(images):
     image = images["float"]
     header = image.files["smartjoint_can.h"]
     structs = dict(re.findall(r"struct smartjoint_can_(\w+)_t \{\n(.*?)\n\};", header, re.S))
-    assert sorted(structs) == ["amp_status", "controller_status", "joint", "setpoint", "tip_sensors"]
+    assert sorted(structs) == ["amp_status", "controller_status", "joint", "setpoints_a1_a3", "tip_sensors"]
     joints = list(image.artifact.joint_names)
     for m in image.db.messages:
         body = structs[can_codec.layout_name(m.name, joints)]

@@ -75,7 +75,7 @@ FAULTS = [
     Fault("drop", 0.2, 0.3, "JOINT_A2"),
     Fault("delay", 0.2, 0.3, "JOINT_A1", delay=0.006),
     Fault("corrupt_crc", 0.2, 0.3, "TIP_SENSORS"),
-    Fault("drop", 0.2, 0.3, "SETPOINT_A1"),
+    Fault("drop", 0.2, 0.3, "SETPOINTS_A1_A3"),
     Fault("corrupt_crc", 0.2, 0.3, "CONTROLLER_STATUS"),
     Fault("implausible", 0.2, 0.3, "JOINT_A1", signal="sliding_velocity", value=1.9),
     Fault("amplifier", 0.2, 0.3, "A1", amplifier_fault="over_temperature"),

@@ -17,7 +17,7 @@ from conftest import cli_error, run_cli
 from smartjoint.bench import firmware, pil, pil_study, safety, target
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
-from smartjoint.design.network import protocol
+from smartjoint.design.network import plan
 from smartjoint.pipeline_target import pil_markdown, pil_stage
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,7 +69,7 @@ def test_the_target_commands_what_the_host_float_build_commands_at_every_sample(
 
 
 def _one_case_per_fault_kind():
-    cases = safety.cases(REFERENCE, protocol.database(REFERENCE), timings=("mid-run",))
+    cases = safety.cases(REFERENCE, plan.plan(REFERENCE).buses[0].database, timings=("mid-run",))
     seen, chosen = set(), []
     for case in cases:
         kinds = tuple(f.kind for f in case.faults)

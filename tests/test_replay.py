@@ -19,7 +19,7 @@ from smartjoint.bench.loop import SilLoop
 from smartjoint.bench.replay import replay
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
-from smartjoint.design.network import protocol
+from smartjoint.design.network import plan, protocol
 from smartjoint.design.plant.interface import Measurements
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -96,9 +96,8 @@ def test_a_bus_off_log_replays_every_setpoint(reference, bus_off_log):
     assert jittered["differing"] == 0 and jittered["setpoints_compared"] == out["setpoints_compared"]
 
 
-def _setpoint(reference, name: str, voltage: float, counter: int, t: float, fresh: int = 0) -> can.Message:
-    m = protocol.database(reference).get_message_by_name(name)
-    payload = bytearray(m.encode({"crc": 0, "counter": 0, "voltage": voltage}))
+def _setpoint(m, voltages: dict, counter: int, t: float, fresh: int = 0) -> can.Message:
+    payload = bytearray(m.encode({"crc": 0, "counter": 0} | voltages))
     data = e2e.protect(m.frame_id, payload, counter, fresh)
     return can.Message(
         arbitration_id=m.frame_id,
@@ -138,38 +137,41 @@ def test_bench_replay_exits_non_zero_when_a_setpoint_differs_or_was_not_replayed
     a1 = next(k for k, m in enumerate(messages) if m.arbitration_id == 0x200 and m.timestamp > 0.3)
     original = messages[a1]
     counter = original.data[1] & 0x0F
-    voltage = protocol.database(reference).get_message_by_name("SETPOINT_A1").decode(original.data)["voltage"]
+    db = plan.plan(reference).buses[0].database  # the firmware's: the setpoints in one frame
+    m = db.get_message_by_frame_id(0x200)
+    assert m.name == "SETPOINTS_A1_A3"
+    voltages = {k: v for k, v in m.decode(original.data).items() if k.startswith("voltage_")}
+    voltage = voltages["voltage_a1"]
     fresh = e2e.freshness_of(original.arbitration_id, original.data)
-    changed = list(messages)  # the recorded setpoint moved by 1 mV, CRC and counter kept valid
-    changed[a1] = _setpoint(
-        reference, "SETPOINT_A1", voltage + (1e-3 if voltage < 25 else -1e-3), counter, original.timestamp, fresh
-    )
+    changed = list(messages)  # the recorded setpoint of A1 moved by 1 mV, CRC and counter kept valid
+    moved = voltages | {"voltage_a1": voltage + (1e-3 if voltage < 25 else -1e-3)}
+    changed[a1] = _setpoint(m, moved, counter, original.timestamp, fresh)
     code, captured = _bench(capsys, "replay", _write(changed, tmp_path / "changed.blf"), "--law", "clqg")
     assert code == 1
     first = captured.err.splitlines()[0]
     assert first.startswith("smartjoint bench replay: FAILED") and "900 setpoints compared, 1 differ" in first
-    assert f"t = {original.timestamp:.6f} s SETPOINT_A1 differs" in captured.err
+    assert f"t = {original.timestamp:.6f} s SETPOINTS_A1_A3.voltage_a1 differs" in captured.err
     # Within a tolerance of 2 mV it passes.
     code, _ = _bench(capsys, "replay", tmp_path / "changed.blf", "--law", "clqg", "--tolerance", "2e-3")
     assert code == 0
 
-    extra = list(messages)  # a second recorded SETPOINT_A1 in one sample: the firmware sent one
+    extra = list(messages)  # a second recorded SETPOINTS frame in one sample: the firmware sent one
     cycle = (fresh << 4 | counter) + 1  # the next cycle's setpoint, in the same sample
-    extra.insert(
-        a1 + 1, _setpoint(reference, "SETPOINT_A1", voltage, cycle % 16, original.timestamp, e2e.freshness(cycle))
-    )
+    extra.insert(a1 + 1, _setpoint(m, voltages, cycle % 16, original.timestamp, e2e.freshness(cycle)))
     code, captured = _bench(capsys, "replay", _write(extra, tmp_path / "extra.blf"), "--law", "clqg", "--json")
-    assert code == 1 and "1 recorded but not replayed" in captured.err.splitlines()[0]
-    assert '"recorded_not_replayed": 1' in captured.out and '"differing": 0' in captured.out
+    assert code == 1 and "3 recorded but not replayed" in captured.err.splitlines()[0]
+    assert '"recorded_not_replayed": 3' in captured.out and '"differing": 0' in captured.out
 
     # Issue 37: a log with every frame of one kind the firmware sends cut out is not the bus's log.
-    db = protocol.database(reference)
-    for name in ("SETPOINT_A1", "CONTROLLER_STATUS"):
+    # The heartbeat cut out fails the replay; the one setpoint frame cut out leaves nothing to compare.
+    for name, status, words in (
+        ("CONTROLLER_STATUS", 1, "sent by the firmware but never in the log: CONTROLLER_STATUS"),
+        ("SETPOINTS_A1_A3", 2, "no recorded setpoint frame"),
+    ):
         frame_id = db.get_message_by_name(name).frame_id
-        cut = _write([m for m in messages if m.arbitration_id != frame_id], tmp_path / f"without_{name}.blf")
+        cut = _write([k for k in messages if k.arbitration_id != frame_id], tmp_path / f"without_{name}.blf")
         code, captured = _bench(capsys, "replay", cut, "--law", "clqg")
-        assert code == 1, (name, captured)
-        assert f"sent by the firmware but never in the log: {name}" in captured.err.splitlines()[0], captured.err
+        assert code == status and words in captured.err.splitlines()[0], (name, captured)
 
 
 def test_empty_and_foreign_logs_are_errors_not_zero_comparisons(reference, tmp_path, capsys):

@@ -15,11 +15,12 @@ from smartjoint.bench.amplifier import AmplifierModel
 from smartjoint.bench.faults import FRAME_FAULTS, Fault, check_faults, parse_fault
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
-from smartjoint.design.network import protocol
+from smartjoint.design.network import plan, protocol
 
 REFERENCE = Path(__file__).resolve().parents[1] / "firmware" / "generated" / "controller.json"
 LOADED = artifact.load(REFERENCE)
-DATABASE = protocol.database(LOADED)
+DATABASE = plan.plan(LOADED).buses[0].database  # the default plan: its setpoints in one SETPOINTS frame
+SETPOINT_FRAMES = sorted(m.name for m in DATABASE.messages if m.name.startswith("SETPOINT"))
 CASES = safety.cases(LOADED, DATABASE)
 RECOVERY_LIMIT = LOADED.timeout_cycles + LOADED.recovery_cycles + 1  # stated in docs/safety.md
 EXPECTED_BIT = {
@@ -68,9 +69,10 @@ def test_every_fault_reaches_the_safe_force_at_every_joint_within_three_cycles(i
     commands = np.array(loop.record.command)[np.array(loop.record.safe)]
     assert np.all(commands == LOADED.safe_normal_force)  # one safe force: firmware and amplifiers
     for f in case.faults:  # an implausible value raises its own status bit
-        if f.kind == "implausible" and f.signal in EXPECTED_BIT:
-            bit = 1 << protocol.CONTROLLER_FAULTS.index(EXPECTED_BIT[f.signal])
-            assert any(b & bit for b in loop.record.faults), (f.label(), EXPECTED_BIT[f.signal])
+        signal = "voltage" if f.signal and f.signal.startswith("voltage_") else f.signal  # SETPOINTS_<J>.voltage_<j>
+        if f.kind == "implausible" and signal in EXPECTED_BIT:
+            bit = 1 << protocol.CONTROLLER_FAULTS.index(EXPECTED_BIT[signal])
+            assert any(b & bit for b in loop.record.faults), (f.label(), EXPECTED_BIT[signal])
         elif f.kind == "implausible":  # a tip sensor
             assert any(b & 1 << protocol.CONTROLLER_FAULTS.index("sensor") for b in loop.record.faults)
 
@@ -127,8 +129,13 @@ class Nodes:
             name = self.fw.db.get_message_by_frame_id(frame_id).name
             if name == "CONTROLLER_STATUS":
                 self.echo, self.fresh = data[1] & 0x0F, data[e2e.HEARTBEAT_CYCLE_BYTE]
-            elif name.startswith("SETPOINT_"):
-                self.sent.append(self.fw.db.get_message_by_frame_id(frame_id).decode(data)["voltage"])
+            elif name.startswith("SETPOINT"):
+                decoded = self.fw.db.get_message_by_frame_id(frame_id).decode(data)
+                self.sent += [decoded[safety.setpoint_signal(self.fw.db, j.upper())[1]] for j in self.joints(name)]
+
+    def joints(self, frame):
+        """The joints whose setpoints ``frame`` carries."""
+        return [j for j in LOADED.joint_names if safety.setpoint_signal(self.fw.db, j.upper())[0] == frame]
 
 
 def _cycle(fw, nodes, k, late=(), stamp_offset=0):
@@ -229,20 +236,22 @@ def test_packing_does_not_depend_on_the_fpu_rounding_mode(reference_firmware):
     ffi.cdef("int fesetround(int mode); int fegetround(void);")
     libm = ffi.dlopen(None)
     double_build = firmware.Firmware(LOADED, "clqg", "double")
-    m = reference_firmware.db.get_message_by_name("SETPOINT_A1")
+    frame, signal = safety.setpoint_signal(reference_firmware.db, "A1")
+    m = reference_firmware.db.get_message_by_name(frame)
     values = [12.34567898, 0.00000017, 49.99999987, 44.55078122, 1.00000003, 0.00000013]
     for v in values:  # each fraction is clearly off a half step, and rounding by the mode would move 3 of them
         fraction = v / 1e-7 - math.floor(v / 1e-7)
         assert 0.1 < abs(fraction - 0.5) < 0.4
-    expected = [m.encode({"crc": 0, "counter": 0, "voltage": v}) for v in values]
-    encode = reference_firmware.lib.smartjoint_can_setpoint_voltage_encode
+    others = {s.name: 0 for s in m.signals}
+    expected = [m.encode(others | {signal: v}) for v in values]
+    encode = getattr(reference_firmware.lib, f"smartjoint_can_{frame.lower()}_{signal}_encode")
     quotients = [np.float32(v) / np.float32(1e-7) for v in values]
     nearest = [int(np.rint(q)) for q in quotients]
     default = libm.fegetround()
     for mode in (0x400, 0x800, 0xC00):  # x86-64 glibc: downward, upward, toward zero
         try:
             assert libm.fesetround(mode) == 0
-            packed = [double_build.pack("SETPOINT_A1", {"voltage": v}) for v in values]
+            packed = [double_build.pack(frame, {signal: v}) for v in values]
             raw = [encode(v) for v in values]
         finally:
             libm.fesetround(default)
@@ -292,7 +301,8 @@ def test_the_amplifier_makes_its_joint_safe_on_its_own():
     )
     dt = LOADED.sample_time
     assert amp.advance(dt) == pytest.approx(LOADED.safe_normal_force[j])  # power-up, nothing received
-    setpoint, heartbeat = DATABASE.get_message_by_name("SETPOINT_A1"), DATABASE.get_message_by_name("CONTROLLER_STATUS")
+    one_each = protocol.database(LOADED)  # one SETPOINT frame per joint (a plan that does not pack)
+    setpoint, heartbeat = one_each.get_message_by_name("SETPOINT_A1"), DATABASE.get_message_by_name("CONTROLLER_STATUS")
 
     def send(k, volts, heartbeat_counter=None):
         data = e2e.protect(
@@ -355,8 +365,8 @@ def test_fault_fields_that_mean_nothing_are_refused():
         (Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="speed", value=1.0), "signal 'speed'"),
         (Fault("implausible", 0.1, 0.2, "JOINT_A1", signal="sliding_velocity"), "value None"),
         (Fault("amplifier", 0.1, 0.2, "A9", amplifier_fault="stuck_output"), "target 'A9'"),
-        (Fault("drop", 0.2, 0.1, "SETPOINT_A1"), "window"),
-        (Fault("drop", 0.1, math.nan, "SETPOINT_A1"), "window"),
+        (Fault("drop", 0.2, 0.1, SETPOINT_FRAMES[0]), "window"),
+        (Fault("drop", 0.1, math.nan, SETPOINT_FRAMES[0]), "window"),
         (Fault("replay", 0.1, 0.2, "JOINT_A1"), "age 0 — replay only, a whole number of cycles 1 … 4095"),
         (Fault("drop", 0.1, 0.2, "JOINT_A1", age=3), "age 3 — replay only"),
         (Fault("replay", 0.1, 0.2, "JOINT_A9", age=3), "target 'JOINT_A9'"),
@@ -392,7 +402,7 @@ def test_a_replay_of_the_controllers_whole_stream_holds_every_joint_safe(referen
     With the receiver that followed whatever came after a loss, the same case fails."""
     dt = LOADED.sample_time
     start = age + 6
-    frames = ["CONTROLLER_STATUS", *(f"SETPOINT_{j.upper()}" for j in LOADED.joint_names)]
+    frames = ["CONTROLLER_STATUS", *SETPOINT_FRAMES]
     faults = tuple(Fault("replay", start * dt, (start + 40) * dt, f, age=age) for f in frames)
     case = safety.Case(f"whole stream {age} cycles old", "replayed mid-run", faults, start + 80)
     measured = safety.signals(None, LOADED, case.cycles)

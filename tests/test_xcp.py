@@ -154,7 +154,7 @@ def _refusals(fw, description, real: str):
         ("both, one out", low.address, _pack(low.lower, real) * 3 + _pack(span.upper * 2, real), ERR_OUT_OF_RANGE),
         ("the flash reference page", table["smartjoint_calibration_reference"], _pack(1.0, real), ERR_WRITE_PROTECTED),
         ("the controller's state", controller, _pack(1.0, real), ERR_WRITE_PROTECTED),
-        ("a safety limit (safe force)", table["safe_normal_force"], _pack(1.0, real), ERR_ACCESS_DENIED),
+        ("a safety limit (friction range)", table["friction_force_limit"], _pack(1.0, real), ERR_ACCESS_DENIED),
         ("nowhere", 0x10, _pack(1.0, real), ERR_ACCESS_DENIED),
     ]
 
@@ -206,7 +206,7 @@ def _assert_logged(path, port, loop) -> None:
     """The log's XCP frames: every command the slave took and every frame it sent, on channel 1,
     each within the run; the control frames stay on channel 0."""
     from smartjoint.bench import logs
-    from smartjoint.design.network import protocol, xcp_bus
+    from smartjoint.design.network import xcp_bus
 
     content = logs.load(str(path))
     xcp = [m for m in content.messages if m.channel == 1]
@@ -214,7 +214,7 @@ def _assert_logged(path, port, loop) -> None:
     assert sum(m.arbitration_id == port.slave_id for m in xcp) == port.sent > 0
     assert len(xcp) == port.commands + port.sent and all(0.0 <= m.timestamp <= loop.record.time[-1] for m in xcp)
     assert {m.channel for m in content.messages} == {0, 1}
-    bus_db = protocol.database(loop.fw.artifact)
+    (bus_db,) = loop.fw.databases  # the firmware's one bus, as its bus.dbc says
     decoded = logs.decode(content, [bus_db, xcp_bus.database(loop.fw.xcp)])  # as bench decode --dbc … --dbc xcp.dbc
     assert decoded.skipped() == 0 and sum(decoded.without_signals.values()) == len(xcp)
 
@@ -442,13 +442,14 @@ def test_a_bad_xcp_table_is_refused_in_one_line(tmp_path, line, key):
 def test_xcp_has_a_bus_of_its_own_with_the_room_it_plans(reference, tmp_path):
     """By default XCP gets a bus of its own at the control bus's rates and limit: one command pair
     and 2 DTOs of 64 bytes per sample stay within 70 %; sharing the reference's control bus
-    (64.3 % of 70 %) is refused in one line before any work; xcp.dbc loads in cantools."""
+    (55.7 % of 70 %, the default plan's) is refused in one line before any work; xcp.dbc loads in
+    cantools."""
     from conftest import design_file_error  # noqa: F401 (the design file's refusals: above)
 
     from smartjoint.common.errors import ModelError
     from smartjoint.design.network import plan, protocol, xcp_bus
 
-    network = plan.one_bus(reference, protocol.database(reference))
+    network = plan.plan(reference)
     room = xcp_bus.xcp_plan(network, Xcp())
     assert (room.bus.name, room.shared, room.odts) == ("xcp", False, 2) and room.load <= room.bus.limit
     frames = {m.name: (m.frame_id, m.length, m.is_fd) for m in protocol.load_dbc(room.dbc).messages}

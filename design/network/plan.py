@@ -167,6 +167,14 @@ def _bus_plan(full, artifact, bus: Bus, joints: list[int], first: bool, spec) ->
     return BusPlan(bus, [names[j] for j in joints], db, load, per_sample, packed)
 
 
+def at_rates(artifact, bitrate: int, data_bitrate: int | None) -> BusPlan:
+    """The bus of the default plan (:func:`plan` without a ``[network]``) at these bit rates
+    (``data_bitrate`` None: classical CAN), its setpoints packed where that lowers the load, with
+    no limit of its own: the caller checks the load against its limit (``busload.check``)."""
+    bus = Bus("can0", bitrate, data_bitrate, 1.0)  # type: ignore[arg-type]  # None: classical CAN
+    return plan(artifact, Network((bus,))).buses[0]
+
+
 def _packed(database: can.Database) -> bool:
     """Whether a database's setpoints travel in ``SETPOINTS_<J>`` frames."""
     return any(m.name.startswith("SETPOINTS_") for m in database.messages)
@@ -192,7 +200,8 @@ def plan(artifact, spec: Network | None = None, amplifier: protocol.Amplifier | 
         Its joints, sensors and sample time (the frames of ``protocol.database``).
     spec : Network, optional
         The buses (in order of filling), where the SISO law runs, the supervision period; default
-        one bus at CAN FD 1/5 Mbit/s, limit 70 %, the SISO law central.
+        one bus at CAN FD 1/5 Mbit/s, limit 70 %, the SISO law central: the plan of a controller
+        built without a ``[network]``, its setpoints packed where that lowers the load.
     amplifier : protocol.Amplifier, optional
         The amplifier the setpoints command; default the artefact's (``protocol.amplifier_of``).
 
@@ -312,4 +321,4 @@ def _refusal(bus: Bus, trial: BusPlan, what: str, spec: Network) -> ModelError:
     )
 
 
-__all__ = ["BusPlan", "NetworkPlan", "PACK_MAX", "check_design", "one_bus", "plan"]
+__all__ = ["BusPlan", "NetworkPlan", "PACK_MAX", "at_rates", "check_design", "one_bus", "plan"]

@@ -495,72 +495,110 @@ bool smartjoint_can_tip_sensors_tip_z_is_in_range(int32_t value)
     return value >= -2000000000 && value <= 2000000000;
 }
 
-int smartjoint_can_setpoint_pack(uint8_t *dst_p, const struct smartjoint_can_setpoint_t *src_p, size_t size)
+int smartjoint_can_setpoints_a1_a3_pack(uint8_t *dst_p, const struct smartjoint_can_setpoints_a1_a3_t *src_p, size_t size)
 {
-    if (dst_p == NULL || src_p == NULL || size < 6u) {
+    unsigned int k;
+    if (dst_p == NULL || src_p == NULL || size < 16u) {
         return -SMARTJOINT_CAN_EINVAL;
     }
-    memset(dst_p, 0, 6u);
+    memset(dst_p, 0, 16u);
     const uint32_t crc_raw = (uint32_t)src_p->crc;
     const uint32_t counter_raw = (uint32_t)src_p->counter;
-    const uint32_t voltage_raw = (uint32_t)src_p->voltage;
+    const uint32_t voltage_a1_raw = (uint32_t)src_p->voltage_a1;
+    const uint32_t voltage_a2_raw = (uint32_t)src_p->voltage_a2;
+    const uint32_t voltage_a3_raw = (uint32_t)src_p->voltage_a3;
     dst_p[0] |= (uint8_t)(crc_raw & 0xffu);
     dst_p[1] |= (uint8_t)(counter_raw & 0x0fu);
-    dst_p[2] |= (uint8_t)(voltage_raw & 0xffu);
-    dst_p[3] |= (uint8_t)((voltage_raw >> 8u) & 0xffu);
-    dst_p[4] |= (uint8_t)((voltage_raw >> 16u) & 0xffu);
-    dst_p[5] |= (uint8_t)((voltage_raw >> 24u) & 0xffu);
-    return 6;
+    for (k = 0u; k < 4u; ++k) { /* whole bytes, least significant first */
+        dst_p[2u + k] = (uint8_t)(voltage_a1_raw >> (8u * k));
+        dst_p[6u + k] = (uint8_t)(voltage_a2_raw >> (8u * k));
+        dst_p[10u + k] = (uint8_t)(voltage_a3_raw >> (8u * k));
+    }
+    return 16;
 }
 
-/* setpoint.crc: scale 1, offset 0, range none (the field's) */
-uint8_t smartjoint_can_setpoint_crc_encode(smartjoint_real value)
+/* setpoints_a1_a3.crc: scale 1, offset 0, range none (the field's) */
+uint8_t smartjoint_can_setpoints_a1_a3_crc_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(value, 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 256.0f ? 255u : (uint8_t)raw);
 }
 
-smartjoint_real smartjoint_can_setpoint_crc_decode(uint8_t value)
+smartjoint_real smartjoint_can_setpoints_a1_a3_crc_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-bool smartjoint_can_setpoint_crc_is_in_range(uint8_t value)
+bool smartjoint_can_setpoints_a1_a3_crc_is_in_range(uint8_t value)
 {
     (void)value;
     return true;
 }
 
-/* setpoint.counter: scale 1, offset 0, range [0, 15] */
-uint8_t smartjoint_can_setpoint_counter_encode(smartjoint_real value)
+/* setpoints_a1_a3.counter: scale 1, offset 0, range [0, 15] */
+uint8_t smartjoint_can_setpoints_a1_a3_counter_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 15.0f), 1.0f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 16.0f ? 15u : (uint8_t)raw);
 }
 
-smartjoint_real smartjoint_can_setpoint_counter_decode(uint8_t value)
+smartjoint_real smartjoint_can_setpoints_a1_a3_counter_decode(uint8_t value)
 {
     return (smartjoint_real)value;
 }
 
-bool smartjoint_can_setpoint_counter_is_in_range(uint8_t value)
+bool smartjoint_can_setpoints_a1_a3_counter_is_in_range(uint8_t value)
 {
     return value <= 15u;
 }
 
-/* setpoint.voltage: scale 1e-07, offset 0, range [0, 150] */
-uint32_t smartjoint_can_setpoint_voltage_encode(smartjoint_real value)
+/* setpoints_a1_a3.voltage_a1: scale 1e-07, offset 0, range [0, 150] */
+uint32_t smartjoint_can_setpoints_a1_a3_voltage_a1_encode(smartjoint_real value)
 {
     const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 150.0f), 1e-07f, 0.0f);
     return raw < 0.0f ? 0u : (raw >= 4294967296.0f ? UINT32_MAX : (uint32_t)raw);
 }
 
-smartjoint_real smartjoint_can_setpoint_voltage_decode(uint32_t value)
+smartjoint_real smartjoint_can_setpoints_a1_a3_voltage_a1_decode(uint32_t value)
 {
     return (smartjoint_real)value * 1e-07f;
 }
 
-bool smartjoint_can_setpoint_voltage_is_in_range(uint32_t value)
+bool smartjoint_can_setpoints_a1_a3_voltage_a1_is_in_range(uint32_t value)
+{
+    return value <= 1500000000u;
+}
+
+/* setpoints_a1_a3.voltage_a2: scale 1e-07, offset 0, range [0, 150] */
+uint32_t smartjoint_can_setpoints_a1_a3_voltage_a2_encode(smartjoint_real value)
+{
+    const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 150.0f), 1e-07f, 0.0f);
+    return raw < 0.0f ? 0u : (raw >= 4294967296.0f ? UINT32_MAX : (uint32_t)raw);
+}
+
+smartjoint_real smartjoint_can_setpoints_a1_a3_voltage_a2_decode(uint32_t value)
+{
+    return (smartjoint_real)value * 1e-07f;
+}
+
+bool smartjoint_can_setpoints_a1_a3_voltage_a2_is_in_range(uint32_t value)
+{
+    return value <= 1500000000u;
+}
+
+/* setpoints_a1_a3.voltage_a3: scale 1e-07, offset 0, range [0, 150] */
+uint32_t smartjoint_can_setpoints_a1_a3_voltage_a3_encode(smartjoint_real value)
+{
+    const smartjoint_real raw = scaled_to_raw(clamp(value, 0.0f, 150.0f), 1e-07f, 0.0f);
+    return raw < 0.0f ? 0u : (raw >= 4294967296.0f ? UINT32_MAX : (uint32_t)raw);
+}
+
+smartjoint_real smartjoint_can_setpoints_a1_a3_voltage_a3_decode(uint32_t value)
+{
+    return (smartjoint_real)value * 1e-07f;
+}
+
+bool smartjoint_can_setpoints_a1_a3_voltage_a3_is_in_range(uint32_t value)
 {
     return value <= 1500000000u;
 }
@@ -827,7 +865,7 @@ static const input_entry inputs[SMARTJOINT_CAN_INPUTS] = {
 
 /* The frames the layer sends each sample, in order: per bus its setpoints, then its heartbeat. */
 typedef enum {
-    OUTPUT_SETPOINT,
+    OUTPUT_SETPOINTS_A1_A3,
     OUTPUT_HEARTBEAT
 } output_kind;
 
@@ -836,14 +874,11 @@ typedef struct {
     uint8_t length;
     uint8_t bus;
     uint8_t kind;  /* output_kind */
-    uint8_t joint; /* the joint of a SETPOINT frame */
 } output_entry;
 
 static const output_entry outputs[SMARTJOINT_CAN_OUTPUTS] = {
-    {SMARTJOINT_CAN_SETPOINT_A1_ID, SMARTJOINT_CAN_SETPOINT_A1_LENGTH, 0u, OUTPUT_SETPOINT, 0u},
-    {SMARTJOINT_CAN_SETPOINT_A2_ID, SMARTJOINT_CAN_SETPOINT_A2_LENGTH, 0u, OUTPUT_SETPOINT, 1u},
-    {SMARTJOINT_CAN_SETPOINT_A3_ID, SMARTJOINT_CAN_SETPOINT_A3_LENGTH, 0u, OUTPUT_SETPOINT, 2u},
-    {SMARTJOINT_CAN_CONTROLLER_STATUS_ID, SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH, 0u, OUTPUT_HEARTBEAT, 0u},
+    {SMARTJOINT_CAN_SETPOINTS_A1_A3_ID, SMARTJOINT_CAN_SETPOINTS_A1_A3_LENGTH, 0u, OUTPUT_SETPOINTS_A1_A3},
+    {SMARTJOINT_CAN_CONTROLLER_STATUS_ID, SMARTJOINT_CAN_CONTROLLER_STATUS_LENGTH, 0u, OUTPUT_HEARTBEAT},
 };
 
 /* The bus each joint's node and amplifier are on. */
@@ -870,13 +905,25 @@ static const smartjoint_real actuation_tolerance[SMARTJOINT_CAN_JOINTS] = {40.0f
  * amplifier's range as the frame carries it. */
 static uint32_t setpoint_voltage(smartjoint_real normal_force)
 {
-    return smartjoint_can_setpoint_voltage_encode((normal_force - 0.0f) / 8.0f);
+    return smartjoint_can_setpoints_a1_a3_voltage_a1_encode((normal_force - 0.0f) / 8.0f);
+}
+
+/* The setpoints of the commands, each joint's two before kept (the amplifier may still follow
+ * them: tracks, check_actuation). */
+static void command_setpoints(smartjoint_can_state *state)
+{
+    unsigned int k;
+    for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
+        state->earliest_setpoint[k] = state->earlier_setpoint[k];
+        state->earlier_setpoint[k] = state->setpoint[k];
+        state->setpoint[k] = setpoint_voltage(state->command[k]);
+    }
 }
 
 /* The monitor voltage within the tolerance of a raw setpoint. */
 static bool tracks(smartjoint_real monitor, uint32_t setpoint)
 {
-    const smartjoint_real difference = monitor - smartjoint_can_setpoint_voltage_decode(setpoint);
+    const smartjoint_real difference = monitor - smartjoint_can_setpoints_a1_a3_voltage_a1_decode(setpoint);
     return difference >= -TRACKING_TOLERANCE && difference <= TRACKING_TOLERANCE;
 }
 
@@ -970,7 +1017,7 @@ static uint16_t check_actuation(smartjoint_can_state *state)
             uint32_t lowest = state->setpoint[k] < state->earlier_setpoint[k] ? state->setpoint[k] : state->earlier_setpoint[k];
             smartjoint_real least;
             lowest = state->earliest_setpoint[k] < lowest ? state->earliest_setpoint[k] : lowest;
-            least = smartjoint_can_setpoint_voltage_decode(lowest) * 8.0f + 0.0f;
+            least = smartjoint_can_setpoints_a1_a3_voltage_a1_decode(lowest) * 8.0f + 0.0f;
             if (smartjoint_can_joint_normal_force_decode(state->normal_force[k]) < least - actuation_tolerance[k]) {
                 state->following_frames[k] = 0u;
                 if (state->shortfall_frames[k] < SMARTJOINT_CAN_ACTUATION_FRAMES) {
@@ -1058,9 +1105,9 @@ int smartjoint_can_init(smartjoint_can_state *state, smartjoint_can_law law)
     state->safe = 1; /* power-up: the safe force until every input the law needs is fresh and plausible */
     for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
         state->command[k] = safe_normal_force[k];
-        state->setpoint[k] = setpoint_voltage(safe_normal_force[k]);
-        state->earlier_setpoint[k] = state->setpoint[k];
     }
+    command_setpoints(state); /* twice: the setpoint and the one before it are the safe voltage, */
+    command_setpoints(state); /* the earliest still zero */
     for (k = 0u; k < SMARTJOINT_CAN_BUSES; ++k) {
         state->bus_safe[k] = 1u;
     }
@@ -1379,11 +1426,7 @@ unsigned int smartjoint_can_step(smartjoint_can_state *state, uint32_t time_us)
         }
     }
     state->faults = (uint16_t)(faults | actuation);
-    for (k = 0u; k < SMARTJOINT_CAN_JOINTS; ++k) {
-        state->earliest_setpoint[k] = state->earlier_setpoint[k];
-        state->earlier_setpoint[k] = state->setpoint[k];
-        state->setpoint[k] = setpoint_voltage(state->command[k]);
-    }
+    command_setpoints(state);
     state->tx_next = 0u; /* per bus the setpoints, then the heartbeat: every cycle */
     /* Every frame of this step carries the cycle's counter (its bits 4-11 in the CRC): the
      * amplifiers pair a setpoint with its heartbeat, the nodes echo it. Step n counts n + 1, so
@@ -1403,12 +1446,14 @@ int smartjoint_can_tx_bus(smartjoint_can_state *state, uint8_t *bus, uint32_t *i
     }
     output = &outputs[state->tx_next++];
     switch (output->kind) {
-    case OUTPUT_SETPOINT: {
-        struct smartjoint_can_setpoint_t frame;
+    case OUTPUT_SETPOINTS_A1_A3: {
+        struct smartjoint_can_setpoints_a1_a3_t frame;
         frame.crc = 0u; /* both set by sj_e2e_protect */
         frame.counter = 0u;
-        frame.voltage = state->setpoint[output->joint];
-        *length = (uint8_t)smartjoint_can_setpoint_pack(data, &frame, output->length);
+        frame.voltage_a1 = state->setpoint[0];
+        frame.voltage_a2 = state->setpoint[1];
+        frame.voltage_a3 = state->setpoint[2];
+        *length = (uint8_t)smartjoint_can_setpoints_a1_a3_pack(data, &frame, output->length);
         break;
     }
     default: {

@@ -37,7 +37,7 @@ extern "C" {
  * that law's state and code are left out and smartjoint_can_init refuses it as an unknown law. */
 #define SMARTJOINT_CAN_JOINTS 3
 #define SMARTJOINT_CAN_BUSES 1 /* 0: can0 (A1, A2, A3) */
-#define SMARTJOINT_CAN_OUTPUTS 4 /* frames smartjoint_can_tx_bus sends per sample */
+#define SMARTJOINT_CAN_OUTPUTS 2 /* frames smartjoint_can_tx_bus sends per sample */
 #define SMARTJOINT_CAN_SENSORS 2
 #define SMARTJOINT_CAN_INPUTS 7
 #define SMARTJOINT_CAN_CYCLE_US 1000u
@@ -101,12 +101,8 @@ typedef enum {
 #define SMARTJOINT_CAN_JOINT_A3_LENGTH 12u
 #define SMARTJOINT_CAN_TIP_SENSORS_ID 0x180u /* layout tip_sensors */
 #define SMARTJOINT_CAN_TIP_SENSORS_LENGTH 12u
-#define SMARTJOINT_CAN_SETPOINT_A1_ID 0x200u /* layout setpoint */
-#define SMARTJOINT_CAN_SETPOINT_A1_LENGTH 6u
-#define SMARTJOINT_CAN_SETPOINT_A2_ID 0x201u /* layout setpoint */
-#define SMARTJOINT_CAN_SETPOINT_A2_LENGTH 6u
-#define SMARTJOINT_CAN_SETPOINT_A3_ID 0x202u /* layout setpoint */
-#define SMARTJOINT_CAN_SETPOINT_A3_LENGTH 6u
+#define SMARTJOINT_CAN_SETPOINTS_A1_A3_ID 0x200u /* layout setpoints_a1_a3 */
+#define SMARTJOINT_CAN_SETPOINTS_A1_A3_LENGTH 16u
 #define SMARTJOINT_CAN_AMP_STATUS_A1_ID 0x280u /* layout amp_status */
 #define SMARTJOINT_CAN_AMP_STATUS_A1_LENGTH 8u
 #define SMARTJOINT_CAN_AMP_STATUS_A2_ID 0x281u /* layout amp_status */
@@ -216,23 +212,31 @@ int32_t smartjoint_can_tip_sensors_tip_z_encode(smartjoint_real value);
 smartjoint_real smartjoint_can_tip_sensors_tip_z_decode(int32_t value);
 bool smartjoint_can_tip_sensors_tip_z_is_in_range(int32_t value);
 
-/* Layout setpoint (SETPOINT_A1, SETPOINT_A2, SETPOINT_A3): the raw signal values as on the bus. */
-struct smartjoint_can_setpoint_t {
+/* Layout setpoints_a1_a3 (SETPOINTS_A1_A3): the raw signal values as on the bus. */
+struct smartjoint_can_setpoints_a1_a3_t {
     uint8_t crc; /* CRC-8 SAE J1850 over id (2 bytes, low first), the freshness byte (bits 4-11 of the frame's controller cycle, not sent) and bytes 1..n-1; 8 bits at 0 */
     uint8_t counter; /* alive counter, +1 per frame, mod 16; 4 bits at 8 */
-    uint32_t voltage; /* piezo voltage setpoint of the joint: F_N = 8*V + 0 N [V]; 32 bits at 16 */
+    uint32_t voltage_a1; /* piezo voltage setpoint of joint A1: F_N = 8*V + 0 N [V]; 32 bits at 16 */
+    uint32_t voltage_a2; /* piezo voltage setpoint of joint A2: F_N = 8*V + 0 N [V]; 32 bits at 48 */
+    uint32_t voltage_a3; /* piezo voltage setpoint of joint A3: F_N = 8*V + 0 N [V]; 32 bits at 80 */
 };
 
-int smartjoint_can_setpoint_pack(uint8_t *dst_p, const struct smartjoint_can_setpoint_t *src_p, size_t size);
-uint8_t smartjoint_can_setpoint_crc_encode(smartjoint_real value);
-smartjoint_real smartjoint_can_setpoint_crc_decode(uint8_t value);
-bool smartjoint_can_setpoint_crc_is_in_range(uint8_t value);
-uint8_t smartjoint_can_setpoint_counter_encode(smartjoint_real value);
-smartjoint_real smartjoint_can_setpoint_counter_decode(uint8_t value);
-bool smartjoint_can_setpoint_counter_is_in_range(uint8_t value);
-uint32_t smartjoint_can_setpoint_voltage_encode(smartjoint_real value);
-smartjoint_real smartjoint_can_setpoint_voltage_decode(uint32_t value);
-bool smartjoint_can_setpoint_voltage_is_in_range(uint32_t value);
+int smartjoint_can_setpoints_a1_a3_pack(uint8_t *dst_p, const struct smartjoint_can_setpoints_a1_a3_t *src_p, size_t size);
+uint8_t smartjoint_can_setpoints_a1_a3_crc_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_setpoints_a1_a3_crc_decode(uint8_t value);
+bool smartjoint_can_setpoints_a1_a3_crc_is_in_range(uint8_t value);
+uint8_t smartjoint_can_setpoints_a1_a3_counter_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_setpoints_a1_a3_counter_decode(uint8_t value);
+bool smartjoint_can_setpoints_a1_a3_counter_is_in_range(uint8_t value);
+uint32_t smartjoint_can_setpoints_a1_a3_voltage_a1_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_setpoints_a1_a3_voltage_a1_decode(uint32_t value);
+bool smartjoint_can_setpoints_a1_a3_voltage_a1_is_in_range(uint32_t value);
+uint32_t smartjoint_can_setpoints_a1_a3_voltage_a2_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_setpoints_a1_a3_voltage_a2_decode(uint32_t value);
+bool smartjoint_can_setpoints_a1_a3_voltage_a2_is_in_range(uint32_t value);
+uint32_t smartjoint_can_setpoints_a1_a3_voltage_a3_encode(smartjoint_real value);
+smartjoint_real smartjoint_can_setpoints_a1_a3_voltage_a3_decode(uint32_t value);
+bool smartjoint_can_setpoints_a1_a3_voltage_a3_is_in_range(uint32_t value);
 
 /* Layout amp_status (AMP_STATUS_A1, AMP_STATUS_A2, AMP_STATUS_A3): the raw signal values as on the bus. */
 struct smartjoint_can_amp_status_t {
