@@ -85,7 +85,7 @@ def _setpoints_message(joints: Sequence[tuple[int, str]], template: can.Message,
     first = joints[0][0]
     frame_id = protocol.SETPOINT_BASE + first
     voltage = template.get_signal_by_name("voltage")
-    conversion = voltage.comment.partition(": ")[2]  # "F_N = <force per volt>*V + <preload> N", every joint's
+    conversion = (voltage.comment or "").partition(": ")[2]  # "F_N = <force per volt>*V + <preload> N": every joint's
     comments = [f"piezo voltage setpoint of joint {name}: {conversion}" for _, name in joints]
     signals = protocol.e2e_signals(frame_id)
     for k, (_, name) in enumerate(joints):
