@@ -169,7 +169,8 @@ def sil_study(
         ``progress(message)`` hears what runs.
     network : Network, optional
         The buses (a design's ``[network]``): the firmware is built for their plan and the bench
-        runs one python-can bus per bus; default one bus, one SETPOINT frame per joint.
+        runs one python-can bus per bus; default the plan of one bus (its setpoints packed where that
+        lowers the load).
 
     Returns
     -------
