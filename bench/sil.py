@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from smartjoint.bench import firmware, rounding_spread, safety
+from smartjoint.bench import bus_rounding, firmware, rounding_spread, safety
 from smartjoint.bench.faults import check_faults, demo_faults
 from smartjoint.bench.loop import SilLoop
 from smartjoint.bench.rounding_spread import band_cell, verdict_cell, within_band
@@ -182,9 +182,11 @@ def sil_study(
     planned = plan.plan(artifact, network)
     _check_faults_against(planned, artifact, faults)
     out = _study_header(planned, bitrate, data_bitrate, real, amplifier)
+    steps = bus_rounding.bus_steps([p.database for p in planned.buses], artifact)
     for law in laws:
-        progress(f"      {law}: model in the loop (Python reference) …")
-        mil, spread = rounding_spread.mil_runs(setup, law, lambda law=law: python[law](artifact), spread_runs)
+        progress(f"      {law}: model in the loop (Python reference, its inputs as the bus carries them) …")
+        reference = partial(_rounded_reference, python[law], artifact, steps)
+        mil, spread = rounding_spread.mil_runs(setup, law, reference, spread_runs)
         progress(
             f"      {law}: software in the loop ({real} firmware, CAN {bitrate / 1e6:g}"
             f"{'' if data_bitrate is None else f'/{data_bitrate / 1e6:g}'} Mbit/s) …"
@@ -194,14 +196,17 @@ def sil_study(
         )
         if not faults:  # a run outside the band of a few perturbed runs is judged on more
             energy = float(np.trapezoid(2.0 * result.energy, result.time))
-            spread = rounding_spread.confirmed(
-                setup, law, partial(python[law], artifact), mil, spread, energy, progress
-            )
+            spread = rounding_spread.confirmed(setup, law, reference, mil, spread, energy, progress)
         out.setdefault("mil_runs", {})[law] = mil
         out["laws"][law] = _law_figures(
             setup, artifact, faults, mil, spread, loop, result, log_path, bitrate, data_bitrate
         )
     return out
+
+
+def _rounded_reference(law_reference, artifact, steps):
+    """A new Python reference of a law that sees its inputs as the firmware does (bus_rounding)."""
+    return bus_rounding.Rounded(law_reference(artifact), steps)
 
 
 def fault_lines(rows: list) -> list[str]:
@@ -256,7 +261,8 @@ def sil_markdown(out: dict) -> str:
         "## Software in the loop: the study through CAN (firmware + bus + amplifiers)",
         "",
         f"{out['real']} firmware, CAN FD {out['bitrate'] / 1e6:g}/{(out['data_bitrate'] or 0) / 1e6:g} Mbit/s, "
-        f"planned worst-case bus load {100 * out['planned_bus_load']:.1f} %.",
+        f"planned worst-case bus load {100 * out['planned_bus_load']:.1f} %. The MIL runs see their inputs as the "
+        "bus carries them (each rounded to its frame's step), as the firmware does.",
         "",
         "| law | E(t_e) MIL | E(t_e) SIL | difference | MIL spread under 6e-8 perturbations | within the band? | "
         "e(t_e) MIL / SIL | frames | bus load | E2E errors | timeouts | safe samples |",

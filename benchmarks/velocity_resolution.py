@@ -21,40 +21,23 @@ from types import SimpleNamespace
 import numpy as np
 from machine import artifact_header, cpu_model, write_json  # benchmarks/machine.py (the script's folder is on sys.path)
 
-from smartjoint.bench import rounding_spread
+from smartjoint.bench import bus_rounding, rounding_spread
 from smartjoint.commands import load_updated
 from smartjoint.common import law_registry
 from smartjoint.design.control import artifact as artifacts
 from smartjoint.design.control import study as closed_loop
 from smartjoint.design.network import protocol
-from smartjoint.design.plant.interface import Measurements
 
 ROOT = Path(__file__).resolve().parents[1]
 VELOCITY_STEPS = (1e-12, 1e-11, 1e-10, 1e-9, 1e-8)  # [m/s]; the bus carries 1e-9
 
 
-class Rounded:
-    """A controller that sees its inputs rounded to the given steps (0: as measured)."""
-
-    def __init__(self, inner, velocity: float, friction: float, normal: float, sensors: float):
-        self.inner, self.sample_time = inner, inner.sample_time
-        self.steps = (velocity, friction, normal, sensors)
-
-    def reset(self):
-        self.inner.reset()
-
-    def step(self, m):
-        velocity, friction, normal, sensors = self.steps
-        rounded = lambda x, step: np.round(np.asarray(x) / step) * step if step else np.asarray(x)  # noqa: E731
-        return self.inner.step(
-            Measurements(
-                m.time,
-                rounded(m.sensors, sensors),
-                rounded(m.sliding_velocity, velocity),
-                rounded(m.friction_force, friction),
-                rounded(m.normal_force, normal),
-            )
-        )
+def _steps(a, velocity: float, friction: float, normal: float, sensors: float) -> bus_rounding.InputSteps:
+    """The same step for every joint (and every sensor), no range (0: as measured)."""
+    joints = lambda step: ((step, -np.inf, np.inf),) * len(a.joint_names)  # noqa: E731
+    return bus_rounding.InputSteps(
+        joints(velocity), joints(friction), joints(normal), ((sensors, -np.inf, np.inf),) * len(a.sensor_names)
+    )
 
 
 def _energy(run) -> float:
@@ -83,7 +66,7 @@ def main() -> int:
         reference = law_registry.LAWS[law].python_reference
 
         def median(steps):
-            make = lambda: Rounded(reference(a), *steps)  # noqa: E731
+            make = lambda: bus_rounding.Rounded(reference(a), _steps(a, *steps))  # noqa: E731
             runs = [_energy(closed_loop.run_semi_active(setup, law, make()))]
             for seed in range(args.runs):
                 perturbed = rounding_spread.perturbed(make(), 6e-8, seed)
