@@ -69,15 +69,8 @@ def _rounded(values, rows) -> np.ndarray:
 
 
 class Rounded:
-    """A controller that sees its measurements as the bus carries them (:func:`bus_steps`).
-
-    Parameters
-    ----------
-    controller : controller
-        Any controller of the plant interface.
-    steps : InputSteps
-        The steps and ranges of its inputs.
-    """
+    """``controller`` (any of the plant interface) seeing its measurements as the bus carries them:
+    ``steps`` (:func:`bus_steps`) give each input's step and range."""
 
     def __init__(self, controller, steps: InputSteps):
         self.controller, self.steps = controller, steps
