@@ -178,14 +178,13 @@ def sil_study(
         The planned bus load and, per law, the MIL and SIL figures, bus statistics, the
         injected faults' figures (``safety.measure``), the SIL record and result.
     """
-    python = {law.name: law.python_reference for law in law_registry.LAWS.values()}
     planned = plan.plan(artifact, network)
     _check_faults_against(planned, artifact, faults)
     out = _study_header(planned, bitrate, data_bitrate, real, amplifier)
     steps = bus_rounding.bus_steps([p.database for p in planned.buses], artifact)
     for law in laws:
         progress(f"      {law}: model in the loop (Python reference, its inputs as the bus carries them) …")
-        reference = partial(_rounded_reference, python[law], artifact, steps)
+        reference = partial(_rounded_reference, law, artifact, steps)
         mil, spread = rounding_spread.mil_runs(setup, law, reference, spread_runs)
         progress(
             f"      {law}: software in the loop ({real} firmware, CAN {bitrate / 1e6:g}"
@@ -204,9 +203,10 @@ def sil_study(
     return out
 
 
-def _rounded_reference(law_reference, artifact, steps):
-    """A new Python reference of a law that sees its inputs as the firmware does (bus_rounding)."""
-    return bus_rounding.Rounded(law_reference(artifact), steps)
+def _rounded_reference(law: str, artifact, steps):
+    """A new Python reference of ``law`` that sees its inputs as the firmware does (bus_rounding)."""
+    (reference,) = [entry.python_reference for entry in law_registry.LAWS.values() if entry.name == law]
+    return bus_rounding.Rounded(reference(artifact), steps)
 
 
 def fault_lines(rows: list) -> list[str]:
