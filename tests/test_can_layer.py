@@ -13,15 +13,16 @@ import numpy as np
 import pytest
 from conftest import cli_error, quiet_joint_frame, run, run_cli
 
-from smartjoint.bench import e2e, firmware, logs, rounding_spread, sil
+from smartjoint.bench import bus_rounding, e2e, firmware, logs, rounding_spread, sil
 from smartjoint.bench.amplifier import SILENT_FAULTS
 from smartjoint.bench.faults import Fault, check_faults, parse_fault
 from smartjoint.bench.loop import SilLoop, open_bus
 from smartjoint.bench.replay import replay
+from smartjoint.common import law_registry
 from smartjoint.common.errors import ModelError
 from smartjoint.design.control import artifact
 from smartjoint.design.control import study as closed_loop
-from smartjoint.design.network import protocol
+from smartjoint.design.network import plan, protocol
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "firmware" / "generated" / "controller.json"
@@ -175,6 +176,16 @@ def test_sil_matches_the_model_in_the_loop_study(bench, tmp_path):
         assert low <= difference <= high and high - low >= 0.02
         assert f["bus"]["e2e_errors"] == 0 and f["bus"]["firmware"]["timeouts"] == 0 and f["bus"]["safe_samples"] == 0
         assert f["bus"]["bus_load"] == pytest.approx(out["planned_bus_load"], rel=0.02)
+    # The MIL it is compared with sees the inputs as the firmware does, rounded to the frames'
+    # steps (bench/bus_rounding.py): the same run, number for number; the SISO law, which reads
+    # the velocity in 1e-9 m/s steps, runs differently on the unrounded inputs.
+    steps = bus_rounding.bus_steps([p.database for p in plan.plan(reference).buses], reference)
+    python = {entry.name: entry.python_reference for entry in law_registry.LAWS.values()}
+    for law in ("siso", "clqg"):
+        rounded = closed_loop.run_semi_active(setup, law, bus_rounding.Rounded(python[law](reference), steps))
+        assert np.array_equal(rounded.energy, out["mil_runs"][law].energy), law
+    unrounded = closed_loop.run_semi_active(setup, "siso", python["siso"](reference))
+    assert not np.array_equal(unrounded.energy, out["mil_runs"]["siso"].energy)
     # The log replays through the firmware bit-exactly.
     messages, problem = logs.read(tmp_path / "sil_siso.blf")
     assert problem is None
